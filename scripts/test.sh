@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# The whole test suite from a fresh machine: install dependencies, configure, build (ccache, -j2),
+# run every test. Tests that need ../shared/reference read TOPOS_REFERENCE_DIR; this script sets
+# it when that folder exists beside the checkout and the variable is unset.
+set -euo pipefail
+root="$(cd "$(dirname "$0")/.." && pwd)"
+cd "$root"
+bash scripts/setup.sh
+if [ -z "${TOPOS_REFERENCE_DIR:-}" ] && [ -d "$root/../shared/reference" ]; then
+  export TOPOS_REFERENCE_DIR="$root/../shared/reference"
+fi
+build="${TOPOS_BUILD_DIR:-$root/build}"
+jobs="${TOPOS_JOBS:-2}"
+start=$(date +%s)
+cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=Release >/dev/null
+cmake --build "$build" -j "$jobs"
+built=$(date +%s)
+# Keep BLAS/OpenMP from oversubscribing the two cores while ctest runs tests in parallel.
+export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" OPENBLAS_NUM_THREADS="${OPENBLAS_NUM_THREADS:-1}"
+ctest --test-dir "$build" --output-on-failure --no-tests=error -j "$jobs" ${TOPOS_CTEST_ARGS:-}
+echo "build: $((built - start)) s, tests: $(( $(date +%s) - built )) s"
