@@ -366,14 +366,29 @@ class CombinatorialComplex {
   /// where B = |incidence_matrix(r, via)|; entry = number of shared upper cells.
   SparseMatrix adjacency_matrix(int r, int via) const {
     if (via <= r) throw ComplexError("adjacency_matrix: via rank " + std::to_string(via) + " must be above rank " + std::to_string(r));
-    return off_diagonal_gram(unsigned_incidence(r, via));
+    std::vector<Index> group_offsets{0}, members;
+    Index current = 0;
+    for_each_inclusion(r, via, [&](Index lo, Index hi, Scalar, int) {
+      while (current < hi) { group_offsets.push_back(static_cast<Index>(members.size())); ++current; }
+      members.push_back(lo);
+    });
+    while (current < size(via)) { group_offsets.push_back(static_cast<Index>(members.size())); ++current; }
+    group_offsets.push_back(static_cast<Index>(members.size()));
+    return pair_counts(group_offsets, members, size(r));
   }
   /// Cells of rank r coadjacent through cells of rank via < r: (Bᵀ B) with the diagonal removed,
-  /// where B = |incidence_matrix(via, r)|.
+  /// where B = |incidence_matrix(via, r)|; entry = number of shared lower cells.
   SparseMatrix coadjacency_matrix(int r, int via) const {
     if (via >= r) throw ComplexError("coadjacency_matrix: via rank " + std::to_string(via) + " must be below rank " + std::to_string(r));
-    SparseMatrix bt = unsigned_incidence(via, r).transpose();
-    return off_diagonal_gram(bt);
+    // Group the upper cells (rank r) by each shared lower cell (rank via): a counting sort.
+    std::vector<std::pair<Index, Index>> inc;
+    for_each_inclusion(via, r, [&](Index lo, Index hi, Scalar, int) { inc.push_back({lo, hi}); });
+    std::vector<Index> group_offsets(static_cast<std::size_t>(size(via)) + 1, 0), members(inc.size());
+    for (auto& p : inc) ++group_offsets[static_cast<std::size_t>(p.first) + 1];
+    for (std::size_t i = 0; i + 1 < group_offsets.size(); ++i) group_offsets[i + 1] += group_offsets[i];
+    std::vector<Index> fill(group_offsets.begin(), group_offsets.end() - 1);
+    for (auto& p : inc) members[static_cast<std::size_t>(fill[static_cast<std::size_t>(p.first)]++)] = p.second;
+    return pair_counts(group_offsets, members, size(r));
   }
 
  private:
@@ -599,17 +614,23 @@ class CombinatorialComplex {
         if (p[i] > p[j]) parity = -parity;
     return parity;
   }
-  SparseMatrix unsigned_incidence(int lo, int hi) const {
+  // Counts, for every ordered pair (i, k), i != k, the groups that hold both: the off-diagonal
+  // part of the Gram matrix of the group-membership matrix, without forming the product.
+  static SparseMatrix pair_counts(const std::vector<Index>& offsets, const std::vector<Index>& members, Index n) {
     std::vector<Eigen::Triplet<Scalar, std::int64_t>> t;
-    for_each_inclusion(lo, hi, [&](Index i, Index j, Scalar, int) { t.emplace_back(i, j, Scalar(1)); });
-    SparseMatrix m(size(lo), size(hi));
+    std::size_t total = 0;
+    for (std::size_t g = 0; g + 1 < offsets.size(); ++g) {
+      const auto k = static_cast<std::size_t>(offsets[g + 1] - offsets[g]);
+      total += k * (k - 1);
+    }
+    t.reserve(total);
+    for (std::size_t g = 0; g + 1 < offsets.size(); ++g)
+      for (Index a = offsets[g]; a < offsets[g + 1]; ++a)
+        for (Index b = offsets[g]; b < offsets[g + 1]; ++b)
+          if (a != b) t.emplace_back(members[static_cast<std::size_t>(a)], members[static_cast<std::size_t>(b)], Scalar(1));
+    SparseMatrix m(n, n);
     m.setFromTriplets(t.begin(), t.end());
     return m;
-  }
-  static SparseMatrix off_diagonal_gram(const SparseMatrix& b) {
-    SparseMatrix g = (b * SparseMatrix(b.transpose())).pruned();
-    g.template prune([](std::int64_t i, std::int64_t j, Scalar) { return i != j; });
-    return g;
   }
 };
 
