@@ -1,0 +1,55 @@
+// topos/nn/aggregate.hpp
+// Aggregation of messages over a neighbourhood: gather the source rows, optionally weight them
+// by the neighbourhood's values or keep one role, and reduce per target by sum, mean or max.
+// Differentiable; targets that receive nothing get 0.
+#pragma once
+
+#include "topos/nn/complex_batch.hpp"
+
+#include <torch/torch.h>
+
+#include <string>
+
+namespace topos::nn {
+
+enum class Reduce { sum, mean, max };
+
+inline const char* to_string(Reduce r) { return r == Reduce::sum ? "sum" : (r == Reduce::mean ? "mean" : "max"); }
+
+struct AggregateOptions {
+  Reduce reduce = Reduce::sum;
+  bool weighted = false;  ///< multiply messages by the neighbourhood's values
+  int role = 0;           ///< keep only pairs of this role (0: all)
+  AggregateOptions& with_reduce(Reduce r) { reduce = r; return *this; }
+  AggregateOptions& with_weighted(bool w) { weighted = w; return *this; }
+  AggregateOptions& with_role(int r) { role = r; return *this; }
+};
+
+/// Messages from source rows `x` (num_source × C) to the n.num_target targets.
+inline torch::Tensor aggregate(const torch::Tensor& x, const TensorNeighborhood& n, const AggregateOptions& opt = {}) {
+  torch::Tensor src = n.source, tgt = n.target, w = n.values;
+  if (opt.role != 0) {
+    if (!n.roles.defined()) {
+      src = src.slice(0, 0, 0);
+      tgt = tgt.slice(0, 0, 0);
+    } else {
+      const torch::Tensor keep = n.roles.eq(opt.role).nonzero().squeeze(1);
+      src = src.index_select(0, keep);
+      tgt = tgt.index_select(0, keep);
+      if (w.defined()) w = w.index_select(0, keep);
+    }
+  }
+  torch::Tensor msg = x.index_select(0, src);
+  if (opt.weighted && w.defined()) msg = msg * w.to(msg.dtype()).unsqueeze(1);
+  auto out = torch::zeros({n.num_target, x.size(1)}, x.options());
+  if (opt.reduce == Reduce::sum) return out.index_add(0, tgt, msg);
+  if (opt.reduce == Reduce::mean) {
+    out = out.index_add(0, tgt, msg);
+    auto count = torch::zeros({n.num_target}, x.options()).index_add(0, tgt, torch::ones({tgt.size(0)}, x.options()));
+    return out / count.clamp_min(1).unsqueeze(1);
+  }
+  const auto idx = tgt.unsqueeze(1).expand_as(msg);
+  return out.scatter_reduce(0, idx, msg, "amax", /*include_self=*/false);
+}
+
+}  // namespace topos::nn

@@ -1,0 +1,397 @@
+// topos/nn/schedule.hpp
+// The schedule DSL: a message-passing network over a combinatorial complex written as data.
+//
+//   using namespace topos::nn::dsl;
+//   Schedule s;
+//   s.encode(0, "", "enc0")                                   // (rank, state) <- module(input columns)
+//    .step(into(2).msg(from(0).via("B02").map("phi02"))        // messages, mapped then reduced
+//                 .msg(from(1).via("B12").map("phi12"))
+//                 .combine(Combine::cat_self).update("psi2")   // [self, m1, m2] -> update module
+//                 .when_nonempty(3))                           // per-complex guard
+//    .parallel({into(0)..., into(4)...})                      // read one snapshot
+//    .decode(0, "", "dec0");
+//   ScheduleNetwork net(s, modules, input_channels);           // validated here
+//
+// Messages come from a (rank, state) through a named, directed neighbourhood of the batch,
+// optionally mapped by a module, then reduced (sum/mean/max, weighted or restricted to a role)
+// or concatenated by role in a fixed order. A step combines them with the target's own state
+// (concatenation or sum) and updates it with a module. Steps run in sequence; a parallel group
+// reads one snapshot. Modules are shared between steps by name and registered as
+// "modules.<name>", so checkpoints are read and written by readable, stable names.
+#pragma once
+
+#include "topos/nn/aggregate.hpp"
+#include "topos/nn/cochains.hpp"
+#include "topos/nn/complex_batch.hpp"
+#include "topos/nn/mlp.hpp"
+
+#include <torch/torch.h>
+
+#include <cstdio>
+#include <fstream>
+#include <map>
+#include <optional>
+#include <sstream>
+#include <string>
+#include <vector>
+
+namespace topos::nn {
+
+class ScheduleError : public std::invalid_argument {
+ public:
+  using std::invalid_argument::invalid_argument;
+};
+
+enum class Combine { cat_self, sum_self };
+
+struct Message {
+  CochainKey source;
+  std::string via;
+  std::string map;                 ///< module applied to source rows ("" = identity)
+  AggregateOptions agg;
+  std::vector<int> by_role;        ///< non-empty: concatenate per-role sums in this order
+  Message& with_via(std::string n) { via = std::move(n); return *this; }
+};
+
+namespace dsl {
+struct From {
+  Message m;
+  From& via(std::string n) { m.via = std::move(n); return *this; }
+  From& map(std::string module) { m.map = std::move(module); return *this; }
+  From& weighted() { m.agg.weighted = true; return *this; }
+  From& only(int role) { m.agg.role = role; return *this; }
+  From& reduce(Reduce r) { m.agg.reduce = r; return *this; }
+  From& by_role(std::vector<int> order) { m.by_role = std::move(order); return *this; }
+};
+inline From from(int rank, std::string state = "") { From f; f.m.source = {rank, std::move(state)}; return f; }
+}  // namespace dsl
+
+struct Step {
+  CochainKey target;
+  std::vector<Message> messages;
+  Combine combine = Combine::cat_self;
+  std::string update;       ///< module producing the new target state
+  int guard_rank = -1;      ///< >= 0: only complexes with at least one cell of this rank
+  std::string name;         ///< for errors and printing (default "step <i>")
+
+  Step& msg(const dsl::From& f) { messages.push_back(f.m); return *this; }
+  Step& combine_with(Combine c) { combine = c; return *this; }
+  Step& update_with(std::string module) { update = std::move(module); return *this; }
+  Step& when_nonempty(int rank) { guard_rank = rank; return *this; }
+  Step& named(std::string n) { name = std::move(n); return *this; }
+};
+
+namespace dsl {
+inline Step into(int rank, std::string state = "") { Step s; s.target = {rank, std::move(state)}; return s; }
+}  // namespace dsl
+
+struct Encoder {
+  CochainKey key;
+  std::string input;               ///< name of the input feature tensor
+  std::vector<std::int64_t> columns;  ///< empty: all, else this column order
+  std::vector<std::int64_t> negate;   ///< columns (of the input, before selection) negated
+  std::string module;
+};
+struct Decoder {
+  CochainKey key;
+  std::string module;
+  std::string output;
+};
+
+class Schedule {
+ public:
+  /// Encodes input tensor `input` into cochain (rank, state) with `module` (after column
+  /// negation, then selection).
+  Schedule& encode(int rank, std::string state, std::string input, std::string module, std::vector<std::int64_t> columns = {}, std::vector<std::int64_t> negate = {}) {
+    encoders_.push_back({{rank, std::move(state)}, std::move(input), std::move(columns), std::move(negate), std::move(module)});
+    return *this;
+  }
+  Schedule& step(Step s) {
+    if (s.name.empty()) s.name = "step " + std::to_string(num_steps_);
+    ++num_steps_;
+    groups_.push_back({std::move(s)});
+    return *this;
+  }
+  Schedule& parallel(std::vector<Step> steps) {
+    for (auto& s : steps) {
+      if (s.name.empty()) s.name = "step " + std::to_string(num_steps_);
+      ++num_steps_;
+    }
+    groups_.push_back(std::move(steps));
+    return *this;
+  }
+  Schedule& decode(int rank, std::string state, std::string module, std::string output) {
+    decoders_.push_back({{rank, std::move(state)}, std::move(module), std::move(output)});
+    return *this;
+  }
+  /// Appends `other`'s steps (encoders and decoders too) `times` times.
+  Schedule& repeat(const Schedule& other, int times = 1) {
+    for (int t = 0; t < times; ++t)
+      for (const auto& g : other.groups_) g.size() == 1 ? step(g[0]) : parallel(g);
+    return *this;
+  }
+
+  const std::vector<Encoder>& encoders() const { return encoders_; }
+  const std::vector<std::vector<Step>>& groups() const { return groups_; }
+  const std::vector<Decoder>& decoders() const { return decoders_; }
+
+  std::string str() const {
+    std::ostringstream o;
+    for (const auto& e : encoders_) o << "encode " << e.key.str() << " <- " << e.module << "(" << e.input << ")\n";
+    for (const auto& g : groups_) {
+      if (g.size() > 1) o << "parallel {\n";
+      for (const auto& s : g) {
+        o << (g.size() > 1 ? "  " : "") << s.name << ": into " << s.target.str();
+        if (s.guard_rank >= 0) o << " when rank " << s.guard_rank << " nonempty";
+        o << " = " << s.update << "(" << (s.combine == Combine::cat_self ? "cat" : "sum") << "[self";
+        for (const auto& m : s.messages) {
+          o << ", " << (m.map.empty() ? "" : m.map + "·") << m.source.str() << " via " << m.via;
+          if (!m.by_role.empty()) o << " by role";
+          else o << " " << to_string(m.agg.reduce) << (m.agg.weighted ? " weighted" : "") << (m.agg.role ? " role " + std::to_string(m.agg.role) : "");
+        }
+        o << "])\n";
+      }
+      if (g.size() > 1) o << "}\n";
+    }
+    for (const auto& d : decoders_) o << "decode " << d.key.str() << " -> " << d.module << " -> " << d.output << "\n";
+    return o.str();
+  }
+
+ private:
+  std::vector<Encoder> encoders_;
+  std::vector<std::vector<Step>> groups_;
+  std::vector<Decoder> decoders_;
+  int num_steps_ = 0;
+};
+
+/// What the network knows of the batches it will see: neighbourhood directions and input widths.
+struct ScheduleSignature {
+  std::map<std::string, std::pair<int, int>> neighborhoods;  ///< name -> (source rank, target rank)
+  std::map<std::string, std::int64_t> inputs;                 ///< input tensor name -> columns
+};
+
+/// Runs a Schedule with named Mlp modules. Validated at construction: unknown modules,
+/// neighbourhoods, ranks or states, and channel mismatches throw ScheduleError naming the step.
+class ScheduleNetworkImpl : public torch::nn::Module {
+ public:
+  ScheduleNetworkImpl(Schedule schedule, const std::map<std::string, MlpOptions>& modules, ScheduleSignature sig)
+      : schedule_(std::move(schedule)), sig_(std::move(sig)) {
+    auto dict = register_module("modules", std::make_shared<torch::nn::Module>());
+    for (const auto& [name, opt] : modules) {
+      if (name.empty() || name.find('.') != std::string::npos) throw ScheduleError("module name '" + name + "' must be non-empty and contain no '.'");
+      Mlp m(opt);
+      dict->register_module(name, m);
+      modules_.emplace(name, m);
+    }
+    validate();
+  }
+
+  /// Runs the schedule: inputs by name -> outputs by name.
+  std::map<std::string, torch::Tensor> forward(const std::map<std::string, torch::Tensor>& inputs, const ComplexBatch& batch) {
+    Cochains h = encode(inputs);
+    process(h, batch);
+    return decode(h);
+  }
+
+  Cochains encode(const std::map<std::string, torch::Tensor>& inputs) {
+    Cochains h;
+    for (const auto& e : schedule_.encoders()) {
+      auto it = inputs.find(e.input);
+      if (it == inputs.end()) throw ScheduleError("encode " + e.key.str() + ": input '" + e.input + "' was not given");
+      torch::Tensor x = it->second;
+      if (!e.negate.empty()) {
+        auto sign = torch::ones({x.size(1)}, x.options());
+        for (auto c : e.negate) sign[c] = -1;
+        x = x * sign;
+      }
+      if (!e.columns.empty()) x = x.index_select(1, torch::tensor(e.columns, torch::kLong).to(x.device()));
+      h.set(e.key.rank, e.key.state, modules_.at(e.module)->forward(x));
+    }
+    return h;
+  }
+
+  void process(Cochains& h, const ComplexBatch& batch) {
+    for (const auto& group : schedule_.groups()) {
+      const Cochains snapshot = h;
+      std::vector<std::pair<CochainKey, torch::Tensor>> updates;
+      for (const auto& s : group) updates.emplace_back(s.target, run_step(s, snapshot, batch));
+      for (auto& [k, v] : updates) h.set(k.rank, k.state, v);
+    }
+  }
+
+  std::map<std::string, torch::Tensor> decode(const Cochains& h) {
+    std::map<std::string, torch::Tensor> out;
+    for (const auto& d : schedule_.decoders()) out[d.output] = modules_.at(d.module)->forward(h.at(d.key.rank, d.key.state));
+    return out;
+  }
+
+  Mlp module(const std::string& name) const {
+    auto it = modules_.find(name);
+    if (it == modules_.end()) throw ScheduleError("no module '" + name + "'");
+    return it->second;
+  }
+  const Schedule& schedule() const { return schedule_; }
+
+ private:
+  Schedule schedule_;
+  ScheduleSignature sig_;
+  std::map<std::string, Mlp> modules_;
+
+  torch::Tensor run_step(const Step& s, const Cochains& h, const ComplexBatch& batch) {
+    const torch::Tensor& self = h.at(s.target.rank, s.target.state);
+    std::vector<torch::Tensor> parts;
+    if (s.combine == Combine::cat_self) parts.push_back(self);
+    torch::Tensor total = s.combine == Combine::sum_self ? self : torch::Tensor();
+    for (const auto& m : s.messages) {
+      torch::Tensor x = h.at(m.source.rank, m.source.state);
+      const TensorNeighborhood& n = batch.neighborhood(m.via);
+      if (!m.map.empty()) x = modules_.at(m.map)->forward(x);
+      torch::Tensor agg;
+      if (m.by_role.empty()) {
+        agg = aggregate(x, n, m.agg);
+      } else {
+        std::vector<torch::Tensor> per_role;
+        for (int r : m.by_role) per_role.push_back(aggregate(x, n, AggregateOptions(m.agg).with_role(r)));
+        agg = torch::cat(per_role, 1);
+      }
+      if (s.combine == Combine::cat_self) parts.push_back(agg);
+      else total = total + agg;
+    }
+    torch::Tensor updated = modules_.at(s.update)->forward(s.combine == Combine::cat_self ? torch::cat(parts, 1) : total);
+    if (s.guard_rank >= 0) {
+      // Per complex: does it hold a cell of the guard rank? Applied through the target's batch vector.
+      std::vector<std::int64_t> has;
+      for (auto c : batch.counts(s.guard_rank)) has.push_back(c > 0);
+      const auto active = torch::tensor(has, torch::kLong).to(self.device()).index_select(0, batch.batch(s.target.rank)).to(torch::kBool).unsqueeze(1);
+      if (updated.size(1) != self.size(1)) return updated * active.to(updated.dtype());
+      updated = torch::where(active, updated, self);
+    }
+    return updated;
+  }
+
+  // Channel inference: widths of every (rank, state) after each group, checked step by step.
+  void validate() {
+    std::map<CochainKey, std::int64_t> width;
+    auto mod = [&](const std::string& where, const std::string& name) -> const MlpOptions& {
+      auto it = modules_.find(name);
+      if (it == modules_.end()) throw ScheduleError(where + ": unknown module '" + name + "'");
+      return it->second->options;
+    };
+    for (const auto& e : schedule_.encoders()) {
+      const std::string where = "encode " + e.key.str();
+      auto in = sig_.inputs.find(e.input);
+      if (in == sig_.inputs.end()) throw ScheduleError(where + ": unknown input '" + e.input + "'");
+      for (auto c : e.columns) if (c < 0 || c >= in->second) throw ScheduleError(where + ": column " + std::to_string(c) + " out of range for input '" + e.input + "' of " + std::to_string(in->second) + " columns");
+      for (auto c : e.negate) if (c < 0 || c >= in->second) throw ScheduleError(where + ": negated column " + std::to_string(c) + " out of range");
+      const std::int64_t cols = e.columns.empty() ? in->second : static_cast<std::int64_t>(e.columns.size());
+      const auto& m = mod(where, e.module);
+      if (m.in() != cols) throw ScheduleError(where + ": module '" + e.module + "' takes " + std::to_string(m.in()) + " channels but gets " + std::to_string(cols));
+      width[e.key] = m.out();
+    }
+    for (const auto& group : schedule_.groups()) {
+      std::map<CochainKey, std::int64_t> next = width;
+      for (const auto& s : group) {
+        const std::string where = s.name + " (into " + s.target.str() + ")";
+        auto self = width.find(s.target);
+        if (self == width.end()) throw ScheduleError(where + ": target " + s.target.str() + " has no cochain (no encoder or earlier step produces it)");
+        std::int64_t cat = s.combine == Combine::cat_self ? self->second : 0;
+        for (const auto& m : s.messages) {
+          auto src = width.find(m.source);
+          if (src == width.end()) throw ScheduleError(where + ": source " + m.source.str() + " has no cochain");
+          auto n = sig_.neighborhoods.find(m.via);
+          if (n == sig_.neighborhoods.end()) throw ScheduleError(where + ": unknown neighborhood '" + m.via + "'");
+          if (n->second.first != m.source.rank || n->second.second != s.target.rank)
+            throw ScheduleError(where + ": neighborhood '" + m.via + "' goes from rank " + std::to_string(n->second.first) + " to rank " + std::to_string(n->second.second) +
+                                ", not from " + std::to_string(m.source.rank) + " to " + std::to_string(s.target.rank));
+          std::int64_t c = src->second;
+          if (!m.map.empty()) {
+            const auto& mm = mod(where, m.map);
+            if (mm.in() != c) throw ScheduleError(where + ": message module '" + m.map + "' takes " + std::to_string(mm.in()) + " channels but " + m.source.str() + " has " + std::to_string(c));
+            c = mm.out();
+          }
+          if (!m.by_role.empty()) c *= static_cast<std::int64_t>(m.by_role.size());
+          if (s.combine == Combine::cat_self) cat += c;
+          else if (c != self->second) throw ScheduleError(where + ": summed message from " + m.source.str() + " has " + std::to_string(c) + " channels, the target has " + std::to_string(self->second));
+        }
+        if (s.combine == Combine::sum_self) cat = self->second;
+        const auto& u = mod(where, s.update);
+        if (u.in() != cat) throw ScheduleError(where + ": update module '" + s.update + "' takes " + std::to_string(u.in()) + " channels but the combined input has " + std::to_string(cat));
+        if (s.guard_rank >= 0 && u.out() != self->second)
+          throw ScheduleError(where + ": a guarded step must keep the target's width (" + std::to_string(self->second) + "), its update gives " + std::to_string(u.out()));
+        next[s.target] = u.out();
+      }
+      width = std::move(next);
+    }
+    for (const auto& d : schedule_.decoders()) {
+      const std::string where = "decode " + d.key.str();
+      auto w = width.find(d.key);
+      if (w == width.end()) throw ScheduleError(where + ": no cochain to decode");
+      const auto& m = mod(where, d.module);
+      if (m.in() != w->second) throw ScheduleError(where + ": module '" + d.module + "' takes " + std::to_string(m.in()) + " channels but the cochain has " + std::to_string(w->second));
+    }
+  }
+};
+TORCH_MODULE(ScheduleNetwork);
+
+/// Saves parameters (and buffers) by name as a dict of tensors that Python's torch.load reads;
+/// written to a temporary file, then renamed, so an interrupted save leaves the old file intact.
+inline void save_parameters(const torch::nn::Module& m, const std::string& path) {
+  c10::Dict<std::string, torch::Tensor> dict;
+  for (const auto& p : m.named_parameters()) dict.insert(p.key(), p.value().detach().cpu());
+  for (const auto& b : m.named_buffers()) dict.insert(b.key(), b.value().detach().cpu());
+  const auto bytes = torch::pickle_save(c10::IValue(dict));
+  const std::string tmp = path + ".tmp";
+  {
+    std::ofstream out(tmp, std::ios::binary);
+    if (!out) throw std::runtime_error(tmp + ": cannot write");
+    out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+    if (!out) throw std::runtime_error(tmp + ": write failed");
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) throw std::runtime_error(path + ": cannot rename the temporary file into place");
+}
+
+/// Reads a dict of tensors written by save_parameters or torch.save(state_dict).
+inline std::map<std::string, torch::Tensor> read_tensor_dict(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw std::runtime_error(path + ": cannot open file");
+  std::vector<char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  c10::IValue v;
+  try {
+    v = torch::pickle_load(bytes);
+  } catch (const c10::Error& e) {
+    throw std::runtime_error(path + ": not a readable torch file: " + e.what_without_backtrace());
+  }
+  if (!v.isGenericDict()) throw std::runtime_error(path + ": does not hold a dict of tensors");
+  std::map<std::string, torch::Tensor> out;
+  for (const auto& kv : v.toGenericDict()) {
+    if (!kv.key().isString() || !kv.value().isTensor()) throw std::runtime_error(path + ": an entry is not a (name, tensor) pair");
+    out[kv.key().toStringRef()] = kv.value().toTensor();
+  }
+  return out;
+}
+
+/// Loads parameters by name; a missing, extra or misshapen tensor is an error naming it.
+inline void load_parameters(torch::nn::Module& m, const std::map<std::string, torch::Tensor>& dict, const std::string& source) {
+  torch::NoGradGuard guard;
+  std::size_t used = 0;
+  auto assign = [&](const std::string& name, torch::Tensor& target) {
+    auto it = dict.find(name);
+    if (it == dict.end()) throw std::runtime_error(source + ": missing tensor '" + name + "'");
+    if (it->second.sizes() != target.sizes()) {
+      std::ostringstream s;
+      s << source << ": tensor '" << name << "' has shape " << it->second.sizes() << ", expected " << target.sizes();
+      throw std::runtime_error(s.str());
+    }
+    target.copy_(it->second);
+    ++used;
+  };
+  for (auto& p : m.named_parameters()) assign(p.key(), p.value());
+  for (auto& b : m.named_buffers()) assign(b.key(), b.value());
+  if (used != dict.size()) {
+    for (const auto& [k, v] : dict) {
+      if (!m.named_parameters().contains(k) && !m.named_buffers().contains(k)) throw std::runtime_error(source + ": unexpected tensor '" + k + "'");
+    }
+  }
+}
+
+}  // namespace topos::nn
