@@ -50,6 +50,7 @@ struct Message {
   std::string map;                 ///< module applied to source rows ("" = identity)
   AggregateOptions agg;
   std::vector<int> by_role;        ///< non-empty: concatenate per-role sums in this order
+  bool accumulate = false;         ///< added to the previous message instead of concatenated
   Message& with_via(std::string n) { via = std::move(n); return *this; }
 };
 
@@ -75,6 +76,12 @@ struct Step {
   std::string name;         ///< for errors and printing (default "step <i>")
 
   Step& msg(const dsl::From& f) { messages.push_back(f.m); return *this; }
+  /// A message summed into the previous one (same width), e.g. r = Σ_role+ h3p + Σ_role- h3m.
+  Step& add(const dsl::From& f) {
+    messages.push_back(f.m);
+    messages.back().accumulate = true;
+    return *this;
+  }
   Step& combine_with(Combine c) { combine = c; return *this; }
   Step& update_with(std::string module) { update = std::move(module); return *this; }
   Step& when_nonempty(int rank) { guard_rank = rank; return *this; }
@@ -145,7 +152,7 @@ class Schedule {
         if (s.guard_rank >= 0) o << " when rank " << s.guard_rank << " nonempty";
         o << " = " << s.update << "(" << (s.combine == Combine::cat_self ? "cat" : "sum") << "[self";
         for (const auto& m : s.messages) {
-          o << ", " << (m.map.empty() ? "" : m.map + "·") << m.source.str() << " via " << m.via;
+          o << (m.accumulate ? " + " : ", ") << (m.map.empty() ? "" : m.map + "·") << m.source.str() << " via " << m.via;
           if (!m.by_role.empty()) o << " by role";
           else o << " " << to_string(m.agg.reduce) << (m.agg.weighted ? " weighted" : "") << (m.agg.role ? " role " + std::to_string(m.agg.role) : "");
         }
@@ -213,8 +220,9 @@ class ScheduleNetworkImpl : public torch::nn::Module {
   void process(Cochains& h, const ComplexBatch& batch) {
     for (const auto& group : schedule_.groups()) {
       const Cochains snapshot = h;
+      MapCache cache;  // a module mapped over all rows of a source is computed once per group
       std::vector<std::pair<CochainKey, torch::Tensor>> updates;
-      for (const auto& s : group) updates.emplace_back(s.target, run_step(s, snapshot, batch));
+      for (const auto& s : group) updates.emplace_back(s.target, run_step(s, snapshot, batch, cache));
       for (auto& [k, v] : updates) h.set(k.rank, k.state, v);
     }
   }
@@ -237,15 +245,31 @@ class ScheduleNetworkImpl : public torch::nn::Module {
   ScheduleSignature sig_;
   std::map<std::string, Mlp> modules_;
 
-  torch::Tensor run_step(const Step& s, const Cochains& h, const ComplexBatch& batch) {
+  using MapCache = std::map<std::pair<CochainKey, std::string>, torch::Tensor>;
+
+  torch::Tensor run_step(const Step& s, const Cochains& h, const ComplexBatch& batch, MapCache& cache) {
     const torch::Tensor& self = h.at(s.target.rank, s.target.state);
     std::vector<torch::Tensor> parts;
     if (s.combine == Combine::cat_self) parts.push_back(self);
     torch::Tensor total = s.combine == Combine::sum_self ? self : torch::Tensor();
     for (const auto& m : s.messages) {
       torch::Tensor x = h.at(m.source.rank, m.source.state);
-      const TensorNeighborhood& n = batch.neighborhood(m.via);
-      if (!m.map.empty()) x = modules_.at(m.map)->forward(x);
+      TensorNeighborhood n = batch.neighborhood(m.via);
+      if (!m.map.empty()) {
+        auto cached = cache.find({m.source, m.map});
+        if (cached != cache.end()) {
+          x = cached->second;
+        } else if (n.nnz() < x.size(0)) {
+          // Fewer pairs than source rows: map only the rows that have a receiver (the module
+          // acts row by row, so gathering first gives the same messages).
+          x = modules_.at(m.map)->forward(x.index_select(0, n.source));
+          n.source = torch::arange(n.nnz(), n.source.options());
+          n.num_source = n.nnz();
+        } else {
+          x = modules_.at(m.map)->forward(x);
+          cache.emplace(std::make_pair(m.source, m.map), x);
+        }
+      }
       torch::Tensor agg;
       if (m.by_role.empty()) {
         agg = aggregate(x, n, m.agg);
@@ -254,8 +278,14 @@ class ScheduleNetworkImpl : public torch::nn::Module {
         for (int r : m.by_role) per_role.push_back(aggregate(x, n, AggregateOptions(m.agg).with_role(r)));
         agg = torch::cat(per_role, 1);
       }
-      if (s.combine == Combine::cat_self) parts.push_back(agg);
-      else total = total + agg;
+      if (m.accumulate) {
+        if (s.combine == Combine::cat_self) parts.back() = parts.back() + agg;
+        else total = total + agg;
+      } else if (s.combine == Combine::cat_self) {
+        parts.push_back(agg);
+      } else {
+        total = total + agg;
+      }
     }
     torch::Tensor updated = modules_.at(s.update)->forward(s.combine == Combine::cat_self ? torch::cat(parts, 1) : total);
     if (s.guard_rank >= 0) {
@@ -295,6 +325,7 @@ class ScheduleNetworkImpl : public torch::nn::Module {
         auto self = width.find(s.target);
         if (self == width.end()) throw ScheduleError(where + ": target " + s.target.str() + " has no cochain (no encoder or earlier step produces it)");
         std::int64_t cat = s.combine == Combine::cat_self ? self->second : 0;
+        std::int64_t last = 0;  // width of the previous message
         for (const auto& m : s.messages) {
           auto src = width.find(m.source);
           if (src == width.end()) throw ScheduleError(where + ": source " + m.source.str() + " has no cochain");
@@ -310,6 +341,12 @@ class ScheduleNetworkImpl : public torch::nn::Module {
             c = mm.out();
           }
           if (!m.by_role.empty()) c *= static_cast<std::int64_t>(m.by_role.size());
+          if (m.accumulate) {
+            if (&m == &s.messages.front()) throw ScheduleError(where + ": an added message needs a message before it");
+            if (c != last) throw ScheduleError(where + ": added message from " + m.source.str() + " has " + std::to_string(c) + " channels, the message it is added to has " + std::to_string(last));
+            continue;
+          }
+          last = c;
           if (s.combine == Combine::cat_self) cat += c;
           else if (c != self->second) throw ScheduleError(where + ": summed message from " + m.source.str() + " has " + std::to_string(c) + " channels, the target has " + std::to_string(self->second));
         }
@@ -333,12 +370,9 @@ class ScheduleNetworkImpl : public torch::nn::Module {
 };
 TORCH_MODULE(ScheduleNetwork);
 
-/// Saves parameters (and buffers) by name as a dict of tensors that Python's torch.load reads;
-/// written to a temporary file, then renamed, so an interrupted save leaves the old file intact.
-inline void save_parameters(const torch::nn::Module& m, const std::string& path) {
-  c10::Dict<std::string, torch::Tensor> dict;
-  for (const auto& p : m.named_parameters()) dict.insert(p.key(), p.value().detach().cpu());
-  for (const auto& b : m.named_buffers()) dict.insert(b.key(), b.value().detach().cpu());
+/// Writes a dict of tensors that Python's torch.load reads, to a temporary file first, then
+/// renamed, so an interrupted save leaves the old file intact.
+inline void write_tensor_dict(const c10::Dict<std::string, torch::Tensor>& dict, const std::string& path) {
   const auto bytes = torch::pickle_save(c10::IValue(dict));
   const std::string tmp = path + ".tmp";
   {
@@ -348,6 +382,14 @@ inline void save_parameters(const torch::nn::Module& m, const std::string& path)
     if (!out) throw std::runtime_error(tmp + ": write failed");
   }
   if (std::rename(tmp.c_str(), path.c_str()) != 0) throw std::runtime_error(path + ": cannot rename the temporary file into place");
+}
+
+/// Saves parameters (and buffers) by name (write_tensor_dict).
+inline void save_parameters(const torch::nn::Module& m, const std::string& path) {
+  c10::Dict<std::string, torch::Tensor> dict;
+  for (const auto& p : m.named_parameters()) dict.insert(p.key(), p.value().detach().cpu());
+  for (const auto& b : m.named_buffers()) dict.insert(b.key(), b.value().detach().cpu());
+  write_tensor_dict(dict, path);
 }
 
 /// Reads a dict of tensors written by save_parameters or torch.save(state_dict).

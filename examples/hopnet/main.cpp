@@ -1,0 +1,148 @@
+// hopnet: the HOPNet program of topos. Subcommands: info, rollout (more with the trainer).
+// Every subcommand has --help; errors print one line and exit with status 1.
+#include "topos/core/progress.hpp"
+#include "topos/models/hopnet/rollout.hpp"
+
+#include <CLI/CLI.hpp>
+
+#include <iostream>
+
+using namespace topos;
+using namespace topos::hopnet;
+
+namespace {
+
+void write_json_atomic(const nlohmann::json& j, const std::string& path) {
+  const std::string tmp = path + ".tmp";
+  {
+    std::ofstream out(tmp);
+    if (!out) throw std::runtime_error(path + ": cannot write");
+    out << j.dump() << "\n";
+    if (!out) throw std::runtime_error(tmp + ": write failed");
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) throw std::runtime_error(path + ": cannot rename the temporary file into place");
+}
+
+struct InfoArgs {
+  std::string checkpoint;
+};
+
+int run_info(const InfoArgs& a) {
+  auto model = load_hopnet(a.checkpoint);
+  const auto dict = nn::read_tensor_dict(a.checkpoint);
+  std::cout << "checkpoint: " << a.checkpoint << "\n"
+            << "format: " << (is_reference_checkpoint(dict) ? "reference (HOPNet authors' state dict)" : "topos") << "\n"
+            << "configuration: " << model->options.to_json().dump() << "\n"
+            << "parameters: " << model->num_parameters() << "\n"
+            << "schedule:\n" << model->schedule().str();
+  return 0;
+}
+
+struct RolloutArgs {
+  std::string checkpoint, stats, scene, assets, mode = "reference", out, collisions;
+  int steps = 102, threads = 1;
+  bool no_collisions_json = false;
+};
+
+int run_rollout(const RolloutArgs& a) {
+  const FeatureMode mode = feature_mode_from_string(a.mode);
+  auto net = load_hopnet(a.checkpoint, mode);
+  net->eval();
+  const Normalizer norm(read_stats_json(a.stats));
+  MeshLibrary lib(a.assets);
+  const auto kubric = data::read_kubric_metadata(a.scene);
+  const Scene scene = make_scene(kubric, lib);
+  const auto geometry = make_geometry(scene, mode);
+  RolloutOptions opt;
+  opt.steps = a.steps;
+  if (scene.num_frames < opt.steps + 4) std::cerr << "note: the scene has " << scene.num_frames << " frames; metrics cover the first " << scene.num_frames << "\n";
+  // Reference mode takes the first step's contacts from collisions.json beside the scene, as the reference does.
+  std::filesystem::path coll = a.collisions;
+  if (coll.empty() && mode == FeatureMode::reference && !a.no_collisions_json) {
+    auto dir = std::filesystem::path(kubric.source).parent_path();
+    if (std::filesystem::exists(dir / "collisions.json")) coll = dir / "collisions.json";
+  }
+  if (!coll.empty()) {
+    const auto all = read_collisions_json(coll.string());
+    auto it = all.find(3);
+    if (it == all.end()) throw data::DataError(coll.string() + ": has no frame 3");
+    opt.first_contacts = it->second;
+  }
+  ProgressBar bar("rollout", opt.steps, "steps");
+  opt.on_step = [&](int, int) { bar.update(); };
+  const auto r = rollout(*net, norm, scene, geometry, opt);
+  bar.finish();
+  const auto m = rollout_metrics(r.poses, scene);
+  nlohmann::json j;
+  j["scene"] = kubric.source;
+  j["mode"] = to_string(mode);
+  j["checkpoint"] = a.checkpoint;
+  j["frames"] = r.num_frames();
+  j["pos_rmse"] = m.pos_rmse;
+  j["pos_mae"] = m.pos_mae;
+  j["ori_rmse"] = m.ori_rmse;
+  j["ori_mae"] = m.ori_mae;
+  j["invalid_ratio"] = r.invalid_ratio;
+  j["seconds"] = r.seconds;
+  nlohmann::json pos = nlohmann::json::array(), quat = nlohmann::json::array();
+  for (const auto& p : r.poses) {
+    nlohmann::json fp = nlohmann::json::array(), fq = nlohmann::json::array();
+    for (std::size_t o = 0; o < scene.num_objects(); ++o) {
+      if (scene.objects[o].is_floor) continue;
+      const auto i = static_cast<Eigen::Index>(o);
+      fp.push_back({p.positions(i, 0), p.positions(i, 1), p.positions(i, 2)});
+      fq.push_back({p.quaternions(i, 0), p.quaternions(i, 1), p.quaternions(i, 2), p.quaternions(i, 3)});
+    }
+    pos.push_back(fp);
+    quat.push_back(fq);
+  }
+  j["positions"] = pos;
+  j["quaternions"] = quat;
+  write_json_atomic(j, a.out);
+  std::printf("rollout: %d steps in %.3f s (%.2f ms/step), mode %s\n", opt.steps, r.seconds, 1e3 * r.seconds / opt.steps, to_string(mode));
+  std::printf("%6s %10s %10s %10s %10s\n", "frame", "pos_rmse", "pos_mae", "ori_rmse", "ori_mae");
+  for (int f : {4, 25, 50, 75, 100})
+    if (f < static_cast<int>(m.pos_rmse.size())) std::printf("%6d %10.6f %10.6f %10.3f %10.3f\n", f, m.pos_rmse[static_cast<std::size_t>(f)], m.pos_mae[static_cast<std::size_t>(f)], m.ori_rmse[static_cast<std::size_t>(f)], m.ori_mae[static_cast<std::size_t>(f)]);
+  std::printf("wrote %s\n", a.out.c_str());
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"hopnet: HOPNet (Wei & Fink) on topos: inspect checkpoints and roll out scenes"};
+  app.require_subcommand(1);
+  int threads = 1;
+  app.add_option("--threads", threads, "LibTorch intra-op threads (1 is fastest for one scene)")->capture_default_str();
+
+  InfoArgs info;
+  auto* ci = app.add_subcommand("info", "print a checkpoint's configuration, parameter count and schedule");
+  ci->add_option("--checkpoint", info.checkpoint, "a topos or reference (.pt) checkpoint")->required()->check(CLI::ExistingFile);
+
+  RolloutArgs ro;
+  auto* cr = app.add_subcommand("rollout", "autoregressive rollout of one scene with the paper's per-frame metrics");
+  cr->add_option("--checkpoint", ro.checkpoint, "model checkpoint (topos or reference .pt)")->required()->check(CLI::ExistingFile);
+  cr->add_option("--stats", ro.stats, "normalisation statistics (JSON)")->required()->check(CLI::ExistingFile);
+  cr->add_option("--scene", ro.scene, "Kubric metadata.json, or the folder holding it")->required()->check(CLI::ExistingPath);
+  cr->add_option("--assets", ro.assets, "meshes in the KuBasic layout (<shape>/collision_geometry.obj); built-in shapes when omitted");
+  cr->add_option("--mode", ro.mode, "reference (the published model's inputs) or native")->capture_default_str();
+  cr->add_option("--steps", ro.steps, "frames to predict")->capture_default_str()->check(CLI::PositiveNumber);
+  cr->add_option("--collisions", ro.collisions, "collisions.json for the first step (default: beside the scene, reference mode)");
+  cr->add_flag("--no-collisions-json", ro.no_collisions_json, "detect the first step's contacts too");
+  cr->add_option("--out", ro.out, "output JSON")->required();
+
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  try {
+    torch::set_num_threads(threads);
+    if (*ci) return run_info(info);
+    if (*cr) return run_rollout(ro);
+  } catch (const std::exception& e) {
+    std::cerr << "error: " << e.what() << "\n";
+    return 1;
+  }
+  return 1;
+}

@@ -1,0 +1,122 @@
+// topos/data/npy.hpp
+// NumPy .npy arrays (format 1.0-3.0, little-endian, C order): read into a typed buffer and
+// write atomically. Used for the reference's golden arrays and for exporting results that
+// NumPy opens with np.load. std only.
+#pragma once
+
+#include <cstdint>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace topos::data {
+
+struct NpyArray {
+  std::string dtype;                 ///< "f8", "f4", "i8", "i4", "u1", "b1"
+  std::vector<std::int64_t> shape;
+  std::vector<char> bytes;
+
+  std::int64_t size() const {
+    std::int64_t n = 1;
+    for (auto s : shape) n *= s;
+    return n;
+  }
+  /// All elements converted to T (row-major order).
+  template <class T>
+  std::vector<T> as() const {
+    std::vector<T> out(static_cast<std::size_t>(size()));
+    const auto conv = [&](auto tag) {
+      using S = decltype(tag);
+      for (std::size_t i = 0; i < out.size(); ++i) {
+        S v;
+        std::memcpy(&v, bytes.data() + i * sizeof(S), sizeof(S));
+        out[i] = static_cast<T>(v);
+      }
+    };
+    if (dtype == "f8") conv(double{});
+    else if (dtype == "f4") conv(float{});
+    else if (dtype == "i8") conv(std::int64_t{});
+    else if (dtype == "i4") conv(std::int32_t{});
+    else if (dtype == "u1" || dtype == "b1") conv(std::uint8_t{});
+    else throw std::runtime_error("npy: unsupported dtype " + dtype);
+    return out;
+  }
+};
+
+inline NpyArray read_npy(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw std::runtime_error(path + ": cannot open file");
+  char magic[8];
+  in.read(magic, 8);
+  if (!in || std::memcmp(magic, "\x93NUMPY", 6) != 0) throw std::runtime_error(path + ": not a .npy file");
+  std::uint32_t header_len = 0;
+  if (magic[6] == 1) {
+    std::uint16_t l = 0;
+    in.read(reinterpret_cast<char*>(&l), 2);
+    header_len = l;
+  } else {
+    in.read(reinterpret_cast<char*>(&header_len), 4);
+  }
+  std::string header(header_len, '\0');
+  in.read(header.data(), header_len);
+  if (!in) throw std::runtime_error(path + ": truncated header");
+  NpyArray a;
+  const auto value_of = [&](const std::string& key) {
+    const auto k = header.find("'" + key + "'");
+    if (k == std::string::npos) throw std::runtime_error(path + ": header lacks '" + key + "'");
+    return header.find(':', k) + 1;
+  };
+  {
+    auto p = header.find('\'', value_of("descr"));
+    const auto q = header.find('\'', p + 1);
+    const std::string descr = header.substr(p + 1, q - p - 1);
+    if (descr.size() < 3 || (descr[0] != '<' && descr[0] != '|')) throw std::runtime_error(path + ": unsupported dtype '" + descr + "' (little-endian only)");
+    a.dtype = descr.substr(1);
+  }
+  if (header.find("'fortran_order': True") != std::string::npos) throw std::runtime_error(path + ": Fortran-order arrays are not supported");
+  {
+    const auto p = header.find('(', value_of("shape")), q = header.find(')', p);
+    std::string dims = header.substr(p + 1, q - p - 1);
+    std::size_t pos = 0;
+    while (pos < dims.size()) {
+      const auto c = dims.find(',', pos);
+      const std::string tok = dims.substr(pos, c == std::string::npos ? std::string::npos : c - pos);
+      if (tok.find_first_not_of(' ') != std::string::npos) a.shape.push_back(std::stoll(tok));
+      if (c == std::string::npos) break;
+      pos = c + 1;
+    }
+  }
+  const std::size_t item = a.dtype == "f8" || a.dtype == "i8" ? 8 : (a.dtype == "f4" || a.dtype == "i4" ? 4 : 1);
+  a.bytes.resize(static_cast<std::size_t>(a.size()) * item);
+  in.read(a.bytes.data(), static_cast<std::streamsize>(a.bytes.size()));
+  if (!in) throw std::runtime_error(path + ": truncated data");
+  return a;
+}
+
+/// Writes a float64 array (row-major data) atomically: a temporary file, then a rename.
+inline void write_npy(const std::string& path, const std::vector<std::int64_t>& shape, const double* data) {
+  std::string dims;
+  std::int64_t n = 1;
+  for (auto s : shape) dims += std::to_string(s) + ",", n *= s;
+  if (shape.size() > 1) dims.pop_back();
+  std::string header = "{'descr': '<f8', 'fortran_order': False, 'shape': (" + dims + "), }";
+  while ((10 + header.size() + 1) % 64 != 0) header += ' ';
+  header += '\n';
+  const std::string tmp = path + ".tmp";
+  {
+    std::ofstream out(tmp, std::ios::binary);
+    if (!out) throw std::runtime_error(tmp + ": cannot write");
+    out.write("\x93NUMPY\x01\x00", 8);
+    const std::uint16_t len = static_cast<std::uint16_t>(header.size());
+    out.write(reinterpret_cast<const char*>(&len), 2);
+    out.write(header.data(), static_cast<std::streamsize>(header.size()));
+    out.write(reinterpret_cast<const char*>(data), static_cast<std::streamsize>(n * 8));
+    if (!out) throw std::runtime_error(tmp + ": write failed");
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) throw std::runtime_error(path + ": cannot rename the temporary file into place");
+}
+
+}  // namespace topos::data
