@@ -38,6 +38,21 @@ int run_info(const InfoArgs& a) {
   return 0;
 }
 
+struct InitArgs {
+  std::string out, activation = "relu", mode = "reference";
+  std::int64_t hidden = 128;
+  int mlp_layers = 2, num_layers = 1;
+  std::uint64_t seed = 0;
+};
+
+int run_init(const InitArgs& a) {
+  torch::manual_seed(a.seed);
+  Hopnet net(HopnetOptions().hidden(a.hidden).mlp_layers(a.mlp_layers).num_layers(a.num_layers).activation(nn::activation_from_string(a.activation)).mode(feature_mode_from_string(a.mode)));
+  save_hopnet(*net, a.out);
+  std::cout << "wrote " << a.out << " (" << net->num_parameters() << " parameters, PyTorch default initialisation, seed " << a.seed << ")\n";
+  return 0;
+}
+
 struct RolloutArgs {
   std::string checkpoint, stats, scene, assets, mode = "reference", out, collisions;
   int steps = 102, threads = 1;
@@ -119,6 +134,16 @@ int main(int argc, char** argv) {
   auto* ci = app.add_subcommand("info", "print a checkpoint's configuration, parameter count and schedule");
   ci->add_option("--checkpoint", info.checkpoint, "a topos or reference (.pt) checkpoint")->required()->check(CLI::ExistingFile);
 
+  InitArgs in;
+  auto* cn = app.add_subcommand("init", "write a freshly initialised model (a topos checkpoint)");
+  cn->add_option("--out", in.out, "checkpoint to write")->required();
+  cn->add_option("--hidden", in.hidden, "hidden width")->capture_default_str()->check(CLI::PositiveNumber);
+  cn->add_option("--mlp-layers", in.mlp_layers, "Linear layers per MLP")->capture_default_str()->check(CLI::PositiveNumber);
+  cn->add_option("--num-layers", in.num_layers, "message-passing layers")->capture_default_str()->check(CLI::PositiveNumber);
+  cn->add_option("--activation", in.activation, "relu, gelu, elu or selu")->capture_default_str();
+  cn->add_option("--mode", in.mode, "reference or native dual encoding")->capture_default_str();
+  cn->add_option("--seed", in.seed, "initialisation seed")->capture_default_str();
+
   RolloutArgs ro;
   auto* cr = app.add_subcommand("rollout", "autoregressive rollout of one scene with the paper's per-frame metrics");
   cr->add_option("--checkpoint", ro.checkpoint, "model checkpoint (topos or reference .pt)")->required()->check(CLI::ExistingFile);
@@ -139,6 +164,7 @@ int main(int argc, char** argv) {
   try {
     torch::set_num_threads(threads);
     if (*ci) return run_info(info);
+    if (*cn) return run_init(in);
     if (*cr) return run_rollout(ro);
   } catch (const std::exception& e) {
     std::cerr << "error: " << e.what() << "\n";

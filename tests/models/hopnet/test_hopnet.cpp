@@ -200,3 +200,199 @@ TEST_CASE("the 102-step reference rollout of MOVi-A scene 8 lands within 2% of t
   // Frames 0..3 are the ground truth.
   for (int f = 0; f < 4; ++f) REQUIRE(m.pos_rmse[static_cast<std::size_t>(f)] == 0.0);
 }
+
+namespace {
+// A built-in scene (no reference data): a cube resting on the floor, a sphere falling onto it.
+Scene builtin_scene(std::int64_t frames = 12) {
+  data::KubricScene k;
+  k.num_frames = frames;
+  k.source = "builtin";
+  const char* shapes[] = {"cube", "sphere"};
+  for (int i = 0; i < 2; ++i) {
+    data::KubricInstance in;
+    in.asset_id = in.shape = shapes[i];
+    in.size = 1.0;
+    in.mass = 1.0 + i;
+    in.friction = 0.5;
+    in.restitution = 0.5;
+    in.positions.resize(frames, 3);
+    in.quaternions.resize(frames, 4);
+    for (std::int64_t t = 0; t < frames; ++t) {
+      const double z = i == 0 ? 0.98 : 2.9 - 0.5 * 1.7e-4 * static_cast<double>(t * t) * 40;
+      in.positions.row(t) << 0.1 * i, 0.05 * i, z;
+      const double a = 0.01 * static_cast<double>(t) * i;
+      in.quaternions.row(t) << std::cos(a), 0, std::sin(a), 0;
+    }
+    k.instances.push_back(in);
+  }
+  MeshLibrary lib;
+  return make_scene(k, lib);
+}
+
+NormalizationStats unit_stats() {
+  NormalizationStats s;
+  for (const auto& [k, n] : NormalizationStats::layout()) s.mean[k].assign(n, 0.0), s.std[k].assign(n, 1.0);
+  s.mean["x4"][8] = s.mean["x4"][9] = s.std["x4"][8] = s.std["x4"][9] = 0.5;  // type columns, as spec 5 forces
+  return s;
+}
+}  // namespace
+
+TEST_CASE("normalisation statistics: population moments with the shared scales of spec 5", "[hopnet][stats]") {
+  std::mt19937 rng(5);
+  std::normal_distribution<double> nd;
+  StatsAccumulator a, b, all;
+  std::map<std::string, std::vector<RowMatrix>> seen;
+  for (int chunk = 0; chunk < 6; ++chunk) {
+    for (const auto& [k, n] : NormalizationStats::layout()) {
+      RowMatrix m(7 + chunk, static_cast<Eigen::Index>(n));
+      for (Eigen::Index i = 0; i < m.size(); ++i) m.data()[i] = 100.0 + (1.0 + static_cast<double>(i % n)) * nd(rng);
+      (chunk < 3 ? a : b).add(k, m);
+      all.add(k, m);
+      seen[k].push_back(m);
+    }
+  }
+  a.merge(b);
+  const auto s = a.finalize(), t = all.finalize();
+  for (const auto& [k, n] : NormalizationStats::layout()) {
+    // Brute force per column.
+    std::vector<double> mean(n, 0), sd(n, 0);
+    std::int64_t cnt = 0;
+    for (const auto& m : seen[k]) {
+      cnt += m.rows();
+      for (Eigen::Index r = 0; r < m.rows(); ++r)
+        for (std::size_t c = 0; c < n; ++c) mean[c] += m(r, static_cast<Eigen::Index>(c));
+    }
+    for (auto& v : mean) v /= static_cast<double>(cnt);
+    for (const auto& m : seen[k])
+      for (Eigen::Index r = 0; r < m.rows(); ++r)
+        for (std::size_t c = 0; c < n; ++c) sd[c] += std::pow(m(r, static_cast<Eigen::Index>(c)) - mean[c], 2);
+    for (auto& v : sd) v = std::sqrt(v / static_cast<double>(cnt));
+    for (std::size_t c = 0; c < n; ++c) {
+      if (!(k == "x4" && (c == 8 || c == 9))) REQUIRE(s.mean.at(k)[c] == Approx(mean[c]).epsilon(1e-12));
+      REQUIRE(s.mean.at(k)[c] == Approx(t.mean.at(k)[c]).epsilon(1e-12));
+      REQUIRE(s.std.at(k)[c] == Approx(t.std.at(k)[c]).epsilon(1e-10));
+    }
+    const auto max_of = [&](std::initializer_list<std::pair<std::size_t, std::size_t>> blocks) {
+      double mx = 0;
+      for (auto [b0, e0] : blocks)
+        for (std::size_t c = b0; c < e0; ++c) mx = std::max(mx, sd[c]);
+      return mx;
+    };
+    if (k == "x0") {
+      REQUIRE(s.std.at(k)[3] == Approx(max_of({{0, 8}})));
+      REQUIRE(s.std.at(k)[15] == Approx(max_of({{8, 16}})));
+    }
+    if (k == "x1" || k == "t0") REQUIRE(s.std.at(k)[0] == Approx(max_of({{0, n}})));
+    if (k == "x3") {
+      REQUIRE(s.std.at(k)[0] == Approx(max_of({{0, 4}})));
+      REQUIRE(s.std.at(k)[4] == Approx(max_of({{4, 8}, {16, 20}})));
+      REQUIRE(s.std.at(k)[20] == s.std.at(k)[8]);
+      REQUIRE(s.std.at(k)[27] == Approx(max_of({{12, 16}, {24, 28}})));
+    }
+    if (k == "x4") REQUIRE((s.mean.at(k)[8] == 0.5 && s.std.at(k)[9] == 0.5 && s.std.at(k)[12] == Approx(sd[12])));
+  }
+  // JSON round trip, and its errors.
+  const auto path = (fs::temp_directory_path() / "topos_stats.json").string();
+  write_stats_json(s, path);
+  const auto back = read_stats_json(path);
+  REQUIRE(back.mean == s.mean);
+  REQUIRE(back.std == s.std);
+  fs::remove(path);
+  REQUIRE_THROWS_WITH(parse_stats_json("{", "s.json"), Catch::Contains("s.json: malformed JSON"));
+  nlohmann::json j = nlohmann::json::object();
+  for (const auto& [k, n] : NormalizationStats::layout()) j[k + "_mean"] = s.mean.at(k), j[k + "_std"] = s.std.at(k);
+  auto short_x2 = j;
+  short_x2["x2_std"] = std::vector<double>{1, 1};
+  REQUIRE_THROWS_WITH(parse_stats_json(short_x2.dump(), "s.json"), Catch::Contains("'x2_std' has 2 entries, expected 3"));
+  auto no_t4 = j;
+  no_t4.erase("t4_mean");
+  REQUIRE_THROWS_WITH(parse_stats_json(no_t4.dump(), "s.json"), Catch::Contains("missing statistics 't4_mean'"));
+  auto zero = j;
+  zero["x1_std"][0] = 0.0;
+  REQUIRE_THROWS_WITH(parse_stats_json(zero.dump(), "s.json"), Catch::Contains("non-positive"));
+}
+
+TEST_CASE("the role-mixing buffer: a face that is face0 in one contact and face1 in another feeds both halves", "[hopnet]") {
+  const Scene scene = builtin_scene();
+  for (auto mode : {FeatureMode::reference, FeatureMode::native}) {
+    const auto g = make_geometry(scene, mode);
+    HopnetFrame f;
+    f.faces = {0, 1, g.face_offset[1] + 0};  // face A (obj 0), face B (obj 0), face C (obj 1)
+    f.contacts = {{0, 2}, {2, 1}};            // A–C (A is face0), C–B (C is face0 here, face1 above)
+    const auto n = hopnet_neighborhoods(g, f);
+    const auto& neg = n.at("B23neg");
+    const auto& pos = n.at("B23pos");
+    REQUIRE(neg.nnz() == 4);
+    // Pairs in order: (A,c0), (C,c0), (C,c1), (B,c1).
+    const std::vector<double> want_neg = mode == FeatureMode::reference ? std::vector<double>{1, 1, 1, 0} : std::vector<double>{1, 0, 1, 0};
+    const std::vector<double> want_pos = mode == FeatureMode::reference ? std::vector<double>{0, 1, 1, 1} : std::vector<double>{0, 1, 0, 1};
+    REQUIRE(neg.values == want_neg);
+    REQUIRE(pos.values == want_pos);
+    REQUIRE(n.at("B32").roles == std::vector<std::int8_t>{-1, 1, -1, 1});
+  }
+}
+
+TEST_CASE("HOPNet on built-in shapes: batched frames equal single frames, static forcing, rollout, bad input", "[hopnet]") {
+  torch::manual_seed(3);
+  const Scene scene = builtin_scene();
+  const Normalizer norm(unit_stats());
+  for (auto mode : {FeatureMode::reference, FeatureMode::native}) {
+    INFO(to_string(mode));
+    Hopnet net(HopnetOptions().hidden(32).mode(mode));
+    net->eval();
+    const std::int64_t D = 32;
+    const auto mlp = [&](std::int64_t in, std::int64_t out, bool ln) { return in * D + D + D * out + out + (ln ? 2 * out : 0); };
+    std::int64_t want = 0;
+    for (std::int64_t in : {16, 8, 3, 28, 13}) want += mlp(in, D, true);
+    for (std::int64_t in : {D, D, D, D, D, D, D, 4 * D, 3 * D, 2 * D, 2 * D, 2 * D, 2 * D}) want += mlp(in, D, true);
+    want += 2 * mlp(D, 3, false);
+    REQUIRE(net->num_parameters() == want);
+    const auto g = make_geometry(scene, mode);
+    std::vector<HopnetFrame> frames;
+    for (std::int64_t t = 2; t < 10; ++t)
+      frames.push_back(build_frame(g, scene_poses(scene, 0), scene_poses(scene, t - 2), scene_poses(scene, t - 1), scene_poses(scene, t), detect_contacts(g, pose_objects(g, scene_poses(scene, t)), 0.1)));
+    std::int64_t with_contacts = 0;
+    for (const auto& f : frames) with_contacts += f.num_contacts() > 0;
+    REQUIRE(with_contacts > 0);                               // the cube sits on the floor
+    std::vector<std::pair<const HopnetGeometry*, const HopnetFrame*>> all;
+    for (const auto& f : frames) all.push_back({&g, &f});
+    torch::NoGradGuard ng;
+    const auto batched = net->forward(make_batch(all, norm), norm);
+    std::int64_t row = 0;
+    for (const auto& f : frames) {
+      const auto one = net->forward(make_batch({{&g, &f}}, norm), norm);
+      REQUIRE(torch::allclose(one.a0, batched.a0.slice(0, row, row + g.num_nodes()), 1e-5, 1e-6));
+      row += g.num_nodes();
+      // The floor (last object, last 4 nodes) gets exactly the normalised zero acceleration.
+      REQUIRE(torch::equal(one.a4[2], norm.zero_object_acceleration()));
+      REQUIRE(torch::equal(one.a0[g.num_nodes() - 1], norm.zero_node_acceleration()));
+    }
+    RolloutOptions opt;
+    opt.steps = 6;
+    const auto r = rollout(*net, norm, scene, g, opt);
+    REQUIRE(r.num_frames() == 10);
+    REQUIRE(r.poses[9].positions.row(2).norm() == 0.0);  // the floor never moves
+    const auto m = rollout_metrics(r.poses, scene);
+    REQUIRE(m.pos_rmse[3] == 0.0);
+    REQUIRE(std::isfinite(m.pos_rmse[9]));
+    // Bad input.
+    Poses nan_pose = scene_poses(scene, 3);
+    nan_pose.positions(0, 1) = std::nan("");
+    REQUIRE_THROWS_WITH(pose_objects(g, nan_pose), Catch::Contains("not finite"));
+    REQUIRE_THROWS_WITH(build_frame(g, scene_poses(scene, 0), scene_poses(scene, 1), scene_poses(scene, 2), scene_poses(scene, 3), {{0, 9999, 1, 0}}), Catch::Contains("does not exist"));
+    REQUIRE_THROWS_WITH(build_frame(g, scene_poses(scene, 0), scene_poses(scene, 1), scene_poses(scene, 2), scene_poses(scene, 3), {{0, 0, 0, 1}}), Catch::Contains("not valid"));
+    RolloutOptions none;
+    none.steps = 0;
+    REQUIRE_THROWS(rollout(*net, norm, scene, g, none));
+  }
+  REQUIRE_THROWS_WITH(feature_mode_from_string("fast"), Catch::Contains("unknown mode 'fast'"));
+  // A file that is not a checkpoint, and a dict without HOPNet tensors.
+  const auto junk = (fs::temp_directory_path() / "topos_junk.pt").string();
+  { std::ofstream(junk) << "not a torch file"; }
+  REQUIRE_THROWS_WITH(load_hopnet(junk), Catch::Contains("not a readable torch file"));
+  c10::Dict<std::string, torch::Tensor> d;
+  d.insert("weight", torch::zeros({2}));
+  nn::write_tensor_dict(d, junk);
+  REQUIRE_THROWS_WITH(load_hopnet(junk), Catch::Contains("neither a topos nor a reference HOPNet checkpoint"));
+  fs::remove(junk);
+}

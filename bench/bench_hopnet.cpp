@@ -1,0 +1,87 @@
+// HOPNet on MOVi-A scene 8 with the published modela weights (TOPOS_REFERENCE_DIR must point
+// at the shared reference folder): one forward pass, one whole rollout step (contacts,
+// features, forward, shape matching), and the 102-step rollout, in reference and native modes.
+// Issue bars (2 cores): forward <= 3 ms, step <= 5 ms, rollout <= 0.6 s; the Python reference
+// takes 8-10 ms, 181 ms and 18.5 s. Threads: 1 intra-op thread (set below), the fastest here.
+#include <benchmark/benchmark.h>
+
+#include "topos/models/hopnet/rollout.hpp"
+
+#include <cstdlib>
+
+using namespace topos;
+using namespace topos::hopnet;
+
+namespace {
+struct Setup {
+  std::string ref;
+  Scene scene;
+  Normalizer norm;
+  std::vector<ContactCandidate> first;
+  explicit Setup() {
+    const char* d = std::getenv("TOPOS_REFERENCE_DIR");
+    if (!d) throw std::runtime_error("set TOPOS_REFERENCE_DIR to the shared reference folder");
+    ref = d;
+    MeshLibrary lib(ref + "/data/kubasic");
+    scene = make_scene(data::read_kubric_metadata(ref + "/data/movi-a/8"), lib);
+    norm = Normalizer(read_stats_json(ref + "/data/normalization/movia.json"));
+    first = read_collisions_json(ref + "/data/movi-a/8/collisions.json").at(3);
+  }
+  Hopnet model(FeatureMode m) const {
+    auto net = load_hopnet(ref + "/data/checkpoints/modela_seed2_e39.pt", m);
+    net->eval();
+    return net;
+  }
+};
+const Setup& setup() {
+  static Setup s;
+  return s;
+}
+
+void BM_forward(benchmark::State& state) {
+  torch::set_num_threads(1);
+  const auto mode = static_cast<FeatureMode>(state.range(0));
+  const auto& S = setup();
+  auto net = S.model(mode);
+  const auto g = make_geometry(S.scene, mode);
+  // The frame at t = 100 (47 faces, 49 contacts in reference mode).
+  const auto frame = build_frame(g, scene_poses(S.scene, 0), scene_poses(S.scene, 98), scene_poses(S.scene, 99), scene_poses(S.scene, 100),
+                                 detect_contacts(g, pose_objects(g, scene_poses(S.scene, 100)), 0.1));
+  const auto batch = make_batch({{&g, &frame}}, S.norm);
+  torch::NoGradGuard ng;
+  for (auto _ : state) benchmark::DoNotOptimize(net->forward(batch, S.norm).a0);
+  state.counters["faces"] = static_cast<double>(frame.num_faces());
+  state.counters["contacts"] = static_cast<double>(frame.num_contacts());
+}
+BENCHMARK(BM_forward)->Arg(0)->Arg(1)->ArgName("native")->Unit(benchmark::kMillisecond);
+
+void BM_rollout_step(benchmark::State& state) {
+  torch::set_num_threads(1);
+  const auto mode = static_cast<FeatureMode>(state.range(0));
+  const auto& S = setup();
+  auto net = S.model(mode);
+  const auto g = make_geometry(S.scene, mode);
+  const Poses p0 = scene_poses(S.scene, 0), p98 = scene_poses(S.scene, 98), p99 = scene_poses(S.scene, 99), p100 = scene_poses(S.scene, 100);
+  for (auto _ : state) {
+    const auto contacts = detect_contacts(g, pose_objects(g, p100), 0.1);
+    benchmark::DoNotOptimize(predict_next(*net, S.norm, g, p0, p98, p99, p100, contacts).positions.data());
+  }
+}
+BENCHMARK(BM_rollout_step)->Arg(0)->Arg(1)->ArgName("native")->Unit(benchmark::kMillisecond);
+
+void BM_rollout_102(benchmark::State& state) {
+  torch::set_num_threads(1);
+  const auto mode = static_cast<FeatureMode>(state.range(0));
+  const auto& S = setup();
+  auto net = S.model(mode);
+  const auto g = make_geometry(S.scene, mode);
+  RolloutOptions opt;
+  if (mode == FeatureMode::reference) opt.first_contacts = S.first;
+  double pos100 = 0;
+  for (auto _ : state) pos100 = rollout_metrics(rollout(*net, S.norm, S.scene, g, opt).poses, S.scene).pos_rmse[100];
+  state.counters["pos_rmse_100"] = pos100;
+}
+BENCHMARK(BM_rollout_102)->Arg(0)->Arg(1)->ArgName("native")->Unit(benchmark::kMillisecond)->MinTime(2.0);
+}  // namespace
+
+BENCHMARK_MAIN();
