@@ -322,13 +322,21 @@ class CombinatorialComplex {
   SparseMatrix incidence_matrix(int r, int s) const {
     if (r == s) throw ComplexError("incidence_matrix: ranks must differ (got " + std::to_string(r) + " twice)");
     const int lo = std::min(r, s), hi = std::max(r, s);
-    std::vector<Eigen::Triplet<Scalar, std::int64_t>> t;
+    // The visit order (upper cells in order, lower ids ascending) is the CSR of the hi × lo
+    // matrix: fill it directly; the lo × hi one is its transpose (Eigen's counting sort).
+    std::vector<std::int64_t> outer(static_cast<std::size_t>(size(hi)) + 1, 0), inner;
+    std::vector<Scalar> values;
+    inner.reserve(static_cast<std::size_t>(size(hi)) * 3);
+    values.reserve(static_cast<std::size_t>(size(hi)) * 3);
     for_each_inclusion(lo, hi, [&](Index i, Index j, Scalar v, int) {
-      if (r < s) t.emplace_back(i, j, v); else t.emplace_back(j, i, v);
+      inner.push_back(i);
+      values.push_back(v);
+      ++outer[static_cast<std::size_t>(j) + 1];
     });
-    SparseMatrix m(size(r), size(s));
-    m.setFromTriplets(t.begin(), t.end());
-    return m;
+    for (std::size_t j = 0; j + 1 < outer.size(); ++j) outer[j + 1] += outer[j];
+    const Eigen::Map<const SparseMatrix> up(size(hi), size(lo), static_cast<std::int64_t>(inner.size()), outer.data(), inner.data(), values.data());
+    if (r > s) return SparseMatrix(up);
+    return SparseMatrix(up.transpose());
   }
 
   /// Signed incidence between simplicial cells of rank r and r+1 (cells of k+1 nodes at rank k),
@@ -617,20 +625,37 @@ class CombinatorialComplex {
   // Counts, for every ordered pair (i, k), i != k, the groups that hold both: the off-diagonal
   // part of the Gram matrix of the group-membership matrix, without forming the product.
   static SparseMatrix pair_counts(const std::vector<Index>& offsets, const std::vector<Index>& members, Index n) {
-    std::vector<Eigen::Triplet<Scalar, std::int64_t>> t;
-    std::size_t total = 0;
-    for (std::size_t g = 0; g + 1 < offsets.size(); ++g) {
-      const auto k = static_cast<std::size_t>(offsets[g + 1] - offsets[g]);
-      total += k * (k - 1);
+    // Invert the membership (cell -> its groups) by a counting sort, then emit each row's
+    // co-members sorted and counted: CSR directly, no triplet sort.
+    std::vector<Index> gstart(static_cast<std::size_t>(n) + 1, 0), groups(members.size());
+    for (Index m : members) ++gstart[static_cast<std::size_t>(m) + 1];
+    for (std::size_t i = 0; i + 1 < gstart.size(); ++i) gstart[i + 1] += gstart[i];
+    {
+      std::vector<Index> fill(gstart.begin(), gstart.end() - 1);
+      for (std::size_t g = 0; g + 1 < offsets.size(); ++g)
+        for (Index a = offsets[g]; a < offsets[g + 1]; ++a) groups[static_cast<std::size_t>(fill[static_cast<std::size_t>(members[static_cast<std::size_t>(a)])]++)] = static_cast<Index>(g);
     }
-    t.reserve(total);
-    for (std::size_t g = 0; g + 1 < offsets.size(); ++g)
-      for (Index a = offsets[g]; a < offsets[g + 1]; ++a)
-        for (Index b = offsets[g]; b < offsets[g + 1]; ++b)
-          if (a != b) t.emplace_back(members[static_cast<std::size_t>(a)], members[static_cast<std::size_t>(b)], Scalar(1));
-    SparseMatrix m(n, n);
-    m.setFromTriplets(t.begin(), t.end());
-    return m;
+    std::vector<std::int64_t> outer(static_cast<std::size_t>(n) + 1, 0), inner;
+    std::vector<Scalar> values;
+    std::vector<Index> row;
+    for (Index i = 0; i < n; ++i) {
+      row.clear();
+      for (Index k = gstart[static_cast<std::size_t>(i)]; k < gstart[static_cast<std::size_t>(i) + 1]; ++k) {
+        const auto g = static_cast<std::size_t>(groups[static_cast<std::size_t>(k)]);
+        for (Index a = offsets[g]; a < offsets[g + 1]; ++a)
+          if (members[static_cast<std::size_t>(a)] != i) row.push_back(members[static_cast<std::size_t>(a)]);
+      }
+      std::sort(row.begin(), row.end());
+      for (std::size_t a = 0; a < row.size();) {
+        std::size_t b = a;
+        while (b < row.size() && row[b] == row[a]) ++b;
+        inner.push_back(row[a]);
+        values.push_back(static_cast<Scalar>(b - a));
+        a = b;
+      }
+      outer[static_cast<std::size_t>(i) + 1] = static_cast<std::int64_t>(inner.size());
+    }
+    return SparseMatrix(Eigen::Map<const SparseMatrix>(n, n, static_cast<std::int64_t>(inner.size()), outer.data(), inner.data(), values.data()));
   }
 };
 

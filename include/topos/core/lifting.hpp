@@ -25,14 +25,17 @@ class FlatKeyMap {
  public:
   explicit FlatKeyMap(std::size_t expected) {
     std::size_t cap = 16;
-    while (cap < 2 * expected) cap *= 2;
+    int bits = 4;
+    while (cap < 2 * expected) cap *= 2, ++bits;
+    shift_ = 64 - bits;
     keys_.assign(cap, 0);
     vals_.resize(cap);
   }
   /// Returns (value, inserted): the existing value, or `v` newly stored.
   std::pair<std::int64_t, bool> emplace(std::uint64_t key, std::int64_t v) {
-    std::uint64_t h = key * 0x9e3779b97f4a7c15ULL;
-    std::size_t i = static_cast<std::size_t>(h >> 20) & (keys_.size() - 1);
+    // Fibonacci hashing: the product's top bits (the low ones repeat the keys' patterns).
+    std::uint64_t x = key ^ (key >> 29);
+    std::size_t i = static_cast<std::size_t>((x * 0x9e3779b97f4a7c15ULL) >> shift_);
     while (keys_[i] != 0) {
       if (keys_[i] == key) return {vals_[i], false};
       i = (i + 1) & (keys_.size() - 1);
@@ -47,6 +50,7 @@ class FlatKeyMap {
   std::vector<std::uint64_t> keys_;
   std::vector<std::int64_t> vals_;
   std::size_t size_ = 0;
+  int shift_ = 60;
 };
 }  // namespace detail
 
