@@ -4,7 +4,8 @@
 //   uv_sphere(8, 8)   radius 1, 58 vertices, 112 faces;
 //   box_mesh(3)       cube [-1,1]^3, each side a 3x3 grid: 56 vertices, 108 faces;
 //   cylinder_mesh(20, 3)  radius 1, z in [-1,1], 3 rings of 20 plus 2 cap centres: 62 vertices, 120 faces.
-// The same scale convention as KuBasic (a `size` multiplies the mesh). Std + Eigen only.
+// builtin_shape() halves them to KuBasic's ±0.5 convention (a `size` multiplies the mesh).
+// Std + Eigen only.
 #pragma once
 
 #include "topos/core/triangle_mesh.hpp"
@@ -122,12 +123,18 @@ inline TriangleMesh cylinder_mesh(int segments = 20, int rings = 3) {
   return m;
 }
 
-/// The built-in shape by name ("sphere", "cube", "cylinder"); throws MeshError otherwise.
+/// The built-in shape by name ("sphere", "cube", "cylinder") at KuBasic's scale: inside
+/// [-0.5, 0.5]^3 like the KuBasic meshes, so `size` means the same (edge, diameter).
+/// Throws MeshError for other names.
 inline TriangleMesh builtin_shape(const std::string& name) {
-  if (name == "sphere") return uv_sphere();
-  if (name == "cube") return box_mesh();
-  if (name == "cylinder") return cylinder_mesh();
-  throw MeshError("unknown built-in shape '" + name + "' (known: sphere, cube, cylinder)");
+  TriangleMesh m;
+  if (name == "sphere") m = uv_sphere();
+  else if (name == "cube") m = box_mesh();
+  else if (name == "cylinder") m = cylinder_mesh();
+  else throw MeshError("unknown built-in shape '" + name + "' (known: sphere, cube, cylinder)");
+  m.vertices *= 0.5;
+  m.name = name;
+  return m;
 }
 
 }  // namespace topos
