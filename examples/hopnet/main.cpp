@@ -3,7 +3,7 @@
 #include "topos/core/progress.hpp"
 #include "topos/data/dataset.hpp"
 #include "topos/data/movi_generator.hpp"
-#include "topos/models/hopnet/rollout.hpp"
+#include "topos/models/hopnet/training.hpp"
 
 #include <CLI/CLI.hpp>
 
@@ -11,6 +11,7 @@
 #include <unistd.h>
 
 #include <iostream>
+#include <numeric>
 #include <thread>
 
 using namespace topos;
@@ -132,6 +133,299 @@ int run_generate(const GenerateArgs& a) {
   return 0;
 }
 
+// ---- train ----------------------------------------------------------------------------------
+struct TrainArgs {
+  std::string data, out, assets, stats, mode = "native", activation = "relu";
+  std::int64_t max_steps = -1, hidden = 128;
+  int epochs = 40, mlp_layers = 2, num_layers = 1, max_frames = 0;
+  double lr = 1e-4, lr_decay = 0.0, min_z_collision_velocity = 0.0;
+  std::uint64_t seed = 0;
+  bool resume = false;
+};
+
+struct LoadedScene {
+  std::int64_t id;
+  Scene scene;
+  HopnetGeometry geometry;
+  TrajectoryFrames frames;
+};
+
+std::vector<LoadedScene> load_scenes(const std::string& root, const std::vector<std::int64_t>& ids, const std::string& assets, FeatureMode mode, int max_frames, double mzcv, const char* label) {
+  MeshLibrary lib(assets);
+  std::vector<LoadedScene> out;
+  ProgressBar bar(label, static_cast<std::int64_t>(ids.size()), "scenes");
+  for (auto id : ids) {
+    auto k = data::read_kubric_metadata(std::filesystem::path(root) / std::to_string(id));
+    LoadedScene ls{id, make_scene(k, lib), {}, {}};
+    if (max_frames > 0 && ls.scene.num_frames > max_frames) {
+      ls.scene.num_frames = max_frames;
+      ls.scene.positions.conservativeResize(max_frames, Eigen::NoChange);
+      ls.scene.quaternions.conservativeResize(max_frames, Eigen::NoChange);
+    }
+    out.push_back(std::move(ls));
+    auto& b = out.back();
+    b.geometry = make_geometry(b.scene, mode);
+    for (auto& o : b.geometry.objects) o = &b.scene.objects[static_cast<std::size_t>(&o - b.geometry.objects.data())];
+    b.frames = trajectory_frames(b.scene, b.geometry, 0.1, mzcv);
+    bar.update();
+  }
+  return out;
+}
+
+int run_train(const TrainArgs& a) {
+  namespace fs = std::filesystem;
+  const FeatureMode mode = feature_mode_from_string(a.mode);
+  const auto ids = data::list_scenes(a.data);
+  const auto split = data::reference_split(ids);
+  if (split.train.empty()) throw data::DataError(a.data + ": no training scenes");
+  fs::create_directories(a.out);
+  std::printf("train: %zu scenes (%zu train, %zu val), mode %s\n", ids.size(), split.train.size(), split.val.size(), to_string(mode));
+  auto train = load_scenes(a.data, split.train, a.assets, mode, a.max_frames, a.min_z_collision_velocity, "features (train)");
+  auto val = load_scenes(a.data, split.val, a.assets, mode, a.max_frames, a.min_z_collision_velocity, "features (val)");
+  NormalizationStats stats;
+  const auto stats_path = (fs::path(a.out) / "stats.json").string();
+  if (!a.stats.empty()) {
+    stats = read_stats_json(a.stats);
+  } else if (a.resume && fs::exists(stats_path)) {
+    stats = read_stats_json(stats_path);
+  } else {
+    StatsAccumulator acc;
+    for (const auto& s : train) accumulate_stats(acc, s.frames);
+    stats = acc.finalize();
+  }
+  write_stats_json(stats, stats_path);
+  const Normalizer norm(stats);
+  const torch::Device device = torch::cuda::is_available() ? torch::kCUDA : torch::kCPU;
+  std::vector<TrainingItem> items, val_items;
+  for (const auto& s : train) items.push_back(make_training_item(s.geometry, s.frames, norm).to(device));
+  for (const auto& s : val) val_items.push_back(make_training_item(s.geometry, s.frames, norm).to(device));
+
+  torch::manual_seed(a.seed);
+  const auto ckpt = (fs::path(a.out) / "checkpoint.pt").string(), opt_path = (fs::path(a.out) / "optimizer.pt").string(), state_path = (fs::path(a.out) / "state.json").string();
+  Hopnet model(HopnetOptions().hidden(a.hidden).mlp_layers(a.mlp_layers).num_layers(a.num_layers).activation(nn::activation_from_string(a.activation)).mode(mode));
+  int start_epoch = 0;
+  std::int64_t step = 0;
+  const bool resuming = a.resume && fs::exists(state_path);
+  if (resuming) load_checkpoint(*model, nn::read_tensor_dict(ckpt), ckpt);
+  model->to(device);
+  torch::optim::Adam opt(model->parameters(), torch::optim::AdamOptions(a.lr));
+  if (resuming) {
+    torch::load(opt, opt_path);
+    std::ifstream in(state_path);
+    const auto st = nlohmann::json::parse(in);
+    start_epoch = st.at("epoch").get<int>();
+    step = st.at("step").get<std::int64_t>();
+    std::printf("resuming after epoch %d (step %lld)\n", start_epoch, static_cast<long long>(step));
+  }
+  std::printf("model: %lld parameters, device %s\n", static_cast<long long>(model->num_parameters()), device.str().c_str());
+  std::ofstream steps_csv(fs::path(a.out) / "steps.csv", a.resume ? std::ios::app : std::ios::trunc);
+  std::ofstream epochs_csv(fs::path(a.out) / "epochs.csv", a.resume ? std::ios::app : std::ios::trunc);
+  if (!a.resume || step == 0) {
+    steps_csv << "epoch,step,scene,loss,seconds_per_step,timesteps_per_second\n";
+    epochs_csv << "epoch,train_loss,val_loss,seconds,lr\n";
+  }
+  const std::int64_t total_steps = a.max_steps >= 0 ? std::min<std::int64_t>(a.max_steps, static_cast<std::int64_t>(a.epochs) * static_cast<std::int64_t>(items.size()))
+                                                    : static_cast<std::int64_t>(a.epochs) * static_cast<std::int64_t>(items.size());
+  ProgressBar bar("train", total_steps, "steps");
+  bar.resume_from(std::min(step, total_steps));
+  for (int epoch = start_epoch; epoch < a.epochs && step < total_steps; ++epoch) {
+    const double lr = a.lr * (a.lr_decay > 0 ? std::pow(a.lr_decay, epoch) : 1.0);
+    for (auto& g : opt.param_groups()) static_cast<torch::optim::AdamOptions&>(g.options()).lr(lr);
+    std::vector<std::size_t> order(items.size());
+    std::iota(order.begin(), order.end(), 0);
+    std::shuffle(order.begin(), order.end(), std::mt19937(static_cast<std::uint32_t>(a.seed * 1000 + static_cast<std::uint64_t>(epoch))));
+    const auto t_epoch = std::chrono::steady_clock::now();
+    double sum = 0;
+    int n = 0;
+    model->train();
+    for (auto i : order) {
+      if (step >= total_steps) break;
+      const auto t0 = std::chrono::steady_clock::now();
+      opt.zero_grad();
+      auto loss = trajectory_loss(*model, items[i], norm);
+      loss.backward();
+      opt.step();
+      const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      const double l = loss.item<double>() / static_cast<double>(items[i].timesteps);
+      sum += l, ++n, ++step;
+      steps_csv << epoch << "," << step << "," << train[i].id << "," << l << "," << secs << "," << items[i].timesteps / secs << "\n";
+      char status[96];
+      std::snprintf(status, sizeof status, "epoch %d loss %.4f %.0f timesteps/s", epoch + 1, l, items[i].timesteps / secs);
+      bar.update(1, status);
+    }
+    steps_csv.flush();
+    double vl = 0;
+    {
+      torch::NoGradGuard ng;
+      model->eval();
+      for (const auto& v : val_items) vl += trajectory_loss(*model, v, norm).item<double>() / static_cast<double>(v.timesteps);
+      if (!val_items.empty()) vl /= static_cast<double>(val_items.size());
+    }
+    const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_epoch).count();
+    epochs_csv << epoch + 1 << "," << (n ? sum / n : 0.0) << "," << vl << "," << secs << "," << lr << "\n";
+    epochs_csv.flush();
+    model->to(torch::kCPU);
+    save_hopnet(*model, ckpt);
+    model->to(device);
+    torch::save(opt, opt_path + ".tmp");
+    fs::rename(opt_path + ".tmp", opt_path);
+    write_json_atomic({{"epoch", epoch + 1}, {"step", step}}, state_path);
+  }
+  bar.finish();
+  std::printf("trained %lld steps; checkpoint %s, statistics %s\n", static_cast<long long>(step), ckpt.c_str(), stats_path.c_str());
+  return 0;
+}
+
+// ---- evaluate ---------------------------------------------------------------------------------
+struct EvaluateArgs {
+  std::string checkpoint, stats, data, assets, split = "test", mode = "reference", out;
+  int steps = 102;
+};
+
+// Constant velocity: positions and rotations keep their last per-frame change.
+std::vector<Poses> constant_velocity(const Scene& s, int frames) {
+  std::vector<Poses> p;
+  for (int t = 0; t < 4; ++t) p.push_back(scene_poses(s, t));
+  while (static_cast<int>(p.size()) < frames) {
+    const auto& a = p[p.size() - 2];
+    const auto& b = p.back();
+    Poses n = b;
+    for (Eigen::Index o = 0; o < n.positions.rows(); ++o) {
+      n.positions.row(o) = 2 * b.positions.row(o) - a.positions.row(o);
+      const Eigen::Quaterniond qa(a.quaternions(o, 0), a.quaternions(o, 1), a.quaternions(o, 2), a.quaternions(o, 3));
+      const Eigen::Quaterniond qb(b.quaternions(o, 0), b.quaternions(o, 1), b.quaternions(o, 2), b.quaternions(o, 3));
+      const Eigen::Quaterniond qn = (qb * qa.inverse() * qb).normalized();
+      n.quaternions.row(o) << qn.w(), qn.x(), qn.y(), qn.z();
+    }
+    p.push_back(n);
+  }
+  return p;
+}
+
+std::string svg_plot(const std::vector<std::pair<std::string, std::vector<double>>>& series, const std::string& ylabel) {
+  const double W = 640, H = 360, L = 60, B = 40;
+  double ymax = 1e-12;
+  std::size_t n = 0;
+  for (const auto& [name, v] : series) {
+    n = std::max(n, v.size());
+    for (double y : v) if (std::isfinite(y)) ymax = std::max(ymax, y);
+  }
+  std::ostringstream o;
+  o << "<svg xmlns='http://www.w3.org/2000/svg' width='" << W << "' height='" << H << "' font-family='sans-serif' font-size='12'>\n";
+  o << "<rect width='100%' height='100%' fill='white'/>\n<line x1='" << L << "' y1='" << H - B << "' x2='" << W - 10 << "' y2='" << H - B << "' stroke='black'/>\n";
+  o << "<line x1='" << L << "' y1='10' x2='" << L << "' y2='" << H - B << "' stroke='black'/>\n";
+  o << "<text x='" << W / 2 << "' y='" << H - 8 << "' text-anchor='middle'>frame</text>\n<text x='12' y='" << H / 2 << "' transform='rotate(-90 12 " << H / 2 << ")' text-anchor='middle'>" << ylabel << "</text>\n";
+  o << "<text x='" << L - 4 << "' y='14' text-anchor='end'>" << ymax << "</text><text x='" << L - 4 << "' y='" << H - B << "' text-anchor='end'>0</text><text x='" << W - 10 << "' y='" << H - B + 14 << "' text-anchor='end'>" << n - 1 << "</text>\n";
+  const char* colors[] = {"#1f77b4", "#d62728", "#2ca02c", "#9467bd"};
+  int k = 0;
+  for (const auto& [name, v] : series) {
+    o << "<polyline fill='none' stroke='" << colors[k % 4] << "' stroke-width='2' points='";
+    for (std::size_t i = 0; i < v.size(); ++i)
+      if (std::isfinite(v[i])) o << L + (W - 10 - L) * static_cast<double>(i) / static_cast<double>(std::max<std::size_t>(n - 1, 1)) << "," << (H - B) - (H - B - 10) * v[i] / ymax << " ";
+    o << "'/>\n<text x='" << L + 10 << "' y='" << 24 + 16 * k << "' fill='" << colors[k % 4] << "'>" << name << "</text>\n";
+    ++k;
+  }
+  o << "</svg>\n";
+  return o.str();
+}
+
+int run_evaluate(const EvaluateArgs& a) {
+  namespace fs = std::filesystem;
+  const FeatureMode mode = feature_mode_from_string(a.mode);
+  auto net = load_hopnet(a.checkpoint, mode);
+  net->eval();
+  const Normalizer norm(read_stats_json(a.stats));
+  const auto ids = data::list_scenes(a.data);
+  std::vector<std::int64_t> chosen;
+  if (a.split == "all") chosen = ids;
+  else if (a.split == "test") chosen = data::reference_split(ids).test;
+  else throw data::DataError("unknown split '" + a.split + "' (test, all)");
+  if (chosen.empty()) throw data::DataError(a.data + ": the " + a.split + " split is empty");
+  fs::create_directories(a.out);
+  MeshLibrary lib(a.assets);
+  const std::vector<int> horizons{25, 50, 75, 100};
+  std::map<std::string, std::map<int, std::vector<double>>> per;  // "model.pos_rmse" -> frame -> values
+  std::map<std::string, std::vector<double>> curve_sum;
+  std::vector<int> curve_n;
+  ProgressBar bar("evaluate", static_cast<std::int64_t>(chosen.size()), "scenes");
+  double seconds = 0;
+  for (auto id : chosen) {
+    const Scene scene = make_scene(data::read_kubric_metadata(fs::path(a.data) / std::to_string(id)), lib);
+    const auto g = make_geometry(scene, mode);
+    RolloutOptions opt;
+    opt.steps = static_cast<int>(std::min<std::int64_t>(a.steps, scene.num_frames - 4));
+    const auto r = rollout(*net, norm, scene, g, opt);
+    seconds += r.seconds;
+    const auto mm = rollout_metrics(r.poses, scene);
+    const auto cv = rollout_metrics(constant_velocity(scene, static_cast<int>(r.poses.size())), scene);
+    for (const auto& [name, m] : std::vector<std::pair<std::string, const RolloutMetrics*>>{{"hopnet", &mm}, {"constant_velocity", &cv}}) {
+      for (int h : horizons) {
+        if (h >= static_cast<int>(m->pos_rmse.size())) continue;
+        per[name + ".pos_rmse"][h].push_back(m->pos_rmse[static_cast<std::size_t>(h)]);
+        per[name + ".ori_rmse"][h].push_back(m->ori_rmse[static_cast<std::size_t>(h)]);
+        per[name + ".ori_mae"][h].push_back(m->ori_mae[static_cast<std::size_t>(h)]);
+      }
+      auto& c = curve_sum[name];
+      if (c.size() < m->pos_rmse.size()) c.resize(m->pos_rmse.size(), 0.0);
+      for (std::size_t f = 0; f < m->pos_rmse.size(); ++f) c[f] += m->pos_rmse[f];
+    }
+    if (curve_n.size() < mm.pos_rmse.size()) curve_n.resize(mm.pos_rmse.size(), 0);
+    for (std::size_t f = 0; f < mm.pos_rmse.size(); ++f) ++curve_n[f];
+    bar.update(1, "scene " + std::to_string(id));
+  }
+  bar.finish();
+  const auto stat = [](const std::vector<double>& v) {
+    double m = 0, s = 0;
+    int n = 0;
+    for (double x : v) if (std::isfinite(x)) m += x, ++n;
+    m = n ? m / n : NAN;
+    for (double x : v) if (std::isfinite(x)) s += (x - m) * (x - m);
+    return std::pair<double, double>{m, n ? std::sqrt(s / n) : NAN};
+  };
+  nlohmann::json metrics;
+  std::ostringstream md;
+  md << "| model | metric | " ;
+  std::vector<int> present;
+  for (int h : horizons) if (per["hopnet.pos_rmse"].count(h)) present.push_back(h);
+  for (int h : present) md << "frame " << h << " | ";
+  md << "\n|---|---|";
+  for (std::size_t i = 0; i < present.size(); ++i) md << "---|";
+  md << "\n";
+  for (const char* model : {"hopnet", "constant_velocity"}) {
+    for (const char* metric : {"pos_rmse", "ori_rmse", "ori_mae"}) {
+      md << "| " << model << " | " << metric << (metric[0] == 'p' ? " (m)" : " (deg)") << " | ";
+      for (int h : present) {
+        const auto [m, s] = stat(per[std::string(model) + "." + metric][h]);
+        metrics[model][std::to_string(h)][metric] = {{"mean", m}, {"std", s}};
+        char buf[64];
+        std::snprintf(buf, sizeof buf, metric[0] == 'p' ? "%.4f ± %.4f" : "%.2f ± %.2f", m, s);
+        md << buf << " | ";
+      }
+      md << "\n";
+    }
+  }
+  // The layout: metrics.json holds, per frame, mean/std of pos_rmse, ori_rmse, ori_mae (the model's).
+  nlohmann::json top = metrics["hopnet"];
+  top["baseline_constant_velocity"] = metrics["constant_velocity"];
+  top["scenes"] = chosen;
+  top["mode"] = to_string(mode);
+  top["rollout_seconds"] = seconds;
+  write_json_atomic(top, (fs::path(a.out) / "metrics.json").string());
+  {
+    std::ofstream t(fs::path(a.out) / "table.md");
+    t << "# HOPNet rollout errors (" << chosen.size() << " scenes, " << a.split << " split, " << to_string(mode) << " mode)\n\n" << md.str();
+  }
+  std::vector<std::pair<std::string, std::vector<double>>> series;
+  for (const auto& [name, c] : curve_sum) {
+    std::vector<double> v(c.size());
+    for (std::size_t f = 0; f < c.size(); ++f) v[f] = c[f] / std::max(curve_n[f], 1);
+    series.push_back({name, v});
+  }
+  std::ofstream(fs::path(a.out) / "pos_rmse.svg") << svg_plot(series, "position RMSE (m)");
+  std::cout << md.str() << "wrote " << a.out << "/metrics.json, table.md, pos_rmse.svg\n";
+  return 0;
+}
+
 struct RolloutArgs {
   std::string checkpoint, stats, scene, assets, mode = "reference", out, collisions;
   int steps = 102, threads = 1;
@@ -233,6 +527,38 @@ int main(int argc, char** argv) {
   cg->add_option("--jobs", ge.jobs, "processes (default: all cores)");
   cg->add_option("--frames", ge.frames, "frames per scene")->capture_default_str()->check(CLI::Range(4, 100000));
 
+  TrainArgs tr;
+  auto* ct = app.add_subcommand("train", "train HOPNet on a folder of Kubric scene folders (one optimizer step per trajectory)");
+  ct->add_option("--data", tr.data, "dataset folder (<seed>/metadata.json)")->required()->check(CLI::ExistingDirectory);
+  ct->add_option("--out", tr.out, "output folder: checkpoint.pt, stats.json, steps.csv, epochs.csv")->required();
+  ct->add_option("--assets", tr.assets, "KuBasic-layout asset folder (built-in shapes when omitted)");
+  ct->add_option("--stats", tr.stats, "normalisation statistics (default: computed from the training split)");
+  ct->add_option("--max-steps", tr.max_steps, "stop after this many optimizer steps");
+  ct->add_option("--epochs", tr.epochs, "epochs")->capture_default_str()->check(CLI::PositiveNumber);
+  ct->add_option("--lr", tr.lr, "Adam learning rate")->capture_default_str();
+  ct->add_option("--lr-decay", tr.lr_decay, "exponential decay per epoch (0: constant; the paper's 0.9441)")->capture_default_str();
+  ct->add_option("--hidden", tr.hidden, "hidden width")->capture_default_str();
+  ct->add_option("--mlp-layers", tr.mlp_layers, "Linear layers per MLP")->capture_default_str();
+  ct->add_option("--num-layers", tr.num_layers, "message-passing layers")->capture_default_str();
+  ct->add_option("--activation", tr.activation, "relu, gelu, elu or selu")->capture_default_str();
+  ct->add_option("--mode", tr.mode, "native or reference features")->capture_default_str();
+  ct->add_option("--max-frames", tr.max_frames, "use only the first frames of each scene (0: all)")->capture_default_str();
+  ct->add_option("--min-z-collision-velocity", tr.min_z_collision_velocity, "mask objects in contact slower than this vertically (m/s)")->capture_default_str();
+  ct->add_option("--seed", tr.seed, "random seed")->capture_default_str();
+  ct->add_flag("--resume", tr.resume, "continue from the last epoch's checkpoint in --out");
+  ct->set_config("--config", "", "read options from a TOML/INI file");
+
+  EvaluateArgs ev;
+  auto* ce = app.add_subcommand("evaluate", "roll out every scene of a split; the paper's table beside a constant-velocity baseline");
+  ce->add_option("--checkpoint", ev.checkpoint, "model checkpoint")->required()->check(CLI::ExistingFile);
+  ce->add_option("--stats", ev.stats, "normalisation statistics")->required()->check(CLI::ExistingFile);
+  ce->add_option("--data", ev.data, "dataset folder")->required()->check(CLI::ExistingDirectory);
+  ce->add_option("--assets", ev.assets, "KuBasic-layout asset folder (built-in shapes when omitted)");
+  ce->add_option("--split", ev.split, "test or all")->capture_default_str();
+  ce->add_option("--mode", ev.mode, "reference or native")->capture_default_str();
+  ce->add_option("--steps", ev.steps, "rollout steps")->capture_default_str()->check(CLI::PositiveNumber);
+  ce->add_option("--out", ev.out, "output folder: metrics.json, table.md, pos_rmse.svg")->required();
+
   RolloutArgs ro;
   auto* cr = app.add_subcommand("rollout", "autoregressive rollout of one scene with the paper's per-frame metrics");
   cr->add_option("--checkpoint", ro.checkpoint, "model checkpoint (topos or reference .pt)")->required()->check(CLI::ExistingFile);
@@ -255,6 +581,8 @@ int main(int argc, char** argv) {
     if (*ci) return run_info(info);
     if (*cn) return run_init(in);
     if (*cg) return run_generate(ge);
+    if (*ct) return run_train(tr);
+    if (*ce) return run_evaluate(ev);
     if (*cr) return run_rollout(ro);
   } catch (const std::exception& e) {
     std::cerr << "error: " << e.what() << "\n";

@@ -1,0 +1,105 @@
+// topos/models/hopnet/training.hpp
+// Training data and loss of HOPNet (spec section 8). A trajectory's timesteps t = 2..T-2 each
+// give one complex (contacts detected on the GT pose at t) and targets: node accelerations t0
+// and object accelerations t4 from GT positions. All timesteps of a trajectory are collated
+// into one batch, so one forward and one backward serve the whole trajectory; the loss is
+//   Σ_t [ (1/N) Σ_{n,d} (a0 − t0n)² + (1/O) Σ_{o,d} (a4 − t4n)² ]
+// on normalised targets, optionally with the low-velocity collision mask.
+#pragma once
+
+#include "topos/models/hopnet/rollout.hpp"
+
+namespace topos::hopnet {
+
+/// Raw (double) features and targets of every training timestep of one scene.
+struct TrajectoryFrames {
+  std::vector<HopnetFrame> frames;
+  std::vector<RowMatrix> t0, t4;  ///< per timestep: N×3, O×3 accelerations (m/frame²)
+  std::vector<RowMatrix> mask;    ///< per timestep: O×1 object weights (1, or 0 when masked)
+};
+
+/// Features at t = first..last (inclusive; default 2..T-2) from the scene's GT poses.
+inline TrajectoryFrames trajectory_frames(const Scene& scene, const HopnetGeometry& g, double collision_radius = 0.1, double min_z_collision_velocity = 0.0,
+                                          std::int64_t first = 2, std::int64_t last = -1) {
+  if (last < 0) last = scene.num_frames - 2;
+  if (first < 2 || last > scene.num_frames - 2 || first > last) throw std::invalid_argument(scene.source + ": a training trajectory needs at least 4 frames");
+  TrajectoryFrames out;
+  std::vector<Poses> p;
+  for (std::int64_t t = 0; t < scene.num_frames; ++t) p.push_back(scene_poses(scene, t));
+  std::vector<std::vector<PosedObject>> posed;
+  for (const auto& q : p) posed.push_back(pose_objects(g, q));
+  const std::int64_t N = g.num_nodes(), O = g.num_objects();
+  for (std::int64_t t = first; t <= last; ++t) {
+    const auto contacts = detect_contacts(g, posed[static_cast<std::size_t>(t)], collision_radius);
+    out.frames.push_back(build_frame(g, p[0], p[static_cast<std::size_t>(t - 2)], p[static_cast<std::size_t>(t - 1)], p[static_cast<std::size_t>(t)], contacts));
+    RowMatrix a0(N, 3), a4(O, 3), m = RowMatrix::Ones(O, 1);
+    for (std::int64_t o = 0; o < O; ++o) {
+      const auto& xp = posed[static_cast<std::size_t>(t - 1)][static_cast<std::size_t>(o)].vertices;
+      const auto& xt = posed[static_cast<std::size_t>(t)][static_cast<std::size_t>(o)].vertices;
+      const auto& xn = posed[static_cast<std::size_t>(t + 1)][static_cast<std::size_t>(o)].vertices;
+      a0.middleRows(g.node_offset[static_cast<std::size_t>(o)], xt.rows()) = xn - 2.0 * xt + xp;
+      a4.row(o) = p[static_cast<std::size_t>(t + 1)].positions.row(o) - 2.0 * p[static_cast<std::size_t>(t)].positions.row(o) + p[static_cast<std::size_t>(t - 1)].positions.row(o);
+    }
+    if (min_z_collision_velocity > 0) {
+      for (const auto& c : contacts)
+        for (auto o : {c.obj0, c.obj1}) {
+          const double vz = p[static_cast<std::size_t>(t)].positions(o, 2) - p[static_cast<std::size_t>(t - 1)].positions(o, 2);
+          if (std::abs(vz) < min_z_collision_velocity / 240.0) m(o, 0) = 0;
+        }
+    }
+    out.t0.push_back(std::move(a0));
+    out.t4.push_back(std::move(a4));
+    out.mask.push_back(std::move(m));
+  }
+  return out;
+}
+
+/// Adds a trajectory's raw features and targets to the statistics.
+inline void accumulate_stats(StatsAccumulator& acc, const TrajectoryFrames& tf) {
+  for (std::size_t i = 0; i < tf.frames.size(); ++i) {
+    const auto& f = tf.frames[i];
+    acc.add("x0", f.x0), acc.add("x1", f.x1), acc.add("x2", f.x2), acc.add("x3", f.x3), acc.add("x4", f.x4);
+    acc.add("t0", tf.t0[i]), acc.add("t4", tf.t4[i]);
+  }
+}
+
+/// One trajectory ready for the optimizer: its batch, normalised targets and weights.
+struct TrainingItem {
+  HopnetBatch batch;
+  torch::Tensor t0, t4, node_weight, object_weight;  ///< weights: mask / N, mask / O per row
+  std::int64_t timesteps = 0;
+  TrainingItem to(const torch::Device& d) const {
+    return {batch.to(d), t0.to(d), t4.to(d), node_weight.to(d), object_weight.to(d), timesteps};
+  }
+};
+
+inline TrainingItem make_training_item(const HopnetGeometry& g, const TrajectoryFrames& tf, const Normalizer& norm) {
+  TrainingItem it;
+  std::vector<std::pair<const HopnetGeometry*, const HopnetFrame*>> frames;
+  std::vector<torch::Tensor> t0, t4, nw, ow;
+  const double N = static_cast<double>(g.num_nodes()), O = static_cast<double>(g.num_objects());
+  const auto node_object = torch::tensor(std::vector<std::int64_t>(g.node_object.begin(), g.node_object.end()), torch::kLong);
+  for (std::size_t i = 0; i < tf.frames.size(); ++i) {
+    frames.push_back({&g, &tf.frames[i]});
+    t0.push_back(norm.normalize("t0", tf.t0[i]));
+    t4.push_back(norm.normalize("t4", tf.t4[i]));
+    const auto m = Normalizer::to_tensor(tf.mask[i]).squeeze(1);
+    ow.push_back(m / O);
+    nw.push_back(m.index_select(0, node_object) / N);
+  }
+  it.batch = make_batch(frames, norm);
+  it.t0 = torch::cat(t0);
+  it.t4 = torch::cat(t4);
+  it.node_weight = torch::cat(nw).unsqueeze(1);
+  it.object_weight = torch::cat(ow).unsqueeze(1);
+  it.timesteps = static_cast<std::int64_t>(tf.frames.size());
+  return it;
+}
+
+/// The summed loss of spec 8 for one trajectory (divide by `timesteps` for the logged value).
+inline torch::Tensor trajectory_loss(HopnetImpl& model, const TrainingItem& it, const Normalizer& norm) {
+  const auto out = model.forward(it.batch, norm);
+  return ((out.a0 - it.t0).pow(2) * it.node_weight).sum() + ((out.a4 - it.t4).pow(2) * it.object_weight).sum();
+}
+
+}  // namespace topos::hopnet
