@@ -6,7 +6,7 @@
 
 #include "support/reference.hpp"
 #include "topos/data/npy.hpp"
-#include "topos/models/hopnet/rollout.hpp"
+#include "topos/models/hopnet/training.hpp"
 
 #include <filesystem>
 #include <random>
@@ -395,4 +395,50 @@ TEST_CASE("HOPNet on built-in shapes: batched frames equal single frames, static
   nn::write_tensor_dict(d, junk);
   REQUIRE_THROWS_WITH(load_hopnet(junk), Catch::Contains("neither a topos nor a reference HOPNet checkpoint"));
   fs::remove(junk);
+}
+
+TEST_CASE("the training loss equals the reference's per-step losses on MOVi-A scene 8", "[hopnet][reference][training]") {
+  Golden G("hopnet training loss");
+  const auto g = make_geometry(G.scene, FeatureMode::reference);
+  const auto norm = G.normalizer();
+  auto model = G.model();
+  model->eval();
+  torch::NoGradGuard ng;
+  for (const auto& [t, want] : std::vector<std::pair<int, double>>{{2, 0.0150184}, {100, 2.78862}, {300, 0.140924}}) {
+    const auto tf = trajectory_frames(G.scene, g, 0.1, 0.0, t, t);
+    const auto item = make_training_item(g, tf, norm);
+    INFO("t = " << t << ": faces " << tf.frames[0].num_faces() << ", contacts " << tf.frames[0].num_contacts());
+    REQUIRE(trajectory_loss(*model, item, norm).item<double>() == Approx(want).epsilon(1e-4));
+  }
+}
+
+TEST_CASE("one batched backward over a trajectory equals the sum of per-timestep gradients", "[hopnet][training]") {
+  torch::manual_seed(11);
+  const Scene scene = builtin_scene(12);
+  const Normalizer norm(unit_stats());
+  Hopnet net(HopnetOptions().hidden(16).mode(FeatureMode::native));
+  const auto g = make_geometry(scene, FeatureMode::native);
+  const auto tf = trajectory_frames(scene, g, 0.1, 0.0);
+  REQUIRE(tf.frames.size() == 9);
+  const auto batched = make_training_item(g, tf, norm);
+  net->zero_grad();
+  trajectory_loss(*net, batched, norm).backward();
+  std::map<std::string, torch::Tensor> want;
+  for (const auto& p : net->named_parameters()) want[p.key()] = p.value().grad().clone();
+  std::map<std::string, torch::Tensor> sum;
+  for (std::size_t i = 0; i < tf.frames.size(); ++i) {
+    TrajectoryFrames one;
+    one.frames = {tf.frames[i]};
+    one.t0 = {tf.t0[i]};
+    one.t4 = {tf.t4[i]};
+    one.mask = {tf.mask[i]};
+    net->zero_grad();
+    trajectory_loss(*net, make_training_item(g, one, norm), norm).backward();
+    for (const auto& p : net->named_parameters()) sum[p.key()] = sum.count(p.key()) ? sum[p.key()] + p.value().grad() : p.value().grad().clone();
+  }
+  for (const auto& [k, w] : want) {
+    INFO(k);
+    const double err = (w - sum[k]).abs().max().item<double>(), scale = w.abs().max().item<double>();
+    REQUIRE(err <= 1e-5 * std::max(scale, 1e-3));
+  }
 }
