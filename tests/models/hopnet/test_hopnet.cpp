@@ -218,7 +218,7 @@ Scene builtin_scene(std::int64_t frames = 12) {
     in.positions.resize(frames, 3);
     in.quaternions.resize(frames, 4);
     for (std::int64_t t = 0; t < frames; ++t) {
-      const double z = i == 0 ? 0.98 : 2.9 - 0.5 * 1.7e-4 * static_cast<double>(t * t) * 40;
+      const double z = i == 0 ? 0.53 : 2.9 - 0.5 * 1.7e-4 * static_cast<double>(t * t) * 40;  // cube (±0.5) 3 cm above the floor
       in.positions.row(t) << 0.1 * i, 0.05 * i, z;
       const double a = 0.01 * static_cast<double>(t) * i;
       in.quaternions.row(t) << std::cos(a), 0, std::sin(a), 0;
