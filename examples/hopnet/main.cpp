@@ -19,16 +19,7 @@ using namespace topos::hopnet;
 
 namespace {
 
-void write_json_atomic(const nlohmann::json& j, const std::string& path) {
-  const std::string tmp = path + ".tmp";
-  {
-    std::ofstream out(tmp);
-    if (!out) throw std::runtime_error(path + ": cannot write");
-    out << j.dump() << "\n";
-    if (!out) throw std::runtime_error(tmp + ": write failed");
-  }
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) throw std::runtime_error(path + ": cannot rename the temporary file into place");
-}
+void write_json_atomic(const nlohmann::json& j, const std::string& path) { write_file_atomic(path, j.dump() + "\n"); }
 
 struct InfoArgs {
   std::string checkpoint;

@@ -4,6 +4,8 @@
 // NumPy opens with np.load. std only.
 #pragma once
 
+#include "topos/core/atomic_file.hpp"
+
 #include <cstdint>
 #include <cstdio>
 #include <cstring>
@@ -105,18 +107,12 @@ inline void write_npy(const std::string& path, const std::vector<std::int64_t>& 
   std::string header = "{'descr': '<f8', 'fortran_order': False, 'shape': (" + dims + "), }";
   while ((10 + header.size() + 1) % 64 != 0) header += ' ';
   header += '\n';
-  const std::string tmp = path + ".tmp";
-  {
-    std::ofstream out(tmp, std::ios::binary);
-    if (!out) throw std::runtime_error(tmp + ": cannot write");
-    out.write("\x93NUMPY\x01\x00", 8);
-    const std::uint16_t len = static_cast<std::uint16_t>(header.size());
-    out.write(reinterpret_cast<const char*>(&len), 2);
-    out.write(header.data(), static_cast<std::streamsize>(header.size()));
-    out.write(reinterpret_cast<const char*>(data), static_cast<std::streamsize>(n * 8));
-    if (!out) throw std::runtime_error(tmp + ": write failed");
-  }
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) throw std::runtime_error(path + ": cannot rename the temporary file into place");
+  std::string bytes("\x93NUMPY\x01\x00", 8);
+  const std::uint16_t len = static_cast<std::uint16_t>(header.size());
+  bytes.append(reinterpret_cast<const char*>(&len), 2);
+  bytes += header;
+  bytes.append(reinterpret_cast<const char*>(data), static_cast<std::size_t>(n * 8));
+  write_file_atomic(path, bytes);
 }
 
 }  // namespace topos::data

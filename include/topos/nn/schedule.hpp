@@ -20,6 +20,7 @@
 // "modules.<name>", so checkpoints are read and written by readable, stable names.
 #pragma once
 
+#include "topos/core/atomic_file.hpp"
 #include "topos/nn/aggregate.hpp"
 #include "topos/nn/cochains.hpp"
 #include "topos/nn/complex_batch.hpp"
@@ -374,14 +375,7 @@ TORCH_MODULE(ScheduleNetwork);
 /// renamed, so an interrupted save leaves the old file intact.
 inline void write_tensor_dict(const c10::Dict<std::string, torch::Tensor>& dict, const std::string& path) {
   const auto bytes = torch::pickle_save(c10::IValue(dict));
-  const std::string tmp = path + ".tmp";
-  {
-    std::ofstream out(tmp, std::ios::binary);
-    if (!out) throw std::runtime_error(tmp + ": cannot write");
-    out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
-    if (!out) throw std::runtime_error(tmp + ": write failed");
-  }
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) throw std::runtime_error(path + ": cannot rename the temporary file into place");
+  write_file_atomic(path, bytes.data(), bytes.size());
 }
 
 /// Saves parameters (and buffers) by name (write_tensor_dict).

@@ -8,6 +8,7 @@
 // No LibTorch; the float32 application lives with the model.
 #pragma once
 
+#include "topos/core/atomic_file.hpp"
 #include "topos/data/kubric.hpp"
 
 #include <nlohmann/json.hpp>
@@ -84,14 +85,11 @@ inline void write_stats_json(const NormalizationStats& s, const std::string& pat
     j[k + "_mean"] = s.mean.at(k);
     j[k + "_std"] = s.std.at(k);
   }
-  const std::string tmp = path + ".tmp";
-  {
-    std::ofstream out(tmp);
-    if (!out) throw data::DataError(tmp + ": cannot write");
-    out << j.dump(1) << "\n";
-    if (!out) throw data::DataError(tmp + ": write failed");
+  try {
+    write_file_atomic(path, j.dump(1) + "\n");
+  } catch (const std::runtime_error& e) {
+    throw data::DataError(e.what());
   }
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) throw data::DataError(path + ": cannot rename the temporary file into place");
 }
 
 /// Accumulates population moments per column (compensated by a per-column shift, the first
