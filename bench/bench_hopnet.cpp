@@ -3,9 +3,11 @@
 // features, forward, shape matching), and the 102-step rollout, in reference and native modes.
 // Issue bars (2 cores): forward <= 3 ms, step <= 5 ms, rollout <= 0.6 s; the Python reference
 // takes 8-10 ms, 181 ms and 18.5 s. Threads: 1 intra-op thread (set below), the fastest here.
+// And one training step on the whole trajectory (below).
 #include <benchmark/benchmark.h>
 
-#include "topos/models/hopnet/rollout.hpp"
+#include "topos/models/hopnet/training.hpp"
+#include "topos/nn/cpu.hpp"
 
 #include <cstdlib>
 
@@ -39,7 +41,7 @@ const Setup& setup() {
 }
 
 void BM_forward(benchmark::State& state) {
-  torch::set_num_threads(1);
+  nn::set_cpu_threads(1, 1);
   const auto mode = static_cast<FeatureMode>(state.range(0));
   const auto& S = setup();
   auto net = S.model(mode);
@@ -56,7 +58,7 @@ void BM_forward(benchmark::State& state) {
 BENCHMARK(BM_forward)->Arg(0)->Arg(1)->ArgName("native")->Unit(benchmark::kMillisecond);
 
 void BM_rollout_step(benchmark::State& state) {
-  torch::set_num_threads(1);
+  nn::set_cpu_threads(1, 1);
   const auto mode = static_cast<FeatureMode>(state.range(0));
   const auto& S = setup();
   auto net = S.model(mode);
@@ -70,7 +72,7 @@ void BM_rollout_step(benchmark::State& state) {
 BENCHMARK(BM_rollout_step)->Arg(0)->Arg(1)->ArgName("native")->Unit(benchmark::kMillisecond);
 
 void BM_rollout_102(benchmark::State& state) {
-  torch::set_num_threads(1);
+  nn::set_cpu_threads(1, 1);
   const auto mode = static_cast<FeatureMode>(state.range(0));
   const auto& S = setup();
   auto net = S.model(mode);
@@ -82,6 +84,31 @@ void BM_rollout_102(benchmark::State& state) {
   state.counters["pos_rmse_100"] = pos100;
 }
 BENCHMARK(BM_rollout_102)->Arg(0)->Arg(1)->ArgName("native")->Unit(benchmark::kMillisecond)->MinTime(2.0);
+
+// One optimizer step on the whole trajectory (t = 2..478: 477 timesteps in one batch): forward,
+// backward and Adam, with BLAS threads on every core and one intra-op thread (as `hopnet train`).
+// Issue bar: 2 s on 2 cores; the Python reference takes 16 s (plus 110 s of preprocessing).
+void BM_train_step(benchmark::State& state) {
+  nn::set_cpu_threads(1, 0);
+  nn::keep_freed_memory();
+  const auto mode = static_cast<FeatureMode>(state.range(0));
+  const auto& S = setup();
+  const auto g = make_geometry(S.scene, mode);
+  const auto item = make_training_item(g, trajectory_frames(S.scene, g), S.norm);
+  auto net = S.model(mode);
+  net->train();
+  torch::optim::Adam opt(net->parameters(), torch::optim::AdamOptions(1e-4));
+  for (auto _ : state) {
+    opt.zero_grad();
+    auto loss = trajectory_loss(*net, item, S.norm);
+    loss.backward();
+    opt.step();
+  }
+  nn::set_cpu_threads(1, 1);
+  state.counters["timesteps"] = static_cast<double>(item.timesteps);
+  state.counters["timesteps_per_s"] = benchmark::Counter(static_cast<double>(item.timesteps), benchmark::Counter::kIsIterationInvariantRate);
+}
+BENCHMARK(BM_train_step)->Arg(0)->Arg(1)->ArgName("native")->Unit(benchmark::kMillisecond)->MinTime(5.0)->UseRealTime();
 }  // namespace
 
 BENCHMARK_MAIN();

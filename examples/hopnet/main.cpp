@@ -4,6 +4,7 @@
 #include "topos/data/dataset.hpp"
 #include "topos/data/movi_generator.hpp"
 #include "topos/models/hopnet/training.hpp"
+#include "topos/nn/cpu.hpp"
 
 #include <CLI/CLI.hpp>
 
@@ -491,8 +492,9 @@ int run_rollout(const RolloutArgs& a) {
 int main(int argc, char** argv) {
   CLI::App app{"hopnet: HOPNet (Wei & Fink) on topos: inspect checkpoints and roll out scenes"};
   app.require_subcommand(1);
-  int threads = 1;
-  app.add_option("--threads", threads, "LibTorch intra-op threads (1 is fastest for one scene)")->capture_default_str();
+  int threads = 1, blas_threads = 0;
+  app.add_option("--threads", threads, "LibTorch intra-op threads (1 is fastest here)")->capture_default_str();
+  app.add_option("--blas-threads", blas_threads, "BLAS threads (default: all cores for train, 1 otherwise)");
 
   InfoArgs info;
   auto* ci = app.add_subcommand("info", "print a checkpoint's configuration, parameter count and schedule");
@@ -568,7 +570,9 @@ int main(int argc, char** argv) {
     return app.exit(e);
   }
   try {
-    torch::set_num_threads(threads);
+    // Training's large batched matmuls want BLAS threads; a rollout's small ones do not.
+    nn::set_cpu_threads(threads, blas_threads > 0 ? blas_threads : (*ct ? 0 : 1));
+    if (*ct) nn::keep_freed_memory();
     if (*ci) return run_info(info);
     if (*cn) return run_init(in);
     if (*cg) return run_generate(ge);

@@ -123,6 +123,24 @@ TEST_CASE("aggregations equal hand-written loops", "[nn][aggregate]") {
       }
 }
 
+TEST_CASE("a neighbourhood with one pair per target, in order, aggregates as a gather", "[nn][aggregate]") {
+  Neighborhood n;
+  n.source_rank = 1; n.target_rank = 0; n.num_source = 2; n.num_target = 4;
+  n.source = {1, 0, 0, 1};
+  n.target = {0, 1, 2, 3};
+  n.values = {2.0, -1.0, 0.5, 1.0};
+  const auto b = ComplexBatch::collate({ComplexView{{4, 2}, {{"n", n}}}}, 1);
+  REQUIRE(b.neighborhood("n").one_per_target);
+  const auto x = torch::randn({2, 3}, torch::kDouble);
+  for (Reduce r : {Reduce::sum, Reduce::mean, Reduce::max})
+    for (bool w : {false, true}) {
+      const auto got = aggregate(x, b.neighborhood("n"), AggregateOptions().with_reduce(r).with_weighted(w));
+      for (int t = 0; t < 4; ++t) REQUIRE(torch::allclose(got[t], x[n.source[static_cast<std::size_t>(t)]] * (w ? n.values[static_cast<std::size_t>(t)] : 1.0)));
+    }
+  n.target = {0, 1, 3, 2};  // a permutation is not "in order"
+  REQUIRE_FALSE(ComplexBatch::collate({ComplexView{{4, 2}, {{"n", n}}}}, 1).neighborhood("n").one_per_target);
+}
+
 TEST_CASE("Mlp follows the reference layout and parameter count", "[nn][mlp]") {
   Mlp m(MlpOptions(16, 128, 128));
   std::int64_t count = 0;
@@ -161,6 +179,43 @@ TEST_CASE("a batch of complexes gives the per-complex results", "[nn][batch][sch
   REQUIRE(net->forward(random_inputs(guarded, torch::kFloat, 4), guarded).at("a0").size(0) == guarded.size(0));
   const auto empty = ComplexBatch::collate({}, 4, &views[0]);
   REQUIRE(net->forward(random_inputs(empty, torch::kFloat, 5), empty).at("a0").size(0) == 0);
+}
+
+TEST_CASE("the fast paths give the plain schedule's outputs and gradients", "[nn][schedule]") {
+  // Only half of the faces hear from their edges and nodes, so the edges are encoded compactly
+  // (rank 1 is only read, through B12) and p02 maps only the nodes that send; p40's object
+  // message goes through u0's weight before it is spread over the nodes.
+  std::vector<ComplexView> views{make_view(0, true), make_view(1, false)};
+  for (auto& v : views) {
+    for (const char* name : {"B12", "B02"}) {
+      auto& n = v.neighborhoods.at(name);
+      Neighborhood kept = n;
+      kept.source.clear(), kept.target.clear(), kept.values.clear(), kept.roles.clear();
+      for (std::size_t k = 0; k < n.source.size(); ++k)
+        if (n.target[k] < n.num_target / 2) kept.source.push_back(n.source[k]), kept.target.push_back(n.target[k]);
+      n = kept;
+    }
+  }
+  const auto batch = ComplexBatch::collate(views, 4);
+  ScheduleNetwork net(test_schedule(), test_modules(8), signature({{"x0", 3}, {"x1", 2}, {"x2", 2}, {"x3", 3}, {"x4", 2}}));
+  net->to(torch::kDouble);
+  const auto inputs = random_inputs(batch, torch::kDouble, 11);
+  auto run = [&](bool fast) {
+    net->set_fast_paths(fast);
+    net->zero_grad();
+    auto out = net->forward(inputs, batch);
+    (out.at("a0").pow(2).sum() + out.at("a2").sin().sum()).backward();
+    std::vector<torch::Tensor> r{out.at("a0").detach(), out.at("a2").detach()};
+    for (const auto& p : net->parameters()) r.push_back(p.grad().defined() ? p.grad().clone() : torch::zeros_like(p));
+    return r;
+  };
+  const auto fast = run(true), plain = run(false);
+  REQUIRE(fast.size() == plain.size());
+  for (std::size_t i = 0; i < fast.size(); ++i) {
+    INFO("tensor " << i);
+    REQUIRE(torch::allclose(fast[i], plain[i], 1e-10, 1e-12));
+  }
+  REQUIRE(fast[0].abs().sum().item<double>() > 0);
 }
 
 TEST_CASE("schedule gradients match finite differences in double precision", "[nn][schedule][grad]") {

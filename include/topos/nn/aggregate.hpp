@@ -41,6 +41,7 @@ inline torch::Tensor aggregate(const torch::Tensor& x, const TensorNeighborhood&
   }
   torch::Tensor msg = x.index_select(0, src);
   if (opt.weighted && w.defined()) msg = msg * w.to(msg.dtype()).unsqueeze(1);
+  if (opt.role == 0 && n.one_per_target) return msg;  // every target gets exactly its own pair
   auto out = torch::zeros({n.num_target, x.size(1)}, x.options());
   if (opt.reduce == Reduce::sum) return out.index_add(0, tgt, msg);
   if (opt.reduce == Reduce::mean) {

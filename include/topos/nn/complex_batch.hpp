@@ -22,6 +22,7 @@ struct TensorNeighborhood {
   int source_rank = 0, target_rank = 0;
   torch::Tensor source, target, values, roles;
   std::int64_t num_source = 0, num_target = 0;
+  bool one_per_target = false;  ///< target[k] == k for every pair: aggregation is a plain gather
   std::int64_t nnz() const { return source.defined() ? source.size(0) : 0; }
 };
 
@@ -101,6 +102,8 @@ class ComplexBatch {
       if (has_roles) t.roles = torch::tensor(std::vector<std::int64_t>(roles.begin(), roles.end()), torch::kLong).to(torch::kChar);
       t.num_source = b.size(first.source_rank);
       t.num_target = b.size(first.target_rank);
+      t.one_per_target = static_cast<std::int64_t>(tgt.size()) == t.num_target;
+      for (std::size_t k = 0; t.one_per_target && k < tgt.size(); ++k) t.one_per_target = tgt[k] == static_cast<std::int64_t>(k);
       b.neighborhoods_[name] = t;
     }
     return b;

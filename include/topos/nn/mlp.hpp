@@ -78,6 +78,13 @@ class MlpImpl : public torch::nn::Module {
     for (auto& m : layers_) x = m.forward(x);
     return x;
   }
+  /// The first Linear layer, and the rest of the MLP applied to its output. A caller that knows
+  /// its input is a concatenation can apply the weight's column blocks separately.
+  torch::nn::Linear first_linear() const { return layers_.front().get<torch::nn::Linear>(); }
+  torch::Tensor forward_after_first(torch::Tensor z) {
+    for (std::size_t i = 1; i < layers_.size(); ++i) z = layers_[i].forward(z);
+    return z;
+  }
   MlpOptions options;
 
  private:

@@ -32,6 +32,7 @@
 #include <fstream>
 #include <map>
 #include <optional>
+#include <set>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -192,16 +193,20 @@ class ScheduleNetworkImpl : public torch::nn::Module {
       modules_.emplace(name, m);
     }
     validate();
+    find_read_only();
   }
 
   /// Runs the schedule: inputs by name -> outputs by name.
   std::map<std::string, torch::Tensor> forward(const std::map<std::string, torch::Tensor>& inputs, const ComplexBatch& batch) {
-    Cochains h = encode(inputs);
+    Cochains h = encode(inputs, &batch);
     process(h, batch);
     return decode(h);
   }
 
-  Cochains encode(const std::map<std::string, torch::Tensor>& inputs) {
+  /// Encodes the inputs. Given the batch, a cochain that is only ever read by messages (never
+  /// updated or decoded) is encoded on the rows those messages read, and nowhere else: HOPNet's
+  /// edges reach the network only through the faces in contact, a third of them.
+  Cochains encode(const std::map<std::string, torch::Tensor>& inputs, const ComplexBatch* batch = nullptr) {
     Cochains h;
     for (const auto& e : schedule_.encoders()) {
       auto it = inputs.find(e.input);
@@ -213,6 +218,16 @@ class ScheduleNetworkImpl : public torch::nn::Module {
         x = x * sign;
       }
       if (!e.columns.empty()) x = x.index_select(1, torch::tensor(e.columns, torch::kLong).to(x.device()));
+      auto readers = read_only_.find(e.key);
+      if (fast_ && batch != nullptr && readers != read_only_.end()) {
+        std::vector<torch::Tensor> sources;
+        for (const auto& via : readers->second) sources.push_back(batch->neighborhood(via).source);
+        const auto used = std::get<0>(torch::_unique(torch::cat(sources), /*sorted=*/true));
+        if (used.size(0) < x.size(0)) {
+          h.set_compact(e.key.rank, e.key.state, modules_.at(e.module)->forward(x.index_select(0, used)), compact_rows(used, x.size(0)));
+          continue;
+        }
+      }
       h.set(e.key.rank, e.key.state, modules_.at(e.module)->forward(x));
     }
     return h;
@@ -241,35 +256,92 @@ class ScheduleNetworkImpl : public torch::nn::Module {
   }
   const Schedule& schedule() const { return schedule_; }
 
+  /// Off: every module maps every row and every concatenation is built, which is slower and
+  /// gives the same numbers (up to float rounding); for checking the fast paths.
+  void set_fast_paths(bool on) { fast_ = on; }
+
  private:
   Schedule schedule_;
   ScheduleSignature sig_;
   std::map<std::string, Mlp> modules_;
 
+  bool fast_ = true;
+  std::map<CochainKey, std::vector<std::string>> read_only_;  ///< encoded cochains only messages read -> their neighbourhoods
+
   using MapCache = std::map<std::pair<CochainKey, std::string>, torch::Tensor>;
+
+  /// For a sorted set of `used` rows out of `rows`: each row's position in `used`, or -1.
+  static torch::Tensor compact_rows(const torch::Tensor& used, std::int64_t rows) {
+    auto row = torch::full({rows}, -1, used.options());
+    row.index_put_({used}, torch::arange(used.size(0), used.options()));
+    return row;
+  }
+
+  void find_read_only() {
+    std::set<CochainKey> written;
+    for (const auto& g : schedule_.groups())
+      for (const auto& s : g) written.insert(s.target);
+    for (const auto& d : schedule_.decoders()) written.insert(d.key);
+    for (const auto& e : schedule_.encoders()) {
+      if (written.count(e.key)) continue;
+      std::vector<std::string> vias;
+      for (const auto& g : schedule_.groups())
+        for (const auto& s : g)
+          for (const auto& m : s.messages)
+            if (m.source == e.key) vias.push_back(m.via);
+      if (!vias.empty()) read_only_[e.key] = std::move(vias);
+    }
+  }
 
   torch::Tensor run_step(const Step& s, const Cochains& h, const ComplexBatch& batch, MapCache& cache) {
     const torch::Tensor& self = h.at(s.target.rank, s.target.state);
-    std::vector<torch::Tensor> parts;
-    if (s.combine == Combine::cat_self) parts.push_back(self);
-    torch::Tensor total = s.combine == Combine::sum_self ? self : torch::Tensor();
-    for (const auto& m : s.messages) {
+    Mlp update = modules_.at(s.update);
+    // cat_self feeds [self, m1, m2, ...] to the update's first Linear layer. A message reduced
+    // linearly (sum or mean) from fewer rows than it has targets is multiplied by its block of
+    // that layer's weight *before* the reduction (W·Σx = Σ W·x): HOPNet's object-to-node message
+    // then costs one matmul over the objects instead of one over every node.
+    const bool cat = s.combine == Combine::cat_self;
+    const torch::Tensor W = cat ? update->first_linear()->weight : torch::Tensor();
+    std::vector<torch::Tensor> parts;       // concatenated, then one matmul
+    std::vector<std::int64_t> part_cols;   // their columns of W
+    torch::Tensor early;                    // Σ of messages already multiplied by their block
+    std::int64_t col = 0;
+    auto add_part = [&](const torch::Tensor& t) {
+      parts.push_back(t);
+      for (std::int64_t c = 0; c < t.size(1); ++c) part_cols.push_back(col + c);
+      col += t.size(1);
+    };
+    if (cat) add_part(self);
+    torch::Tensor total = cat ? torch::Tensor() : self;
+    for (std::size_t mi = 0; mi < s.messages.size(); ++mi) {
+      const auto& m = s.messages[mi];
       torch::Tensor x = h.at(m.source.rank, m.source.state);
       TensorNeighborhood n = batch.neighborhood(m.via);
+      if (const auto row = h.rows(m.source); row.defined()) {  // a compact cochain
+        n.source = row.index_select(0, n.source);
+        n.num_source = x.size(0);
+      }
       if (!m.map.empty()) {
         auto cached = cache.find({m.source, m.map});
         if (cached != cache.end()) {
           x = cached->second;
-        } else if (n.nnz() < x.size(0)) {
-          // Fewer pairs than source rows: map only the rows that have a receiver (the module
-          // acts row by row, so gathering first gives the same messages).
-          x = modules_.at(m.map)->forward(x.index_select(0, n.source));
-          n.source = torch::arange(n.nnz(), n.source.options());
-          n.num_source = n.nnz();
+        } else if (const auto used = fast_ ? std::get<0>(torch::_unique(n.source, /*sorted=*/true)) : torch::Tensor(); used.defined() && used.size(0) < x.size(0)) {
+          // Some source rows send nothing here: map only those that do (the module acts row by
+          // row, so the messages are the same), and renumber the pairs' sources.
+          x = modules_.at(m.map)->forward(x.index_select(0, used));
+          n.source = compact_rows(used, n.num_source).index_select(0, n.source);
+          n.num_source = used.size(0);
         } else {
           x = modules_.at(m.map)->forward(x);
           cache.emplace(std::make_pair(m.source, m.map), x);
         }
+      }
+      const bool next_adds = mi + 1 < s.messages.size() && s.messages[mi + 1].accumulate;
+      if (fast_ && cat && !m.accumulate && !next_adds && m.by_role.empty() && m.agg.reduce != Reduce::max && x.size(0) < n.num_target) {
+        const auto block = aggregate(x.matmul(W.narrow(1, col, x.size(1)).t()), n, m.agg);
+        early = early.defined() ? early + block : block;
+        col += x.size(1);
+        continue;
       }
       torch::Tensor agg;
       if (m.by_role.empty()) {
@@ -280,15 +352,27 @@ class ScheduleNetworkImpl : public torch::nn::Module {
         agg = torch::cat(per_role, 1);
       }
       if (m.accumulate) {
-        if (s.combine == Combine::cat_self) parts.back() = parts.back() + agg;
+        if (cat) parts.back() = parts.back() + agg;
         else total = total + agg;
-      } else if (s.combine == Combine::cat_self) {
-        parts.push_back(agg);
+      } else if (cat) {
+        add_part(agg);
       } else {
         total = total + agg;
       }
     }
-    torch::Tensor updated = modules_.at(s.update)->forward(s.combine == Combine::cat_self ? torch::cat(parts, 1) : total);
+    torch::Tensor updated;
+    if (!cat) {
+      updated = update->forward(total);
+    } else if (!early.defined()) {
+      updated = update->forward(parts.size() == 1 ? parts[0] : torch::cat(parts, 1));
+    } else {
+      const auto first = update->first_linear();
+      const auto Wd = static_cast<std::int64_t>(part_cols.size()) == W.size(1) ? W : W.index_select(1, torch::tensor(part_cols, torch::kLong).to(W.device()));
+      const auto dense = parts.size() == 1 ? parts[0] : torch::cat(parts, 1);
+      auto z = first->bias.defined() ? torch::addmm(first->bias, dense, Wd.t()) : dense.matmul(Wd.t());
+      z.add_(early);
+      updated = update->forward_after_first(z);
+    }
     if (s.guard_rank >= 0) {
       // Per complex: does it hold a cell of the guard rank? Applied through the target's batch vector.
       std::vector<std::int64_t> has;
