@@ -10,7 +10,8 @@ packages=(
   libbullet-dev libbullet-extras-dev
   nlohmann-json3-dev libcli11-dev catch2 libbenchmark-dev
 )
-# Headless Chromium is only needed for the viewer screenshot test; opt in with TOPOS_WITH_CHROMIUM=1.
+# Headless Chromium is only needed for the viewer screenshot test: scripts/test.sh asks for it
+# (TOPOS_WITH_CHROMIUM=1); the demo does not.
 if [ "${TOPOS_WITH_CHROMIUM:-0}" = "1" ]; then packages+=(chromium); fi
 
 missing=()

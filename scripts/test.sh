@@ -5,7 +5,7 @@
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$root"
-bash scripts/setup.sh
+TOPOS_WITH_CHROMIUM="${TOPOS_WITH_CHROMIUM:-1}" bash scripts/setup.sh
 if [ -z "${TOPOS_REFERENCE_DIR:-}" ] && [ -d "$root/../shared/reference" ]; then
   export TOPOS_REFERENCE_DIR="$root/../shared/reference"
 fi

@@ -5,6 +5,7 @@
 #include "topos/data/movi_generator.hpp"
 #include "topos/models/hopnet/training.hpp"
 #include "topos/nn/cpu.hpp"
+#include "viewer.hpp"
 
 #include <CLI/CLI.hpp>
 
@@ -12,6 +13,8 @@
 #include <unistd.h>
 
 #include <iostream>
+#include <atomic>
+#include <mutex>
 #include <numeric>
 #include <thread>
 
@@ -52,17 +55,58 @@ int run_init(const InitArgs& a) {
   return 0;
 }
 
+struct ExportArgs {
+  std::string checkpoint, stats, out, names = "reference";
+};
+
+// A trained model for Python: {"format", "config", "state_dict", "normalization"} in torch.save's
+// format (weights_only-safe). With reference names the state dict loads into the authors'
+// HOPNet class (load_state_dict); normalisation statistics are float64 tensors by key.
+int run_export(const ExportArgs& a) {
+  if (a.names != "reference" && a.names != "topos") throw std::invalid_argument("unknown --names '" + a.names + "' (reference, topos)");
+  auto model = load_hopnet(a.checkpoint);
+  c10::Dict<std::string, torch::Tensor> state;
+  for (const auto& p : model->named_parameters()) state.insert(a.names == "reference" ? reference_parameter_name(p.key()) : p.key(), p.value().detach().cpu().contiguous());
+  c10::impl::GenericDict config(c10::StringType::get(), c10::AnyType::get());
+  const auto& o = model->options;
+  config.insert("hidden", o.hidden());
+  config.insert("mlp_layers", static_cast<std::int64_t>(o.mlp_layers()));
+  config.insert("num_layers", static_cast<std::int64_t>(o.num_layers()));
+  config.insert("activation", std::string(nn::to_string(o.activation())));
+  config.insert("mode", std::string(to_string(o.mode())));
+  c10::impl::GenericDict top(c10::StringType::get(), c10::AnyType::get());
+  top.insert("format", std::string("topos-hopnet-export/1"));
+  top.insert("parameter_names", a.names);
+  top.insert("config", config);
+  top.insert("state_dict", state);
+  if (!a.stats.empty()) {
+    const auto stats = read_stats_json(a.stats);
+    c10::Dict<std::string, torch::Tensor> norm;
+    for (const auto& [k, n] : NormalizationStats::layout()) {
+      norm.insert(k + "_mean", torch::tensor(stats.mean.at(k), torch::kDouble));
+      norm.insert(k + "_std", torch::tensor(stats.std.at(k), torch::kDouble));
+    }
+    top.insert("normalization", norm);
+  }
+  nn::write_torch_file(top, a.out);
+  std::printf("wrote %s: %zu tensors (%s names)%s, %lld parameters\n", a.out.c_str(), state.size(), a.names.c_str(), a.stats.empty() ? "" : " and normalisation statistics",
+              static_cast<long long>(model->num_parameters()));
+  return 0;
+}
+
 struct GenerateArgs {
   std::string dataset, seeds = "1-1200", assets, out, format = "kubric";
   int jobs = 0, frames = 480;
 };
+
+void pack_scenes(const std::filesystem::path& from, const std::vector<std::int64_t>& ids, const std::string& out);
 
 // One process per job (Bullet keeps globals), each generating every jobs-th scene and
 // reporting finished seeds through a pipe; scenes already on disk are skipped (resume).
 int run_generate(const GenerateArgs& a) {
   namespace fs = std::filesystem;
   const auto kind = data::movi_kind_from_string(a.dataset);
-  if (a.format != "kubric") throw data::DataError("unknown format '" + a.format + "' (kubric)");
+  if (a.format != "kubric" && a.format != "topos") throw data::DataError("unknown format '" + a.format + "' (kubric, topos)");
   const auto seeds = data::parse_seed_range(a.seeds);
   data::MoviAssets probe(a.assets);  // fails early on a missing folder
   probe.get("dome");
@@ -75,9 +119,20 @@ int run_generate(const GenerateArgs& a) {
     t.close();
     fs::remove(test);
   }
+  if (a.format == "topos" && fs::exists(fs::path(a.out) / "dataset.json")) {
+    const auto have = data::Dataset::open(a.out);
+    for (auto s : seeds)
+      if (!have.contains(s)) throw data::DataError(a.out + ": holds a topos dataset without seed " + std::to_string(s) + "; write the new seeds elsewhere");
+    std::printf("generate %s: all %zu scenes are already in %s\n", to_string(kind), seeds.size(), a.out.c_str());
+    return 0;
+  }
+  // The topos format is packed at the end from Kubric scene folders in a staging folder, which
+  // also makes an interrupted run resumable.
+  const fs::path scenes_dir = a.format == "topos" ? fs::path(a.out) / "staging" : fs::path(a.out);
+  fs::create_directories(scenes_dir);
   std::vector<std::int64_t> todo;
   for (auto s : seeds)
-    if (!fs::exists(fs::path(a.out) / std::to_string(s) / "metadata.json")) todo.push_back(s);
+    if (!fs::exists(scenes_dir / std::to_string(s) / "metadata.json")) todo.push_back(s);
   const int jobs = std::max(1, std::min<int>(a.jobs > 0 ? a.jobs : static_cast<int>(std::thread::hardware_concurrency()), static_cast<int>(std::max<std::size_t>(todo.size(), 1))));
   std::printf("generate %s: %zu scenes (%zu already done), %d jobs, into %s\n", to_string(kind), seeds.size(), seeds.size() - todo.size(), jobs, a.out.c_str());
   std::fflush(stdout);
@@ -93,7 +148,7 @@ int run_generate(const GenerateArgs& a) {
         data::MoviAssets assets(a.assets);
         for (std::size_t i = static_cast<std::size_t>(j); i < todo.size(); i += static_cast<std::size_t>(jobs)) {
           const auto scene = data::generate_movi_scene(kind, static_cast<std::uint32_t>(todo[i]), assets, a.frames);
-          const auto dir = fs::path(a.out) / std::to_string(todo[i]);
+          const auto dir = scenes_dir / std::to_string(todo[i]);
           fs::create_directories(dir);
           write_json_atomic(data::movi_scene_json(scene), (dir / "metadata.json").string());
           const std::int64_t done = todo[i];
@@ -122,12 +177,59 @@ int run_generate(const GenerateArgs& a) {
   bar.finish();
   if (!ok) throw std::runtime_error("a generation job failed (finished scenes are kept; run again to resume)");
   std::printf("generated %zu scenes in %.1f s (%.2f scenes/s)\n", todo.size(), bar.elapsed(), bar.rate());
+  if (a.format == "topos") {
+    pack_scenes(scenes_dir, seeds, a.out);
+    fs::remove_all(scenes_dir);
+  }
+  return 0;
+}
+
+// Reads Kubric scene folders and writes them as one topos dataset.
+void pack_scenes(const std::filesystem::path& from, const std::vector<std::int64_t>& ids, const std::string& out) {
+  std::vector<data::KubricScene> scenes;
+  ProgressBar bar("pack", static_cast<std::int64_t>(ids.size()), "scenes");
+  for (auto id : ids) {
+    scenes.push_back(data::read_kubric_metadata(from / std::to_string(id)));
+    scenes.back().seed = id;
+    bar.update();
+  }
+  bar.finish();
+  data::write_topos_dataset(scenes, out);
+  std::printf("wrote the topos dataset %s (%zu scenes): dataset.json, positions.npy, quaternions.npy\n", out.c_str(), scenes.size());
+}
+
+struct PackArgs {
+  std::string data, out, seeds;
+};
+
+int run_pack(const PackArgs& a) {
+  const auto ids = a.seeds.empty() ? data::list_scenes(a.data) : data::parse_seed_range(a.seeds);
+  pack_scenes(a.data, ids, a.out);
+  return 0;
+}
+
+struct SplitArgs {
+  std::string seeds, data, out, part;
+};
+
+// The reference split of a seed set (or of a dataset's scenes), as JSON or one part as a list.
+int run_split(const SplitArgs& a) {
+  if (a.seeds.empty() == a.data.empty()) throw data::DataError("give either --seeds or --data");
+  const auto ids = a.seeds.empty() ? data::Dataset::open(a.data).ids() : data::parse_seed_range(a.seeds);
+  const auto split = data::reference_split(ids);
+  if (!a.part.empty()) {
+    const auto part = data::split_part(split, a.part, ids);
+    for (std::size_t i = 0; i < part.size(); ++i) std::printf("%s%lld", i ? "," : "", static_cast<long long>(part[i]));
+    std::printf("\n");
+  }
+  if (!a.out.empty()) write_json_atomic(data::split_json(split), a.out);
+  if (a.part.empty() && a.out.empty()) std::printf("%s\n", data::split_json(split).dump().c_str());
   return 0;
 }
 
 // ---- train ----------------------------------------------------------------------------------
 struct TrainArgs {
-  std::string data, out, assets, stats, mode = "native", activation = "relu";
+  std::string data, out, assets, stats, mode = "native", activation = "relu", split_file;
   std::int64_t max_steps = -1, hidden = 128;
   int epochs = 40, mlp_layers = 2, num_layers = 1, max_frames = 0;
   double lr = 1e-4, lr_decay = 0.0, min_z_collision_velocity = 0.0;
@@ -142,12 +244,12 @@ struct LoadedScene {
   TrajectoryFrames frames;
 };
 
-std::vector<LoadedScene> load_scenes(const std::string& root, const std::vector<std::int64_t>& ids, const std::string& assets, FeatureMode mode, int max_frames, double mzcv, const char* label) {
+std::vector<LoadedScene> load_scenes(const data::Dataset& dataset, const std::vector<std::int64_t>& ids, const std::string& assets, FeatureMode mode, int max_frames, double mzcv, const char* label) {
   MeshLibrary lib(assets);
   std::vector<LoadedScene> out;
   ProgressBar bar(label, static_cast<std::int64_t>(ids.size()), "scenes");
   for (auto id : ids) {
-    auto k = data::read_kubric_metadata(std::filesystem::path(root) / std::to_string(id));
+    auto k = dataset.scene(id);
     LoadedScene ls{id, make_scene(k, lib), {}, {}};
     if (max_frames > 0 && ls.scene.num_frames > max_frames) {
       ls.scene.num_frames = max_frames;
@@ -167,13 +269,15 @@ std::vector<LoadedScene> load_scenes(const std::string& root, const std::vector<
 int run_train(const TrainArgs& a) {
   namespace fs = std::filesystem;
   const FeatureMode mode = feature_mode_from_string(a.mode);
-  const auto ids = data::list_scenes(a.data);
-  const auto split = data::reference_split(ids);
-  if (split.train.empty()) throw data::DataError(a.data + ": no training scenes");
+  const auto dataset = data::Dataset::open(a.data);
+  const auto& ids = dataset.ids();
+  const auto split = a.split_file.empty() ? data::reference_split(ids) : data::read_split_json(a.split_file);
+  const auto train_ids = data::split_part(split, "train", ids), val_ids = data::split_part(split, "val", ids);
+  if (train_ids.empty()) throw data::DataError(a.data + ": no training scenes");
   fs::create_directories(a.out);
-  std::printf("train: %zu scenes (%zu train, %zu val), mode %s\n", ids.size(), split.train.size(), split.val.size(), to_string(mode));
-  auto train = load_scenes(a.data, split.train, a.assets, mode, a.max_frames, a.min_z_collision_velocity, "features (train)");
-  auto val = load_scenes(a.data, split.val, a.assets, mode, a.max_frames, a.min_z_collision_velocity, "features (val)");
+  std::printf("train: %zu scenes (%zu train, %zu val), %s format, mode %s\n", ids.size(), train_ids.size(), val_ids.size(), dataset.format().c_str(), to_string(mode));
+  auto train = load_scenes(dataset, train_ids, a.assets, mode, a.max_frames, a.min_z_collision_velocity, "features (train)");
+  auto val = load_scenes(dataset, val_ids, a.assets, mode, a.max_frames, a.min_z_collision_velocity, "features (val)");
   NormalizationStats stats;
   const auto stats_path = (fs::path(a.out) / "stats.json").string();
   if (!a.stats.empty()) {
@@ -270,8 +374,8 @@ int run_train(const TrainArgs& a) {
 
 // ---- evaluate ---------------------------------------------------------------------------------
 struct EvaluateArgs {
-  std::string checkpoint, stats, data, assets, split = "test", mode = "reference", out;
-  int steps = 102;
+  std::string checkpoint, stats, data, assets, split = "test", split_file, mode = "reference", out;
+  int steps = 102, viewer_scenes = 6, jobs = 0;
 };
 
 // Constant velocity: positions and rotations keep their last per-frame change.
@@ -324,33 +428,64 @@ std::string svg_plot(const std::vector<std::pair<std::string, std::vector<double
 int run_evaluate(const EvaluateArgs& a) {
   namespace fs = std::filesystem;
   const FeatureMode mode = feature_mode_from_string(a.mode);
-  auto net = load_hopnet(a.checkpoint, mode);
-  net->eval();
+  load_hopnet(a.checkpoint, mode);  // fails early on a bad checkpoint
   const Normalizer norm(read_stats_json(a.stats));
-  const auto ids = data::list_scenes(a.data);
-  std::vector<std::int64_t> chosen;
-  if (a.split == "all") chosen = ids;
-  else if (a.split == "test") chosen = data::reference_split(ids).test;
-  else throw data::DataError("unknown split '" + a.split + "' (test, all)");
+  const auto dataset = data::Dataset::open(a.data);
+  const auto& ids = dataset.ids();
+  const auto chosen = data::split_part(a.split_file.empty() ? data::reference_split(ids) : data::read_split_json(a.split_file), a.split, ids);
   if (chosen.empty()) throw data::DataError(a.data + ": the " + a.split + " split is empty");
   fs::create_directories(a.out);
-  MeshLibrary lib(a.assets);
   const std::vector<int> horizons{25, 50, 75, 100};
   std::map<std::string, std::map<int, std::vector<double>>> per;  // "model.pos_rmse" -> frame -> values
   std::map<std::string, std::vector<double>> curve_sum;
   std::vector<int> curve_n;
   ProgressBar bar("evaluate", static_cast<std::int64_t>(chosen.size()), "scenes");
   double seconds = 0;
-  for (auto id : chosen) {
-    const Scene scene = make_scene(data::read_kubric_metadata(fs::path(a.data) / std::to_string(id)), lib);
-    const auto g = make_geometry(scene, mode);
-    RolloutOptions opt;
-    opt.steps = static_cast<int>(std::min<std::int64_t>(a.steps, scene.num_frames - 4));
-    const auto r = rollout(*net, norm, scene, g, opt);
-    seconds += r.seconds;
-    const auto mm = rollout_metrics(r.poses, scene);
-    const auto cv = rollout_metrics(constant_velocity(scene, static_cast<int>(r.poses.size())), scene);
-    for (const auto& [name, m] : std::vector<std::pair<std::string, const RolloutMetrics*>>{{"hopnet", &mm}, {"constant_velocity", &cv}}) {
+  // Scenes are rolled out by `jobs` threads, each with its own model (one intra-op thread each).
+  struct Result {
+    std::optional<Scene> scene;  // kept for the viewer
+    std::vector<Poses> poses;
+    RolloutMetrics model, baseline;
+    double seconds = 0;
+  };
+  std::vector<Result> results(chosen.size());
+  std::atomic<std::size_t> next{0};
+  std::mutex mutex;
+  std::string error;
+  const auto work = [&] {
+    try {
+      auto net = load_hopnet(a.checkpoint, mode);
+      net->eval();
+      MeshLibrary lib(a.assets);
+      for (std::size_t i = next++; i < chosen.size() && error.empty(); i = next++) {
+        Scene scene = make_scene(dataset.scene(chosen[i]), lib);
+        const auto g = make_geometry(scene, mode);
+        RolloutOptions opt;
+        opt.steps = static_cast<int>(std::min<std::int64_t>(a.steps, scene.num_frames - 4));
+        auto r = rollout(*net, norm, scene, g, opt);
+        auto& out = results[i];
+        out.model = rollout_metrics(r.poses, scene);
+        out.baseline = rollout_metrics(constant_velocity(scene, static_cast<int>(r.poses.size())), scene);
+        out.seconds = r.seconds;
+        if (static_cast<int>(i) < a.viewer_scenes) out.scene = std::move(scene), out.poses = std::move(r.poses);
+        std::lock_guard<std::mutex> lock(mutex);
+        bar.update(1, "scene " + std::to_string(chosen[i]));
+      }
+    } catch (const std::exception& e) {
+      std::lock_guard<std::mutex> lock(mutex);
+      if (error.empty()) error = e.what();
+    }
+  };
+  const int jobs = std::max(1, std::min<int>(a.jobs > 0 ? a.jobs : static_cast<int>(std::thread::hardware_concurrency()), static_cast<int>(chosen.size())));
+  std::vector<std::thread> pool;
+  for (int j = 0; j < jobs; ++j) pool.emplace_back(work);
+  for (auto& t : pool) t.join();
+  if (!error.empty()) throw std::runtime_error(error);
+  std::vector<hopnet_viewer::ViewerScene> viewer;
+  for (std::size_t i = 0; i < chosen.size(); ++i) {
+    const auto& res = results[i];
+    seconds += res.seconds;
+    for (const auto& [name, m] : std::vector<std::pair<std::string, const RolloutMetrics*>>{{"hopnet", &res.model}, {"constant_velocity", &res.baseline}}) {
       for (int h : horizons) {
         if (h >= static_cast<int>(m->pos_rmse.size())) continue;
         per[name + ".pos_rmse"][h].push_back(m->pos_rmse[static_cast<std::size_t>(h)]);
@@ -361,9 +496,9 @@ int run_evaluate(const EvaluateArgs& a) {
       if (c.size() < m->pos_rmse.size()) c.resize(m->pos_rmse.size(), 0.0);
       for (std::size_t f = 0; f < m->pos_rmse.size(); ++f) c[f] += m->pos_rmse[f];
     }
-    if (curve_n.size() < mm.pos_rmse.size()) curve_n.resize(mm.pos_rmse.size(), 0);
-    for (std::size_t f = 0; f < mm.pos_rmse.size(); ++f) ++curve_n[f];
-    bar.update(1, "scene " + std::to_string(id));
+    if (res.scene) viewer.push_back({"scene " + std::to_string(chosen[i]), &*res.scene, res.poses, res.model.pos_rmse});
+    if (curve_n.size() < res.model.pos_rmse.size()) curve_n.resize(res.model.pos_rmse.size(), 0);
+    for (std::size_t f = 0; f < res.model.pos_rmse.size(); ++f) ++curve_n[f];
   }
   bar.finish();
   const auto stat = [](const std::vector<double>& v) {
@@ -413,13 +548,14 @@ int run_evaluate(const EvaluateArgs& a) {
     for (std::size_t f = 0; f < c.size(); ++f) v[f] = c[f] / std::max(curve_n[f], 1);
     series.push_back({name, v});
   }
-  std::ofstream(fs::path(a.out) / "pos_rmse.svg") << svg_plot(series, "position RMSE (m)");
-  std::cout << md.str() << "wrote " << a.out << "/metrics.json, table.md, pos_rmse.svg\n";
+  write_file_atomic((fs::path(a.out) / "pos_rmse.svg").string(), svg_plot(series, "position RMSE (m)"));
+  if (!viewer.empty()) hopnet_viewer::write_viewer_html((fs::path(a.out) / "viewer.html").string(), "HOPNet rollouts (" + std::string(to_string(mode)) + " mode): " + a.data, viewer);
+  std::cout << md.str() << "wrote " << a.out << "/metrics.json, table.md, pos_rmse.svg" << (viewer.empty() ? "" : ", viewer.html") << "\n";
   return 0;
 }
 
 struct RolloutArgs {
-  std::string checkpoint, stats, scene, assets, mode = "reference", out, collisions;
+  std::string checkpoint, stats, scene, assets, mode = "reference", out, collisions, viewer;
   int steps = 102, threads = 1;
   bool no_collisions_json = false;
 };
@@ -479,6 +615,7 @@ int run_rollout(const RolloutArgs& a) {
   j["positions"] = pos;
   j["quaternions"] = quat;
   write_json_atomic(j, a.out);
+  if (!a.viewer.empty()) hopnet_viewer::write_viewer_html(a.viewer, "HOPNet rollout (" + std::string(to_string(mode)) + " mode): " + kubric.source, {{kubric.source, &scene, r.poses, m.pos_rmse}});
   std::printf("rollout: %d steps in %.3f s (%.2f ms/step), mode %s\n", opt.steps, r.seconds, 1e3 * r.seconds / opt.steps, to_string(mode));
   std::printf("%6s %10s %10s %10s %10s\n", "frame", "pos_rmse", "pos_mae", "ori_rmse", "ori_mae");
   for (int f : {4, 25, 50, 75, 100})
@@ -510,19 +647,40 @@ int main(int argc, char** argv) {
   cn->add_option("--mode", in.mode, "reference or native dual encoding")->capture_default_str();
   cn->add_option("--seed", in.seed, "initialisation seed")->capture_default_str();
 
+  ExportArgs ex;
+  auto* cx = app.add_subcommand("export", "write a model for Python: torch.load(FILE) gives config, state_dict (reference names) and statistics");
+  cx->add_option("--checkpoint", ex.checkpoint, "a topos or reference checkpoint")->required()->check(CLI::ExistingFile);
+  cx->add_option("--stats", ex.stats, "normalisation statistics to include")->check(CLI::ExistingFile);
+  cx->add_option("--names", ex.names, "parameter names: reference (the authors' HOPNet class) or topos")->capture_default_str();
+  cx->add_option("--out", ex.out, "file to write")->required();
+
   GenerateArgs ge;
   auto* cg = app.add_subcommand("generate", "regenerate MOVi scenes with Bullet, seed for seed (Kubric's metadata.json per scene)");
   cg->add_option("--dataset", ge.dataset, "movi-spheres, movi-a or movi-b")->required();
   cg->add_option("--seeds", ge.seeds, "seeds, e.g. 1-1200 or 1,5,8-10")->capture_default_str();
   cg->add_option("--assets", ge.assets, "KuBasic-layout asset folder (built-in cube/sphere/cylinder when omitted)");
   cg->add_option("--out", ge.out, "output folder (<out>/<seed>/metadata.json); existing scenes are kept")->required();
-  cg->add_option("--format", ge.format, "kubric")->capture_default_str();
+  cg->add_option("--format", ge.format, "kubric (<out>/<seed>/metadata.json) or topos (dataset.json + .npy arrays, docs/datasets.md)")->capture_default_str();
   cg->add_option("--jobs", ge.jobs, "processes (default: all cores)");
   cg->add_option("--frames", ge.frames, "frames per scene")->capture_default_str()->check(CLI::Range(4, 100000));
 
+  PackArgs pa;
+  auto* cp = app.add_subcommand("pack", "convert a folder of Kubric scene folders into a topos dataset");
+  cp->add_option("--data", pa.data, "Kubric scene folders (<seed>/metadata.json)")->required()->check(CLI::ExistingDirectory);
+  cp->add_option("--seeds", pa.seeds, "only these seeds (default: every scene folder)");
+  cp->add_option("--out", pa.out, "folder for dataset.json, positions.npy, quaternions.npy")->required();
+
+  SplitArgs sp;
+  auto* cs = app.add_subcommand("split", "the reference 80/10/10 split of a seed set or dataset (spec section 10)");
+  cs->add_option("--seeds", sp.seeds, "seed set, e.g. 1-1200");
+  cs->add_option("--data", sp.data, "or: a dataset folder")->check(CLI::ExistingDirectory);
+  cs->add_option("--part", sp.part, "print one part as a comma-separated list: train, val or test");
+  cs->add_option("--out", sp.out, "write the split as JSON (the --split-file of train and evaluate)");
+
   TrainArgs tr;
   auto* ct = app.add_subcommand("train", "train HOPNet on a folder of Kubric scene folders (one optimizer step per trajectory)");
-  ct->add_option("--data", tr.data, "dataset folder (<seed>/metadata.json)")->required()->check(CLI::ExistingDirectory);
+  ct->add_option("--data", tr.data, "dataset folder: topos format or Kubric scene folders")->required()->check(CLI::ExistingDirectory);
+  ct->add_option("--split-file", tr.split_file, "custom split JSON {train, val, test} (default: the reference split)")->check(CLI::ExistingFile);
   ct->add_option("--out", tr.out, "output folder: checkpoint.pt, stats.json, steps.csv, epochs.csv")->required();
   ct->add_option("--assets", tr.assets, "KuBasic-layout asset folder (built-in shapes when omitted)");
   ct->add_option("--stats", tr.stats, "normalisation statistics (default: computed from the training split)");
@@ -547,10 +705,13 @@ int main(int argc, char** argv) {
   ce->add_option("--stats", ev.stats, "normalisation statistics")->required()->check(CLI::ExistingFile);
   ce->add_option("--data", ev.data, "dataset folder")->required()->check(CLI::ExistingDirectory);
   ce->add_option("--assets", ev.assets, "KuBasic-layout asset folder (built-in shapes when omitted)");
-  ce->add_option("--split", ev.split, "test or all")->capture_default_str();
+  ce->add_option("--split", ev.split, "train, val, test or all")->capture_default_str();
+  ce->add_option("--split-file", ev.split_file, "custom split JSON {train, val, test} (default: the reference split of the scenes present)")->check(CLI::ExistingFile);
   ce->add_option("--mode", ev.mode, "reference or native")->capture_default_str();
   ce->add_option("--steps", ev.steps, "rollout steps")->capture_default_str()->check(CLI::PositiveNumber);
-  ce->add_option("--out", ev.out, "output folder: metrics.json, table.md, pos_rmse.svg")->required();
+  ce->add_option("--jobs", ev.jobs, "scenes rolled out at once (default: all cores)");
+  ce->add_option("--viewer-scenes", ev.viewer_scenes, "scenes shown in viewer.html (0: no viewer)")->capture_default_str()->check(CLI::NonNegativeNumber);
+  ce->add_option("--out", ev.out, "output folder: metrics.json, table.md, pos_rmse.svg, viewer.html")->required();
 
   RolloutArgs ro;
   auto* cr = app.add_subcommand("rollout", "autoregressive rollout of one scene with the paper's per-frame metrics");
@@ -563,6 +724,7 @@ int main(int argc, char** argv) {
   cr->add_option("--collisions", ro.collisions, "collisions.json for the first step (default: beside the scene, reference mode)");
   cr->add_flag("--no-collisions-json", ro.no_collisions_json, "detect the first step's contacts too");
   cr->add_option("--out", ro.out, "output JSON")->required();
+  cr->add_option("--viewer", ro.viewer, "also write the HTML viewer (prediction beside ground truth) here");
 
   try {
     app.parse(argc, argv);
@@ -575,7 +737,10 @@ int main(int argc, char** argv) {
     if (*ct) nn::keep_freed_memory();
     if (*ci) return run_info(info);
     if (*cn) return run_init(in);
+    if (*cx) return run_export(ex);
     if (*cg) return run_generate(ge);
+    if (*cp) return run_pack(pa);
+    if (*cs) return run_split(sp);
     if (*ct) return run_train(tr);
     if (*ce) return run_evaluate(ev);
     if (*cr) return run_rollout(ro);

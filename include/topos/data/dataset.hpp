@@ -1,13 +1,20 @@
 // topos/data/dataset.hpp
-// A dataset is a folder of numeric scene folders (`<root>/<seed>/metadata.json`, Kubric's
-// layout, which the reference code reads too). Listing, seed ranges, and the reference's
-// 80/10/10 split (spec section 10: the exact lists for seeds 1..1200 and 1..10; other sets get
-// a documented deterministic split). std + nlohmann-json.
+// Datasets of MOVi scenes on disk, in two formats (docs/datasets.md):
+//  - kubric: a folder of numeric scene folders, `<root>/<seed>/metadata.json` (Kubric's layout,
+//    which the reference code reads too);
+//  - topos: `<root>/dataset.json` (every scene's objects and properties) beside
+//    `positions.npy` (float64, objects × frames × 3) and `quaternions.npy` (objects × frames × 4,
+//    w x y z), all scenes' objects stacked; two reads load a whole dataset, and NumPy opens it.
+// Seed ranges, the reference's 80/10/10 split (spec section 10: the exact lists for seeds
+// 1..1200 and 1..10; other sets get a documented deterministic split) and custom splits as JSON.
+// std + nlohmann-json.
 #pragma once
 
 #include "topos/data/kubric.hpp"
+#include "topos/data/npy.hpp"
 
 #include <algorithm>
+#include <map>
 #include <cmath>
 #include <filesystem>
 #include <random>
@@ -96,6 +103,179 @@ inline Split reference_split(const std::vector<std::int64_t>& ids) {
   }
   for (auto id : ids) (val.count(id) ? s.val : test.count(id) ? s.test : s.train).push_back(id);
   return s;
+}
+
+
+inline nlohmann::json split_json(const Split& s) { return {{"train", s.train}, {"val", s.val}, {"test", s.test}}; }
+
+/// A custom split: {"train": [...], "val": [...], "test": [...]} (any part may be missing). A seed
+/// in two parts is an error.
+inline Split parse_split_json(const std::string& text, const std::string& source) {
+  Split s;
+  std::set<std::int64_t> seen;
+  try {
+    const auto j = nlohmann::json::parse(text);
+    if (!j.is_object()) throw DataError(source + ": a split is a JSON object with train/val/test seed lists");
+    for (auto& [key, part] : std::vector<std::pair<const char*, std::vector<std::int64_t>*>>{{"train", &s.train}, {"val", &s.val}, {"test", &s.test}}) {
+      if (!j.contains(key)) continue;
+      *part = j.at(key).get<std::vector<std::int64_t>>();
+      for (auto id : *part)
+        if (!seen.insert(id).second) throw DataError(source + ": seed " + std::to_string(id) + " is listed twice");
+      std::sort(part->begin(), part->end());
+    }
+    for (const auto& [k, v] : j.items())
+      if (k != "train" && k != "val" && k != "test") throw DataError(source + ": unknown part '" + k + "' (train, val, test)");
+  } catch (const nlohmann::json::exception& e) {
+    throw DataError(source + ": malformed split: " + e.what());
+  }
+  return s;
+}
+
+inline Split read_split_json(const std::filesystem::path& path) {
+  std::ifstream in(path);
+  if (!in) throw DataError(path.string() + ": cannot open file");
+  return parse_split_json(std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>()), path.string());
+}
+
+/// The seeds of `part` ("train", "val", "test" or "all") that a dataset must hold; a listed seed
+/// the dataset lacks is an error naming it.
+inline std::vector<std::int64_t> split_part(const Split& s, const std::string& part, const std::vector<std::int64_t>& available) {
+  std::vector<std::int64_t> ids;
+  if (part == "all") ids = available;
+  else if (part == "train") ids = s.train;
+  else if (part == "val") ids = s.val;
+  else if (part == "test") ids = s.test;
+  else throw DataError("unknown split part '" + part + "' (train, val, test, all)");
+  for (auto id : ids)
+    if (!std::binary_search(available.begin(), available.end(), id)) throw DataError("the " + part + " split lists seed " + std::to_string(id) + ", which the dataset does not hold");
+  return ids;
+}
+
+/// A dataset in either format, opened by its folder. Kubric scenes are read when asked for; a
+/// topos dataset is read whole at open.
+class Dataset {
+ public:
+  static Dataset open(const std::filesystem::path& root) {
+    Dataset d;
+    d.root_ = root;
+    if (std::filesystem::exists(root / "dataset.json")) {
+      d.format_ = "topos";
+      d.load_topos();
+    } else {
+      d.format_ = "kubric";
+      d.ids_ = list_scenes(root);
+    }
+    return d;
+  }
+  const std::vector<std::int64_t>& ids() const { return ids_; }
+  const std::string& format() const { return format_; }
+  const std::filesystem::path& root() const { return root_; }
+  bool contains(std::int64_t id) const { return std::binary_search(ids_.begin(), ids_.end(), id); }
+
+  KubricScene scene(std::int64_t id) const {
+    if (format_ == "kubric") return read_kubric_metadata(root_ / std::to_string(id));
+    auto it = scenes_.find(id);
+    if (it == scenes_.end()) throw DataError((root_ / "dataset.json").string() + ": no scene " + std::to_string(id));
+    return it->second;
+  }
+
+ private:
+  std::filesystem::path root_;
+  std::string format_;
+  std::vector<std::int64_t> ids_;
+  std::map<std::int64_t, KubricScene> scenes_;
+
+  void load_topos() {
+    const auto index_path = (root_ / "dataset.json").string();
+    std::ifstream in(index_path);
+    if (!in) throw DataError(index_path + ": cannot open file");
+    nlohmann::json j;
+    try {
+      j = nlohmann::json::parse(in);
+    } catch (const nlohmann::json::exception& e) {
+      throw DataError(index_path + ": malformed JSON: " + e.what());
+    }
+    NpyArray pos, quat;
+    try {
+      pos = read_npy((root_ / "positions.npy").string());
+      quat = read_npy((root_ / "quaternions.npy").string());
+    } catch (const std::runtime_error& e) {
+      throw DataError(e.what());
+    }
+    try {
+      if (j.at("format").get<std::string>() != "topos-movi") throw DataError(index_path + ": format is not 'topos-movi'");
+      if (j.at("version").get<int>() != 1) throw DataError(index_path + ": unsupported version " + j.at("version").dump());
+      const std::int64_t frames = j.at("num_frames").get<std::int64_t>(), total = j.at("num_objects").get<std::int64_t>();
+      const auto check = [&](const NpyArray& a, const char* name, std::int64_t cols) {
+        if (a.dtype != "f8" || a.shape != std::vector<std::int64_t>{total, frames, cols})
+          throw DataError((root_ / name).string() + ": expected float64 of shape (" + std::to_string(total) + ", " + std::to_string(frames) + ", " + std::to_string(cols) + ") as dataset.json says");
+      };
+      check(pos, "positions.npy", 3);
+      check(quat, "quaternions.npy", 4);
+      const auto* P = reinterpret_cast<const double*>(pos.bytes.data());
+      const auto* Q = reinterpret_cast<const double*>(quat.bytes.data());
+      std::int64_t next = 0;
+      for (const auto& js : j.at("scenes")) {
+        KubricScene s;
+        s.seed = js.at("seed").get<std::int64_t>();
+        s.num_frames = frames;
+        s.source = index_path + " (seed " + std::to_string(s.seed) + ")";
+        if (js.at("offset").get<std::int64_t>() != next) throw DataError(s.source + ": offset " + js.at("offset").dump() + ", expected " + std::to_string(next));
+        for (const auto& ji : js.at("instances")) {
+          if (next >= total) throw DataError(s.source + ": more objects than num_objects");
+          KubricInstance k;
+          k.asset_id = ji.at("asset_id").get<std::string>();
+          k.shape = ji.value("shape", k.asset_id);
+          k.size = ji.at("size").get<double>(), k.mass = ji.at("mass").get<double>();
+          k.friction = ji.at("friction").get<double>(), k.restitution = ji.at("restitution").get<double>();
+          k.positions = Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>>(P + next * frames * 3, frames, 3);
+          k.quaternions = Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, 4, Eigen::RowMajor>>(Q + next * frames * 4, frames, 4);
+          if (!k.positions.allFinite() || !k.quaternions.allFinite()) throw DataError(s.source + ": non-finite pose of object " + std::to_string(s.instances.size()));
+          s.instances.push_back(std::move(k));
+          ++next;
+        }
+        if (s.instances.empty()) throw DataError(s.source + ": the scene has no instances");
+        if (!scenes_.emplace(s.seed, s).second) throw DataError(index_path + ": seed " + std::to_string(s.seed) + " appears twice");
+        ids_.push_back(s.seed);
+      }
+      if (next != total) throw DataError(index_path + ": the scenes hold " + std::to_string(next) + " objects, num_objects is " + std::to_string(total));
+    } catch (const nlohmann::json::exception& e) {
+      throw DataError(index_path + ": malformed dataset index: " + e.what());
+    }
+    std::sort(ids_.begin(), ids_.end());
+    if (ids_.empty()) throw DataError(index_path + ": the dataset holds no scenes");
+  }
+};
+
+/// Writes scenes (all with the same number of frames) as a topos dataset in `root`: the arrays
+/// first, then dataset.json, each atomically, so a reader never sees a half-written dataset.
+/// An existing dataset in `root` is never overwritten (that is an error).
+inline void write_topos_dataset(const std::vector<KubricScene>& scenes, const std::filesystem::path& root) {
+  if (scenes.empty()) throw DataError(root.string() + ": no scenes to write");
+  if (std::filesystem::exists(root / "dataset.json")) throw DataError(root.string() + ": already holds a topos dataset (dataset.json); remove it or write elsewhere");
+  const std::int64_t frames = scenes.front().num_frames;
+  std::int64_t total = 0;
+  for (const auto& s : scenes) {
+    if (s.num_frames != frames) throw DataError(s.source + ": has " + std::to_string(s.num_frames) + " frames, the dataset " + std::to_string(frames));
+    total += static_cast<std::int64_t>(s.instances.size());
+  }
+  std::vector<double> P(static_cast<std::size_t>(total * frames * 3)), Q(static_cast<std::size_t>(total * frames * 4));
+  nlohmann::json index{{"format", "topos-movi"}, {"version", 1}, {"num_frames", frames}, {"num_objects", total}, {"scenes", nlohmann::json::array()}};
+  std::int64_t next = 0;
+  for (const auto& s : scenes) {
+    nlohmann::json js{{"seed", s.seed}, {"offset", next}, {"instances", nlohmann::json::array()}};
+    for (const auto& k : s.instances) {
+      js["instances"].push_back({{"asset_id", k.asset_id}, {"shape", k.shape}, {"size", k.size}, {"mass", k.mass}, {"friction", k.friction}, {"restitution", k.restitution}});
+      Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>>(P.data() + next * frames * 3, frames, 3) = k.positions;
+      Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 4, Eigen::RowMajor>>(Q.data() + next * frames * 4, frames, 4) = k.quaternions;
+      ++next;
+    }
+    index["scenes"].push_back(js);
+  }
+  std::filesystem::create_directories(root);
+  write_npy((root / "positions.npy").string(), {total, frames, 3}, P.data());
+  write_npy((root / "quaternions.npy").string(), {total, frames, 4}, Q.data());
+  write_file_atomic((root / "dataset.json").string(), index.dump() + "\n");
 }
 
 }  // namespace topos::data
