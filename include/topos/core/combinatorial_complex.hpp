@@ -77,16 +77,20 @@ class CombinatorialComplex {
     if (n < 0) throw ComplexError("add_nodes: negative count " + std::to_string(n));
     ensure_rank(0);
     const Index first = num_nodes();
-    for (Index i = 0; i < n; ++i) {
-      const Index v = first + i;
-      Rank& r0 = ranks_[0];
-      r0.nodes.push_back(v);
-      r0.offsets.push_back(static_cast<Index>(r0.nodes.size()));
-      r0.oriented_nodes.push_back(v);
-      r0.declared_offsets.push_back(0);
-      if (!lookup_dirty_) lookup_.insert(hash_nodes(&v, 1), {0, v});
+    Rank& r0 = ranks_[0];
+    r0.nodes.resize(static_cast<std::size_t>(first + n));
+    r0.oriented_nodes.resize(r0.nodes.size());
+    r0.offsets.resize(r0.nodes.size() + 1);
+    r0.declared_offsets.resize(r0.nodes.size() + 1, 0);
+    for (Index v = first; v < first + n; ++v) {
+      r0.nodes[static_cast<std::size_t>(v)] = r0.oriented_nodes[static_cast<std::size_t>(v)] = v;
+      r0.offsets[static_cast<std::size_t>(v) + 1] = v + 1;
     }
+    // Many nodes at once: the set -> cell table is rebuilt when next needed instead.
+    if (n > 64) lookup_dirty_ = true;
+    for (Index v = first; v < first + n && !lookup_dirty_; ++v) lookup_.insert(hash_nodes(&v, 1), {0, v});
     index_dirty_ = true;
+    min_index_.clear();  // sized by the node count
     return first;
   }
 
@@ -144,6 +148,7 @@ class CombinatorialComplex {
     for (Index v : sorted) tail_index_[v].push_back({rank, id});
     ++tail_entries_;
     lookup_.insert(h, {rank, id});  // find_sorted above made the table current
+    invalidate_min_index(rank);
     return {id, true};
   }
 
@@ -161,7 +166,34 @@ class CombinatorialComplex {
     R.declared_offsets.push_back(static_cast<Index>(R.declared.size()));
     index_dirty_ = true;
     lookup_dirty_ = true;  // the set -> cell table is rebuilt on the next look-up
+    invalidate_min_index(rank);
     return id;
+  }
+
+  /// Appends `count` cells of `arity` nodes each (flat, oriented) without any check, as
+  /// add_cell_trusted does one by one; returns the id of the first.
+  Index add_cells_trusted(const Index* oriented, std::size_t count, std::size_t arity, int rank) {
+    ensure_rank(rank);
+    Rank& R = ranks_[static_cast<std::size_t>(rank)];
+    const Index first = static_cast<Index>(R.offsets.size()) - 1;
+    const std::size_t begin = R.nodes.size();
+    R.nodes.insert(R.nodes.end(), oriented, oriented + count * arity);
+    R.oriented_nodes.insert(R.oriented_nodes.end(), oriented, oriented + count * arity);
+    R.offsets.reserve(R.offsets.size() + count);
+    R.declared_offsets.resize(R.declared_offsets.size() + count, static_cast<Index>(R.declared.size()));
+    for (std::size_t c = 0; c < count; ++c) {
+      Index* b = R.nodes.data() + begin + c * arity;
+      if (arity == 2) {
+        if (b[1] < b[0]) std::swap(b[0], b[1]);
+      } else {
+        std::sort(b, b + arity);
+      }
+      R.offsets.push_back(static_cast<Index>(begin + (c + 1) * arity));
+    }
+    index_dirty_ = true;
+    lookup_dirty_ = true;
+    invalidate_min_index(rank);
+    return first;
   }
 
   /// Reserves storage for `cells` cells of total `nodes` node entries at rank r.
@@ -213,6 +245,7 @@ class CombinatorialComplex {
         if (!lookup_dirty_) lookup_.erase(hash_nodes(b, static_cast<std::size_t>(e - b)), cell);
       }
       if (keep + 1 < static_cast<Index>(R.offsets.size())) {
+        invalidate_min_index(static_cast<int>(r));
         R.nodes.resize(static_cast<std::size_t>(R.offsets[static_cast<std::size_t>(keep)]));
         R.oriented_nodes.resize(R.nodes.size());
         R.offsets.resize(static_cast<std::size_t>(keep) + 1);
@@ -285,7 +318,7 @@ class CombinatorialComplex {
     require_rank(hi, "incidence");
     if (lo >= hi) throw ComplexError("incidence: lower rank " + std::to_string(lo) + " must be below " + std::to_string(hi));
     const Rank& U = ranks_[static_cast<std::size_t>(hi)];
-    if (lo > 0) ensure_index();
+    const MinIndex* M = lo > 0 ? &min_index(lo) : nullptr;
     const Rank& L = ranks_[static_cast<std::size_t>(lo)];
     std::vector<std::pair<Index, std::pair<Scalar, int>>> found;
     for (Index j = 0; j + 1 < static_cast<Index>(U.offsets.size()); ++j) {
@@ -297,14 +330,14 @@ class CombinatorialComplex {
       } else {
         // Each subset is found once: through its smallest node.
         for (const Index* p = b; p != e; ++p) {
-          for_each_cell_of_node(*p, [&](const Cell& c) {
-            if (c.rank != lo) return;
-            const Index* lb = L.nodes.data() + L.offsets[static_cast<std::size_t>(c.id)];
-            const Index* le = L.nodes.data() + L.offsets[static_cast<std::size_t>(c.id) + 1];
-            if (*lb == *p && includes(b, e, lb, le)) found.push_back({c.id, {Scalar(1), 0}});
-          });
+          for (Index k = M->offsets[static_cast<std::size_t>(*p)]; k < M->offsets[static_cast<std::size_t>(*p) + 1]; ++k) {
+            const Index id = M->ids[static_cast<std::size_t>(k)];
+            const Index* lb = L.nodes.data() + L.offsets[static_cast<std::size_t>(id)];
+            const Index* le = L.nodes.data() + L.offsets[static_cast<std::size_t>(id) + 1];
+            if (includes(b, e, lb, le)) found.push_back({id, {Scalar(1), 0}});
+          }
         }
-        std::sort(found.begin(), found.end(), [](auto& x, auto& y) { return x.first < y.first; });
+        if (found.size() > 1) std::sort(found.begin(), found.end(), [](auto& x, auto& y) { return x.first < y.first; });
       }
       for (Index k = U.declared_offsets[static_cast<std::size_t>(j)]; k < U.declared_offsets[static_cast<std::size_t>(j) + 1]; ++k) {
         const Declared& d = U.declared[static_cast<std::size_t>(k)];
@@ -324,18 +357,18 @@ class CombinatorialComplex {
     const int lo = std::min(r, s), hi = std::max(r, s);
     // The visit order (upper cells in order, lower ids ascending) is the CSR of the hi × lo
     // matrix: fill it directly; the lo × hi one is its transpose (Eigen's counting sort).
-    std::vector<std::int64_t> outer(static_cast<std::size_t>(size(hi)) + 1, 0), inner;
-    std::vector<Scalar> values;
-    inner.reserve(static_cast<std::size_t>(size(hi)) * 3);
-    values.reserve(static_cast<std::size_t>(size(hi)) * 3);
+    // Filled in place (no intermediate arrays to copy: at 50k nodes the copies and their page
+    // faults cost as much as the enumeration).
+    SparseMatrix up(size(hi), size(lo));
+    auto& data = up.data();
+    data.reserve(lo == 0 ? static_cast<Eigen::Index>(ranks_[static_cast<std::size_t>(hi)].nodes.size()) : 3 * static_cast<Eigen::Index>(size(hi)));
+    std::int64_t* outer = up.outerIndexPtr();
     for_each_inclusion(lo, hi, [&](Index i, Index j, Scalar v, int) {
-      inner.push_back(i);
-      values.push_back(v);
-      ++outer[static_cast<std::size_t>(j) + 1];
+      data.append(v, static_cast<Eigen::Index>(i));
+      ++outer[j + 1];
     });
-    for (std::size_t j = 0; j + 1 < outer.size(); ++j) outer[j + 1] += outer[j];
-    const Eigen::Map<const SparseMatrix> up(size(hi), size(lo), static_cast<std::int64_t>(inner.size()), outer.data(), inner.data(), values.data());
-    if (r > s) return SparseMatrix(up);
+    for (Index j = 0; j < size(hi); ++j) outer[j + 1] += outer[j];
+    if (r > s) return up;
     return SparseMatrix(up.transpose());
   }
 
@@ -478,6 +511,33 @@ class CombinatorialComplex {
     }
     lookup_dirty_ = false;
   }
+  // Per rank: node v -> ids of the cells of that rank whose smallest node is v (every cell once,
+  // ids ascending). What enumerating subsets needs, at a fraction of the full node index's size;
+  // built lazily per rank, dropped when the rank changes.
+  struct MinIndex {
+    std::vector<Index> offsets, ids;
+    bool valid = false;
+  };
+  mutable std::vector<MinIndex> min_index_;
+  void invalidate_min_index(int r) {
+    if (static_cast<std::size_t>(r) < min_index_.size()) min_index_[static_cast<std::size_t>(r)].valid = false;
+  }
+  const MinIndex& min_index(int r) const {
+    if (min_index_.size() < ranks_.size()) min_index_.resize(ranks_.size());
+    MinIndex& M = min_index_[static_cast<std::size_t>(r)];
+    if (M.valid) return M;
+    const Rank& R = ranks_[static_cast<std::size_t>(r)];
+    const std::size_t n = static_cast<std::size_t>(num_nodes()), count = R.offsets.size() - 1;
+    M.offsets.assign(n + 1, 0);
+    for (std::size_t id = 0; id < count; ++id) ++M.offsets[static_cast<std::size_t>(R.nodes[static_cast<std::size_t>(R.offsets[id])]) + 1];
+    for (std::size_t v = 0; v < n; ++v) M.offsets[v + 1] += M.offsets[v];
+    M.ids.resize(count);
+    std::vector<Index> fill(M.offsets.begin(), M.offsets.end() - 1);
+    for (std::size_t id = 0; id < count; ++id) M.ids[static_cast<std::size_t>(fill[static_cast<std::size_t>(R.nodes[static_cast<std::size_t>(R.offsets[id])])]++)] = static_cast<Index>(id);
+    M.valid = true;
+    return M;
+  }
+
   // Node -> cells index: a CSR over the first indexed_counts_[r] cells of each rank, built lazily,
   // plus a small map for cells added one by one since (per-frame cells). Rebuilt when stale.
   mutable std::vector<Index> index_offsets_;
@@ -635,8 +695,13 @@ class CombinatorialComplex {
       for (std::size_t g = 0; g + 1 < offsets.size(); ++g)
         for (Index a = offsets[g]; a < offsets[g + 1]; ++a) groups[static_cast<std::size_t>(fill[static_cast<std::size_t>(members[static_cast<std::size_t>(a)])]++)] = static_cast<Index>(g);
     }
-    std::vector<std::int64_t> outer(static_cast<std::size_t>(n) + 1, 0), inner;
-    std::vector<Scalar> values;
+    // At most Σ_g |g|(|g| - 1) entries (before merging repeats): reserve that, fill in place.
+    std::int64_t bound = 0;
+    for (std::size_t g = 0; g + 1 < offsets.size(); ++g) bound += (offsets[g + 1] - offsets[g]) * (offsets[g + 1] - offsets[g] - 1);
+    SparseMatrix m(n, n);
+    auto& data = m.data();
+    data.reserve(static_cast<Eigen::Index>(bound));
+    std::int64_t* outer = m.outerIndexPtr();
     std::vector<Index> row;
     for (Index i = 0; i < n; ++i) {
       row.clear();
@@ -649,13 +714,12 @@ class CombinatorialComplex {
       for (std::size_t a = 0; a < row.size();) {
         std::size_t b = a;
         while (b < row.size() && row[b] == row[a]) ++b;
-        inner.push_back(row[a]);
-        values.push_back(static_cast<Scalar>(b - a));
+        data.append(static_cast<Scalar>(b - a), static_cast<Eigen::Index>(row[a]));
         a = b;
       }
-      outer[static_cast<std::size_t>(i) + 1] = static_cast<std::int64_t>(inner.size());
+      outer[i + 1] = static_cast<std::int64_t>(data.size());
     }
-    return SparseMatrix(Eigen::Map<const SparseMatrix>(n, n, static_cast<std::int64_t>(inner.size()), outer.data(), inner.data(), values.data()));
+    return m;
   }
 };
 

@@ -119,47 +119,51 @@ LiftedMeshes<Options> lift_meshes(const std::vector<TriangleMesh>& meshes, const
     ++bucket[static_cast<std::size_t>(std::min(a, b)) + 1];
   }
   for (std::size_t v = 0; v < static_cast<std::size_t>(n_nodes); ++v) bucket[v + 1] += bucket[v];
-  std::vector<std::pair<Index, Index>> entries(n_pairs);  // (larger node, position), positions ascending per bucket
+  // Positions of the pairs, grouped by smaller node, ascending within each group.
+  std::vector<Index> entries(n_pairs);
   {
     std::vector<Index> fill(bucket.begin(), bucket.end() - 1);
     for (std::size_t pos = 0; pos < n_pairs; ++pos) {
       auto [a, b] = pair_at(pos);
-      entries[static_cast<std::size_t>(fill[static_cast<std::size_t>(std::min(a, b))]++)] = {std::max(a, b), static_cast<Index>(pos)};
+      entries[static_cast<std::size_t>(fill[static_cast<std::size_t>(std::min(a, b))]++)] = static_cast<Index>(pos);
     }
   }
+  // Within a group, a pair whose larger node appeared before is a repeated edge. Two faces with
+  // the same three nodes share an edge and its opposite node: that is how duplicates show.
+  const auto larger = [&](Index pos) { auto [a, b] = pair_at(static_cast<std::size_t>(pos)); return std::max(a, b); };
+  const auto opposite = [&](Index pos) { return out.faces(pos / 3, (pos % 3 + 2) % 3); };
   std::vector<char> first(n_pairs, 0);
   for (std::size_t v = 0; v < static_cast<std::size_t>(n_nodes); ++v) {
     for (Index i = bucket[v]; i < bucket[v + 1]; ++i) {
+      const Index pi = entries[static_cast<std::size_t>(i)], li = larger(pi);
       bool seen = false;
-      for (Index j = bucket[v]; j < i && !seen; ++j) seen = entries[static_cast<std::size_t>(j)].first == entries[static_cast<std::size_t>(i)].first;
-      if (!seen) first[static_cast<std::size_t>(entries[static_cast<std::size_t>(i)].second)] = 1;
+      for (Index j = bucket[v]; j < i; ++j) {
+        const Index pj = entries[static_cast<std::size_t>(j)];
+        if (larger(pj) != li) continue;
+        seen = true;
+        if (opt.faces && opposite(pj) == opposite(pi)) {
+          const Index f = pi / 3;
+          Index o = 0;
+          while (out.face_offset[static_cast<std::size_t>(o) + 1] <= f) ++o;
+          throw MeshError("lift_meshes: face " + std::to_string(f - out.face_offset[static_cast<std::size_t>(o)]) + " of object " + std::to_string(o) + " duplicates an earlier face");
+        }
+      }
+      if (!seen) first[static_cast<std::size_t>(pi)] = 1;
     }
   }
   std::size_t n_edges = 0;
   for (char c : first) n_edges += static_cast<std::size_t>(c);
-  cc.reserve(1, n_edges, 2 * n_edges);
   out.edges.reserve(n_edges);
   for (std::size_t pos = 0; pos < n_pairs; ++pos) {
     if (!first[pos]) continue;
     auto [a, b] = pair_at(pos);
-    const Index e[2] = {a, b};
-    cc.add_cell_trusted(e, 2, 1);
     out.edges.push_back({a, b});
   }
+  static_assert(sizeof(std::array<Index, 2>) == 2 * sizeof(Index), "edges must be contiguous pairs");
+  cc.add_cells_trusted(out.edges.empty() ? nullptr : out.edges.front().data(), n_edges, 2, 1);
   if (opt.faces) {
-    cc.reserve(2, static_cast<std::size_t>(n_faces), static_cast<std::size_t>(n_faces) * 3);
-    detail::FlatKeyMap seen(static_cast<std::size_t>(n_faces) + 8);
-    for (Index f = 0; f < n_faces; ++f) {
-      std::array<Index, 3> s{out.faces(f, 0), out.faces(f, 1), out.faces(f, 2)};
-      std::sort(s.begin(), s.end());
-      const std::uint64_t key = ((static_cast<std::uint64_t>(s[0]) + 1) << 42) ^ (static_cast<std::uint64_t>(s[1]) << 21) ^ static_cast<std::uint64_t>(s[2]);
-      if (!seen.emplace(key, f).second && cc.find({s[0], s[1], s[2]})) {
-        Index o = 0;
-        while (out.face_offset[static_cast<std::size_t>(o) + 1] <= f) ++o;
-        throw MeshError("lift_meshes: face " + std::to_string(f - out.face_offset[static_cast<std::size_t>(o)]) + " of object " + std::to_string(o) + " duplicates an earlier face");
-      }
-      cc.add_cell_trusted(out.faces.row(f).data(), 3, 2);
-    }
+    // Duplicate faces were rejected with the edges above.
+    cc.add_cells_trusted(out.faces.data(), static_cast<std::size_t>(n_faces), 3, 2);
   }
   if (opt.object_rank > 0) {
     for (std::size_t o = 0; o < meshes.size(); ++o) {
