@@ -14,6 +14,7 @@
 
 #include <iostream>
 #include <atomic>
+#include <future>
 #include <mutex>
 #include <numeric>
 #include <thread>
@@ -237,20 +238,22 @@ struct TrainArgs {
   bool resume = false;
 };
 
+// A scene ready for training: its meshes and geometry. Features and the batched item are built
+// per optimizer step (a 10-object trajectory's item is ~100 MB; a whole dataset's would not fit).
 struct LoadedScene {
   std::int64_t id;
   Scene scene;
   HopnetGeometry geometry;
-  TrajectoryFrames frames;
 };
 
-std::vector<LoadedScene> load_scenes(const data::Dataset& dataset, const std::vector<std::int64_t>& ids, const std::string& assets, FeatureMode mode, int max_frames, double mzcv, const char* label) {
+std::vector<LoadedScene> load_scenes(const data::Dataset& dataset, const std::vector<std::int64_t>& ids, const std::string& assets, FeatureMode mode, int max_frames, const char* label) {
   MeshLibrary lib(assets);
   std::vector<LoadedScene> out;
+  out.reserve(ids.size());  // geometry points into its scene's objects: no reallocation
   ProgressBar bar(label, static_cast<std::int64_t>(ids.size()), "scenes");
   for (auto id : ids) {
     auto k = dataset.scene(id);
-    LoadedScene ls{id, make_scene(k, lib), {}, {}};
+    LoadedScene ls{id, make_scene(k, lib), {}};
     if (max_frames > 0 && ls.scene.num_frames > max_frames) {
       ls.scene.num_frames = max_frames;
       ls.scene.positions.conservativeResize(max_frames, Eigen::NoChange);
@@ -260,7 +263,6 @@ std::vector<LoadedScene> load_scenes(const data::Dataset& dataset, const std::ve
     auto& b = out.back();
     b.geometry = make_geometry(b.scene, mode);
     for (auto& o : b.geometry.objects) o = &b.scene.objects[static_cast<std::size_t>(&o - b.geometry.objects.data())];
-    b.frames = trajectory_frames(b.scene, b.geometry, 0.1, mzcv);
     bar.update();
   }
   return out;
@@ -276,8 +278,8 @@ int run_train(const TrainArgs& a) {
   if (train_ids.empty()) throw data::DataError(a.data + ": no training scenes");
   fs::create_directories(a.out);
   std::printf("train: %zu scenes (%zu train, %zu val), %s format, mode %s\n", ids.size(), train_ids.size(), val_ids.size(), dataset.format().c_str(), to_string(mode));
-  auto train = load_scenes(dataset, train_ids, a.assets, mode, a.max_frames, a.min_z_collision_velocity, "features (train)");
-  auto val = load_scenes(dataset, val_ids, a.assets, mode, a.max_frames, a.min_z_collision_velocity, "features (val)");
+  auto train = load_scenes(dataset, train_ids, a.assets, mode, a.max_frames, "scenes (train)");
+  auto val = load_scenes(dataset, val_ids, a.assets, mode, a.max_frames, "scenes (val)");
   NormalizationStats stats;
   const auto stats_path = (fs::path(a.out) / "stats.json").string();
   if (!a.stats.empty()) {
@@ -286,15 +288,20 @@ int run_train(const TrainArgs& a) {
     stats = read_stats_json(stats_path);
   } else {
     StatsAccumulator acc;
-    for (const auto& s : train) accumulate_stats(acc, s.frames);
+    ProgressBar sb("statistics", static_cast<std::int64_t>(train.size()), "scenes");
+    for (const auto& s : train) {
+      accumulate_stats(acc, trajectory_frames(s.scene, s.geometry, 0.1, a.min_z_collision_velocity));
+      sb.update();
+    }
+    sb.finish();
     stats = acc.finalize();
   }
   write_stats_json(stats, stats_path);
   const Normalizer norm(stats);
   const torch::Device device = torch::cuda::is_available() ? torch::kCUDA : torch::kCPU;
-  std::vector<TrainingItem> items, val_items;
-  for (const auto& s : train) items.push_back(make_training_item(s.geometry, s.frames, norm).to(device));
-  for (const auto& s : val) val_items.push_back(make_training_item(s.geometry, s.frames, norm).to(device));
+  const auto make_item = [&](const LoadedScene& s) {
+    return make_training_item(s.geometry, trajectory_frames(s.scene, s.geometry, 0.1, a.min_z_collision_velocity), norm).to(device);
+  };
 
   torch::manual_seed(a.seed);
   const auto ckpt = (fs::path(a.out) / "checkpoint.pt").string(), opt_path = (fs::path(a.out) / "optimizer.pt").string(), state_path = (fs::path(a.out) / "state.json").string();
@@ -320,33 +327,39 @@ int run_train(const TrainArgs& a) {
     steps_csv << "epoch,step,scene,loss,seconds_per_step,timesteps_per_second\n";
     epochs_csv << "epoch,train_loss,val_loss,seconds,lr\n";
   }
-  const std::int64_t total_steps = a.max_steps >= 0 ? std::min<std::int64_t>(a.max_steps, static_cast<std::int64_t>(a.epochs) * static_cast<std::int64_t>(items.size()))
-                                                    : static_cast<std::int64_t>(a.epochs) * static_cast<std::int64_t>(items.size());
+  const std::int64_t total_steps = a.max_steps >= 0 ? std::min<std::int64_t>(a.max_steps, static_cast<std::int64_t>(a.epochs) * static_cast<std::int64_t>(train.size()))
+                                                    : static_cast<std::int64_t>(a.epochs) * static_cast<std::int64_t>(train.size());
   ProgressBar bar("train", total_steps, "steps");
   bar.resume_from(std::min(step, total_steps));
   for (int epoch = start_epoch; epoch < a.epochs && step < total_steps; ++epoch) {
     const double lr = a.lr * (a.lr_decay > 0 ? std::pow(a.lr_decay, epoch) : 1.0);
     for (auto& g : opt.param_groups()) static_cast<torch::optim::AdamOptions&>(g.options()).lr(lr);
-    std::vector<std::size_t> order(items.size());
+    std::vector<std::size_t> order(train.size());
     std::iota(order.begin(), order.end(), 0);
     std::shuffle(order.begin(), order.end(), std::mt19937(static_cast<std::uint32_t>(a.seed * 1000 + static_cast<std::uint64_t>(epoch))));
     const auto t_epoch = std::chrono::steady_clock::now();
     double sum = 0;
     int n = 0;
     model->train();
-    for (auto i : order) {
-      if (step >= total_steps) break;
+    // The next trajectory's item is built on another thread while this one trains.
+    std::future<TrainingItem> next;
+    const auto steps_left = [&](std::size_t k) { return step + static_cast<std::int64_t>(k) < total_steps; };
+    if (!order.empty() && steps_left(0)) next = std::async(std::launch::async, make_item, std::cref(train[order[0]]));
+    for (std::size_t k = 0; k < order.size() && step < total_steps; ++k) {
+      const auto i = order[k];
+      const TrainingItem item = next.get();
+      if (k + 1 < order.size() && steps_left(1)) next = std::async(std::launch::async, make_item, std::cref(train[order[k + 1]]));
       const auto t0 = std::chrono::steady_clock::now();
       opt.zero_grad();
-      auto loss = trajectory_loss(*model, items[i], norm);
+      auto loss = trajectory_loss(*model, item, norm);
       loss.backward();
       opt.step();
       const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-      const double l = loss.item<double>() / static_cast<double>(items[i].timesteps);
+      const double l = loss.item<double>() / static_cast<double>(item.timesteps);
       sum += l, ++n, ++step;
-      steps_csv << epoch << "," << step << "," << train[i].id << "," << l << "," << secs << "," << items[i].timesteps / secs << "\n";
+      steps_csv << epoch << "," << step << "," << train[i].id << "," << l << "," << secs << "," << item.timesteps / secs << "\n";
       char status[96];
-      std::snprintf(status, sizeof status, "epoch %d loss %.4f %.0f timesteps/s", epoch + 1, l, items[i].timesteps / secs);
+      std::snprintf(status, sizeof status, "epoch %d loss %.4f %.0f timesteps/s", epoch + 1, l, item.timesteps / secs);
       bar.update(1, status);
     }
     steps_csv.flush();
@@ -354,8 +367,11 @@ int run_train(const TrainArgs& a) {
     {
       torch::NoGradGuard ng;
       model->eval();
-      for (const auto& v : val_items) vl += trajectory_loss(*model, v, norm).item<double>() / static_cast<double>(v.timesteps);
-      if (!val_items.empty()) vl /= static_cast<double>(val_items.size());
+      for (const auto& v : val) {
+        const auto item = make_item(v);
+        vl += trajectory_loss(*model, item, norm).item<double>() / static_cast<double>(item.timesteps);
+      }
+      if (!val.empty()) vl /= static_cast<double>(val.size());
     }
     const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_epoch).count();
     epochs_csv << epoch + 1 << "," << (n ? sum / n : 0.0) << "," << vl << "," << secs << "," << lr << "\n";
