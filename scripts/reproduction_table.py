@@ -49,23 +49,18 @@ for ds, model in [("movi-a", "modela"), ("movi-spheres", "models"), ("movi-b", "
     ref, nat = load(f"{model}-{ds}-reference"), load(f"{model}-{ds}-native")
     w(f"## {NAMES[ds]} (`{model}` checkpoint)")
     w("")
-    w("| | position RMSE (m) at 25 | 50 | 75 | 100 |")
-    w("|---|---|---|---|---|")
-    if ds in PAPER:
-        w("| paper | " + " | ".join(f"{v:.3f}" for v in PAPER[ds]["pos"]) + " |")
-    w("| topos, reference mode | " + cells(ref, "pos_rmse", pos) + " |")
-    w("| topos, native mode | " + cells(nat, "pos_rmse", pos) + " |")
-    w("| constant velocity | " + cells(ref["baseline_constant_velocity"], "pos_rmse", pos) + " |")
-    w("")
-    w("| | orientation (deg) at 25 | 50 | 75 | 100 |")
-    w("|---|---|---|---|---|")
-    if ds in PAPER:
-        w("| paper | " + " | ".join(f"{v:.3f}" for v in PAPER[ds]["ori"]) + " |")
-    w("| topos, reference mode, RMSE | " + cells(ref, "ori_rmse", ori) + " |")
-    w("| topos, reference mode, MAE | " + cells(ref, "ori_mae", ori) + " |")
-    w("| topos, native mode, RMSE | " + cells(nat, "ori_rmse", ori) + " |")
-    w("| topos, native mode, MAE | " + cells(nat, "ori_mae", ori) + " |")
-    w("")
+    for title, key, rows in [
+        ("position RMSE (m)", "pos", [("topos, reference mode", ref, "pos_rmse", pos), ("topos, native mode", nat, "pos_rmse", pos),
+                                      ("constant velocity", ref["baseline_constant_velocity"], "pos_rmse", pos)]),
+        ("orientation (deg)", "ori", [("topos, reference mode, RMSE", ref, "ori_rmse", ori), ("topos, reference mode, MAE", ref, "ori_mae", ori),
+                                      ("topos, native mode, RMSE", nat, "ori_rmse", ori), ("topos, native mode, MAE", nat, "ori_mae", ori)])]:
+        w(f"| | {title} at 25 | 50 | 75 | 100 |")
+        w("|---|---|---|---|---|")
+        if ds in PAPER:
+            w("| paper | " + " | ".join(f"{v:.3f}" for v in PAPER[ds][key]) + " |")
+        for label, m, metric, fmt in rows:
+            w(f"| {label} | " + cells(m, metric, fmt) + " |")
+        w("")
     if ds in PAPER:
         got, want = ref["50"]["pos_rmse"]["mean"], PAPER[ds]["pos"][1]
         rel = (got - want) / want

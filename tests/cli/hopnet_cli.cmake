@@ -2,30 +2,9 @@
 # clear message, and must not leave the output file behind. Arguments: -DHOPNET=<exe> -DWORK=<dir>.
 file(REMOVE_RECURSE ${WORK})
 file(MAKE_DIRECTORY ${WORK})
+include(${CMAKE_CURRENT_LIST_DIR}/hopnet_run.cmake)
 
-function(expect_failure name message)
-  execute_process(COMMAND ${HOPNET} ${ARGN} RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
-  if(rc EQUAL 0)
-    message(FATAL_ERROR "${name}: expected a failure, got exit 0\n${out}${err}")
-  endif()
-  string(FIND "${out}${err}" "${message}" pos)
-  if(pos EQUAL -1)
-    message(FATAL_ERROR "${name}: expected the message '${message}', got:\n${out}${err}")
-  endif()
-  if(EXISTS ${WORK}/out.json)
-    message(FATAL_ERROR "${name}: a failed run left ${WORK}/out.json behind")
-  endif()
-  message(STATUS "ok: ${name}")
-endfunction()
 
-function(expect_success name)
-  execute_process(COMMAND ${HOPNET} ${ARGN} RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
-  if(NOT rc EQUAL 0)
-    message(FATAL_ERROR "${name}: failed (${rc})\n${out}${err}")
-  endif()
-  set(LAST_OUTPUT "${out}" PARENT_SCOPE)
-  message(STATUS "ok: ${name}")
-endfunction()
 
 # A 6-frame scene of two built-in shapes, unit statistics, and a small fresh model.
 set(frames "")
