@@ -453,8 +453,8 @@ int run_evaluate(const EvaluateArgs& a) {
   fs::create_directories(a.out);
   const std::vector<int> horizons{25, 50, 75, 100};
   std::map<std::string, std::map<int, std::vector<double>>> per;  // "model.pos_rmse" -> frame -> values
-  std::map<std::string, std::vector<double>> curve_sum;
-  std::vector<int> curve_n;
+  // Mean error per frame over scenes, per metric and model (for the plots).
+  std::map<std::string, std::map<std::string, std::pair<std::vector<double>, std::vector<int>>>> curves;
   ProgressBar bar("evaluate", static_cast<std::int64_t>(chosen.size()), "scenes");
   double seconds = 0;
   // Scenes are rolled out by `jobs` threads, each with its own model (one intra-op thread each).
@@ -508,13 +508,14 @@ int run_evaluate(const EvaluateArgs& a) {
         per[name + ".ori_rmse"][h].push_back(m->ori_rmse[static_cast<std::size_t>(h)]);
         per[name + ".ori_mae"][h].push_back(m->ori_mae[static_cast<std::size_t>(h)]);
       }
-      auto& c = curve_sum[name];
-      if (c.size() < m->pos_rmse.size()) c.resize(m->pos_rmse.size(), 0.0);
-      for (std::size_t f = 0; f < m->pos_rmse.size(); ++f) c[f] += m->pos_rmse[f];
+      for (const auto& [metric, values] : {std::pair<std::string, const std::vector<double>*>{"pos_rmse", &m->pos_rmse}, {"ori_rmse", &m->ori_rmse}}) {
+        auto& [sum, count] = curves[metric][name];
+        if (sum.size() < values->size()) sum.resize(values->size(), 0.0), count.resize(values->size(), 0);
+        for (std::size_t f = 0; f < values->size(); ++f)
+          if (std::isfinite((*values)[f])) sum[f] += (*values)[f], ++count[f];
+      }
     }
     if (res.scene) viewer.push_back({"scene " + std::to_string(chosen[i]), &*res.scene, res.poses, res.model.pos_rmse});
-    if (curve_n.size() < res.model.pos_rmse.size()) curve_n.resize(res.model.pos_rmse.size(), 0);
-    for (std::size_t f = 0; f < res.model.pos_rmse.size(); ++f) ++curve_n[f];
   }
   bar.finish();
   const auto stat = [](const std::vector<double>& v) {
@@ -555,18 +556,21 @@ int run_evaluate(const EvaluateArgs& a) {
   top["rollout_seconds"] = seconds;
   write_json_atomic(top, (fs::path(a.out) / "metrics.json").string());
   {
-    std::ofstream t(fs::path(a.out) / "table.md");
+    std::ostringstream t;
     t << "# HOPNet rollout errors (" << chosen.size() << " scenes, " << a.split << " split, " << to_string(mode) << " mode)\n\n" << md.str();
+    write_file_atomic((fs::path(a.out) / "table.md").string(), t.str());
   }
-  std::vector<std::pair<std::string, std::vector<double>>> series;
-  for (const auto& [name, c] : curve_sum) {
-    std::vector<double> v(c.size());
-    for (std::size_t f = 0; f < c.size(); ++f) v[f] = c[f] / std::max(curve_n[f], 1);
-    series.push_back({name, v});
+  for (const auto& [metric, label] : {std::pair<std::string, std::string>{"pos_rmse", "position RMSE (m)"}, {"ori_rmse", "orientation RMSE (deg)"}}) {
+    std::vector<std::pair<std::string, std::vector<double>>> series;
+    for (const auto& [name, sc] : curves[metric]) {
+      std::vector<double> v(sc.first.size());
+      for (std::size_t f = 0; f < v.size(); ++f) v[f] = sc.second[f] ? sc.first[f] / sc.second[f] : NAN;
+      series.push_back({name, v});
+    }
+    write_file_atomic((fs::path(a.out) / (metric + ".svg")).string(), svg_plot(series, label));
   }
-  write_file_atomic((fs::path(a.out) / "pos_rmse.svg").string(), svg_plot(series, "position RMSE (m)"));
   if (!viewer.empty()) hopnet_viewer::write_viewer_html((fs::path(a.out) / "viewer.html").string(), "HOPNet rollouts (" + std::string(to_string(mode)) + " mode): " + a.data, viewer);
-  std::cout << md.str() << "wrote " << a.out << "/metrics.json, table.md, pos_rmse.svg" << (viewer.empty() ? "" : ", viewer.html") << "\n";
+  std::cout << md.str() << "wrote " << a.out << "/metrics.json, table.md, pos_rmse.svg, ori_rmse.svg" << (viewer.empty() ? "" : ", viewer.html") << "\n";
   return 0;
 }
 
@@ -727,7 +731,7 @@ int main(int argc, char** argv) {
   ce->add_option("--steps", ev.steps, "rollout steps")->capture_default_str()->check(CLI::PositiveNumber);
   ce->add_option("--jobs", ev.jobs, "scenes rolled out at once (default: all cores)");
   ce->add_option("--viewer-scenes", ev.viewer_scenes, "scenes shown in viewer.html (0: no viewer)")->capture_default_str()->check(CLI::NonNegativeNumber);
-  ce->add_option("--out", ev.out, "output folder: metrics.json, table.md, pos_rmse.svg, viewer.html")->required();
+  ce->add_option("--out", ev.out, "output folder: metrics.json, table.md, pos_rmse.svg, ori_rmse.svg, viewer.html")->required();
 
   RolloutArgs ro;
   auto* cr = app.add_subcommand("rollout", "autoregressive rollout of one scene with the paper's per-frame metrics");
