@@ -65,6 +65,22 @@ if(NOT n EQUAL 4)
 endif()
 python_check("checkpoint opens in torch.load" ${WORK}/model/checkpoint.pt)
 
+# Interrupted after one epoch, resumed for a second: one log row per epoch and per step.
+set(short train --data ${WORK}/topos --split-file ${WORK}/custom.json --out ${WORK}/resume --hidden 8 --mode native)
+expect_success("train one epoch" ${short} --epochs 1)
+expect_success("resume for a second epoch" ${short} --epochs 2 --resume)
+string(FIND "${LAST_OUTPUT}" "resuming after epoch 1" pos)
+if(pos EQUAL -1)
+  message(FATAL_ERROR "--resume did not resume:\n${LAST_OUTPUT}")
+endif()
+file(STRINGS ${WORK}/resume/epochs.csv epochs)
+file(STRINGS ${WORK}/resume/steps.csv steps)
+list(LENGTH epochs ne)
+list(LENGTH steps ns)
+if(NOT ne EQUAL 3 OR NOT ns EQUAL 5)
+  message(FATAL_ERROR "after resuming, epochs.csv has ${ne} lines (want 3) and steps.csv ${ns} (want 5)")
+endif()
+
 expect_success("evaluate" evaluate --checkpoint ${WORK}/model/checkpoint.pt --stats ${WORK}/model/stats.json --data ${WORK}/topos
     --split-file ${WORK}/custom.json --split test --mode native --steps 30 --out ${WORK}/eval)
 file(READ ${WORK}/eval/metrics.json metrics)
