@@ -1,5 +1,6 @@
-// hopnet: the HOPNet program of topos. Subcommands: info, rollout (more with the trainer).
-// Every subcommand has --help; errors print one line and exit with status 1.
+// hopnet: the HOPNet program of topos. Subcommands: info, init, export (models); generate, pack,
+// split (datasets); train, evaluate, rollout. Every subcommand has --help; errors print one line
+// and exit with status 1, leaving no half-written output.
 #include "topos/core/progress.hpp"
 #include "topos/data/dataset.hpp"
 #include "topos/data/movi_generator.hpp"
@@ -647,7 +648,7 @@ int run_rollout(const RolloutArgs& a) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"hopnet: HOPNet (Wei & Fink) on topos: inspect checkpoints and roll out scenes"};
+  CLI::App app{"hopnet: HOPNet (Wei & Fink) on topos: generate MOVi data, train, evaluate, roll out, export"};
   app.require_subcommand(1);
   int threads = 1, blas_threads = 0;
   app.add_option("--threads", threads, "LibTorch intra-op threads (1 is fastest here)")->capture_default_str();
@@ -675,7 +676,7 @@ int main(int argc, char** argv) {
   cx->add_option("--out", ex.out, "file to write")->required();
 
   GenerateArgs ge;
-  auto* cg = app.add_subcommand("generate", "regenerate MOVi scenes with Bullet, seed for seed (Kubric's metadata.json per scene)");
+  auto* cg = app.add_subcommand("generate", "regenerate MOVi scenes with Bullet, seed for seed (Kubric scene folders or a topos dataset)");
   cg->add_option("--dataset", ge.dataset, "movi-spheres, movi-a or movi-b")->required();
   cg->add_option("--seeds", ge.seeds, "seeds, e.g. 1-1200 or 1,5,8-10")->capture_default_str();
   cg->add_option("--assets", ge.assets, "KuBasic-layout asset folder (built-in cube/sphere/cylinder when omitted)");
@@ -698,7 +699,7 @@ int main(int argc, char** argv) {
   cs->add_option("--out", sp.out, "write the split as JSON (the --split-file of train and evaluate)");
 
   TrainArgs tr;
-  auto* ct = app.add_subcommand("train", "train HOPNet on a folder of Kubric scene folders (one optimizer step per trajectory)");
+  auto* ct = app.add_subcommand("train", "train HOPNet on a dataset, topos format or Kubric scene folders (one optimizer step per trajectory)");
   ct->add_option("--data", tr.data, "dataset folder: topos format or Kubric scene folders")->required()->check(CLI::ExistingDirectory);
   ct->add_option("--split-file", tr.split_file, "custom split JSON {train, val, test} (default: the reference split)")->check(CLI::ExistingFile);
   ct->add_option("--out", tr.out, "output folder: checkpoint.pt, stats.json, steps.csv, epochs.csv")->required();
