@@ -53,7 +53,7 @@ class MlpImpl : public torch::nn::Module {
     auto add_linear = [&](std::int64_t i, std::int64_t out) { add(torch::nn::Linear(i, out)); };
     auto add_act = [&] {
       switch (o.activation()) {
-        case Activation::relu: add(torch::nn::ReLU()); break;
+        case Activation::relu: add(torch::nn::ReLU(torch::nn::ReLUOptions().inplace(true))); break;
         case Activation::gelu: add(torch::nn::GELU()); break;
         case Activation::elu: add(torch::nn::ELU()); break;
         case Activation::selu: add(torch::nn::SELU()); break;
