@@ -318,6 +318,12 @@ class CombinatorialComplex {
     require_rank(hi, "incidence");
     if (lo >= hi) throw ComplexError("incidence: lower rank " + std::to_string(lo) + " must be below " + std::to_string(hi));
     const Rank& U = ranks_[static_cast<std::size_t>(hi)];
+    if (lo == 0 && U.declared.empty()) {
+      // Every node of a cell, ascending (cells store their nodes sorted), value 1: no buffer.
+      for (Index j = 0; j + 1 < static_cast<Index>(U.offsets.size()); ++j)
+        for (Index k = U.offsets[static_cast<std::size_t>(j)]; k < U.offsets[static_cast<std::size_t>(j) + 1]; ++k) visit(U.nodes[static_cast<std::size_t>(k)], j, Scalar(1), 0);
+      return;
+    }
     const MinIndex* M = lo > 0 ? &min_index(lo) : nullptr;
     const Rank& L = ranks_[static_cast<std::size_t>(lo)];
     std::vector<std::pair<Index, std::pair<Scalar, int>>> found;
