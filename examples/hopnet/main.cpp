@@ -32,8 +32,8 @@ struct InfoArgs {
 };
 
 int run_info(const InfoArgs& a) {
-  auto model = load_hopnet(a.checkpoint);
   const auto dict = nn::read_tensor_dict(a.checkpoint);
+  auto model = load_hopnet(dict, a.checkpoint);
   std::cout << "checkpoint: " << a.checkpoint << "\n"
             << "format: " << (is_reference_checkpoint(dict) ? "reference (HOPNet authors' state dict)" : "topos") << "\n"
             << "configuration: " << model->options.to_json().dump() << "\n"
@@ -445,7 +445,8 @@ std::string svg_plot(const std::vector<std::pair<std::string, std::vector<double
 int run_evaluate(const EvaluateArgs& a) {
   namespace fs = std::filesystem;
   const FeatureMode mode = feature_mode_from_string(a.mode);
-  load_hopnet(a.checkpoint, mode);  // fails early on a bad checkpoint
+  const auto checkpoint = nn::read_tensor_dict(a.checkpoint);  // read once; one model per thread below
+  load_hopnet(checkpoint, a.checkpoint, mode);                 // fails early on a bad checkpoint
   const Normalizer norm(read_stats_json(a.stats));
   const auto dataset = data::Dataset::open(a.data);
   const auto& ids = dataset.ids();
@@ -467,14 +468,15 @@ int run_evaluate(const EvaluateArgs& a) {
   };
   std::vector<Result> results(chosen.size());
   std::atomic<std::size_t> next{0};
-  std::mutex mutex;
+  std::atomic<bool> failed{false};
+  std::mutex mutex;  // guards the progress bar and `error`
   std::string error;
   const auto work = [&] {
     try {
-      auto net = load_hopnet(a.checkpoint, mode);
+      auto net = load_hopnet(checkpoint, a.checkpoint, mode);
       net->eval();
       MeshLibrary lib(a.assets);
-      for (std::size_t i = next++; i < chosen.size() && error.empty(); i = next++) {
+      for (std::size_t i = next++; i < chosen.size() && !failed; i = next++) {
         Scene scene = make_scene(dataset.scene(chosen[i]), lib);
         const auto g = make_geometry(scene, mode);
         RolloutOptions opt;
@@ -490,14 +492,14 @@ int run_evaluate(const EvaluateArgs& a) {
       }
     } catch (const std::exception& e) {
       std::lock_guard<std::mutex> lock(mutex);
-      if (error.empty()) error = e.what();
+      if (!failed.exchange(true)) error = e.what();
     }
   };
   const int jobs = std::max(1, std::min<int>(a.jobs > 0 ? a.jobs : static_cast<int>(std::thread::hardware_concurrency()), static_cast<int>(chosen.size())));
   std::vector<std::thread> pool;
   for (int j = 0; j < jobs; ++j) pool.emplace_back(work);
   for (auto& t : pool) t.join();
-  if (!error.empty()) throw std::runtime_error(error);
+  if (failed) throw std::runtime_error(error);
   std::vector<hopnet_viewer::ViewerScene> viewer;
   for (std::size_t i = 0; i < chosen.size(); ++i) {
     const auto& res = results[i];
@@ -577,7 +579,7 @@ int run_evaluate(const EvaluateArgs& a) {
 
 struct RolloutArgs {
   std::string checkpoint, stats, scene, assets, mode = "reference", out, collisions, viewer;
-  int steps = 102, threads = 1;
+  int steps = 102;
   bool no_collisions_json = false;
 };
 

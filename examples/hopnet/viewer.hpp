@@ -51,8 +51,6 @@ inline nlohmann::json viewer_scene_json(const ViewerScene& v) {
     }
     return all;
   };
-  const auto O = static_cast<Eigen::Index>(s.num_objects());
-  (void)O;
   j["gt"] = poses([&](std::size_t t, std::size_t o) {
     const auto f = static_cast<std::int64_t>(std::min<std::size_t>(t, static_cast<std::size_t>(s.num_frames - 1)));
     return std::pair<Eigen::Vector3d, Eigen::Vector4d>{s.position(f, o), s.quaternion(f, o)};

@@ -283,14 +283,17 @@ inline void load_checkpoint(HopnetImpl& model, const std::map<std::string, torch
 
 /// Loads a checkpoint (topos or reference). `mode`, when given, overrides the feature mode the
 /// network runs in (the parameters do not depend on it).
-inline Hopnet load_hopnet(const std::string& path, std::optional<FeatureMode> mode = std::nullopt) {
-  const auto dict = nn::read_tensor_dict(path);
-  HopnetOptions opt = checkpoint_options(dict, path);
+/// The same from a checkpoint already read (nn::read_tensor_dict); `source` names it in errors.
+/// Several models (one per thread) can be built from one read.
+inline Hopnet load_hopnet(const std::map<std::string, torch::Tensor>& dict, const std::string& source, std::optional<FeatureMode> mode = std::nullopt) {
+  HopnetOptions opt = checkpoint_options(dict, source);
   if (mode) opt.mode(*mode);
   Hopnet model(opt);
-  load_checkpoint(*model, dict, path);
+  load_checkpoint(*model, dict, source);
   return model;
 }
+
+inline Hopnet load_hopnet(const std::string& path, std::optional<FeatureMode> mode = std::nullopt) { return load_hopnet(nn::read_tensor_dict(path), path, mode); }
 
 /// Saves a topos checkpoint: parameters by name plus "topos.config" (the options as JSON
 /// bytes), a dict of tensors that Python's torch.load opens. Atomic.
