@@ -41,12 +41,22 @@ const Setup& setup() {
   return s;
 }
 
-void BM_forward(benchmark::State& state) {
+// What every benchmark below starts from: the mode of its argument, the published model in that
+// mode, and the scene's geometry; one intra-op and one BLAS thread unless a benchmark says else.
+struct Case {
+  FeatureMode mode;
+  Hopnet net;
+  HopnetGeometry g;
+};
+Case make_case(const benchmark::State& state) {
   nn::set_cpu_threads(1, 1);
   const auto mode = static_cast<FeatureMode>(state.range(0));
+  return {mode, setup().model(mode), make_geometry(setup().scene, mode)};
+}
+
+void BM_forward(benchmark::State& state) {
+  auto [mode, net, g] = make_case(state);
   const auto& S = setup();
-  auto net = S.model(mode);
-  const auto g = make_geometry(S.scene, mode);
   // The frame at t = 100 (47 faces, 49 contacts in reference mode).
   const auto frame = build_frame(g, scene_poses(S.scene, 0), scene_poses(S.scene, 98), scene_poses(S.scene, 99), scene_poses(S.scene, 100),
                                  detect_contacts(g, pose_objects(g, scene_poses(S.scene, 100)), 0.1));
@@ -59,11 +69,8 @@ void BM_forward(benchmark::State& state) {
 BENCHMARK(BM_forward)->Arg(0)->Arg(1)->ArgName("native")->Unit(benchmark::kMillisecond);
 
 void BM_rollout_step(benchmark::State& state) {
-  nn::set_cpu_threads(1, 1);
-  const auto mode = static_cast<FeatureMode>(state.range(0));
+  auto [mode, net, g] = make_case(state);
   const auto& S = setup();
-  auto net = S.model(mode);
-  const auto g = make_geometry(S.scene, mode);
   const Poses p0 = scene_poses(S.scene, 0), p98 = scene_poses(S.scene, 98), p99 = scene_poses(S.scene, 99), p100 = scene_poses(S.scene, 100);
   for (auto _ : state) {
     const auto contacts = detect_contacts(g, pose_objects(g, p100), 0.1);
@@ -73,11 +80,8 @@ void BM_rollout_step(benchmark::State& state) {
 BENCHMARK(BM_rollout_step)->Arg(0)->Arg(1)->ArgName("native")->Unit(benchmark::kMillisecond);
 
 void BM_rollout_102(benchmark::State& state) {
-  nn::set_cpu_threads(1, 1);
-  const auto mode = static_cast<FeatureMode>(state.range(0));
+  auto [mode, net, g] = make_case(state);
   const auto& S = setup();
-  auto net = S.model(mode);
-  const auto g = make_geometry(S.scene, mode);
   RolloutOptions opt;
   if (mode == FeatureMode::reference) opt.first_contacts = S.first;
   double pos100 = 0;
@@ -90,13 +94,11 @@ BENCHMARK(BM_rollout_102)->Arg(0)->Arg(1)->ArgName("native")->Unit(benchmark::kM
 // backward and Adam, with BLAS threads on every core and one intra-op thread (as `hopnet train`).
 // Issue bar: 2 s on 2 cores; the Python reference takes 16 s (plus 110 s of preprocessing).
 void BM_train_step(benchmark::State& state) {
+  auto [mode, net, g] = make_case(state);
   nn::set_cpu_threads(1, 0);
   nn::keep_freed_memory();
-  const auto mode = static_cast<FeatureMode>(state.range(0));
   const auto& S = setup();
-  const auto g = make_geometry(S.scene, mode);
   const auto item = make_training_item(g, trajectory_frames(S.scene, g), S.norm);
-  auto net = S.model(mode);
   net->train();
   torch::optim::Adam opt(net->parameters(), torch::optim::AdamOptions(1e-4));
   const auto step = [&] {

@@ -30,8 +30,13 @@ struct Golden {
     return a.as<double>();
   }
   Normalizer normalizer() const { return Normalizer(read_stats_json((ref / "data" / "normalization" / "movia.json").string())); }
-  Hopnet model() const { return load_hopnet((ref / "data" / "checkpoints" / "modela_seed2_e39.pt").string()); }
   std::string checkpoint() const { return (ref / "data" / "checkpoints" / "modela_seed2_e39.pt").string(); }
+  /// The published modela weights, in eval mode.
+  Hopnet model() const {
+    auto m = load_hopnet(checkpoint());
+    m->eval();
+    return m;
+  }
 };
 
 // Max |a-b| / max(|b|, floor) over all entries, with the shapes checked.
@@ -136,7 +141,6 @@ TEST_CASE("step000 and step001 of the reference rollout: features, incidences an
   const auto g = make_geometry(G.scene, FeatureMode::reference);
   const auto norm = G.normalizer();
   auto model = G.model();
-  model->eval();
   const auto collisions = read_collisions_json((G.ref / "data" / "movi-a" / "8" / "collisions.json").string());
   const Poses first = scene_poses(G.scene, 0);
   std::vector<Poses> p{first, scene_poses(G.scene, 1), scene_poses(G.scene, 2), scene_poses(G.scene, 3)};
@@ -185,7 +189,6 @@ TEST_CASE("the 102-step reference rollout of MOVi-A scene 8 lands within 2% of t
   const auto g = make_geometry(G.scene, FeatureMode::reference);
   const auto norm = G.normalizer();
   auto model = G.model();
-  model->eval();
   RolloutOptions opt;
   opt.first_contacts = read_collisions_json((G.ref / "data" / "movi-a" / "8" / "collisions.json").string()).at(3);
   const auto r = rollout(*model, norm, G.scene, g, opt);
@@ -402,7 +405,6 @@ TEST_CASE("the training loss equals the reference's per-step losses on MOVi-A sc
   const auto g = make_geometry(G.scene, FeatureMode::reference);
   const auto norm = G.normalizer();
   auto model = G.model();
-  model->eval();
   torch::NoGradGuard ng;
   for (const auto& [t, want] : std::vector<std::pair<int, double>>{{2, 0.0150184}, {100, 2.78862}, {300, 0.140924}}) {
     const auto tf = trajectory_frames(G.scene, g, 0.1, 0.0, t, t);
