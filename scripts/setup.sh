@@ -9,6 +9,7 @@ packages=(
   libtorch-dev libopenblas0-pthread
   libbullet-dev libbullet-extras-dev
   nlohmann-json3-dev libcli11-dev catch2 libbenchmark-dev
+  python3  # scripts/check_torch_file.py: the tests' torch.load compatibility check
 )
 # Headless Chromium is only needed for the viewer screenshot test: scripts/test.sh asks for it
 # (TOPOS_WITH_CHROMIUM=1); the demo does not.

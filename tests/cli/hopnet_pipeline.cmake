@@ -129,6 +129,7 @@ expect_failure("unknown format" "unknown format 'hdf5'" generate --dataset movi-
 expect_failure("pack over a dataset" "already holds a topos dataset" pack --data ${WORK}/kubric --out ${WORK}/packed)
 expect_failure("new seeds into a finished dataset" "without seed 5" generate --dataset movi-a --seeds 1-5 --frames 40 --format topos --out ${WORK}/topos)
 expect_failure("bad seed range" "seed range '5-2'" split --seeds 5-2)
+expect_failure("split of seeds and a dataset at once" "give either --seeds or --data" split --seeds 1-4 --data ${WORK}/topos)
 expect_failure("unknown export names" "unknown --names 'short'" export --checkpoint ${WORK}/model/checkpoint.pt --names short --out ${WORK}/x.pt)
 if(EXISTS ${WORK}/x.pt OR EXISTS ${WORK}/bad_eval/metrics.json)
   message(FATAL_ERROR "a failed run left output behind")

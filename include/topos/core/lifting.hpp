@@ -19,8 +19,9 @@
 namespace topos {
 
 namespace detail {
-// A flat open-addressing map from nonzero 64-bit keys to ids: the lifting's hot path, where a
-// node-based std::unordered_map spends most of its time allocating.
+// A flat open-addressing map from nonzero 64-bit keys to ids, for node-pair look-ups by the
+// hundred thousand (HOPNet's edge ids), where a node-based std::unordered_map spends most of
+// its time allocating.
 class FlatKeyMap {
  public:
   explicit FlatKeyMap(std::size_t expected) {
