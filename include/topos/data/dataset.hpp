@@ -132,9 +132,7 @@ inline Split parse_split_json(const std::string& text, const std::string& source
 }
 
 inline Split read_split_json(const std::filesystem::path& path) {
-  std::ifstream in(path);
-  if (!in) throw DataError(path.string() + ": cannot open file");
-  return parse_split_json(std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>()), path.string());
+  return parse_split_json(read_text_file(path), path.string());
 }
 
 /// The seeds of `part` ("train", "val", "test" or "all") that a dataset must hold; a listed seed
@@ -187,14 +185,7 @@ class Dataset {
 
   void load_topos() {
     const auto index_path = (root_ / "dataset.json").string();
-    std::ifstream in(index_path);
-    if (!in) throw DataError(index_path + ": cannot open file");
-    nlohmann::json j;
-    try {
-      j = nlohmann::json::parse(in);
-    } catch (const nlohmann::json::exception& e) {
-      throw DataError(index_path + ": malformed JSON: " + e.what());
-    }
+    const nlohmann::json j = read_json_file(index_path);
     NpyArray pos, quat;
     try {
       pos = read_npy((root_ / "positions.npy").string());

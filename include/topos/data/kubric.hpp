@@ -5,6 +5,8 @@
 // objects are read as they are. Errors name the file and the field. nlohmann-json + Eigen.
 #pragma once
 
+#include "topos/data/json.hpp"
+
 #include <nlohmann/json.hpp>
 
 #include <Eigen/Core>
@@ -17,11 +19,6 @@
 #include <vector>
 
 namespace topos::data {
-
-class DataError : public std::runtime_error {
- public:
-  using std::runtime_error::runtime_error;
-};
 
 struct KubricInstance {
   std::string asset_id, shape;
@@ -58,12 +55,7 @@ Eigen::Matrix<double, Eigen::Dynamic, C, Eigen::RowMajor> read_rows(const nlohma
 
 /// Parses Kubric metadata JSON text; `source` names it in errors.
 inline KubricScene parse_kubric_metadata(const std::string& text, const std::string& source) {
-  nlohmann::json j;
-  try {
-    j = nlohmann::json::parse(text);
-  } catch (const nlohmann::json::exception& e) {
-    throw DataError(source + ": malformed JSON: " + e.what());
-  }
+  const nlohmann::json j = parse_json(text, source);
   const auto field = [&](const nlohmann::json& obj, const char* key, const std::string& where) -> const nlohmann::json& {
     if (!obj.is_object() || !obj.contains(key)) throw DataError(source + ": missing field '" + where + key + "'");
     return obj[key];
@@ -104,10 +96,7 @@ inline KubricScene parse_kubric_metadata(const std::string& text, const std::str
 /// Reads `path`, a metadata.json or a folder holding one.
 inline KubricScene read_kubric_metadata(std::filesystem::path path) {
   if (std::filesystem::is_directory(path)) path /= "metadata.json";
-  std::ifstream in(path);
-  if (!in) throw DataError(path.string() + ": cannot open file");
-  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  return parse_kubric_metadata(text, path.string());
+  return parse_kubric_metadata(read_text_file(path), path.string());
 }
 
 }  // namespace topos::data

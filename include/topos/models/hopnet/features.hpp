@@ -156,14 +156,7 @@ inline std::vector<ContactCandidate> detect_contacts(const HopnetGeometry& g, co
 
 /// The reference's collisions.json: frame -> entries, flattened into candidates in list order.
 inline std::map<std::int64_t, std::vector<ContactCandidate>> read_collisions_json(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw data::DataError(path + ": cannot open file");
-  nlohmann::json j;
-  try {
-    j = nlohmann::json::parse(in);
-  } catch (const nlohmann::json::exception& e) {
-    throw data::DataError(path + ": malformed JSON: " + e.what());
-  }
+  const nlohmann::json j = data::read_json_file(path);
   if (!j.is_object()) throw data::DataError(path + ": expected an object mapping frame numbers to contact lists");
   std::map<std::int64_t, std::vector<ContactCandidate>> out;
   try {

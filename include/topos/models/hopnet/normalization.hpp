@@ -48,12 +48,7 @@ struct NormalizationStats {
 };
 
 inline NormalizationStats parse_stats_json(const std::string& text, const std::string& source) {
-  nlohmann::json j;
-  try {
-    j = nlohmann::json::parse(text);
-  } catch (const nlohmann::json::exception& e) {
-    throw data::DataError(source + ": malformed JSON: " + e.what());
-  }
+  const nlohmann::json j = data::parse_json(text, source);
   if (!j.is_object()) throw data::DataError(source + ": expected an object of statistics");
   NormalizationStats s;
   for (const auto& [k, n] : NormalizationStats::layout()) {
@@ -72,9 +67,7 @@ inline NormalizationStats parse_stats_json(const std::string& text, const std::s
 }
 
 inline NormalizationStats read_stats_json(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw data::DataError(path + ": cannot open file");
-  return parse_stats_json(std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>()), path);
+  return parse_stats_json(data::read_text_file(path), path);
 }
 
 /// Writes the statistics (shortest round-trip doubles) to a temporary file, then renames it.
