@@ -380,8 +380,9 @@ int run_train(const TrainArgs& a) {
     model->to(torch::kCPU);
     save_hopnet(*model, ckpt);
     model->to(device);
-    torch::save(opt, opt_path + ".tmp");
-    fs::rename(opt_path + ".tmp", opt_path);
+    std::ostringstream optimizer_state;
+    torch::save(opt, optimizer_state);
+    write_file_atomic(opt_path, optimizer_state.str());
     write_json_atomic({{"epoch", epoch + 1}, {"step", step}}, state_path);
   }
   bar.finish();
