@@ -3,10 +3,12 @@
 // features, forward, shape matching), and the 102-step rollout, in reference and native modes.
 // Issue bars (2 cores): forward <= 3 ms, step <= 5 ms, rollout <= 0.6 s; the Python reference
 // takes 8-10 ms, 181 ms and 18.5 s. Threads: 1 intra-op thread (set below), the fastest here.
-// And one training step on the whole trajectory (below).
+// And one training step on the whole trajectory (below), for the standard model and for every
+// variant preset (BM_train_step_variant, freshly initialised, native mode).
 #include <benchmark/benchmark.h>
 
 #include "topos/models/hopnet/training.hpp"
+#include "topos/models/hopnet/variants.hpp"
 #include "topos/nn/cpu.hpp"
 #include "topos/util/memory.hpp"
 
@@ -118,6 +120,41 @@ void BM_train_step(benchmark::State& state) {
   state.counters["timesteps_per_s"] = benchmark::Counter(static_cast<double>(tf.frames.size()), benchmark::Counter::kIsIterationInvariantRate);
 }
 BENCHMARK(BM_train_step)->Args({0, 0})->Args({1, 0})->Args({0, 120})->ArgNames({"native", "chunk"})->Unit(benchmark::kMillisecond)->MinTime(5.0)->UseRealTime();
+
+
+// One training step of each variant (the presets of models/hopnet/variants.hpp) on the same
+// trajectory, native mode, fresh weights (seed 0), as BM_train_step. Statistics: movia.json,
+// movia-nox4.json for nox4, and movia.json's first 8 x0 columns without centre-mass distances.
+const std::vector<std::string> kVariants{"standard", "nox4", "noseq", "no-cm-distance", "mlp3", "mp2", "hidden64"};
+void BM_train_step_variant(benchmark::State& state) {
+  const auto& S = setup();
+  const std::string config = kVariants.at(static_cast<std::size_t>(state.range(0)));
+  state.SetLabel(config);
+  nn::set_cpu_threads(1, 0);
+  nn::keep_freed_memory();
+  torch::manual_seed(0);
+  const auto o = parse_config(config, HopnetOptions().mode(FeatureMode::native));
+  Hopnet net(o);
+  auto stats = read_stats_json(S.ref + (o.architecture() == Architecture::no_object_cells ? "/data/normalization/movia-nox4.json" : "/data/normalization/movia.json"));
+  if (!o.center_mass_distance()) stats.mean["x0"].resize(8), stats.std["x0"].resize(8);
+  const Normalizer norm(stats);
+  const auto g = make_geometry(S.scene, o.lifting());
+  const auto item = make_training_item(g, trajectory_frames(S.scene, g, o.collision_radius()), norm);
+  net->train();
+  torch::optim::Adam opt(net->parameters(), torch::optim::AdamOptions(1e-4));
+  const auto step = [&] {
+    opt.zero_grad();
+    auto loss = trajectory_loss(*net, item, norm);
+    loss.backward();
+    opt.step();
+  };
+  step();
+  for (auto _ : state) step();
+  nn::set_cpu_threads(1, 1);
+  state.counters["parameters"] = static_cast<double>(net->num_parameters());
+  state.counters["timesteps_per_s"] = benchmark::Counter(static_cast<double>(item.timesteps), benchmark::Counter::kIsIterationInvariantRate);
+}
+BENCHMARK(BM_train_step_variant)->DenseRange(0, 6)->Unit(benchmark::kMillisecond)->MinTime(3.0)->UseRealTime();
 }  // namespace
 
 BENCHMARK_MAIN();

@@ -12,7 +12,8 @@ int main(int argc, char** argv) {
   app.add_option("--blas-threads", blas_threads, "BLAS threads (default: all cores for train, 1 otherwise)");
   const std::vector<Command> commands{add_info(app),  add_init(app),  add_export(app),
                                       add_generate(app), add_pack(app), add_split(app),
-                                      add_grad(app), add_train(app), add_evaluate(app), add_rollout(app)};
+                                      add_grad(app), add_train(app), add_evaluate(app), add_rollout(app),
+                                      add_stats(app)};
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -13,10 +13,11 @@ namespace {
 
 // ---- train ----------------------------------------------------------------------------------
 struct TrainArgs {
-  std::string data, out, assets, stats, mode = "native", activation = "relu", split_file, init;
-  std::int64_t max_steps = -1, hidden = 128, chunk = 0;
+  std::string data, out, assets, stats, mode = "native", split_file, init;
+  std::int64_t max_steps = -1, hidden = 0, chunk = 0;  // hidden 0: the configuration's (--config)
   double memory_budget_mb = kDefaultMemoryBudgetMb;
-  int epochs = 40, mlp_layers = 2, num_layers = 1, max_frames = 0;
+  int epochs = 40, mlp_layers = 0, num_layers = 0, max_frames = 0;
+  VariantArgs variant;
   double lr = 1e-4, lr_decay = 0.0, min_z_collision_velocity = 0.0;
   std::uint64_t seed = 0;
   bool resume = false;
@@ -32,7 +33,7 @@ struct LoadedScene {
   std::optional<ContactsByFrame> contacts;
 };
 
-std::vector<LoadedScene> load_scenes(const data::Dataset& dataset, const std::vector<std::int64_t>& ids, const std::string& assets, FeatureMode mode, int max_frames, const char* label) {
+std::vector<LoadedScene> load_scenes(const data::Dataset& dataset, const std::vector<std::int64_t>& ids, const std::string& assets, const LiftingOptions& lifting, int max_frames, const char* label) {
   MeshLibrary lib(assets);
   std::vector<LoadedScene> out;
   out.reserve(ids.size());  // geometry points into its scene's objects: no reallocation
@@ -40,7 +41,7 @@ std::vector<LoadedScene> load_scenes(const data::Dataset& dataset, const std::ve
   for (auto id : ids) {
     auto k = dataset.scene(id);
     LoadedScene ls{id, make_scene(k, lib), {}, std::nullopt};
-    if (mode == FeatureMode::reference)
+    if (lifting.mode == FeatureMode::reference)
       if (const auto c = dataset.collisions_path(id); !c.empty()) ls.contacts = read_collisions_json(c);
     if (max_frames > 0 && ls.scene.num_frames > max_frames) {
       ls.scene.num_frames = max_frames;
@@ -49,7 +50,7 @@ std::vector<LoadedScene> load_scenes(const data::Dataset& dataset, const std::ve
     }
     out.push_back(std::move(ls));
     auto& b = out.back();
-    b.geometry = make_geometry(b.scene, mode);
+    b.geometry = make_geometry(b.scene, lifting);
     for (auto& o : b.geometry.objects) o = &b.scene.objects[static_cast<std::size_t>(&o - b.geometry.objects.data())];
     bar.update();
   }
@@ -59,15 +60,25 @@ std::vector<LoadedScene> load_scenes(const data::Dataset& dataset, const std::ve
 int run_train(const TrainArgs& a) {
   namespace fs = std::filesystem;
   const FeatureMode mode = feature_mode_from_string(a.mode);
+  HopnetOptions options = variant_options(a.variant, HopnetOptions().mode(mode));
+  if (a.hidden > 0) options.hidden(a.hidden);
+  if (a.mlp_layers > 0) options.mlp_layers(a.mlp_layers);
+  if (a.num_layers > 0) options.num_layers(a.num_layers);
+  std::map<std::string, torch::Tensor> init;
+  if (!a.init.empty()) {
+    init = nn::read_tensor_dict(a.init);
+    options = checkpoint_options(init, a.init, options).mode(mode);  // the architecture is the checkpoint's
+  }
+  const double radius = options.collision_radius();
   const auto dataset = data::Dataset::open(a.data);
   const auto& ids = dataset.ids();
   const auto split = a.split_file.empty() ? data::reference_split(ids) : data::read_split_json(a.split_file);
   const auto train_ids = data::split_part(split, "train", ids), val_ids = data::split_part(split, "val", ids);
   if (train_ids.empty()) throw data::DataError(a.data + ": no training scenes");
   fs::create_directories(a.out);
-  std::printf("train: %zu scenes (%zu train, %zu val), %s format, mode %s\n", ids.size(), train_ids.size(), val_ids.size(), dataset.format().c_str(), to_string(mode));
-  auto train = load_scenes(dataset, train_ids, a.assets, mode, a.max_frames, "scenes (train)");
-  auto val = load_scenes(dataset, val_ids, a.assets, mode, a.max_frames, "scenes (val)");
+  std::printf("train: %zu scenes (%zu train, %zu val), %s format, mode %s, variant %s\n", ids.size(), train_ids.size(), val_ids.size(), dataset.format().c_str(), to_string(mode), variant_name(options).c_str());
+  auto train = load_scenes(dataset, train_ids, a.assets, options.lifting(), a.max_frames, "scenes (train)");
+  auto val = load_scenes(dataset, val_ids, a.assets, options.lifting(), a.max_frames, "scenes (val)");
   NormalizationStats stats;
   const auto stats_path = (fs::path(a.out) / "stats.json").string();
   if (!a.stats.empty()) {
@@ -78,24 +89,19 @@ int run_train(const TrainArgs& a) {
     StatsAccumulator acc;
     ProgressBar sb("statistics", static_cast<std::int64_t>(train.size()), "scenes");
     for (const auto& s : train) {
-      accumulate_stats(acc, trajectory_frames(s.scene, s.geometry, 0.1, a.min_z_collision_velocity, 2, -1, s.contacts ? &*s.contacts : nullptr));
+      accumulate_stats(acc, trajectory_frames(s.scene, s.geometry, radius, a.min_z_collision_velocity, 2, -1, s.contacts ? &*s.contacts : nullptr), options.lifting().object_cells());
       sb.update();
     }
     sb.finish();
     stats = acc.finalize();
   }
+  check_stats_fit(options, stats, a.stats.empty() ? stats_path : a.stats);
   write_stats_json(stats, stats_path);
   const Normalizer norm(stats);
   const torch::Device device = torch::cuda::is_available() ? torch::kCUDA : torch::kCPU;
 
   torch::manual_seed(a.seed);
   const auto ckpt = (fs::path(a.out) / "checkpoint.pt").string(), opt_path = (fs::path(a.out) / "optimizer.pt").string(), state_path = (fs::path(a.out) / "state.json").string();
-  HopnetOptions options = HopnetOptions().hidden(a.hidden).mlp_layers(a.mlp_layers).num_layers(a.num_layers).activation(nn::activation_from_string(a.activation)).mode(mode);
-  std::map<std::string, torch::Tensor> init;
-  if (!a.init.empty()) {
-    init = nn::read_tensor_dict(a.init);
-    options = checkpoint_options(init, a.init, options).mode(mode);  // the architecture is the checkpoint's
-  }
   Hopnet model(options);
   int start_epoch = 0;
   std::int64_t step = 0;
@@ -105,7 +111,7 @@ int run_train(const TrainArgs& a) {
   model->to(device);
   const double budget = a.memory_budget_mb * 1024.0 * 1024.0;
   const auto make_chunks = [&](const LoadedScene& s) {
-    const auto tf = trajectory_frames(s.scene, s.geometry, 0.1, a.min_z_collision_velocity, 2, -1, s.contacts ? &*s.contacts : nullptr);
+    const auto tf = trajectory_frames(s.scene, s.geometry, radius, a.min_z_collision_velocity, 2, -1, s.contacts ? &*s.contacts : nullptr);
     auto chunks = make_training_chunks(s.geometry, tf, norm, a.chunk > 0 ? a.chunk : auto_chunk(s.geometry, tf, options.hidden(), budget));
     for (auto& c : chunks) c = c.to(device);
     return chunks;
@@ -212,16 +218,16 @@ Command add_train(CLI::App& app) {
   ct->add_option("--epochs", tr.epochs, "epochs")->capture_default_str()->check(CLI::PositiveNumber);
   ct->add_option("--lr", tr.lr, "Adam learning rate")->capture_default_str();
   ct->add_option("--lr-decay", tr.lr_decay, "exponential decay per epoch (0: constant; the paper's 0.9441)")->capture_default_str();
-  ct->add_option("--hidden", tr.hidden, "hidden width")->capture_default_str();
-  ct->add_option("--mlp-layers", tr.mlp_layers, "Linear layers per MLP")->capture_default_str();
-  ct->add_option("--num-layers", tr.num_layers, "message-passing layers")->capture_default_str();
-  ct->add_option("--activation", tr.activation, "relu, gelu, elu or selu")->capture_default_str();
+  add_variant_options(ct, tr.variant, true);
+  ct->add_option("--hidden", tr.hidden, "hidden width (default: the configuration's)")->check(CLI::PositiveNumber);
+  ct->add_option("--mlp-layers", tr.mlp_layers, "Linear layers per MLP (default: the configuration's)")->check(CLI::PositiveNumber);
+  ct->add_option("--num-layers", tr.num_layers, "message-passing layers (default: the configuration's)")->check(CLI::PositiveNumber);
   ct->add_option("--mode", tr.mode, "native or reference features")->capture_default_str();
   ct->add_option("--max-frames", tr.max_frames, "use only the first frames of each scene (0: all)")->capture_default_str();
   ct->add_option("--min-z-collision-velocity", tr.min_z_collision_velocity, "mask objects in contact slower than this vertically (m/s)")->capture_default_str();
   ct->add_option("--seed", tr.seed, "random seed")->capture_default_str();
   ct->add_flag("--resume", tr.resume, "continue from the last epoch's checkpoint in --out");
-  ct->set_config("--config", "", "read options from a TOML/INI file");
+  ct->set_config("--config-file", "", "read options from a TOML/INI file");
   return {ct, [args] { return run_train(*args); }};
 }
 

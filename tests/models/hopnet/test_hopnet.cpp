@@ -8,6 +8,7 @@
 #include "support/reference.hpp"
 #include "topos/data/npy.hpp"
 #include "topos/models/hopnet/training.hpp"
+#include "topos/models/hopnet/variants.hpp"
 
 #include <filesystem>
 #include <numeric>
@@ -670,6 +671,263 @@ TEST_CASE("LibTorch's Adam fed the reference's gradients reproduces its three st
       for (const auto& p : model->named_parameters()) worst = std::max(worst, (p.value().detach().to(torch::kDouble) - want.at(p.key())).abs().max().item<double>());
       INFO("step " << step);
       CHECK(worst <= 1e-6);
+
+// ---- the HOPNet family (hopnet-ablations-spec.md) ---------------------------------------------
+
+TEST_CASE("HOPNet variants: presets compose into the reference's parameter counts; bad configurations are errors", "[hopnet][variants]") {
+  // Counts of hopnet-ablations-spec section 4 (the reference classes' constructions).
+  for (const auto& [config, want] : std::vector<std::pair<std::string, std::int64_t>>{
+           {"standard", 707078}, {"nox4", 539651}, {"noseq", 951814}, {"no-cm-distance", 706054}, {"mlp3", 1037318}, {"mp2", 1287174}, {"hidden64", 181510},
+           {"mlp3,no-cm-distance", 1036294}, {"mp2,no-cm-distance", 1286150}, {"hidden64,no-cm-distance", 180998}, {"noseq,hidden64", 951814}, {"standard,mlp3", 1037318}}) {
+    INFO(config);
+    const auto o = parse_config(config);
+    REQUIRE(Hopnet(o)->num_parameters() == want);
+    REQUIRE(parse_config(variant_name(o).substr(0, variant_name(o).find(' '))).to_json() == o.to_json());  // the name is a configuration
+  }
+  for (const char* act : {"relu", "gelu", "elu", "selu"}) REQUIRE(Hopnet(parse_config("standard").activation(nn::activation_from_string(act)))->num_parameters() == 707078);
+  REQUIRE(parse_config("noseq").hidden() == 64);
+  REQUIRE(parse_config("noseq").num_layers() == 3);
+  REQUIRE(variant_name(parse_config("nox4").activation(nn::Activation::gelu)) == "nox4 (activation gelu)");
+  // The NoObjectCells encoder reads 21 node columns; no-cm-distance 8.
+  REQUIRE(Hopnet(parse_config("nox4"))->module("encoder_0")->options.in() == 21);
+  REQUIRE(Hopnet(parse_config("no-cm-distance"))->module("encoder_0")->options.in() == 8);
+
+  REQUIRE_THROWS_WITH(parse_config("nox5"), Catch::Contains("unknown configuration 'nox5': not a preset"));
+  REQUIRE_THROWS_WITH(parse_config("nox4,noseq"), Catch::Contains("conflicting configuration: preset 'nox4' sets architecture"));
+  REQUIRE_THROWS_WITH(parse_config("noseq,mp2"), Catch::Contains("num_layers = 3"));
+  REQUIRE_THROWS_WITH(parse_config("mlp3,,mp2"), Catch::Contains("empty item"));
+  REQUIRE_THROWS_WITH(parse_config("missing.json"), Catch::Contains("no such file"));
+  // JSON configuration files: fields, and presets under them.
+  const auto file = (fs::temp_directory_path() / "topos_variant.json").string();
+  { std::ofstream(file) << R"({"presets": ["mlp3"], "activation": "gelu", "collision_radius": 0.05})"; }
+  const auto o = parse_config(file + ",no-cm-distance");
+  REQUIRE(o.mlp_layers() == 3);
+  REQUIRE(o.activation() == nn::Activation::gelu);
+  REQUIRE(o.collision_radius() == 0.05);
+  REQUIRE(Hopnet(o)->num_parameters() == 1036294);
+  { std::ofstream(file) << R"({"hiden": 64})"; }
+  REQUIRE_THROWS_WITH(parse_config(file), Catch::Contains("unknown configuration field 'hiden'"));
+  { std::ofstream(file) << R"({"collision_radius": -1})"; }
+  REQUIRE_THROWS_WITH(parse_config(file), Catch::Contains("collision radius must be a positive number"));
+  { std::ofstream(file) << R"({"presets": "mp2", "num_layers": 3})"; }
+  REQUIRE_THROWS_WITH(parse_config(file), Catch::Contains("conflicting configuration"));
+  fs::remove(file);
+}
+
+namespace {
+struct VariantGolden {
+  Golden G;
+  std::map<std::string, torch::Tensor> dict;
+  Hopnet model{nullptr};
+  Normalizer norm;
+  HopnetGeometry g;
+  VariantGolden(const char* what, const std::string& checkpoint, const std::string& stats) : G(what) {
+    const auto path = (G.ref / "data" / "checkpoints" / checkpoint).string();
+    dict = nn::read_tensor_dict(path);
+    model = load_hopnet(dict, path);
+    model->eval();
+    const auto s = read_stats_json((G.ref / "data" / "normalization" / stats).string());
+    check_stats_fit(model->options, s, stats);
+    norm = Normalizer(s);
+    g = make_geometry(G.scene, model->options.lifting());
+  }
+};
+double sum_of(const torch::Tensor& t) { return t.sum().item<double>(); }
+}  // namespace
+
+TEST_CASE("NoObjectCells: the published movia-nox4 weights on MOVi-A scene 8 give the reference's single steps", "[hopnet][variants][reference]") {
+  VariantGolden V("hopnet NoObjectCells", "movia-nox4_seed0_e39.pt", "movia-nox4.json");
+  REQUIRE(V.model->options.architecture() == Architecture::no_object_cells);
+  REQUIRE(V.model->num_parameters() == 539651);
+  REQUIRE(V.dict.size() == 88);
+  REQUIRE(variant_name(V.model->options) == "nox4");
+  // The complex of hopnet-ablations-spec 1.1.
+  const auto& g = V.g;
+  REQUIRE(g.num_rank0() == 187);
+  REQUIRE(g.num_rank1() == 707);
+  std::int64_t virtual_first = 0;
+  for (char c : g.spoke_virtual_first) virtual_first += c;
+  REQUIRE(virtual_first == 54);
+  // z0 of the nox4 statistics (spec 1.3), in float32.
+  const auto z0 = V.norm.zero_node_acceleration();
+  REQUIRE(z0[0].item<float>() == Approx(-1.2923704e-4f).epsilon(1e-6));
+  REQUIRE(z0[1].item<float>() == Approx(4.3692067e-5f).epsilon(1e-6));
+  REQUIRE(z0[2].item<float>() == Approx(-1.2546999e-4f).epsilon(1e-6));
+  REQUIRE_FALSE(V.norm.stats().has_objects());
+  torch::NoGradGuard ng;
+  struct Want { int t, F, C; double loss, sum_all, sum_mesh; };
+  for (const auto& w : {Want{2, 26, 34, 0.00444751, -15.9626, -15.5869}, Want{100, 47, 49, 2.70767, -39.8994, -39.3561}, Want{300, 61, 59, 0.119437, -10.8541, -10.4690}}) {
+    INFO("t = " << w.t);
+    const auto tf = trajectory_frames(V.G.scene, g, 0.1, 0.0, w.t, w.t);
+    const auto& f = tf.frames[0];
+    REQUIRE(f.num_faces() == w.F);
+    REQUIRE(f.num_contacts() == w.C);
+    REQUIRE(f.x0.rows() == 187);
+    REQUIRE(f.x1.rows() == 707);
+    const auto item = make_training_item(g, tf, V.norm);
+    REQUIRE(item.batch.complex.neighborhood("A010").nnz() == 1601 - 187);  // the reference's explicit diagonal zeros left out
+    const auto out = V.model->forward(item.batch, V.norm);
+    REQUIRE(out.a0.size(0) == 187);
+    REQUIRE_FALSE(out.a4.defined());
+    REQUIRE(trajectory_loss(*V.model, item, V.norm).item<double>() == Approx(w.loss).epsilon(2e-4));
+    REQUIRE(sum_of(out.a0) == Approx(w.sum_all).epsilon(2e-4));
+    REQUIRE(sum_of(out.a0.slice(0, 0, 183)) == Approx(w.sum_mesh).epsilon(2e-4));
+    // Static rows: the floor's 4 mesh nodes and its virtual node.
+    for (std::int64_t r : {179, 180, 181, 182, 186}) REQUIRE(torch::equal(out.a0[r], z0));
+    if (w.t == 100) {
+      const auto acc = V.norm.denormalize("t0", out.a0);
+      const auto close = [&](std::int64_t row, std::array<double, 3> v) {
+        INFO("row " << row);
+        for (int c = 0; c < 3; ++c) REQUIRE(acc[row][c].item<double>() == Approx(v[static_cast<std::size_t>(c)]).margin(5e-9).epsilon(2e-3));
+      };
+      close(0, {1.18782e-5, 5.14045e-5, -8.38266e-5});
+      close(183, {9.788e-6, -2.019e-5, -1.74249e-4});
+      close(184, {4.568e-5, 1.01074e-4, -1.08692e-4});
+      close(185, {5.1888e-5, -4.37754e-4, -2.76162e-4});
+      REQUIRE(acc[186].abs().max().item<double>() == 0.0);
+    }
+  }
+  // Node features of spec 1.2: x0n[0, 16:21] and the cylinder's virtual row at t = 3.
+  const auto tf = trajectory_frames(V.G.scene, g, 0.1, 0.0, 3, 3);
+  const auto x0n = V.norm.normalize("x0", tf.frames[0].x0);
+  const std::array<double, 5> obj{1, -1, 0.071063, 1.008522, 1.012018};
+  for (int c = 0; c < 5; ++c) REQUIRE(x0n[0][16 + c].item<double>() == Approx(obj[static_cast<std::size_t>(c)]).margin(1e-5));
+  const std::array<double, 8> v{-0.003789, -0.007679, -0.000443, 0.008575, -0.003789, -0.007679, -0.000269, 0.008567};
+  for (int c = 0; c < 8; ++c) REQUIRE(tf.frames[0].x0(183, c) == Approx(v[static_cast<std::size_t>(c)]).margin(1e-6));
+  for (int c = 8; c < 16; ++c) REQUIRE(tf.frames[0].x0(183, c) == 0.0);
+  REQUIRE(tf.frames[0].x0(186, 17) == 1.0);  // the floor's virtual node: type (0, 1)
+  // The standard statistics cannot feed it.
+  REQUIRE_THROWS_WITH(check_stats_fit(V.model->options, V.G.normalizer().stats(), "movia.json"), Catch::Contains("x0 statistics have 16 columns") && Catch::Contains("reads 21"));
+}
+
+TEST_CASE("NoSequential: the published movia-noseq weights on MOVi-A scene 8 give the reference's single steps", "[hopnet][variants][reference]") {
+  VariantGolden V("hopnet NoSequential", "movia-noseq_seed1_e39.pt", "movia.json");
+  REQUIRE(V.model->options.architecture() == Architecture::no_sequential);
+  REQUIRE(V.model->options.hidden() == 64);
+  REQUIRE(V.model->options.num_layers() == 3);
+  REQUIRE(V.model->num_parameters() == 951814);
+  REQUIRE(V.dict.size() == 506);
+  REQUIRE(variant_name(V.model->options) == "noseq");
+  torch::NoGradGuard ng;
+  struct Want { int t, F, C; std::int64_t a232; double loss, sum_a0, sum_a4; };
+  for (const auto& w : {Want{2, 26, 34, 94 - 26, 0.00687097, -23.3120, -0.482267}, Want{100, 47, 49, 145 - 47, 2.43256, -59.7767, -2.23047}, Want{300, 61, 59, 179 - 61, 0.119727, -14.2289, -0.234775}}) {
+    INFO("t = " << w.t);
+    const auto tf = trajectory_frames(V.G.scene, V.g, 0.1, 0.0, w.t, w.t);
+    REQUIRE(tf.frames[0].num_faces() == w.F);
+    REQUIRE(tf.frames[0].num_contacts() == w.C);
+    const auto item = make_training_item(V.g, tf, V.norm);
+    const auto& cx = item.batch.complex;
+    REQUIRE(cx.neighborhood("A232").nnz() == w.a232);
+    REQUIRE(cx.neighborhood("A101").nnz() == 5818 - 524);
+    REQUIRE(cx.neighborhood("B03").nnz() == 6 * w.C);
+    REQUIRE(cx.neighborhood("B13").nnz() == 6 * w.C);
+    const auto out = V.model->forward(item.batch, V.norm);
+    REQUIRE(trajectory_loss(*V.model, item, V.norm).item<double>() == Approx(w.loss).epsilon(2e-4));
+    REQUIRE(sum_of(out.a0) == Approx(w.sum_a0).epsilon(2e-4));
+    REQUIRE(sum_of(out.a4) == Approx(w.sum_a4).epsilon(2e-4));
+    if (w.t == 100) {
+      const auto acc = V.norm.denormalize("t4", out.a4);
+      const std::vector<std::array<double, 3>> want{{-5.38867e-6, -1.91431e-7, -1.77391e-4}, {1.70072e-5, 3.94399e-4, -2.35282e-5}, {-8.59022e-5, -2.40931e-3, -4.43048e-4}};
+      for (std::int64_t o = 0; o < 3; ++o)
+        for (int c = 0; c < 3; ++c) REQUIRE(acc[o][c].item<double>() == Approx(want[static_cast<std::size_t>(o)][static_cast<std::size_t>(c)]).margin(5e-9).epsilon(2e-3));
+      REQUIRE(acc[3].abs().max().item<double>() == 0.0);
+    }
+  }
+}
+
+TEST_CASE("the published variant checkpoints are recognised from their keys; a dict of no variant is an error", "[hopnet][variants][reference]") {
+  Golden G("hopnet variant checkpoints");
+  const auto ckpt = [&](const char* f) { return (G.ref / "data" / "checkpoints" / f).string(); };
+  for (const auto& [file, name, params] : std::vector<std::tuple<const char*, const char*, std::int64_t>>{
+           {"movia-nox4_seed0_e39.pt", "nox4", 539651}, {"movia-noseq_seed1_e39.pt", "noseq", 951814}, {"gelu_seed0_e39.pt", "standard", 707078},
+           {"models_seed2_e39.pt", "standard", 707078}, {"movib-alt_seed0_e39.pt", "standard", 707078}}) {
+    INFO(file);
+    const auto dict = nn::read_tensor_dict(ckpt(file));
+    const auto o = checkpoint_options(dict, file);
+    REQUIRE(variant_name(o) == name);
+    auto m = load_hopnet(dict, file);
+    REQUIRE(m->num_parameters() == params);
+    // Exported reference names are the file's own.
+    std::set<std::string> names;
+    for (const auto& p : m->named_parameters()) names.insert(reference_parameter_name(p.key(), o.architecture()));
+    std::set<std::string> keys;
+    for (const auto& [k, v] : dict) keys.insert(k);
+    REQUIRE(names == keys);
+  }
+  // The activation is not in a reference file: an override applies; a topos file records it.
+  CheckpointOverrides gelu;
+  gelu.activation = nn::Activation::gelu;
+  const auto dict = nn::read_tensor_dict(ckpt("gelu_seed0_e39.pt"));
+  REQUIRE(load_hopnet(dict, "gelu", gelu)->options.activation() == nn::Activation::gelu);
+  // A state dict whose names belong to no variant, and one whose class is known but whose
+  // tensors are not the class's.
+  std::map<std::string, torch::Tensor> renamed;
+  for (const auto& [k, v] : dict) renamed["_HOPNet_Other__" + k.substr(9)] = v;
+  REQUIRE_THROWS_WITH(checkpoint_options(renamed, "other.pt"), Catch::Contains("neither a topos nor a reference HOPNet checkpoint"));
+  auto mixed = nn::read_tensor_dict(ckpt("movia-nox4_seed0_e39.pt"));
+  mixed["_HOPNet__mlp_encoder_4.0.weight"] = torch::zeros({128, 13});
+  REQUIRE_THROWS_WITH(load_hopnet(mixed, "mixed.pt"), Catch::Contains("unexpected tensor '_HOPNet__mlp_encoder_4.0.weight'"));
+  auto wide = dict;
+  wide["_HOPNet__mlp_encoder_0.0.weight"] = torch::zeros({128, 12});
+  REQUIRE_THROWS_WITH(checkpoint_options(wide, "wide.pt"), Catch::Contains("reads 12 node features"));
+}
+
+TEST_CASE("variants on built-in shapes: batching, rollout, training, statistics and topos checkpoints", "[hopnet][variants]") {
+  torch::manual_seed(5);
+  const Scene scene = builtin_scene();
+  for (const char* config : {"nox4", "noseq,hidden64", "no-cm-distance", "mp2", "nox4,no-cm-distance"}) {
+    INFO(config);
+    for (auto mode : {FeatureMode::reference, FeatureMode::native}) {
+      INFO(to_string(mode));
+      HopnetOptions o = parse_config(config, HopnetOptions().mode(mode));
+      o.hidden(16);
+      Hopnet net(o);
+      const auto g = make_geometry(scene, o.lifting());
+      // Statistics of the variant's own layout, computed from its features.
+      const auto tf = trajectory_frames(scene, g, o.collision_radius(), 0.0);
+      StatsAccumulator acc;
+      accumulate_stats(acc, tf, o.lifting().object_cells());
+      const auto stats = acc.finalize();
+      REQUIRE(stats.x0_width() == static_cast<std::size_t>(o.lifting().x0_width()));
+      REQUIRE(stats.has_objects() == o.lifting().object_cells());
+      check_stats_fit(o, stats, "computed");
+      if (!o.lifting().object_cells()) REQUIRE(stats.mean.at("x0")[o.lifting().x0_width() - 5] == 0.5);
+      const auto path = (fs::temp_directory_path() / "topos_variant_stats.json").string();
+      write_stats_json(stats, path);
+      const Normalizer norm(read_stats_json(path));
+      fs::remove(path);
+      // One backward over the trajectory; every parameter that the schedule reaches gets a gradient.
+      const auto item = make_training_item(g, tf, norm);
+      net->zero_grad();
+      const auto loss = trajectory_loss(*net, item, norm);
+      REQUIRE(std::isfinite(loss.item<double>()));
+      loss.backward();
+      // Batched frames equal single frames.
+      net->eval();
+      torch::NoGradGuard ng;
+      std::vector<std::pair<const HopnetGeometry*, const HopnetFrame*>> all;
+      for (const auto& f : tf.frames) all.push_back({&g, &f});
+      const auto batched = net->forward(make_batch(all, norm), norm);
+      std::int64_t row = 0;
+      for (const auto& f : tf.frames) {
+        const auto one = net->forward(make_batch({{&g, &f}}, norm), norm);
+        REQUIRE(torch::allclose(one.a0, batched.a0.slice(0, row, row + g.num_rank0()), 1e-4, 1e-5));
+        row += g.num_rank0();
+        REQUIRE(torch::equal(one.a0[g.num_nodes() - 1], norm.zero_node_acceleration()));  // a floor node
+      }
+      RolloutOptions opt;
+      opt.steps = 5;
+      const auto r = rollout(*net, norm, scene, g, opt);
+      REQUIRE(r.poses[8].positions.row(2).norm() == 0.0);
+      // The topos checkpoint keeps the configuration.
+      const auto ck = (fs::temp_directory_path() / "topos_variant.pt").string();
+      save_hopnet(*net, ck);
+      auto back = load_hopnet(ck);
+      REQUIRE(back->options.to_json() == net->options.to_json());
+      CheckpointOverrides other;
+      other.activation = nn::Activation::selu;
+      REQUIRE_THROWS_WITH(load_hopnet(nn::read_tensor_dict(ck), ck, other), Catch::Contains("trained with activation relu, not selu"));
+      fs::remove(ck);
     }
   }
 }

@@ -7,6 +7,9 @@
 //   Σ_t [ (1/N) Σ_{n,d} (a0 − t0n)² + (1/O) Σ_{o,d} (a4 − t4n)² ]
 // on normalised targets, optionally with the low-velocity collision mask. The timesteps are
 // independent given the ground-truth inputs, so chunks' gradients add up to the whole one's.
+// Without object cells (hopnet-ablations-spec 1.5) t0 has a row per virtual node too (its
+// object's acceleration), there is no object term, the node term is divided by N+O, and virtual
+// nodes get weight 0.
 #pragma once
 
 #include "topos/models/hopnet/rollout.hpp"
@@ -61,6 +64,11 @@ inline TrajectoryFrames trajectory_frames(const Scene& scene, const HopnetGeomet
           if (std::abs(vz) < min_z_collision_velocity / 240.0) m(o, 0) = 0;
         }
     }
+    if (!g.lifting.object_cells()) {
+      RowMatrix with_virtual(N + O, 3);
+      with_virtual << a0, a4;
+      a0 = std::move(with_virtual);
+    }
     out.t0.push_back(std::move(a0));
     out.t4.push_back(std::move(a4));
     out.mask.push_back(std::move(m));
@@ -68,12 +76,14 @@ inline TrajectoryFrames trajectory_frames(const Scene& scene, const HopnetGeomet
   return out;
 }
 
-/// Adds a trajectory's raw features and targets to the statistics.
-inline void accumulate_stats(StatsAccumulator& acc, const TrajectoryFrames& tf) {
+/// Adds a trajectory's raw features and targets to the statistics (`objects`: x4 and t4 too;
+/// false without object cells, whose statistics have none).
+inline void accumulate_stats(StatsAccumulator& acc, const TrajectoryFrames& tf, bool objects = true) {
   for (std::size_t i = 0; i < tf.frames.size(); ++i) {
     const auto& f = tf.frames[i];
-    acc.add("x0", f.x0), acc.add("x1", f.x1), acc.add("x2", f.x2), acc.add("x3", f.x3), acc.add("x4", f.x4);
-    acc.add("t0", tf.t0[i]), acc.add("t4", tf.t4[i]);
+    acc.add("x0", f.x0), acc.add("x1", f.x1), acc.add("x2", f.x2), acc.add("x3", f.x3);
+    acc.add("t0", tf.t0[i]);
+    if (objects) acc.add("x4", f.x4), acc.add("t4", tf.t4[i]);
   }
 }
 
@@ -83,7 +93,7 @@ struct TrainingItem {
   torch::Tensor t0, t4, node_weight, object_weight;  ///< weights: mask / N, mask / O per row
   std::int64_t timesteps = 0;
   TrainingItem to(const torch::Device& d) const {
-    return {batch.to(d), t0.to(d), t4.to(d), node_weight.to(d), object_weight.to(d), timesteps};
+    return {batch.to(d), t0.to(d), t4.defined() ? t4.to(d) : t4, node_weight.to(d), object_weight.to(d), timesteps};
   }
 };
 
@@ -94,19 +104,22 @@ inline TrainingItem make_training_item(const HopnetGeometry& g, const Trajectory
   TrainingItem it;
   std::vector<std::pair<const HopnetGeometry*, const HopnetFrame*>> frames;
   std::vector<torch::Tensor> t0, t4, nw, ow;
-  const double N = static_cast<double>(g.num_nodes()), O = static_cast<double>(g.num_objects());
+  const bool objects = g.lifting.object_cells();
+  const double N = static_cast<double>(g.num_rank0()), O = static_cast<double>(g.num_objects());
   const auto node_object = torch::tensor(std::vector<std::int64_t>(g.node_object.begin(), g.node_object.end()), torch::kLong);
   for (std::size_t i = begin; i < end; ++i) {
     frames.push_back({&g, &tf.frames[i]});
     t0.push_back(norm.normalize("t0", tf.t0[i]));
-    t4.push_back(norm.normalize("t4", tf.t4[i]));
+    if (objects) t4.push_back(norm.normalize("t4", tf.t4[i]));
     const auto m = Normalizer::to_tensor(tf.mask[i]).squeeze(1);
-    ow.push_back(m / O);
-    nw.push_back(m.index_select(0, node_object) / N);
+    ow.push_back(objects ? m / O : torch::zeros({0}, torch::kFloat));
+    auto w = m.index_select(0, node_object) / N;
+    if (!objects) w = torch::cat({w, torch::zeros({g.num_objects()}, torch::kFloat)});  // virtual nodes: never supervised
+    nw.push_back(w);
   }
   it.batch = make_batch(frames, norm);
   it.t0 = torch::cat(t0);
-  it.t4 = torch::cat(t4);
+  it.t4 = objects ? torch::cat(t4) : torch::Tensor();
   it.node_weight = torch::cat(nw).unsqueeze(1);
   it.object_weight = torch::cat(ow).unsqueeze(1);
   it.timesteps = static_cast<std::int64_t>(end - begin);
@@ -149,7 +162,8 @@ inline torch::Tensor timestep_losses(const HopnetOutput& out, const TrainingItem
 /// The summed loss of spec 8 for one trajectory (divide by `timesteps` for the logged value).
 inline torch::Tensor trajectory_loss(HopnetImpl& model, const TrainingItem& it, const Normalizer& norm) {
   const auto out = model.forward(it.batch, norm);
-  return ((out.a0 - it.t0).pow(2) * it.node_weight).sum() + ((out.a4 - it.t4).pow(2) * it.object_weight).sum();
+  const auto nodes = ((out.a0 - it.t0).pow(2) * it.node_weight).sum();
+  return out.a4.defined() ? nodes + ((out.a4 - it.t4).pow(2) * it.object_weight).sum() : nodes;
 }
 
 /// Forward and backward of a trajectory given as chunks: the gradient of the summed loss is
