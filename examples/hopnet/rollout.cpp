@@ -1,20 +1,23 @@
 // hopnet rollout: the autoregressive rollout of one scene with the paper's per-frame metrics.
 #include "commands.hpp"
+#include "topos/nn/device.hpp"
 #include "viewer.hpp"
 
 namespace hopnet_cli {
 namespace {
 
 struct RolloutArgs {
-  std::string checkpoint, stats, scene, assets, mode = "reference", out, collisions, viewer;
+  std::string checkpoint, stats, scene, assets, mode = "reference", out, collisions, viewer, device = "cpu";
   int steps = 102;
   bool no_collisions_json = false;
 };
 
 int run_rollout(const RolloutArgs& a) {
   const FeatureMode mode = feature_mode_from_string(a.mode);
+  const torch::Device device = nn::device_from_string(a.device);
   auto net = load_hopnet(a.checkpoint, mode);
   net->eval();
+  net->to(device);
   const Normalizer norm(read_stats_json(a.stats));
   MeshLibrary lib(a.assets);
   const auto kubric = data::read_kubric_metadata(a.scene);
@@ -90,6 +93,7 @@ Command add_rollout(CLI::App& app) {
   cr->add_option("--collisions", ro.collisions, "collisions.json for the first step (default: beside the scene, reference mode)");
   cr->add_flag("--no-collisions-json", ro.no_collisions_json, "detect the first step's contacts too");
   cr->add_option("--out", ro.out, "output JSON")->required();
+  cr->add_option("--device", ro.device, "cpu, cuda, cuda:N or auto (one scene's small steps are fastest on the CPU)")->capture_default_str();
   cr->add_option("--viewer", ro.viewer, "also write the HTML viewer (prediction beside ground truth) here");
   return {cr, [args] { return run_rollout(*args); }};
 }
