@@ -40,6 +40,7 @@ Command add_export(CLI::App& app);
 Command add_generate(CLI::App& app);
 Command add_pack(CLI::App& app);
 Command add_split(CLI::App& app);
+Command add_grad(CLI::App& app);
 Command add_train(CLI::App& app);
 Command add_evaluate(CLI::App& app);
 Command add_rollout(CLI::App& app);
@@ -47,6 +48,12 @@ Command add_rollout(CLI::App& app);
 inline void write_json_atomic(const nlohmann::json& j, const std::string& path) {
   write_file_atomic(path, j.dump() + "\n");
 }
+
+/// Activation memory per forward/backward chunk when --chunk is not given (grad, train).
+inline constexpr double kDefaultMemoryBudgetMb = 3072;
+
+/// The reference's contacts of every frame beside a Kubric scene (collisions.json), or "".
+std::string collisions_beside(const data::KubricScene& scene);
 
 /// Reads Kubric scene folders `from/<id>` and writes them as one topos dataset (pack, generate).
 void pack_scenes(const std::filesystem::path& from, const std::vector<std::int64_t>& ids,

@@ -27,15 +27,11 @@ int run_rollout(const RolloutArgs& a) {
   opt.steps = a.steps;
   if (scene.num_frames < opt.steps + 4) std::cerr << "note: the scene has " << scene.num_frames << " frames; metrics cover the first " << scene.num_frames << "\n";
   // Reference mode takes the first step's contacts from collisions.json beside the scene, as the reference does.
-  std::filesystem::path coll = a.collisions;
-  if (coll.empty() && mode == FeatureMode::reference && !a.no_collisions_json) {
-    auto dir = std::filesystem::path(kubric.source).parent_path();
-    if (std::filesystem::exists(dir / "collisions.json")) coll = dir / "collisions.json";
-  }
+  const std::string coll = a.collisions.empty() && mode == FeatureMode::reference && !a.no_collisions_json ? collisions_beside(kubric) : a.collisions;
   if (!coll.empty()) {
-    const auto all = read_collisions_json(coll.string());
+    const auto all = read_collisions_json(coll);
     auto it = all.find(3);
-    if (it == all.end()) throw data::DataError(coll.string() + ": has no frame 3");
+    if (it == all.end()) throw data::DataError(coll + ": has no frame 3");
     opt.first_contacts = it->second;
   }
   ProgressBar bar("rollout", opt.steps, "steps");

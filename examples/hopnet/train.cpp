@@ -1,10 +1,13 @@
-// hopnet train: HOPNet on a dataset, resumable, with CSV logs; data-parallel over c10d when run
-// as several processes (torchrun's environment, or --nproc N here): each optimizer step takes
-// --trajectories-per-step trajectories on every rank, gradients averaged by all-reduce.
+// hopnet train: HOPNet on a dataset, resumable, with CSV logs. A trajectory goes through the
+// network in chunks of timesteps (--chunk, or as many as fit a memory budget) whose gradients add
+// up to the whole trajectory's. Data-parallel over c10d when run as several processes (torchrun's
+// environment, or --nproc N here): each optimizer step takes --trajectories-per-step
+// trajectories on every rank, gradients averaged by all-reduce.
 #include "commands.hpp"
 #include "topos/nn/device.hpp"
 #include "topos/nn/distributed.hpp"
 #include "topos/util/launch.hpp"
+#include "topos/util/memory.hpp"
 #include <chrono>
 #include <future>
 #include <numeric>
@@ -15,8 +18,9 @@ namespace {
 
 // ---- train ----------------------------------------------------------------------------------
 struct TrainArgs {
-  std::string data, out, assets, stats, mode = "native", activation = "relu", split_file, device = "auto";
-  std::int64_t max_steps = -1, hidden = 128;
+  std::string data, out, assets, stats, mode = "native", activation = "relu", split_file, init, device = "auto";
+  std::int64_t max_steps = -1, hidden = 128, chunk = 0;
+  double memory_budget_mb = kDefaultMemoryBudgetMb;
   int epochs = 40, mlp_layers = 2, num_layers = 1, max_frames = 0;
   int nproc = 1, trajectories_per_step = 1;
   double dist_timeout = 1800;
@@ -25,12 +29,14 @@ struct TrainArgs {
   bool resume = false;
 };
 
-// A scene ready for training: its meshes and geometry. Features and the batched item are built
-// per optimizer step (a 10-object trajectory's item is ~100 MB; a whole dataset's would not fit).
+// A scene ready for training: its meshes, geometry and, in reference mode, the reference's
+// contacts when the dataset has them. Features and the batched chunks are built per optimizer
+// step (a 10-object trajectory's inputs are ~100 MB; a whole dataset's would not fit).
 struct LoadedScene {
   std::int64_t id;
   Scene scene;
   HopnetGeometry geometry;
+  std::optional<ContactsByFrame> contacts;
 };
 
 std::vector<LoadedScene> load_scenes(const data::Dataset& dataset, const std::vector<std::int64_t>& ids, const std::string& assets, FeatureMode mode, int max_frames, const char* label, std::FILE* log) {
@@ -40,7 +46,9 @@ std::vector<LoadedScene> load_scenes(const data::Dataset& dataset, const std::ve
   ProgressBar bar(label, static_cast<std::int64_t>(ids.size()), "scenes", log);
   for (auto id : ids) {
     auto k = dataset.scene(id);
-    LoadedScene ls{id, make_scene(k, lib), {}};
+    LoadedScene ls{id, make_scene(k, lib), {}, std::nullopt};
+    if (mode == FeatureMode::reference)
+      if (const auto c = dataset.collisions_path(id); !c.empty()) ls.contacts = read_collisions_json(c);
     if (max_frames > 0 && ls.scene.num_frames > max_frames) {
       ls.scene.num_frames = max_frames;
       ls.scene.positions.conservativeResize(max_frames, Eigen::NoChange);
@@ -97,7 +105,7 @@ int run_train(const TrainArgs& a) {
       StatsAccumulator acc;
       ProgressBar sb("statistics", static_cast<std::int64_t>(train.size()), "scenes");
       for (const auto& s : train) {
-        accumulate_stats(acc, trajectory_frames(s.scene, s.geometry, 0.1, a.min_z_collision_velocity));
+        accumulate_stats(acc, trajectory_frames(s.scene, s.geometry, 0.1, a.min_z_collision_velocity, 2, -1, s.contacts ? &*s.contacts : nullptr));
         sb.update();
       }
       sb.finish();
@@ -110,22 +118,40 @@ int run_train(const TrainArgs& a) {
     if (!main_rank) stats = parse_stats_json(text, "rank 0's statistics");
   }
   const Normalizer norm(stats);
-  const auto make_item = [&](const LoadedScene& s) {
-    return make_training_item(s.geometry, trajectory_frames(s.scene, s.geometry, 0.1, a.min_z_collision_velocity), norm).to(device);
-  };
 
   torch::manual_seed(a.seed);
   const auto ckpt = (fs::path(a.out) / "checkpoint.pt").string(), opt_path = (fs::path(a.out) / "optimizer.pt").string(), state_path = (fs::path(a.out) / "state.json").string();
-  Hopnet model(HopnetOptions().hidden(a.hidden).mlp_layers(a.mlp_layers).num_layers(a.num_layers).activation(nn::activation_from_string(a.activation)).mode(mode));
+  HopnetOptions options = HopnetOptions().hidden(a.hidden).mlp_layers(a.mlp_layers).num_layers(a.num_layers).activation(nn::activation_from_string(a.activation)).mode(mode);
+  std::map<std::string, torch::Tensor> init;
+  if (!a.init.empty()) {
+    init = nn::read_tensor_dict(a.init);
+    options = checkpoint_options(init, a.init, options).mode(mode);  // the architecture is the checkpoint's
+  }
+  Hopnet model(options);
   int start_epoch = 0;
   std::int64_t step = 0;
   // Rank 0 decides whether and from what to resume; the others receive its model, optimizer
   // state and position, so --resume works for any world size (and needs no shared folder).
   const bool resuming = dist.broadcast_bytes(main_rank && a.resume && fs::exists(state_path) ? "1" : "0") == "1";
-  if (resuming && main_rank) load_checkpoint(*model, nn::read_tensor_dict(ckpt), ckpt);
+  if (main_rank) {
+    if (resuming) load_checkpoint(*model, nn::read_tensor_dict(ckpt), ckpt);
+    else if (!a.init.empty()) load_checkpoint(*model, init, a.init);
+  }
   model->to(device);
   dist.broadcast_(model->parameters(), 0, "parameter broadcast");
   dist.broadcast_(model->buffers(), 0, "buffer broadcast");
+  const double budget = a.memory_budget_mb * 1024.0 * 1024.0;
+  const auto make_chunks = [&](const LoadedScene& s) {
+    const auto tf = trajectory_frames(s.scene, s.geometry, 0.1, a.min_z_collision_velocity, 2, -1, s.contacts ? &*s.contacts : nullptr);
+    auto chunks = make_training_chunks(s.geometry, tf, norm, a.chunk > 0 ? a.chunk : auto_chunk(s.geometry, tf, options.hidden(), budget));
+    for (auto& c : chunks) c = c.to(device);
+    return chunks;
+  };
+  const auto timesteps = [](const std::vector<TrainingItem>& chunks) {
+    std::int64_t n = 0;
+    for (const auto& c : chunks) n += c.timesteps;
+    return n;
+  };
   torch::optim::Adam opt(model->parameters(), torch::optim::AdamOptions(a.lr));
   if (resuming) {
     std::istringstream opt_in(dist.broadcast_bytes(main_rank ? data::read_text_file(opt_path) : std::string(), 0, "optimizer state broadcast"));
@@ -141,7 +167,7 @@ int run_train(const TrainArgs& a) {
     steps_csv.open(fs::path(a.out) / "steps.csv", a.resume ? std::ios::app : std::ios::trunc);
     epochs_csv.open(fs::path(a.out) / "epochs.csv", a.resume ? std::ios::app : std::ios::trunc);
     if (!a.resume || step == 0) {
-      steps_csv << "epoch,step,scene,loss,seconds_per_step,timesteps_per_second\n";
+      steps_csv << "epoch,step,scene,loss,seconds_per_step,timesteps_per_second,chunks,peak_rss_mb\n";
       epochs_csv << "epoch,train_loss,val_loss,seconds,lr\n";
     }
   }
@@ -170,26 +196,30 @@ int run_train(const TrainArgs& a) {
     double sum = 0;
     int n = 0;
     model->train();
-    std::future<TrainingItem> next;
+    std::future<std::vector<TrainingItem>> next;
     std::size_t taken = 0;
-    if (!mine.empty()) next = std::async(std::launch::async, make_item, std::cref(train[static_cast<std::size_t>(mine[0])]));
+    if (!mine.empty()) next = std::async(std::launch::async, make_chunks, std::cref(train[static_cast<std::size_t>(mine[0])]));
     for (std::int64_t s = 0; s < steps_now; ++s) {
       const auto& shard = shards[static_cast<std::size_t>(s)];
+      reset_peak_rss();
       const auto t0 = std::chrono::steady_clock::now();
-      opt.zero_grad();
-      double loss_sum = 0, timesteps = 0;  // this rank's: Σ per-timestep losses, Σ timesteps
+      // Gradients reset to none, as the reference's (PyTorch >= 2.0) zero_grad: a parameter no
+      // trajectory of the step reaches is skipped by Adam rather than moved by its momentum.
+      for (auto& p : params) p.mutable_grad() = torch::Tensor();
+      double loss_sum = 0, T = 0;  // this rank's: Σ per-timestep losses, Σ timesteps
+      std::size_t n_chunks = 0;
       for (std::size_t j = 0; j < shard.items.size(); ++j) {
-        const TrainingItem item = next.get();
-        if (++taken < mine.size()) next = std::async(std::launch::async, make_item, std::cref(train[static_cast<std::size_t>(mine[taken])]));
-        auto loss = trajectory_loss(*model, item, norm);
-        loss.backward();
-        loss_sum += loss.item<double>() / static_cast<double>(item.timesteps);
-        timesteps += static_cast<double>(item.timesteps);
+        const std::vector<TrainingItem> chunks = next.get();
+        if (++taken < mine.size()) next = std::async(std::launch::async, make_chunks, std::cref(train[static_cast<std::size_t>(mine[taken])]));
+        const double loss = backward_trajectory(*model, chunks, norm);
+        loss_sum += loss / static_cast<double>(timesteps(chunks));
+        T += static_cast<double>(timesteps(chunks));
+        n_chunks += chunks.size();
       }
       // grad = Σ over the step's trajectories / their number (one trajectory, one process: as is).
       dist.average_gradients(params, static_cast<double>(shard.total));
       opt.step();
-      const auto totals = world > 1 ? dist.all_reduce_sum({loss_sum, timesteps}, "loss all-reduce") : std::vector<double>{loss_sum, timesteps};
+      const auto totals = world > 1 ? dist.all_reduce_sum({loss_sum, T}, "loss all-reduce") : std::vector<double>{loss_sum, T};
       const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
       const double l = totals[0] / static_cast<double>(shard.total);
       sum += l, ++n, ++step;
@@ -197,7 +227,8 @@ int run_train(const TrainArgs& a) {
         std::string scenes;  // every rank's trajectories of the step, from the shared order
         for (std::int64_t k = s * world * per_rank; k < std::min(n_train, (s + 1) * world * per_rank); ++k)
           scenes += (scenes.empty() ? "" : ";") + std::to_string(train[static_cast<std::size_t>(order[static_cast<std::size_t>(k)])].id);
-        steps_csv << epoch << "," << step << "," << scenes << "," << l << "," << secs << "," << totals[1] / secs << "\n";
+        // chunks and peak_rss_mb are rank 0's (each process holds its own trajectories).
+        steps_csv << epoch << "," << step << "," << scenes << "," << l << "," << secs << "," << totals[1] / secs << "," << n_chunks << "," << peak_rss_mb() << "\n";
       }
       char status[96];
       std::snprintf(status, sizeof status, "epoch %d loss %.4f %.0f timesteps/s", epoch + 1, l, totals[1] / secs);
@@ -211,8 +242,10 @@ int run_train(const TrainArgs& a) {
       model->eval();
       double v_sum = 0;
       for (std::size_t v = static_cast<std::size_t>(dist.rank()); v < val.size(); v += static_cast<std::size_t>(world)) {
-        const auto item = make_item(val[v]);
-        v_sum += trajectory_loss(*model, item, norm).item<double>() / static_cast<double>(item.timesteps);
+        const auto chunks = make_chunks(val[v]);
+        double l = 0;
+        for (const auto& c : chunks) l += trajectory_loss(*model, c, norm).item<double>();
+        v_sum += l / static_cast<double>(timesteps(chunks));
       }
       if (world > 1) v_sum = dist.all_reduce_sum({v_sum}, "validation all-reduce")[0];
       if (!val.empty()) vl = v_sum / static_cast<double>(val.size());
@@ -244,9 +277,12 @@ Command add_train(CLI::App& app) {
   auto* ct = app.add_subcommand("train", "train HOPNet on a dataset, topos format or Kubric scene folders (one optimizer step per trajectory)");
   ct->add_option("--data", tr.data, "dataset folder: topos format or Kubric scene folders")->required()->check(CLI::ExistingDirectory);
   ct->add_option("--split-file", tr.split_file, "custom split JSON {train, val, test} (default: the reference split)")->check(CLI::ExistingFile);
-  ct->add_option("--out", tr.out, "output folder: checkpoint.pt, stats.json, steps.csv, epochs.csv")->required();
+  ct->add_option("--out", tr.out, "output folder: checkpoint.pt, stats.json, steps.csv (with peak_rss_mb per step), epochs.csv")->required();
   ct->add_option("--assets", tr.assets, "KuBasic-layout asset folder (built-in shapes when omitted)");
   ct->add_option("--stats", tr.stats, "normalisation statistics (default: computed from the training split)");
+  ct->add_option("--init", tr.init, "start from these weights (topos or reference checkpoint; its architecture wins over --hidden etc.)")->check(CLI::ExistingFile);
+  ct->add_option("--chunk", tr.chunk, "timesteps per forward/backward (0: as many as fit --memory-budget-mb)")->capture_default_str()->check(CLI::NonNegativeNumber);
+  ct->add_option("--memory-budget-mb", tr.memory_budget_mb, "activation memory for one chunk")->capture_default_str()->check(CLI::PositiveNumber);
   ct->add_option("--max-steps", tr.max_steps, "stop after this many optimizer steps");
   ct->add_option("--epochs", tr.epochs, "epochs")->capture_default_str()->check(CLI::PositiveNumber);
   ct->add_option("--lr", tr.lr, "Adam learning rate")->capture_default_str();

@@ -98,21 +98,28 @@ inline NpyArray read_npy(const std::string& path) {
   return a;
 }
 
-/// Writes a float64 array (row-major data) atomically: a temporary file, then a rename.
-inline void write_npy(const std::string& path, const std::vector<std::int64_t>& shape, const double* data) {
+namespace detail {
+inline void write_npy_bytes(const std::string& path, const std::vector<std::int64_t>& shape, const char* descr, const void* data, std::size_t item) {
   std::string dims;
   std::int64_t n = 1;
   for (auto s : shape) dims += std::to_string(s) + ",", n *= s;
   if (shape.size() > 1) dims.pop_back();
-  std::string header = "{'descr': '<f8', 'fortran_order': False, 'shape': (" + dims + "), }";
+  std::string header = std::string("{'descr': '") + descr + "', 'fortran_order': False, 'shape': (" + dims + "), }";
   while ((10 + header.size() + 1) % 64 != 0) header += ' ';
   header += '\n';
   std::string bytes("\x93NUMPY\x01\x00", 8);
   const std::uint16_t len = static_cast<std::uint16_t>(header.size());
   bytes.append(reinterpret_cast<const char*>(&len), 2);
   bytes += header;
-  bytes.append(reinterpret_cast<const char*>(data), static_cast<std::size_t>(n * 8));
+  bytes.append(reinterpret_cast<const char*>(data), static_cast<std::size_t>(n) * item);
   write_file_atomic(path, bytes);
 }
+}  // namespace detail
+
+/// Writes a float64 array (row-major data) atomically: a temporary file, then a rename. An
+/// empty shape writes a 0-d array (one value).
+inline void write_npy(const std::string& path, const std::vector<std::int64_t>& shape, const double* data) { detail::write_npy_bytes(path, shape, "<f8", data, 8); }
+/// The same for float32.
+inline void write_npy(const std::string& path, const std::vector<std::int64_t>& shape, const float* data) { detail::write_npy_bytes(path, shape, "<f4", data, 4); }
 
 }  // namespace topos::data

@@ -1,7 +1,8 @@
 // Tests of topos/models/hopnet: the frozenset edge direction, features, incidences and outputs
 // of the first two rollout steps against the reference's golden arrays (MOVi-A scene 8,
 // modela_seed2_e39), the 102-step rollout's metrics, native mode, normalisation statistics,
-// checkpoints (import, topos save/load, every error), and the role-mixing buffer.
+// checkpoints (import, topos save/load, every error), the role-mixing buffer, and training:
+// chunked gradients, and the reference's loss, gradient and Adam steps (train-golden).
 #include "support/torch_prelude.hpp"
 
 #include "support/reference.hpp"
@@ -9,6 +10,7 @@
 #include "topos/models/hopnet/training.hpp"
 
 #include <filesystem>
+#include <numeric>
 #include <random>
 
 using namespace topos;
@@ -444,6 +446,232 @@ TEST_CASE("one batched backward over a trajectory equals the sum of per-timestep
     REQUIRE(err <= 1e-5 * std::max(scale, 1e-3));
   }
 }
+
+TEST_CASE("chunked training steps give the unchunked gradient", "[hopnet][training]") {
+  torch::manual_seed(5);
+  const Scene scene = builtin_scene(12);
+  const Normalizer norm(unit_stats());
+  for (const auto mode : {FeatureMode::native, FeatureMode::reference}) {
+    INFO(to_string(mode));
+    Hopnet net(HopnetOptions().hidden(16).mode(mode));
+    const auto g = make_geometry(scene, mode);
+    const auto tf = trajectory_frames(scene, g, 0.1, 0.0);
+    const auto grads = [&](std::int64_t chunk) {
+      const auto chunks = make_training_chunks(g, tf, norm, chunk);
+      REQUIRE(chunks.size() == (chunk <= 0 ? 1 : (tf.frames.size() + static_cast<std::size_t>(chunk) - 1) / static_cast<std::size_t>(chunk)));
+      net->zero_grad();
+      std::vector<double> per_timestep;
+      const double loss = backward_trajectory(*net, chunks, norm, &per_timestep);
+      REQUIRE(per_timestep.size() == tf.frames.size());
+      REQUIRE(std::accumulate(per_timestep.begin(), per_timestep.end(), 0.0) == Approx(loss).epsilon(1e-6));
+      std::map<std::string, torch::Tensor> out;
+      for (const auto& p : net->named_parameters()) out[p.key()] = p.value().grad().clone();
+      return std::make_pair(loss, out);
+    };
+    const auto [whole_loss, whole] = grads(0);
+    for (std::int64_t chunk : {1, 4}) {
+      const auto [loss, got] = grads(chunk);
+      REQUIRE(loss == Approx(whole_loss).epsilon(1e-6));
+      for (const auto& [k, w] : whole) {
+        INFO(k << ", chunks of " << chunk);
+        REQUIRE((got.at(k) - w).norm().item<double>() <= 1e-6 * std::max(w.norm().item<double>(), 1e-6));
+      }
+    }
+  }
+  // The automatic chunk fits the budget from the most expensive timestep, within 1..T.
+  const auto g = make_geometry(scene, FeatureMode::native);
+  const auto tf = trajectory_frames(scene, g, 0.1, 0.0);
+  double worst = 0;
+  for (const auto& f : tf.frames) worst = std::max(worst, timestep_activation_bytes(g, f, 128));
+  REQUIRE(auto_chunk(g, tf, 128, 3.5 * worst) == 3);
+  REQUIRE(auto_chunk(g, tf, 128, 0.1 * worst) == 1);
+  REQUIRE(auto_chunk(g, tf, 128, 1e15) == static_cast<std::int64_t>(tf.frames.size()));
+}
+
+TEST_CASE("reference backward values: the gradient of a face's message comes back once per duplicate write", "[hopnet][training]") {
+  // Two contacts share face 0 as their -1 face: the reference computes its 2-to-3 message twice
+  // and writes both copies into one row with index_put_, whose backward gives each copy the
+  // row's gradient. Written with index_put_ here and compared with aggregate().
+  torch::manual_seed(3);
+  const auto x = torch::randn({3, 4}, torch::requires_grad());  // face messages
+  nn::TensorNeighborhood n;
+  n.source = torch::tensor(std::vector<std::int64_t>{0, 1, 0, 2}, torch::kLong);  // (face, contact) pairs
+  n.target = torch::tensor(std::vector<std::int64_t>{0, 0, 1, 1}, torch::kLong);
+  n.values = torch::tensor(std::vector<float>{1, 0, 1, 0});           // neg(f): faces 1, 2 are +1 faces only
+  n.backward_values = torch::tensor(std::vector<float>{2, 0, 2, 0});  // k_neg(f)
+  n.num_source = 3;
+  n.num_target = 2;
+  const auto w = torch::randn({2, 4});
+  (nn::aggregate(x, n, nn::AggregateOptions().with_weighted(true)) * w).sum().backward();
+  const auto got = x.grad().clone();
+  // The reference's construction.
+  const auto x2 = x.detach().clone().requires_grad_(true);
+  const auto neg_faces = torch::tensor(std::vector<std::int64_t>{0, 0}, torch::kLong);  // one row per -1 entry of B23
+  auto buffer = torch::zeros({3, 4});
+  buffer.index_put_({neg_faces}, x2.index_select(0, neg_faces));
+  const auto B = torch::tensor(std::vector<float>{1, 1, 0, 1, 0, 1}).reshape({2, 3});  // contacts × faces
+  (B.matmul(buffer) * w).sum().backward();
+  REQUIRE(torch::allclose(got, x2.grad()));
+  REQUIRE(torch::allclose(got[0], 2 * (w[0] + w[1])));
+}
+
+namespace {
+// A case of the reference's training goldens (train-golden/<case>/, its README): the sample,
+// checkpoint and statistics named by meta.json, read from the reference folder.
+struct TrainGolden {
+  fs::path dir, sample, checkpoint, stats;
+  std::string name;
+  static std::vector<TrainGolden> all(const fs::path& ref) {
+    std::vector<TrainGolden> out;
+    for (const auto& e : fs::directory_iterator(ref / "data" / "train-golden")) {
+      if (!fs::exists(e.path() / "meta.json")) continue;
+      const auto meta = data::read_json_file(e.path() / "meta.json").at("case");
+      TrainGolden c;
+      c.dir = e.path();
+      c.name = e.path().filename().string();
+      // "samples/MOVi-A/8 (...)" -> data/movi-a/8; "normalization-movia.npy" -> normalization/movia.json
+      std::string sample = meta.at("sample").get<std::string>();
+      sample = sample.substr(0, sample.find(' '));
+      const auto slash = sample.find('/'), last = sample.rfind('/');
+      std::string dataset = sample.substr(slash + 1, last - slash - 1);
+      std::transform(dataset.begin(), dataset.end(), dataset.begin(), [](unsigned char ch) { return static_cast<char>(std::tolower(ch)); });
+      c.sample = ref / "data" / dataset / sample.substr(last + 1);
+      c.checkpoint = ref / "data" / "checkpoints" / meta.at("checkpoint").get<std::string>();
+      std::string norm = meta.at("normalization_file").get<std::string>();
+      norm = norm.substr(std::string("normalization-").size());
+      c.stats = ref / "data" / "normalization" / (norm.substr(0, norm.size() - 4) + ".json");
+      out.push_back(c);
+    }
+    REQUIRE(!out.empty());
+    return out;
+  }
+  torch::Tensor tensor(const std::string& rel) const {
+    const auto a = data::read_npy((dir / rel).string());
+    const auto v = a.as<double>();
+    return torch::tensor(v, torch::kDouble).reshape(a.shape);
+  }
+  /// The reference's state dict names of `model`'s parameters -> golden tensors of folder `sub`.
+  std::map<std::string, torch::Tensor> params(const HopnetImpl& model, const std::string& sub) const {
+    std::map<std::string, torch::Tensor> out;
+    for (const auto& p : model.named_parameters()) out[p.key()] = tensor(sub + "/" + reference_parameter_name(p.key()) + ".npy");
+    return out;
+  }
+};
+
+struct TrainSetup {
+  Scene scene;
+  HopnetGeometry g;
+  Normalizer norm;
+  TrajectoryFrames tf;
+  explicit TrainSetup(const fs::path& ref, const TrainGolden& c) {
+    MeshLibrary lib(ref / "data" / "kubasic");
+    scene = make_scene(data::read_kubric_metadata(c.sample), lib);
+    g = make_geometry(scene, FeatureMode::reference);  // points into `scene`: TrainSetup is never moved
+    norm = Normalizer(read_stats_json(c.stats.string()));
+    const auto contacts = read_collisions_json((c.sample / "collisions.json").string());
+    tf = trajectory_frames(scene, g, 0.1, 0.0, 2, -1, &contacts);
+  }
+};
+}  // namespace
+
+TEST_CASE("reference mode reproduces the reference's training: loss, gradient and three Adam steps (train-golden)", "[hopnet][reference][training]") {
+  const auto ref = test::reference_dir("hopnet training parity");
+  for (const auto& c : TrainGolden::all(ref)) {
+    INFO("case " << c.name);
+    const TrainSetup S(ref, c);
+    auto model = load_hopnet(c.checkpoint.string(), FeatureMode::reference);
+    model->train();
+    const auto counts = c.tensor("complex_counts.npy");
+    REQUIRE(static_cast<std::int64_t>(S.tf.frames.size()) == counts.size(0));
+    for (std::size_t t = 0; t < S.tf.frames.size(); ++t) {
+      INFO("timestep " << t);
+      REQUIRE(S.tf.frames[t].num_faces() == counts[static_cast<std::int64_t>(t)][0].item<std::int64_t>());
+      REQUIRE(S.tf.frames[t].num_contacts() == counts[static_cast<std::int64_t>(t)][1].item<std::int64_t>());
+    }
+    // Chunks of 160 timesteps: the gradients add up (and a test above checks that exactly).
+    const auto chunks = make_training_chunks(S.g, S.tf, S.norm, 160);
+    std::map<std::string, torch::Tensor> start;
+    for (const auto& p : model->named_parameters()) start[p.key()] = p.value().detach().to(torch::kDouble).clone();
+    torch::optim::Adam opt(model->parameters(), torch::optim::AdamOptions(1e-4));
+    std::vector<double> per_timestep;
+    const double loss = train_step(*model, opt, chunks, S.norm, &per_timestep);
+
+    // Loss: total within 1e-5, every timestep within 5e-5 (README section 5).
+    const double want_total = c.tensor("loss_total.npy").item<double>();
+    float total32 = 0;
+    for (double l : per_timestep) total32 += static_cast<float>(l);
+    CHECK(std::abs(loss - want_total) <= 1e-5 * want_total);
+    CHECK(std::abs(static_cast<double>(total32) - want_total) <= 1e-5 * want_total);
+    const auto want_t = c.tensor("loss_per_timestep.npy");
+    REQUIRE(want_t.size(0) == static_cast<std::int64_t>(per_timestep.size()));
+    double worst_t = 0;
+    for (std::size_t t = 0; t < per_timestep.size(); ++t) {
+      const double w = want_t[static_cast<std::int64_t>(t)].item<double>();
+      worst_t = std::max(worst_t, std::abs(per_timestep[t] - w) / w);
+    }
+    std::cout << c.name << ": loss " << loss << " (golden " << want_total << "), worst per-timestep relative error " << worst_t << "\n";
+    CHECK(worst_t <= 5e-5);
+
+    // Gradient of step 1 (the parameters' .grad still holds it): every tensor within 1e-4 in norm.
+    const auto want_g = c.params(*model, "grads");
+    double worst_g = 0, num = 0, den = 0;
+    for (const auto& p : model->named_parameters()) {
+      const auto g = p.value().grad().to(torch::kDouble);
+      const auto& w = want_g.at(p.key());
+      const double e = (g - w).norm().item<double>(), n = w.norm().item<double>();
+      num += e * e, den += n * n;
+      worst_g = std::max(worst_g, e / std::max(n, 1e-12));
+      INFO(reference_parameter_name(p.key()) << ": relative error " << e / n);
+      CHECK(e <= 1e-4 * n);
+    }
+    std::cout << c.name << ": gradient relative error worst tensor " << worst_g << ", global " << std::sqrt(num / den) << "\n";
+
+    // Adam step 1: coordinates with |g_ref| >= 1e-4 within 1e-6 of after_1_step.
+    const auto after1 = c.params(*model, "after_1_step");
+    for (const auto& p : model->named_parameters()) {
+      const auto d = (p.value().detach().to(torch::kDouble) - after1.at(p.key())).abs();
+      const auto sure = want_g.at(p.key()).abs().ge(1e-4);
+      INFO(reference_parameter_name(p.key()));
+      CHECK(d.masked_select(sure).max().item<double>() <= 1e-6);
+      CHECK(d.max().item<double>() <= 2.0001e-4);
+    }
+    // Steps 2 and 3 along our own trajectory: >= 99.5 % of the coordinates within 1e-6, and the
+    // whole difference under 1 % of the three-step move.
+    for (int k = 2; k <= 3; ++k) train_step(*model, opt, chunks, S.norm);
+    const auto after3 = c.params(*model, "after_3_steps");
+    std::int64_t close = 0, total = 0;
+    double diff = 0, move = 0;
+    for (const auto& p : model->named_parameters()) {
+      const auto d = p.value().detach().to(torch::kDouble) - after3.at(p.key());
+      close += d.abs().le(1e-6).sum().item<std::int64_t>();
+      total += d.numel();
+      diff += d.pow(2).sum().item<double>();
+      move += (after3.at(p.key()) - start.at(p.key())).pow(2).sum().item<double>();
+    }
+    const double frac = static_cast<double>(close) / static_cast<double>(total), rel = std::sqrt(diff / move);
+    std::cout << c.name << ": after 3 steps " << 100 * frac << " % of parameters within 1e-6, difference " << rel << " of the 3-step move\n";
+    CHECK(frac >= 0.995);
+    CHECK(rel < 1e-2);
+  }
+}
+
+TEST_CASE("LibTorch's Adam fed the reference's gradients reproduces its three steps (train-golden)", "[hopnet][reference][training]") {
+  const auto ref = test::reference_dir("hopnet Adam parity");
+  for (const auto& c : TrainGolden::all(ref)) {
+    INFO("case " << c.name);
+    auto model = load_hopnet(c.checkpoint.string(), FeatureMode::reference);
+    torch::optim::Adam opt(model->parameters(), torch::optim::AdamOptions(1e-4));
+    for (const auto& [step, grads, after] : std::vector<std::tuple<int, std::string, std::string>>{{1, "grads", "after_1_step"}, {2, "grads_step2", "after_2_steps"}, {3, "grads_step3", "after_3_steps"}}) {
+      const auto g = c.params(*model, grads);
+      for (auto& p : model->named_parameters()) p.value().mutable_grad() = g.at(p.key()).to(torch::kFloat);
+      opt.step();
+      const auto want = c.params(*model, after);
+      double worst = 0;
+      for (const auto& p : model->named_parameters()) worst = std::max(worst, (p.value().detach().to(torch::kDouble) - want.at(p.key())).abs().max().item<double>());
+      INFO("step " << step);
+      CHECK(worst <= 1e-6);
+    }
+  }
 
 TEST_CASE("on CUDA, a training step and a rollout step equal the CPU ones", "[hopnet][cuda]") {
   if (!torch::cuda::is_available()) {

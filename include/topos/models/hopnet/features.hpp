@@ -344,7 +344,8 @@ inline HopnetFrame build_frame(const HopnetGeometry& g, const Poses& first, cons
 ///   values: the half of the contact's face message this pair feeds), B32 (3→2, roles −1/+1),
 ///   B24 (2→4), B04 (0→4), B40 (4→0).
 /// In reference mode B23neg/B23pos carry the reference's role-mixing buffer (neg(f), pos(f) per
-/// face, spec 6.3); in native mode the pair's own role.
+/// face, spec 6.3) and, as backward values, the reference's gradient multiplicity (the number of
+/// contacts in which the face has that role); in native mode the pair's own role.
 inline std::map<std::string, Neighborhood> hopnet_neighborhoods(const HopnetGeometry& g, const HopnetFrame& f) {
   const std::int64_t N = g.num_nodes(), E = g.num_edges(), O = g.num_objects(), F = f.num_faces(), C = f.num_contacts();
   std::map<std::string, Neighborhood> out;
@@ -381,15 +382,20 @@ inline std::map<std::string, Neighborhood> hopnet_neighborhoods(const HopnetGeom
   auto& neg = make("B23neg", 2, 3, F, C);
   auto& pos = make("B23pos", 2, 3, F, C);
   auto& b32 = make("B32", 3, 2, C, F);
-  std::vector<char> is_neg(static_cast<std::size_t>(F), 0), is_pos(static_cast<std::size_t>(F), 0);
-  for (const auto& c : f.contacts) is_neg[static_cast<std::size_t>(c[0])] = 1, is_pos[static_cast<std::size_t>(c[1])] = 1;
+  // Reference: a face's message into each half is computed once per contact in which the face has
+  // that role and written with index_put_, so its gradient comes back that many times (k_neg,
+  // k_pos): the backward values. Native mode keeps the true gradient.
+  std::vector<std::int64_t> k_neg(static_cast<std::size_t>(F), 0), k_pos(static_cast<std::size_t>(F), 0);
+  for (const auto& c : f.contacts) ++k_neg[static_cast<std::size_t>(c[0])], ++k_pos[static_cast<std::size_t>(c[1])];
+  const bool mixed = g.mode == FeatureMode::reference;
   for (std::int64_t c = 0; c < C; ++c) {
     for (int k = 0; k < 2; ++k) {
       const auto face = f.contacts[static_cast<std::size_t>(c)][static_cast<std::size_t>(k)];
+      const auto kn = static_cast<double>(k_neg[static_cast<std::size_t>(face)]), kp = static_cast<double>(k_pos[static_cast<std::size_t>(face)]);
       const double role_neg = k == 0, role_pos = k == 1;
-      const bool mixed = g.mode == FeatureMode::reference;
-      neg.source.push_back(face), neg.target.push_back(c), neg.values.push_back(mixed ? is_neg[static_cast<std::size_t>(face)] : role_neg);
-      pos.source.push_back(face), pos.target.push_back(c), pos.values.push_back(mixed ? is_pos[static_cast<std::size_t>(face)] : role_pos);
+      neg.source.push_back(face), neg.target.push_back(c), neg.values.push_back(mixed ? (kn > 0) : role_neg);
+      pos.source.push_back(face), pos.target.push_back(c), pos.values.push_back(mixed ? (kp > 0) : role_pos);
+      if (mixed) neg.backward_values.push_back(kn), pos.backward_values.push_back(kp);
       b32.source.push_back(c), b32.target.push_back(face), b32.roles.push_back(static_cast<std::int8_t>(k == 0 ? -1 : 1));
     }
   }
