@@ -358,7 +358,7 @@ TEST_CASE("a world of one: collectives are the identity, gradients are divided",
   lin->weight.mutable_grad() = torch::full({2, 3}, 6.0);
   one.average_gradients(lin->parameters(), 3.0);
   REQUIRE(torch::allclose(lin->weight.grad(), torch::full({2, 3}, 2.0)));
-  REQUIRE(torch::equal(lin->bias.grad(), torch::zeros({2})));  // no gradient: zeros
+  REQUIRE_FALSE(lin->bias.grad().defined());  // no gradient: still none (an optimizer skips it)
   REQUIRE_THROWS_AS(one.average_gradients(lin->parameters(), 0.0), std::invalid_argument);
 }
 
@@ -404,6 +404,7 @@ TEST_CASE("two ranks over Gloo: gradients averaged in buckets, broadcasts, and a
   std::vector<torch::Tensor> grads(2), bias_grads(2), weights(2);
   std::vector<std::string> bytes(2), errors(2);
   std::vector<std::string> names(2);
+  std::vector<int> ghost(2, -1);
   std::vector<std::vector<double>> sums(2);
   std::vector<std::thread> ranks;
   for (int r = 0; r < 2; ++r)
@@ -412,16 +413,18 @@ TEST_CASE("two ranks over Gloo: gradients averaged in buckets, broadcasts, and a
         Distributed d(env(r), opts);
         names[static_cast<std::size_t>(r)] = d.backend_name();
         torch::manual_seed(static_cast<std::uint64_t>(10 + r));  // different replicas until the broadcast
-        torch::nn::Linear a(4, 3), b(3, 1);
+        torch::nn::Linear a(4, 3), b(3, 1), c(1, 1);
         std::vector<torch::Tensor> params = a->parameters();
         for (auto& p : b->parameters()) params.push_back(p);
+        params.push_back(c->weight);  // no gradient on either rank
         d.broadcast_(params);
         weights[static_cast<std::size_t>(r)] = torch::cat({a->weight.reshape(-1), b->weight.reshape(-1)}).clone();
         for (std::size_t i = 0; i < params.size(); ++i)
-          if (!(r == 1 && i == 3)) params[i].mutable_grad() = torch::full_like(params[i], static_cast<double>((r + 1) * (i + 1)));
+          if (!(r == 1 && i == 3) && i != 4) params[i].mutable_grad() = torch::full_like(params[i], static_cast<double>((r + 1) * (i + 1)));
         d.average_gradients(params, 2.0);
         grads[static_cast<std::size_t>(r)] = a->weight.grad().clone();
         bias_grads[static_cast<std::size_t>(r)] = b->bias.grad().clone();
+        ghost[static_cast<std::size_t>(r)] = c->weight.grad().defined();
         bytes[static_cast<std::size_t>(r)] = d.broadcast_bytes(r == 0 ? std::string("statistics\0json", 15) : std::string());
         sums[static_cast<std::size_t>(r)] = d.all_reduce_sum({1.0 + r, 0.25});
         d.barrier();
@@ -437,6 +440,7 @@ TEST_CASE("two ranks over Gloo: gradients averaged in buckets, broadcasts, and a
   std::filesystem::remove_all(dir);
   REQUIRE(names[0] == "gloo");
   REQUIRE(errors[1].empty());
+  REQUIRE(ghost == std::vector<int>{0, 0});  // no gradient anywhere: none after averaging
   REQUIRE(torch::equal(weights[0], weights[1]));
   // a.weight is parameter 0: (1·1 + 2·1) / 2; b.bias is parameter 3, absent on rank 1: (1·4 + 0) / 2.
   for (int r = 0; r < 2; ++r) {

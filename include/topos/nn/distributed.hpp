@@ -193,18 +193,24 @@ class Distributed {
 
   /// grad ← (Σ over ranks of grad) / divisor for every parameter, in flat buckets of at most
   /// bucket_bytes (one collective each, all in flight together). A parameter without a gradient
-  /// on this rank (a rank with no trajectory in the epoch's last, short step) contributes zeros.
+  /// on some ranks (not reached by their trajectories, or a rank idle in the epoch's last, short
+  /// step) counts as zeros there; one without a gradient on every rank keeps none, so an
+  /// optimizer skips it as it would in one process.
   void average_gradients(const std::vector<torch::Tensor>& parameters, double divisor) {
     if (divisor <= 0) throw std::invalid_argument("average_gradients: divisor must be positive");
     std::vector<torch::Tensor> params;
     for (const auto& p : parameters)
       if (p.requires_grad()) params.push_back(p);
-    for (auto& p : params)
-      if (!p.grad().defined()) p.mutable_grad() = torch::zeros_like(p);
     if (!backend_) {
       if (divisor != 1.0)
-        for (auto& p : params) p.mutable_grad().div_(divisor);
+        for (auto& p : params)
+          if (p.grad().defined()) p.mutable_grad().div_(divisor);
       return;
+    }
+    auto has_grad = torch::zeros({static_cast<std::int64_t>(params.size())}, torch::kDouble);
+    for (std::size_t i = 0; i < params.size(); ++i) {
+      if (params[i].grad().defined()) has_grad[static_cast<std::int64_t>(i)] = 1.0;
+      else params[i].mutable_grad() = torch::zeros_like(params[i]);
     }
     // Buckets in parameter order (the same on every rank), split by dtype and size.
     std::vector<std::vector<std::size_t>> buckets;
@@ -221,14 +227,17 @@ class Distributed {
       for (auto i : bucket) parts.push_back(params[i].grad().reshape(-1));
       flat.push_back(torch::cat(parts));
     }
+    flat.push_back(has_grad);
     all_reduce_sum_(flat, "gradient all-reduce");
+    const auto anywhere = flat.back().to(torch::kCPU);
     for (std::size_t k = 0; k < buckets.size(); ++k) {
       if (divisor != 1.0) flat[k].div_(divisor);
       std::int64_t at = 0;
       for (auto i : buckets[k]) {
         auto& g = params[i].mutable_grad();
-        g.copy_(flat[k].narrow(0, at, g.numel()).view_as(g));
-        at += g.numel();
+        if (anywhere[static_cast<std::int64_t>(i)].item<double>() == 0.0) g = torch::Tensor();
+        else g.copy_(flat[k].narrow(0, at, g.numel()).view_as(g));
+        at += params[i].numel();
       }
     }
   }
