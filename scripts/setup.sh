@@ -7,6 +7,7 @@ packages=(
   build-essential cmake ninja-build ccache pkg-config
   libeigen3-dev libcgal-dev libboost-graph-dev
   libtorch-dev libopenblas0-pthread
+  libgloo-dev  # headers of the Gloo LibTorch links: c10d's ProcessGroupGloo (data-parallel training)
   libbullet-dev libbullet-extras-dev
   nlohmann-json3-dev libcli11-dev catch2 libbenchmark-dev
   python3  # scripts/check_torch_file.py: the tests' torch.load compatibility check

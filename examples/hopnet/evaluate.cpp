@@ -1,5 +1,6 @@
 // hopnet evaluate: roll out every scene of a split; the paper's table beside a constant-velocity baseline.
 #include "commands.hpp"
+#include "topos/nn/device.hpp"
 #include "viewer.hpp"
 
 #include <atomic>
@@ -13,7 +14,7 @@ namespace {
 
 // ---- evaluate ---------------------------------------------------------------------------------
 struct EvaluateArgs {
-  std::string checkpoint, stats, data, assets, split = "test", split_file, mode = "reference", out;
+  std::string checkpoint, stats, data, assets, split = "test", split_file, mode = "reference", out, device = "cpu";
   int steps = 102, viewer_scenes = 6, jobs = 0;
   VariantArgs variant;
 };
@@ -68,6 +69,7 @@ std::string svg_plot(const std::vector<std::pair<std::string, std::vector<double
 int run_evaluate(const EvaluateArgs& a) {
   namespace fs = std::filesystem;
   const FeatureMode mode = feature_mode_from_string(a.mode);
+  const torch::Device device = nn::device_from_string(a.device);
   const auto checkpoint = nn::read_tensor_dict(a.checkpoint);  // read once; one model per thread below
   const auto overrides = checkpoint_overrides(a.variant, checkpoint, a.checkpoint, mode);
   const auto options = load_hopnet(checkpoint, a.checkpoint, overrides)->options;  // fails early on a bad checkpoint
@@ -102,6 +104,7 @@ int run_evaluate(const EvaluateArgs& a) {
     try {
       auto net = load_hopnet(checkpoint, a.checkpoint, overrides);
       net->eval();
+      net->to(device);
       MeshLibrary lib(a.assets);
       for (std::size_t i = next++; i < chosen.size() && !failed; i = next++) {
         Scene scene = make_scene(dataset.scene(chosen[i]), lib);
@@ -229,6 +232,7 @@ Command add_evaluate(CLI::App& app) {
   ce->add_option("--mode", ev.mode, "reference or native")->capture_default_str();
   ce->add_option("--steps", ev.steps, "rollout steps")->capture_default_str()->check(CLI::PositiveNumber);
   ce->add_option("--jobs", ev.jobs, "scenes rolled out at once (default: all cores)");
+  ce->add_option("--device", ev.device, "cpu, cuda, cuda:N or auto (each job's model runs there)")->capture_default_str();
   ce->add_option("--viewer-scenes", ev.viewer_scenes, "scenes shown in viewer.html (0: no viewer)")->capture_default_str()->check(CLI::NonNegativeNumber);
   add_variant_options(ce, ev.variant, false);
   ce->add_option("--out", ev.out, "output folder: metrics.json, per_scene.json, table.md, pos_rmse.svg, ori_rmse.svg, viewer.html")->required();
