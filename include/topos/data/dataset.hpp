@@ -184,8 +184,7 @@ class Dataset {
   std::map<std::int64_t, KubricScene> scenes_;
 
   void load_topos() {
-    const auto index_path = (root_ / "dataset.json").string();
-    const nlohmann::json j = read_json_file(index_path);
+    const nlohmann::json j = read_json_file(root_ / "dataset.json");
     NpyArray pos, quat;
     try {
       pos = read_npy((root_ / "positions.npy").string());
@@ -193,10 +192,28 @@ class Dataset {
     } catch (const std::runtime_error& e) {
       throw DataError(e.what());
     }
+    load_topos(j, pos, quat);
+  }
+
+ public:
+  /// A topos dataset from its index and arrays as read from `root` (what open does after
+  /// reading the three files); every inconsistency is a DataError naming the file.
+  static Dataset from_topos(const std::filesystem::path& root, const nlohmann::json& index, const NpyArray& positions, const NpyArray& quaternions) {
+    Dataset d;
+    d.root_ = root;
+    d.format_ = "topos";
+    d.load_topos(index, positions, quaternions);
+    return d;
+  }
+
+ private:
+  void load_topos(const nlohmann::json& j, const NpyArray& pos, const NpyArray& quat) {
+    const auto index_path = (root_ / "dataset.json").string();
     try {
       if (j.at("format").get<std::string>() != "topos-movi") throw DataError(index_path + ": format is not 'topos-movi'");
       if (j.at("version").get<int>() != 1) throw DataError(index_path + ": unsupported version " + j.at("version").dump());
       const std::int64_t frames = j.at("num_frames").get<std::int64_t>(), total = j.at("num_objects").get<std::int64_t>();
+      if (frames <= 0 || total <= 0) throw DataError(index_path + ": num_frames and num_objects must be positive");
       const auto check = [&](const NpyArray& a, const char* name, std::int64_t cols) {
         if (a.dtype != "f8" || a.shape != std::vector<std::int64_t>{total, frames, cols})
           throw DataError((root_ / name).string() + ": expected float64 of shape (" + std::to_string(total) + ", " + std::to_string(frames) + ", " + std::to_string(cols) + ") as dataset.json says");

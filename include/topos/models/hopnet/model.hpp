@@ -44,6 +44,8 @@ struct HopnetOptions {
       throw std::invalid_argument(std::string("malformed HOPNet configuration: ") + e.what());
     }
     if (o.hidden() <= 0 || o.mlp_layers() < 1 || o.num_layers() < 1) throw std::invalid_argument("HOPNet configuration: hidden, mlp_layers and num_layers must be positive");
+    // Untrusted (a checkpoint's topos.config): refuse sizes whose parameters could not be allocated.
+    if (o.hidden() > 65536 || o.mlp_layers() > 64 || o.num_layers() > 64) throw std::invalid_argument("HOPNet configuration: hidden above 65536, or mlp_layers or num_layers above 64");
     return o;
   }
 
