@@ -16,8 +16,10 @@ TOPOS_FUZZ_TARGET(split) {
       const auto seeds = d::parse_seed_range(input);
       check(!seeds.empty(), "a range names seeds");
       for (std::size_t i = 1; i < seeds.size(); ++i) check(seeds[i - 1] < seeds[i], "ascending unique seeds");
-      const auto s = d::reference_split(seeds);
-      check(s.train.size() + s.val.size() + s.test.size() == seeds.size(), "the split partitions the seeds");
+      if (seeds.size() <= 100000) {  // the split shuffles: keep executions quick
+        const auto s = d::reference_split(seeds);
+        check(s.train.size() + s.val.size() + s.test.size() == seeds.size(), "the split partitions the seeds");
+      }
     } catch (const d::DataError& e) {
       // Seed ranges come from the command line: the message names the range, not a file.
       if (std::string(e.what()).find("seed range") == std::string::npos) std::abort();

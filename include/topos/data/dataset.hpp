@@ -24,9 +24,11 @@
 
 namespace topos::data {
 
-/// Parses "1-1200", "8", or "1,3,10-12" into ascending unique seeds.
+/// Parses "1-1200", "8", or "1,3,10-12" into ascending unique seeds (at most 10,000,000; the
+/// parts are merged as ranges first, so overlapping parts cost nothing).
 inline std::vector<std::int64_t> parse_seed_range(const std::string& text) {
-  std::set<std::int64_t> out;
+  constexpr long long max_seeds = 10000000;
+  std::vector<std::pair<long long, long long>> parts;
   std::size_t pos = 0;
   const auto fail = [&](const std::string& why) { throw DataError("seed range '" + text + "': " + why); };
   if (text.empty()) fail("empty");
@@ -45,15 +47,31 @@ inline std::vector<std::int64_t> parse_seed_range(const std::string& text) {
         if (used != rest.size()) fail("'" + part + "' is not a range");
       }
       if (a < 0 || b < a) fail("'" + part + "' is empty or negative");
-      if (b - a > 10000000) fail("too many seeds");
-      for (long long s = a; s <= b; ++s) out.insert(s);
+      if (b - a >= max_seeds) fail("too many seeds");
+      parts.emplace_back(a, b);
     } catch (const std::logic_error&) {
       fail("'" + part + "' is not a number or a range");
     }
     if (comma == std::string::npos) break;
     pos = comma + 1;
   }
-  return {out.begin(), out.end()};
+  std::sort(parts.begin(), parts.end());
+  std::vector<std::pair<long long, long long>> merged;
+  long long total = 0;
+  for (const auto& [a, b] : parts) {
+    if (!merged.empty() && a <= merged.back().second + 1) {
+      if (b > merged.back().second) total += b - merged.back().second, merged.back().second = b;
+    } else {
+      merged.emplace_back(a, b);
+      total += b - a + 1;
+    }
+    if (total > max_seeds) fail("too many seeds");
+  }
+  std::vector<std::int64_t> out;
+  out.reserve(static_cast<std::size_t>(total));
+  for (const auto& [a, b] : merged)
+    for (long long s = a; s <= b; ++s) out.push_back(s);
+  return out;
 }
 
 /// Numeric scene folders holding metadata.json, ascending (the reference's sample list).
