@@ -250,7 +250,7 @@ inline std::map<std::string, torch::Tensor> parse_tensor_dict(const char* data, 
   auto storages = std::make_shared<torch::jit::DeserializationStorageContext>();
   for (const auto& [name, r] : records) {
     if (name.compare(0, prefix.size() + 5, prefix + "data/") != 0) continue;
-    at::DataPtr ptr = c10::GetCPUAllocator()->allocate(r.size);
+    at::DataPtr ptr = at::getCPUAllocator()->allocate(r.size);
     if (r.size) std::memcpy(ptr.get(), data + r.offset, r.size);
     storages->addStorage(name.substr(prefix.size() + 5), c10::Storage(c10::Storage::use_byte_size_t(), r.size, std::move(ptr), nullptr, false));
   }
