@@ -10,6 +10,7 @@
 #include "topos/io/atomic_file.hpp"
 #include "topos/models/hopnet/training.hpp"
 #include "topos/nn/cpu.hpp"
+#include "topos/util/csv_log.hpp"
 #include "topos/util/progress.hpp"
 
 #include <CLI/CLI.hpp>
