@@ -11,10 +11,14 @@ packages=(
   libbullet-dev libbullet-extras-dev
   nlohmann-json3-dev libcli11-dev catch2 libbenchmark-dev
   python3  # scripts/check_torch_file.py: the tests' torch.load compatibility check
+  python3-torch  # tests/nn/test_python_interop.cpp: torch.load / torch.save where users are
 )
 # Headless Chromium is only needed for the viewer screenshot test: scripts/test.sh asks for it
 # (TOPOS_WITH_CHROMIUM=1); the demo does not.
 if [ "${TOPOS_WITH_CHROMIUM:-0}" = "1" ]; then packages+=(chromium); fi
+# The fuzzers (scripts/fuzz.sh) and clang-tidy need clang and its runtime libraries (libFuzzer,
+# the sanitizers); the normal build and CI do not.
+if [ "${TOPOS_WITH_FUZZ:-0}" = "1" ]; then packages+=(clang libclang-rt-dev clang-tidy); fi
 
 missing=()
 for p in "${packages[@]}"; do

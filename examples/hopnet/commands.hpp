@@ -11,6 +11,7 @@
 #include "topos/models/hopnet/training.hpp"
 #include "topos/models/hopnet/variants.hpp"
 #include "topos/nn/cpu.hpp"
+#include "topos/util/csv_log.hpp"
 #include "topos/util/progress.hpp"
 
 #include <CLI/CLI.hpp>

@@ -133,6 +133,10 @@ int run_train(const TrainArgs& a) {
 
   torch::manual_seed(a.seed);
   const auto ckpt = (fs::path(a.out) / "checkpoint.pt").string(), opt_path = (fs::path(a.out) / "optimizer.pt").string(), state_path = (fs::path(a.out) / "state.json").string();
+  // checkpoint.pt, optimizer.pt and state.json are replaced together (FileGroup): a run killed
+  // at any point resumes from the last whole epoch. Only rank 0 writes, so only it recovers.
+  const auto journal = (fs::path(a.out) / "commit.journal").string();
+  if (a.resume && main_rank) recover_file_group(journal);
   Hopnet model(options);
   int start_epoch = 0;
   std::int64_t step = 0;
@@ -170,9 +174,15 @@ int run_train(const TrainArgs& a) {
   say("model: %lld parameters, device %s\n", static_cast<long long>(model->num_parameters()), device.str().c_str());
   std::ofstream steps_csv, epochs_csv;
   if (main_rank) {
-    steps_csv.open(fs::path(a.out) / "steps.csv", a.resume ? std::ios::app : std::ios::trunc);
-    epochs_csv.open(fs::path(a.out) / "epochs.csv", a.resume ? std::ios::app : std::ios::trunc);
-    if (!a.resume || step == 0) {
+    const auto steps_path = fs::path(a.out) / "steps.csv", epochs_path = fs::path(a.out) / "epochs.csv";
+    if (a.resume) {  // the rows logged after the last committed epoch are trained again
+      truncate_csv_log(steps_path.string(), 1, step);
+      truncate_csv_log(epochs_path.string(), 0, start_epoch);
+    }
+    const bool new_logs = !a.resume || !fs::exists(steps_path) || fs::file_size(steps_path) == 0;
+    steps_csv.open(steps_path, new_logs ? std::ios::trunc : std::ios::app);
+    epochs_csv.open(epochs_path, new_logs ? std::ios::trunc : std::ios::app);
+    if (new_logs) {
       steps_csv << "epoch,step,scene,loss,seconds_per_step,timesteps_per_second,chunks,peak_rss_mb\n";
       epochs_csv << "epoch,train_loss,val_loss,seconds,lr\n";
     }
@@ -260,13 +270,15 @@ int run_train(const TrainArgs& a) {
     if (!main_rank) continue;
     epochs_csv << epoch + 1 << "," << (n ? sum / n : 0.0) << "," << vl << "," << secs << "," << lr << "\n";
     epochs_csv.flush();
+    FileGroup group(journal);
     model->to(torch::kCPU);
-    save_hopnet(*model, ckpt);
+    save_hopnet(*model, group.stage(ckpt));
     model->to(device);
     std::ostringstream optimizer_state;
     torch::save(opt, optimizer_state);
-    write_file_atomic(opt_path, optimizer_state.str());
-    write_json_atomic({{"epoch", epoch + 1}, {"step", step}, {"world_size", world}, {"trajectories_per_step", world * per_rank}}, state_path);
+    write_file_atomic(group.stage(opt_path), optimizer_state.str());
+    write_json_atomic({{"epoch", epoch + 1}, {"step", step}, {"world_size", world}, {"trajectories_per_step", world * per_rank}}, group.stage(state_path));
+    group.commit();
   }
   bar.finish();
   // Nobody leaves before rank 0 has written the last checkpoint (a launcher may stop the rest).
