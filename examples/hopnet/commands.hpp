@@ -43,6 +43,7 @@ Command add_split(CLI::App& app);
 Command add_train(CLI::App& app);
 Command add_evaluate(CLI::App& app);
 Command add_rollout(CLI::App& app);
+Command add_plot(CLI::App& app);
 
 inline void write_json_atomic(const nlohmann::json& j, const std::string& path) {
   write_file_atomic(path, j.dump() + "\n");
