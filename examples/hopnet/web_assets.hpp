@@ -149,20 +149,4 @@ inline std::string fill_template(std::string_view tmpl, const std::map<std::stri
   return out;
 }
 
-/// Text for HTML element content and attribute values.
-inline std::string html_escape(std::string_view s) {
-  std::string out;
-  for (char c : s) {
-    switch (c) {
-      case '&': out += "&amp;"; break;
-      case '<': out += "&lt;"; break;
-      case '>': out += "&gt;"; break;
-      case '"': out += "&quot;"; break;
-      case '\'': out += "&#39;"; break;
-      default: out += c;
-    }
-  }
-  return out;
-}
-
 }  // namespace hopnet_web

@@ -23,21 +23,13 @@ set(flags --headless --no-sandbox --disable-gpu --enable-unsafe-swiftshader --us
   --disable-background-networking --disable-component-update --no-first-run --hide-scrollbars
   --user-data-dir=${WORK}/profile)
 
-function(dump_dom url size out)
-  execute_process(COMMAND ${CHROMIUM} ${flags} --window-size=${size} --dump-dom "${url}"
-    RESULT_VARIABLE rc OUTPUT_VARIABLE dom ERROR_VARIABLE err TIMEOUT 120)
-  if(NOT rc EQUAL 0)
-    message(FATAL_ERROR "chromium --dump-dom ${url} failed (${rc}):\n${err}")
-  endif()
-  set(${out} "${dom}" PARENT_SCOPE)
-endfunction()
-
-function(screenshot url size png)
+# One Chromium run per page: the DOM once its scripts have run, and a screenshot.
+function(open_page url size png out)
   file(REMOVE ${png})
-  execute_process(COMMAND ${CHROMIUM} ${flags} --window-size=${size} --screenshot=${png} "${url}"
-    RESULT_VARIABLE rc ERROR_VARIABLE err TIMEOUT 120)
+  execute_process(COMMAND ${CHROMIUM} ${flags} --window-size=${size} --dump-dom --screenshot=${png} "${url}"
+    RESULT_VARIABLE rc OUTPUT_VARIABLE dom ERROR_VARIABLE err TIMEOUT 180)
   if(NOT rc EQUAL 0 OR NOT EXISTS ${png})
-    message(FATAL_ERROR "chromium --screenshot ${url} failed (${rc}):\n${err}")
+    message(FATAL_ERROR "chromium on ${url} failed (${rc}):\n${err}")
   endif()
   file(READ ${png} head LIMIT 8 HEX)
   file(SIZE ${png} bytes)
@@ -45,6 +37,7 @@ function(screenshot url size png)
     message(FATAL_ERROR "the screenshot ${png} is not a plausible PNG (${bytes} bytes)")
   endif()
   message(STATUS "screenshot ${png} (${bytes} bytes)")
+  set(${out} "${dom}" PARENT_SCOPE)
 endfunction()
 
 function(require_charts dom page want)
@@ -56,12 +49,11 @@ endfunction()
 
 # The viewer, side by side and overlaid.
 foreach(mode side overlay)
-  dump_dom("file://${viewer}?frame=20&mode=${mode}" 1400,860 dom)
+  open_page("file://${viewer}?frame=20&mode=${mode}" 1400,860 ${WORK}/viewer_${mode}.png dom)
   string(REGEX MATCH "id=\"status\">([0-9]+) objects, ([0-9]+) triangles drawn" m "${dom}")
   if(NOT m)
     message(FATAL_ERROR "the viewer's script did not render (no status line in the DOM):\n${dom}")
   endif()
-  # Side by side draws every object twice, overlaid once each as solid and ghost: 2 x the meshes.
   if(CMAKE_MATCH_1 LESS 1 OR CMAKE_MATCH_2 LESS 100)
     message(FATAL_ERROR "the viewer drew too little: ${m}")
   endif()
@@ -72,20 +64,16 @@ foreach(mode side overlay)
   require_charts("${dom}" viewer 1)
   message(STATUS "ok: viewer (${mode}): ${m}")
 endforeach()
-screenshot("file://${viewer}?frame=20" 1400,860 ${WORK}/viewer.png)
-screenshot("file://${viewer}?frame=20&mode=overlay" 1400,860 ${WORK}/viewer_overlay.png)
 
 # The report: three error plots and, from the checkpoint's logs, two training plots.
-dump_dom("file://${report}" 1280,3000 dom)
+open_page("file://${report}" 1280,3000 ${WORK}/report.png dom)
 require_charts("${dom}" index.html 5)
 string(FIND "${dom}" "Rollout error at the paper's horizons" pos)
 if(pos EQUAL -1)
   message(FATAL_ERROR "index.html did not build its tables")
 endif()
-screenshot("file://${report}" 1280,3000 ${WORK}/report.png)
 message(STATUS "ok: index.html")
 
-dump_dom("file://${training}" 1280,1000 dom)
+open_page("file://${training}" 1280,1000 ${WORK}/training.png dom)
 require_charts("${dom}" training.html 2)
-screenshot("file://${training}" 1280,1000 ${WORK}/training.png)
 message(STATUS "ok: training.html")
