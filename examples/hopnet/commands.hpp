@@ -47,6 +47,7 @@ Command add_train(CLI::App& app);
 Command add_evaluate(CLI::App& app);
 Command add_rollout(CLI::App& app);
 Command add_stats(CLI::App& app);
+Command add_plot(CLI::App& app);
 
 /// The options that pick a member of the HOPNet family (info, init, train, rollout, evaluate).
 struct VariantArgs {

@@ -1,5 +1,6 @@
 // hopnet evaluate: roll out every scene of a split; the paper's table beside a constant-velocity baseline.
 #include "commands.hpp"
+#include "report.hpp"
 #include "topos/nn/device.hpp"
 #include "viewer.hpp"
 
@@ -17,6 +18,7 @@ struct EvaluateArgs {
   std::string checkpoint, stats, data, assets, split = "test", split_file, mode = "reference", out, device = "cpu";
   int steps = 102, viewer_scenes = 6, jobs = 0;
   VariantArgs variant;
+  bool no_report = false;
 };
 
 // Constant velocity: positions and rotations keep their last per-frame change.
@@ -39,33 +41,6 @@ std::vector<Poses> constant_velocity(const Scene& s, int frames) {
   return p;
 }
 
-std::string svg_plot(const std::vector<std::pair<std::string, std::vector<double>>>& series, const std::string& ylabel) {
-  const double W = 640, H = 360, L = 60, B = 40;
-  double ymax = 1e-12;
-  std::size_t n = 0;
-  for (const auto& [name, v] : series) {
-    n = std::max(n, v.size());
-    for (double y : v) if (std::isfinite(y)) ymax = std::max(ymax, y);
-  }
-  std::ostringstream o;
-  o << "<svg xmlns='http://www.w3.org/2000/svg' width='" << W << "' height='" << H << "' font-family='sans-serif' font-size='12'>\n";
-  o << "<rect width='100%' height='100%' fill='white'/>\n<line x1='" << L << "' y1='" << H - B << "' x2='" << W - 10 << "' y2='" << H - B << "' stroke='black'/>\n";
-  o << "<line x1='" << L << "' y1='10' x2='" << L << "' y2='" << H - B << "' stroke='black'/>\n";
-  o << "<text x='" << W / 2 << "' y='" << H - 8 << "' text-anchor='middle'>frame</text>\n<text x='12' y='" << H / 2 << "' transform='rotate(-90 12 " << H / 2 << ")' text-anchor='middle'>" << ylabel << "</text>\n";
-  o << "<text x='" << L - 4 << "' y='14' text-anchor='end'>" << ymax << "</text><text x='" << L - 4 << "' y='" << H - B << "' text-anchor='end'>0</text><text x='" << W - 10 << "' y='" << H - B + 14 << "' text-anchor='end'>" << n - 1 << "</text>\n";
-  const char* colors[] = {"#1f77b4", "#d62728", "#2ca02c", "#9467bd"};
-  int k = 0;
-  for (const auto& [name, v] : series) {
-    o << "<polyline fill='none' stroke='" << colors[k % 4] << "' stroke-width='2' points='";
-    for (std::size_t i = 0; i < v.size(); ++i)
-      if (std::isfinite(v[i])) o << L + (W - 10 - L) * static_cast<double>(i) / static_cast<double>(std::max<std::size_t>(n - 1, 1)) << "," << (H - B) - (H - B - 10) * v[i] / ymax << " ";
-    o << "'/>\n<text x='" << L + 10 << "' y='" << 24 + 16 * k << "' fill='" << colors[k % 4] << "'>" << name << "</text>\n";
-    ++k;
-  }
-  o << "</svg>\n";
-  return o.str();
-}
-
 int run_evaluate(const EvaluateArgs& a) {
   namespace fs = std::filesystem;
   const FeatureMode mode = feature_mode_from_string(a.mode);
@@ -80,11 +55,10 @@ int run_evaluate(const EvaluateArgs& a) {
   const auto& ids = dataset.ids();
   const auto chosen = data::split_part(a.split_file.empty() ? data::reference_split(ids) : data::read_split_json(a.split_file), a.split, ids);
   if (chosen.empty()) throw data::DataError(a.data + ": the " + a.split + " split is empty");
+  if (!a.no_report) hopnet_web::require_js_libraries();  // before hours of rollouts, not after
   fs::create_directories(a.out);
   const std::vector<int> horizons{25, 50, 75, 100};
   std::map<std::string, std::map<int, std::vector<double>>> per;  // "model.pos_rmse" -> frame -> values
-  // Mean error per frame over scenes, per metric and model (for the plots).
-  std::map<std::string, std::map<std::string, std::pair<std::vector<double>, std::vector<int>>>> curves;
   ProgressBar bar("evaluate", static_cast<std::int64_t>(chosen.size()), "scenes");
   double seconds = 0;
   // Scenes are rolled out by `jobs` threads, each with its own model (one intra-op thread each).
@@ -143,14 +117,8 @@ int run_evaluate(const EvaluateArgs& a) {
         per[name + ".ori_rmse"][h].push_back(m->ori_rmse[static_cast<std::size_t>(h)]);
         per[name + ".ori_mae"][h].push_back(m->ori_mae[static_cast<std::size_t>(h)]);
       }
-      for (const auto& [metric, values] : {std::pair<std::string, const std::vector<double>*>{"pos_rmse", &m->pos_rmse}, {"ori_rmse", &m->ori_rmse}}) {
-        auto& [sum, count] = curves[metric][name];
-        if (sum.size() < values->size()) sum.resize(values->size(), 0.0), count.resize(values->size(), 0);
-        for (std::size_t f = 0; f < values->size(); ++f)
-          if (std::isfinite((*values)[f])) sum[f] += (*values)[f], ++count[f];
-      }
     }
-    if (res.scene) viewer.push_back({"scene " + std::to_string(chosen[i]), &*res.scene, res.poses, res.model.pos_rmse});
+    if (res.scene) viewer.push_back({"scene " + std::to_string(chosen[i]), &*res.scene, res.poses, {{"prediction", res.model.pos_rmse}, {"constant velocity", res.baseline.pos_rmse}}});
   }
   bar.finish();
   const auto stat = [](const std::vector<double>& v) {
@@ -203,17 +171,35 @@ int run_evaluate(const EvaluateArgs& a) {
     t << "# HOPNet rollout errors (" << chosen.size() << " scenes, " << a.split << " split, " << to_string(mode) << " mode)\n\n" << md.str();
     write_file_atomic((fs::path(a.out) / "table.md").string(), t.str());
   }
-  for (const auto& [metric, label] : {std::pair<std::string, std::string>{"pos_rmse", "position RMSE (m)"}, {"ori_rmse", "orientation RMSE (deg)"}}) {
-    std::vector<std::pair<std::string, std::vector<double>>> series;
-    for (const auto& [name, sc] : curves[metric]) {
-      std::vector<double> v(sc.first.size());
-      for (std::size_t f = 0; f < v.size(); ++f) v[f] = sc.second[f] ? sc.first[f] / sc.second[f] : NAN;
-      series.push_back({name, v});
+  const std::string title = "HOPNet rollouts (" + std::string(to_string(mode)) + " mode): " + a.data;
+  if (!a.no_report) {
+    if (!viewer.empty()) hopnet_viewer::write_viewer_html((fs::path(a.out) / "viewer.html").string(), title, viewer);
+    hopnet_report::EvaluationReport report;
+    report.title = title;
+    report.checkpoint = a.checkpoint, report.data = a.data, report.split = a.split, report.mode = to_string(mode);
+    report.viewer = viewer.empty() ? "" : "viewer.html";
+    report.horizons = horizons;
+    report.rollout_seconds = seconds;
+    std::vector<data::KubricScene> sources;
+    for (std::size_t i = 0; i < chosen.size(); ++i) {
+      sources.push_back(dataset.scene(chosen[i]));
+      report.scenes.push_back({chosen[i], static_cast<int>(sources.back().instances.size()), results[i].model,
+                               results[i].baseline, static_cast<int>(i) < a.viewer_scenes ? static_cast<int>(i) : -1});
     }
-    write_file_atomic((fs::path(a.out) / (metric + ".svg")).string(), svg_plot(series, label));
+    report.dataset_kind = hopnet_report::infer_movi_kind(sources, &report.dataset_kind_why);
+    // The training curves too, when the checkpoint sits beside its training logs.
+    const auto log_dir = fs::path(a.checkpoint).parent_path();
+    if (fs::exists(log_dir / "steps.csv") || fs::exists(log_dir / "epochs.csv")) {
+      try {
+        report.training = hopnet_report::read_training_log(log_dir);
+      } catch (const data::DataError& e) {
+        report.training_note = std::string("training curves not shown: ") + e.what();
+      }
+    }
+    hopnet_report::write_evaluation_report((fs::path(a.out) / "index.html").string(), report);
   }
-  if (!viewer.empty()) hopnet_viewer::write_viewer_html((fs::path(a.out) / "viewer.html").string(), "HOPNet rollouts (" + std::string(to_string(mode)) + " mode): " + a.data, viewer);
-  std::cout << md.str() << "wrote " << a.out << "/metrics.json, table.md, pos_rmse.svg, ori_rmse.svg" << (viewer.empty() ? "" : ", viewer.html") << "\n";
+  std::cout << md.str() << "wrote " << a.out << "/metrics.json, table.md"
+            << (a.no_report ? "" : ", index.html") << (a.no_report || viewer.empty() ? "" : ", viewer.html") << "\n";
   return 0;
 }
 
@@ -235,7 +221,8 @@ Command add_evaluate(CLI::App& app) {
   ce->add_option("--device", ev.device, "cpu, cuda, cuda:N or auto (each job's model runs there)")->capture_default_str();
   ce->add_option("--viewer-scenes", ev.viewer_scenes, "scenes shown in viewer.html (0: no viewer)")->capture_default_str()->check(CLI::NonNegativeNumber);
   add_variant_options(ce, ev.variant, false);
-  ce->add_option("--out", ev.out, "output folder: metrics.json, per_scene.json, table.md, pos_rmse.svg, ori_rmse.svg, viewer.html")->required();
+  ce->add_flag("--no-report", ev.no_report, "write metrics.json, per_scene.json and table.md only: no index.html, no viewer.html (no JavaScript libraries needed)");
+  ce->add_option("--out", ev.out, "output folder: metrics.json, per_scene.json, table.md, index.html (the report: tables, plots, training curves), viewer.html")->required();
   return {ce, [args] { return run_evaluate(*args); }};
 }
 

@@ -15,6 +15,7 @@ struct RolloutArgs {
 
 int run_rollout(const RolloutArgs& a) {
   const FeatureMode mode = feature_mode_from_string(a.mode);
+  if (!a.viewer.empty()) hopnet_web::require_js_libraries();
   const torch::Device device = nn::device_from_string(a.device);
   const auto dict = nn::read_tensor_dict(a.checkpoint);
   auto net = load_hopnet(dict, a.checkpoint, checkpoint_overrides(a.variant, dict, a.checkpoint, mode));
@@ -71,7 +72,7 @@ int run_rollout(const RolloutArgs& a) {
   j["positions"] = pos;
   j["quaternions"] = quat;
   write_json_atomic(j, a.out);
-  if (!a.viewer.empty()) hopnet_viewer::write_viewer_html(a.viewer, "HOPNet rollout (" + std::string(to_string(mode)) + " mode): " + kubric.source, {{kubric.source, &scene, r.poses, m.pos_rmse}});
+  if (!a.viewer.empty()) hopnet_viewer::write_viewer_html(a.viewer, "HOPNet rollout (" + std::string(to_string(mode)) + " mode): " + kubric.source, {{kubric.source, &scene, r.poses, {{"prediction", m.pos_rmse}}}});
   std::printf("rollout: %s, %d steps in %.3f s (%.2f ms/step), mode %s\n", variant_name(net->options).c_str(), opt.steps, r.seconds, 1e3 * r.seconds / opt.steps, to_string(mode));
   std::printf("%6s %10s %10s %10s %10s\n", "frame", "pos_rmse", "pos_mae", "ori_rmse", "ori_mae");
   for (int f : {4, 25, 50, 75, 100})
