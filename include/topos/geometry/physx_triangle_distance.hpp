@@ -66,11 +66,13 @@ inline PhysxTriangleResult physx_triangle_triangle(const std::array<Eigen::Vecto
       detail::physx_segments(P[i], S[i], Q[j], T[j], cp, cq);
       const Eigen::Vector3d v = cq - cp;
       const double dd = v.dot(v);
-      if (dd <= mindd) {
-        minP = cp;
-        minQ = cq;
-        mindd = dd;
-      }
+      // Only a new closest edge pair is tested for separation (as in PhysX and the reference):
+      // in near-parallel configurations several pairs pass the test, and only the first that is
+      // also the closest so far may return.
+      if (dd > mindd) continue;
+      minP = cp;
+      minQ = cq;
+      mindd = dd;
       double a = (P[(i + 2) % 3] - cp).dot(v);
       double b = (Q[(j + 2) % 3] - cq).dot(v);
       if (a <= 0 && b >= 0) return {cp, cq, dd};  // squared, as in the reference
@@ -94,7 +96,7 @@ inline PhysxTriangleResult physx_triangle_triangle(const std::array<Eigen::Vecto
     const Eigen::Vector3d q = B[idx];
     for (int m = 0; m < 3; ++m)
       if (!((q - A[m]).dot(sn.cross(SA[m])) > 0)) return false;
-    const Eigen::Vector3d on_a = q + sn * (tp[static_cast<std::size_t>(idx)] / snl);
+    const Eigen::Vector3d on_a = q + (sn * tp[static_cast<std::size_t>(idx)]) / snl;  // the reference's rounding order
     out = b_is_q ? PhysxTriangleResult{on_a, q, (on_a - q).norm()} : PhysxTriangleResult{q, on_a, (on_a - q).norm()};
     return true;
   };

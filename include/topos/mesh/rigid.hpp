@@ -11,6 +11,7 @@
 #include <Eigen/SVD>
 
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 
 namespace topos {
@@ -35,6 +36,43 @@ inline Vertices pose_vertices(const Vertices& v, const Eigen::Vector3d& position
   const Eigen::Matrix3d R = rotation_from_wxyz(wxyz);
   Vertices out = v * R.transpose();
   out.rowwise() += position.transpose();
+  return out;
+}
+
+/// x = R(q) v + p computed with trimesh's arithmetic, bit for bit, as the HOPNet reference poses
+/// its meshes (`quaternion_matrix`, then `transform_points` through NumPy and OpenBLAS):
+///  - |q|² as OpenBLAS's dot kernel adds the squares, (w² + y²) + (x² + z²); q scaled by
+///    sqrt(2/|q|²); the matrix entries from the outer product q qᵀ in trimesh's order;
+///  - each coordinate as the gemm kernel accumulates it, one fused multiply-add per term in
+///    order: fma(t, 1, fma(r2, z, fma(r1, y, r0 x))).
+///  - a transform within 1e-8 of the identity leaves the vertices as they are.
+/// The result differs from pose_vertices() by an ulp or so, which is enough to flip the
+/// reference's triangle-distance branches where faces rest flat on each other (reference mode
+/// needs its contact features exactly). Assumes no floating-point contraction (the default
+/// x86-64 build emits no FMA instructions of its own). Measured: the reference's node positions
+/// of MOVi-A scene 8 at frames 1 to 3 (golden step000/nodes_pos_in.npy) reproduced bitwise.
+inline Vertices pose_vertices_trimesh(const Vertices& v, const Eigen::Vector3d& position, const Eigen::Vector4d& wxyz) {
+  double q[4] = {wxyz[0], wxyz[1], wxyz[2], wxyz[3]};
+  double sq[4];
+  for (int i = 0; i < 4; ++i) sq[i] = q[i] * q[i];
+  const double n = (sq[0] + sq[2]) + (sq[1] + sq[3]);
+  if (!(n >= 4 * std::numeric_limits<double>::epsilon()) || !std::isfinite(n))
+    throw std::invalid_argument("pose_vertices_trimesh: quaternion has zero or non-finite norm");
+  const double k = std::sqrt(2.0 / n);
+  for (double& x : q) x *= k;
+  double Q[4][4];
+  for (int a = 0; a < 4; ++a)
+    for (int b = 0; b < 4; ++b) Q[a][b] = q[a] * q[b];
+  const double m[3][4] = {{1.0 - Q[2][2] - Q[3][3], Q[1][2] - Q[3][0], Q[1][3] + Q[2][0], position.x()},
+                          {Q[1][2] + Q[3][0], 1.0 - Q[1][1] - Q[3][3], Q[2][3] - Q[1][0], position.y()},
+                          {Q[1][3] - Q[2][0], Q[2][3] + Q[1][0], 1.0 - Q[1][1] - Q[2][2], position.z()}};
+  bool identity = true;
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 4; ++j) identity = identity && std::abs(m[i][j] - (i == j ? 1.0 : 0.0)) < 1e-8;
+  if (identity) return v;
+  Vertices out(v.rows(), 3);
+  for (Eigen::Index r = 0; r < v.rows(); ++r)
+    for (int i = 0; i < 3; ++i) out(r, i) = std::fma(m[i][3], 1.0, std::fma(m[i][2], v(r, 2), std::fma(m[i][1], v(r, 1), m[i][0] * v(r, 0))));
   return out;
 }
 

@@ -183,6 +183,8 @@ inline Poses scene_poses(const Scene& s, std::int64_t t) {
 }
 
 /// World vertices of every object for one set of poses (static objects stay as they are).
+/// Reference mode poses with trimesh's arithmetic bit for bit (pose_vertices_trimesh): the
+/// reference's contact features of faces resting flat on each other depend on the last ulp.
 inline std::vector<PosedObject> pose_objects(const HopnetGeometry& g, const Poses& p) {
   std::vector<PosedObject> out(g.objects.size());
   for (std::size_t o = 0; o < g.objects.size(); ++o) {
@@ -190,8 +192,11 @@ inline std::vector<PosedObject> pose_objects(const HopnetGeometry& g, const Pose
     for (int c = 0; c < 3; ++c)
       if (!std::isfinite(p.positions(static_cast<Eigen::Index>(o), c))) throw std::invalid_argument("pose of object " + std::to_string(o) + " is not finite");
     out[o].faces = &obj.mesh.faces;
-    out[o].vertices = obj.is_floor ? obj.mesh.vertices
-                                   : pose_vertices(obj.mesh.vertices, p.positions.row(static_cast<Eigen::Index>(o)).transpose(), p.quaternions.row(static_cast<Eigen::Index>(o)).transpose());
+    const Eigen::Vector3d position = p.positions.row(static_cast<Eigen::Index>(o)).transpose();
+    const Eigen::Vector4d quaternion = p.quaternions.row(static_cast<Eigen::Index>(o)).transpose();
+    if (obj.is_floor) out[o].vertices = obj.mesh.vertices;
+    else if (g.mode == FeatureMode::reference) out[o].vertices = pose_vertices_trimesh(obj.mesh.vertices, position, quaternion);
+    else out[o].vertices = pose_vertices(obj.mesh.vertices, position, quaternion);
   }
   return out;
 }
