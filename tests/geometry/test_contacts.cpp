@@ -1,7 +1,8 @@
 // Tests of topos/geometry/triangle_distance.hpp, physx_triangle_distance.hpp, contacts.hpp and
 // mesh/rigid.hpp: closest points against CGAL's exact squared distance on random and adversarial
 // pairs, native contacts against brute force, the reference detector against collisions.json,
-// centre of mass and shape matching against analytic cases.
+// centre of mass and shape matching against analytic cases, the reference (trimesh) posing
+// against the reference's node positions.
 #include <catch2/catch.hpp>
 
 #include "support/reference.hpp"
@@ -9,6 +10,7 @@
 #include "topos/geometry/contacts.hpp"
 #include "topos/geometry/physx_triangle_distance.hpp"
 #include "topos/models/hopnet/scene.hpp"
+#include "topos/data/npy.hpp"
 
 #include <CGAL/Exact_predicates_exact_constructions_kernel.h>
 #include <CGAL/Simple_cartesian.h>
@@ -17,6 +19,7 @@
 #include <nlohmann/json.hpp>
 
 #include <fstream>
+#include <functional>
 #include <random>
 
 using namespace topos;
@@ -154,6 +157,66 @@ TEST_CASE("the PhysX port reproduces the reference's quirks", "[geometry][physx]
   // Piercing triangles: unsafe, distance 0.
   const std::array<Eigen::Vector3d, 3> pierce{Eigen::Vector3d(0.2, 0.2, -1), Eigen::Vector3d(0.2, 0.2, 1), Eigen::Vector3d(0.3, 0.25, 1)};
   REQUIRE(physx_triangle_triangle(a, pierce).distance == 0.0);
+
+  // Only a new closest edge pair may return early (PhysX, utils/triangles.py). Expected values:
+  // the reference's distance_triangle_triangle on these inputs (NumPy 1.24, float64); the port
+  // agrees with it bitwise on 19,415 random pairs, 9 of which it missed while every edge pair
+  // could return. Here an earlier, farther pair passes the separation test: the reference goes
+  // on to the vertex-face path (Euclidean), the old port returned 0.125 (a squared distance).
+  const auto P = [](double x0, double y0, double z0, double x1, double y1, double z1, double x2, double y2, double z2) {
+    return std::array<Eigen::Vector3d, 3>{Eigen::Vector3d(x0, y0, z0), Eigen::Vector3d(x1, y1, z1), Eigen::Vector3d(x2, y2, z2)};
+  };
+  const auto e = physx_triangle_triangle(P(-1, -1, 0.5, -0.5, 0, 0, 0, 0, -0.5), P(-0.5, 0, 0.5, 0.5, -1, -0.5, 0, 0.5, 0));
+  CHECK(e.distance == 0.3535533905932738);
+  CHECK(e.cp == Eigen::Vector3d(-0.5, 0, 0));
+  CHECK(e.cq == Eigen::Vector3d(-0.25, 0, 0.25));
+  // Parallel faces 0.093 apart: the edge path returns a squared distance between closest points
+  // that are not vertically above each other; which pair depends on the same rule.
+  const double h = 0.09325078866262293;
+  const auto f = physx_triangle_triangle(P(-0.25, -1.25, 0, -1.5, -2.75, 0, -1, 1.75, 0), P(0, -1.25, h, 2.75, -0.25, h, -0.5, 0.75, h));
+  CHECK(f.distance == 0.06751923899796587);
+  CHECK(f.cp == Eigen::Vector3d(-0.25, -1.25, 0));
+  CHECK(f.cq == Eigen::Vector3d(-0.01470588235294118, -1.1911764705882353, h));
+}
+
+TEST_CASE("trimesh posing reproduces the reference's node positions bitwise (golden movi-a-8)", "[geometry][rigid][reference]") {
+  const auto ref = test::reference_dir("reference posing on movi-a/8");
+  const auto dir = ref / "data" / "golden" / "movi-a-8";
+  hopnet::MeshLibrary lib(ref / "data" / "kubasic");
+  const hopnet::Scene scene = hopnet::make_scene(data::read_kubric_metadata(ref / "data" / "movi-a" / "8"), lib);
+  std::int64_t nodes = 0;
+  for (const auto& o : scene.objects) nodes += o.mesh.vertices.rows();
+  // step000/nodes_pos_in.npy: GT frames 1, 2, 3; step001's last frame: step000's predicted poses.
+  const auto gt = data::read_npy((dir / "step000" / "nodes_pos_in.npy").string()).as<double>();
+  const auto next = data::read_npy((dir / "step001" / "nodes_pos_in.npy").string()).as<double>();
+  const auto pred_pos = data::read_npy((dir / "step000" / "pred_obj_pos.npy").string()).as<double>();
+  const auto pred_quat = data::read_npy((dir / "step000" / "pred_obj_quat.npy").string()).as<double>();
+  REQUIRE(static_cast<std::int64_t>(gt.size()) == 3 * nodes * 3);
+  std::int64_t differ = 0, differ_eigen = 0, total = 0;
+  const auto compare = [&](const std::vector<double>& want, std::int64_t slot, const std::function<Eigen::Vector3d(std::size_t)>& pos,
+                           const std::function<Eigen::Vector4d(std::size_t)>& quat) {
+    std::int64_t offset = 0;
+    for (std::size_t o = 0; o < scene.objects.size(); ++o) {
+      const auto& obj = scene.objects[o];
+      const Vertices got = obj.is_floor ? obj.mesh.vertices : pose_vertices_trimesh(obj.mesh.vertices, pos(o), quat(o));
+      const Vertices eigen = obj.is_floor ? obj.mesh.vertices : pose_vertices(obj.mesh.vertices, pos(o), quat(o));
+      for (Eigen::Index v = 0; v < got.rows(); ++v)
+        for (int c = 0; c < 3; ++c) {
+          const double w = want[static_cast<std::size_t>(((slot * nodes) + offset + v) * 3 + c)];
+          differ += got(v, c) != w;
+          differ_eigen += eigen(v, c) != w;
+          ++total;
+        }
+      offset += got.rows();
+    }
+  };
+  for (std::int64_t k = 0; k < 3; ++k) compare(gt, k, [&](std::size_t o) { return scene.position(k + 1, o); }, [&](std::size_t o) { return scene.quaternion(k + 1, o); });
+  compare(
+      next, 2, [&](std::size_t o) { return Eigen::Vector3d(pred_pos[3 * o], pred_pos[3 * o + 1], pred_pos[3 * o + 2]); },
+      [&](std::size_t o) { return Eigen::Vector4d(pred_quat[4 * o], pred_quat[4 * o + 1], pred_quat[4 * o + 2], pred_quat[4 * o + 3]); });
+  std::cout << "reference posing: " << differ << " of " << total << " coordinates differ (Eigen's rotation: " << differ_eigen << ")\n";
+  REQUIRE(differ == 0);
+  REQUIRE_THROWS_WITH(pose_vertices_trimesh(scene.objects[0].mesh.vertices, Eigen::Vector3d::Zero(), Eigen::Vector4d::Zero()), Catch::Contains("zero or non-finite norm"));
 }
 
 TEST_CASE("native contacts equal brute force on random scenes", "[geometry][contacts]") {
