@@ -671,6 +671,9 @@ TEST_CASE("LibTorch's Adam fed the reference's gradients reproduces its three st
       for (const auto& p : model->named_parameters()) worst = std::max(worst, (p.value().detach().to(torch::kDouble) - want.at(p.key())).abs().max().item<double>());
       INFO("step " << step);
       CHECK(worst <= 1e-6);
+    }
+  }
+}
 
 // ---- the HOPNet family (hopnet-ablations-spec.md) ---------------------------------------------
 
