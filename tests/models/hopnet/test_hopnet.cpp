@@ -933,6 +933,7 @@ TEST_CASE("variants on built-in shapes: batching, rollout, training, statistics 
       fs::remove(ck);
     }
   }
+}
 
 TEST_CASE("on CUDA, a training step and a rollout step equal the CPU ones", "[hopnet][cuda]") {
   if (!torch::cuda::is_available()) {
