@@ -44,24 +44,25 @@ namespace topos {
 namespace detail {
 template <class Graph>
 std::vector<std::array<std::int64_t, 2>> boost_edges(const Graph& g) {
-  const auto index = boost::get(boost::vertex_index, g);
-  std::vector<std::array<std::int64_t, 2>> edges;
-  for (auto [it, end] = boost::edges(g); it != end; ++it)
-    edges.push_back({static_cast<std::int64_t>(boost::get(index, boost::source(*it, g))), static_cast<std::int64_t>(boost::get(index, boost::target(*it, g)))});
-  return edges;
+  // Unqualified calls: BGL's free functions are found by argument-dependent lookup on the graph.
+  const auto index = get(boost::vertex_index, g);
+  std::vector<std::array<std::int64_t, 2>> out;
+  for (auto [it, end] = edges(g); it != end; ++it)
+    out.push_back({static_cast<std::int64_t>(get(index, source(*it, g))), static_cast<std::int64_t>(get(index, target(*it, g)))});
+  return out;
 }
 }  // namespace detail
 
 /// The clique complex of an undirected Boost.Graph graph (nodes = vertex indices).
 template <class Graph>
 SimplicialComplex clique_complex(const Graph& g, int max_rank) {
-  return clique_complex(static_cast<std::int64_t>(boost::num_vertices(g)), detail::boost_edges(g), max_rank);
+  return clique_complex(static_cast<std::int64_t>(num_vertices(g)), detail::boost_edges(g), max_rank);
 }
 
 /// The graph's nodes and edges plus one 2-cell per fundamental cycle of a BFS spanning forest.
 template <class Graph>
 CellComplex cell_complex_from_cycle_basis(const Graph& g) {
-  const std::int64_t n = static_cast<std::int64_t>(boost::num_vertices(g));
+  const std::int64_t n = static_cast<std::int64_t>(num_vertices(g));
   auto edges = detail::boost_edges(g);
   for (auto& e : edges)
     if (e[0] > e[1]) std::swap(e[0], e[1]);
