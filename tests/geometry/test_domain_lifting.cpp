@@ -1,7 +1,7 @@
 // Tests of topos/geometry/domain_lifting.hpp: clique complex of a Boost graph (= the edge-list
 // one), cell complex from a cycle basis (b1 of the graph cycles filled: b1 = 0, one 2-cell per
 // independent cycle), Delaunay triangulations (Euler characteristic of a disc, the empty
-// circumcircle property of every triangle), alpha complexes (alpha = 0: points only; large
+// circumcircle property of every triangle), alpha complexes (alpha = 0: points only; unbounded
 // alpha: the whole Delaunay complex; in between nested).
 #include <catch2/catch.hpp>
 
@@ -77,7 +77,7 @@ TEST_CASE("alpha complexes grow from the points to the Delaunay complex", "[geom
   std::uniform_real_distribution<double> u(0, 1);
   Eigen::MatrixXd p(40, 3);
   for (Eigen::Index i = 0; i < p.rows(); ++i) p.row(i) << u(rng), u(rng), u(rng);
-  const SimplicialComplex none = alpha_complex(p, 0.0), all = alpha_complex(p, 100.0), full = delaunay_complex(p);
+  const SimplicialComplex none = alpha_complex(p, 0.0), all = alpha_complex(p, 1e300), full = delaunay_complex(p);
   REQUIRE(none.shape() == std::vector<std::int64_t>{40});
   REQUIRE(all.shape() == full.shape());
   const SimplicialComplex mid = alpha_complex(p, 0.02);
