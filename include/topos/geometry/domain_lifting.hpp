@@ -11,16 +11,21 @@
 //   delaunay_complex(points)             2-D points (n x 2): the Delaunay triangulation's
 //                                        triangles; 3-D points (n x 3): its tetrahedra; all faces
 //                                        added, lexicographic order, nodes = point rows
-//   alpha_complex(points, alpha2)        3-D points: the alpha complex for squared radius alpha2
-//                                        (CGAL's Alpha_shape_3 in GENERAL mode: every simplex of
-//                                        the Delaunay triangulation that is not EXTERIOR)
+//   alpha_complex(points, alpha2)        2-D or 3-D points: the alpha complex for squared radius
+//                                        alpha2 (CGAL's Alpha_shape_2 / Alpha_shape_3 in GENERAL
+//                                        mode: every Delaunay simplex whose alpha filtration value
+//                                        is <= alpha2), all faces, lexicographic order, every
+//                                        point a node
 #pragma once
 
 #include "topos/core/cell_complex.hpp"
 #include "topos/core/domain_lifting.hpp"
 #include "topos/core/simplicial_complex.hpp"
 
+#include <CGAL/Alpha_shape_2.h>
 #include <CGAL/Alpha_shape_3.h>
+#include <CGAL/Alpha_shape_face_base_2.h>
+#include <CGAL/Alpha_shape_vertex_base_2.h>
 #include <CGAL/Alpha_shape_cell_base_3.h>
 #include <CGAL/Alpha_shape_vertex_base_3.h>
 #include <CGAL/Delaunay_triangulation_2.h>
@@ -44,7 +49,9 @@ namespace topos {
 namespace detail {
 template <class Graph>
 std::vector<std::array<std::int64_t, 2>> boost_edges(const Graph& g) {
-  // Unqualified calls: BGL's free functions are found by argument-dependent lookup on the graph.
+  // Unqualified calls (the BGL idiom): argument-dependent lookup finds the graph's free
+  // functions in its own namespace, boost's or another's (boost:: would exclude graphs adapted
+  // elsewhere, as topos::RankGraph is).
   const auto index = get(boost::vertex_index, g);
   std::vector<std::array<std::int64_t, 2>> out;
   for (auto [it, end] = edges(g); it != end; ++it)
@@ -145,25 +152,46 @@ inline SimplicialComplex delaunay_complex(const Eigen::MatrixXd& points) {
   throw ComplexError("delaunay_complex: points must be n x 2 or n x 3, got n x " + std::to_string(points.cols()));
 }
 
-/// The alpha complex of 3-D points for squared radius alpha2: the Delaunay simplices CGAL's
-/// Alpha_shape_3 (GENERAL mode) does not classify EXTERIOR, with all their faces.
+/// The alpha complex of 2-D (n x 2) or 3-D (n x 3) points for squared radius alpha2: the
+/// Delaunay simplices CGAL's Alpha_shape_2 / Alpha_shape_3 (GENERAL mode, exact comparison of
+/// alpha values) does not classify EXTERIOR, i.e. those whose alpha filtration value is
+/// <= alpha2, with all their faces; every point is a node.
 inline SimplicialComplex alpha_complex(const Eigen::MatrixXd& points, double alpha2) {
-  if (points.cols() != 3) throw ComplexError("alpha_complex: points must be n x 3, got n x " + std::to_string(points.cols()));
-  if (alpha2 < 0) throw ComplexError("alpha_complex: alpha^2 must be >= 0");
+  if (points.cols() != 2 && points.cols() != 3) throw ComplexError("alpha_complex: points must be n x 2 or n x 3, got n x " + std::to_string(points.cols()));
+  if (!(alpha2 >= 0)) throw ComplexError("alpha_complex: alpha^2 must be >= 0, got " + std::to_string(alpha2));
   using K = CGAL::Exact_predicates_inexact_constructions_kernel;
-  using Vb = CGAL::Alpha_shape_vertex_base_3<K, CGAL::Triangulation_vertex_base_with_info_3<std::int64_t, K>>;
-  using Fb = CGAL::Alpha_shape_cell_base_3<K>;
-  using Tds = CGAL::Triangulation_data_structure_3<Vb, Fb>;
-  using Dt = CGAL::Delaunay_triangulation_3<K, Tds>;
-  using Shape = CGAL::Alpha_shape_3<Dt>;
+  using Exact = CGAL::Tag_true;  // alpha values compared exactly (slivers' values are ill-conditioned)
   const std::int64_t n = points.rows();
+  std::vector<std::vector<std::int64_t>> simplices;
+  if (points.cols() == 2) {
+    using Vb = CGAL::Alpha_shape_vertex_base_2<K, CGAL::Triangulation_vertex_base_with_info_2<std::int64_t, K>, Exact>;
+    using Fb = CGAL::Alpha_shape_face_base_2<K, CGAL::Triangulation_face_base_2<K>, Exact>;
+    using Dt = CGAL::Delaunay_triangulation_2<K, CGAL::Triangulation_data_structure_2<Vb, Fb>>;
+    using Shape = CGAL::Alpha_shape_2<Dt, Exact>;
+    Dt dt;
+    std::vector<std::pair<K::Point_2, std::int64_t>> pts;
+    for (std::int64_t i = 0; i < n; ++i) pts.push_back({K::Point_2(points(i, 0), points(i, 1)), i});
+    dt.insert(pts.begin(), pts.end());
+    if (static_cast<std::int64_t>(dt.number_of_vertices()) != n) throw ComplexError("alpha_complex: the points are not distinct");
+    if (dt.dimension() < 2) throw ComplexError("alpha_complex: the 2-D points are collinear (dimension " + std::to_string(dt.dimension()) + ")");
+    Shape as(dt, alpha2, Shape::GENERAL);
+    for (auto f = as.finite_faces_begin(); f != as.finite_faces_end(); ++f)
+      if (as.classify(f) != Shape::EXTERIOR) simplices.push_back({f->vertex(0)->info(), f->vertex(1)->info(), f->vertex(2)->info()});
+    for (auto e = as.finite_edges_begin(); e != as.finite_edges_end(); ++e)
+      if (as.classify(*e) != Shape::EXTERIOR) simplices.push_back({e->first->vertex(Dt::cw(e->second))->info(), e->first->vertex(Dt::ccw(e->second))->info()});
+    return SimplicialComplex::from_simplices(simplices, n);
+  }
+  using Vb = CGAL::Alpha_shape_vertex_base_3<K, CGAL::Triangulation_vertex_base_with_info_3<std::int64_t, K>, Exact>;
+  using Cb = CGAL::Alpha_shape_cell_base_3<K, CGAL::Delaunay_triangulation_cell_base_3<K>, Exact>;
+  using Dt = CGAL::Delaunay_triangulation_3<K, CGAL::Triangulation_data_structure_3<Vb, Cb>>;
+  using Shape = CGAL::Alpha_shape_3<Dt, Exact>;
   Dt dt;
   std::vector<std::pair<K::Point_3, std::int64_t>> pts;
   for (std::int64_t i = 0; i < n; ++i) pts.push_back({K::Point_3(points(i, 0), points(i, 1), points(i, 2)), i});
   dt.insert(pts.begin(), pts.end());
   if (static_cast<std::int64_t>(dt.number_of_vertices()) != n) throw ComplexError("alpha_complex: the points are not distinct");
+  if (dt.dimension() < 3) throw ComplexError("alpha_complex: the 3-D points are coplanar (dimension " + std::to_string(dt.dimension()) + "); pass them as 2-D");
   Shape as(dt, alpha2, Shape::GENERAL);
-  std::vector<std::vector<std::int64_t>> simplices;
   for (auto c = as.finite_cells_begin(); c != as.finite_cells_end(); ++c)
     if (as.classify(c) != Shape::EXTERIOR) simplices.push_back({c->vertex(0)->info(), c->vertex(1)->info(), c->vertex(2)->info(), c->vertex(3)->info()});
   for (auto f = as.finite_facets_begin(); f != as.finite_facets_end(); ++f) {
