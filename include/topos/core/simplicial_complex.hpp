@@ -512,11 +512,18 @@ class SimplicialComplex {
         if (c[q] != s[q]) return c[q] < s[q];
       return false;
     };
-    while (lo < hi) {
-      const Index mid = lo + (hi - lo) / 2;
-      const Index* c = nodes + static_cast<std::size_t>(order ? order[mid] : mid) * w;
-      if (less_than_s(c)) lo = mid + 1;
-      else hi = mid;
+    if (!order && hi - lo <= 16) {
+      // Small bucket (the common case): count the smaller simplices, no unpredictable branch.
+      Index below = 0;
+      for (Index pos = lo; pos < hi; ++pos) below += less_than_s(nodes + static_cast<std::size_t>(pos) * w);
+      lo += below;
+    } else {
+      while (lo < hi) {
+        const Index mid = lo + (hi - lo) / 2;
+        const Index* c = nodes + static_cast<std::size_t>(order ? order[mid] : mid) * w;
+        if (less_than_s(c)) lo = mid + 1;
+        else hi = mid;
+      }
     }
     if (lo < end) {
       const Index id = order ? order[lo] : lo;

@@ -143,6 +143,7 @@ inline UnsortedRows accumulate_rows(const ProductTerms& terms) {
   std::int64_t* cols = r.cols.get();
   double* vals = r.vals.get();
   const auto acc = scratch<double>(m);
+  std::fill(acc.get(), acc.get() + m, 0.0);
   const auto mark = scratch<std::int64_t>(m);
   std::fill(mark.get(), mark.get() + m, std::int64_t(-1));
   std::int64_t w = 0;
@@ -159,23 +160,26 @@ inline UnsortedRows accumulate_rows(const ProductTerms& terms) {
       for (std::int64_t p = ao[i]; p < ao[i + 1]; ++p) {
         const std::int64_t k = ai[p];
         const double x = av[p];
+        // Branch-free: whether column j is new to this row is a coin flip for the predictor.
+        // acc is all zeros between rows (0.0 + y equals y but for the sign of a zero, and
+        // zeros are dropped below).
         for (std::int64_t q = bo[k]; q < bo[k + 1]; ++q) {
           const std::int64_t j = bi[q];
-          if (mark[j] != i) {
-            mark[j] = i;
-            acc[j] = x * bv[q];
-            cols[w++] = j;
-          } else {
-            acc[j] += x * bv[q];
-          }
+          acc[j] += x * bv[q];
+          cols[w] = j;
+          w += mark[j] != i;
+          mark[j] = i;
         }
       }
     }
     std::int64_t kept = start;
-    for (std::int64_t e = start; e < w; ++e) {
+    for (std::int64_t e = start; e < w; ++e) {  // drop cancellations (frequent in a Hodge Laplacian), branch-free
       const std::int64_t j = cols[e];
       const double v = acc[j];
-      if (v != 0.0) cols[kept] = j, vals[kept++] = v;
+      acc[j] = 0.0;
+      cols[kept] = j;
+      vals[kept] = v;
+      kept += v != 0.0;
     }
     w = kept;
     ptr[i + 1] = w;
