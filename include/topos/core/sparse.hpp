@@ -138,7 +138,9 @@ struct UnsortedRows {
 inline UnsortedRows accumulate_rows(const ProductTerms& terms) {
   const std::int64_t n = terms[0].first->rows(), m = terms[0].second->cols();
   const std::int64_t bound = std::min<std::int64_t>(product_flops(terms), n * m);
-  UnsortedRows r{scratch<std::int64_t>(n + 1), scratch<std::int64_t>(bound), scratch<double>(bound)};
+  // + 1: the branch-free loop below also stores a column it does not keep, one slot past the
+  // last entry when a dense final row is full.
+  UnsortedRows r{scratch<std::int64_t>(n + 1), scratch<std::int64_t>(bound + 1), scratch<double>(bound + 1)};
   std::int64_t* ptr = r.ptr.get();
   std::int64_t* cols = r.cols.get();
   double* vals = r.vals.get();

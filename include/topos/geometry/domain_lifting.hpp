@@ -42,6 +42,7 @@
 #include <array>
 #include <cstdint>
 #include <queue>
+#include <string>
 #include <vector>
 
 namespace topos {
@@ -57,6 +58,20 @@ std::vector<std::array<std::int64_t, 2>> boost_edges(const Graph& g) {
   for (auto [it, end] = edges(g); it != end; ++it)
     out.push_back({static_cast<std::int64_t>(get(index, source(*it, g))), static_cast<std::int64_t>(get(index, target(*it, g)))});
   return out;
+}
+// Inserts the rows of `points` (n x D) into a Delaunay triangulation whose vertices carry their
+// row index; repeated points are an error (they would merge into one vertex).
+template <int D, class Dt>
+void insert_indexed_points(Dt& dt, const Eigen::MatrixXd& points, const char* who) {
+  using Point = typename Dt::Point;
+  std::vector<std::pair<Point, std::int64_t>> pts;
+  pts.reserve(static_cast<std::size_t>(points.rows()));
+  for (std::int64_t i = 0; i < points.rows(); ++i) {
+    if constexpr (D == 2) pts.push_back({Point(points(i, 0), points(i, 1)), i});
+    else pts.push_back({Point(points(i, 0), points(i, 1), points(i, 2)), i});
+  }
+  dt.insert(pts.begin(), pts.end());
+  if (static_cast<std::int64_t>(dt.number_of_vertices()) != points.rows()) throw ComplexError(std::string(who) + ": the points are not distinct");
 }
 }  // namespace detail
 
@@ -123,10 +138,7 @@ inline SimplicialComplex delaunay_complex(const Eigen::MatrixXd& points) {
     using Vb = CGAL::Triangulation_vertex_base_with_info_2<std::int64_t, K>;
     using Tds = CGAL::Triangulation_data_structure_2<Vb>;
     CGAL::Delaunay_triangulation_2<K, Tds> dt;
-    std::vector<std::pair<K::Point_2, std::int64_t>> pts;
-    for (std::int64_t i = 0; i < n; ++i) pts.push_back({K::Point_2(points(i, 0), points(i, 1)), i});
-    dt.insert(pts.begin(), pts.end());
-    if (static_cast<std::int64_t>(dt.number_of_vertices()) != n) throw ComplexError("delaunay_complex: the points are not distinct");
+    detail::insert_indexed_points<2>(dt, points, "delaunay_complex");
     for (auto f = dt.finite_faces_begin(); f != dt.finite_faces_end(); ++f)
       for (int k = 0; k < 3; ++k) flat.push_back(f->vertex(k)->info());
     if (flat.empty()) {  // collinear: the triangulation's edges
@@ -140,10 +152,7 @@ inline SimplicialComplex delaunay_complex(const Eigen::MatrixXd& points) {
     using Vb = CGAL::Triangulation_vertex_base_with_info_3<std::int64_t, K>;
     using Tds = CGAL::Triangulation_data_structure_3<Vb>;
     CGAL::Delaunay_triangulation_3<K, Tds> dt;
-    std::vector<std::pair<K::Point_3, std::int64_t>> pts;
-    for (std::int64_t i = 0; i < n; ++i) pts.push_back({K::Point_3(points(i, 0), points(i, 1), points(i, 2)), i});
-    dt.insert(pts.begin(), pts.end());
-    if (static_cast<std::int64_t>(dt.number_of_vertices()) != n) throw ComplexError("delaunay_complex: the points are not distinct");
+    detail::insert_indexed_points<3>(dt, points, "delaunay_complex");
     if (dt.dimension() < 3) throw ComplexError("delaunay_complex: the 3-D points are coplanar (dimension " + std::to_string(dt.dimension()) + "); pass them as 2-D");
     for (auto c = dt.finite_cells_begin(); c != dt.finite_cells_end(); ++c)
       for (int k = 0; k < 4; ++k) flat.push_back(c->vertex(k)->info());
@@ -169,10 +178,7 @@ inline SimplicialComplex alpha_complex(const Eigen::MatrixXd& points, double alp
     using Dt = CGAL::Delaunay_triangulation_2<K, CGAL::Triangulation_data_structure_2<Vb, Fb>>;
     using Shape = CGAL::Alpha_shape_2<Dt, Exact>;
     Dt dt;
-    std::vector<std::pair<K::Point_2, std::int64_t>> pts;
-    for (std::int64_t i = 0; i < n; ++i) pts.push_back({K::Point_2(points(i, 0), points(i, 1)), i});
-    dt.insert(pts.begin(), pts.end());
-    if (static_cast<std::int64_t>(dt.number_of_vertices()) != n) throw ComplexError("alpha_complex: the points are not distinct");
+    detail::insert_indexed_points<2>(dt, points, "alpha_complex");
     if (dt.dimension() < 2) throw ComplexError("alpha_complex: the 2-D points are collinear (dimension " + std::to_string(dt.dimension()) + ")");
     Shape as(dt, alpha2, Shape::GENERAL);
     for (auto f = as.finite_faces_begin(); f != as.finite_faces_end(); ++f)
@@ -186,10 +192,7 @@ inline SimplicialComplex alpha_complex(const Eigen::MatrixXd& points, double alp
   using Dt = CGAL::Delaunay_triangulation_3<K, CGAL::Triangulation_data_structure_3<Vb, Cb>>;
   using Shape = CGAL::Alpha_shape_3<Dt, Exact>;
   Dt dt;
-  std::vector<std::pair<K::Point_3, std::int64_t>> pts;
-  for (std::int64_t i = 0; i < n; ++i) pts.push_back({K::Point_3(points(i, 0), points(i, 1), points(i, 2)), i});
-  dt.insert(pts.begin(), pts.end());
-  if (static_cast<std::int64_t>(dt.number_of_vertices()) != n) throw ComplexError("alpha_complex: the points are not distinct");
+  detail::insert_indexed_points<3>(dt, points, "alpha_complex");
   if (dt.dimension() < 3) throw ComplexError("alpha_complex: the 3-D points are coplanar (dimension " + std::to_string(dt.dimension()) + "); pass them as 2-D");
   Shape as(dt, alpha2, Shape::GENERAL);
   for (auto c = as.finite_cells_begin(); c != as.finite_cells_end(); ++c)
