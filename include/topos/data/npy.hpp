@@ -78,7 +78,7 @@ inline NpyArray read_npy(const std::string& path) {
     if (descr.size() < 3 || (descr[0] != '<' && descr[0] != '|')) throw std::runtime_error(path + ": unsupported dtype '" + descr + "' (little-endian only)");
     a.dtype = descr.substr(1);
   }
-  if (header.find("'fortran_order': True") != std::string::npos) throw std::runtime_error(path + ": Fortran-order arrays are not supported");
+  const bool fortran = header.find("'fortran_order': True") != std::string::npos;
   {
     const auto p = header.find('(', value_of("shape")), q = header.find(')', p);
     std::string dims = header.substr(p + 1, q - p - 1);
@@ -95,24 +95,45 @@ inline NpyArray read_npy(const std::string& path) {
   a.bytes.resize(static_cast<std::size_t>(a.size()) * item);
   in.read(a.bytes.data(), static_cast<std::streamsize>(a.bytes.size()));
   if (!in) throw std::runtime_error(path + ": truncated data");
+  if (fortran && a.shape.size() > 1) {  // to C order: element (i0..ik) sits at Σ i_j · Π_{l<j} n_l
+    std::vector<char> c(a.bytes.size());
+    const std::size_t dims = a.shape.size();
+    std::vector<std::int64_t> idx(dims, 0);
+    for (std::int64_t k = 0; k < a.size(); ++k) {  // k: C-order position, idx its multi-index
+      std::int64_t f = 0, stride = 1;
+      for (std::size_t j = 0; j < dims; ++j) f += idx[j] * stride, stride *= a.shape[j];
+      std::memcpy(c.data() + static_cast<std::size_t>(k) * item, a.bytes.data() + static_cast<std::size_t>(f) * item, item);
+      for (std::size_t j = dims; j-- > 0;) {
+        if (++idx[j] < a.shape[j]) break;
+        idx[j] = 0;
+      }
+    }
+    a.bytes = std::move(c);
+  }
   return a;
 }
 
-/// Writes a float64 array (row-major data) atomically: a temporary file, then a rename.
-inline void write_npy(const std::string& path, const std::vector<std::int64_t>& shape, const double* data) {
+namespace detail {
+inline void write_npy_bytes(const std::string& path, const std::vector<std::int64_t>& shape, const char* descr, const void* data, std::size_t item) {
   std::string dims;
   std::int64_t n = 1;
   for (auto s : shape) dims += std::to_string(s) + ",", n *= s;
   if (shape.size() > 1) dims.pop_back();
-  std::string header = "{'descr': '<f8', 'fortran_order': False, 'shape': (" + dims + "), }";
+  std::string header = std::string("{'descr': '") + descr + "', 'fortran_order': False, 'shape': (" + dims + "), }";
   while ((10 + header.size() + 1) % 64 != 0) header += ' ';
   header += '\n';
   std::string bytes("\x93NUMPY\x01\x00", 8);
   const std::uint16_t len = static_cast<std::uint16_t>(header.size());
   bytes.append(reinterpret_cast<const char*>(&len), 2);
   bytes += header;
-  bytes.append(reinterpret_cast<const char*>(data), static_cast<std::size_t>(n * 8));
+  bytes.append(reinterpret_cast<const char*>(data), static_cast<std::size_t>(n) * item);
   write_file_atomic(path, bytes);
 }
+}  // namespace detail
+
+/// Writes a float64 array (row-major data) atomically: a temporary file, then a rename.
+inline void write_npy(const std::string& path, const std::vector<std::int64_t>& shape, const double* data) { detail::write_npy_bytes(path, shape, "<f8", data, 8); }
+/// Writes a float32 array (row-major data) atomically.
+inline void write_npy(const std::string& path, const std::vector<std::int64_t>& shape, const float* data) { detail::write_npy_bytes(path, shape, "<f4", data, 4); }
 
 }  // namespace topos::data

@@ -1,0 +1,233 @@
+// topos/models/zoo.hpp
+// The model zoo by TopoModelX class name: builds a model from its TopoModelX constructor
+// arguments (a JSON object, as in a golden case's "config"; an unknown or mistyped argument is
+// an error naming it) and runs it on TopoModelX's positional forward arguments (tensors,
+// operators, tuples/lists of them, None). Used by `tdl forward` / `tdl grad` and the parity tests.
+#pragma once
+
+#include "topos/models/cell/cwn.hpp"
+#include "topos/models/combinatorial/hmc.hpp"
+#include "topos/models/hypergraph/unigcnii.hpp"
+#include "topos/models/simplicial/san.hpp"
+#include "topos/models/simplicial/sccnn.hpp"
+#include "topos/models/simplicial/scn2.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <functional>
+#include <map>
+#include <memory>
+#include <set>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace topos::models {
+
+class ZooError : public std::invalid_argument {
+ public:
+  using std::invalid_argument::invalid_argument;
+};
+
+/// One positional forward argument: a feature tensor, an operator, None, or a tuple/list.
+struct ZooArg {
+  enum class Kind { none, tensor, op, list } kind = Kind::none;
+  std::string name;  ///< for errors
+  torch::Tensor tensor;
+  nn::SparseOperator op;
+  std::vector<ZooArg> items;
+
+  static ZooArg of(torch::Tensor t, std::string n) { ZooArg a; a.kind = Kind::tensor; a.tensor = std::move(t); a.name = std::move(n); return a; }
+  static ZooArg of(nn::SparseOperator o, std::string n) { ZooArg a; a.kind = Kind::op; a.op = std::move(o); a.name = std::move(n); return a; }
+  static ZooArg list(std::vector<ZooArg> v) { ZooArg a; a.kind = Kind::list; a.items = std::move(v); a.name = "(list)"; return a; }
+};
+
+/// A model and how to call it with TopoModelX's positional arguments.
+struct ZooModel {
+  std::string name;
+  std::shared_ptr<torch::nn::Module> module;
+  std::function<std::vector<torch::Tensor>(const std::vector<ZooArg>&)> forward;
+};
+
+namespace detail {
+
+/// Typed access to a constructor-argument object; finish() rejects arguments nobody read.
+class Config {
+ public:
+  Config(const nlohmann::json& j, std::string model) : j_(j), model_(std::move(model)) {
+    if (!j_.is_object()) throw ZooError(model_ + ": config must be a JSON object");
+  }
+  bool has(const std::string& k) const { return j_.contains(k) && !j_.at(k).is_null(); }
+  template <class T>
+  T get(const std::string& k, T fallback) {
+    used_.insert(k);
+    return has(k) ? as<T>(k) : fallback;
+  }
+  template <class T>
+  T need(const std::string& k) {
+    used_.insert(k);
+    if (!has(k)) throw ZooError(model_ + ": config lacks '" + k + "'");
+    return as<T>(k);
+  }
+  nn::Update update(const std::string& k, nn::Update fallback) {
+    used_.insert(k);
+    if (!has(k)) return fallback;
+    try {
+      return nn::update_from_string(as<std::string>(k));
+    } catch (const std::invalid_argument& e) {
+      throw ZooError(model_ + ": config '" + k + "': " + e.what());
+    }
+  }
+  void finish() const {
+    for (const auto& [k, v] : j_.items())
+      if (!used_.count(k)) throw ZooError(model_ + ": unknown config parameter '" + k + "'");
+  }
+
+ private:
+  template <class T>
+  T as(const std::string& k) const {
+    try {
+      return j_.at(k).get<T>();
+    } catch (const nlohmann::json::exception&) {
+      throw ZooError(model_ + ": config '" + k + "' has the wrong type (" + j_.at(k).dump() + ")");
+    }
+  }
+  const nlohmann::json& j_;
+  std::string model_;
+  std::set<std::string> used_;
+};
+
+/// Checks the argument count and kinds, then gives typed access.
+class Args {
+ public:
+  Args(const std::vector<ZooArg>& a, const std::string& model, std::size_t min, std::size_t max) : a_(a), model_(model) {
+    if (a.size() < min || a.size() > max)
+      throw ZooError(model + ": forward takes " + (min == max ? std::to_string(min) : std::to_string(min) + " to " + std::to_string(max)) + " arguments, got " + std::to_string(a.size()));
+  }
+  std::size_t size() const { return a_.size(); }
+  torch::Tensor tensor(std::size_t i) const { return tensor_of(at(i), i); }
+  const nn::SparseOperator& op(std::size_t i) const { return op_of(at(i), i); }
+  std::vector<torch::Tensor> tensors(std::size_t i) const {
+    std::vector<torch::Tensor> out;
+    for (const auto& x : list(i)) out.push_back(tensor_of(x, i));
+    return out;
+  }
+  std::vector<nn::SparseOperator> ops(std::size_t i) const {
+    std::vector<nn::SparseOperator> out;
+    for (const auto& x : list(i)) out.push_back(op_of(x, i));
+    return out;
+  }
+
+ private:
+  const ZooArg& at(std::size_t i) const { return a_.at(i); }
+  const std::vector<ZooArg>& list(std::size_t i) const {
+    if (at(i).kind != ZooArg::Kind::list) throw ZooError(model_ + ": forward argument " + std::to_string(i) + " must be a tuple or list");
+    return at(i).items;
+  }
+  torch::Tensor tensor_of(const ZooArg& x, std::size_t i) const {
+    if (x.kind != ZooArg::Kind::tensor) throw ZooError(model_ + ": forward argument " + std::to_string(i) + " ('" + x.name + "') must be a feature tensor");
+    return x.tensor;
+  }
+  const nn::SparseOperator& op_of(const ZooArg& x, std::size_t i) const {
+    if (x.kind != ZooArg::Kind::op) throw ZooError(model_ + ": forward argument " + std::to_string(i) + " ('" + x.name + "') must be an operator");
+    return x.op;
+  }
+  const std::vector<ZooArg>& a_;
+  std::string model_;
+};
+
+using Maker = std::function<ZooModel(Config&, bool compatible)>;
+
+template <class M>
+ZooModel wrap(const std::string& name, M m, std::function<std::vector<torch::Tensor>(M&, const Args&)> call, std::size_t min_args, std::size_t max_args) {
+  ZooModel z;
+  z.name = name;
+  z.module = m.ptr();
+  z.forward = [name, m, call, min_args, max_args](const std::vector<ZooArg>& a) mutable { return call(m, Args(a, name, min_args, max_args)); };
+  return z;
+}
+
+inline const std::map<std::string, Maker>& makers() {
+  static const std::map<std::string, Maker> m = {
+      {"SCN2", [](Config& c, bool) {
+         SCN2 net(SCN2Options(c.need<std::int64_t>("in_channels_0"), c.need<std::int64_t>("in_channels_1"), c.need<std::int64_t>("in_channels_2")).n_layers(c.get("n_layers", 2)));
+         return wrap<SCN2>("SCN2", net, [](SCN2& n, const Args& a) { return n->forward({a.tensor(0), a.tensor(1), a.tensor(2)}, {a.op(3), a.op(4), a.op(5)}); }, 6, 6);
+       }},
+      {"SCCNN", [](Config& c, bool) {
+         SCCNN net(SCCNNOptions(c.need<std::vector<std::int64_t>>("in_channels_all"), c.need<std::vector<std::int64_t>>("hidden_channels_all"), c.need<int>("conv_order"),
+                                c.need<int>("sc_order"))
+                       .aggr_norm(c.get("aggr_norm", false))
+                       .update_func(c.update("update_func", nn::Update::none))
+                       .n_layers(c.get("n_layers", 2)));
+         return wrap<SCCNN>("SCCNN", net, [](SCCNN& n, const Args& a) { return n->forward(a.tensors(0), a.ops(1), a.ops(2)); }, 3, 3);
+       }},
+      {"SAN", [](Config& c, bool) {
+         SAN net(SANOptions(c.need<std::int64_t>("in_channels"), c.need<std::int64_t>("hidden_channels"))
+                     .out_channels(c.get<std::int64_t>("out_channels", 0))
+                     .n_filters(c.get("n_filters", 2))
+                     .order_harmonic(c.get("order_harmonic", 5))
+                     .epsilon_harmonic(c.get("epsilon_harmonic", 0.1))
+                     .n_layers(c.get("n_layers", 2)));
+         return wrap<SAN>("SAN", net, [](SAN& n, const Args& a) { return std::vector<torch::Tensor>{n->forward(a.tensor(0), a.op(1), a.op(2))}; }, 3, 3);
+       }},
+      {"CWN", [](Config& c, bool) {
+         CWN net(CWNOptions(c.need<std::int64_t>("in_channels_0"), c.need<std::int64_t>("in_channels_1"), c.need<std::int64_t>("in_channels_2"), c.need<std::int64_t>("hid_channels"),
+                            c.need<int>("n_layers")));
+         return wrap<CWN>("CWN", net, [](CWN& n, const Args& a) { return n->forward({a.tensor(0), a.tensor(1), a.tensor(2)}, a.op(3), a.op(4), a.op(5)); }, 6, 6);
+       }},
+      {"UniGCNII", [](Config& c, bool compatible) {
+         UniGCNII net(UniGCNIIOptions(c.need<std::int64_t>("in_channels"), c.need<std::int64_t>("hidden_channels"))
+                          .n_layers(c.get("n_layers", 2))
+                          .alpha(c.get("alpha", 0.5))
+                          .beta(c.get("beta", 0.5))
+                          .input_drop(c.get("input_drop", 0.2))
+                          .layer_drop(c.get("layer_drop", 0.2))
+                          .use_norm(c.get("use_norm", false))
+                          .topomodelx_compatible(compatible));
+         return wrap<UniGCNII>("UniGCNII", net, [](UniGCNII& n, const Args& a) { return n->forward(a.tensor(0), a.op(1)); }, 2, 2);
+       }},
+      {"HMC", [](Config& c, bool) {
+         HMC net(HMCOptions(c.need<HMCChannels>("channels_per_layer"))
+                     .negative_slope(c.get("negative_slope", 0.2))
+                     .update_func_attention(c.update("update_func_attention", nn::Update::relu))
+                     .update_func_aggregation(c.update("update_func_aggregation", nn::Update::relu)));
+         return wrap<HMC>("HMC", net, [](HMC& n, const Args& a) { return n->forward({a.tensor(0), a.tensor(1), a.tensor(2)}, a.op(3), a.op(4), a.op(5), a.op(6), a.op(7)); }, 8, 8);
+       }},
+  };
+  return m;
+}
+
+}  // namespace detail
+
+/// TopoModelX class names the zoo builds.
+inline std::vector<std::string> zoo_model_names() {
+  std::vector<std::string> out;
+  for (const auto& [k, v] : detail::makers()) out.push_back(k);
+  return out;
+}
+
+/// Builds `model` (a TopoModelX class name) from its constructor arguments. With
+/// `topomodelx_compatible`, the model reproduces TopoModelX's numbers where they differ from the
+/// paper's definition (docs/models.md lists where).
+inline ZooModel make_zoo_model(const std::string& model, const nlohmann::json& config, bool topomodelx_compatible = true) {
+  const auto& m = detail::makers();
+  auto it = m.find(model);
+  if (it == m.end()) {
+    std::string known;
+    for (const auto& [k, v] : m) known += (known.empty() ? "" : ", ") + k;
+    throw ZooError("unknown model '" + model + "' (known: " + known + ")");
+  }
+  detail::Config c(config, model);
+  ZooModel z;
+  try {
+    z = it->second(c, topomodelx_compatible);
+  } catch (const ZooError&) {
+    throw;
+  } catch (const std::exception& e) {
+    throw ZooError(model + ": " + e.what());
+  }
+  c.finish();
+  return z;
+}
+
+}  // namespace topos::models
