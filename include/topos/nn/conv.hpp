@@ -101,10 +101,10 @@ inline torch::Tensor attention_weights(const SparseOperator& A, const torch::Ten
 
 /// Glorot initialisation with TopoModelX's gain for a weight of any rank (fan_in = size(1)·rest,
 /// fan_out = size(0)·rest, as torch.nn.init computes them).
-inline void xavier_uniform(torch::Tensor& w, double gain = 1.414) {
+inline void xavier_uniform(const torch::Tensor& w, double gain = 1.414) {
   torch::NoGradGuard g;
-  if (w.dim() < 2) w = w.view({-1, 1});
-  torch::nn::init::xavier_uniform_(w, gain);
+  auto v = w.dim() < 2 ? w.view({-1, 1}) : w;  // a vector as a column, like TopoModelX's view(-1, 1)
+  torch::nn::init::xavier_uniform_(v, gain);
 }
 
 struct ConvOptions {
@@ -130,11 +130,7 @@ class ConvImpl : public torch::nn::Module {
   }
   void reset_parameters() {
     if (weight.defined()) xavier_uniform(weight);
-    if (att_weight.defined()) {
-      torch::NoGradGuard g;
-      auto v = att_weight.view({-1, 1});
-      torch::nn::init::xavier_uniform_(v, 1.414);
-    }
+    if (att_weight.defined()) xavier_uniform(att_weight);
   }
   torch::Tensor forward(const torch::Tensor& x_source, const SparseOperator& A, const torch::Tensor& x_target = {}) {
     if (x_source.size(1) != options.in_channels())
