@@ -68,20 +68,20 @@ struct ZooCase {
 };
 
 namespace detail {
-inline ZooArg case_argument(const nlohmann::json& e, const std::filesystem::path& dir, const std::map<std::string, nn::SparseOperator>& ops) {
+inline ZooArg case_argument(const nlohmann::json& e, const std::filesystem::path& dir, const std::map<std::string, nn::SparseOperator>& ops, torch::Dtype dtype) {
   if (e.is_null()) return ZooArg{};
   if (!e.is_object()) throw ZooError("case.json: a forward entry must be an object or null, got " + e.dump());
   for (const char* k : {"tuple", "list"}) {
     if (e.contains(k)) {
       std::vector<ZooArg> items;
-      for (const auto& x : e.at(k)) items.push_back(case_argument(x, dir, ops));
+      for (const auto& x : e.at(k)) items.push_back(case_argument(x, dir, ops, dtype));
       return ZooArg::list(std::move(items));
     }
   }
   if (e.contains("dict")) throw ZooError("case.json: dict arguments are not supported by the models built so far");
   const auto name = e.value("name", std::string());
   const auto from = e.value("from", std::string());
-  if (from == "inputs") return ZooArg::of(read_npy_tensor(dir / "inputs" / (name + ".npy")), name);
+  if (from == "inputs") return ZooArg::of(read_npy_tensor(dir / "inputs" / (name + ".npy")).to(dtype), name);
   if (from == "operators") {
     auto it = ops.find(name);
     if (it == ops.end()) throw ZooError("case.json: operator '" + name + "' is not among the operators built from complex.json");
@@ -91,17 +91,21 @@ inline ZooArg case_argument(const nlohmann::json& e, const std::filesystem::path
 }
 }  // namespace detail
 
-/// Reads case.json, builds the model and loads its weights (eval mode), and the arguments.
-inline ZooCase load_case(const std::filesystem::path& dir, const std::map<std::string, nn::SparseOperator>& operators, bool topomodelx_compatible = true) {
+/// Reads case.json, builds the model and loads its weights (eval mode), and the arguments, in
+/// `dtype` (float64 by default: TopoModelX's float32 results carry rounding that cancellation in
+/// deep polynomial filters amplifies; computing in double keeps ours to the exact value's side).
+inline ZooCase load_case(const std::filesystem::path& dir, const std::map<std::string, nn::SparseOperator>& operators, bool topomodelx_compatible = true,
+                         torch::Dtype dtype = torch::kDouble) {
   ZooCase c;
   c.dir = dir;
   c.spec = data::read_json_file(dir / "case.json");
   if (!c.spec.contains("model") || !c.spec.at("model").is_string()) throw ZooError((dir / "case.json").string() + ": no model (an operator-only case?)");
   c.model = make_zoo_model(c.spec.at("model").get<std::string>(), c.spec.value("config", nlohmann::json::object()), topomodelx_compatible);
   load_state_dict(*c.model.module, dir / "state_dict");
+  c.model.module->to(dtype);
   c.model.module->eval();
   if (c.spec.contains("kwargs") && !c.spec.at("kwargs").empty()) throw ZooError(c.model.name + ": forward keyword arguments are not supported (" + c.spec.at("kwargs").dump() + ")");
-  for (const auto& e : c.spec.at("forward")) c.args.push_back(detail::case_argument(e, dir, operators));
+  for (const auto& e : c.spec.at("forward")) c.args.push_back(detail::case_argument(e, dir, operators, dtype));
   c.outputs = c.spec.at("outputs").get<std::vector<std::string>>();
   return c;
 }
@@ -122,11 +126,11 @@ inline std::map<std::string, torch::Tensor> case_gradients(ZooCase& c) {
   auto& m = *c.model.module;
   for (auto& p : m.parameters()) p.mutable_grad() = torch::Tensor();
   const auto out = run_case(c);
-  torch::Tensor loss = torch::zeros({});
+  torch::Tensor loss = torch::zeros({}, torch::kDouble);
   for (const auto& [name, y] : out) {
     const auto R = read_npy_tensor(c.dir / "grads" / ("_R_" + name + ".npy"));
     if (R.sizes() != y.sizes()) throw ZooError("grads/_R_" + name + ".npy: shape differs from the output's");
-    loss = loss + (y * R).sum();
+    loss = loss + (y * R.to(y.scalar_type())).sum();
   }
   loss.backward();
   std::map<std::string, torch::Tensor> g;
