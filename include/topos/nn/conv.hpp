@@ -65,6 +65,19 @@ inline torch::Tensor divide_by_row_sums(const SparseOperator& A, const torch::Te
   return x * inv.unsqueeze(1);
 }
 
+/// Messages along A's pattern only (its values ignored, as torch_scatter over a matrix's indices):
+/// each target row gets the sum, or the mean, of its sources' rows; a target without sources gets
+/// zeros (the count is clamped at 1, as scatter_mean does). A two-stage hypergraph message is
+/// pattern_aggregate(B, pattern_aggregate(Bᵀ, x_0)) with B the node × hyperedge incidence.
+inline torch::Tensor pattern_aggregate(const SparseOperator& A, const torch::Tensor& x, Aggr aggr = Aggr::sum) {
+  auto y = spmm(A.pattern().to(x.scalar_type()), x);
+  if (aggr == Aggr::mean) {
+    const auto count = torch::diff(A.crow).to(x.scalar_type()).clamp_min(1).to(x.device());
+    y = y / count.unsqueeze(1);
+  }
+  return y;
+}
+
 /// Polynomial filter terms A x, A² x, ..., A^K x. With `row_norm`, each term is divided by A's
 /// row sums (from power `norm_from` on: SCCNN normalises every power, SCNN skips the first).
 inline std::vector<torch::Tensor> powers(const SparseOperator& A, torch::Tensor x, int K, bool row_norm = false, int norm_from = 1) {
