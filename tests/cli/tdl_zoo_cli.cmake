@@ -1,6 +1,7 @@
-# tdl forward / grad on bad input (clear message, non-zero exit) and, with the reference data
+# tdl forward / grad / train on bad input (clear message, non-zero exit) and, with the reference data
 # (TOPOS_REFERENCE_DIR set), on a golden case: every output case.json names is written, and grad
-# writes one file per parameter. Arguments: -DTDL=<exe> -DWORK=<dir>.
+# writes one file per parameter; tdl train on the karate club beats chance by far.
+# Arguments: -DTDL=<exe> -DWORK=<dir>.
 file(REMOVE_RECURSE ${WORK})
 file(MAKE_DIRECTORY ${WORK})
 
@@ -29,6 +30,31 @@ expect_failure("unknown config parameter" "unknown config parameter 'width'" for
 file(WRITE ${WORK}/bad/case.json "{\"model\": \"SCN2\", \"config\": {\"in_channels_0\": 2, \"in_channels_1\": 2, \"in_channels_2\": 2}, \"forward\": [], \"outputs\": []}")
 expect_failure("missing weights" "missing tensor 'layers.0.conv_0_to_0.weight'" forward --case ${WORK}/bad --out ${WORK}/o)
 expect_failure("grad without grads/" "no grads/ folder" grad --case ${WORK}/bad --out ${WORK}/o)
+
+# tdl train: the karate club (shipped data) with every model; each must beat chance (0.5) by far
+# on the held-out members. A damaged data file is an error naming the line.
+execute_process(COMMAND ${TDL} train --out ${WORK}/train --epochs 100 RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+if(NOT rc EQUAL 0)
+  message(FATAL_ERROR "tdl train failed:\n${out}${err}")
+endif()
+foreach(f accuracy.csv accuracy.svg summary.json)
+  if(NOT EXISTS ${WORK}/train/${f})
+    message(FATAL_ERROR "tdl train did not write ${f}")
+  endif()
+endforeach()
+file(READ ${WORK}/train/summary.json summary)
+foreach(model scn2 sccnn unigcnii)
+  string(JSON acc GET "${summary}" models ${model} test_accuracy)
+  if(acc LESS 0.75)
+    message(FATAL_ERROR "tdl train: ${model} reaches only ${acc} test accuracy (chance is 0.5)\n${summary}")
+  endif()
+  message(STATUS "ok: tdl train ${model}: test accuracy ${acc}")
+endforeach()
+file(WRITE ${WORK}/bad_graph.txt "node 0 0\nnode 1 1\nedge 0 7\n")
+expect_failure("train on a bad graph" "edge (0, 7) names an unlisted node" train --data ${WORK}/bad_graph.txt --out ${WORK}/o)
+file(WRITE ${WORK}/bad_graph.txt "node 0 0\nvertex 1 1\n")
+expect_failure("train on a bad line" "bad_graph.txt:2: unknown line kind 'vertex'" train --data ${WORK}/bad_graph.txt --out ${WORK}/o)
+expect_failure("train an unknown model" "unknown model 'gcn'" train --models gcn --out ${WORK}/o)
 
 set(REFERENCE "$ENV{TOPOS_REFERENCE_DIR}")
 if(REFERENCE STREQUAL "")

@@ -3,15 +3,18 @@
 // case.json's "model" and "config", its weights from state_dict/ (or a torch .pt state_dict),
 // the positional arguments from case.json's "forward" list (inputs/ tensors, operators by name,
 // tuples/lists, None), in eval mode; and the parameter gradients of Σ_outputs Σ(out · R).
-// The operators are passed in (built from complex.json by the caller), never read from the case.
+// The operators are built from complex.json + operators.json (case_operators), never read from
+// the case's operators/ folder.
 #pragma once
 
 #include "topos/data/json.hpp"
 #include "topos/data/npy.hpp"
+#include "topos/data/tdl_case.hpp"
 #include "topos/models/zoo.hpp"
 #include "topos/nn/serialization.hpp"
 
 #include <filesystem>
+#include <functional>
 #include <map>
 #include <string>
 #include <vector>
@@ -94,7 +97,10 @@ inline ZooArg case_argument(const nlohmann::json& e, const std::filesystem::path
 /// Reads case.json, builds the model and loads its weights (eval mode), and the arguments, in
 /// `dtype` (float64 by default: TopoModelX's float32 results carry rounding that cancellation in
 /// deep polynomial filters amplifies; computing in double keeps ours to the exact value's side).
-inline ZooCase load_case(const std::filesystem::path& dir, const std::map<std::string, nn::SparseOperator>& operators, bool topomodelx_compatible = true,
+/// `operators` is called once the model and its weights are in place, so a bad model or config
+/// is reported before the complex is read.
+using OperatorSource = std::function<std::map<std::string, nn::SparseOperator>()>;
+inline ZooCase load_case(const std::filesystem::path& dir, const OperatorSource& operator_source, bool topomodelx_compatible = true,
                          torch::Dtype dtype = torch::kDouble) {
   ZooCase c;
   c.dir = dir;
@@ -105,9 +111,14 @@ inline ZooCase load_case(const std::filesystem::path& dir, const std::map<std::s
   c.model.module->to(dtype);
   c.model.module->eval();
   if (c.spec.contains("kwargs") && !c.spec.at("kwargs").empty()) throw ZooError(c.model.name + ": forward keyword arguments are not supported (" + c.spec.at("kwargs").dump() + ")");
+  const auto operators = operator_source();
   for (const auto& e : c.spec.at("forward")) c.args.push_back(detail::case_argument(e, dir, operators, dtype));
   c.outputs = c.spec.at("outputs").get<std::vector<std::string>>();
   return c;
+}
+inline ZooCase load_case(const std::filesystem::path& dir, const std::map<std::string, nn::SparseOperator>& operators, bool topomodelx_compatible = true,
+                         torch::Dtype dtype = torch::kDouble) {
+  return load_case(dir, OperatorSource([&operators] { return operators; }), topomodelx_compatible, dtype);
 }
 
 /// Runs the case's forward; outputs by name (as many as case.json lists).
@@ -138,13 +149,12 @@ inline std::map<std::string, torch::Tensor> case_gradients(ZooCase& c) {
   return g;
 }
 
-/// DEVELOPMENT ONLY: the operators a golden case ships (DIR/operators/*.npy), until the
-/// complex-to-operator builder (topos/data/tdl_case.hpp) is merged; then replaced by it.
-inline std::map<std::string, nn::SparseOperator> shipped_operators(const std::filesystem::path& dir) {
-  std::map<std::string, nn::SparseOperator> ops;
-  for (const auto& f : std::filesystem::directory_iterator(dir / "operators"))
-    if (f.path().extension() == ".npy") ops.emplace(f.path().stem().string(), nn::SparseOperator::from_dense(read_npy_tensor(f.path())));
-  return ops;
+/// The operators of a case, computed from DIR/complex.json and DIR/operators.json (never from
+/// the shipped DIR/operators/), as float32 operators with exactly their nonzero entries.
+inline std::map<std::string, nn::SparseOperator> case_operators(const std::filesystem::path& dir) {
+  std::map<std::string, nn::SparseOperator> out;
+  for (const auto& [name, m] : tdl::compute_operators(dir).by_name) out.emplace(name, nn::SparseOperator::from_eigen(m));
+  return out;
 }
 
 }  // namespace topos::models

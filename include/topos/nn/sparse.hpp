@@ -59,6 +59,16 @@ struct SparseOperator {
     return from_sorted(rows, cols, rr, cc, torch::tensor(vv, torch::kDouble).to(dtype));
   }
 
+  /// The nonzero entries of an Eigen sparse matrix (the operators of topos/core, any storage order).
+  template <class EigenSparse>
+  static SparseOperator from_eigen(const EigenSparse& m, torch::Dtype dtype = torch::kFloat) {
+    std::vector<std::int64_t> r, c;
+    std::vector<double> v;
+    for (std::int64_t k = 0; k < static_cast<std::int64_t>(m.outerSize()); ++k)
+      for (typename EigenSparse::InnerIterator it(m, k); it; ++it) r.push_back(it.row()), c.push_back(it.col()), v.push_back(static_cast<double>(it.value()));
+    return from_triplets(m.rows(), m.cols(), r, c, v, dtype);
+  }
+
   /// The nonzero entries of a dense 2-d tensor.
   static SparseOperator from_dense(const torch::Tensor& dense) {
     if (dense.dim() != 2) throw std::invalid_argument("SparseOperator: a dense operator must be 2-d");

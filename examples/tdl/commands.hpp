@@ -1,0 +1,27 @@
+// examples/tdl/commands.hpp
+// The tdl program's subcommands. Each lives in its own translation unit and registers itself
+// on the CLI11 app with one function; main.cpp calls them, one line per subcommand, and runs
+// the callback the parsed subcommand set.
+#pragma once
+
+#include <CLI/CLI.hpp>
+
+#include <functional>
+
+namespace tdl_cli {
+
+/// What a subcommand runs after parsing; returns the exit status.
+using Run = std::function<int()>;
+
+/// tdl operators --case DIR --out OUTDIR: every operator of DIR/operators.json as OUTDIR/<name>.npy.
+void register_operators(CLI::App& app, Run& run);
+
+// The model-zoo subcommands (built with LibTorch, TOPOS_TDL_WITH_ZOO; zoo_commands.hpp):
+/// tdl forward --case DIR --out OUTDIR: a golden case's model outputs as OUTDIR/<output>.npy.
+void register_forward(CLI::App& app, Run& run);
+/// tdl grad --case DIR --out OUTDIR: the parameter gradients of Σ(out · R) as OUTDIR/<param>.npy.
+void register_grad(CLI::App& app, Run& run);
+/// tdl train --out OUTDIR: node classification on Zachary's karate club.
+void register_train(CLI::App& app, Run& run);
+
+}  // namespace tdl_cli
