@@ -1,19 +1,16 @@
-// The model-zoo subcommands of the tdl program (forward, grad) and how they get a case's operators.
+// examples/tdl/zoo_commands.hpp
+// What the tdl program's model-zoo subcommands (forward, grad) share: the case options and
+// opening a case (model, weights, operators built from complex.json). LibTorch; included only by
+// their translation units, never by main.cpp or operators.cpp.
 #pragma once
 
+#include "commands.hpp"
 #include "topos/models/zoo_case.hpp"
 
-#include <CLI/CLI.hpp>
-
 #include <filesystem>
-#include <map>
 #include <string>
 
-namespace tdl_program {
-
-/// The operators of a case, built from its complex. DEVELOPMENT BRIDGE: until the domains'
-/// builder is merged this reads the case's shipped operators; it is the only place that does.
-inline std::map<std::string, topos::nn::SparseOperator> case_operators(const std::filesystem::path& dir) { return topos::models::shipped_operators(dir); }
+namespace tdl_cli {
 
 /// Options shared by forward and grad.
 struct CaseOptions {
@@ -22,7 +19,7 @@ struct CaseOptions {
 };
 
 inline void add_case_options(CLI::App* cmd, CaseOptions& o) {
-  cmd->add_option("--case", o.case_dir, "golden case folder (case.json, complex.json, inputs/, state_dict/)")->required();
+  cmd->add_option("--case", o.case_dir, "golden case folder (case.json, complex.json, operators.json, inputs/, state_dict/)")->required();
   cmd->add_option("--out", o.out_dir, "output folder")->required();
   cmd->add_option("--state-dict", o.state_dict, "load the weights from this torch .pt state_dict instead of the case's state_dict/");
   cmd->add_flag("--intended", o.intended, "the papers' behaviour where TopoModelX differs (docs/models.md), not TopoModelX's numbers");
@@ -31,13 +28,10 @@ inline void add_case_options(CLI::App* cmd, CaseOptions& o) {
 inline topos::models::ZooCase open_case(const CaseOptions& o) {
   const std::filesystem::path dir(o.case_dir);
   if (!std::filesystem::is_directory(dir)) throw topos::data::DataError(o.case_dir + ": not a folder");
-  auto c = topos::models::load_case(dir, case_operators(dir), !o.intended);
+  auto c = topos::models::load_case(dir, topos::models::case_operators(dir), !o.intended);
   if (!o.state_dict.empty()) topos::models::load_state_dict(*c.model.module, o.state_dict);
   std::filesystem::create_directories(o.out_dir);
   return c;
 }
 
-void add_forward_command(CLI::App& app);
-void add_grad_command(CLI::App& app);
-
-}  // namespace tdl_program
+}  // namespace tdl_cli

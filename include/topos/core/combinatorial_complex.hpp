@@ -6,6 +6,8 @@
 // Std + Eigen only.
 #pragma once
 
+#include "topos/core/sparse.hpp"
+
 #include <Eigen/SparseCore>
 
 #include <algorithm>
@@ -20,13 +22,6 @@
 #include <vector>
 
 namespace topos {
-
-/// Thrown for every misuse of a complex: bad node ids, empty or repeated cells, rank-condition
-/// violations, operators asked between ranks the complex does not have.
-class ComplexError : public std::invalid_argument {
- public:
-  using std::invalid_argument::invalid_argument;
-};
 
 /// Options of a CombinatorialComplex (GUDHI style): index and scalar types, and whether the
 /// rank condition is checked on every insertion.
@@ -265,6 +260,10 @@ class CombinatorialComplex {
     if (r < 0 || r > max_rank()) return 0;
     return static_cast<Index>(ranks_[static_cast<std::size_t>(r)].offsets.size()) - 1;
   }
+  /// Number of cells of rank r (the domain concept's name for size()).
+  Index num_cells(int r) const { return size(r); }
+  /// Highest rank (the domain concept's name for max_rank()); -1 when empty.
+  int dim() const { return max_rank(); }
   /// Cell counts of ranks 0..max_rank(), as TopoNetX's `shape`.
   std::vector<Index> shape() const {
     std::vector<Index> s;

@@ -37,4 +37,15 @@ inline nlohmann::json parse_json(const std::string& text, const std::string& sou
 
 inline nlohmann::json read_json_file(const std::filesystem::path& path) { return parse_json(read_text_file(path), path.string()); }
 
+/// As read_json_file, keeping objects' keys in file order (where the order means something,
+/// e.g. operators listed in creation order).
+inline nlohmann::ordered_json read_ordered_json_file(const std::filesystem::path& path) {
+  const std::string text = read_text_file(path);
+  try {
+    return nlohmann::ordered_json::parse(text);
+  } catch (const nlohmann::json::exception& e) {
+    throw DataError(path.string() + ": malformed JSON: " + e.what());
+  }
+}
+
 }  // namespace topos::data

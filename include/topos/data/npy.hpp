@@ -1,5 +1,5 @@
 // topos/data/npy.hpp
-// NumPy .npy arrays (format 1.0-3.0, little-endian, C order): read into a typed buffer and
+// NumPy .npy arrays (format 1.0-3.0, little-endian; C or Fortran order, read into C order): read into a typed buffer and
 // write atomically. Used for the reference's golden arrays and for exporting results that
 // NumPy opens with np.load. std only.
 #pragma once
@@ -95,20 +95,21 @@ inline NpyArray read_npy(const std::string& path) {
   a.bytes.resize(static_cast<std::size_t>(a.size()) * item);
   in.read(a.bytes.data(), static_cast<std::streamsize>(a.bytes.size()));
   if (!in) throw std::runtime_error(path + ": truncated data");
-  if (fortran && a.shape.size() > 1) {  // to C order: element (i0..ik) sits at Σ i_j · Π_{l<j} n_l
-    std::vector<char> c(a.bytes.size());
-    const std::size_t dims = a.shape.size();
-    std::vector<std::int64_t> idx(dims, 0);
-    for (std::int64_t k = 0; k < a.size(); ++k) {  // k: C-order position, idx its multi-index
+  if (fortran && a.shape.size() > 1) {
+    // NumPy saves a transposed (F-contiguous) array in Fortran order: reorder into C order.
+    const std::size_t nd = a.shape.size(), n = static_cast<std::size_t>(a.size());
+    std::vector<char> c_order(a.bytes.size());
+    std::vector<std::int64_t> idx(nd, 0);
+    for (std::size_t k = 0; k < n; ++k) {  // k: C-order position; idx: its multi-index
       std::int64_t f = 0, stride = 1;
-      for (std::size_t j = 0; j < dims; ++j) f += idx[j] * stride, stride *= a.shape[j];
-      std::memcpy(c.data() + static_cast<std::size_t>(k) * item, a.bytes.data() + static_cast<std::size_t>(f) * item, item);
-      for (std::size_t j = dims; j-- > 0;) {
-        if (++idx[j] < a.shape[j]) break;
-        idx[j] = 0;
+      for (std::size_t d = 0; d < nd; ++d) f += idx[d] * stride, stride *= a.shape[d];
+      std::memcpy(c_order.data() + k * item, a.bytes.data() + static_cast<std::size_t>(f) * item, item);
+      for (std::size_t d = nd; d-- > 0;) {
+        if (++idx[d] < a.shape[d]) break;
+        idx[d] = 0;
       }
     }
-    a.bytes = std::move(c);
+    a.bytes.swap(c_order);
   }
   return a;
 }
@@ -132,8 +133,12 @@ inline void write_npy_bytes(const std::string& path, const std::vector<std::int6
 }  // namespace detail
 
 /// Writes a float64 array (row-major data) atomically: a temporary file, then a rename.
-inline void write_npy(const std::string& path, const std::vector<std::int64_t>& shape, const double* data) { detail::write_npy_bytes(path, shape, "<f8", data, 8); }
+inline void write_npy(const std::string& path, const std::vector<std::int64_t>& shape, const double* data) {
+  detail::write_npy_bytes(path, shape, "<f8", data, 8);
+}
 /// Writes a float32 array (row-major data) atomically.
-inline void write_npy(const std::string& path, const std::vector<std::int64_t>& shape, const float* data) { detail::write_npy_bytes(path, shape, "<f4", data, 4); }
+inline void write_npy(const std::string& path, const std::vector<std::int64_t>& shape, const float* data) {
+  detail::write_npy_bytes(path, shape, "<f4", data, 4);
+}
 
 }  // namespace topos::data

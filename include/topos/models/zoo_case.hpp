@@ -3,11 +3,13 @@
 // case.json's "model" and "config", its weights from state_dict/ (or a torch .pt state_dict),
 // the positional arguments from case.json's "forward" list (inputs/ tensors, operators by name,
 // tuples/lists, None), in eval mode; and the parameter gradients of Σ_outputs Σ(out · R).
-// The operators are passed in (built from complex.json by the caller), never read from the case.
+// The operators are built from complex.json and operators.json (case_operators), never read
+// from the case's operators/ folder.
 #pragma once
 
 #include "topos/data/json.hpp"
 #include "topos/data/npy.hpp"
+#include "topos/data/tdl_case.hpp"
 #include "topos/models/zoo.hpp"
 #include "topos/nn/serialization.hpp"
 
@@ -138,12 +140,13 @@ inline std::map<std::string, torch::Tensor> case_gradients(ZooCase& c) {
   return g;
 }
 
-/// DEVELOPMENT ONLY: the operators a golden case ships (DIR/operators/*.npy), until the
-/// complex-to-operator builder (topos/data/tdl_case.hpp) is merged; then replaced by it.
-inline std::map<std::string, nn::SparseOperator> shipped_operators(const std::filesystem::path& dir) {
+/// The operators of a case, built from DIR/complex.json and DIR/operators.json's op/args
+/// (topos/data/tdl_case.hpp; never DIR/operators/), as float32 like the tensors TopoModelX got
+/// (its operators were saved as float32 and passed as their nonzero entries).
+inline std::map<std::string, nn::SparseOperator> case_operators(const std::filesystem::path& dir) {
+  const tdl::Operators built = tdl::compute_operators(dir);
   std::map<std::string, nn::SparseOperator> ops;
-  for (const auto& f : std::filesystem::directory_iterator(dir / "operators"))
-    if (f.path().extension() == ".npy") ops.emplace(f.path().stem().string(), nn::SparseOperator::from_dense(read_npy_tensor(f.path())));
+  for (const auto& [name, m] : built.by_name) ops.emplace(name, nn::SparseOperator::from_eigen(m, torch::kFloat));
   return ops;
 }
 

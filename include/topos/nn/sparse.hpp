@@ -59,6 +59,20 @@ struct SparseOperator {
     return from_sorted(rows, cols, rr, cc, torch::tensor(vv, torch::kDouble).to(dtype));
   }
 
+  /// From an Eigen sparse matrix (core's operators, topos/data/tdl_case.hpp's compute_operators),
+  /// its values rounded to `dtype` and entries that are zero there dropped, as from_triplets.
+  /// A template so this header needs no Eigen include.
+  template <class EigenSparse>
+  static SparseOperator from_eigen(const EigenSparse& m, torch::Dtype dtype = torch::kFloat) {
+    std::vector<std::int64_t> r, c;
+    std::vector<double> v;
+    r.reserve(static_cast<std::size_t>(m.nonZeros())), c.reserve(r.capacity()), v.reserve(r.capacity());
+    for (std::int64_t o = 0; o < static_cast<std::int64_t>(m.outerSize()); ++o)
+      for (typename EigenSparse::InnerIterator it(m, o); it; ++it)
+        r.push_back(static_cast<std::int64_t>(it.row())), c.push_back(static_cast<std::int64_t>(it.col())), v.push_back(static_cast<double>(it.value()));
+    return from_triplets(static_cast<std::int64_t>(m.rows()), static_cast<std::int64_t>(m.cols()), r, c, v, dtype);
+  }
+
   /// The nonzero entries of a dense 2-d tensor.
   static SparseOperator from_dense(const torch::Tensor& dense) {
     if (dense.dim() != 2) throw std::invalid_argument("SparseOperator: a dense operator must be 2-d");

@@ -1,0 +1,222 @@
+// hopnet evaluate: roll out every scene of a split; the paper's table beside a constant-velocity baseline.
+#include "commands.hpp"
+#include "viewer.hpp"
+
+#include <atomic>
+#include <map>
+#include <mutex>
+#include <optional>
+#include <thread>
+
+namespace hopnet_cli {
+namespace {
+
+// ---- evaluate ---------------------------------------------------------------------------------
+struct EvaluateArgs {
+  std::string checkpoint, stats, data, assets, split = "test", split_file, mode = "reference", out;
+  int steps = 102, viewer_scenes = 6, jobs = 0;
+};
+
+// Constant velocity: positions and rotations keep their last per-frame change.
+std::vector<Poses> constant_velocity(const Scene& s, int frames) {
+  std::vector<Poses> p;
+  for (int t = 0; t < 4; ++t) p.push_back(scene_poses(s, t));
+  while (static_cast<int>(p.size()) < frames) {
+    const auto& a = p[p.size() - 2];
+    const auto& b = p.back();
+    Poses n = b;
+    for (Eigen::Index o = 0; o < n.positions.rows(); ++o) {
+      n.positions.row(o) = 2 * b.positions.row(o) - a.positions.row(o);
+      const Eigen::Quaterniond qa(a.quaternions(o, 0), a.quaternions(o, 1), a.quaternions(o, 2), a.quaternions(o, 3));
+      const Eigen::Quaterniond qb(b.quaternions(o, 0), b.quaternions(o, 1), b.quaternions(o, 2), b.quaternions(o, 3));
+      const Eigen::Quaterniond qn = (qb * qa.inverse() * qb).normalized();
+      n.quaternions.row(o) << qn.w(), qn.x(), qn.y(), qn.z();
+    }
+    p.push_back(n);
+  }
+  return p;
+}
+
+std::string svg_plot(const std::vector<std::pair<std::string, std::vector<double>>>& series, const std::string& ylabel) {
+  const double W = 640, H = 360, L = 60, B = 40;
+  double ymax = 1e-12;
+  std::size_t n = 0;
+  for (const auto& [name, v] : series) {
+    n = std::max(n, v.size());
+    for (double y : v) if (std::isfinite(y)) ymax = std::max(ymax, y);
+  }
+  std::ostringstream o;
+  o << "<svg xmlns='http://www.w3.org/2000/svg' width='" << W << "' height='" << H << "' font-family='sans-serif' font-size='12'>\n";
+  o << "<rect width='100%' height='100%' fill='white'/>\n<line x1='" << L << "' y1='" << H - B << "' x2='" << W - 10 << "' y2='" << H - B << "' stroke='black'/>\n";
+  o << "<line x1='" << L << "' y1='10' x2='" << L << "' y2='" << H - B << "' stroke='black'/>\n";
+  o << "<text x='" << W / 2 << "' y='" << H - 8 << "' text-anchor='middle'>frame</text>\n<text x='12' y='" << H / 2 << "' transform='rotate(-90 12 " << H / 2 << ")' text-anchor='middle'>" << ylabel << "</text>\n";
+  o << "<text x='" << L - 4 << "' y='14' text-anchor='end'>" << ymax << "</text><text x='" << L - 4 << "' y='" << H - B << "' text-anchor='end'>0</text><text x='" << W - 10 << "' y='" << H - B + 14 << "' text-anchor='end'>" << n - 1 << "</text>\n";
+  const char* colors[] = {"#1f77b4", "#d62728", "#2ca02c", "#9467bd"};
+  int k = 0;
+  for (const auto& [name, v] : series) {
+    o << "<polyline fill='none' stroke='" << colors[k % 4] << "' stroke-width='2' points='";
+    for (std::size_t i = 0; i < v.size(); ++i)
+      if (std::isfinite(v[i])) o << L + (W - 10 - L) * static_cast<double>(i) / static_cast<double>(std::max<std::size_t>(n - 1, 1)) << "," << (H - B) - (H - B - 10) * v[i] / ymax << " ";
+    o << "'/>\n<text x='" << L + 10 << "' y='" << 24 + 16 * k << "' fill='" << colors[k % 4] << "'>" << name << "</text>\n";
+    ++k;
+  }
+  o << "</svg>\n";
+  return o.str();
+}
+
+int run_evaluate(const EvaluateArgs& a) {
+  namespace fs = std::filesystem;
+  const FeatureMode mode = feature_mode_from_string(a.mode);
+  const auto checkpoint = nn::read_tensor_dict(a.checkpoint);  // read once; one model per thread below
+  load_hopnet(checkpoint, a.checkpoint, mode);                 // fails early on a bad checkpoint
+  const Normalizer norm(read_stats_json(a.stats));
+  const auto dataset = data::Dataset::open(a.data);
+  const auto& ids = dataset.ids();
+  const auto chosen = data::split_part(a.split_file.empty() ? data::reference_split(ids) : data::read_split_json(a.split_file), a.split, ids);
+  if (chosen.empty()) throw data::DataError(a.data + ": the " + a.split + " split is empty");
+  fs::create_directories(a.out);
+  const std::vector<int> horizons{25, 50, 75, 100};
+  std::map<std::string, std::map<int, std::vector<double>>> per;  // "model.pos_rmse" -> frame -> values
+  // Mean error per frame over scenes, per metric and model (for the plots).
+  std::map<std::string, std::map<std::string, std::pair<std::vector<double>, std::vector<int>>>> curves;
+  ProgressBar bar("evaluate", static_cast<std::int64_t>(chosen.size()), "scenes");
+  double seconds = 0;
+  // Scenes are rolled out by `jobs` threads, each with its own model (one intra-op thread each).
+  struct Result {
+    std::optional<Scene> scene;  // kept for the viewer
+    std::vector<Poses> poses;
+    RolloutMetrics model, baseline;
+    double seconds = 0;
+  };
+  std::vector<Result> results(chosen.size());
+  std::atomic<std::size_t> next{0};
+  std::atomic<bool> failed{false};
+  std::mutex mutex;  // guards the progress bar and `error`
+  std::string error;
+  const auto work = [&] {
+    try {
+      auto net = load_hopnet(checkpoint, a.checkpoint, mode);
+      net->eval();
+      MeshLibrary lib(a.assets);
+      for (std::size_t i = next++; i < chosen.size() && !failed; i = next++) {
+        Scene scene = make_scene(dataset.scene(chosen[i]), lib);
+        const auto g = make_geometry(scene, mode);
+        RolloutOptions opt;
+        opt.steps = static_cast<int>(std::min<std::int64_t>(a.steps, scene.num_frames - 4));
+        auto r = rollout(*net, norm, scene, g, opt);
+        auto& out = results[i];
+        out.model = rollout_metrics(r.poses, scene);
+        out.baseline = rollout_metrics(constant_velocity(scene, static_cast<int>(r.poses.size())), scene);
+        out.seconds = r.seconds;
+        if (static_cast<int>(i) < a.viewer_scenes) out.scene = std::move(scene), out.poses = std::move(r.poses);
+        std::lock_guard<std::mutex> lock(mutex);
+        bar.update(1, "scene " + std::to_string(chosen[i]));
+      }
+    } catch (const std::exception& e) {
+      std::lock_guard<std::mutex> lock(mutex);
+      if (!failed.exchange(true)) error = e.what();
+    }
+  };
+  const int jobs = std::max(1, std::min<int>(a.jobs > 0 ? a.jobs : static_cast<int>(std::thread::hardware_concurrency()), static_cast<int>(chosen.size())));
+  std::vector<std::thread> pool;
+  for (int j = 0; j < jobs; ++j) pool.emplace_back(work);
+  for (auto& t : pool) t.join();
+  if (failed) throw std::runtime_error(error);
+  std::vector<hopnet_viewer::ViewerScene> viewer;
+  for (std::size_t i = 0; i < chosen.size(); ++i) {
+    const auto& res = results[i];
+    seconds += res.seconds;
+    for (const auto& [name, m] : std::vector<std::pair<std::string, const RolloutMetrics*>>{{"hopnet", &res.model}, {"constant_velocity", &res.baseline}}) {
+      for (int h : horizons) {
+        if (h >= static_cast<int>(m->pos_rmse.size())) continue;
+        per[name + ".pos_rmse"][h].push_back(m->pos_rmse[static_cast<std::size_t>(h)]);
+        per[name + ".ori_rmse"][h].push_back(m->ori_rmse[static_cast<std::size_t>(h)]);
+        per[name + ".ori_mae"][h].push_back(m->ori_mae[static_cast<std::size_t>(h)]);
+      }
+      for (const auto& [metric, values] : {std::pair<std::string, const std::vector<double>*>{"pos_rmse", &m->pos_rmse}, {"ori_rmse", &m->ori_rmse}}) {
+        auto& [sum, count] = curves[metric][name];
+        if (sum.size() < values->size()) sum.resize(values->size(), 0.0), count.resize(values->size(), 0);
+        for (std::size_t f = 0; f < values->size(); ++f)
+          if (std::isfinite((*values)[f])) sum[f] += (*values)[f], ++count[f];
+      }
+    }
+    if (res.scene) viewer.push_back({"scene " + std::to_string(chosen[i]), &*res.scene, res.poses, res.model.pos_rmse});
+  }
+  bar.finish();
+  const auto stat = [](const std::vector<double>& v) {
+    double m = 0, s = 0;
+    int n = 0;
+    for (double x : v) if (std::isfinite(x)) m += x, ++n;
+    m = n ? m / n : NAN;
+    for (double x : v) if (std::isfinite(x)) s += (x - m) * (x - m);
+    return std::pair<double, double>{m, n ? std::sqrt(s / n) : NAN};
+  };
+  nlohmann::json metrics;
+  std::ostringstream md;
+  md << "| model | metric | " ;
+  std::vector<int> present;
+  for (int h : horizons) if (per["hopnet.pos_rmse"].count(h)) present.push_back(h);
+  for (int h : present) md << "frame " << h << " | ";
+  md << "\n|---|---|";
+  for (std::size_t i = 0; i < present.size(); ++i) md << "---|";
+  md << "\n";
+  for (const char* model : {"hopnet", "constant_velocity"}) {
+    for (const char* metric : {"pos_rmse", "ori_rmse", "ori_mae"}) {
+      md << "| " << model << " | " << metric << (metric[0] == 'p' ? " (m)" : " (deg)") << " | ";
+      for (int h : present) {
+        const auto [m, s] = stat(per[std::string(model) + "." + metric][h]);
+        metrics[model][std::to_string(h)][metric] = {{"mean", m}, {"std", s}};
+        char buf[64];
+        std::snprintf(buf, sizeof buf, metric[0] == 'p' ? "%.4f ± %.4f" : "%.2f ± %.2f", m, s);
+        md << buf << " | ";
+      }
+      md << "\n";
+    }
+  }
+  // The layout: metrics.json holds, per frame, mean/std of pos_rmse, ori_rmse, ori_mae (the model's).
+  nlohmann::json top = metrics["hopnet"];
+  top["baseline_constant_velocity"] = metrics["constant_velocity"];
+  top["scenes"] = chosen;
+  top["mode"] = to_string(mode);
+  top["rollout_seconds"] = seconds;
+  write_json_atomic(top, (fs::path(a.out) / "metrics.json").string());
+  {
+    std::ostringstream t;
+    t << "# HOPNet rollout errors (" << chosen.size() << " scenes, " << a.split << " split, " << to_string(mode) << " mode)\n\n" << md.str();
+    write_file_atomic((fs::path(a.out) / "table.md").string(), t.str());
+  }
+  for (const auto& [metric, label] : {std::pair<std::string, std::string>{"pos_rmse", "position RMSE (m)"}, {"ori_rmse", "orientation RMSE (deg)"}}) {
+    std::vector<std::pair<std::string, std::vector<double>>> series;
+    for (const auto& [name, sc] : curves[metric]) {
+      std::vector<double> v(sc.first.size());
+      for (std::size_t f = 0; f < v.size(); ++f) v[f] = sc.second[f] ? sc.first[f] / sc.second[f] : NAN;
+      series.push_back({name, v});
+    }
+    write_file_atomic((fs::path(a.out) / (metric + ".svg")).string(), svg_plot(series, label));
+  }
+  if (!viewer.empty()) hopnet_viewer::write_viewer_html((fs::path(a.out) / "viewer.html").string(), "HOPNet rollouts (" + std::string(to_string(mode)) + " mode): " + a.data, viewer);
+  std::cout << md.str() << "wrote " << a.out << "/metrics.json, table.md, pos_rmse.svg, ori_rmse.svg" << (viewer.empty() ? "" : ", viewer.html") << "\n";
+  return 0;
+}
+
+}  // namespace
+
+Command add_evaluate(CLI::App& app) {
+  auto args = std::make_shared<EvaluateArgs>();
+  auto& ev = *args;
+  auto* ce = app.add_subcommand("evaluate", "roll out every scene of a split; the paper's table beside a constant-velocity baseline");
+  ce->add_option("--checkpoint", ev.checkpoint, "model checkpoint")->required()->check(CLI::ExistingFile);
+  ce->add_option("--stats", ev.stats, "normalisation statistics")->required()->check(CLI::ExistingFile);
+  ce->add_option("--data", ev.data, "dataset folder")->required()->check(CLI::ExistingDirectory);
+  ce->add_option("--assets", ev.assets, "KuBasic-layout asset folder (built-in shapes when omitted)");
+  ce->add_option("--split", ev.split, "train, val, test or all")->capture_default_str();
+  ce->add_option("--split-file", ev.split_file, "custom split JSON {train, val, test} (default: the reference split of the scenes present)")->check(CLI::ExistingFile);
+  ce->add_option("--mode", ev.mode, "reference or native")->capture_default_str();
+  ce->add_option("--steps", ev.steps, "rollout steps")->capture_default_str()->check(CLI::PositiveNumber);
+  ce->add_option("--jobs", ev.jobs, "scenes rolled out at once (default: all cores)");
+  ce->add_option("--viewer-scenes", ev.viewer_scenes, "scenes shown in viewer.html (0: no viewer)")->capture_default_str()->check(CLI::NonNegativeNumber);
+  ce->add_option("--out", ev.out, "output folder: metrics.json, table.md, pos_rmse.svg, ori_rmse.svg, viewer.html")->required();
+  return {ce, [args] { return run_evaluate(*args); }};
+}
+
+}  // namespace hopnet_cli

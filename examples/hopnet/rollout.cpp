@@ -1,0 +1,97 @@
+// hopnet rollout: the autoregressive rollout of one scene with the paper's per-frame metrics.
+#include "commands.hpp"
+#include "viewer.hpp"
+
+namespace hopnet_cli {
+namespace {
+
+struct RolloutArgs {
+  std::string checkpoint, stats, scene, assets, mode = "reference", out, collisions, viewer;
+  int steps = 102;
+  bool no_collisions_json = false;
+};
+
+int run_rollout(const RolloutArgs& a) {
+  const FeatureMode mode = feature_mode_from_string(a.mode);
+  auto net = load_hopnet(a.checkpoint, mode);
+  net->eval();
+  const Normalizer norm(read_stats_json(a.stats));
+  MeshLibrary lib(a.assets);
+  const auto kubric = data::read_kubric_metadata(a.scene);
+  const Scene scene = make_scene(kubric, lib);
+  const auto geometry = make_geometry(scene, mode);
+  RolloutOptions opt;
+  opt.steps = a.steps;
+  if (scene.num_frames < opt.steps + 4) std::cerr << "note: the scene has " << scene.num_frames << " frames; metrics cover the first " << scene.num_frames << "\n";
+  // Reference mode takes the first step's contacts from collisions.json beside the scene, as the reference does.
+  std::filesystem::path coll = a.collisions;
+  if (coll.empty() && mode == FeatureMode::reference && !a.no_collisions_json) {
+    auto dir = std::filesystem::path(kubric.source).parent_path();
+    if (std::filesystem::exists(dir / "collisions.json")) coll = dir / "collisions.json";
+  }
+  if (!coll.empty()) {
+    const auto all = read_collisions_json(coll.string());
+    auto it = all.find(3);
+    if (it == all.end()) throw data::DataError(coll.string() + ": has no frame 3");
+    opt.first_contacts = it->second;
+  }
+  ProgressBar bar("rollout", opt.steps, "steps");
+  opt.on_step = [&](int, int) { bar.update(); };
+  const auto r = rollout(*net, norm, scene, geometry, opt);
+  bar.finish();
+  const auto m = rollout_metrics(r.poses, scene);
+  nlohmann::json j;
+  j["scene"] = kubric.source;
+  j["mode"] = to_string(mode);
+  j["checkpoint"] = a.checkpoint;
+  j["frames"] = r.num_frames();
+  j["pos_rmse"] = m.pos_rmse;
+  j["pos_mae"] = m.pos_mae;
+  j["ori_rmse"] = m.ori_rmse;
+  j["ori_mae"] = m.ori_mae;
+  j["invalid_ratio"] = r.invalid_ratio;
+  j["seconds"] = r.seconds;
+  nlohmann::json pos = nlohmann::json::array(), quat = nlohmann::json::array();
+  for (const auto& p : r.poses) {
+    nlohmann::json fp = nlohmann::json::array(), fq = nlohmann::json::array();
+    for (std::size_t o = 0; o < scene.num_objects(); ++o) {
+      if (scene.objects[o].is_floor) continue;
+      const auto i = static_cast<Eigen::Index>(o);
+      fp.push_back({p.positions(i, 0), p.positions(i, 1), p.positions(i, 2)});
+      fq.push_back({p.quaternions(i, 0), p.quaternions(i, 1), p.quaternions(i, 2), p.quaternions(i, 3)});
+    }
+    pos.push_back(fp);
+    quat.push_back(fq);
+  }
+  j["positions"] = pos;
+  j["quaternions"] = quat;
+  write_json_atomic(j, a.out);
+  if (!a.viewer.empty()) hopnet_viewer::write_viewer_html(a.viewer, "HOPNet rollout (" + std::string(to_string(mode)) + " mode): " + kubric.source, {{kubric.source, &scene, r.poses, m.pos_rmse}});
+  std::printf("rollout: %d steps in %.3f s (%.2f ms/step), mode %s\n", opt.steps, r.seconds, 1e3 * r.seconds / opt.steps, to_string(mode));
+  std::printf("%6s %10s %10s %10s %10s\n", "frame", "pos_rmse", "pos_mae", "ori_rmse", "ori_mae");
+  for (int f : {4, 25, 50, 75, 100})
+    if (f < static_cast<int>(m.pos_rmse.size())) std::printf("%6d %10.6f %10.6f %10.3f %10.3f\n", f, m.pos_rmse[static_cast<std::size_t>(f)], m.pos_mae[static_cast<std::size_t>(f)], m.ori_rmse[static_cast<std::size_t>(f)], m.ori_mae[static_cast<std::size_t>(f)]);
+  std::printf("wrote %s\n", a.out.c_str());
+  return 0;
+}
+
+}  // namespace
+
+Command add_rollout(CLI::App& app) {
+  auto args = std::make_shared<RolloutArgs>();
+  auto& ro = *args;
+  auto* cr = app.add_subcommand("rollout", "autoregressive rollout of one scene with the paper's per-frame metrics");
+  cr->add_option("--checkpoint", ro.checkpoint, "model checkpoint (topos or reference .pt)")->required()->check(CLI::ExistingFile);
+  cr->add_option("--stats", ro.stats, "normalisation statistics (JSON)")->required()->check(CLI::ExistingFile);
+  cr->add_option("--scene", ro.scene, "Kubric metadata.json, or the folder holding it")->required()->check(CLI::ExistingPath);
+  cr->add_option("--assets", ro.assets, "meshes in the KuBasic layout (<shape>/collision_geometry.obj); built-in shapes when omitted");
+  cr->add_option("--mode", ro.mode, "reference (the published model's inputs) or native")->capture_default_str();
+  cr->add_option("--steps", ro.steps, "frames to predict")->capture_default_str()->check(CLI::PositiveNumber);
+  cr->add_option("--collisions", ro.collisions, "collisions.json for the first step (default: beside the scene, reference mode)");
+  cr->add_flag("--no-collisions-json", ro.no_collisions_json, "detect the first step's contacts too");
+  cr->add_option("--out", ro.out, "output JSON")->required();
+  cr->add_option("--viewer", ro.viewer, "also write the HTML viewer (prediction beside ground truth) here");
+  return {cr, [args] { return run_rollout(*args); }};
+}
+
+}  // namespace hopnet_cli

@@ -1,0 +1,26 @@
+// examples/tdl/commands.hpp
+// The tdl program's subcommands. Each lives in its own translation unit and registers itself
+// on the CLI11 app with one function; main.cpp calls them, one line per subcommand, and runs
+// the callback the parsed subcommand set.
+#pragma once
+
+#include <CLI/CLI.hpp>
+
+#include <functional>
+
+namespace tdl_cli {
+
+/// What a subcommand runs after parsing; returns the exit status.
+using Run = std::function<int()>;
+
+/// tdl operators --case DIR --out OUTDIR: every operator of DIR/operators.json as OUTDIR/<name>.npy.
+void register_operators(CLI::App& app, Run& run);
+
+#ifdef TOPOS_TDL_WITH_NN
+/// tdl forward --case DIR --out OUTDIR: the case's model on its inputs, OUTDIR/<output>.npy.
+void register_forward(CLI::App& app, Run& run);
+/// tdl grad --case DIR --out OUTDIR: OUTDIR/<param>.npy, the gradients of sum(out * R).
+void register_grad(CLI::App& app, Run& run);
+#endif
+
+}  // namespace tdl_cli
