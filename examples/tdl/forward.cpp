@@ -1,8 +1,10 @@
+// examples/tdl/forward.cpp
 // tdl forward --case DIR --out OUTDIR: runs a golden case's model (eval mode) and writes
 // OUTDIR/<output>.npy for every output case.json names.
 #include "zoo_commands.hpp"
 
 #include <iostream>
+#include <memory>
 
 namespace tdl_cli {
 

@@ -1,8 +1,10 @@
+// examples/tdl/grad.cpp
 // tdl grad --case DIR --out OUTDIR: writes OUTDIR/<param>.npy, the gradient of
 // Σ_outputs Σ(out · R) with R from DIR/grads/_R_<output>.npy, for every parameter.
 #include "zoo_commands.hpp"
 
 #include <iostream>
+#include <memory>
 
 namespace tdl_cli {
 

@@ -1,15 +1,13 @@
 // examples/tdl/zoo_commands.hpp
-// What the model-zoo subcommands of tdl (forward, grad) share: a case's options, its operators
-// built from complex.json + operators.json (topos/data/tdl_case.hpp, never the shipped
-// operators/), and opening the case with its model and weights.
+// What the tdl program's model-zoo subcommands (forward, grad, train) share: the case options and
+// opening a case (model, weights, operators built from complex.json). LibTorch; included only by
+// their translation units, never by main.cpp or operators.cpp.
 #pragma once
 
 #include "commands.hpp"
-
 #include "topos/models/zoo_case.hpp"
 
 #include <filesystem>
-#include <map>
 #include <string>
 
 namespace tdl_cli {
@@ -30,6 +28,7 @@ inline void add_case_options(CLI::App* cmd, CaseOptions& o) {
 inline topos::models::ZooCase open_case(const CaseOptions& o) {
   const std::filesystem::path dir(o.case_dir);
   if (!std::filesystem::is_directory(dir)) throw topos::data::DataError(o.case_dir + ": not a folder");
+  // The operators are computed after the model and its weights: a bad model or config is named first.
   auto c = topos::models::load_case(dir, [&dir] { return topos::models::case_operators(dir); }, !o.intended);
   if (!o.state_dict.empty()) topos::models::load_state_dict(*c.model.module, o.state_dict);
   std::filesystem::create_directories(o.out_dir);

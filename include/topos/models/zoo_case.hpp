@@ -3,8 +3,8 @@
 // case.json's "model" and "config", its weights from state_dict/ (or a torch .pt state_dict),
 // the positional arguments from case.json's "forward" list (inputs/ tensors, operators by name,
 // tuples/lists, None), in eval mode; and the parameter gradients of Σ_outputs Σ(out · R).
-// The operators are built from complex.json + operators.json (case_operators), never read from
-// the case's operators/ folder.
+// The operators are built from complex.json and operators.json (case_operators), never read
+// from the case's operators/ folder.
 #pragma once
 
 #include "topos/data/json.hpp"
@@ -149,12 +149,14 @@ inline std::map<std::string, torch::Tensor> case_gradients(ZooCase& c) {
   return g;
 }
 
-/// The operators of a case, computed from DIR/complex.json and DIR/operators.json (never from
-/// the shipped DIR/operators/), as float32 operators with exactly their nonzero entries.
+/// The operators of a case, built from DIR/complex.json and DIR/operators.json's op/args
+/// (topos/data/tdl_case.hpp; never DIR/operators/), as float32 like the tensors TopoModelX got
+/// (its operators were saved as float32 and passed as their nonzero entries).
 inline std::map<std::string, nn::SparseOperator> case_operators(const std::filesystem::path& dir) {
-  std::map<std::string, nn::SparseOperator> out;
-  for (const auto& [name, m] : tdl::compute_operators(dir).by_name) out.emplace(name, nn::SparseOperator::from_eigen(m));
-  return out;
+  const tdl::Operators built = tdl::compute_operators(dir);
+  std::map<std::string, nn::SparseOperator> ops;
+  for (const auto& [name, m] : built.by_name) ops.emplace(name, nn::SparseOperator::from_eigen(m, torch::kFloat));
+  return ops;
 }
 
 }  // namespace topos::models

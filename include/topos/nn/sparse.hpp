@@ -59,14 +59,18 @@ struct SparseOperator {
     return from_sorted(rows, cols, rr, cc, torch::tensor(vv, torch::kDouble).to(dtype));
   }
 
-  /// The nonzero entries of an Eigen sparse matrix (the operators of topos/core, any storage order).
+  /// From an Eigen sparse matrix (core's operators, topos/data/tdl_case.hpp's compute_operators),
+  /// its values rounded to `dtype` and entries that are zero there dropped, as from_triplets.
+  /// A template so this header needs no Eigen include.
   template <class EigenSparse>
   static SparseOperator from_eigen(const EigenSparse& m, torch::Dtype dtype = torch::kFloat) {
     std::vector<std::int64_t> r, c;
     std::vector<double> v;
-    for (std::int64_t k = 0; k < static_cast<std::int64_t>(m.outerSize()); ++k)
-      for (typename EigenSparse::InnerIterator it(m, k); it; ++it) r.push_back(it.row()), c.push_back(it.col()), v.push_back(static_cast<double>(it.value()));
-    return from_triplets(m.rows(), m.cols(), r, c, v, dtype);
+    r.reserve(static_cast<std::size_t>(m.nonZeros())), c.reserve(r.capacity()), v.reserve(r.capacity());
+    for (std::int64_t o = 0; o < static_cast<std::int64_t>(m.outerSize()); ++o)
+      for (typename EigenSparse::InnerIterator it(m, o); it; ++it)
+        r.push_back(static_cast<std::int64_t>(it.row())), c.push_back(static_cast<std::int64_t>(it.col())), v.push_back(static_cast<double>(it.value()));
+    return from_triplets(static_cast<std::int64_t>(m.rows()), static_cast<std::int64_t>(m.cols()), r, c, v, dtype);
   }
 
   /// The nonzero entries of a dense 2-d tensor.
