@@ -11,6 +11,10 @@ if [ -z "${TOPOS_REFERENCE_DIR:-}" ] && [ -d "$root/../shared/reference" ]; then
 fi
 build="${TOPOS_BUILD_DIR:-$root/build}"
 jobs="${TOPOS_JOBS:-2}"
+# ccache: the precompiled headers are cacheable only with this sloppiness; relative paths let
+# clones in other folders share hits.
+export CCACHE_SLOPPINESS="${CCACHE_SLOPPINESS:-pch_defines,time_macros,include_file_mtime,include_file_ctime}"
+export CCACHE_BASEDIR="${CCACHE_BASEDIR:-$root}"
 start=$(date +%s)
 cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=Release >/dev/null
 cmake --build "$build" -j "$jobs"

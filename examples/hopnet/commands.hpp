@@ -9,6 +9,7 @@
 #include "topos/data/movi_generator.hpp"
 #include "topos/io/atomic_file.hpp"
 #include "topos/models/hopnet/training.hpp"
+#include "topos/models/hopnet/variants.hpp"
 #include "topos/nn/cpu.hpp"
 #include "topos/util/progress.hpp"
 
@@ -40,13 +41,65 @@ Command add_export(CLI::App& app);
 Command add_generate(CLI::App& app);
 Command add_pack(CLI::App& app);
 Command add_split(CLI::App& app);
+Command add_grad(CLI::App& app);
 Command add_train(CLI::App& app);
 Command add_evaluate(CLI::App& app);
 Command add_rollout(CLI::App& app);
+Command add_stats(CLI::App& app);
+
+/// The options that pick a member of the HOPNet family (info, init, train, rollout, evaluate).
+struct VariantArgs {
+  std::string config, activation;
+  double collision_radius = 0;  ///< 0: the configuration's (0.1 by default)
+};
+
+inline void add_variant_options(CLI::App* app, VariantArgs& v, bool with_config) {
+  if (with_config)
+    app->add_option("--config", v.config, "variant: presets and/or JSON files, comma-separated (" + preset_names() + "), e.g. nox4 or mlp3,no-cm-distance");
+  app->add_option("--activation", v.activation, "relu, gelu, elu or selu (reference checkpoints do not record it)");
+  app->add_option("--collision-radius", v.collision_radius, "contact distance d_c (default 0.1)")->check(CLI::PositiveNumber);
+}
+
+/// The configuration of --config (standard when empty) with --activation and --collision-radius on top.
+inline HopnetOptions variant_options(const VariantArgs& v, const HopnetOptions& base = {}) {
+  HopnetOptions o = v.config.empty() ? base : parse_config(v.config, base);
+  if (!v.activation.empty()) o.activation(nn::activation_from_string(v.activation));
+  if (v.collision_radius > 0) o.collision_radius(v.collision_radius);
+  o.validate();
+  return o;
+}
+
+/// What --activation and --collision-radius change in a loaded checkpoint. A reference state
+/// dict does not record its activation: without --activation, a file named after one by the
+/// reference's convention ("gelu_seed0_e39.pt": the name's first '_'-separated word) runs with
+/// it, and says so; otherwise ReLU, the reference's default.
+inline CheckpointOverrides checkpoint_overrides(const VariantArgs& v, const std::map<std::string, torch::Tensor>& dict, const std::string& path, std::optional<FeatureMode> mode) {
+  CheckpointOverrides ov;
+  ov.mode = mode;
+  if (v.collision_radius > 0) ov.collision_radius = v.collision_radius;
+  if (!v.activation.empty()) {
+    ov.activation = nn::activation_from_string(v.activation);
+  } else if (is_reference_checkpoint(dict)) {
+    const std::string stem = std::filesystem::path(path).stem().string();
+    const std::string word = stem.substr(0, stem.find('_'));
+    for (const char* a : {"gelu", "elu", "selu"})
+      if (word == a) {
+        ov.activation = nn::activation_from_string(a);
+        std::cerr << "note: " << path << " is a reference checkpoint named after activation " << a << "; running it with " << a << " (--activation overrides)\n";
+      }
+  }
+  return ov;
+}
 
 inline void write_json_atomic(const nlohmann::json& j, const std::string& path) {
   write_file_atomic(path, j.dump() + "\n");
 }
+
+/// Activation memory per forward/backward chunk when --chunk is not given (grad, train).
+inline constexpr double kDefaultMemoryBudgetMb = 3072;
+
+/// The reference's contacts of every frame beside a Kubric scene (collisions.json), or "".
+std::string collisions_beside(const data::KubricScene& scene);
 
 /// Reads Kubric scene folders `from/<id>` and writes them as one topos dataset (pack, generate).
 void pack_scenes(const std::filesystem::path& from, const std::vector<std::int64_t>& ids,

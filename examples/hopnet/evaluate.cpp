@@ -17,6 +17,7 @@ namespace {
 struct EvaluateArgs {
   std::string checkpoint, stats, data, assets, split = "test", split_file, mode = "reference", out;
   int steps = 102, viewer_scenes = 6, jobs = 0;
+  VariantArgs variant;
 };
 
 // Constant velocity: positions and rotations keep their last per-frame change.
@@ -50,8 +51,11 @@ int run_evaluate(const EvaluateArgs& a) {
   namespace fs = std::filesystem;
   const FeatureMode mode = feature_mode_from_string(a.mode);
   const auto checkpoint = nn::read_tensor_dict(a.checkpoint);  // read once; one model per thread below
-  load_hopnet(checkpoint, a.checkpoint, mode);                 // fails early on a bad checkpoint
-  const Normalizer norm(read_stats_json(a.stats));
+  const auto overrides = checkpoint_overrides(a.variant, checkpoint, a.checkpoint, mode);
+  const auto options = load_hopnet(checkpoint, a.checkpoint, overrides)->options;  // fails early on a bad checkpoint
+  const auto stats = read_stats_json(a.stats);
+  check_stats_fit(options, stats, a.stats);
+  const Normalizer norm(stats);
   const auto dataset = data::Dataset::open(a.data);
   const auto& ids = dataset.ids();
   const auto chosen = data::split_part(a.split_file.empty() ? data::reference_split(ids) : data::read_split_json(a.split_file), a.split, ids);
@@ -69,6 +73,7 @@ int run_evaluate(const EvaluateArgs& a) {
     std::vector<Poses> poses;
     RolloutMetrics model, baseline;
     double seconds = 0;
+    int objects = 0;  // dynamic ones, those the metrics average over
   };
   std::vector<Result> results(chosen.size());
   std::atomic<std::size_t> next{0};
@@ -77,19 +82,21 @@ int run_evaluate(const EvaluateArgs& a) {
   std::string error;
   const auto work = [&] {
     try {
-      auto net = load_hopnet(checkpoint, a.checkpoint, mode);
+      auto net = load_hopnet(checkpoint, a.checkpoint, overrides);
       net->eval();
       MeshLibrary lib(a.assets);
       for (std::size_t i = next++; i < chosen.size() && !failed; i = next++) {
         Scene scene = make_scene(dataset.scene(chosen[i]), lib);
-        const auto g = make_geometry(scene, mode);
+        const auto g = make_geometry(scene, options.lifting());
         RolloutOptions opt;
+        opt.collision_radius = options.collision_radius();
         opt.steps = static_cast<int>(std::min<std::int64_t>(a.steps, scene.num_frames - 4));
         auto r = rollout(*net, norm, scene, g, opt);
         auto& out = results[i];
         out.model = rollout_metrics(r.poses, scene);
         out.baseline = rollout_metrics(constant_velocity(scene, static_cast<int>(r.poses.size())), scene);
         out.seconds = r.seconds;
+        for (const auto& o : scene.objects) out.objects += !o.is_floor;
         if (static_cast<int>(i) < a.viewer_scenes) out.scene = std::move(scene), out.poses = std::move(r.poses);
         std::lock_guard<std::mutex> lock(mutex);
         bar.update(1, "scene " + std::to_string(chosen[i]));
@@ -160,8 +167,16 @@ int run_evaluate(const EvaluateArgs& a) {
   top["baseline_constant_velocity"] = metrics["constant_velocity"];
   top["scenes"] = chosen;
   top["mode"] = to_string(mode);
+  top["variant"] = variant_name(options);
+  // Per scene (in top["scenes"] order), every frame: for other statistics than the mean over
+  // scenes (bootstrap intervals, subsets, pooling; scripts/reproduction_table.py).
+  nlohmann::json per_scene = nlohmann::json::array();
+  for (const auto& res : results)
+    per_scene.push_back({{"pos_rmse", res.model.pos_rmse}, {"pos_mae", res.model.pos_mae}, {"ori_rmse", res.model.ori_rmse}, {"ori_mae", res.model.ori_mae},
+                         {"cv_pos_rmse", res.baseline.pos_rmse}, {"cv_ori_rmse", res.baseline.ori_rmse}, {"objects", res.objects}});
   top["rollout_seconds"] = seconds;
   write_json_atomic(top, (fs::path(a.out) / "metrics.json").string());
+  write_json_atomic({{"scenes", chosen}, {"per_scene", per_scene}}, (fs::path(a.out) / "per_scene.json").string());
   {
     std::ostringstream t;
     t << "# HOPNet rollout errors (" << chosen.size() << " scenes, " << a.split << " split, " << to_string(mode) << " mode)\n\n" << md.str();
@@ -197,7 +212,8 @@ Command add_evaluate(CLI::App& app) {
   ce->add_option("--steps", ev.steps, "rollout steps")->capture_default_str()->check(CLI::PositiveNumber);
   ce->add_option("--jobs", ev.jobs, "scenes rolled out at once (default: all cores)");
   ce->add_option("--viewer-scenes", ev.viewer_scenes, "scenes shown in viewer.html (0: no viewer)")->capture_default_str()->check(CLI::NonNegativeNumber);
-  ce->add_option("--out", ev.out, "output folder: metrics.json, table.md, pos_rmse.svg, ori_rmse.svg, viewer.html")->required();
+  add_variant_options(ce, ev.variant, false);
+  ce->add_option("--out", ev.out, "output folder: metrics.json, per_scene.json, table.md, pos_rmse.svg, ori_rmse.svg, viewer.html")->required();
   return {ce, [args] { return run_evaluate(*args); }};
 }
 

@@ -15,7 +15,7 @@ int run_export(const ExportArgs& a) {
   if (a.names != "reference" && a.names != "topos") throw std::invalid_argument("unknown --names '" + a.names + "' (reference, topos)");
   auto model = load_hopnet(a.checkpoint);
   c10::Dict<std::string, torch::Tensor> state;
-  for (const auto& p : model->named_parameters()) state.insert(a.names == "reference" ? reference_parameter_name(p.key()) : p.key(), p.value().detach().cpu().contiguous());
+  for (const auto& p : model->named_parameters()) state.insert(a.names == "reference" ? reference_parameter_name(p.key(), model->options.architecture()) : p.key(), p.value().detach().cpu().contiguous());
   c10::impl::GenericDict config(c10::StringType::get(), c10::AnyType::get());
   const auto& o = model->options;
   config.insert("hidden", o.hidden());
@@ -23,6 +23,9 @@ int run_export(const ExportArgs& a) {
   config.insert("num_layers", static_cast<std::int64_t>(o.num_layers()));
   config.insert("activation", std::string(nn::to_string(o.activation())));
   config.insert("mode", std::string(to_string(o.mode())));
+  config.insert("architecture", std::string(to_string(o.architecture())));
+  config.insert("center_mass_distance", o.center_mass_distance());
+  config.insert("collision_radius", o.collision_radius());
   c10::impl::GenericDict top(c10::StringType::get(), c10::AnyType::get());
   top.insert("format", std::string("topos-hopnet-export/1"));
   top.insert("parameter_names", a.names);
@@ -31,7 +34,7 @@ int run_export(const ExportArgs& a) {
   if (!a.stats.empty()) {
     const auto stats = read_stats_json(a.stats);
     c10::Dict<std::string, torch::Tensor> norm;
-    for (const auto& [k, n] : NormalizationStats::layout()) {
+    for (const auto& [k, n] : stats.keys()) {
       norm.insert(k + "_mean", torch::tensor(stats.mean.at(k), torch::kDouble));
       norm.insert(k + "_std", torch::tensor(stats.std.at(k), torch::kDouble));
     }

@@ -1,5 +1,5 @@
 // hopnet: the HOPNet program of topos. Subcommands (one file each, see commands.hpp): info, init,
-// export (models); generate, pack, split (datasets); train, evaluate, rollout. Every subcommand has
+// export (models); generate, pack, split (datasets); grad, train, evaluate, rollout. Every subcommand has
 // --help; errors print one line and exit with status 1, leaving no half-written output.
 #include "commands.hpp"
 
@@ -12,7 +12,8 @@ int main(int argc, char** argv) {
   app.add_option("--blas-threads", blas_threads, "BLAS threads (default: all cores for train, 1 otherwise)");
   const std::vector<Command> commands{add_info(app),  add_init(app),  add_export(app),
                                       add_generate(app), add_pack(app), add_split(app),
-                                      add_train(app), add_evaluate(app), add_rollout(app)};
+                                      add_grad(app), add_train(app), add_evaluate(app), add_rollout(app),
+                                      add_stats(app)};
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -20,7 +21,7 @@ int main(int argc, char** argv) {
   }
   try {
     // Training's large batched matmuls want BLAS threads; a rollout's small ones do not.
-    const bool training = app.got_subcommand("train");
+    const bool training = app.got_subcommand("train") || app.got_subcommand("grad");
     topos::nn::set_cpu_threads(threads, blas_threads > 0 ? blas_threads : (training ? 0 : 1));
     if (training) topos::nn::keep_freed_memory();
     for (const auto& c : commands)

@@ -25,8 +25,21 @@ void pack_scenes(const std::filesystem::path& from, const std::vector<std::int64
     bar.update();
   }
   bar.finish();
+  if (std::filesystem::exists(std::filesystem::path(out) / "dataset.json")) throw data::DataError(out + ": already holds a topos dataset (dataset.json); remove it or write elsewhere");
+  // The reference's contacts (collisions.json), where a scene has them: reference-mode training
+  // uses them as the reference does. Written before dataset.json, which comes last.
+  std::size_t with_contacts = 0;
+  for (auto id : ids) {
+    const auto src = from / std::to_string(id) / "collisions.json";
+    if (!std::filesystem::exists(src)) continue;
+    std::filesystem::create_directories(std::filesystem::path(out) / "collisions");
+    write_file_atomic((std::filesystem::path(out) / "collisions" / (std::to_string(id) + ".json")).string(), data::read_text_file(src));
+    ++with_contacts;
+  }
   data::write_topos_dataset(scenes, out);
-  std::printf("wrote the topos dataset %s (%zu scenes): dataset.json, positions.npy, quaternions.npy\n", out.c_str(), scenes.size());
+  std::printf("wrote the topos dataset %s (%zu scenes): dataset.json, positions.npy, quaternions.npy", out.c_str(), scenes.size());
+  if (with_contacts) std::printf(", collisions/ (%zu scenes' collisions.json)", with_contacts);
+  std::printf("\n");
 }
 
 Command add_pack(CLI::App& app) {

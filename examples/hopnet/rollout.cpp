@@ -9,30 +9,31 @@ struct RolloutArgs {
   std::string checkpoint, stats, scene, assets, mode = "reference", out, collisions, viewer;
   int steps = 102;
   bool no_collisions_json = false;
+  VariantArgs variant;
 };
 
 int run_rollout(const RolloutArgs& a) {
   const FeatureMode mode = feature_mode_from_string(a.mode);
-  auto net = load_hopnet(a.checkpoint, mode);
+  const auto dict = nn::read_tensor_dict(a.checkpoint);
+  auto net = load_hopnet(dict, a.checkpoint, checkpoint_overrides(a.variant, dict, a.checkpoint, mode));
   net->eval();
-  const Normalizer norm(read_stats_json(a.stats));
+  const auto stats = read_stats_json(a.stats);
+  check_stats_fit(net->options, stats, a.stats);
+  const Normalizer norm(stats);
   MeshLibrary lib(a.assets);
   const auto kubric = data::read_kubric_metadata(a.scene);
   const Scene scene = make_scene(kubric, lib);
-  const auto geometry = make_geometry(scene, mode);
+  const auto geometry = make_geometry(scene, net->options.lifting());
   RolloutOptions opt;
   opt.steps = a.steps;
+  opt.collision_radius = net->options.collision_radius();
   if (scene.num_frames < opt.steps + 4) std::cerr << "note: the scene has " << scene.num_frames << " frames; metrics cover the first " << scene.num_frames << "\n";
   // Reference mode takes the first step's contacts from collisions.json beside the scene, as the reference does.
-  std::filesystem::path coll = a.collisions;
-  if (coll.empty() && mode == FeatureMode::reference && !a.no_collisions_json) {
-    auto dir = std::filesystem::path(kubric.source).parent_path();
-    if (std::filesystem::exists(dir / "collisions.json")) coll = dir / "collisions.json";
-  }
+  const std::string coll = a.collisions.empty() && mode == FeatureMode::reference && !a.no_collisions_json ? collisions_beside(kubric) : a.collisions;
   if (!coll.empty()) {
-    const auto all = read_collisions_json(coll.string());
+    const auto all = read_collisions_json(coll);
     auto it = all.find(3);
-    if (it == all.end()) throw data::DataError(coll.string() + ": has no frame 3");
+    if (it == all.end()) throw data::DataError(coll + ": has no frame 3");
     opt.first_contacts = it->second;
   }
   ProgressBar bar("rollout", opt.steps, "steps");
@@ -44,6 +45,7 @@ int run_rollout(const RolloutArgs& a) {
   j["scene"] = kubric.source;
   j["mode"] = to_string(mode);
   j["checkpoint"] = a.checkpoint;
+  j["variant"] = variant_name(net->options);
   j["frames"] = r.num_frames();
   j["pos_rmse"] = m.pos_rmse;
   j["pos_mae"] = m.pos_mae;
@@ -67,7 +69,7 @@ int run_rollout(const RolloutArgs& a) {
   j["quaternions"] = quat;
   write_json_atomic(j, a.out);
   if (!a.viewer.empty()) hopnet_viewer::write_viewer_html(a.viewer, "HOPNet rollout (" + std::string(to_string(mode)) + " mode): " + kubric.source, {{kubric.source, &scene, r.poses, m.pos_rmse}});
-  std::printf("rollout: %d steps in %.3f s (%.2f ms/step), mode %s\n", opt.steps, r.seconds, 1e3 * r.seconds / opt.steps, to_string(mode));
+  std::printf("rollout: %s, %d steps in %.3f s (%.2f ms/step), mode %s\n", variant_name(net->options).c_str(), opt.steps, r.seconds, 1e3 * r.seconds / opt.steps, to_string(mode));
   std::printf("%6s %10s %10s %10s %10s\n", "frame", "pos_rmse", "pos_mae", "ori_rmse", "ori_mae");
   for (int f : {4, 25, 50, 75, 100})
     if (f < static_cast<int>(m.pos_rmse.size())) std::printf("%6d %10.6f %10.6f %10.3f %10.3f\n", f, m.pos_rmse[static_cast<std::size_t>(f)], m.pos_mae[static_cast<std::size_t>(f)], m.ori_rmse[static_cast<std::size_t>(f)], m.ori_mae[static_cast<std::size_t>(f)]);
@@ -90,6 +92,7 @@ Command add_rollout(CLI::App& app) {
   cr->add_option("--collisions", ro.collisions, "collisions.json for the first step (default: beside the scene, reference mode)");
   cr->add_flag("--no-collisions-json", ro.no_collisions_json, "detect the first step's contacts too");
   cr->add_option("--out", ro.out, "output JSON")->required();
+  add_variant_options(cr, ro.variant, false);
   cr->add_option("--viewer", ro.viewer, "also write the HTML viewer (prediction beside ground truth) here");
   return {cr, [args] { return run_rollout(*args); }};
 }

@@ -65,6 +65,22 @@ if(NOT n EQUAL 4)
 endif()
 python_check("checkpoint opens in torch.load" ${WORK}/model/checkpoint.pt)
 
+# Loss and gradient of one trajectory; training from given weights in chunks of timesteps.
+expect_success("grad" grad --checkpoint ${WORK}/model/checkpoint.pt --stats ${WORK}/model/stats.json --scene ${WORK}/kubric/1 --mode native --chunk 7 --out ${WORK}/grad)
+foreach(f loss_total.npy loss_per_timestep.npy grads/_HOPNet__mlp_encoder_0.0.weight.npy grads/_HOPNet__layers.0._HOPNet_Layer__mlp_processor_2to3.4.bias.npy)
+  if(NOT EXISTS ${WORK}/grad/${f})
+    message(FATAL_ERROR "grad did not write ${f}")
+  endif()
+endforeach()
+expect_success("train from --init in chunks" train --data ${WORK}/topos --split-file ${WORK}/custom.json --init ${WORK}/model/checkpoint.pt --stats ${WORK}/model/stats.json
+    --out ${WORK}/init --max-steps 2 --chunk 5 --mode native)
+file(STRINGS ${WORK}/init/steps.csv steps)
+list(GET steps 0 header)
+list(GET steps 1 first)
+if(NOT header MATCHES "chunks,peak_rss_mb$" OR NOT first MATCHES ",8,[0-9.]+$")
+  message(FATAL_ERROR "steps.csv should log 8 chunks of <= 5 of the 37 timesteps and the peak resident memory:\n${header}\n${first}")
+endif()
+
 # Interrupted after one epoch, resumed for a second: one log row per epoch and per step.
 set(short train --data ${WORK}/topos --split-file ${WORK}/custom.json --out ${WORK}/resume --hidden 8 --mode native)
 expect_success("train one epoch" ${short} --epochs 1)

@@ -152,7 +152,8 @@ class CellComplex {
     if (rank == 1) m = sparse::transpose(coboundary1());
     else if (rank == 2) m = boundary2();
     else throw ComplexError("incidence_matrix: a cell complex has ranks 0..2, got " + std::to_string(rank));
-    return signed_ ? m : sparse::abs(std::move(m));
+    if (!signed_) sparse::make_abs(m);
+    return m;
   }
   SparseMatrix coincidence_matrix(int rank, bool signed_ = true) const { return sparse::transpose(incidence_matrix(rank, signed_)); }
   /// Unsigned inclusion between two ranks (n_rank x n_to_rank).
@@ -171,27 +172,26 @@ class CellComplex {
         for (Index v : cell(c)) t.emplace_back(v, c, 1.0);
       m = sparse::from_triplets(num_nodes_, num_2cells(), t);
     }
-    return rank < to_rank ? m : sparse::transpose(m);
+    if (rank < to_rank) return m;
+    return sparse::transpose(m);
   }
 
   SparseMatrix up_laplacian_matrix(int rank, bool signed_ = true) const {
     if (rank < 0 || rank >= std::max(dim(), 1)) throw ComplexError("up_laplacian_matrix: rank " + std::to_string(rank) + " must be in [0, " + std::to_string(dim() - 1) + "]");
     SparseMatrix l = up_laplacian(incidence_matrix(rank + 1, true));
-    return signed_ ? l : sparse::abs(std::move(l));
+    if (!signed_) sparse::make_abs(l);
+    return l;
   }
   SparseMatrix down_laplacian_matrix(int rank, bool signed_ = true) const {
     if (rank < 1 || rank > dim()) throw ComplexError("down_laplacian_matrix: rank " + std::to_string(rank) + " must be in [1, " + std::to_string(dim()) + "]");
     SparseMatrix l = down_laplacian(incidence_matrix(rank, true));
-    return signed_ ? l : sparse::abs(std::move(l));
+    if (!signed_) sparse::make_abs(l);
+    return l;
   }
   SparseMatrix hodge_laplacian_matrix(int rank, bool signed_ = true) const {
-    SparseMatrix l;
-    if (rank == 0) l = up_laplacian(incidence_matrix(1, true));
-    else if (rank == 1 && dim() == 2) l = sparse::add(down_laplacian(incidence_matrix(1, true)), up_laplacian(incidence_matrix(2, true)));
-    else if (rank == 1) l = down_laplacian(incidence_matrix(1, true));
-    else if (rank == 2 && dim() == 2) l = down_laplacian(incidence_matrix(2, true));
-    else throw ComplexError("hodge_laplacian_matrix: rank " + std::to_string(rank) + " must be in [0, " + std::to_string(std::max(dim(), 0)) + "] (the complex has dimension " + std::to_string(dim()) + ")");
-    return signed_ ? l : sparse::abs(std::move(l));
+    SparseMatrix l = signed_hodge(rank);
+    if (!signed_) sparse::make_abs(l);
+    return l;
   }
   /// Cells of `rank` sharing a cell of rank + 1 (counts); `signed_` is accepted as TopoNetX does
   /// and has no effect (its incidence_to_adjacency takes |B|).
@@ -277,6 +277,18 @@ class CellComplex {
     for (std::size_t i = 0; i < edges_.size(); ++i) edge_index_[key(edges_[i][0], edges_[i][1])] = static_cast<Index>(i);
     edges_sorted_ = true;
   }
+  SparseMatrix signed_hodge(int rank) const {
+    if (rank == 0) return up_laplacian(incidence_matrix(1, true));
+    if (rank == 1 && dim() == 2) {
+      const SparseMatrix b1 = incidence_matrix(1, true), b1t = sparse::transpose(b1);
+      const SparseMatrix b2 = incidence_matrix(2, true), b2t = sparse::transpose(b2);
+      return sparse::multiply_sum({{&b1t, &b1}, {&b2, &b2t}});
+    }
+    if (rank == 1) return down_laplacian(incidence_matrix(1, true));
+    if (rank == 2 && dim() == 2) return down_laplacian(incidence_matrix(2, true));
+    throw ComplexError("hodge_laplacian_matrix: rank " + std::to_string(rank) + " must be in [0, " + std::to_string(std::max(dim(), 0)) + "] (the complex has dimension " + std::to_string(dim()) + ")");
+  }
+
   // B_1^T: row e has -1 at the tail, +1 at the head.
   SparseMatrix coboundary1() const {
     sort_edges();

@@ -106,7 +106,8 @@ class Hypergraph {
         et.data().append(weighted ? weights_[static_cast<std::size_t>(e)] : 1.0, static_cast<Eigen::Index>(nodes_[static_cast<std::size_t>(k)]));
       et.outerIndexPtr()[e + 1] = offsets_[static_cast<std::size_t>(e) + 1];
     }
-    return rank == 1 ? et : sparse::transpose(et);
+    if (rank == 1) return et;
+    return sparse::transpose(et);
   }
   /// Nodes sharing hyperedges (via_rank 1): entry = number of shared hyperedges.
   SparseMatrix adjacency_matrix(int rank, int via_rank = 1) const {

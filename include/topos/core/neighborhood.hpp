@@ -19,6 +19,11 @@ struct Neighborhood {
   std::vector<std::int64_t> source;  ///< source cell of each pair
   std::vector<std::int64_t> target;  ///< target cell of each pair
   std::vector<double> values;        ///< empty, or one value per pair
+  /// Empty, or per pair the factor a weighted message's gradient is multiplied by instead of
+  /// its value. Reproduces implementations that compute a message once per duplicate pair and
+  /// write the copies into one row with index_put_: the forward keeps one copy (value 1) but
+  /// the backward sends the row's gradient to each of the k copies (factor k).
+  std::vector<double> backward_values;
   std::vector<std::int8_t> roles;    ///< empty, or one role per pair (0 = none)
   std::int64_t num_source = 0;
   std::int64_t num_target = 0;
@@ -41,6 +46,7 @@ struct Neighborhood {
     if (source.size() != target.size()) fail("source and target have different lengths");
     if (!values.empty() && values.size() != source.size()) fail("values must be empty or one per pair");
     if (!roles.empty() && roles.size() != source.size()) fail("roles must be empty or one per pair");
+    if (!backward_values.empty() && backward_values.size() != source.size()) fail("backward values must be empty or one per pair");
     for (std::size_t k = 0; k < source.size(); ++k) {
       if (source[k] < 0 || source[k] >= num_source) fail("source index " + std::to_string(source[k]) + " out of range");
       if (target[k] < 0 || target[k] >= num_target) fail("target index " + std::to_string(target[k]) + " out of range");

@@ -15,6 +15,7 @@
 #include "topos/core/sparse.hpp"
 
 #include <algorithm>
+#include <cassert>
 #include <cstdint>
 #include <numeric>
 #include <optional>
@@ -93,20 +94,38 @@ class SimplicialComplex {
         if (sc.find_sorted(static_cast<int>(k), s) != id) {
           throw ComplexError("SimplicialComplex::from_ordered: simplex " + describe(s, k + 1) + " is listed twice at rank " + std::to_string(k));
         }
-        if (k >= 2) {
+      }
+      sc.build_faces(static_cast<int>(k));
+      for (Index id = 0; id < R.count; ++id) {
+        for (std::size_t i = 0; i <= k; ++i) {
+          if (sc.ranks_[k].faces[static_cast<std::size_t>(id) * (k + 1) + i] >= 0) continue;
+          const Index* s = sc.data(static_cast<int>(k), id);
           Index face[kMaxArity];
-          for (std::size_t i = 0; i <= k; ++i) {
-            std::size_t f = 0;
-            for (std::size_t j = 0; j <= k; ++j) if (j != i) face[f++] = s[j];
-            if (sc.find_sorted(static_cast<int>(k) - 1, face) < 0) {
-              throw ComplexError("SimplicialComplex::from_ordered: face " + describe(face, k) + " of simplex " + describe(s, k + 1) +
-                                 " is not listed at rank " + std::to_string(k - 1));
-            }
-          }
+          std::size_t f = 0;
+          for (std::size_t j = 0; j <= k; ++j) if (j != i) face[f++] = s[j];
+          throw ComplexError("SimplicialComplex::from_ordered: face " + describe(face, k) + " of simplex " + describe(s, k + 1) +
+                             " is not listed at rank " + std::to_string(k - 1));
         }
       }
     }
     sc.ordered_ = true;
+    return sc;
+  }
+
+  /// For builders that produce the canonical form themselves (the clique complex): flat[k] holds
+  /// the rank-(k+1) simplices, each sorted, in lexicographic order, unique, closed under faces.
+  /// Not checked (a debug build asserts the order).
+  static SimplicialComplex from_canonical_trusted(Index num_nodes, std::vector<std::vector<Index>> flat) {
+    SimplicialComplex sc(num_nodes);
+    while (!flat.empty() && flat.back().empty()) flat.pop_back();
+    for (std::size_t k = 1; k <= flat.size(); ++k) {
+      Rank& R = sc.ranks_.emplace_back();
+      R.nodes = std::move(flat[k - 1]);
+      R.count = static_cast<Index>(R.nodes.size() / (k + 1));
+      sc.build_lookup(static_cast<int>(k));
+      assert(R.order.empty());
+      sc.build_faces(static_cast<int>(k));
+    }
     return sc;
   }
 
@@ -259,30 +278,30 @@ class SimplicialComplex {
       for (Index i : ids) up.data().append(1.0, static_cast<Eigen::Index>(i));
       up.outerIndexPtr()[j + 1] = static_cast<std::int64_t>(up.data().size());
     }
-    return rank > to_rank ? up : sparse::transpose(up);
+    if (rank > to_rank) return up;
+    return sparse::transpose(up);
   }
 
   SparseMatrix up_laplacian_matrix(int rank, bool signed_ = true) const {
     if (rank < 0 || rank >= dim()) throw ComplexError("up_laplacian_matrix: rank " + std::to_string(rank) + " must be in [0, " + std::to_string(dim() - 1) + "] (the complex has dimension " + std::to_string(dim()) + ")");
     const SparseMatrix bt = coboundary(rank + 1, true);
     SparseMatrix l = sparse::multiply(sparse::transpose(bt), bt);
-    return signed_ ? l : sparse::abs(std::move(l));
+    if (!signed_) sparse::make_abs(l);
+    return l;
   }
   SparseMatrix down_laplacian_matrix(int rank, bool signed_ = true) const {
     if (rank < 1 || rank > dim()) throw ComplexError("down_laplacian_matrix: rank " + std::to_string(rank) + " must be in [1, " + std::to_string(dim()) + "] (the complex has dimension " + std::to_string(dim()) + ")");
     const SparseMatrix bt = coboundary(rank, true);
     SparseMatrix l = sparse::multiply(bt, sparse::transpose(bt));
-    return signed_ ? l : sparse::abs(std::move(l));
+    if (!signed_) sparse::make_abs(l);
+    return l;
   }
   /// L_rank = B_rank^T B_rank + B_{rank+1} B_{rank+1}^T (terms of ranks that do not exist omitted).
   SparseMatrix hodge_laplacian_matrix(int rank, bool signed_ = true) const {
     require_rank(rank, "hodge_laplacian_matrix");
-    SparseMatrix l;
-    if (rank == 0 && dim() == 0) l = SparseMatrix(num_nodes(), num_nodes());
-    else if (rank == 0) l = up_laplacian_matrix(0);
-    else if (rank == dim()) l = down_laplacian_matrix(rank);
-    else l = sparse::add(down_laplacian_matrix(rank), up_laplacian_matrix(rank));
-    return signed_ ? l : sparse::abs(std::move(l));
+    SparseMatrix l = signed_hodge(rank);
+    if (!signed_) sparse::make_abs(l);
+    return l;
   }
   /// Weighted Hodge Laplacian B_k^T W_{k-1} B_k + B_{k+1} W_{k+1} B_{k+1}^T with diagonal weights
   /// on the rank k-1 and k+1 cells (an empty vector: unit weights).
@@ -296,12 +315,14 @@ class SimplicialComplex {
   /// Off-diagonal part of the up-Laplacian (TopoNetX default: unsigned).
   SparseMatrix adjacency_matrix(int rank, bool signed_ = false) const {
     SparseMatrix a = sparse::without_diagonal(up_laplacian_matrix(rank, true));
-    return signed_ ? a : sparse::abs(std::move(a));
+    if (!signed_) sparse::make_abs(a);
+    return a;
   }
   /// Off-diagonal part of the down-Laplacian (TopoNetX default: unsigned).
   SparseMatrix coadjacency_matrix(int rank, bool signed_ = false) const {
     SparseMatrix a = sparse::without_diagonal(down_laplacian_matrix(rank, true));
-    return signed_ ? a : sparse::abs(std::move(a));
+    if (!signed_) sparse::make_abs(a);
+    return a;
   }
   /// Concept form: simplices of `rank` sharing a simplex of rank via_rank > rank, entry = count.
   SparseMatrix adjacency_matrix(int rank, int via_rank) const {
@@ -323,6 +344,7 @@ class SimplicialComplex {
     std::vector<Index> nodes;   // flat, stride rank+1, each simplex sorted
     std::vector<Index> order;   // ids in lexicographic order (empty: ids are already in that order)
     std::vector<Index> first;   // CSR over the first node: positions in `order` (or ids)
+    std::vector<Index> faces;   // stride rank+1: id of the face without node i (-1: missing)
   };
   std::vector<Rank> ranks_;
   bool ordered_ = false;
@@ -397,6 +419,7 @@ class SimplicialComplex {
       R.nodes = sort_unique(staged[static_cast<std::size_t>(k)], static_cast<std::size_t>(k) + 1, num_nodes());
       R.count = static_cast<Index>(R.nodes.size() / static_cast<std::size_t>(k + 1));
       build_lookup(k);
+      build_faces(k);
     }
   }
 
@@ -460,6 +483,22 @@ class SimplicialComplex {
     for (std::size_t v = 0; v + 1 < R.first.size(); ++v) R.first[v + 1] += R.first[v];
   }
 
+  // Face ids of every rank-k simplex (once per complex: every operator reuses them).
+  void build_faces(int k) {
+    Rank& R = ranks_[static_cast<std::size_t>(k)];
+    const std::size_t w = static_cast<std::size_t>(k) + 1;
+    R.faces.resize(static_cast<std::size_t>(R.count) * w);
+    Index face[kMaxArity];
+    for (Index j = 0; j < R.count; ++j) {
+      const Index* s = R.nodes.data() + static_cast<std::size_t>(j) * w;
+      for (std::size_t i = 0; i < w; ++i) {
+        std::size_t f = 0;
+        for (std::size_t q = 0; q < w; ++q) if (q != i) face[f++] = s[q];
+        R.faces[static_cast<std::size_t>(j) * w + i] = find_sorted(k - 1, face);
+      }
+    }
+  }
+
   // Id of the sorted simplex s at rank k, or -1.
   Index find_sorted(int k, const Index* s) const {
     if (k == 0) return s[0] >= 0 && s[0] < num_nodes() ? s[0] : -1;
@@ -507,6 +546,15 @@ class SimplicialComplex {
     }
   }
 
+  SparseMatrix signed_hodge(int rank) const {
+    if (rank == 0 && dim() == 0) return SparseMatrix(num_nodes(), num_nodes());
+    if (rank == 0) return up_laplacian_matrix(0);
+    if (rank == dim()) return down_laplacian_matrix(rank);
+    const SparseMatrix bt = coboundary(rank, true), b = sparse::transpose(bt);
+    const SparseMatrix ct = coboundary(rank + 1, true), c = sparse::transpose(ct);
+    return sparse::multiply_sum({{&bt, &b}, {&c, &ct}});
+  }
+
   // B_k^T (n_k x n_{k-1}), signed by the position of the removed node.
   SparseMatrix coboundary(int k, bool signed_) const {
     const Index n = num_cells(k);
@@ -515,16 +563,10 @@ class SimplicialComplex {
     auto& d = m.data();
     d.resize(static_cast<Eigen::Index>(n * static_cast<Index>(w)));
     std::int64_t* outer = m.outerIndexPtr();
-    Index face[kMaxArity];
     std::pair<Index, double> row[kMaxArity];
+    const Index* faces = ranks_[static_cast<std::size_t>(k)].faces.data();
     for (Index j = 0; j < n; ++j) {
-      const Index* s = data(k, j);
-      for (std::size_t i = 0; i < w; ++i) {
-        std::size_t f = 0;
-        for (std::size_t q = 0; q < w; ++q) if (q != i) face[f++] = s[q];
-        const Index id = find_sorted(k - 1, face);
-        row[i] = {id, signed_ && (i % 2) ? -1.0 : 1.0};
-      }
+      for (std::size_t i = 0; i < w; ++i) row[i] = {faces[static_cast<std::size_t>(j) * w + i], signed_ && (i % 2) ? -1.0 : 1.0};
       std::sort(row, row + w, [](const auto& a, const auto& b) { return a.first < b.first; });
       const std::size_t base = static_cast<std::size_t>(j) * w;
       for (std::size_t i = 0; i < w; ++i) {

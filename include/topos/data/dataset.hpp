@@ -170,6 +170,13 @@ class Dataset {
   const std::filesystem::path& root() const { return root_; }
   bool contains(std::int64_t id) const { return std::binary_search(ids_.begin(), ids_.end(), id); }
 
+  /// The reference's contacts of every frame of a scene (collisions.json: beside the scene's
+  /// metadata.json, or collisions/<seed>.json in a topos dataset), or "" when there are none.
+  std::string collisions_path(std::int64_t id) const {
+    const auto p = format_ == "kubric" ? root_ / std::to_string(id) / "collisions.json" : root_ / "collisions" / (std::to_string(id) + ".json");
+    return std::filesystem::exists(p) ? p.string() : std::string();
+  }
+
   KubricScene scene(std::int64_t id) const {
     if (format_ == "kubric") return read_kubric_metadata(root_ / std::to_string(id));
     auto it = scenes_.find(id);

@@ -132,7 +132,8 @@ inline void write_npy_bytes(const std::string& path, const std::vector<std::int6
 }
 }  // namespace detail
 
-/// Writes a float64 array (row-major data) atomically: a temporary file, then a rename.
+/// Writes a float64 array (row-major data) atomically: a temporary file, then a rename. An
+/// empty shape writes a 0-d array (one value).
 inline void write_npy(const std::string& path, const std::vector<std::int64_t>& shape, const double* data) {
   detail::write_npy_bytes(path, shape, "<f8", data, 8);
 }

@@ -17,10 +17,11 @@
 
 namespace topos::nn {
 
-/// A Neighborhood as tensors: source/target int64 [nnz], optional float values and int8 roles.
+/// A Neighborhood as tensors: source/target int64 [nnz], optional float values (and the
+/// backward's values, see Neighborhood::backward_values) and int8 roles.
 struct TensorNeighborhood {
   int source_rank = 0, target_rank = 0;
-  torch::Tensor source, target, values, roles;
+  torch::Tensor source, target, values, backward_values, roles;
   std::int64_t num_source = 0, num_target = 0;
   bool one_per_target = false;  ///< target[k] == k for every pair: aggregation is a plain gather
   std::int64_t nnz() const { return source.defined() ? source.size(0) : 0; }
@@ -65,6 +66,7 @@ class ComplexBatch {
         t.source = torch::zeros({0}, torch::kLong);
         t.target = torch::zeros({0}, torch::kLong);
         if (!n.values.empty()) t.values = torch::zeros({0}, torch::kFloat);
+        if (!n.backward_values.empty()) t.backward_values = torch::zeros({0}, torch::kFloat);
         if (!n.roles.empty()) t.roles = torch::zeros({0}, torch::kChar);
         b.neighborhoods_[name] = t;
       }
@@ -72,9 +74,9 @@ class ComplexBatch {
     }
     for (const auto& [name, first] : complexes[0].neighborhoods) {
       std::vector<std::int64_t> src, tgt;
-      std::vector<float> vals;
+      std::vector<float> vals, bvals;
       std::vector<std::int8_t> roles;
-      const bool has_vals = !first.values.empty(), has_roles = !first.roles.empty();
+      const bool has_vals = !first.values.empty(), has_bvals = !first.backward_values.empty(), has_roles = !first.roles.empty();
       for (std::size_t c = 0; c < complexes.size(); ++c) {
         auto it = complexes[c].neighborhoods.find(name);
         if (it == complexes[c].neighborhoods.end()) throw std::invalid_argument("ComplexBatch: complex " + std::to_string(c) + " lacks neighborhood '" + name + "'");
@@ -90,6 +92,7 @@ class ComplexBatch {
           src.push_back(n.source[k] + so);
           tgt.push_back(n.target[k] + to);
           if (has_vals) vals.push_back(static_cast<float>(n.values.empty() ? 1.0 : n.values[k]));
+          if (has_bvals) bvals.push_back(static_cast<float>(n.backward_values.empty() ? (n.values.empty() ? 1.0 : n.values[k]) : n.backward_values[k]));
           if (has_roles) roles.push_back(n.roles.empty() ? 0 : n.roles[k]);
         }
       }
@@ -99,6 +102,7 @@ class ComplexBatch {
       t.source = torch::tensor(src, torch::kLong);
       t.target = torch::tensor(tgt, torch::kLong);
       if (has_vals) t.values = torch::tensor(vals, torch::kFloat);
+      if (has_bvals) t.backward_values = torch::tensor(bvals, torch::kFloat);
       if (has_roles) t.roles = torch::tensor(std::vector<std::int64_t>(roles.begin(), roles.end()), torch::kLong).to(torch::kChar);
       t.num_source = b.size(first.source_rank);
       t.num_target = b.size(first.target_rank);
@@ -131,6 +135,7 @@ class ComplexBatch {
       t.source = t.source.to(device);
       t.target = t.target.to(device);
       if (t.values.defined()) t.values = t.values.to(device);
+      if (t.backward_values.defined()) t.backward_values = t.backward_values.to(device);
       if (t.roles.defined()) t.roles = t.roles.to(device);
     }
     return b;

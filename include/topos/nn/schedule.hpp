@@ -337,7 +337,10 @@ class ScheduleNetworkImpl : public torch::nn::Module {
         }
       }
       const bool next_adds = mi + 1 < s.messages.size() && s.messages[mi + 1].accumulate;
-      if (fast_ && cat && !m.accumulate && !next_adds && m.by_role.empty() && m.agg.reduce != Reduce::max && x.size(0) < n.num_target) {
+      // Not with backward values: they scale the gradient reaching the message, which must not
+      // reach the update's weight.
+      const bool scaled_backward = m.agg.weighted && n.backward_values.defined();
+      if (fast_ && cat && !m.accumulate && !next_adds && m.by_role.empty() && m.agg.reduce != Reduce::max && x.size(0) < n.num_target && !scaled_backward) {
         const auto block = aggregate(x.matmul(W.narrow(1, col, x.size(1)).t()), n, m.agg);
         early = early.defined() ? early + block : block;
         col += x.size(1);

@@ -1,14 +1,17 @@
 // Tests of topos/models/hopnet: the frozenset edge direction, features, incidences and outputs
 // of the first two rollout steps against the reference's golden arrays (MOVi-A scene 8,
 // modela_seed2_e39), the 102-step rollout's metrics, native mode, normalisation statistics,
-// checkpoints (import, topos save/load, every error), and the role-mixing buffer.
+// checkpoints (import, topos save/load, every error), the role-mixing buffer, and training:
+// chunked gradients, and the reference's loss, gradient and Adam steps (train-golden).
 #include "support/torch_prelude.hpp"
 
 #include "support/reference.hpp"
 #include "topos/data/npy.hpp"
 #include "topos/models/hopnet/training.hpp"
+#include "topos/models/hopnet/variants.hpp"
 
 #include <filesystem>
+#include <numeric>
 #include <random>
 
 using namespace topos;
@@ -442,5 +445,489 @@ TEST_CASE("one batched backward over a trajectory equals the sum of per-timestep
     INFO(k);
     const double err = (w - sum[k]).abs().max().item<double>(), scale = w.abs().max().item<double>();
     REQUIRE(err <= 1e-5 * std::max(scale, 1e-3));
+  }
+}
+
+TEST_CASE("chunked training steps give the unchunked gradient", "[hopnet][training]") {
+  torch::manual_seed(5);
+  const Scene scene = builtin_scene(12);
+  const Normalizer norm(unit_stats());
+  for (const auto mode : {FeatureMode::native, FeatureMode::reference}) {
+    INFO(to_string(mode));
+    Hopnet net(HopnetOptions().hidden(16).mode(mode));
+    const auto g = make_geometry(scene, mode);
+    const auto tf = trajectory_frames(scene, g, 0.1, 0.0);
+    const auto grads = [&](std::int64_t chunk) {
+      const auto chunks = make_training_chunks(g, tf, norm, chunk);
+      REQUIRE(chunks.size() == (chunk <= 0 ? 1 : (tf.frames.size() + static_cast<std::size_t>(chunk) - 1) / static_cast<std::size_t>(chunk)));
+      net->zero_grad();
+      std::vector<double> per_timestep;
+      const double loss = backward_trajectory(*net, chunks, norm, &per_timestep);
+      REQUIRE(per_timestep.size() == tf.frames.size());
+      REQUIRE(std::accumulate(per_timestep.begin(), per_timestep.end(), 0.0) == Approx(loss).epsilon(1e-6));
+      std::map<std::string, torch::Tensor> out;
+      for (const auto& p : net->named_parameters()) out[p.key()] = p.value().grad().clone();
+      return std::make_pair(loss, out);
+    };
+    const auto [whole_loss, whole] = grads(0);
+    for (std::int64_t chunk : {1, 4}) {
+      const auto [loss, got] = grads(chunk);
+      REQUIRE(loss == Approx(whole_loss).epsilon(1e-6));
+      for (const auto& [k, w] : whole) {
+        INFO(k << ", chunks of " << chunk);
+        REQUIRE((got.at(k) - w).norm().item<double>() <= 1e-6 * std::max(w.norm().item<double>(), 1e-6));
+      }
+    }
+  }
+  // The automatic chunk fits the budget from the most expensive timestep, within 1..T.
+  const auto g = make_geometry(scene, FeatureMode::native);
+  const auto tf = trajectory_frames(scene, g, 0.1, 0.0);
+  double worst = 0;
+  for (const auto& f : tf.frames) worst = std::max(worst, timestep_activation_bytes(g, f, 128));
+  REQUIRE(auto_chunk(g, tf, 128, 3.5 * worst) == 3);
+  REQUIRE(auto_chunk(g, tf, 128, 0.1 * worst) == 1);
+  REQUIRE(auto_chunk(g, tf, 128, 1e15) == static_cast<std::int64_t>(tf.frames.size()));
+}
+
+TEST_CASE("reference backward values: the gradient of a face's message comes back once per duplicate write", "[hopnet][training]") {
+  // Two contacts share face 0 as their -1 face: the reference computes its 2-to-3 message twice
+  // and writes both copies into one row with index_put_, whose backward gives each copy the
+  // row's gradient. Written with index_put_ here and compared with aggregate().
+  torch::manual_seed(3);
+  const auto x = torch::randn({3, 4}, torch::requires_grad());  // face messages
+  nn::TensorNeighborhood n;
+  n.source = torch::tensor(std::vector<std::int64_t>{0, 1, 0, 2}, torch::kLong);  // (face, contact) pairs
+  n.target = torch::tensor(std::vector<std::int64_t>{0, 0, 1, 1}, torch::kLong);
+  n.values = torch::tensor(std::vector<float>{1, 0, 1, 0});           // neg(f): faces 1, 2 are +1 faces only
+  n.backward_values = torch::tensor(std::vector<float>{2, 0, 2, 0});  // k_neg(f)
+  n.num_source = 3;
+  n.num_target = 2;
+  const auto w = torch::randn({2, 4});
+  (nn::aggregate(x, n, nn::AggregateOptions().with_weighted(true)) * w).sum().backward();
+  const auto got = x.grad().clone();
+  // The reference's construction.
+  const auto x2 = x.detach().clone().requires_grad_(true);
+  const auto neg_faces = torch::tensor(std::vector<std::int64_t>{0, 0}, torch::kLong);  // one row per -1 entry of B23
+  auto buffer = torch::zeros({3, 4});
+  buffer.index_put_({neg_faces}, x2.index_select(0, neg_faces));
+  const auto B = torch::tensor(std::vector<float>{1, 1, 0, 1, 0, 1}).reshape({2, 3});  // contacts × faces
+  (B.matmul(buffer) * w).sum().backward();
+  REQUIRE(torch::allclose(got, x2.grad()));
+  REQUIRE(torch::allclose(got[0], 2 * (w[0] + w[1])));
+}
+
+namespace {
+// A case of the reference's training goldens (train-golden/<case>/, its README): the sample,
+// checkpoint and statistics named by meta.json, read from the reference folder.
+struct TrainGolden {
+  fs::path dir, sample, checkpoint, stats;
+  std::string name;
+  static std::vector<TrainGolden> all(const fs::path& ref) {
+    std::vector<TrainGolden> out;
+    for (const auto& e : fs::directory_iterator(ref / "data" / "train-golden")) {
+      if (!fs::exists(e.path() / "meta.json")) continue;
+      const auto meta = data::read_json_file(e.path() / "meta.json").at("case");
+      TrainGolden c;
+      c.dir = e.path();
+      c.name = e.path().filename().string();
+      // "samples/MOVi-A/8 (...)" -> data/movi-a/8; "normalization-movia.npy" -> normalization/movia.json
+      std::string sample = meta.at("sample").get<std::string>();
+      sample = sample.substr(0, sample.find(' '));
+      const auto slash = sample.find('/'), last = sample.rfind('/');
+      std::string dataset = sample.substr(slash + 1, last - slash - 1);
+      std::transform(dataset.begin(), dataset.end(), dataset.begin(), [](unsigned char ch) { return static_cast<char>(std::tolower(ch)); });
+      c.sample = ref / "data" / dataset / sample.substr(last + 1);
+      c.checkpoint = ref / "data" / "checkpoints" / meta.at("checkpoint").get<std::string>();
+      std::string norm = meta.at("normalization_file").get<std::string>();
+      norm = norm.substr(std::string("normalization-").size());
+      c.stats = ref / "data" / "normalization" / (norm.substr(0, norm.size() - 4) + ".json");
+      out.push_back(c);
+    }
+    REQUIRE(!out.empty());
+    return out;
+  }
+  torch::Tensor tensor(const std::string& rel) const {
+    const auto a = data::read_npy((dir / rel).string());
+    const auto v = a.as<double>();
+    return torch::tensor(v, torch::kDouble).reshape(a.shape);
+  }
+  /// The reference's state dict names of `model`'s parameters -> golden tensors of folder `sub`.
+  std::map<std::string, torch::Tensor> params(const HopnetImpl& model, const std::string& sub) const {
+    std::map<std::string, torch::Tensor> out;
+    for (const auto& p : model.named_parameters()) out[p.key()] = tensor(sub + "/" + reference_parameter_name(p.key()) + ".npy");
+    return out;
+  }
+};
+
+struct TrainSetup {
+  Scene scene;
+  HopnetGeometry g;
+  Normalizer norm;
+  TrajectoryFrames tf;
+  explicit TrainSetup(const fs::path& ref, const TrainGolden& c) {
+    MeshLibrary lib(ref / "data" / "kubasic");
+    scene = make_scene(data::read_kubric_metadata(c.sample), lib);
+    g = make_geometry(scene, FeatureMode::reference);  // points into `scene`: TrainSetup is never moved
+    norm = Normalizer(read_stats_json(c.stats.string()));
+    const auto contacts = read_collisions_json((c.sample / "collisions.json").string());
+    tf = trajectory_frames(scene, g, 0.1, 0.0, 2, -1, &contacts);
+  }
+};
+}  // namespace
+
+TEST_CASE("reference mode reproduces the reference's training: loss, gradient and three Adam steps (train-golden)", "[hopnet][reference][training]") {
+  const auto ref = test::reference_dir("hopnet training parity");
+  for (const auto& c : TrainGolden::all(ref)) {
+    INFO("case " << c.name);
+    const TrainSetup S(ref, c);
+    auto model = load_hopnet(c.checkpoint.string(), FeatureMode::reference);
+    model->train();
+    const auto counts = c.tensor("complex_counts.npy");
+    REQUIRE(static_cast<std::int64_t>(S.tf.frames.size()) == counts.size(0));
+    for (std::size_t t = 0; t < S.tf.frames.size(); ++t) {
+      INFO("timestep " << t);
+      REQUIRE(S.tf.frames[t].num_faces() == counts[static_cast<std::int64_t>(t)][0].item<std::int64_t>());
+      REQUIRE(S.tf.frames[t].num_contacts() == counts[static_cast<std::int64_t>(t)][1].item<std::int64_t>());
+    }
+    // Chunks of 160 timesteps: the gradients add up (and a test above checks that exactly).
+    const auto chunks = make_training_chunks(S.g, S.tf, S.norm, 160);
+    std::map<std::string, torch::Tensor> start;
+    for (const auto& p : model->named_parameters()) start[p.key()] = p.value().detach().to(torch::kDouble).clone();
+    torch::optim::Adam opt(model->parameters(), torch::optim::AdamOptions(1e-4));
+    std::vector<double> per_timestep;
+    const double loss = train_step(*model, opt, chunks, S.norm, &per_timestep);
+
+    // Loss: total within 1e-5, every timestep within 5e-5 (README section 5).
+    const double want_total = c.tensor("loss_total.npy").item<double>();
+    float total32 = 0;
+    for (double l : per_timestep) total32 += static_cast<float>(l);
+    CHECK(std::abs(loss - want_total) <= 1e-5 * want_total);
+    CHECK(std::abs(static_cast<double>(total32) - want_total) <= 1e-5 * want_total);
+    const auto want_t = c.tensor("loss_per_timestep.npy");
+    REQUIRE(want_t.size(0) == static_cast<std::int64_t>(per_timestep.size()));
+    double worst_t = 0;
+    for (std::size_t t = 0; t < per_timestep.size(); ++t) {
+      const double w = want_t[static_cast<std::int64_t>(t)].item<double>();
+      worst_t = std::max(worst_t, std::abs(per_timestep[t] - w) / w);
+    }
+    std::cout << c.name << ": loss " << loss << " (golden " << want_total << "), worst per-timestep relative error " << worst_t << "\n";
+    CHECK(worst_t <= 5e-5);
+
+    // Gradient of step 1 (the parameters' .grad still holds it): every tensor within 1e-4 in norm.
+    const auto want_g = c.params(*model, "grads");
+    double worst_g = 0, num = 0, den = 0;
+    for (const auto& p : model->named_parameters()) {
+      const auto g = p.value().grad().to(torch::kDouble);
+      const auto& w = want_g.at(p.key());
+      const double e = (g - w).norm().item<double>(), n = w.norm().item<double>();
+      num += e * e, den += n * n;
+      worst_g = std::max(worst_g, e / std::max(n, 1e-12));
+      INFO(reference_parameter_name(p.key()) << ": relative error " << e / n);
+      CHECK(e <= 1e-4 * n);
+    }
+    std::cout << c.name << ": gradient relative error worst tensor " << worst_g << ", global " << std::sqrt(num / den) << "\n";
+
+    // Adam step 1: coordinates with |g_ref| >= 1e-4 within 1e-6 of after_1_step.
+    const auto after1 = c.params(*model, "after_1_step");
+    for (const auto& p : model->named_parameters()) {
+      const auto d = (p.value().detach().to(torch::kDouble) - after1.at(p.key())).abs();
+      const auto sure = want_g.at(p.key()).abs().ge(1e-4);
+      INFO(reference_parameter_name(p.key()));
+      CHECK(d.masked_select(sure).max().item<double>() <= 1e-6);
+      CHECK(d.max().item<double>() <= 2.0001e-4);
+    }
+    // Steps 2 and 3 along our own trajectory: >= 99.5 % of the coordinates within 1e-6, and the
+    // whole difference under 1 % of the three-step move.
+    for (int k = 2; k <= 3; ++k) train_step(*model, opt, chunks, S.norm);
+    const auto after3 = c.params(*model, "after_3_steps");
+    std::int64_t close = 0, total = 0;
+    double diff = 0, move = 0;
+    for (const auto& p : model->named_parameters()) {
+      const auto d = p.value().detach().to(torch::kDouble) - after3.at(p.key());
+      close += d.abs().le(1e-6).sum().item<std::int64_t>();
+      total += d.numel();
+      diff += d.pow(2).sum().item<double>();
+      move += (after3.at(p.key()) - start.at(p.key())).pow(2).sum().item<double>();
+    }
+    const double frac = static_cast<double>(close) / static_cast<double>(total), rel = std::sqrt(diff / move);
+    std::cout << c.name << ": after 3 steps " << 100 * frac << " % of parameters within 1e-6, difference " << rel << " of the 3-step move\n";
+    CHECK(frac >= 0.995);
+    CHECK(rel < 1e-2);
+  }
+}
+
+TEST_CASE("LibTorch's Adam fed the reference's gradients reproduces its three steps (train-golden)", "[hopnet][reference][training]") {
+  const auto ref = test::reference_dir("hopnet Adam parity");
+  for (const auto& c : TrainGolden::all(ref)) {
+    INFO("case " << c.name);
+    auto model = load_hopnet(c.checkpoint.string(), FeatureMode::reference);
+    torch::optim::Adam opt(model->parameters(), torch::optim::AdamOptions(1e-4));
+    for (const auto& [step, grads, after] : std::vector<std::tuple<int, std::string, std::string>>{{1, "grads", "after_1_step"}, {2, "grads_step2", "after_2_steps"}, {3, "grads_step3", "after_3_steps"}}) {
+      const auto g = c.params(*model, grads);
+      for (auto& p : model->named_parameters()) p.value().mutable_grad() = g.at(p.key()).to(torch::kFloat);
+      opt.step();
+      const auto want = c.params(*model, after);
+      double worst = 0;
+      for (const auto& p : model->named_parameters()) worst = std::max(worst, (p.value().detach().to(torch::kDouble) - want.at(p.key())).abs().max().item<double>());
+      INFO("step " << step);
+      CHECK(worst <= 1e-6);
+
+// ---- the HOPNet family (hopnet-ablations-spec.md) ---------------------------------------------
+
+TEST_CASE("HOPNet variants: presets compose into the reference's parameter counts; bad configurations are errors", "[hopnet][variants]") {
+  // Counts of hopnet-ablations-spec section 4 (the reference classes' constructions).
+  for (const auto& [config, want] : std::vector<std::pair<std::string, std::int64_t>>{
+           {"standard", 707078}, {"nox4", 539651}, {"noseq", 951814}, {"no-cm-distance", 706054}, {"mlp3", 1037318}, {"mp2", 1287174}, {"hidden64", 181510},
+           {"mlp3,no-cm-distance", 1036294}, {"mp2,no-cm-distance", 1286150}, {"hidden64,no-cm-distance", 180998}, {"noseq,hidden64", 951814}, {"standard,mlp3", 1037318}}) {
+    INFO(config);
+    const auto o = parse_config(config);
+    REQUIRE(Hopnet(o)->num_parameters() == want);
+    REQUIRE(parse_config(variant_name(o).substr(0, variant_name(o).find(' '))).to_json() == o.to_json());  // the name is a configuration
+  }
+  for (const char* act : {"relu", "gelu", "elu", "selu"}) REQUIRE(Hopnet(parse_config("standard").activation(nn::activation_from_string(act)))->num_parameters() == 707078);
+  REQUIRE(parse_config("noseq").hidden() == 64);
+  REQUIRE(parse_config("noseq").num_layers() == 3);
+  REQUIRE(variant_name(parse_config("nox4").activation(nn::Activation::gelu)) == "nox4 (activation gelu)");
+  // The NoObjectCells encoder reads 21 node columns; no-cm-distance 8.
+  REQUIRE(Hopnet(parse_config("nox4"))->module("encoder_0")->options.in() == 21);
+  REQUIRE(Hopnet(parse_config("no-cm-distance"))->module("encoder_0")->options.in() == 8);
+
+  REQUIRE_THROWS_WITH(parse_config("nox5"), Catch::Contains("unknown configuration 'nox5': not a preset"));
+  REQUIRE_THROWS_WITH(parse_config("nox4,noseq"), Catch::Contains("conflicting configuration: preset 'nox4' sets architecture"));
+  REQUIRE_THROWS_WITH(parse_config("noseq,mp2"), Catch::Contains("num_layers = 3"));
+  REQUIRE_THROWS_WITH(parse_config("mlp3,,mp2"), Catch::Contains("empty item"));
+  REQUIRE_THROWS_WITH(parse_config("missing.json"), Catch::Contains("no such file"));
+  // JSON configuration files: fields, and presets under them.
+  const auto file = (fs::temp_directory_path() / "topos_variant.json").string();
+  { std::ofstream(file) << R"({"presets": ["mlp3"], "activation": "gelu", "collision_radius": 0.05})"; }
+  const auto o = parse_config(file + ",no-cm-distance");
+  REQUIRE(o.mlp_layers() == 3);
+  REQUIRE(o.activation() == nn::Activation::gelu);
+  REQUIRE(o.collision_radius() == 0.05);
+  REQUIRE(Hopnet(o)->num_parameters() == 1036294);
+  { std::ofstream(file) << R"({"hiden": 64})"; }
+  REQUIRE_THROWS_WITH(parse_config(file), Catch::Contains("unknown configuration field 'hiden'"));
+  { std::ofstream(file) << R"({"collision_radius": -1})"; }
+  REQUIRE_THROWS_WITH(parse_config(file), Catch::Contains("collision radius must be a positive number"));
+  { std::ofstream(file) << R"({"presets": "mp2", "num_layers": 3})"; }
+  REQUIRE_THROWS_WITH(parse_config(file), Catch::Contains("conflicting configuration"));
+  fs::remove(file);
+}
+
+namespace {
+struct VariantGolden {
+  Golden G;
+  std::map<std::string, torch::Tensor> dict;
+  Hopnet model{nullptr};
+  Normalizer norm;
+  HopnetGeometry g;
+  VariantGolden(const char* what, const std::string& checkpoint, const std::string& stats) : G(what) {
+    const auto path = (G.ref / "data" / "checkpoints" / checkpoint).string();
+    dict = nn::read_tensor_dict(path);
+    model = load_hopnet(dict, path);
+    model->eval();
+    const auto s = read_stats_json((G.ref / "data" / "normalization" / stats).string());
+    check_stats_fit(model->options, s, stats);
+    norm = Normalizer(s);
+    g = make_geometry(G.scene, model->options.lifting());
+  }
+};
+double sum_of(const torch::Tensor& t) { return t.sum().item<double>(); }
+}  // namespace
+
+TEST_CASE("NoObjectCells: the published movia-nox4 weights on MOVi-A scene 8 give the reference's single steps", "[hopnet][variants][reference]") {
+  VariantGolden V("hopnet NoObjectCells", "movia-nox4_seed0_e39.pt", "movia-nox4.json");
+  REQUIRE(V.model->options.architecture() == Architecture::no_object_cells);
+  REQUIRE(V.model->num_parameters() == 539651);
+  REQUIRE(V.dict.size() == 88);
+  REQUIRE(variant_name(V.model->options) == "nox4");
+  // The complex of hopnet-ablations-spec 1.1.
+  const auto& g = V.g;
+  REQUIRE(g.num_rank0() == 187);
+  REQUIRE(g.num_rank1() == 707);
+  std::int64_t virtual_first = 0;
+  for (char c : g.spoke_virtual_first) virtual_first += c;
+  REQUIRE(virtual_first == 54);
+  // z0 of the nox4 statistics (spec 1.3), in float32.
+  const auto z0 = V.norm.zero_node_acceleration();
+  REQUIRE(z0[0].item<float>() == Approx(-1.2923704e-4f).epsilon(1e-6));
+  REQUIRE(z0[1].item<float>() == Approx(4.3692067e-5f).epsilon(1e-6));
+  REQUIRE(z0[2].item<float>() == Approx(-1.2546999e-4f).epsilon(1e-6));
+  REQUIRE_FALSE(V.norm.stats().has_objects());
+  torch::NoGradGuard ng;
+  struct Want { int t, F, C; double loss, sum_all, sum_mesh; };
+  for (const auto& w : {Want{2, 26, 34, 0.00444751, -15.9626, -15.5869}, Want{100, 47, 49, 2.70767, -39.8994, -39.3561}, Want{300, 61, 59, 0.119437, -10.8541, -10.4690}}) {
+    INFO("t = " << w.t);
+    const auto tf = trajectory_frames(V.G.scene, g, 0.1, 0.0, w.t, w.t);
+    const auto& f = tf.frames[0];
+    REQUIRE(f.num_faces() == w.F);
+    REQUIRE(f.num_contacts() == w.C);
+    REQUIRE(f.x0.rows() == 187);
+    REQUIRE(f.x1.rows() == 707);
+    const auto item = make_training_item(g, tf, V.norm);
+    REQUIRE(item.batch.complex.neighborhood("A010").nnz() == 1601 - 187);  // the reference's explicit diagonal zeros left out
+    const auto out = V.model->forward(item.batch, V.norm);
+    REQUIRE(out.a0.size(0) == 187);
+    REQUIRE_FALSE(out.a4.defined());
+    REQUIRE(trajectory_loss(*V.model, item, V.norm).item<double>() == Approx(w.loss).epsilon(2e-4));
+    REQUIRE(sum_of(out.a0) == Approx(w.sum_all).epsilon(2e-4));
+    REQUIRE(sum_of(out.a0.slice(0, 0, 183)) == Approx(w.sum_mesh).epsilon(2e-4));
+    // Static rows: the floor's 4 mesh nodes and its virtual node.
+    for (std::int64_t r : {179, 180, 181, 182, 186}) REQUIRE(torch::equal(out.a0[r], z0));
+    if (w.t == 100) {
+      const auto acc = V.norm.denormalize("t0", out.a0);
+      const auto close = [&](std::int64_t row, std::array<double, 3> v) {
+        INFO("row " << row);
+        for (int c = 0; c < 3; ++c) REQUIRE(acc[row][c].item<double>() == Approx(v[static_cast<std::size_t>(c)]).margin(5e-9).epsilon(2e-3));
+      };
+      close(0, {1.18782e-5, 5.14045e-5, -8.38266e-5});
+      close(183, {9.788e-6, -2.019e-5, -1.74249e-4});
+      close(184, {4.568e-5, 1.01074e-4, -1.08692e-4});
+      close(185, {5.1888e-5, -4.37754e-4, -2.76162e-4});
+      REQUIRE(acc[186].abs().max().item<double>() == 0.0);
+    }
+  }
+  // Node features of spec 1.2: x0n[0, 16:21] and the cylinder's virtual row at t = 3.
+  const auto tf = trajectory_frames(V.G.scene, g, 0.1, 0.0, 3, 3);
+  const auto x0n = V.norm.normalize("x0", tf.frames[0].x0);
+  const std::array<double, 5> obj{1, -1, 0.071063, 1.008522, 1.012018};
+  for (int c = 0; c < 5; ++c) REQUIRE(x0n[0][16 + c].item<double>() == Approx(obj[static_cast<std::size_t>(c)]).margin(1e-5));
+  const std::array<double, 8> v{-0.003789, -0.007679, -0.000443, 0.008575, -0.003789, -0.007679, -0.000269, 0.008567};
+  for (int c = 0; c < 8; ++c) REQUIRE(tf.frames[0].x0(183, c) == Approx(v[static_cast<std::size_t>(c)]).margin(1e-6));
+  for (int c = 8; c < 16; ++c) REQUIRE(tf.frames[0].x0(183, c) == 0.0);
+  REQUIRE(tf.frames[0].x0(186, 17) == 1.0);  // the floor's virtual node: type (0, 1)
+  // The standard statistics cannot feed it.
+  REQUIRE_THROWS_WITH(check_stats_fit(V.model->options, V.G.normalizer().stats(), "movia.json"), Catch::Contains("x0 statistics have 16 columns") && Catch::Contains("reads 21"));
+}
+
+TEST_CASE("NoSequential: the published movia-noseq weights on MOVi-A scene 8 give the reference's single steps", "[hopnet][variants][reference]") {
+  VariantGolden V("hopnet NoSequential", "movia-noseq_seed1_e39.pt", "movia.json");
+  REQUIRE(V.model->options.architecture() == Architecture::no_sequential);
+  REQUIRE(V.model->options.hidden() == 64);
+  REQUIRE(V.model->options.num_layers() == 3);
+  REQUIRE(V.model->num_parameters() == 951814);
+  REQUIRE(V.dict.size() == 506);
+  REQUIRE(variant_name(V.model->options) == "noseq");
+  torch::NoGradGuard ng;
+  struct Want { int t, F, C; std::int64_t a232; double loss, sum_a0, sum_a4; };
+  for (const auto& w : {Want{2, 26, 34, 94 - 26, 0.00687097, -23.3120, -0.482267}, Want{100, 47, 49, 145 - 47, 2.43256, -59.7767, -2.23047}, Want{300, 61, 59, 179 - 61, 0.119727, -14.2289, -0.234775}}) {
+    INFO("t = " << w.t);
+    const auto tf = trajectory_frames(V.G.scene, V.g, 0.1, 0.0, w.t, w.t);
+    REQUIRE(tf.frames[0].num_faces() == w.F);
+    REQUIRE(tf.frames[0].num_contacts() == w.C);
+    const auto item = make_training_item(V.g, tf, V.norm);
+    const auto& cx = item.batch.complex;
+    REQUIRE(cx.neighborhood("A232").nnz() == w.a232);
+    REQUIRE(cx.neighborhood("A101").nnz() == 5818 - 524);
+    REQUIRE(cx.neighborhood("B03").nnz() == 6 * w.C);
+    REQUIRE(cx.neighborhood("B13").nnz() == 6 * w.C);
+    const auto out = V.model->forward(item.batch, V.norm);
+    REQUIRE(trajectory_loss(*V.model, item, V.norm).item<double>() == Approx(w.loss).epsilon(2e-4));
+    REQUIRE(sum_of(out.a0) == Approx(w.sum_a0).epsilon(2e-4));
+    REQUIRE(sum_of(out.a4) == Approx(w.sum_a4).epsilon(2e-4));
+    if (w.t == 100) {
+      const auto acc = V.norm.denormalize("t4", out.a4);
+      const std::vector<std::array<double, 3>> want{{-5.38867e-6, -1.91431e-7, -1.77391e-4}, {1.70072e-5, 3.94399e-4, -2.35282e-5}, {-8.59022e-5, -2.40931e-3, -4.43048e-4}};
+      for (std::int64_t o = 0; o < 3; ++o)
+        for (int c = 0; c < 3; ++c) REQUIRE(acc[o][c].item<double>() == Approx(want[static_cast<std::size_t>(o)][static_cast<std::size_t>(c)]).margin(5e-9).epsilon(2e-3));
+      REQUIRE(acc[3].abs().max().item<double>() == 0.0);
+    }
+  }
+}
+
+TEST_CASE("the published variant checkpoints are recognised from their keys; a dict of no variant is an error", "[hopnet][variants][reference]") {
+  Golden G("hopnet variant checkpoints");
+  const auto ckpt = [&](const char* f) { return (G.ref / "data" / "checkpoints" / f).string(); };
+  for (const auto& [file, name, params] : std::vector<std::tuple<const char*, const char*, std::int64_t>>{
+           {"movia-nox4_seed0_e39.pt", "nox4", 539651}, {"movia-noseq_seed1_e39.pt", "noseq", 951814}, {"gelu_seed0_e39.pt", "standard", 707078},
+           {"models_seed2_e39.pt", "standard", 707078}, {"movib-alt_seed0_e39.pt", "standard", 707078}}) {
+    INFO(file);
+    const auto dict = nn::read_tensor_dict(ckpt(file));
+    const auto o = checkpoint_options(dict, file);
+    REQUIRE(variant_name(o) == name);
+    auto m = load_hopnet(dict, file);
+    REQUIRE(m->num_parameters() == params);
+    // Exported reference names are the file's own.
+    std::set<std::string> names;
+    for (const auto& p : m->named_parameters()) names.insert(reference_parameter_name(p.key(), o.architecture()));
+    std::set<std::string> keys;
+    for (const auto& [k, v] : dict) keys.insert(k);
+    REQUIRE(names == keys);
+  }
+  // The activation is not in a reference file: an override applies; a topos file records it.
+  CheckpointOverrides gelu;
+  gelu.activation = nn::Activation::gelu;
+  const auto dict = nn::read_tensor_dict(ckpt("gelu_seed0_e39.pt"));
+  REQUIRE(load_hopnet(dict, "gelu", gelu)->options.activation() == nn::Activation::gelu);
+  // A state dict whose names belong to no variant, and one whose class is known but whose
+  // tensors are not the class's.
+  std::map<std::string, torch::Tensor> renamed;
+  for (const auto& [k, v] : dict) renamed["_HOPNet_Other__" + k.substr(9)] = v;
+  REQUIRE_THROWS_WITH(checkpoint_options(renamed, "other.pt"), Catch::Contains("neither a topos nor a reference HOPNet checkpoint"));
+  auto mixed = nn::read_tensor_dict(ckpt("movia-nox4_seed0_e39.pt"));
+  mixed["_HOPNet__mlp_encoder_4.0.weight"] = torch::zeros({128, 13});
+  REQUIRE_THROWS_WITH(load_hopnet(mixed, "mixed.pt"), Catch::Contains("unexpected tensor '_HOPNet__mlp_encoder_4.0.weight'"));
+  auto wide = dict;
+  wide["_HOPNet__mlp_encoder_0.0.weight"] = torch::zeros({128, 12});
+  REQUIRE_THROWS_WITH(checkpoint_options(wide, "wide.pt"), Catch::Contains("reads 12 node features"));
+}
+
+TEST_CASE("variants on built-in shapes: batching, rollout, training, statistics and topos checkpoints", "[hopnet][variants]") {
+  torch::manual_seed(5);
+  const Scene scene = builtin_scene();
+  for (const char* config : {"nox4", "noseq,hidden64", "no-cm-distance", "mp2", "nox4,no-cm-distance"}) {
+    INFO(config);
+    for (auto mode : {FeatureMode::reference, FeatureMode::native}) {
+      INFO(to_string(mode));
+      HopnetOptions o = parse_config(config, HopnetOptions().mode(mode));
+      o.hidden(16);
+      Hopnet net(o);
+      const auto g = make_geometry(scene, o.lifting());
+      // Statistics of the variant's own layout, computed from its features.
+      const auto tf = trajectory_frames(scene, g, o.collision_radius(), 0.0);
+      StatsAccumulator acc;
+      accumulate_stats(acc, tf, o.lifting().object_cells());
+      const auto stats = acc.finalize();
+      REQUIRE(stats.x0_width() == static_cast<std::size_t>(o.lifting().x0_width()));
+      REQUIRE(stats.has_objects() == o.lifting().object_cells());
+      check_stats_fit(o, stats, "computed");
+      if (!o.lifting().object_cells()) REQUIRE(stats.mean.at("x0")[o.lifting().x0_width() - 5] == 0.5);
+      const auto path = (fs::temp_directory_path() / "topos_variant_stats.json").string();
+      write_stats_json(stats, path);
+      const Normalizer norm(read_stats_json(path));
+      fs::remove(path);
+      // One backward over the trajectory; every parameter that the schedule reaches gets a gradient.
+      const auto item = make_training_item(g, tf, norm);
+      net->zero_grad();
+      const auto loss = trajectory_loss(*net, item, norm);
+      REQUIRE(std::isfinite(loss.item<double>()));
+      loss.backward();
+      // Batched frames equal single frames.
+      net->eval();
+      torch::NoGradGuard ng;
+      std::vector<std::pair<const HopnetGeometry*, const HopnetFrame*>> all;
+      for (const auto& f : tf.frames) all.push_back({&g, &f});
+      const auto batched = net->forward(make_batch(all, norm), norm);
+      std::int64_t row = 0;
+      for (const auto& f : tf.frames) {
+        const auto one = net->forward(make_batch({{&g, &f}}, norm), norm);
+        REQUIRE(torch::allclose(one.a0, batched.a0.slice(0, row, row + g.num_rank0()), 1e-4, 1e-5));
+        row += g.num_rank0();
+        REQUIRE(torch::equal(one.a0[g.num_nodes() - 1], norm.zero_node_acceleration()));  // a floor node
+      }
+      RolloutOptions opt;
+      opt.steps = 5;
+      const auto r = rollout(*net, norm, scene, g, opt);
+      REQUIRE(r.poses[8].positions.row(2).norm() == 0.0);
+      // The topos checkpoint keeps the configuration.
+      const auto ck = (fs::temp_directory_path() / "topos_variant.pt").string();
+      save_hopnet(*net, ck);
+      auto back = load_hopnet(ck);
+      REQUIRE(back->options.to_json() == net->options.to_json());
+      CheckpointOverrides other;
+      other.activation = nn::Activation::selu;
+      REQUIRE_THROWS_WITH(load_hopnet(nn::read_tensor_dict(ck), ck, other), Catch::Contains("trained with activation relu, not selu"));
+      fs::remove(ck);
+    }
   }
 }

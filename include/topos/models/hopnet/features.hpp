@@ -28,6 +28,7 @@
 #include <array>
 #include <fstream>
 #include <map>
+#include <set>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -45,6 +46,34 @@ inline const char* to_string(FeatureMode m) { return m == FeatureMode::reference
 
 /// Feature widths (spec 4): x0 16, x1 8, x2 3, x3 28, x4 13; targets 3.
 inline constexpr std::array<int, 5> kFeatureWidth{16, 8, 3, 28, 13};
+
+/// The member of the HOPNet family a complex is lifted for (hopnet-ablations-spec.md):
+/// hopnet (object cells, sequential layer), no_object_cells (a virtual node per object joined to
+/// its nodes by spoke edges, no rank-4 features) or no_sequential (every rank pair at once, with
+/// the extra adjacencies and incidences that needs).
+enum class Architecture { hopnet, no_object_cells, no_sequential };
+
+inline Architecture architecture_from_string(const std::string& s) {
+  if (s == "hopnet") return Architecture::hopnet;
+  if (s == "no_object_cells") return Architecture::no_object_cells;
+  if (s == "no_sequential") return Architecture::no_sequential;
+  throw std::invalid_argument("unknown architecture '" + s + "' (hopnet, no_object_cells, no_sequential)");
+}
+inline const char* to_string(Architecture a) {
+  return a == Architecture::hopnet ? "hopnet" : (a == Architecture::no_object_cells ? "no_object_cells" : "no_sequential");
+}
+
+/// How a scene is lifted: feature mode, architecture, and whether x0 keeps the centre-mass
+/// distances r0, rt (columns 8..15; the "no centre-mass distance" ablation drops them).
+struct LiftingOptions {
+  FeatureMode mode = FeatureMode::reference;
+  Architecture architecture = Architecture::hopnet;
+  bool center_mass_distance = true;
+  /// x0's columns: 16 (8 without the centre-mass distances), plus the 5 object columns of x4
+  /// (type, mass, friction, restitution) when objects are virtual nodes.
+  std::int64_t x0_width() const { return (center_mass_distance ? 16 : 8) + (architecture == Architecture::no_object_cells ? 5 : 0); }
+  bool object_cells() const { return architecture != Architecture::no_object_cells; }
+};
 
 /// CPython's iteration order of frozenset({a, b}) built from [a, b] (a inserted first), for
 /// small non-negative ints (hash = value, table of 8 slots): returns true when a comes first.
@@ -71,15 +100,37 @@ struct HopnetGeometry {
   Eigen::Matrix<std::int64_t, Eigen::Dynamic, 3, Eigen::RowMajor> face_edges;  ///< global face -> edge ids
   std::vector<VertexFaceIndex> vertex_faces;              ///< per object, for the reference detector
   FeatureMode mode = FeatureMode::reference;
+  LiftingOptions lifting;                                 ///< lifting.mode == mode
+  /// no_object_cells: per mesh node, whether its spoke edge runs virtual node -> node (the
+  /// frozenset rule on [9900 + object, node]); the spoke's features are then negated.
+  std::vector<char> spoke_virtual_first;
 
   std::int64_t num_nodes() const { return node_offset.back(); }
   std::int64_t num_edges() const { return static_cast<std::int64_t>(edges.size()); }
   std::int64_t num_objects() const { return static_cast<std::int64_t>(objects.size()); }
+  /// Rank-0 and rank-1 cells the network sees: mesh nodes and edges, plus one virtual node per
+  /// object and one spoke per mesh node when objects are virtual nodes.
+  std::int64_t num_rank0() const { return num_nodes() + (lifting.object_cells() ? 0 : num_objects()); }
+  std::int64_t num_rank1() const { return num_edges() + (lifting.object_cells() ? 0 : num_nodes()); }
 };
 
+/// Id of object i's virtual node in the reference's NoObjectCells complex (9900 + i); the
+/// construction breaks for scenes of 9900 or more mesh nodes, which are refused.
+inline constexpr std::int64_t kVirtualNodeId = 9900;
+
+inline HopnetGeometry make_geometry(const Scene& scene, const LiftingOptions& lifting);
+
 inline HopnetGeometry make_geometry(const Scene& scene, FeatureMode mode) {
+  LiftingOptions l;
+  l.mode = mode;
+  return make_geometry(scene, l);
+}
+
+inline HopnetGeometry make_geometry(const Scene& scene, const LiftingOptions& lifting) {
   HopnetGeometry g;
+  const FeatureMode mode = lifting.mode;
   g.mode = mode;
+  g.lifting = lifting;
   std::vector<TriangleMesh> meshes;
   for (const auto& o : scene.objects) {
     g.objects.push_back(&o);
@@ -102,6 +153,14 @@ inline HopnetGeometry make_geometry(const Scene& scene, FeatureMode mode) {
   for (Eigen::Index f = 0; f < g.face_nodes.rows(); ++f)
     for (int k = 0; k < 3; ++k) g.face_edges(f, k) = edge_id.emplace(key(g.face_nodes(f, k), g.face_nodes(f, (k + 1) % 3)), -1).first;
   for (const auto& o : scene.objects) g.vertex_faces.emplace_back(o.mesh.faces, o.mesh.vertices.rows());
+  if (!lifting.object_cells()) {
+    if (g.num_nodes() >= kVirtualNodeId)
+      throw std::invalid_argument(scene.source + ": " + std::to_string(g.num_nodes()) + " mesh nodes; the reference's virtual node ids (9900 + object) would collide with them");
+    for (std::int64_t n = 0; n < g.num_nodes(); ++n) {
+      const auto o = g.node_object[static_cast<std::size_t>(n)];
+      g.spoke_virtual_first.push_back(mode == FeatureMode::reference && frozenset_a_first(kVirtualNodeId + o, n));
+    }
+  }
   return g;
 }
 
@@ -237,6 +296,50 @@ inline ContactGeometry contact_geometry(const std::array<Eigen::Vector3d, 3>& P,
 }
 }  // namespace detail
 
+/// The contact cells X(3) a frame's complex gets from `candidates`: the safe pairs (build_frame
+/// skips the others), without building any feature.
+inline std::int64_t count_contact_cells(const HopnetGeometry& g, const std::vector<PosedObject>& posed, const std::vector<ContactCandidate>& candidates) {
+  std::int64_t n = 0;
+  for (const auto& c : candidates) {
+    const auto P = topos::detail::face_points(posed[static_cast<std::size_t>(c.obj0)], c.face0);
+    const auto Q = topos::detail::face_points(posed[static_cast<std::size_t>(c.obj1)], c.face1);
+    n += detail::contact_geometry(P, Q, g.mode).safe;
+  }
+  return n;
+}
+
+/// The ablations' node and edge features from the standard ones (hopnet-ablations-spec 1.2, 3.5):
+/// without centre-mass distances x0 keeps columns 0..7; with virtual object nodes every mesh
+/// node gets its object's columns x4[8:13] (type, mass, friction, restitution), object o's
+/// virtual node (row N+o) is [x4[o, 0:8], zeros, x4[o, 8:13]], and the spoke of node n (row E+n)
+/// is [r0, |r0|, rt, |rt|] of that node (x0[n, 8:16]), negated when the virtual node comes first.
+inline void lift_variant_features(const HopnetGeometry& g, HopnetFrame& f) {
+  const LiftingOptions& l = g.lifting;
+  if (l.center_mass_distance && l.object_cells()) return;
+  const std::int64_t N = g.num_nodes(), E = g.num_edges(), O = g.num_objects();
+  const RowMatrix full = f.x0;
+  const Eigen::Index base = l.center_mass_distance ? 16 : 8;
+  if (l.object_cells()) {
+    f.x0 = full.leftCols(base);
+    return;
+  }
+  f.x0.setZero(N + O, l.x0_width());
+  f.x0.topLeftCorner(N, base) = full.leftCols(base);
+  for (std::int64_t n = 0; n < N; ++n) f.x0.block<1, 5>(n, base) = f.x4.block<1, 5>(g.node_object[static_cast<std::size_t>(n)], 8);
+  for (std::int64_t o = 0; o < O; ++o) {
+    f.x0.block<1, 8>(N + o, 0) = f.x4.block<1, 8>(o, 0);
+    f.x0.block<1, 5>(N + o, base) = f.x4.block<1, 5>(o, 8);
+  }
+  RowMatrix x1(E + N, 8);
+  x1.topRows(E) = f.x1;
+  for (std::int64_t n = 0; n < N; ++n) {
+    x1.row(E + n) = full.block<1, 8>(n, 8);
+    if (g.spoke_virtual_first[static_cast<std::size_t>(n)])
+      for (int c : {0, 1, 2, 4, 5, 6}) x1(E + n, c) = -x1(E + n, c);
+  }
+  f.x1 = std::move(x1);
+}
+
 /// Builds the complex and raw features at frame t from poses at t-2, t-1, t and the trajectory's
 /// first frame (`first`, the GT frame 0), and the contact candidates at t (detect_contacts, or
 /// collisions.json in reference mode).
@@ -336,6 +439,7 @@ inline HopnetFrame build_frame(const HopnetGeometry& g, const Poses& first, cons
   f.x3_plus.resize(f.num_contacts(), 28);
   for (std::int64_t r = 0; r < f.num_contacts(); ++r)
     for (int k = 0; k < 28; ++k) f.x3(r, k) = x3[static_cast<std::size_t>(r)][static_cast<std::size_t>(k)], f.x3_plus(r, k) = x3p[static_cast<std::size_t>(r)][static_cast<std::size_t>(k)];
+  lift_variant_features(g, f);
   return f;
 }
 
@@ -344,9 +448,19 @@ inline HopnetFrame build_frame(const HopnetGeometry& g, const Poses& first, cons
 ///   values: the half of the contact's face message this pair feeds), B32 (3→2, roles −1/+1),
 ///   B24 (2→4), B04 (0→4), B40 (4→0).
 /// In reference mode B23neg/B23pos carry the reference's role-mixing buffer (neg(f), pos(f) per
-/// face, spec 6.3); in native mode the pair's own role.
+/// face, spec 6.3) and, as backward values, the reference's gradient multiplicity (the number of
+/// contacts in which the face has that role); in native mode the pair's own role.
+/// The ablations add (hopnet-ablations-spec 1.1, 2.1): A010 (0→0, nodes sharing a rank-1 cell,
+/// spokes included; the reference's explicit zeros on the diagonal contribute nothing and are
+/// left out) and B20 (2→0) for both; no_sequential also A101 (1→1), A232 (2→2, faces sharing a
+/// contact), B01/B10, B14/B41, B03/B30 (the 6 nodes of a contact), B13/B31 (its 6 edges), B21,
+/// and the signed incidence as values, B23signed (2→3) and B32signed (3→2): −1 face0, +1 face1.
+/// With virtual object nodes, rank 0 and 1 hold N+O and E+N cells; virtual nodes and spokes
+/// are in no face, and B04/B40 list mesh nodes only (the reference's empty virtual rows).
 inline std::map<std::string, Neighborhood> hopnet_neighborhoods(const HopnetGeometry& g, const HopnetFrame& f) {
   const std::int64_t N = g.num_nodes(), E = g.num_edges(), O = g.num_objects(), F = f.num_faces(), C = f.num_contacts();
+  const std::int64_t N0 = g.num_rank0(), E1 = g.num_rank1();
+  const Architecture arch = g.lifting.architecture;
   std::map<std::string, Neighborhood> out;
   const auto make = [&](const char* name, int sr, int tr, std::int64_t ns, std::int64_t nt) -> Neighborhood& {
     auto& n = out[name];
@@ -357,42 +471,92 @@ inline std::map<std::string, Neighborhood> hopnet_neighborhoods(const HopnetGeom
     n.num_target = nt;
     return n;
   };
-  auto& b04 = make("B04", 0, 4, N, O);
-  auto& b40 = make("B40", 4, 0, O, N);
+  const auto link = [](Neighborhood& n, std::int64_t s, std::int64_t t) { n.source.push_back(s), n.target.push_back(t); };
+  auto& b04 = make("B04", 0, 4, N0, O);
+  auto& b40 = make("B40", 4, 0, O, N0);
   for (std::int64_t n = 0; n < N; ++n) {
     const auto o = g.node_object[static_cast<std::size_t>(n)];
-    b04.source.push_back(n), b04.target.push_back(o);
-    b40.source.push_back(o), b40.target.push_back(n);
+    link(b04, n, o), link(b40, o, n);
   }
-  auto& b02 = make("B02", 0, 2, N, F);
-  auto& b12 = make("B12", 1, 2, E, F);
+  auto& b02 = make("B02", 0, 2, N0, F);
+  auto& b12 = make("B12", 1, 2, E1, F);
   auto& b42 = make("B42", 4, 2, O, F);
   auto& b24 = make("B24", 2, 4, F, O);
   for (std::int64_t r = 0; r < F; ++r) {
     const auto gf = f.faces[static_cast<std::size_t>(r)];
-    for (int k = 0; k < 3; ++k) {
-      b02.source.push_back(g.face_nodes(gf, k)), b02.target.push_back(r);
-      b12.source.push_back(g.face_edges(gf, k)), b12.target.push_back(r);
-    }
+    for (int k = 0; k < 3; ++k) link(b02, g.face_nodes(gf, k), r), link(b12, g.face_edges(gf, k), r);
     const auto o = g.node_object[static_cast<std::size_t>(g.face_nodes(gf, 0))];
-    b42.source.push_back(o), b42.target.push_back(r);
-    b24.source.push_back(r), b24.target.push_back(o);
+    link(b42, o, r), link(b24, r, o);
   }
   auto& neg = make("B23neg", 2, 3, F, C);
   auto& pos = make("B23pos", 2, 3, F, C);
   auto& b32 = make("B32", 3, 2, C, F);
-  std::vector<char> is_neg(static_cast<std::size_t>(F), 0), is_pos(static_cast<std::size_t>(F), 0);
-  for (const auto& c : f.contacts) is_neg[static_cast<std::size_t>(c[0])] = 1, is_pos[static_cast<std::size_t>(c[1])] = 1;
+  // Reference: a face's message into each half is computed once per contact in which the face has
+  // that role and written with index_put_, so its gradient comes back that many times (k_neg,
+  // k_pos): the backward values. Native mode keeps the true gradient.
+  std::vector<std::int64_t> k_neg(static_cast<std::size_t>(F), 0), k_pos(static_cast<std::size_t>(F), 0);
+  for (const auto& c : f.contacts) ++k_neg[static_cast<std::size_t>(c[0])], ++k_pos[static_cast<std::size_t>(c[1])];
+  const bool mixed = g.mode == FeatureMode::reference;
   for (std::int64_t c = 0; c < C; ++c) {
     for (int k = 0; k < 2; ++k) {
       const auto face = f.contacts[static_cast<std::size_t>(c)][static_cast<std::size_t>(k)];
+      const auto kn = static_cast<double>(k_neg[static_cast<std::size_t>(face)]), kp = static_cast<double>(k_pos[static_cast<std::size_t>(face)]);
       const double role_neg = k == 0, role_pos = k == 1;
-      const bool mixed = g.mode == FeatureMode::reference;
-      neg.source.push_back(face), neg.target.push_back(c), neg.values.push_back(mixed ? is_neg[static_cast<std::size_t>(face)] : role_neg);
-      pos.source.push_back(face), pos.target.push_back(c), pos.values.push_back(mixed ? is_pos[static_cast<std::size_t>(face)] : role_pos);
+      neg.source.push_back(face), neg.target.push_back(c), neg.values.push_back(mixed ? (kn > 0) : role_neg);
+      pos.source.push_back(face), pos.target.push_back(c), pos.values.push_back(mixed ? (kp > 0) : role_pos);
+      if (mixed) neg.backward_values.push_back(kn), pos.backward_values.push_back(kp);
       b32.source.push_back(c), b32.target.push_back(face), b32.roles.push_back(static_cast<std::int8_t>(k == 0 ? -1 : 1));
     }
   }
+  if (arch == Architecture::hopnet) return out;
+
+  auto& a010 = make("A010", 0, 0, N0, N0);
+  for (std::int64_t e = 0; e < E; ++e) {
+    const auto [s, d] = g.edges[static_cast<std::size_t>(e)];
+    link(a010, s, d), link(a010, d, s);
+  }
+  if (arch == Architecture::no_object_cells)
+    for (std::int64_t n = 0; n < N; ++n) link(a010, n, N + g.node_object[static_cast<std::size_t>(n)]), link(a010, N + g.node_object[static_cast<std::size_t>(n)], n);
+  auto& b20 = make("B20", 2, 0, F, N0);
+  for (std::size_t k = 0; k < b02.source.size(); ++k) link(b20, b02.target[k], b02.source[k]);
+  if (arch != Architecture::no_sequential) return out;
+
+  auto& b01 = make("B01", 0, 1, N, E);
+  auto& b10 = make("B10", 1, 0, E, N);
+  auto& b14 = make("B14", 1, 4, E, O);
+  auto& b41 = make("B41", 4, 1, O, E);
+  std::vector<std::vector<std::int64_t>> node_edges(static_cast<std::size_t>(N));
+  for (std::int64_t e = 0; e < E; ++e) {
+    for (auto n : g.edges[static_cast<std::size_t>(e)]) link(b01, n, e), link(b10, e, n), node_edges[static_cast<std::size_t>(n)].push_back(e);
+    const auto o = g.node_object[static_cast<std::size_t>(g.edges[static_cast<std::size_t>(e)][0])];
+    link(b14, e, o), link(b41, o, e);
+  }
+  auto& a101 = make("A101", 1, 1, E, E);
+  for (const auto& es : node_edges)
+    for (auto a : es)
+      for (auto b : es)
+        if (a != b) link(a101, a, b);
+  auto& b21 = make("B21", 2, 1, F, E);
+  for (std::size_t k = 0; k < b12.source.size(); ++k) link(b21, b12.target[k], b12.source[k]);
+  auto& a232 = make("A232", 2, 2, F, F);
+  std::set<std::pair<std::int64_t, std::int64_t>> faces_in_contact;  // adjacency is 0/1
+  for (const auto& c : f.contacts)
+    if (c[0] != c[1]) faces_in_contact.insert({c[0], c[1]}), faces_in_contact.insert({c[1], c[0]});
+  for (const auto& [a, b] : faces_in_contact) link(a232, a, b);
+  auto& b03 = make("B03", 0, 3, N, C);
+  auto& b30 = make("B30", 3, 0, C, N);
+  auto& b13 = make("B13", 1, 3, E, C);
+  auto& b31 = make("B31", 3, 1, C, E);
+  auto& b23 = make("B23signed", 2, 3, F, C);
+  auto& b32s = make("B32signed", 3, 2, C, F);
+  for (std::int64_t c = 0; c < C; ++c)
+    for (int k = 0; k < 2; ++k) {
+      const auto face = f.contacts[static_cast<std::size_t>(c)][static_cast<std::size_t>(k)];
+      const auto gf = f.faces[static_cast<std::size_t>(face)];
+      for (int v = 0; v < 3; ++v) link(b03, g.face_nodes(gf, v), c), link(b30, c, g.face_nodes(gf, v)), link(b13, g.face_edges(gf, v), c), link(b31, c, g.face_edges(gf, v));
+      link(b23, face, c), link(b32s, c, face);
+      b23.values.push_back(k == 0 ? -1.0 : 1.0), b32s.values.push_back(k == 0 ? -1.0 : 1.0);
+    }
   return out;
 }
 

@@ -1,0 +1,164 @@
+// topos/core/domain_lifting.hpp
+// Liftings between domains (std + Eigen; the Boost.Graph and CGAL ones are in
+// geometry/domain_lifting.hpp), each with its cell order:
+//   clique_complex(n, edges, max_rank)   graph -> clique complex: every clique of up to
+//                                        max_rank + 1 nodes is a simplex (TopoNetX's
+//                                        graph_to_clique_complex); lexicographic order
+//   simplicial_complex_from_mesh(mesh)   triangle mesh -> simplicial complex (faces, their edges
+//                                        and vertices; orientation by sorted nodes, as every
+//                                        SimplicialComplex), lexicographic order
+//   to_hypergraph(sc)                    every simplex of rank >= 1 a hyperedge, by rank then id
+//                                        (TopoNetX's SimplicialComplex.to_hypergraph)
+//   to_combinatorial_complex(sc)         the same cells, rank = dimension, same ids per rank
+//   neighborhood_hypergraph(n, edges)    graph -> hypergraph: hyperedge v = {v} and its
+//                                        neighbours, one per node in node order
+//   to_cell_complex(sc)                  nodes, edges and triangles (as 2-cells) of a simplicial
+//                                        complex, in its order, edges oriented low -> high
+#pragma once
+
+#include "topos/core/cell_complex.hpp"
+#include "topos/core/combinatorial_complex.hpp"
+#include "topos/core/hypergraph.hpp"
+#include "topos/core/simplicial_complex.hpp"
+#include "topos/mesh/triangle_mesh.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cstdint>
+#include <vector>
+
+namespace topos {
+
+namespace detail {
+// Sorted, de-duplicated neighbour lists (CSR) of an undirected simple graph; self-loops rejected.
+struct GraphCsr {
+  std::vector<std::int64_t> offsets, neighbors;
+};
+inline GraphCsr graph_csr(std::int64_t n, const std::vector<std::array<std::int64_t, 2>>& edges, bool forward_only) {
+  GraphCsr g;
+  g.offsets.assign(static_cast<std::size_t>(n) + 1, 0);
+  for (const auto& e : edges) {
+    for (auto v : e)
+      if (v < 0 || v >= n) throw ComplexError("graph: edge [" + std::to_string(e[0]) + ", " + std::to_string(e[1]) + "] uses node " + std::to_string(v) + ", outside [0, " + std::to_string(n) + ")");
+    if (e[0] == e[1]) throw ComplexError("graph: edge [" + std::to_string(e[0]) + ", " + std::to_string(e[1]) + "] is a self-loop");
+    ++g.offsets[static_cast<std::size_t>(std::min(e[0], e[1])) + 1];
+    if (!forward_only) ++g.offsets[static_cast<std::size_t>(std::max(e[0], e[1])) + 1];
+  }
+  for (std::size_t v = 0; v < static_cast<std::size_t>(n); ++v) g.offsets[v + 1] += g.offsets[v];
+  g.neighbors.resize(static_cast<std::size_t>(g.offsets.back()));
+  std::vector<std::int64_t> fill(g.offsets.begin(), g.offsets.end() - 1);
+  for (const auto& e : edges) {
+    const auto a = std::min(e[0], e[1]), b = std::max(e[0], e[1]);
+    g.neighbors[static_cast<std::size_t>(fill[static_cast<std::size_t>(a)]++)] = b;
+    if (!forward_only) g.neighbors[static_cast<std::size_t>(fill[static_cast<std::size_t>(b)]++)] = a;
+  }
+  // Sort and de-duplicate each list in place, compacting.
+  std::int64_t w = 0;
+  for (std::size_t v = 0; v < static_cast<std::size_t>(n); ++v) {
+    auto b = g.neighbors.begin() + g.offsets[v], e = g.neighbors.begin() + g.offsets[v + 1];
+    std::sort(b, e);
+    const auto end = std::unique(b, e);
+    const std::int64_t start = w;
+    for (auto it = b; it != end; ++it) g.neighbors[static_cast<std::size_t>(w++)] = *it;
+    g.offsets[v] = start;
+  }
+  g.offsets[static_cast<std::size_t>(n)] = w;
+  g.neighbors.resize(static_cast<std::size_t>(w));
+  return g;
+}
+}  // namespace detail
+
+/// The clique complex of a graph on nodes 0..n-1: every clique of k + 1 <= max_rank + 1 nodes
+/// is a k-simplex. Cliques are enumerated depth-first over ascending forward neighbours, which
+/// yields every rank directly in lexicographic order (no sort).
+inline SimplicialComplex clique_complex(std::int64_t num_nodes, const std::vector<std::array<std::int64_t, 2>>& edges, int max_rank) {
+  if (max_rank < 0) throw ComplexError("clique_complex: max_rank " + std::to_string(max_rank) + " must be >= 0");
+  if (max_rank > 30) throw ComplexError("clique_complex: max_rank " + std::to_string(max_rank) + " is above the supported 30");
+  const detail::GraphCsr g = detail::graph_csr(num_nodes, edges, true);
+  std::vector<std::vector<std::int64_t>> flat(static_cast<std::size_t>(max_rank));
+  // candidates[d]: common forward neighbours of the current d+1 nodes.
+  std::vector<std::vector<std::int64_t>> candidates(static_cast<std::size_t>(max_rank) + 1);
+  std::vector<std::int64_t> clique(static_cast<std::size_t>(max_rank) + 1);
+  const auto emit = [&](int depth) {  // clique[0..depth] is a depth-simplex
+    auto& out = flat[static_cast<std::size_t>(depth) - 1];
+    out.insert(out.end(), clique.begin(), clique.begin() + depth + 1);
+  };
+  // Iterative DFS: at depth d we extend clique[0..d] by each candidate in turn.
+  std::vector<std::size_t> pos(static_cast<std::size_t>(max_rank) + 1);
+  for (std::int64_t v = 0; v < num_nodes && max_rank > 0; ++v) {
+    clique[0] = v;
+    candidates[0].assign(g.neighbors.begin() + g.offsets[static_cast<std::size_t>(v)], g.neighbors.begin() + g.offsets[static_cast<std::size_t>(v) + 1]);
+    int d = 0;
+    pos[0] = 0;
+    while (d >= 0) {
+      auto& cand = candidates[static_cast<std::size_t>(d)];
+      if (pos[static_cast<std::size_t>(d)] == cand.size()) {
+        --d;
+        continue;
+      }
+      const std::int64_t u = cand[pos[static_cast<std::size_t>(d)]++];
+      clique[static_cast<std::size_t>(d) + 1] = u;
+      emit(d + 1);
+      if (d + 1 < max_rank) {
+        auto& next = candidates[static_cast<std::size_t>(d) + 1];
+        next.clear();
+        const auto nb = g.neighbors.begin() + g.offsets[static_cast<std::size_t>(u)], ne = g.neighbors.begin() + g.offsets[static_cast<std::size_t>(u) + 1];
+        // Candidates after u in cand (all > u) that are forward neighbours of u.
+        std::set_intersection(cand.begin() + static_cast<std::ptrdiff_t>(pos[static_cast<std::size_t>(d)]), cand.end(), nb, ne, std::back_inserter(next));
+        if (!next.empty()) {
+          ++d;
+          pos[static_cast<std::size_t>(d)] = 0;
+        }
+      }
+    }
+  }
+  return SimplicialComplex::from_canonical_trusted(num_nodes, std::move(flat));
+}
+
+/// The simplicial complex of a triangle mesh (its faces and all their edges and vertices).
+inline SimplicialComplex simplicial_complex_from_mesh(const TriangleMesh& mesh) {
+  mesh.validate();
+  return SimplicialComplex::from_flat(mesh.faces.data(), static_cast<std::size_t>(mesh.num_faces()), 3, mesh.num_vertices());
+}
+
+/// Every simplex of rank >= 1 as a hyperedge (rank by rank, id order), nodes kept.
+inline Hypergraph to_hypergraph(const SimplicialComplex& sc) {
+  Hypergraph h(sc.num_nodes());
+  for (int k = 1; k <= sc.dim(); ++k)
+    for (std::int64_t i = 0; i < sc.num_cells(k); ++i) h.add_hyperedge(sc.simplex(k, i));
+  return h;
+}
+
+/// The simplices as cells of a combinatorial complex (rank = dimension, same ids, orientation =
+/// sorted nodes, so its signed_incidence_matrix equals the simplicial incidence).
+inline CombinatorialComplex<> to_combinatorial_complex(const SimplicialComplex& sc) {
+  CombinatorialComplex<> cc(sc.num_nodes());
+  for (int k = 1; k <= sc.dim(); ++k) {
+    cc.reserve(k, static_cast<std::size_t>(sc.num_cells(k)), static_cast<std::size_t>(sc.num_cells(k) * (k + 1)));
+    cc.add_cells_trusted(sc.num_cells(k) ? sc.data(k, 0) : nullptr, static_cast<std::size_t>(sc.num_cells(k)), static_cast<std::size_t>(k) + 1, k);
+  }
+  return cc;
+}
+
+/// Nodes, edges and triangles of a simplicial complex as a cell complex (same ids per rank).
+inline CellComplex to_cell_complex(const SimplicialComplex& sc) {
+  std::vector<CellComplex::Edge> edges;
+  for (std::int64_t e = 0; e < sc.num_cells(1); ++e) edges.push_back({sc.data(1, e)[0], sc.data(1, e)[1]});
+  std::vector<std::vector<std::int64_t>> cells;
+  for (std::int64_t t = 0; t < sc.num_cells(2); ++t) cells.push_back(sc.simplex(2, t));
+  return CellComplex::from_ordered(sc.num_nodes(), edges, cells);
+}
+
+/// One hyperedge per node v: {v} and its neighbours (closed neighbourhood), in node order.
+inline Hypergraph neighborhood_hypergraph(std::int64_t num_nodes, const std::vector<std::array<std::int64_t, 2>>& edges) {
+  const detail::GraphCsr g = detail::graph_csr(num_nodes, edges, false);
+  Hypergraph h(num_nodes);
+  for (std::int64_t v = 0; v < num_nodes; ++v) {
+    std::vector<std::int64_t> e(g.neighbors.begin() + g.offsets[static_cast<std::size_t>(v)], g.neighbors.begin() + g.offsets[static_cast<std::size_t>(v) + 1]);
+    e.push_back(v);
+    h.add_hyperedge(e);
+  }
+  return h;
+}
+
+}  // namespace topos
