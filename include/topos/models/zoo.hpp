@@ -5,6 +5,8 @@
 // operators, tuples/lists of them, None). Used by `tdl forward` / `tdl grad` and the parity tests.
 #pragma once
 
+#include "topos/models/cell/can.hpp"
+#include "topos/models/cell/ccxn.hpp"
 #include "topos/models/cell/cwn.hpp"
 #include "topos/models/combinatorial/hmc.hpp"
 #include "topos/models/hypergraph/allset_transformer.hpp"
@@ -15,9 +17,16 @@
 #include "topos/models/hypergraph/unigcn.hpp"
 #include "topos/models/hypergraph/unigcnii.hpp"
 #include "topos/models/hypergraph/unisage.hpp"
+#include "topos/models/simplicial/dist2cycle.hpp"
+#include "topos/models/simplicial/hsn.hpp"
 #include "topos/models/simplicial/san.hpp"
+#include "topos/models/simplicial/sca_cmps.hpp"
+#include "topos/models/simplicial/sccn.hpp"
 #include "topos/models/simplicial/sccnn.hpp"
+#include "topos/models/simplicial/scconv.hpp"
 #include "topos/models/simplicial/scn2.hpp"
+#include "topos/models/simplicial/scnn.hpp"
+#include "topos/models/simplicial/scone.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -37,10 +46,12 @@ class ZooError : public std::invalid_argument {
   using std::invalid_argument::invalid_argument;
 };
 
-/// One positional forward argument: a feature tensor, an operator, None, or a tuple/list.
+/// One positional forward argument: a feature tensor, an operator, None, a tuple/list, or a
+/// dict (a list whose items carry their keys).
 struct ZooArg {
-  enum class Kind { none, tensor, op, list } kind = Kind::none;
+  enum class Kind { none, tensor, op, list, dict } kind = Kind::none;
   std::string name;  ///< for errors
+  std::string key;   ///< an item's key in a dict
   torch::Tensor tensor;
   nn::SparseOperator op;
   std::vector<ZooArg> items;
@@ -48,6 +59,7 @@ struct ZooArg {
   static ZooArg of(torch::Tensor t, std::string n) { ZooArg a; a.kind = Kind::tensor; a.tensor = std::move(t); a.name = std::move(n); return a; }
   static ZooArg of(nn::SparseOperator o, std::string n) { ZooArg a; a.kind = Kind::op; a.op = std::move(o); a.name = std::move(n); return a; }
   static ZooArg list(std::vector<ZooArg> v) { ZooArg a; a.kind = Kind::list; a.items = std::move(v); a.name = "(list)"; return a; }
+  static ZooArg dict(std::vector<ZooArg> v) { ZooArg a; a.kind = Kind::dict; a.items = std::move(v); a.name = "(dict)"; return a; }
 };
 
 /// A model and how to call it with TopoModelX's positional arguments.
@@ -66,6 +78,8 @@ class Config {
     if (!j_.is_object()) throw ZooError(model_ + ": config must be a JSON object");
   }
   bool has(const std::string& k) const { return j_.contains(k) && !j_.at(k).is_null(); }
+  /// Given as null (Python's None), which can differ from absent (the default).
+  bool is_null(const std::string& k) const { return j_.contains(k) && j_.at(k).is_null(); }
   template <class T>
   T get(const std::string& k, T fallback) {
     used_.insert(k);
@@ -125,9 +139,27 @@ class Args {
     for (const auto& x : list(i)) out.push_back(op_of(x, i));
     return out;
   }
+  /// Items "<prefix><k>" for k = first..last of a dict argument (SCCN's "rank_<k>").
+  std::vector<torch::Tensor> tensors(std::size_t i, const std::string& prefix, int first, int last) const {
+    std::vector<torch::Tensor> out;
+    for (int k = first; k <= last; ++k) out.push_back(tensor_of(item(i, prefix + std::to_string(k)), i));
+    return out;
+  }
+  std::vector<nn::SparseOperator> ops(std::size_t i, const std::string& prefix, int first, int last) const {
+    std::vector<nn::SparseOperator> out;
+    for (int k = first; k <= last; ++k) out.push_back(op_of(item(i, prefix + std::to_string(k)), i));
+    return out;
+  }
+  bool is_none(std::size_t i) const { return at(i).kind == ZooArg::Kind::none; }
 
  private:
   const ZooArg& at(std::size_t i) const { return a_.at(i); }
+  const ZooArg& item(std::size_t i, const std::string& key) const {
+    if (at(i).kind != ZooArg::Kind::dict) throw ZooError(model_ + ": forward argument " + std::to_string(i) + " must be a dict");
+    for (const auto& x : at(i).items)
+      if (x.key == key) return x;
+    throw ZooError(model_ + ": forward argument " + std::to_string(i) + " lacks the key '" + key + "'");
+  }
   const std::vector<ZooArg>& list(std::size_t i) const {
     if (at(i).kind != ZooArg::Kind::list) throw ZooError(model_ + ": forward argument " + std::to_string(i) + " must be a tuple or list");
     return at(i).items;
@@ -295,6 +327,81 @@ inline std::map<std::string, Maker> hypergraph_makers() {
   };
 }
 
+/// SCNN, HSN, SCConv, SCoNe, SCCN, Dist2Cycle, SCA-CMPS (simplicial); CAN, CCXN (cell).
+inline std::map<std::string, Maker> more_simplicial_and_cell_makers() {
+  using nn::Update;
+  return {
+      {"SCNN", [](Config& c, bool compatible) {
+         SCNN net(SCNNOptions(c.need<std::int64_t>("in_channels"), c.need<std::int64_t>("hidden_channels"), c.need<int>("conv_order_down"), c.need<int>("conv_order_up"))
+                      .aggr_norm(c.get("aggr_norm", false))
+                      .update_func(c.update("update_func", Update::none))
+                      .n_layers(c.get("n_layers", 2))
+                      .topomodelx_compatible(compatible));
+         return wrap<SCNN>("SCNN", net, [](SCNN& n, const Args& a) { return std::vector<torch::Tensor>{n->forward(a.tensor(0), a.op(1), a.op(2))}; }, 3, 3);
+       }},
+      {"HSN", [](Config& c, bool) {
+         HSN net(HSNOptions(c.need<std::int64_t>("channels")).n_layers(c.get("n_layers", 2)));
+         return wrap<HSN>("HSN", net, [](HSN& n, const Args& a) { return std::vector<torch::Tensor>{n->forward(a.tensor(0), a.op(1), a.op(2))}; }, 3, 3);
+       }},
+      {"SCConv", [](Config& c, bool) {
+         SCConv net(SCConvOptions(c.need<std::int64_t>("node_channels"))
+                        .edge_channels(c.get<std::int64_t>("edge_channels", 0))
+                        .face_channels(c.get<std::int64_t>("face_channels", 0))
+                        .n_layers(c.get("n_layers", 2)));
+         return wrap<SCConv>("SCConv", net, [](SCConv& n, const Args& a) {
+           return n->forward({a.tensor(0), a.tensor(1), a.tensor(2)}, SCConvOperators{a.op(3), a.op(4), a.op(5), a.op(6), a.op(7), a.op(8), a.op(9), a.op(10)});
+         }, 11, 11);
+       }},
+      {"SCoNe", [](Config& c, bool) {
+         SCoNe net(SCoNeOptions(c.need<std::int64_t>("in_channels"), c.need<std::int64_t>("hidden_channels"), c.need<int>("n_layers")));
+         return wrap<SCoNe>("SCoNe", net, [](SCoNe& n, const Args& a) { return std::vector<torch::Tensor>{n->forward(a.tensor(0), a.op(1), a.op(2))}; }, 3, 3);
+       }},
+      {"SCCN", [](Config& c, bool) {
+         const auto update = c.is_null("update_func") ? Update::none : c.update("update_func", Update::sigmoid);
+         c.get<std::string>("update_func", "");  // read (null)
+         SCCN net(SCCNOptions(c.need<std::int64_t>("channels"), c.need<int>("max_rank")).n_layers(c.get("n_layers", 2)).update_func(update));
+         const int R = net->options.max_rank();
+         return wrap<SCCN>("SCCN", net, [R](SCCN& n, const Args& a) {
+           return n->forward(a.tensors(0, "rank_", 0, R), a.ops(1, "rank_", 1, R), a.ops(2, "rank_", 0, R));
+         }, 3, 3);
+       }},
+      {"Dist2Cycle", [](Config& c, bool compatible) {
+         Dist2Cycle net(Dist2CycleOptions(c.need<std::int64_t>("channels")).n_layers(c.get("n_layers", 2)).topomodelx_compatible(compatible));
+         return wrap<Dist2Cycle>("Dist2Cycle", net, [](Dist2Cycle& n, const Args& a) { return std::vector<torch::Tensor>{n->forward(a.tensor(0), a.op(1), a.op(2))}; }, 3, 3);
+       }},
+      {"SCACMPS", [](Config& c, bool) {
+         SCACMPS net(SCACMPSOptions(c.need<std::vector<std::int64_t>>("in_channels_all"), c.need<int>("complex_dim")).n_layers(c.get("n_layers", 2)).att(c.get("att", false)));
+         return wrap<SCACMPS>("SCACMPS", net, [](SCACMPS& n, const Args& a) { return n->forward(a.tensors(0), a.ops(1), a.ops(2)); }, 3, 3);
+       }},
+      {"CAN", [](Config& c, bool compatible) {
+         if (c.get("pooling", false)) throw ZooError("CAN: pooling (TopoModelX's PoolLayer) is not implemented");
+         c.get("k_pool", 0.5);
+         const auto act = torch_activation(c, "att_activation", std::nullopt);  // None: LeakyReLU(0.2); a named class: its defaults
+         CAN net(CANOptions(c.need<std::int64_t>("in_channels_0"), c.need<std::int64_t>("in_channels_1"), c.need<std::int64_t>("out_channels"))
+                     .dropout(c.get("dropout", 0.5))
+                     .heads(c.get<std::int64_t>("heads", 2))
+                     .concat(c.get("concat", true))
+                     .skip_connection(c.get("skip_connection", true))
+                     .att_activation(act.value_or(Update::leaky_relu))
+                     .att_negative_slope(act ? 0.01 : 0.2)
+                     .n_layers(c.get("n_layers", 2))
+                     .att_lift(c.get("att_lift", true))
+                     .version(c.get<std::string>("version", "v1"))
+                     .share_weights(c.get("share_weights", false))
+                     .add_self_loops(c.get("add_self_loops", true))
+                     .topomodelx_compatible(compatible));
+         return wrap<CAN>("CAN", net, [](CAN& n, const Args& a) { return std::vector<torch::Tensor>{n->forward(a.tensor(0), a.tensor(1), a.op(2), a.op(3), a.op(4))}; }, 5, 5);
+       }},
+      {"CCXN", [](Config& c, bool compatible) {
+         CCXN net(CCXNOptions(c.need<std::int64_t>("in_channels_0"), c.need<std::int64_t>("in_channels_1"), c.need<std::int64_t>("in_channels_2"))
+                      .n_layers(c.get("n_layers", 2))
+                      .att(c.get("att", false))
+                      .topomodelx_compatible(compatible));
+         return wrap<CCXN>("CCXN", net, [](CCXN& n, const Args& a) { return n->forward(a.tensor(0), a.tensor(1), a.op(2), a.op(3)); }, 4, 4);
+       }},
+  };
+}
+
 inline const std::map<std::string, Maker>& makers() {
   static const std::map<std::string, Maker> m = [] {
   std::map<std::string, Maker> m = {
@@ -335,15 +442,17 @@ inline const std::map<std::string, Maker>& makers() {
                           .topomodelx_compatible(compatible));
          return wrap<UniGCNII>("UniGCNII", net, [](UniGCNII& n, const Args& a) { return n->forward(a.tensor(0), a.op(1)); }, 2, 2);
        }},
-      {"HMC", [](Config& c, bool) {
+      {"HMC", [](Config& c, bool compatible) {
          HMC net(HMCOptions(c.need<HMCChannels>("channels_per_layer"))
                      .negative_slope(c.get("negative_slope", 0.2))
                      .update_func_attention(c.update("update_func_attention", nn::Update::relu))
-                     .update_func_aggregation(c.update("update_func_aggregation", nn::Update::relu)));
+                     .update_func_aggregation(c.update("update_func_aggregation", nn::Update::relu))
+                     .topomodelx_compatible(compatible));
          return wrap<HMC>("HMC", net, [](HMC& n, const Args& a) { return n->forward({a.tensor(0), a.tensor(1), a.tensor(2)}, a.op(3), a.op(4), a.op(5), a.op(6), a.op(7)); }, 8, 8);
        }},
   };
   m.merge(hypergraph_makers());
+  m.merge(more_simplicial_and_cell_makers());
   return m;
   }();
   return m;

@@ -81,7 +81,15 @@ inline ZooArg case_argument(const nlohmann::json& e, const std::filesystem::path
       return ZooArg::list(std::move(items));
     }
   }
-  if (e.contains("dict")) throw ZooError("case.json: dict arguments are not supported by the models built so far");
+  if (e.contains("dict")) {
+    if (!e.at("dict").is_object()) throw ZooError("case.json: a dict entry must be an object");
+    std::vector<ZooArg> items;
+    for (const auto& [k, x] : e.at("dict").items()) {
+      items.push_back(case_argument(x, dir, ops, dtype));
+      items.back().key = k;
+    }
+    return ZooArg::dict(std::move(items));
+  }
   const auto name = e.value("name", std::string());
   const auto from = e.value("from", std::string());
   if (from == "inputs") return ZooArg::of(read_npy_tensor(dir / "inputs" / (name + ".npy")).to(dtype), name);

@@ -134,6 +134,13 @@ struct SparseOperator {
   /// |A|, or every stored entry set to one (the pattern).
   SparseOperator abs() const { return with_values(values.abs()); }
   SparseOperator pattern() const { return with_values(torch::ones_like(values)); }
+  /// For entry k, the entry at the mirrored place of its row (a row's i-th entry <-> its
+  /// (n-1-i)-th): the pairing of code that matches values listed in ascending column order with
+  /// the indices of a product listed in descending order (TopoModelX's HBS attention).
+  torch::Tensor row_mirror() const {
+    const auto k = torch::arange(nnz(), row.options());
+    return crow.index_select(0, row) + crow.index_select(0, row + 1) - 1 - k;
+  }
   torch::Tensor row_sums() const { return torch::zeros({rows}, values.options()).index_add(0, row, values); }
   torch::Tensor col_sums() const { return torch::zeros({cols}, values.options()).index_add(0, col, values); }
   torch::Tensor to_dense() const { return torch::zeros({rows, cols}, values.options()).index_put({row, col}, values); }
@@ -143,6 +150,45 @@ struct SparseOperator {
     if (left.defined()) v = v * left.index_select(0, row);
     if (right.defined()) v = v * right.index_select(0, col);
     return with_values(v);
+  }
+  /// The n × n identity.
+  static SparseOperator identity(std::int64_t n, torch::Dtype dtype = torch::kFloat) {
+    std::vector<std::int64_t> i(static_cast<std::size_t>(n));
+    std::iota(i.begin(), i.end(), std::int64_t{0});
+    return from_sorted(n, n, i, i, torch::ones({n}, dtype));
+  }
+  /// A square operator's pattern with every diagonal entry added (values one): GAT's self loops.
+  SparseOperator pattern_with_self_loops() const {
+    if (rows != cols) throw std::invalid_argument("SparseOperator::pattern_with_self_loops: the operator is not square");
+    return sum(pattern(), identity(rows, values.scalar_type())).pattern();
+  }
+  /// A ⊙ B (same shape), entry by entry: the entries where both patterns meet (products that
+  /// are zero dropped). Operator algebra, not differentiable.
+  static SparseOperator hadamard(const SparseOperator& a, const SparseOperator& b) {
+    if (a.rows != b.rows || a.cols != b.cols) throw std::invalid_argument("SparseOperator::hadamard: shapes differ");
+    auto vec = [](const torch::Tensor& t) {
+      const auto c = t.to(torch::kCPU).contiguous();
+      return std::vector<std::int64_t>(c.data_ptr<std::int64_t>(), c.data_ptr<std::int64_t>() + c.numel());
+    };
+    auto dvec = [](const torch::Tensor& t) {
+      const auto c = t.detach().to(torch::kCPU, torch::kDouble).contiguous();
+      return std::vector<double>(c.data_ptr<double>(), c.data_ptr<double>() + c.numel());
+    };
+    const auto ca = vec(a.crow), cola = vec(a.col), cb = vec(b.crow), colb = vec(b.col);
+    const auto va = dvec(a.values), vb = dvec(b.values);
+    std::vector<std::int64_t> r, c;
+    std::vector<double> v;
+    for (std::int64_t i = 0; i < a.rows; ++i) {  // both rows are sorted by column: a merge
+      auto p = ca[static_cast<std::size_t>(i)], q = cb[static_cast<std::size_t>(i)];
+      const auto pe = ca[static_cast<std::size_t>(i) + 1], qe = cb[static_cast<std::size_t>(i) + 1];
+      while (p < pe && q < qe) {
+        const auto jp = cola[static_cast<std::size_t>(p)], jq = colb[static_cast<std::size_t>(q)];
+        if (jp < jq) ++p;
+        else if (jq < jp) ++q;
+        else r.push_back(i), c.push_back(jp), v.push_back(va[static_cast<std::size_t>(p++)] * vb[static_cast<std::size_t>(q++)]);
+      }
+    }
+    return from_triplets(a.rows, a.cols, r, c, v, a.values.scalar_type());
   }
   /// A + B (same shape): the union of both patterns.
   static SparseOperator sum(const SparseOperator& a, const SparseOperator& b) {

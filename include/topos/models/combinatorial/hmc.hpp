@@ -4,6 +4,11 @@
 // HBS: same-rank messages over an adjacency, weighted by a per-target softmax of
 // leaky_relu(a·[m_i || m_j]); HBNS: both directions of an incidence, each with its own
 // attention; sums of the messages reaching a rank, then relu.
+// TopoModelX's HBS builds its neighbourhood as I·A with torch.sparse.mm, whose result lists each
+// row's entries in descending column order while the softmax returns them ascending; pairing the
+// two lists by position gives entry (i, j) the attention of the entry mirrored within row i. The
+// compatible mode reproduces that (HMCOptions::topomodelx_compatible); the default pairs each
+// entry with its own weight.
 #pragma once
 
 #include "topos/nn/conv.hpp"
@@ -13,7 +18,8 @@ namespace topos::models {
 /// Same-rank attention (m_hop = 1): "weight.0" (in × out), "att_weight.0" (2·out × 1).
 class HBSImpl : public torch::nn::Module {
  public:
-  HBSImpl(std::int64_t in, std::int64_t out, double slope, bool softmax, nn::Update update) : slope_(slope), softmax_(softmax), update_(update) {
+  HBSImpl(std::int64_t in, std::int64_t out, double slope, bool softmax, nn::Update update, bool mirrored_rows = false)
+      : slope_(slope), softmax_(softmax), mirrored_rows_(mirrored_rows), update_(update) {
     auto w = nn::submodule_group(*this, "weight"), a = nn::submodule_group(*this, "att_weight");
     weight = w->register_parameter("0", torch::empty({in, out}));
     att_weight = a->register_parameter("0", torch::empty({2 * out, 1}));
@@ -24,14 +30,15 @@ class HBSImpl : public torch::nn::Module {
     const auto m = x.matmul(weight);
     const auto C = m.size(1);
     const auto raw = nn::pair_scores(N, m, att_weight.narrow(0, C, C), m, att_weight.narrow(0, 0, C));  // [m_i || m_j]: target first
-    const auto att = nn::attention_weights(N, raw, nn::Update::leaky_relu, slope_, softmax_ ? nn::AttentionNorm::softmax : nn::AttentionNorm::row_sum);
+    auto att = nn::attention_weights(N, raw, nn::Update::leaky_relu, slope_, softmax_ ? nn::AttentionNorm::softmax : nn::AttentionNorm::row_sum);
+    if (mirrored_rows_) att = att.index_select(0, N.row_mirror());
     return nn::apply_update(nn::spmm(N.with_values(att * N.values.to(att.scalar_type())), m), update_);
   }
   torch::Tensor weight, att_weight;
 
  private:
   double slope_;
-  bool softmax_;
+  bool softmax_, mirrored_rows_;
   nn::Update update_;
 };
 TORCH_MODULE(HBS);
@@ -83,6 +90,7 @@ struct HMCOptions {
   TORCH_ARG(double, negative_slope) = 0.2;
   TORCH_ARG(nn::Update, update_func_attention) = nn::Update::relu;
   TORCH_ARG(nn::Update, update_func_aggregation) = nn::Update::relu;
+  TORCH_ARG(bool, topomodelx_compatible) = false;  ///< HBS attention paired with mirrored entries (above)
 };
 
 class HMCImpl : public torch::nn::Module {
@@ -95,16 +103,17 @@ class HMCImpl : public torch::nn::Module {
     auto list = register_module("layers", torch::nn::ModuleList());
     const double s = o.negative_slope();
     const auto u = o.update_func_attention();
+    const bool mir = o.topomodelx_compatible();
     for (const auto& [in, mid, out] : c) {
       auto m = std::make_shared<torch::nn::Module>();
-      layers_.push_back({m->register_module("hbs_0_level1", HBS(in[0], mid[0], s, true, u)),
+      layers_.push_back({m->register_module("hbs_0_level1", HBS(in[0], mid[0], s, true, u, mir)),
                          m->register_module("hbns_0_1_level1", HBNS(in[1], mid[1], in[0], mid[0], s, true, u)),
                          m->register_module("hbns_1_2_level1", HBNS(in[2], mid[2], in[1], mid[1], s, true, u)),
-                         m->register_module("hbs_0_level2", HBS(mid[0], out[0], s, true, u)),
+                         m->register_module("hbs_0_level2", HBS(mid[0], out[0], s, true, u, mir)),
                          m->register_module("hbns_0_1_level2", HBNS(mid[1], out[1], mid[0], out[0], s, true, u)),
-                         m->register_module("hbs_1_level2", HBS(mid[1], out[1], s, true, u)),
+                         m->register_module("hbs_1_level2", HBS(mid[1], out[1], s, true, u, mir)),
                          m->register_module("hbns_1_2_level2", HBNS(mid[2], out[2], mid[1], out[1], s, true, u)),
-                         m->register_module("hbs_2_level2", HBS(mid[2], out[2], s, true, u))});
+                         m->register_module("hbs_2_level2", HBS(mid[2], out[2], s, true, u, mir))});
       list->push_back(m);
     }
   }
