@@ -137,6 +137,35 @@ TEST_CASE("operator algebra: entrywise product, self loops, mirrored rows", "[nn
   }
 }
 
+TEST_CASE("compatible and intended modes: where they agree and where they differ", "[models][zoo]") {
+  torch::manual_seed(11);
+  // Dist2Cycle: the intended layer applied to x = I is TopoModelX's fc(relu(A ⊙ L⁺)).
+  const auto A = random_operator(7, 7, 0.5, torch::kDouble, 12).abs(), L = random_operator(7, 7, 0.6, torch::kDouble, 13);
+  Dist2Cycle compat(Dist2CycleOptions(7).n_layers(1).topomodelx_compatible(true)), intended(Dist2CycleOptions(7).n_layers(1));
+  compat->to(torch::kDouble), intended->to(torch::kDouble);
+  torch::NoGradGuard g;
+  for (std::size_t i = 0; i < compat->parameters().size(); ++i) intended->parameters()[i].copy_(compat->parameters()[i]);
+  const auto M = SparseOperator::hadamard(A, L).to_dense();
+  const auto expect = torch::relu(M).matmul(compat->parameters()[0].t()) + compat->parameters()[1];
+  REQUIRE(torch::allclose(compat->forward(torch::randn({7, 7}, torch::kDouble), L, A), expect, 1e-12, 1e-12));
+  REQUIRE(torch::allclose(intended->forward(torch::eye(7, torch::kDouble), L, A), expect, 1e-12, 1e-12));
+  // SCNN: TopoModelX's first layer skips aggr_norm and the update; the intended one does not.
+  SCNN a(SCNNOptions(3, 3, 2, 1).aggr_norm(true).update_func(Update::relu).n_layers(1).topomodelx_compatible(true)),
+      b(SCNNOptions(3, 3, 2, 1).aggr_norm(true).update_func(Update::relu).n_layers(1));
+  a->to(torch::kDouble), b->to(torch::kDouble);
+  b->parameters()[0].copy_(a->parameters()[0]);
+  const auto Ld = random_operator(9, 9, 0.4, torch::kDouble, 14).abs(), Lu = random_operator(9, 9, 0.4, torch::kDouble, 15).abs();
+  const auto x = torch::randn({9, 3}, torch::kDouble);
+  const auto W = a->parameters()[0];
+  const auto Dd = Ld.to_dense(), Du = Lu.to_dense();
+  const auto plain = x.matmul(W.select(2, 0)) + Dd.matmul(x).matmul(W.select(2, 1)) + Dd.matmul(Dd.matmul(x)).matmul(W.select(2, 2)) + Du.matmul(x).matmul(W.select(2, 3));
+  REQUIRE(torch::allclose(a->forward(x, Ld, Lu), plain, 1e-10, 1e-10));
+  auto inv = Dd.sum(1, true).reciprocal();
+  inv = torch::where(torch::isfinite(inv), inv, torch::zeros_like(inv));  // rows summing to 0: factor 0
+  const auto normed = x.matmul(W.select(2, 0)) + Dd.matmul(x).matmul(W.select(2, 1)) + (Dd.matmul(Dd.matmul(x)) * inv).matmul(W.select(2, 2)) + Du.matmul(x).matmul(W.select(2, 3));
+  REQUIRE(torch::allclose(b->forward(x, Ld, Lu), torch::relu(normed), 1e-10, 1e-10));
+}
+
 TEST_CASE("polynomial filters and the affine power equal dense matrix powers", "[nn][conv]") {
   const auto A = random_operator(12, 12, 0.3, torch::kDouble, 5);
   const auto D = A.to_dense();
