@@ -6,6 +6,9 @@ allowlist (tensor rebuild, storages, OrderedDict), rebuilds tensors as (dtype, s
 from the archive's storages, and prints a JSON summary: for each tensor its path, dtype, shape
 and the sum of its values. Exit status 1 when the file would not load. Standard library only,
 so tests run it where Python's torch is absent.
+
+`check_torch_file.py --max-abs-diff A B` instead prints the largest absolute difference between
+the tensors of two such files (the same names and shapes, else exit status 1).
 """
 import json
 import pickle
@@ -85,7 +88,39 @@ def summarize(obj, path="", out=None):
     return out
 
 
+def tensors(obj, path="", out=None):
+    out = {} if out is None else out
+    if isinstance(obj, Tensor):
+        out[path] = obj
+    elif isinstance(obj, dict):
+        for k, v in obj.items():
+            tensors(v, f"{path}.{k}" if path else str(k), out)
+    elif isinstance(obj, (list, tuple)):
+        for i, v in enumerate(obj):
+            tensors(v, f"{path}[{i}]", out)
+    return out
+
+
+def max_abs_diff(a_path, b_path):
+    a, b = tensors(load(a_path)), tensors(load(b_path))
+    if sorted(a) != sorted(b):
+        raise ValueError(f"different tensors: {sorted(set(a) ^ set(b))}")
+    worst = 0.0
+    for k in a:
+        if a[k].shape != b[k].shape:
+            raise ValueError(f"tensor {k}: shape {a[k].shape} vs {b[k].shape}")
+        worst = max([worst] + [abs(x - y) for x, y in zip(a[k].values, b[k].values)])
+    return worst
+
+
 if __name__ == "__main__":
+    if len(sys.argv) == 4 and sys.argv[1] == "--max-abs-diff":
+        try:
+            print(f"{max_abs_diff(sys.argv[2], sys.argv[3]):.3e}")
+        except Exception as e:  # noqa: BLE001
+            print(f"error: {e}", file=sys.stderr)
+            sys.exit(1)
+        sys.exit(0)
     try:
         print(json.dumps(summarize(load(sys.argv[1])), indent=1, sort_keys=True))
     except Exception as e:  # noqa: BLE001 - any failure means torch.load would fail too

@@ -11,6 +11,7 @@
 #include "topos/models/hopnet/training.hpp"
 #include "topos/models/hopnet/variants.hpp"
 #include "topos/nn/cpu.hpp"
+#include "topos/util/csv_log.hpp"
 #include "topos/util/progress.hpp"
 
 #include <CLI/CLI.hpp>
@@ -46,6 +47,7 @@ Command add_train(CLI::App& app);
 Command add_evaluate(CLI::App& app);
 Command add_rollout(CLI::App& app);
 Command add_stats(CLI::App& app);
+Command add_plot(CLI::App& app);
 
 /// The options that pick a member of the HOPNet family (info, init, train, rollout, evaluate).
 struct VariantArgs {

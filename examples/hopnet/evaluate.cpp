@@ -1,8 +1,8 @@
 // hopnet evaluate: roll out every scene of a split; the paper's table beside a constant-velocity baseline.
 #include "commands.hpp"
+#include "report.hpp"
+#include "topos/nn/device.hpp"
 #include "viewer.hpp"
-
-#include "topos/util/svg_plot.hpp"
 
 #include <atomic>
 #include <map>
@@ -15,9 +15,10 @@ namespace {
 
 // ---- evaluate ---------------------------------------------------------------------------------
 struct EvaluateArgs {
-  std::string checkpoint, stats, data, assets, split = "test", split_file, mode = "reference", out;
+  std::string checkpoint, stats, data, assets, split = "test", split_file, mode = "reference", out, device = "cpu";
   int steps = 102, viewer_scenes = 6, jobs = 0;
   VariantArgs variant;
+  bool no_report = false;
 };
 
 // Constant velocity: positions and rotations keep their last per-frame change.
@@ -40,16 +41,10 @@ std::vector<Poses> constant_velocity(const Scene& s, int frames) {
   return p;
 }
 
-std::string svg_plot(const std::vector<std::pair<std::string, std::vector<double>>>& series, const std::string& ylabel) {
-  topos::SvgPlotOptions opt;
-  opt.xlabel = "frame";
-  opt.ylabel = ylabel;
-  return topos::svg_line_plot(series, opt);
-}
-
 int run_evaluate(const EvaluateArgs& a) {
   namespace fs = std::filesystem;
   const FeatureMode mode = feature_mode_from_string(a.mode);
+  const torch::Device device = nn::device_from_string(a.device);
   const auto checkpoint = nn::read_tensor_dict(a.checkpoint);  // read once; one model per thread below
   const auto overrides = checkpoint_overrides(a.variant, checkpoint, a.checkpoint, mode);
   const auto options = load_hopnet(checkpoint, a.checkpoint, overrides)->options;  // fails early on a bad checkpoint
@@ -60,11 +55,10 @@ int run_evaluate(const EvaluateArgs& a) {
   const auto& ids = dataset.ids();
   const auto chosen = data::split_part(a.split_file.empty() ? data::reference_split(ids) : data::read_split_json(a.split_file), a.split, ids);
   if (chosen.empty()) throw data::DataError(a.data + ": the " + a.split + " split is empty");
+  if (!a.no_report) hopnet_web::require_js_libraries();  // before hours of rollouts, not after
   fs::create_directories(a.out);
   const std::vector<int> horizons{25, 50, 75, 100};
   std::map<std::string, std::map<int, std::vector<double>>> per;  // "model.pos_rmse" -> frame -> values
-  // Mean error per frame over scenes, per metric and model (for the plots).
-  std::map<std::string, std::map<std::string, std::pair<std::vector<double>, std::vector<int>>>> curves;
   ProgressBar bar("evaluate", static_cast<std::int64_t>(chosen.size()), "scenes");
   double seconds = 0;
   // Scenes are rolled out by `jobs` threads, each with its own model (one intra-op thread each).
@@ -84,6 +78,7 @@ int run_evaluate(const EvaluateArgs& a) {
     try {
       auto net = load_hopnet(checkpoint, a.checkpoint, overrides);
       net->eval();
+      net->to(device);
       MeshLibrary lib(a.assets);
       for (std::size_t i = next++; i < chosen.size() && !failed; i = next++) {
         Scene scene = make_scene(dataset.scene(chosen[i]), lib);
@@ -122,14 +117,8 @@ int run_evaluate(const EvaluateArgs& a) {
         per[name + ".ori_rmse"][h].push_back(m->ori_rmse[static_cast<std::size_t>(h)]);
         per[name + ".ori_mae"][h].push_back(m->ori_mae[static_cast<std::size_t>(h)]);
       }
-      for (const auto& [metric, values] : {std::pair<std::string, const std::vector<double>*>{"pos_rmse", &m->pos_rmse}, {"ori_rmse", &m->ori_rmse}}) {
-        auto& [sum, count] = curves[metric][name];
-        if (sum.size() < values->size()) sum.resize(values->size(), 0.0), count.resize(values->size(), 0);
-        for (std::size_t f = 0; f < values->size(); ++f)
-          if (std::isfinite((*values)[f])) sum[f] += (*values)[f], ++count[f];
-      }
     }
-    if (res.scene) viewer.push_back({"scene " + std::to_string(chosen[i]), &*res.scene, res.poses, res.model.pos_rmse});
+    if (res.scene) viewer.push_back({"scene " + std::to_string(chosen[i]), &*res.scene, res.poses, {{"prediction", res.model.pos_rmse}, {"constant velocity", res.baseline.pos_rmse}}});
   }
   bar.finish();
   const auto stat = [](const std::vector<double>& v) {
@@ -182,17 +171,35 @@ int run_evaluate(const EvaluateArgs& a) {
     t << "# HOPNet rollout errors (" << chosen.size() << " scenes, " << a.split << " split, " << to_string(mode) << " mode)\n\n" << md.str();
     write_file_atomic((fs::path(a.out) / "table.md").string(), t.str());
   }
-  for (const auto& [metric, label] : {std::pair<std::string, std::string>{"pos_rmse", "position RMSE (m)"}, {"ori_rmse", "orientation RMSE (deg)"}}) {
-    std::vector<std::pair<std::string, std::vector<double>>> series;
-    for (const auto& [name, sc] : curves[metric]) {
-      std::vector<double> v(sc.first.size());
-      for (std::size_t f = 0; f < v.size(); ++f) v[f] = sc.second[f] ? sc.first[f] / sc.second[f] : NAN;
-      series.push_back({name, v});
+  const std::string title = "HOPNet rollouts (" + std::string(to_string(mode)) + " mode): " + a.data;
+  if (!a.no_report) {
+    if (!viewer.empty()) hopnet_viewer::write_viewer_html((fs::path(a.out) / "viewer.html").string(), title, viewer);
+    hopnet_report::EvaluationReport report;
+    report.title = title;
+    report.checkpoint = a.checkpoint, report.data = a.data, report.split = a.split, report.mode = to_string(mode);
+    report.viewer = viewer.empty() ? "" : "viewer.html";
+    report.horizons = horizons;
+    report.rollout_seconds = seconds;
+    std::vector<data::KubricScene> sources;
+    for (std::size_t i = 0; i < chosen.size(); ++i) {
+      sources.push_back(dataset.scene(chosen[i]));
+      report.scenes.push_back({chosen[i], static_cast<int>(sources.back().instances.size()), results[i].model,
+                               results[i].baseline, static_cast<int>(i) < a.viewer_scenes ? static_cast<int>(i) : -1});
     }
-    write_file_atomic((fs::path(a.out) / (metric + ".svg")).string(), svg_plot(series, label));
+    report.dataset_kind = hopnet_report::infer_movi_kind(sources, &report.dataset_kind_why);
+    // The training curves too, when the checkpoint sits beside its training logs.
+    const auto log_dir = fs::path(a.checkpoint).parent_path();
+    if (fs::exists(log_dir / "steps.csv") || fs::exists(log_dir / "epochs.csv")) {
+      try {
+        report.training = hopnet_report::read_training_log(log_dir);
+      } catch (const data::DataError& e) {
+        report.training_note = std::string("training curves not shown: ") + e.what();
+      }
+    }
+    hopnet_report::write_evaluation_report((fs::path(a.out) / "index.html").string(), report);
   }
-  if (!viewer.empty()) hopnet_viewer::write_viewer_html((fs::path(a.out) / "viewer.html").string(), "HOPNet rollouts (" + std::string(to_string(mode)) + " mode): " + a.data, viewer);
-  std::cout << md.str() << "wrote " << a.out << "/metrics.json, table.md, pos_rmse.svg, ori_rmse.svg" << (viewer.empty() ? "" : ", viewer.html") << "\n";
+  std::cout << md.str() << "wrote " << a.out << "/metrics.json, table.md"
+            << (a.no_report ? "" : ", index.html") << (a.no_report || viewer.empty() ? "" : ", viewer.html") << "\n";
   return 0;
 }
 
@@ -211,9 +218,11 @@ Command add_evaluate(CLI::App& app) {
   ce->add_option("--mode", ev.mode, "reference or native")->capture_default_str();
   ce->add_option("--steps", ev.steps, "rollout steps")->capture_default_str()->check(CLI::PositiveNumber);
   ce->add_option("--jobs", ev.jobs, "scenes rolled out at once (default: all cores)");
+  ce->add_option("--device", ev.device, "cpu, cuda, cuda:N or auto (each job's model runs there)")->capture_default_str();
   ce->add_option("--viewer-scenes", ev.viewer_scenes, "scenes shown in viewer.html (0: no viewer)")->capture_default_str()->check(CLI::NonNegativeNumber);
   add_variant_options(ce, ev.variant, false);
-  ce->add_option("--out", ev.out, "output folder: metrics.json, per_scene.json, table.md, pos_rmse.svg, ori_rmse.svg, viewer.html")->required();
+  ce->add_flag("--no-report", ev.no_report, "write metrics.json, per_scene.json and table.md only: no index.html, no viewer.html (no JavaScript libraries needed)");
+  ce->add_option("--out", ev.out, "output folder: metrics.json, per_scene.json, table.md, index.html (the report: tables, plots, training curves), viewer.html")->required();
   return {ce, [args] { return run_evaluate(*args); }};
 }
 

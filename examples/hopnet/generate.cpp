@@ -1,7 +1,10 @@
 // hopnet generate: MOVi scenes regenerated with Bullet, one process per job, resumable.
 #include "commands.hpp"
+#include <sys/prctl.h>
 #include <sys/wait.h>
 #include <unistd.h>
+
+#include <csignal>
 
 #include <thread>
 
@@ -35,6 +38,7 @@ int run_generate(const GenerateArgs& a) {
     const auto have = data::Dataset::open(a.out);
     for (auto s : seeds)
       if (!have.contains(s)) throw data::DataError(a.out + ": holds a topos dataset without seed " + std::to_string(s) + "; write the new seeds elsewhere");
+    fs::remove_all(fs::path(a.out) / "staging");  // a run killed after packing, before its clean-up
     std::printf("generate %s: all %zu scenes are already in %s\n", to_string(kind), seeds.size(), a.out.c_str());
     return 0;
   }
@@ -55,6 +59,8 @@ int run_generate(const GenerateArgs& a) {
     const pid_t pid = fork();
     if (pid < 0) throw std::runtime_error("fork failed");
     if (pid == 0) {
+      // A job dies with the parent: orphans writing on would race a resumed run for the same scenes.
+      if (prctl(PR_SET_PDEATHSIG, SIGKILL) != 0 || getppid() == 1) _exit(1);
       close(fds[0]);
       try {
         data::MoviAssets assets(a.assets);

@@ -1,6 +1,7 @@
 // hopnet: the HOPNet program of topos. Subcommands (one file each, see commands.hpp): info, init,
-// export (models); generate, pack, split (datasets); grad, train, evaluate, rollout. Every subcommand has
-// --help; errors print one line and exit with status 1, leaving no half-written output.
+// export (models); generate, pack, split (datasets); grad, train, evaluate, rollout, stats, plot.
+// Every subcommand has --help; errors print one line and exit with status 1, leaving no
+// half-written output.
 #include "commands.hpp"
 
 int main(int argc, char** argv) {
@@ -13,7 +14,7 @@ int main(int argc, char** argv) {
   const std::vector<Command> commands{add_info(app),  add_init(app),  add_export(app),
                                       add_generate(app), add_pack(app), add_split(app),
                                       add_grad(app), add_train(app), add_evaluate(app), add_rollout(app),
-                                      add_stats(app)};
+                                      add_stats(app), add_plot(app)};
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -1,12 +1,13 @@
 // hopnet rollout: the autoregressive rollout of one scene with the paper's per-frame metrics.
 #include "commands.hpp"
+#include "topos/nn/device.hpp"
 #include "viewer.hpp"
 
 namespace hopnet_cli {
 namespace {
 
 struct RolloutArgs {
-  std::string checkpoint, stats, scene, assets, mode = "reference", out, collisions, viewer;
+  std::string checkpoint, stats, scene, assets, mode = "reference", out, collisions, viewer, device = "cpu";
   int steps = 102;
   bool no_collisions_json = false;
   VariantArgs variant;
@@ -14,9 +15,12 @@ struct RolloutArgs {
 
 int run_rollout(const RolloutArgs& a) {
   const FeatureMode mode = feature_mode_from_string(a.mode);
+  if (!a.viewer.empty()) hopnet_web::require_js_libraries();
+  const torch::Device device = nn::device_from_string(a.device);
   const auto dict = nn::read_tensor_dict(a.checkpoint);
   auto net = load_hopnet(dict, a.checkpoint, checkpoint_overrides(a.variant, dict, a.checkpoint, mode));
   net->eval();
+  net->to(device);
   const auto stats = read_stats_json(a.stats);
   check_stats_fit(net->options, stats, a.stats);
   const Normalizer norm(stats);
@@ -68,7 +72,7 @@ int run_rollout(const RolloutArgs& a) {
   j["positions"] = pos;
   j["quaternions"] = quat;
   write_json_atomic(j, a.out);
-  if (!a.viewer.empty()) hopnet_viewer::write_viewer_html(a.viewer, "HOPNet rollout (" + std::string(to_string(mode)) + " mode): " + kubric.source, {{kubric.source, &scene, r.poses, m.pos_rmse}});
+  if (!a.viewer.empty()) hopnet_viewer::write_viewer_html(a.viewer, "HOPNet rollout (" + std::string(to_string(mode)) + " mode): " + kubric.source, {{kubric.source, &scene, r.poses, {{"prediction", m.pos_rmse}}}});
   std::printf("rollout: %s, %d steps in %.3f s (%.2f ms/step), mode %s\n", variant_name(net->options).c_str(), opt.steps, r.seconds, 1e3 * r.seconds / opt.steps, to_string(mode));
   std::printf("%6s %10s %10s %10s %10s\n", "frame", "pos_rmse", "pos_mae", "ori_rmse", "ori_mae");
   for (int f : {4, 25, 50, 75, 100})
@@ -93,6 +97,7 @@ Command add_rollout(CLI::App& app) {
   cr->add_flag("--no-collisions-json", ro.no_collisions_json, "detect the first step's contacts too");
   cr->add_option("--out", ro.out, "output JSON")->required();
   add_variant_options(cr, ro.variant, false);
+  cr->add_option("--device", ro.device, "cpu, cuda, cuda:N or auto (one scene's small steps are fastest on the CPU)")->capture_default_str();
   cr->add_option("--viewer", ro.viewer, "also write the HTML viewer (prediction beside ground truth) here");
   return {cr, [args] { return run_rollout(*args); }};
 }

@@ -1,7 +1,12 @@
-// hopnet train: HOPNet on a dataset (one optimizer step per trajectory), resumable, with CSV logs.
-// A trajectory goes through the network in chunks of timesteps (--chunk, or as many as fit a
-// memory budget) whose gradients add up to the whole trajectory's.
+// hopnet train: HOPNet on a dataset, resumable, with CSV logs. A trajectory goes through the
+// network in chunks of timesteps (--chunk, or as many as fit a memory budget) whose gradients add
+// up to the whole trajectory's. Data-parallel over c10d when run as several processes (torchrun's
+// environment, or --nproc N here): each optimizer step takes --trajectories-per-step
+// trajectories on every rank, gradients averaged by all-reduce.
 #include "commands.hpp"
+#include "topos/nn/device.hpp"
+#include "topos/nn/distributed.hpp"
+#include "topos/util/launch.hpp"
 #include "topos/util/memory.hpp"
 #include <chrono>
 #include <future>
@@ -13,10 +18,12 @@ namespace {
 
 // ---- train ----------------------------------------------------------------------------------
 struct TrainArgs {
-  std::string data, out, assets, stats, mode = "native", split_file, init;
+  std::string data, out, assets, stats, mode = "native", split_file, init, device = "auto";
   std::int64_t max_steps = -1, hidden = 0, chunk = 0;  // hidden 0: the configuration's (--config)
   double memory_budget_mb = kDefaultMemoryBudgetMb;
   int epochs = 40, mlp_layers = 0, num_layers = 0, max_frames = 0;
+  int nproc = 1, trajectories_per_step = 1;
+  double dist_timeout = 1800;
   VariantArgs variant;
   double lr = 1e-4, lr_decay = 0.0, min_z_collision_velocity = 0.0;
   std::uint64_t seed = 0;
@@ -33,11 +40,11 @@ struct LoadedScene {
   std::optional<ContactsByFrame> contacts;
 };
 
-std::vector<LoadedScene> load_scenes(const data::Dataset& dataset, const std::vector<std::int64_t>& ids, const std::string& assets, const LiftingOptions& lifting, int max_frames, const char* label) {
+std::vector<LoadedScene> load_scenes(const data::Dataset& dataset, const std::vector<std::int64_t>& ids, const std::string& assets, const LiftingOptions& lifting, int max_frames, const char* label, std::FILE* log) {
   MeshLibrary lib(assets);
   std::vector<LoadedScene> out;
   out.reserve(ids.size());  // geometry points into its scene's objects: no reallocation
-  ProgressBar bar(label, static_cast<std::int64_t>(ids.size()), "scenes");
+  ProgressBar bar(label, static_cast<std::int64_t>(ids.size()), "scenes", log);
   for (auto id : ids) {
     auto k = dataset.scene(id);
     LoadedScene ls{id, make_scene(k, lib), {}, std::nullopt};
@@ -59,6 +66,22 @@ std::vector<LoadedScene> load_scenes(const data::Dataset& dataset, const std::ve
 
 int run_train(const TrainArgs& a) {
   namespace fs = std::filesystem;
+  // --nproc N: this process only launches the N workers (which see RANK in their environment).
+  if (a.nproc > 1 && std::getenv("RANK") == nullptr) return launch_local_workers(a.nproc, self_command_line());
+  const auto env = nn::DistributedEnv::from_environment();
+  if (a.nproc > 1 && env.world_size != a.nproc) throw std::invalid_argument("--nproc " + std::to_string(a.nproc) + " but WORLD_SIZE=" + std::to_string(env.world_size));
+  const torch::Device device = nn::device_from_string(a.device, env.local_rank);
+  nn::Distributed dist(env, nn::DistributedOptions().device(device).timeout(std::chrono::milliseconds(static_cast<std::int64_t>(a.dist_timeout * 1000))));
+  const bool main_rank = dist.is_main();
+  const int world = dist.world_size(), per_rank = a.trajectories_per_step;
+  // Workers sharing this machine share its cores (the default BLAS threads are all of them).
+  if (env.local_world_size > 1 && device.is_cpu()) nn::set_blas_threads(std::max(1, static_cast<int>(std::thread::hardware_concurrency()) / env.local_world_size));
+  // Only rank 0 talks (and writes); the others' progress goes nowhere.
+  std::unique_ptr<std::FILE, int (*)(std::FILE*)> devnull(main_rank ? nullptr : std::fopen("/dev/null", "w"), &std::fclose);
+  std::FILE* log = main_rank ? stderr : devnull.get();
+  const auto say = [&](const char* fmt, auto... args) {
+    if (main_rank) std::printf(fmt, args...);
+  };
   const FeatureMode mode = feature_mode_from_string(a.mode);
   HopnetOptions options = variant_options(a.variant, HopnetOptions().mode(mode));
   if (a.hidden > 0) options.hidden(a.hidden);
@@ -75,40 +98,58 @@ int run_train(const TrainArgs& a) {
   const auto split = a.split_file.empty() ? data::reference_split(ids) : data::read_split_json(a.split_file);
   const auto train_ids = data::split_part(split, "train", ids), val_ids = data::split_part(split, "val", ids);
   if (train_ids.empty()) throw data::DataError(a.data + ": no training scenes");
-  fs::create_directories(a.out);
-  std::printf("train: %zu scenes (%zu train, %zu val), %s format, mode %s, variant %s\n", ids.size(), train_ids.size(), val_ids.size(), dataset.format().c_str(), to_string(mode), variant_name(options).c_str());
-  auto train = load_scenes(dataset, train_ids, a.assets, options.lifting(), a.max_frames, "scenes (train)");
-  auto val = load_scenes(dataset, val_ids, a.assets, options.lifting(), a.max_frames, "scenes (val)");
+  if (main_rank) fs::create_directories(a.out);
+  say("train: %zu scenes (%zu train, %zu val), %s format, mode %s, variant %s\n", ids.size(), train_ids.size(), val_ids.size(), dataset.format().c_str(), to_string(mode), variant_name(options).c_str());
+  if (world > 1) say("distributed: %d processes (%s), %d trajectories per rank per step\n", world, dist.backend_name().c_str(), per_rank);
+  auto train = load_scenes(dataset, train_ids, a.assets, options.lifting(), a.max_frames, "scenes (train)", log);
+  auto val = load_scenes(dataset, val_ids, a.assets, options.lifting(), a.max_frames, "scenes (val)", log);
   NormalizationStats stats;
   const auto stats_path = (fs::path(a.out) / "stats.json").string();
-  if (!a.stats.empty()) {
-    stats = read_stats_json(a.stats);
-  } else if (a.resume && fs::exists(stats_path)) {
-    stats = read_stats_json(stats_path);
-  } else {
-    StatsAccumulator acc;
-    ProgressBar sb("statistics", static_cast<std::int64_t>(train.size()), "scenes");
-    for (const auto& s : train) {
-      accumulate_stats(acc, trajectory_frames(s.scene, s.geometry, radius, a.min_z_collision_velocity, 2, -1, s.contacts ? &*s.contacts : nullptr), options.lifting().object_cells());
-      sb.update();
+  // Rank 0 reads or computes the statistics and sends them to the others (the same numbers as a
+  // single process, whatever the world size).
+  if (main_rank) {
+    if (!a.stats.empty()) {
+      stats = read_stats_json(a.stats);
+    } else if (a.resume && fs::exists(stats_path)) {
+      stats = read_stats_json(stats_path);
+    } else {
+      StatsAccumulator acc;
+      ProgressBar sb("statistics", static_cast<std::int64_t>(train.size()), "scenes");
+      for (const auto& s : train) {
+        accumulate_stats(acc, trajectory_frames(s.scene, s.geometry, radius, a.min_z_collision_velocity, 2, -1, s.contacts ? &*s.contacts : nullptr), options.lifting().object_cells());
+        sb.update();
+      }
+      sb.finish();
+      stats = acc.finalize();
     }
-    sb.finish();
-    stats = acc.finalize();
+    write_stats_json(stats, stats_path);
+  }
+  if (world > 1) {
+    const auto text = dist.broadcast_bytes(main_rank ? data::read_text_file(stats_path) : std::string(), 0, "statistics broadcast");
+    if (!main_rank) stats = parse_stats_json(text, "rank 0's statistics");
   }
   check_stats_fit(options, stats, a.stats.empty() ? stats_path : a.stats);
-  write_stats_json(stats, stats_path);
   const Normalizer norm(stats);
-  const torch::Device device = torch::cuda::is_available() ? torch::kCUDA : torch::kCPU;
 
   torch::manual_seed(a.seed);
   const auto ckpt = (fs::path(a.out) / "checkpoint.pt").string(), opt_path = (fs::path(a.out) / "optimizer.pt").string(), state_path = (fs::path(a.out) / "state.json").string();
+  // checkpoint.pt, optimizer.pt and state.json are replaced together (FileGroup): a run killed
+  // at any point resumes from the last whole epoch. Only rank 0 writes, so only it recovers.
+  const auto journal = (fs::path(a.out) / "commit.journal").string();
+  if (a.resume && main_rank) recover_file_group(journal);
   Hopnet model(options);
   int start_epoch = 0;
   std::int64_t step = 0;
-  const bool resuming = a.resume && fs::exists(state_path);
-  if (resuming) load_checkpoint(*model, nn::read_tensor_dict(ckpt), ckpt);
-  else if (!a.init.empty()) load_checkpoint(*model, init, a.init);
+  // Rank 0 decides whether and from what to resume; the others receive its model, optimizer
+  // state and position, so --resume works for any world size (and needs no shared folder).
+  const bool resuming = dist.broadcast_bytes(main_rank && a.resume && fs::exists(state_path) ? "1" : "0") == "1";
+  if (main_rank) {
+    if (resuming) load_checkpoint(*model, nn::read_tensor_dict(ckpt), ckpt);
+    else if (!a.init.empty()) load_checkpoint(*model, init, a.init);
+  }
   model->to(device);
+  dist.broadcast_(model->parameters(), 0, "parameter broadcast");
+  dist.broadcast_(model->buffers(), 0, "buffer broadcast");
   const double budget = a.memory_budget_mb * 1024.0 * 1024.0;
   const auto make_chunks = [&](const LoadedScene& s) {
     const auto tf = trajectory_frames(s.scene, s.geometry, radius, a.min_z_collision_velocity, 2, -1, s.contacts ? &*s.contacts : nullptr);
@@ -123,80 +164,126 @@ int run_train(const TrainArgs& a) {
   };
   torch::optim::Adam opt(model->parameters(), torch::optim::AdamOptions(a.lr));
   if (resuming) {
-    torch::load(opt, opt_path);
-    std::ifstream in(state_path);
-    const auto st = nlohmann::json::parse(in);
+    std::istringstream opt_in(dist.broadcast_bytes(main_rank ? data::read_text_file(opt_path) : std::string(), 0, "optimizer state broadcast"));
+    torch::load(opt, opt_in);
+    const auto st = nlohmann::json::parse(dist.broadcast_bytes(main_rank ? data::read_text_file(state_path) : std::string(), 0, "state broadcast"));
     start_epoch = st.at("epoch").get<int>();
     step = st.at("step").get<std::int64_t>();
-    std::printf("resuming after epoch %d (step %lld)\n", start_epoch, static_cast<long long>(step));
+    say("resuming after epoch %d (step %lld)\n", start_epoch, static_cast<long long>(step));
   }
-  std::printf("model: %lld parameters, device %s\n", static_cast<long long>(model->num_parameters()), device.str().c_str());
-  std::ofstream steps_csv(fs::path(a.out) / "steps.csv", a.resume ? std::ios::app : std::ios::trunc);
-  std::ofstream epochs_csv(fs::path(a.out) / "epochs.csv", a.resume ? std::ios::app : std::ios::trunc);
-  if (!a.resume || step == 0) {
-    steps_csv << "epoch,step,scene,loss,seconds_per_step,timesteps_per_second,chunks,peak_rss_mb\n";
-    epochs_csv << "epoch,train_loss,val_loss,seconds,lr\n";
+  say("model: %lld parameters, device %s\n", static_cast<long long>(model->num_parameters()), device.str().c_str());
+  std::ofstream steps_csv, epochs_csv;
+  if (main_rank) {
+    const auto steps_path = fs::path(a.out) / "steps.csv", epochs_path = fs::path(a.out) / "epochs.csv";
+    if (a.resume) {  // the rows logged after the last committed epoch are trained again
+      truncate_csv_log(steps_path.string(), 1, step);
+      truncate_csv_log(epochs_path.string(), 0, start_epoch);
+    }
+    const bool new_logs = !a.resume || !fs::exists(steps_path) || fs::file_size(steps_path) == 0;
+    steps_csv.open(steps_path, new_logs ? std::ios::trunc : std::ios::app);
+    epochs_csv.open(epochs_path, new_logs ? std::ios::trunc : std::ios::app);
+    if (new_logs) {
+      steps_csv << "epoch,step,scene,loss,seconds_per_step,timesteps_per_second,chunks,peak_rss_mb\n";
+      epochs_csv << "epoch,train_loss,val_loss,seconds,lr\n";
+    }
   }
-  const std::int64_t total_steps = a.max_steps >= 0 ? std::min<std::int64_t>(a.max_steps, static_cast<std::int64_t>(a.epochs) * static_cast<std::int64_t>(train.size()))
-                                                    : static_cast<std::int64_t>(a.epochs) * static_cast<std::int64_t>(train.size());
-  ProgressBar bar("train", total_steps, "steps");
+  // Every optimizer step takes world × per_rank trajectories of the epoch's order (the last step
+  // of an epoch may take fewer), so each trajectory is used once per epoch whatever the world size.
+  const auto n_train = static_cast<std::int64_t>(train.size());
+  const std::int64_t epoch_steps = nn::steps_per_epoch(n_train, world, per_rank);
+  const std::int64_t all_steps = static_cast<std::int64_t>(a.epochs) * epoch_steps;
+  const std::int64_t total_steps = a.max_steps >= 0 ? std::min<std::int64_t>(a.max_steps, all_steps) : all_steps;
+  ProgressBar bar("train", total_steps, "steps", log);
   bar.resume_from(std::min(step, total_steps));
+  const auto params = model->parameters();
   for (int epoch = start_epoch; epoch < a.epochs && step < total_steps; ++epoch) {
     const double lr = a.lr * (a.lr_decay > 0 ? std::pow(a.lr_decay, epoch) : 1.0);
     for (auto& g : opt.param_groups()) static_cast<torch::optim::AdamOptions&>(g.options()).lr(lr);
-    std::vector<std::size_t> order(train.size());
-    std::iota(order.begin(), order.end(), 0);
-    std::shuffle(order.begin(), order.end(), std::mt19937(static_cast<std::uint32_t>(a.seed * 1000 + static_cast<std::uint64_t>(epoch))));
+    const auto order = nn::epoch_order(n_train, a.seed, epoch);
+    const std::int64_t steps_now = std::min(epoch_steps, total_steps - step);
+    // This rank's trajectories of the epoch, step by step: built one ahead on another thread.
+    std::vector<nn::StepShard> shards;
+    std::vector<std::int64_t> mine;
+    for (std::int64_t s = 0; s < steps_now; ++s) {
+      shards.push_back(nn::step_shard(order, s, world, dist.rank(), per_rank));
+      mine.insert(mine.end(), shards.back().items.begin(), shards.back().items.end());
+    }
     const auto t_epoch = std::chrono::steady_clock::now();
     double sum = 0;
     int n = 0;
     model->train();
-    // The next trajectory's item is built on another thread while this one trains.
     std::future<std::vector<TrainingItem>> next;
-    const auto steps_left = [&](std::size_t k) { return step + static_cast<std::int64_t>(k) < total_steps; };
-    if (!order.empty() && steps_left(0)) next = std::async(std::launch::async, make_chunks, std::cref(train[order[0]]));
-    for (std::size_t k = 0; k < order.size() && step < total_steps; ++k) {
-      const auto i = order[k];
-      const std::vector<TrainingItem> chunks = next.get();
-      if (k + 1 < order.size() && steps_left(1)) next = std::async(std::launch::async, make_chunks, std::cref(train[order[k + 1]]));
+    std::size_t taken = 0;
+    if (!mine.empty()) next = std::async(std::launch::async, make_chunks, std::cref(train[static_cast<std::size_t>(mine[0])]));
+    for (std::int64_t s = 0; s < steps_now; ++s) {
+      const auto& shard = shards[static_cast<std::size_t>(s)];
       reset_peak_rss();
       const auto t0 = std::chrono::steady_clock::now();
-      const double loss = train_step(*model, opt, chunks, norm);
+      // Gradients reset to none, as the reference's (PyTorch >= 2.0) zero_grad: a parameter no
+      // trajectory of the step reaches is skipped by Adam rather than moved by its momentum.
+      for (auto& p : params) p.mutable_grad() = torch::Tensor();
+      double loss_sum = 0, T = 0;  // this rank's: Σ per-timestep losses, Σ timesteps
+      std::size_t n_chunks = 0;
+      for (std::size_t j = 0; j < shard.items.size(); ++j) {
+        const std::vector<TrainingItem> chunks = next.get();
+        if (++taken < mine.size()) next = std::async(std::launch::async, make_chunks, std::cref(train[static_cast<std::size_t>(mine[taken])]));
+        const double loss = backward_trajectory(*model, chunks, norm);
+        loss_sum += loss / static_cast<double>(timesteps(chunks));
+        T += static_cast<double>(timesteps(chunks));
+        n_chunks += chunks.size();
+      }
+      // grad = Σ over the step's trajectories / their number (one trajectory, one process: as is).
+      dist.average_gradients(params, static_cast<double>(shard.total));
+      opt.step();
+      const auto totals = world > 1 ? dist.all_reduce_sum({loss_sum, T}, "loss all-reduce") : std::vector<double>{loss_sum, T};
       const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-      const auto T = timesteps(chunks);
-      const double l = loss / static_cast<double>(T);
+      const double l = totals[0] / static_cast<double>(shard.total);
       sum += l, ++n, ++step;
-      steps_csv << epoch << "," << step << "," << train[i].id << "," << l << "," << secs << "," << static_cast<double>(T) / secs << "," << chunks.size() << "," << peak_rss_mb() << "\n";
+      if (main_rank) {
+        std::string scenes;  // every rank's trajectories of the step, from the shared order
+        for (std::int64_t k = s * world * per_rank; k < std::min(n_train, (s + 1) * world * per_rank); ++k)
+          scenes += (scenes.empty() ? "" : ";") + std::to_string(train[static_cast<std::size_t>(order[static_cast<std::size_t>(k)])].id);
+        // chunks and peak_rss_mb are rank 0's (each process holds its own trajectories).
+        steps_csv << epoch << "," << step << "," << scenes << "," << l << "," << secs << "," << totals[1] / secs << "," << n_chunks << "," << peak_rss_mb() << "\n";
+      }
       char status[96];
-      std::snprintf(status, sizeof status, "epoch %d loss %.4f %.0f timesteps/s", epoch + 1, l, static_cast<double>(T) / secs);
+      std::snprintf(status, sizeof status, "epoch %d loss %.4f %.0f timesteps/s", epoch + 1, l, totals[1] / secs);
       bar.update(1, status);
     }
-    steps_csv.flush();
+    if (main_rank) steps_csv.flush();
+    // Validation: rank r takes val scenes r, r + world, ...; the sums are all-reduced.
     double vl = 0;
     {
       torch::NoGradGuard ng;
       model->eval();
-      for (const auto& v : val) {
-        const auto chunks = make_chunks(v);
+      double v_sum = 0;
+      for (std::size_t v = static_cast<std::size_t>(dist.rank()); v < val.size(); v += static_cast<std::size_t>(world)) {
+        const auto chunks = make_chunks(val[v]);
         double l = 0;
         for (const auto& c : chunks) l += trajectory_loss(*model, c, norm).item<double>();
-        vl += l / static_cast<double>(timesteps(chunks));
+        v_sum += l / static_cast<double>(timesteps(chunks));
       }
-      if (!val.empty()) vl /= static_cast<double>(val.size());
+      if (world > 1) v_sum = dist.all_reduce_sum({v_sum}, "validation all-reduce")[0];
+      if (!val.empty()) vl = v_sum / static_cast<double>(val.size());
     }
     const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_epoch).count();
+    if (!main_rank) continue;
     epochs_csv << epoch + 1 << "," << (n ? sum / n : 0.0) << "," << vl << "," << secs << "," << lr << "\n";
     epochs_csv.flush();
+    FileGroup group(journal);
     model->to(torch::kCPU);
-    save_hopnet(*model, ckpt);
+    save_hopnet(*model, group.stage(ckpt));
     model->to(device);
     std::ostringstream optimizer_state;
     torch::save(opt, optimizer_state);
-    write_file_atomic(opt_path, optimizer_state.str());
-    write_json_atomic({{"epoch", epoch + 1}, {"step", step}}, state_path);
+    write_file_atomic(group.stage(opt_path), optimizer_state.str());
+    write_json_atomic({{"epoch", epoch + 1}, {"step", step}, {"world_size", world}, {"trajectories_per_step", world * per_rank}}, group.stage(state_path));
+    group.commit();
   }
   bar.finish();
-  std::printf("trained %lld steps; checkpoint %s, statistics %s\n", static_cast<long long>(step), ckpt.c_str(), stats_path.c_str());
+  // Nobody leaves before rank 0 has written the last checkpoint (a launcher may stop the rest).
+  dist.barrier("final barrier");
+  say("trained %lld steps; checkpoint %s, statistics %s\n", static_cast<long long>(step), ckpt.c_str(), stats_path.c_str());
   return 0;
 }
 
@@ -226,7 +313,14 @@ Command add_train(CLI::App& app) {
   ct->add_option("--max-frames", tr.max_frames, "use only the first frames of each scene (0: all)")->capture_default_str();
   ct->add_option("--min-z-collision-velocity", tr.min_z_collision_velocity, "mask objects in contact slower than this vertically (m/s)")->capture_default_str();
   ct->add_option("--seed", tr.seed, "random seed")->capture_default_str();
-  ct->add_flag("--resume", tr.resume, "continue from the last epoch's checkpoint in --out");
+  ct->add_flag("--resume", tr.resume, "continue from the last epoch's checkpoint in --out (any number of processes)");
+  ct->add_option("--device", tr.device, "cpu, cuda, cuda:N or auto (a worker's GPU is its LOCAL_RANK)")->capture_default_str();
+  ct->add_option("--nproc", tr.nproc, "start this many local data-parallel workers (Gloo over loopback); torchrun's environment does the same across machines")
+      ->capture_default_str()->check(CLI::PositiveNumber);
+  ct->add_option("--trajectories-per-step", tr.trajectories_per_step, "trajectories per optimizer step on each process (gradients averaged)")
+      ->capture_default_str()->check(CLI::PositiveNumber);
+  ct->add_option("--dist-timeout", tr.dist_timeout, "seconds a process waits for the others in a collective before failing")
+      ->capture_default_str()->check(CLI::PositiveNumber);
   ct->set_config("--config-file", "", "read options from a TOML/INI file");
   return {ct, [args] { return run_train(*args); }};
 }

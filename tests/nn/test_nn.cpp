@@ -5,10 +5,18 @@
 
 #include "topos/core/lifting.hpp"
 #include "topos/mesh/primitives.hpp"
+#include "topos/nn/device.hpp"
+#include "topos/nn/distributed.hpp"
 #include "topos/nn/schedule.hpp"
 
 #include <cstdio>
+#include <cstdlib>
+#include <filesystem>
 #include <random>
+#include <set>
+#include <thread>
+
+#include <unistd.h>
 
 using namespace topos;
 using namespace topos::nn;
@@ -299,4 +307,163 @@ TEST_CASE("parameters round-trip by name through a file", "[nn][checkpoint]") {
   REQUIRE_THROWS_WITH(load_parameters(*b, extra, "x.pt"), "x.pt: unexpected tensor 'bogus'");
   REQUIRE_THROWS_WITH(read_tensor_dict("/nonexistent.pt"), "/nonexistent.pt: cannot open file");
   std::remove(path.c_str());
+}
+
+TEST_CASE("epoch sharding: every item once per epoch, the same steps for any world size", "[nn][distributed]") {
+  const std::int64_t n = 11;
+  const auto order = epoch_order(n, 5, 0);
+  REQUIRE(order == epoch_order(n, 5, 0));
+  REQUIRE(std::set<std::int64_t>(order.begin(), order.end()).size() == static_cast<std::size_t>(n));
+  REQUIRE(*std::min_element(order.begin(), order.end()) == 0);
+  REQUIRE(*std::max_element(order.begin(), order.end()) == n - 1);
+  REQUIRE(order != epoch_order(n, 5, 1));  // 1 in 11! to coincide
+  REQUIRE(order != epoch_order(n, 6, 0));
+  REQUIRE(epoch_order(0, 1, 0).empty());
+  for (auto [world, per_rank] : std::vector<std::pair<int, int>>{{1, 1}, {1, 2}, {2, 1}, {3, 2}, {4, 1}, {16, 1}}) {
+    INFO("world " << world << " per rank " << per_rank);
+    const auto steps = steps_per_epoch(n, world, per_rank);
+    REQUIRE(steps == (n + world * per_rank - 1) / (world * per_rank));
+    std::multiset<std::int64_t> seen;
+    for (std::int64_t s = 0; s < steps; ++s) {
+      std::int64_t total = -1, count = 0;
+      std::set<std::int64_t> step_items;
+      for (int r = 0; r < world; ++r) {
+        const auto sh = step_shard(order, s, world, r, per_rank);
+        REQUIRE(sh.items.size() <= static_cast<std::size_t>(per_rank));
+        if (total >= 0) REQUIRE(sh.total == total);  // every rank agrees on the divisor
+        total = sh.total;
+        count += static_cast<std::int64_t>(sh.items.size());
+        seen.insert(sh.items.begin(), sh.items.end());
+        step_items.insert(sh.items.begin(), sh.items.end());
+      }
+      REQUIRE(count == total);
+      // A step of W ranks × K takes the same trajectories as one process taking W·K.
+      const auto single = step_shard(order, s, 1, 0, world * per_rank);
+      REQUIRE(std::set<std::int64_t>(single.items.begin(), single.items.end()) == step_items);
+      REQUIRE(single.total == total);
+    }
+    REQUIRE(seen.size() == static_cast<std::size_t>(n));
+    REQUIRE(std::set<std::int64_t>(seen.begin(), seen.end()).size() == static_cast<std::size_t>(n));
+  }
+}
+
+TEST_CASE("a world of one: collectives are the identity, gradients are divided", "[nn][distributed]") {
+  Distributed one;
+  REQUIRE(one.world_size() == 1);
+  REQUIRE(one.is_main());
+  REQUIRE(one.backend_name() == "none");
+  REQUIRE(one.all_reduce_sum({1.5, 2.0}) == std::vector<double>{1.5, 2.0});
+  REQUIRE(one.broadcast_bytes("abc") == "abc");
+  torch::nn::Linear lin(3, 2);
+  lin->weight.mutable_grad() = torch::full({2, 3}, 6.0);
+  one.average_gradients(lin->parameters(), 3.0);
+  REQUIRE(torch::allclose(lin->weight.grad(), torch::full({2, 3}, 2.0)));
+  REQUIRE_FALSE(lin->bias.grad().defined());  // no gradient: still none (an optimizer skips it)
+  REQUIRE_THROWS_AS(one.average_gradients(lin->parameters(), 0.0), std::invalid_argument);
+}
+
+TEST_CASE("the environment of torchrun: read, and refused when inconsistent", "[nn][distributed]") {
+  const auto with_env = [](std::vector<std::pair<const char*, const char*>> vars) {
+    for (const char* k : {"RANK", "WORLD_SIZE", "LOCAL_RANK", "LOCAL_WORLD_SIZE", "MASTER_ADDR", "MASTER_PORT", "TOPOS_RENDEZVOUS_FILE"}) unsetenv(k);
+    for (auto [k, v] : vars) setenv(k, v, 1);
+  };
+  with_env({});
+  auto e = DistributedEnv::from_environment();
+  REQUIRE((e.world_size == 1 && e.rank == 0 && e.local_rank == 0));
+  with_env({{"RANK", "3"}, {"WORLD_SIZE", "4"}, {"LOCAL_RANK", "1"}, {"LOCAL_WORLD_SIZE", "2"}, {"MASTER_ADDR", "node7"}, {"MASTER_PORT", "29555"}});
+  e = DistributedEnv::from_environment();
+  REQUIRE((e.rank == 3 && e.world_size == 4 && e.local_rank == 1 && e.local_world_size == 2 && e.master_addr == "node7" && e.master_port == 29555));
+  REQUIRE_FALSE(e.loopback());
+  with_env({{"RANK", "2"}, {"WORLD_SIZE", "2"}});
+  REQUIRE_THROWS_WITH(DistributedEnv::from_environment(), "RANK=2 is not below WORLD_SIZE=2");
+  with_env({{"WORLD_SIZE", "2"}});
+  REQUIRE_THROWS_WITH(DistributedEnv::from_environment(), "WORLD_SIZE=2 is set but RANK is not");
+  with_env({{"RANK", "0"}, {"WORLD_SIZE", "two"}});
+  REQUIRE_THROWS_WITH(DistributedEnv::from_environment(), "environment variable WORLD_SIZE='two' is not an integer >= 1");
+  with_env({{"RANK", "0"}, {"WORLD_SIZE", "1"}, {"MASTER_PORT", "70000"}});
+  REQUIRE_THROWS_WITH(DistributedEnv::from_environment(), Catch::Contains("MASTER_PORT=70000 is not a port"));
+  with_env({});
+}
+
+TEST_CASE("two ranks over Gloo: gradients averaged in buckets, broadcasts, and a dead peer is an error, not a hang", "[nn][distributed]") {
+  if (!gloo_available()) {
+    std::cout << "SKIPPED: this build has no c10d Gloo process group (libgloo-dev)\n";
+    std::exit(TOPOS_SKIP_CODE);
+  }
+  const auto dir = std::filesystem::temp_directory_path() / ("topos_gloo_test_" + std::to_string(::getpid()));
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  const auto env = [&](int rank) {
+    DistributedEnv e;
+    e.rank = rank, e.world_size = 2, e.local_rank = rank, e.local_world_size = 2;
+    e.rendezvous_file = (dir / "store").string();
+    return e;
+  };
+  // Small buckets: the 3 parameters below go through several all-reduces.
+  const auto opts = DistributedOptions().timeout(std::chrono::seconds(4)).bucket_bytes(40);
+  std::vector<torch::Tensor> grads(2), bias_grads(2), weights(2);
+  std::vector<std::string> bytes(2), errors(2);
+  std::vector<std::string> names(2);
+  std::vector<int> ghost(2, -1);
+  std::vector<std::vector<double>> sums(2);
+  std::vector<std::thread> ranks;
+  for (int r = 0; r < 2; ++r)
+    ranks.emplace_back([&, r] {
+      try {
+        Distributed d(env(r), opts);
+        names[static_cast<std::size_t>(r)] = d.backend_name();
+        torch::manual_seed(static_cast<std::uint64_t>(10 + r));  // different replicas until the broadcast
+        torch::nn::Linear a(4, 3), b(3, 1), c(1, 1);
+        std::vector<torch::Tensor> params = a->parameters();
+        for (auto& p : b->parameters()) params.push_back(p);
+        params.push_back(c->weight);  // no gradient on either rank
+        d.broadcast_(params);
+        weights[static_cast<std::size_t>(r)] = torch::cat({a->weight.reshape(-1), b->weight.reshape(-1)}).clone();
+        for (std::size_t i = 0; i < params.size(); ++i)
+          if (!(r == 1 && i == 3) && i != 4) params[i].mutable_grad() = torch::full_like(params[i], static_cast<double>((r + 1) * (i + 1)));
+        d.average_gradients(params, 2.0);
+        grads[static_cast<std::size_t>(r)] = a->weight.grad().clone();
+        bias_grads[static_cast<std::size_t>(r)] = b->bias.grad().clone();
+        ghost[static_cast<std::size_t>(r)] = c->weight.grad().defined();
+        bytes[static_cast<std::size_t>(r)] = d.broadcast_bytes(r == 0 ? std::string("statistics\0json", 15) : std::string());
+        sums[static_cast<std::size_t>(r)] = d.all_reduce_sum({1.0 + r, 0.25});
+        d.barrier();
+        if (r == 1) return;  // rank 1 leaves: its group closes its connections
+        std::this_thread::sleep_for(std::chrono::milliseconds(200));
+        d.all_reduce_sum({1.0});
+        errors[0] = "rank 0's all-reduce succeeded without rank 1";
+      } catch (const std::exception& e) {
+        errors[static_cast<std::size_t>(r)] = e.what();
+      }
+    });
+  for (auto& t : ranks) t.join();
+  std::filesystem::remove_all(dir);
+  REQUIRE(names[0] == "gloo");
+  REQUIRE(errors[1].empty());
+  REQUIRE(ghost == std::vector<int>{0, 0});  // no gradient anywhere: none after averaging
+  REQUIRE(torch::equal(weights[0], weights[1]));
+  // a.weight is parameter 0: (1·1 + 2·1) / 2; b.bias is parameter 3, absent on rank 1: (1·4 + 0) / 2.
+  for (int r = 0; r < 2; ++r) {
+    REQUIRE(torch::allclose(grads[static_cast<std::size_t>(r)], torch::full({3, 4}, 1.5)));
+    REQUIRE(torch::allclose(bias_grads[static_cast<std::size_t>(r)], torch::full({1}, 2.0)));
+    REQUIRE(bytes[static_cast<std::size_t>(r)] == std::string("statistics\0json", 15));
+    REQUIRE(sums[static_cast<std::size_t>(r)] == std::vector<double>{3.0, 0.5});
+  }
+  INFO(errors[0]);
+  REQUIRE_THAT(errors[0], Catch::Contains("distributed (rank 0 of 2): all-reduce failed: another worker died or stopped responding"));
+}
+
+TEST_CASE("devices by name: cpu, auto, and a clear error for CUDA where there is none", "[nn][device]") {
+  REQUIRE(device_from_string("cpu") == torch::Device(torch::kCPU));
+  REQUIRE_THROWS_WITH(device_from_string("tpu"), "--device tpu: expected cpu, cuda, cuda:<index> or auto");
+  REQUIRE_THROWS_WITH(device_from_string("cuda:x"), "--device cuda:x: expected cuda:<index>");
+  if (cuda_available()) {
+    REQUIRE(device_from_string("auto").is_cuda());
+    REQUIRE(device_from_string("cuda", 0) == torch::Device(torch::kCUDA, 0));
+    REQUIRE_THROWS_WITH(device_from_string("cuda:999"), Catch::Contains("GPU 999 does not exist"));
+  } else {
+    REQUIRE(device_from_string("auto") == torch::Device(torch::kCPU));
+    REQUIRE_THROWS_WITH(device_from_string("cuda"), Catch::Contains("--device cuda: no CUDA device"));
+    REQUIRE_THROWS_WITH(device_from_string("cuda:0"), Catch::Contains("use --device cpu"));
+  }
 }

@@ -24,9 +24,11 @@
 
 namespace topos::data {
 
-/// Parses "1-1200", "8", or "1,3,10-12" into ascending unique seeds.
+/// Parses "1-1200", "8", or "1,3,10-12" into ascending unique seeds (at most 10,000,000; the
+/// parts are merged as ranges first, so overlapping parts cost nothing).
 inline std::vector<std::int64_t> parse_seed_range(const std::string& text) {
-  std::set<std::int64_t> out;
+  constexpr long long max_seeds = 10000000;
+  std::vector<std::pair<long long, long long>> parts;
   std::size_t pos = 0;
   const auto fail = [&](const std::string& why) { throw DataError("seed range '" + text + "': " + why); };
   if (text.empty()) fail("empty");
@@ -45,15 +47,31 @@ inline std::vector<std::int64_t> parse_seed_range(const std::string& text) {
         if (used != rest.size()) fail("'" + part + "' is not a range");
       }
       if (a < 0 || b < a) fail("'" + part + "' is empty or negative");
-      if (b - a > 10000000) fail("too many seeds");
-      for (long long s = a; s <= b; ++s) out.insert(s);
+      if (b - a >= max_seeds) fail("too many seeds");
+      parts.emplace_back(a, b);
     } catch (const std::logic_error&) {
       fail("'" + part + "' is not a number or a range");
     }
     if (comma == std::string::npos) break;
     pos = comma + 1;
   }
-  return {out.begin(), out.end()};
+  std::sort(parts.begin(), parts.end());
+  std::vector<std::pair<long long, long long>> merged;
+  long long total = 0;
+  for (const auto& [a, b] : parts) {
+    if (!merged.empty() && a <= merged.back().second + 1) {
+      if (b > merged.back().second) total += b - merged.back().second, merged.back().second = b;
+    } else {
+      merged.emplace_back(a, b);
+      total += b - a + 1;
+    }
+    if (total > max_seeds) fail("too many seeds");
+  }
+  std::vector<std::int64_t> out;
+  out.reserve(static_cast<std::size_t>(total));
+  for (const auto& [a, b] : merged)
+    for (long long s = a; s <= b; ++s) out.push_back(s);
+  return out;
 }
 
 /// Numeric scene folders holding metadata.json, ascending (the reference's sample list).
@@ -191,8 +209,7 @@ class Dataset {
   std::map<std::int64_t, KubricScene> scenes_;
 
   void load_topos() {
-    const auto index_path = (root_ / "dataset.json").string();
-    const nlohmann::json j = read_json_file(index_path);
+    const nlohmann::json j = read_json_file(root_ / "dataset.json");
     NpyArray pos, quat;
     try {
       pos = read_npy((root_ / "positions.npy").string());
@@ -200,10 +217,28 @@ class Dataset {
     } catch (const std::runtime_error& e) {
       throw DataError(e.what());
     }
+    load_topos(j, pos, quat);
+  }
+
+ public:
+  /// A topos dataset from its index and arrays as read from `root` (what open does after
+  /// reading the three files); every inconsistency is a DataError naming the file.
+  static Dataset from_topos(const std::filesystem::path& root, const nlohmann::json& index, const NpyArray& positions, const NpyArray& quaternions) {
+    Dataset d;
+    d.root_ = root;
+    d.format_ = "topos";
+    d.load_topos(index, positions, quaternions);
+    return d;
+  }
+
+ private:
+  void load_topos(const nlohmann::json& j, const NpyArray& pos, const NpyArray& quat) {
+    const auto index_path = (root_ / "dataset.json").string();
     try {
       if (j.at("format").get<std::string>() != "topos-movi") throw DataError(index_path + ": format is not 'topos-movi'");
       if (j.at("version").get<int>() != 1) throw DataError(index_path + ": unsupported version " + j.at("version").dump());
       const std::int64_t frames = j.at("num_frames").get<std::int64_t>(), total = j.at("num_objects").get<std::int64_t>();
+      if (frames <= 0 || total <= 0) throw DataError(index_path + ": num_frames and num_objects must be positive");
       const auto check = [&](const NpyArray& a, const char* name, std::int64_t cols) {
         if (a.dtype != "f8" || a.shape != std::vector<std::int64_t>{total, frames, cols})
           throw DataError((root_ / name).string() + ": expected float64 of shape (" + std::to_string(total) + ", " + std::to_string(frames) + ", " + std::to_string(cols) + ") as dataset.json says");

@@ -10,6 +10,8 @@
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <istream>
+#include <limits>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -48,53 +50,103 @@ struct NpyArray {
   }
 };
 
-inline NpyArray read_npy(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw std::runtime_error(path + ": cannot open file");
+/// Bytes per element of a supported dtype, or 0.
+inline std::size_t npy_item_size(const std::string& dtype) {
+  if (dtype == "f8" || dtype == "i8") return 8;
+  if (dtype == "f4" || dtype == "i4") return 4;
+  if (dtype == "u1" || dtype == "b1") return 1;
+  return 0;
+}
+
+/// Parses a .npy stream; `source` names it in errors. Untrusted input: the header is checked
+/// field by field, and the data size it implies is checked (without overflow) against the bytes
+/// the stream still holds before anything is allocated, so a header claiming a 10 GB shape is a
+/// "truncated data" error, not an out-of-memory kill.
+inline NpyArray read_npy(std::istream& in, const std::string& source) {
+  const auto fail = [&](const std::string& why) -> void { throw std::runtime_error(source + ": " + why); };
   char magic[8];
   in.read(magic, 8);
-  if (!in || std::memcmp(magic, "\x93NUMPY", 6) != 0) throw std::runtime_error(path + ": not a .npy file");
+  if (!in || std::memcmp(magic, "\x93NUMPY", 6) != 0) fail("not a .npy file");
+  if (magic[6] < 1 || magic[6] > 3) fail("unsupported .npy format version " + std::to_string(static_cast<int>(magic[6])));
   std::uint32_t header_len = 0;
-  if (magic[6] == 1) {
-    std::uint16_t l = 0;
-    in.read(reinterpret_cast<char*>(&l), 2);
-    header_len = l;
-  } else {
-    in.read(reinterpret_cast<char*>(&header_len), 4);
-  }
+  unsigned char len_bytes[4] = {0, 0, 0, 0};
+  in.read(reinterpret_cast<char*>(len_bytes), magic[6] == 1 ? 2 : 4);
+  for (int i = 3; i >= 0; --i) header_len = (header_len << 8) | len_bytes[i];  // little-endian
+  if (!in) fail("truncated header");
+  // NumPy writes headers of a few hundred bytes; refuse absurd lengths before allocating.
+  if (header_len > (1u << 20)) fail("header of " + std::to_string(header_len) + " bytes is too long");
   std::string header(header_len, '\0');
   in.read(header.data(), header_len);
-  if (!in) throw std::runtime_error(path + ": truncated header");
+  if (!in) fail("truncated header");
   NpyArray a;
+  // The text after `'key':`, spaces skipped.
   const auto value_of = [&](const std::string& key) {
     const auto k = header.find("'" + key + "'");
-    if (k == std::string::npos) throw std::runtime_error(path + ": header lacks '" + key + "'");
-    return header.find(':', k) + 1;
+    if (k == std::string::npos) fail("header lacks '" + key + "'");
+    auto p = header.find(':', k);
+    if (p == std::string::npos) fail("header lacks a value for '" + key + "'");
+    p = header.find_first_not_of(' ', p + 1);
+    if (p == std::string::npos) fail("header lacks a value for '" + key + "'");
+    return p;
   };
   {
-    auto p = header.find('\'', value_of("descr"));
-    const auto q = header.find('\'', p + 1);
+    const auto p = value_of("descr");
+    const auto q = header[p] == '\'' ? header.find('\'', p + 1) : std::string::npos;
+    if (q == std::string::npos) fail("malformed 'descr' in the header");
     const std::string descr = header.substr(p + 1, q - p - 1);
-    if (descr.size() < 3 || (descr[0] != '<' && descr[0] != '|')) throw std::runtime_error(path + ": unsupported dtype '" + descr + "' (little-endian only)");
+    if (descr.size() < 3 || (descr[0] != '<' && descr[0] != '|')) fail("unsupported dtype '" + descr + "' (little-endian only)");
     a.dtype = descr.substr(1);
+    if (npy_item_size(a.dtype) == 0) fail("unsupported dtype '" + descr + "'");
   }
-  const bool fortran = header.find("'fortran_order': True") != std::string::npos;
+  bool fortran = false;
   {
-    const auto p = header.find('(', value_of("shape")), q = header.find(')', p);
-    std::string dims = header.substr(p + 1, q - p - 1);
+    const auto p = value_of("fortran_order");
+    fortran = header.compare(p, 4, "True") == 0;
+    if (!fortran && header.compare(p, 5, "False") != 0) fail("malformed 'fortran_order' in the header");
+  }
+  {
+    const auto p = value_of("shape");
+    const auto q = header[p] == '(' ? header.find(')', p) : std::string::npos;
+    if (q == std::string::npos) fail("malformed 'shape' in the header");
+    const std::string dims = header.substr(p + 1, q - p - 1);
     std::size_t pos = 0;
     while (pos < dims.size()) {
       const auto c = dims.find(',', pos);
       const std::string tok = dims.substr(pos, c == std::string::npos ? std::string::npos : c - pos);
-      if (tok.find_first_not_of(' ') != std::string::npos) a.shape.push_back(std::stoll(tok));
+      const auto b = tok.find_first_not_of(' ');
+      if (b != std::string::npos) {
+        const auto e = tok.find_last_not_of(' ');
+        const std::string digits = tok.substr(b, e - b + 1);
+        if (digits.empty() || digits.size() > 18 || digits.find_first_not_of("0123456789") != std::string::npos) fail("bad dimension '" + tok + "' in 'shape'");
+        a.shape.push_back(std::stoll(digits));
+        if (a.shape.size() > 32) fail("more than 32 dimensions");
+      } else if (c != std::string::npos) {
+        fail("empty dimension in 'shape'");
+      }
       if (c == std::string::npos) break;
       pos = c + 1;
     }
   }
-  const std::size_t item = a.dtype == "f8" || a.dtype == "i8" ? 8 : (a.dtype == "f4" || a.dtype == "i4" ? 4 : 1);
-  a.bytes.resize(static_cast<std::size_t>(a.size()) * item);
+  // Element and byte counts without overflow, then against what the stream holds.
+  const std::size_t item = npy_item_size(a.dtype);
+  std::uint64_t bytes = item;
+  for (auto s : a.shape) {
+    if (s != 0 && bytes > std::numeric_limits<std::uint64_t>::max() / static_cast<std::uint64_t>(s)) {
+      bytes = std::numeric_limits<std::uint64_t>::max();
+      break;
+    }
+    bytes *= static_cast<std::uint64_t>(s);
+  }
+  const auto here = in.tellg();
+  in.seekg(0, std::ios::end);
+  const auto end = in.tellg();
+  in.seekg(here);
+  if (here < 0 || end < 0 || !in) fail("cannot determine the data size");
+  const auto available = static_cast<std::uint64_t>(end - here);
+  if (bytes > available) fail("truncated data (the header's shape needs " + std::to_string(bytes) + " bytes, the file holds " + std::to_string(available) + ")");
+  a.bytes.resize(static_cast<std::size_t>(bytes));
   in.read(a.bytes.data(), static_cast<std::streamsize>(a.bytes.size()));
-  if (!in) throw std::runtime_error(path + ": truncated data");
+  if (!in) fail("truncated data");
   if (fortran && a.shape.size() > 1) {
     // NumPy saves a transposed (F-contiguous) array in Fortran order: reorder into C order.
     const std::size_t nd = a.shape.size(), n = static_cast<std::size_t>(a.size());
@@ -112,6 +164,12 @@ inline NpyArray read_npy(const std::string& path) {
     a.bytes.swap(c_order);
   }
   return a;
+}
+
+inline NpyArray read_npy(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw std::runtime_error(path + ": cannot open file");
+  return read_npy(in, path);
 }
 
 namespace detail {

@@ -10,9 +10,15 @@
 #include <caffe2/serialize/inline_container.h>
 #include <torch/csrc/jit/serialization/export.h>
 #include <torch/csrc/jit/serialization/pickler.h>
+#include <torch/csrc/jit/serialization/storage_context.h>
+#include <torch/csrc/jit/serialization/unpickler.h>
 #include <torch/torch.h>
 
+#include <algorithm>
+#include <cstdio>
+#include <cstring>
 #include <fstream>
+#include <memory>
 #include <map>
 #include <sstream>
 #include <string>
@@ -58,24 +64,249 @@ inline void save_parameters(const torch::nn::Module& m, const std::string& path)
   write_tensor_dict(dict, path);
 }
 
-/// Reads a dict of tensors written by save_parameters or torch.save(state_dict).
+namespace detail {
+
+/// One stored (uncompressed) member of a zip archive: its bytes within the file.
+struct ZipRecord {
+  std::size_t offset = 0, size = 0;
+};
+
+inline std::uint32_t le32(const char* p) {
+  std::uint32_t v = 0;
+  for (int i = 3; i >= 0; --i) v = (v << 8) | static_cast<unsigned char>(p[i]);
+  return v;
+}
+inline std::uint16_t le16(const char* p) { return static_cast<std::uint16_t>(static_cast<unsigned char>(p[0]) | (static_cast<unsigned char>(p[1]) << 8)); }
+
+/// The members of a torch.save zip archive, checked before anything is read from them: every
+/// member stored uncompressed (as torch.save writes them) and lying inside the file, so no read
+/// can allocate more than the file holds (a zip bomb or a forged size is an error, not an
+/// out-of-memory kill).
+inline std::map<std::string, ZipRecord> torch_zip_records(const char* data, std::size_t size, const std::string& source) {
+  const auto fail = [&](const std::string& why) -> void { throw std::runtime_error(source + ": not a readable torch file: " + why); };
+  if (size < 22) fail("too short for a zip archive");
+  // The end-of-central-directory record: the last signature within 64 KiB + 22 bytes of the end.
+  std::size_t eocd = std::string::npos;
+  for (std::size_t i = size - 22 + 1; i-- > 0 && size - i <= 65557;) {
+    if (le32(data + i) == 0x06054b50u) {
+      eocd = i;
+      break;
+    }
+  }
+  if (eocd == std::string::npos) fail("no zip end-of-central-directory record");
+  const std::size_t entries = le16(data + eocd + 10), cd_size = le32(data + eocd + 12), cd_offset = le32(data + eocd + 16);
+  if (cd_offset > eocd || cd_size > eocd - cd_offset) fail("central directory outside the file");
+  std::map<std::string, ZipRecord> out;
+  std::size_t p = cd_offset;
+  for (std::size_t e = 0; e < entries; ++e) {
+    if (eocd - p < 46 || le32(data + p) != 0x02014b50u) fail("malformed central directory");
+    const std::uint16_t method = le16(data + p + 10);
+    const std::uint32_t csize = le32(data + p + 20), usize = le32(data + p + 24);
+    const std::size_t name_len = le16(data + p + 28), extra_len = le16(data + p + 30), comment_len = le16(data + p + 32);
+    const std::size_t local = le32(data + p + 42);
+    if (eocd - p - 46 < name_len + extra_len + comment_len) fail("malformed central directory");
+    const std::string name(data + p + 46, name_len);
+    if (method != 0 || csize != usize) fail("member '" + name + "' is compressed (torch.save stores members uncompressed)");
+    if (csize == 0xFFFFFFFFu || local == 0xFFFFFFFFu) fail("zip64 archives are not supported");
+    if (local > cd_offset || cd_offset - local < 30 || le32(data + local) != 0x04034b50u) fail("member '" + name + "' has no local header");
+    const std::size_t begin = local + 30 + le16(data + local + 26) + le16(data + local + 28);
+    if (begin > cd_offset || cd_offset - begin < csize) fail("member '" + name + "' extends past its archive");
+    if (!out.emplace(name, ZipRecord{begin, csize}).second) fail("member '" + name + "' appears twice");
+    p += 46 + name_len + extra_len + comment_len;
+  }
+  return out;
+}
+
+/// Walks a pickle before LibTorch's unpickler sees it, refusing what that unpickler trusts:
+/// opcodes outside the protocol-2 subset torch files use, lengths past the end, memo indices
+/// no pickle writer produces (the unpickler reserves memory by them), and stack or mark
+/// underflow (the unpickler does not check them). `n` is the pickle's size.
+inline void check_pickle(const char* d, std::size_t n, const std::string& source) {
+  const auto fail = [&](const std::string& why) -> void { throw std::runtime_error(source + ": not a readable torch file: " + why); };
+  std::size_t p = 0, depth = 0, memo = 0;
+  std::vector<std::size_t> marks;
+  const auto need = [&](std::size_t k) {
+    if (n - p < k) fail("pickle truncated");
+  };
+  const auto pop = [&](std::size_t k) {  // k items off the stack, never below the top mark
+    if (depth < k || (!marks.empty() && depth - k < marks.back())) fail("pickle pops more than its stack holds");
+    depth -= k;
+  };
+  const auto pop_mark = [&]() -> std::size_t {
+    if (marks.empty()) fail("pickle pops to a mark it has not set");
+    const std::size_t items = depth - marks.back();
+    depth = marks.back();
+    marks.pop_back();
+    return items;
+  };
+  const auto put = [&](std::size_t index) {
+    if (depth == 0) fail("pickle memoizes an empty stack");
+    if (index > memo) fail("pickle memo index " + std::to_string(index) + " out of sequence");
+    if (index == memo) ++memo;
+  };
+  const auto get = [&](std::size_t index) {
+    if (index >= memo) fail("pickle reads memo entry " + std::to_string(index) + ", which it has not set");
+    ++depth;
+  };
+  while (true) {
+    need(1);
+    const unsigned char op = static_cast<unsigned char>(d[p++]);
+    switch (op) {
+      case 0x80: need(1), ++p; break;                                        // PROTO
+      case '.': if (depth != 1 || !marks.empty()) fail("pickle stops with a malformed stack"); return;  // STOP
+      case '(': marks.push_back(depth); break;                               // MARK
+      case '0': pop(1); break;                                               // POP
+      case '1': pop_mark(); break;                                           // POP_MARK
+      case 'N': case 0x88: case 0x89: case ')': case ']': case '}': ++depth; break;  // NONE, NEWTRUE, NEWFALSE, EMPTY_*
+      case 'K': need(1), p += 1, ++depth; break;                             // BININT1
+      case 'M': need(2), p += 2, ++depth; break;                             // BININT2
+      case 'J': need(4), p += 4, ++depth; break;                             // BININT
+      case 'G': need(8), p += 8, ++depth; break;                             // BINFLOAT
+      case 0x8a: {                                                           // LONG1
+        need(1);
+        const std::size_t k = static_cast<unsigned char>(d[p++]);
+        if (k > 8) fail("pickle integer wider than 64 bits");
+        need(k), p += k, ++depth;
+        break;
+      }
+      case 'X': case 'B': {                                                  // BINUNICODE, BINBYTES
+        need(4);
+        const std::size_t k = le32(d + p);
+        p += 4, need(k), p += k, ++depth;
+        break;
+      }
+      case 0x8c: case 'U': case 'C': {                                       // SHORT_BINUNICODE, SHORT_BINSTRING, SHORT_BINBYTES
+        need(1);
+        const std::size_t k = static_cast<unsigned char>(d[p++]);
+        need(k), p += k, ++depth;
+        break;
+      }
+      case 'c': {                                                            // GLOBAL: two lines
+        for (int line = 0; line < 2; ++line) {
+          const auto* nl = static_cast<const char*>(std::memchr(d + p, '\n', std::min<std::size_t>(n - p, 256)));
+          if (!nl) fail("pickle GLOBAL name unterminated or too long");
+          p = static_cast<std::size_t>(nl - d) + 1;
+        }
+        ++depth;
+        break;
+      }
+      case 'q': need(1), put(static_cast<unsigned char>(d[p])), p += 1; break;  // BINPUT
+      case 'r': need(4), put(le32(d + p)), p += 4; break;                    // LONG_BINPUT
+      case 0x94: put(memo); break;                                           // MEMOIZE
+      case 'h': need(1), get(static_cast<unsigned char>(d[p])), p += 1; break;  // BINGET
+      case 'j': need(4), get(le32(d + p)), p += 4; break;                    // LONG_BINGET
+      case 't': case 'l': pop_mark(), ++depth; break;                        // TUPLE, LIST
+      case 'd':                                                              // DICT
+        if (pop_mark() % 2) fail("pickle dict with an odd number of items");
+        ++depth;
+        break;
+      case 0x85: pop(1), ++depth; break;                                     // TUPLE1
+      case 0x86: pop(2), ++depth; break;                                     // TUPLE2
+      case 0x87: pop(3), ++depth; break;                                     // TUPLE3
+      case 'a': pop(2), ++depth; break;                                      // APPEND
+      case 'e': pop_mark(), pop(1), ++depth; break;                          // APPENDS
+      case 's': pop(3), ++depth; break;                                      // SETITEM
+      case 'u':                                                              // SETITEMS
+        if (pop_mark() % 2) fail("pickle SETITEMS with an odd number of items");
+        pop(1), ++depth;
+        break;
+      case 'R': case 0x81: pop(2), ++depth; break;                           // REDUCE, NEWOBJ
+      case 'b': pop(2), ++depth; break;                                      // BUILD
+      case 'Q': pop(1), ++depth; break;                                      // BINPERSID
+      case 0x95: need(8), p += 8; break;                                     // FRAME
+      default: {
+        char hex[8];
+        std::snprintf(hex, sizeof hex, "0x%02x", op);
+        fail(std::string("unsupported pickle opcode ") + hex);
+      }
+    }
+  }
+}
+
+}  // namespace detail
+
+/// Parses the bytes of a torch file holding a dict of tensors (save_parameters,
+/// torch.save(state_dict)); `source` names it in errors. Untrusted input: the archive and the
+/// pickle are checked first (detail::torch_zip_records, detail::check_pickle), storages are
+/// the archive's members at their real sizes (whatever element count the pickle claims), and
+/// every tensor must lie inside its storage, so a forged file is an error naming it, never a
+/// read out of bounds or an allocation larger than the file.
+inline std::map<std::string, torch::Tensor> parse_tensor_dict(const char* data, std::size_t size, const std::string& source) {
+  const auto fail = [&](const std::string& why) -> void { throw std::runtime_error(source + ": " + why); };
+  const auto records = detail::torch_zip_records(data, size, source);
+  std::string prefix;
+  for (const auto& [name, r] : records) {
+    const auto slash = name.find('/');
+    if (slash != std::string::npos && name.compare(slash, std::string::npos, "/data.pkl") == 0) {
+      if (!prefix.empty()) fail("not a readable torch file: two data.pkl members");
+      prefix = name.substr(0, slash + 1);
+    }
+  }
+  if (prefix.empty()) fail("not a readable torch file: no data.pkl (not a torch.save file)");
+  const detail::ZipRecord pkl = records.at(prefix + "data.pkl");
+  detail::check_pickle(data + pkl.offset, pkl.size, source);
+
+  // Storages: every member under data/, copied out at its real size.
+  auto storages = std::make_shared<torch::jit::DeserializationStorageContext>();
+  for (const auto& [name, r] : records) {
+    if (name.compare(0, prefix.size() + 5, prefix + "data/") != 0) continue;
+    at::DataPtr ptr = at::getCPUAllocator()->allocate(r.size);
+    if (r.size) std::memcpy(ptr.get(), data + r.offset, r.size);
+    storages->addStorage(name.substr(prefix.size() + 5), c10::Storage(c10::Storage::use_byte_size_t(), r.size, std::move(ptr), nullptr, false));
+  }
+  std::size_t pos = 0;
+  const auto reader = [&](char* out, std::size_t n) {
+    const std::size_t k = std::min(n, pkl.size - pos);
+    std::memcpy(out, data + pkl.offset + pos, k);
+    pos += k;
+    return k;
+  };
+  c10::IValue v;
+  try {
+    torch::jit::Unpickler unpickler(
+        reader, [](const c10::QualifiedName& q) -> c10::StrongTypePtr { throw std::runtime_error("unsupported type " + q.qualifiedName()); },
+        [](const at::StrongTypePtr&, const c10::IValue&) -> c10::intrusive_ptr<c10::ivalue::Object> { throw std::runtime_error("objects are not supported"); },
+        [](const std::string& key) -> at::DataPtr { throw std::runtime_error("no storage member data/" + key); }, c10::Device(c10::kCPU), false,
+        torch::jit::Unpickler::defaultTypeParser, storages);
+    v = unpickler.parse_ivalue();
+  } catch (const c10::Error& e) {
+    fail(std::string("not a readable torch file: ") + e.what_without_backtrace());
+  } catch (const std::exception& e) {
+    fail(std::string("not a readable torch file: ") + e.what());
+  }
+  if (!v.isGenericDict()) fail("does not hold a dict of tensors");
+  std::map<std::string, torch::Tensor> out;
+  for (const auto& kv : v.toGenericDict()) {
+    if (!kv.key().isString() || !kv.value().isTensor()) fail("an entry is not a (name, tensor) pair");
+    const std::string& name = kv.key().toStringRef();
+    const torch::Tensor t = kv.value().toTensor();
+    // The tensor's elements must lie inside its storage (the pickle sets sizes and strides freely).
+    if (!t.defined() || t.layout() != torch::kStrided || !t.device().is_cpu() || !t.has_storage()) fail("tensor '" + name + "' is not a dense CPU tensor");
+    if (t.dim() > 64) fail("tensor '" + name + "' has more than 64 dimensions");
+    __extension__ typedef unsigned __int128 u128;  // sizes × strides cannot overflow it
+    u128 last = 0;
+    bool empty = false;
+    for (int64_t d = 0; d < t.dim(); ++d) {
+      if (t.size(d) < 0 || t.stride(d) < 0) fail("tensor '" + name + "' has a negative size or stride");
+      if (t.size(d) == 0) empty = true;
+      else last += static_cast<u128>(t.size(d) - 1) * static_cast<u128>(t.stride(d));
+    }
+    if (t.storage_offset() < 0) fail("tensor '" + name + "' has a negative storage offset");
+    if (!empty) {
+      const u128 end = (last + 1 + static_cast<u128>(t.storage_offset())) * static_cast<u128>(t.element_size());
+      if (end > t.storage().nbytes()) fail("tensor '" + name + "' extends past its storage");
+    }
+    out[name] = t;
+  }
+  return out;
+}
+
+/// Reads a dict of tensors written by save_parameters or torch.save(state_dict) (parse_tensor_dict).
 inline std::map<std::string, torch::Tensor> read_tensor_dict(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw std::runtime_error(path + ": cannot open file");
-  std::vector<char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  c10::IValue v;
-  try {
-    v = torch::pickle_load(bytes);
-  } catch (const c10::Error& e) {
-    throw std::runtime_error(path + ": not a readable torch file: " + e.what_without_backtrace());
-  }
-  if (!v.isGenericDict()) throw std::runtime_error(path + ": does not hold a dict of tensors");
-  std::map<std::string, torch::Tensor> out;
-  for (const auto& kv : v.toGenericDict()) {
-    if (!kv.key().isString() || !kv.value().isTensor()) throw std::runtime_error(path + ": an entry is not a (name, tensor) pair");
-    out[kv.key().toStringRef()] = kv.value().toTensor();
-  }
-  return out;
+  const std::vector<char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  return parse_tensor_dict(bytes.data(), bytes.size(), path);
 }
 
 /// Loads parameters by name; a missing, extra or misshapen tensor is an error naming it.

@@ -671,6 +671,9 @@ TEST_CASE("LibTorch's Adam fed the reference's gradients reproduces its three st
       for (const auto& p : model->named_parameters()) worst = std::max(worst, (p.value().detach().to(torch::kDouble) - want.at(p.key())).abs().max().item<double>());
       INFO("step " << step);
       CHECK(worst <= 1e-6);
+    }
+  }
+}
 
 // ---- the HOPNet family (hopnet-ablations-spec.md) ---------------------------------------------
 
@@ -930,4 +933,40 @@ TEST_CASE("variants on built-in shapes: batching, rollout, training, statistics 
       fs::remove(ck);
     }
   }
+}
+
+TEST_CASE("on CUDA, a training step and a rollout step equal the CPU ones", "[hopnet][cuda]") {
+  if (!torch::cuda::is_available()) {
+    std::cout << "SKIPPED: no CUDA device (this LibTorch has no CUDA support or sees no GPU); build against a CUDA LibTorch to run it\n";
+    std::exit(TOPOS_SKIP_CODE);
+  }
+  torch::manual_seed(11);
+  const Scene scene = builtin_scene(12);
+  const Normalizer norm(unit_stats());
+  const auto g = make_geometry(scene, FeatureMode::native);
+  const auto item = make_training_item(g, trajectory_frames(scene, g, 0.1, 0.0), norm);
+  Hopnet cpu(HopnetOptions().hidden(16).mode(FeatureMode::native)), gpu(HopnetOptions().hidden(16).mode(FeatureMode::native));
+  {
+    torch::NoGradGuard ng;
+    for (const auto& p : cpu->named_parameters()) gpu->named_parameters()[p.key()].copy_(p.value());
+  }
+  gpu->to(torch::kCUDA);
+  const auto l_cpu = trajectory_loss(*cpu, item, norm);
+  l_cpu.backward();
+  const auto l_gpu = trajectory_loss(*gpu, item.to(torch::kCUDA), norm);
+  l_gpu.backward();
+  REQUIRE(l_gpu.device().is_cuda());
+  REQUIRE(l_gpu.item<double>() == Approx(l_cpu.item<double>()).epsilon(1e-4));
+  for (const auto& p : cpu->named_parameters()) {
+    INFO(p.key());
+    const auto want = p.value().grad(), got = gpu->named_parameters()[p.key()].grad().cpu();
+    REQUIRE((want - got).abs().max().item<double>() <= 1e-3 * std::max(want.abs().max().item<double>(), 1e-3));
+  }
+  // A rollout step: the model on the GPU, the pose update on the host.
+  cpu->eval(), gpu->eval();
+  const auto p = [&](int t) { return scene_poses(scene, t); };
+  const auto contacts = detect_contacts(g, pose_objects(g, p(3)), 0.1);
+  const Poses a = predict_next(*cpu, norm, g, p(0), p(1), p(2), p(3), contacts), b = predict_next(*gpu, norm, g, p(0), p(1), p(2), p(3), contacts);
+  REQUIRE((a.positions - b.positions).cwiseAbs().maxCoeff() < 1e-5);
+  REQUIRE((a.quaternions - b.quaternions).cwiseAbs().maxCoeff() < 1e-4);
 }

@@ -213,9 +213,10 @@ inline std::vector<ContactCandidate> detect_contacts(const HopnetGeometry& g, co
   return out;
 }
 
-/// The reference's collisions.json: frame -> entries, flattened into candidates in list order.
-inline std::map<std::int64_t, std::vector<ContactCandidate>> read_collisions_json(const std::string& path) {
-  const nlohmann::json j = data::read_json_file(path);
+/// The reference's collisions.json text: frame -> entries, flattened into candidates in list
+/// order; `path` names it in errors.
+inline std::map<std::int64_t, std::vector<ContactCandidate>> parse_collisions_json(const std::string& text, const std::string& path) {
+  const nlohmann::json j = data::parse_json(text, path);
   if (!j.is_object()) throw data::DataError(path + ": expected an object mapping frame numbers to contact lists");
   std::map<std::int64_t, std::vector<ContactCandidate>> out;
   try {
@@ -228,6 +229,11 @@ inline std::map<std::int64_t, std::vector<ContactCandidate>> read_collisions_jso
     throw data::DataError(path + ": unexpected layout: " + e.what());
   }
   return out;
+}
+
+/// The reference's collisions.json (parse_collisions_json).
+inline std::map<std::int64_t, std::vector<ContactCandidate>> read_collisions_json(const std::string& path) {
+  return parse_collisions_json(data::read_text_file(path), path);
 }
 
 /// One timestep's complex and raw (double) features. Row i of x2/x3 is face/contact i.

@@ -65,6 +65,8 @@ struct HopnetOptions {
   }
   void validate() const {
     if (hidden() <= 0 || mlp_layers() < 1 || num_layers() < 1) throw std::invalid_argument("HOPNet configuration: hidden, mlp_layers and num_layers must be positive");
+    // Untrusted (a checkpoint's topos.config): refuse sizes whose parameters could not be allocated.
+    if (hidden() > 65536 || mlp_layers() > 64 || num_layers() > 64) throw std::invalid_argument("HOPNet configuration: hidden above 65536, or mlp_layers or num_layers above 64");
     if (!(collision_radius() > 0) || !std::isfinite(collision_radius())) throw std::invalid_argument("HOPNet configuration: the collision radius must be a positive number");
   }
   LiftingOptions lifting() const {

@@ -35,10 +35,13 @@ struct RolloutResult {
 inline Poses predict_next(HopnetImpl& model, const Normalizer& norm, const HopnetGeometry& g, const Poses& first, const Poses& p2, const Poses& p1, const Poses& pt,
                           const std::vector<ContactCandidate>& contacts, HopnetFrame* frame_out = nullptr) {
   HopnetFrame frame = build_frame(g, first, p2, p1, pt, contacts);
-  const HopnetBatch batch = make_batch({{&g, &frame}}, norm);
+  // The model's device decides where it runs (CPU or GPU); the pose update stays on the host.
+  const auto params = model.parameters();
+  const torch::Device device = params.empty() ? torch::Device(torch::kCPU) : params.front().device();
+  const HopnetBatch batch = device.is_cpu() ? make_batch({{&g, &frame}}, norm) : make_batch({{&g, &frame}}, norm).to(device);
   torch::NoGradGuard no_grad;
   const auto out = model.forward(batch, norm);
-  const torch::Tensor acc = norm.denormalize("t0", out.a0).to(torch::kDouble).contiguous();
+  const torch::Tensor acc = norm.denormalize("t0", out.a0).to(torch::kCPU, torch::kDouble).contiguous();
   const auto* a = acc.data_ptr<double>();
   const auto now = pose_objects(g, pt), before = pose_objects(g, p1);
   Poses next = pt;

@@ -1,0 +1,18 @@
+// Fuzz harness: HOPNet normalisation statistics JSON (models/hopnet/normalization.hpp).
+#include "fuzz_target.hpp"
+
+#include "topos/models/hopnet/normalization.hpp"
+
+TOPOS_FUZZ_TARGET(stats) {
+  using namespace topos_fuzz;
+  try {
+    const auto s = topos::hopnet::parse_stats_json(text(data, size), source());
+    for (const auto& [k, n] : topos::hopnet::NormalizationStats::layout()) {
+      check(s.mean.at(k).size() == n && s.std.at(k).size() == n, "every block has its columns");
+      for (double v : s.std.at(k)) check(v > 0, "positive std");
+    }
+  } catch (const topos::data::DataError& e) {
+    expect_error(e.what());
+  }
+  return 0;
+}
