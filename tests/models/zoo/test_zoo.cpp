@@ -279,9 +279,19 @@ TEST_CASE("every shared TopoModelX case matches its golden outputs and gradients
 TEST_CASE("every zoo model runs in its intended mode on its case: TopoModelX's shapes, finite values", "[models][zoo][reference]") {
   std::vector<std::string> unsupported;
   int models = 0;
+  std::set<std::string> lacking;
   for (const auto& [dir, model] : zoo_cases(unsupported, models)) {
     INFO("case " << dir.filename().string());
-    auto c = load_case(dir, case_operators(dir), /*topomodelx_compatible=*/false);
+    ZooCase c;
+    try {
+      c = load_case(dir, case_operators(dir), /*topomodelx_compatible=*/false);
+    } catch (const std::exception& e) {
+      // UniGCN's intended layers always have their linear map; TopoModelX's state_dict lacks it
+      // where in == hidden channels (docs/models.md), so such weights only load compatibly.
+      if (std::string(e.what()).find("missing tensor") == std::string::npos) throw;
+      lacking.insert(model);
+      continue;
+    }
     torch::NoGradGuard g;
     const auto out = run_case(c);
     for (const auto& name : c.outputs) {
@@ -290,6 +300,7 @@ TEST_CASE("every zoo model runs in its intended mode on its case: TopoModelX's s
       CHECK(torch::isfinite(out.at(name)).all().item<bool>());
     }
   }
+  CHECK((lacking.empty() || lacking == std::set<std::string>{"UniGCN"}));
 }
 
 TEST_CASE("known TopoModelX mismatches (docs/models.md): still differ", "[models][zoo][reference][!mayfail]") {
