@@ -164,8 +164,8 @@ int run_train(const TrainArgs& a) {
   };
   torch::optim::Adam opt(model->parameters(), torch::optim::AdamOptions(a.lr));
   if (resuming) {
-    std::istringstream opt_in(dist.broadcast_bytes(main_rank ? data::read_text_file(opt_path) : std::string(), 0, "optimizer state broadcast"));
-    torch::load(opt, opt_in);
+    const std::string opt_bytes = dist.broadcast_bytes(main_rank ? data::read_text_file(opt_path) : std::string(), 0, "optimizer state broadcast");
+    nn::load_adam_state(opt, *model, nn::parse_tensor_dict(opt_bytes.data(), opt_bytes.size(), opt_path), opt_path);
     const auto st = nlohmann::json::parse(dist.broadcast_bytes(main_rank ? data::read_text_file(state_path) : std::string(), 0, "state broadcast"));
     start_epoch = st.at("epoch").get<int>();
     step = st.at("step").get<std::int64_t>();
@@ -274,9 +274,7 @@ int run_train(const TrainArgs& a) {
     model->to(torch::kCPU);
     save_hopnet(*model, group.stage(ckpt));
     model->to(device);
-    std::ostringstream optimizer_state;
-    torch::save(opt, optimizer_state);
-    write_file_atomic(group.stage(opt_path), optimizer_state.str());
+    nn::write_tensor_dict(nn::adam_state_dict(opt, *model), group.stage(opt_path));  // same bytes for the same state
     write_json_atomic({{"epoch", epoch + 1}, {"step", step}, {"world_size", world}, {"trajectories_per_step", world * per_rank}}, group.stage(state_path));
     group.commit();
   }

@@ -16,4 +16,13 @@ using Run = std::function<int()>;
 /// tdl operators --case DIR --out OUTDIR: every operator of DIR/operators.json as OUTDIR/<name>.npy.
 void register_operators(CLI::App& app, Run& run);
 
+#ifdef TOPOS_TDL_WITH_NN
+/// tdl forward --case DIR --out OUTDIR: the case's model on its inputs, OUTDIR/<output>.npy.
+void register_forward(CLI::App& app, Run& run);
+/// tdl grad --case DIR --out OUTDIR: OUTDIR/<param>.npy, the gradients of sum(out * R).
+void register_grad(CLI::App& app, Run& run);
+/// tdl train --out OUTDIR: node classification on Zachary's karate club (SCN2, SCCNN, UniGCNII).
+void register_train(CLI::App& app, Run& run);
+#endif
+
 }  // namespace tdl_cli

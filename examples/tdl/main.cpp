@@ -1,7 +1,8 @@
 // examples/tdl/main.cpp
 // tdl: topological deep learning on TDL cases (the tdl-golden format): computing a case's
-// operators with topos. Each subcommand registers itself here, one line each; errors are one
-// line on stderr and exit status 1.
+// operators with topos and (built with LibTorch) running TopoModelX models: forward, grad, and
+// training on the karate club: train. Each subcommand registers itself here, one line each;
+// errors are one line on stderr and exit status 1.
 #include "commands.hpp"
 
 #include <cstdio>
@@ -12,6 +13,11 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   tdl_cli::Run run;
   tdl_cli::register_operators(app, run);
+#ifdef TOPOS_TDL_WITH_NN
+  tdl_cli::register_forward(app, run);
+  tdl_cli::register_grad(app, run);
+  tdl_cli::register_train(app, run);
+#endif
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -467,3 +467,42 @@ TEST_CASE("devices by name: cpu, auto, and a clear error for CUDA where there is
     REQUIRE_THROWS_WITH(device_from_string("cuda:0"), Catch::Contains("use --device cpu"));
   }
 }
+
+TEST_CASE("Adam's state saved by parameter name resumes the same steps, with the same bytes in any process", "[nn][serialization]") {
+  const auto make = [] {
+    torch::manual_seed(3);
+    return torch::nn::Sequential(torch::nn::Linear(4, 8), torch::nn::ReLU(), torch::nn::Linear(8, 2));
+  };
+  const auto x = torch::randn({16, 4}), y = torch::randn({16, 2});
+  const auto step = [&](torch::nn::Sequential& m, torch::optim::Adam& opt) {
+    opt.zero_grad();
+    (m->forward(x) - y).pow(2).sum().backward();
+    opt.step();
+  };
+  // Uninterrupted: five steps.
+  auto a = make();
+  torch::optim::Adam opt_a(a->parameters(), torch::optim::AdamOptions(1e-2).amsgrad(true));
+  for (int i = 0; i < 2; ++i) step(a, opt_a);
+  const auto saved = topos::nn::torch_file_bytes(c10::IValue(topos::nn::adam_state_dict(opt_a, *a)));
+  for (int i = 0; i < 3; ++i) step(a, opt_a);
+  // Interrupted after two: a new model (new tensor addresses) and optimizer from the saved state.
+  auto b = make();
+  torch::optim::Adam opt_b(b->parameters(), torch::optim::AdamOptions(1e-2).amsgrad(true));
+  for (int i = 0; i < 2; ++i) step(b, opt_b);
+  REQUIRE(topos::nn::torch_file_bytes(c10::IValue(topos::nn::adam_state_dict(opt_b, *b))) == saved);
+  auto c = make();
+  {
+    torch::NoGradGuard ng;
+    for (std::size_t i = 0; i < b->parameters().size(); ++i) c->parameters()[i].copy_(b->parameters()[i]);
+  }
+  torch::optim::Adam opt_c(c->parameters(), torch::optim::AdamOptions(1e-2).amsgrad(true));
+  const auto dict = topos::nn::parse_tensor_dict(saved.data(), saved.size(), "adam.pt");
+  REQUIRE(dict.count("0.weight.max_exp_avg_sq") == 1);
+  topos::nn::load_adam_state(opt_c, *c, dict, "adam.pt");
+  for (int i = 0; i < 3; ++i) step(c, opt_c);
+  for (std::size_t i = 0; i < a->parameters().size(); ++i) REQUIRE(torch::equal(a->parameters()[i], c->parameters()[i]));
+  // A state of another model is an error naming the tensor.
+  auto other = torch::nn::Sequential(torch::nn::Linear(4, 3));
+  torch::optim::Adam opt_o(other->parameters());
+  REQUIRE_THROWS_WITH(topos::nn::load_adam_state(opt_o, *other, dict, "adam.pt"), Catch::Contains("adam.pt: tensor '0.weight.exp_avg' does not have its parameter's shape"));
+}

@@ -282,7 +282,7 @@ class CellComplex {
     if (rank == 1 && dim() == 2) {
       const SparseMatrix b1 = incidence_matrix(1, true), b1t = sparse::transpose(b1);
       const SparseMatrix b2 = incidence_matrix(2, true), b2t = sparse::transpose(b2);
-      return sparse::multiply_sum({{&b1t, &b1}, {&b2, &b2t}});
+      return sparse::multiply_sum_symmetric({{&b1t, &b1}, {&b2, &b2t}});
     }
     if (rank == 1) return down_laplacian(incidence_matrix(1, true));
     if (rank == 2 && dim() == 2) return down_laplacian(incidence_matrix(2, true));

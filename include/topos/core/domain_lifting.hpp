@@ -101,10 +101,20 @@ inline SimplicialComplex clique_complex(std::int64_t num_nodes, const std::vecto
       emit(d + 1);
       if (d + 1 < max_rank) {
         auto& next = candidates[static_cast<std::size_t>(d) + 1];
-        next.clear();
-        const auto nb = g.neighbors.begin() + g.offsets[static_cast<std::size_t>(u)], ne = g.neighbors.begin() + g.offsets[static_cast<std::size_t>(u) + 1];
-        // Candidates after u in cand (all > u) that are forward neighbours of u.
-        std::set_intersection(cand.begin() + static_cast<std::ptrdiff_t>(pos[static_cast<std::size_t>(d)]), cand.end(), nb, ne, std::back_inserter(next));
+        // Candidates after u in cand (all > u) that are forward neighbours of u: a merge of two
+        // sorted lists into a buffer sized once (no push_back checks).
+        const std::int64_t* x = cand.data() + pos[static_cast<std::size_t>(d)];
+        const std::int64_t* xe = cand.data() + cand.size();
+        const std::int64_t* y = g.neighbors.data() + g.offsets[static_cast<std::size_t>(u)];
+        const std::int64_t* ye = g.neighbors.data() + g.offsets[static_cast<std::size_t>(u) + 1];
+        next.resize(static_cast<std::size_t>(std::min(xe - x, ye - y)));
+        std::int64_t* out = next.data();
+        while (x != xe && y != ye) {
+          if (*x < *y) ++x;
+          else if (*y < *x) ++y;
+          else *out++ = *x++, ++y;
+        }
+        next.resize(static_cast<std::size_t>(out - next.data()));
         if (!next.empty()) {
           ++d;
           pos[static_cast<std::size_t>(d)] = 0;

@@ -23,7 +23,7 @@ namespace topos {
 /// B W B^T, with W = diag(weights) (no weights: W = I). B = B_{k+1} gives the up-Laplacian of rank k.
 inline SparseMatrix up_laplacian(const SparseMatrix& b_next, const Eigen::VectorXd& weights = {}) {
   const SparseMatrix bt = sparse::transpose(b_next);
-  if (weights.size() == 0) return sparse::multiply(b_next, bt);
+  if (weights.size() == 0) return sparse::multiply_sum_symmetric({{&b_next, &bt}});
   return sparse::multiply(b_next, sparse::scale(bt, weights, {}));
 }
 
@@ -31,15 +31,15 @@ inline SparseMatrix up_laplacian(const SparseMatrix& b_next, const Eigen::Vector
 /// down-Laplacian of rank k.
 inline SparseMatrix down_laplacian(const SparseMatrix& b, const Eigen::VectorXd& weights = {}) {
   const SparseMatrix bt = sparse::transpose(b);
-  if (weights.size() == 0) return sparse::multiply(bt, b);
+  if (weights.size() == 0) return sparse::multiply_sum_symmetric({{&bt, &b}});
   return sparse::multiply(bt, sparse::scale(b, weights, {}));
 }
 
 /// The off-diagonal part of |B|^T |B| (TopoNetX's incidence_to_adjacency with s = 1, unsigned):
 /// entry (i, j) counts the rows of B shared by columns i and j.
 inline SparseMatrix incidence_to_adjacency(const SparseMatrix& b) {
-  const SparseMatrix a = sparse::abs(b);
-  return sparse::without_diagonal(sparse::multiply(sparse::transpose(a), a));
+  const SparseMatrix a = sparse::abs(b), at = sparse::transpose(a);
+  return sparse::without_diagonal(sparse::multiply_sum_symmetric({{&at, &a}}));
 }
 
 /// D^{-1/2} L D^{-1/2} with D = diag(row sums of |L|), zero where a row is zero (TopoNetX's

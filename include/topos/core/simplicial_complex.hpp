@@ -284,15 +284,15 @@ class SimplicialComplex {
 
   SparseMatrix up_laplacian_matrix(int rank, bool signed_ = true) const {
     if (rank < 0 || rank >= dim()) throw ComplexError("up_laplacian_matrix: rank " + std::to_string(rank) + " must be in [0, " + std::to_string(dim() - 1) + "] (the complex has dimension " + std::to_string(dim()) + ")");
-    const SparseMatrix bt = coboundary(rank + 1, true);
-    SparseMatrix l = sparse::multiply(sparse::transpose(bt), bt);
+    const SparseMatrix bt = coboundary(rank + 1, true), b = sparse::transpose(bt);
+    SparseMatrix l = sparse::multiply_sum_symmetric({{&b, &bt}});
     if (!signed_) sparse::make_abs(l);
     return l;
   }
   SparseMatrix down_laplacian_matrix(int rank, bool signed_ = true) const {
     if (rank < 1 || rank > dim()) throw ComplexError("down_laplacian_matrix: rank " + std::to_string(rank) + " must be in [1, " + std::to_string(dim()) + "] (the complex has dimension " + std::to_string(dim()) + ")");
-    const SparseMatrix bt = coboundary(rank, true);
-    SparseMatrix l = sparse::multiply(bt, sparse::transpose(bt));
+    const SparseMatrix bt = coboundary(rank, true), b = sparse::transpose(bt);
+    SparseMatrix l = sparse::multiply_sum_symmetric({{&bt, &b}});
     if (!signed_) sparse::make_abs(l);
     return l;
   }
@@ -314,15 +314,11 @@ class SimplicialComplex {
   }
   /// Off-diagonal part of the up-Laplacian (TopoNetX default: unsigned).
   SparseMatrix adjacency_matrix(int rank, bool signed_ = false) const {
-    SparseMatrix a = sparse::without_diagonal(up_laplacian_matrix(rank, true));
-    if (!signed_) sparse::make_abs(a);
-    return a;
+    return sparse::without_diagonal(up_laplacian_matrix(rank, true), !signed_);
   }
   /// Off-diagonal part of the down-Laplacian (TopoNetX default: unsigned).
   SparseMatrix coadjacency_matrix(int rank, bool signed_ = false) const {
-    SparseMatrix a = sparse::without_diagonal(down_laplacian_matrix(rank, true));
-    if (!signed_) sparse::make_abs(a);
-    return a;
+    return sparse::without_diagonal(down_laplacian_matrix(rank, true), !signed_);
   }
   /// Concept form: simplices of `rank` sharing a simplex of rank via_rank > rank, entry = count.
   SparseMatrix adjacency_matrix(int rank, int via_rank) const {
@@ -506,16 +502,35 @@ class SimplicialComplex {
     const std::size_t w = static_cast<std::size_t>(k) + 1;
     if (s[0] < 0 || s[0] >= num_nodes()) return -1;
     Index lo = R.first[static_cast<std::size_t>(s[0])], hi = R.first[static_cast<std::size_t>(s[0]) + 1];
-    const auto id_at = [&](Index pos) { return R.order.empty() ? pos : R.order[static_cast<std::size_t>(pos)]; };
-    while (lo < hi) {
-      const Index mid = lo + (hi - lo) / 2;
-      const Index* c = R.nodes.data() + static_cast<std::size_t>(id_at(mid)) * w;
-      if (std::lexicographical_compare(c + 1, c + w, s + 1, s + w)) lo = mid + 1;
-      else hi = mid;
+    const Index end = hi;
+    const Index* nodes = R.nodes.data();
+    const Index* order = R.order.empty() ? nullptr : R.order.data();
+    // Hand-written comparisons: simplices are a few nodes long, and std::lexicographical_compare /
+    // std::equal on them cost a memcmp call each (this search runs once per face at build time).
+    const auto less_than_s = [&](const Index* c) {
+      for (std::size_t q = 1; q < w; ++q)
+        if (c[q] != s[q]) return c[q] < s[q];
+      return false;
+    };
+    if (!order && hi - lo <= 16) {
+      // Small bucket (the common case): count the smaller simplices, no unpredictable branch.
+      Index below = 0;
+      for (Index pos = lo; pos < hi; ++pos) below += less_than_s(nodes + static_cast<std::size_t>(pos) * w);
+      lo += below;
+    } else {
+      while (lo < hi) {
+        const Index mid = lo + (hi - lo) / 2;
+        const Index* c = nodes + static_cast<std::size_t>(order ? order[mid] : mid) * w;
+        if (less_than_s(c)) lo = mid + 1;
+        else hi = mid;
+      }
     }
-    if (lo < R.first[static_cast<std::size_t>(s[0]) + 1]) {
-      const Index id = id_at(lo);
-      if (std::equal(s, s + w, R.nodes.data() + static_cast<std::size_t>(id) * w)) return id;
+    if (lo < end) {
+      const Index id = order ? order[lo] : lo;
+      const Index* c = nodes + static_cast<std::size_t>(id) * w;
+      for (std::size_t q = 0; q < w; ++q)
+        if (c[q] != s[q]) return -1;
+      return id;
     }
     return -1;
   }
@@ -552,7 +567,7 @@ class SimplicialComplex {
     if (rank == dim()) return down_laplacian_matrix(rank);
     const SparseMatrix bt = coboundary(rank, true), b = sparse::transpose(bt);
     const SparseMatrix ct = coboundary(rank + 1, true), c = sparse::transpose(ct);
-    return sparse::multiply_sum({{&bt, &b}, {&c, &ct}});
+    return sparse::multiply_sum_symmetric({{&bt, &b}, {&c, &ct}});
   }
 
   // B_k^T (n_k x n_{k-1}), signed by the position of the removed node.
@@ -563,17 +578,26 @@ class SimplicialComplex {
     auto& d = m.data();
     d.resize(static_cast<Eigen::Index>(n * static_cast<Index>(w)));
     std::int64_t* outer = m.outerIndexPtr();
-    std::pair<Index, double> row[kMaxArity];
+    std::int64_t* index = m.innerIndexPtr();
+    double* value = m.valuePtr();
     const Index* faces = ranks_[static_cast<std::size_t>(k)].faces.data();
-    for (Index j = 0; j < n; ++j) {
-      for (std::size_t i = 0; i < w; ++i) row[i] = {faces[static_cast<std::size_t>(j) * w + i], signed_ && (i % 2) ? -1.0 : 1.0};
+    const std::int64_t total = n * static_cast<Index>(w);
+    for (Index j = 0; j <= n; ++j) outer[j] = j * static_cast<Index>(w);
+    // With lexicographic face ids, dropping node i gives a larger face than dropping node
+    // i + 1, so the faces in descending i are already in id order: no sort.
+    if (ranks_[static_cast<std::size_t>(k) - 1].order.empty()) {
+      for (std::int64_t e = 0; e < total; e += static_cast<std::int64_t>(w))
+        for (std::size_t i = 0; i < w; ++i) {
+          index[e + static_cast<std::int64_t>(w - 1 - i)] = faces[e + static_cast<std::int64_t>(i)];
+          value[e + static_cast<std::int64_t>(w - 1 - i)] = signed_ && (i % 2) ? -1.0 : 1.0;
+        }
+      return m;
+    }
+    std::pair<Index, double> row[kMaxArity];
+    for (std::int64_t e = 0; e < total; e += static_cast<std::int64_t>(w)) {
+      for (std::size_t i = 0; i < w; ++i) row[i] = {faces[e + static_cast<std::int64_t>(i)], signed_ && (i % 2) ? -1.0 : 1.0};
       std::sort(row, row + w, [](const auto& a, const auto& b) { return a.first < b.first; });
-      const std::size_t base = static_cast<std::size_t>(j) * w;
-      for (std::size_t i = 0; i < w; ++i) {
-        d.index(static_cast<Eigen::Index>(base + i)) = row[i].first;
-        d.value(static_cast<Eigen::Index>(base + i)) = row[i].second;
-      }
-      outer[j + 1] = static_cast<std::int64_t>(base + w);
+      for (std::size_t i = 0; i < w; ++i) index[e + static_cast<std::int64_t>(i)] = row[i].first, value[e + static_cast<std::int64_t>(i)] = row[i].second;
     }
     return m;
   }

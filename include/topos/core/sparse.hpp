@@ -12,6 +12,8 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <memory>
+#include <numeric>
 #include <stdexcept>
 #include <string>
 #include <utility>
@@ -41,18 +43,19 @@ inline SparseMatrix pruned(const SparseMatrix& m) {
   return r;
 }
 
-/// Row-major transpose by a counting sort over the columns (Eigen's generic transposed
-/// assignment between two row-major matrices is an order of magnitude slower).
-inline SparseMatrix transpose(const SparseMatrix& m) {
-  if (!m.isCompressed()) {
-    SparseMatrix c = m;
-    c.makeCompressed();
-    return transpose(c);
-  }
-  const SparseMatrix& c = m;
+namespace detail {
+// Uninitialised scratch arrays (std::vector would zero them first).
+template <class T>
+std::unique_ptr<T[]> scratch(std::int64_t n) {
+  return std::unique_ptr<T[]>(new T[static_cast<std::size_t>(std::max<std::int64_t>(n, 1))]);
+}
+
+// Transpose of a compressed matrix. One return statement: GCC 12 gives up NRVO when a function
+// also returns another object, and Eigen 3.4's SparseMatrix has no move constructor, so a
+// second return path would copy every result.
+inline SparseMatrix transpose_compressed(const SparseMatrix& c) {
   const std::int64_t rows = c.rows(), cols = c.cols(), nnz = c.nonZeros();
   SparseMatrix t(cols, rows);
-  if (nnz == 0) return t;
   std::int64_t* to = t.outerIndexPtr();
   const std::int64_t* co = c.outerIndexPtr();
   const std::int64_t* ci = c.innerIndexPtr();
@@ -62,7 +65,8 @@ inline SparseMatrix transpose(const SparseMatrix& m) {
   t.data().resize(static_cast<Eigen::Index>(nnz));
   std::int64_t* ti = t.innerIndexPtr();
   double* tv = t.valuePtr();
-  std::vector<std::int64_t> fill(to, to + cols);
+  const auto fill = scratch<std::int64_t>(cols);
+  std::copy(to, to + cols, fill.get());
   for (std::int64_t i = 0; i < rows; ++i)
     for (std::int64_t k = co[i]; k < co[i + 1]; ++k) {
       const std::int64_t p = fill[static_cast<std::size_t>(ci[k])]++;
@@ -71,43 +75,83 @@ inline SparseMatrix transpose(const SparseMatrix& m) {
     }
   return t;
 }
+}  // namespace detail
 
-/// A1 * B1 + A2 * B2 + ... in one Gustavson pass (dense accumulator): rows sorted, exact zeros
-/// (cancellations) dropped. Every product must have the same shape.
-inline SparseMatrix multiply_sum(const std::vector<std::pair<const SparseMatrix*, const SparseMatrix*>>& terms) {
+/// Row-major transpose by a counting sort over the columns (Eigen's generic transposed
+/// assignment between two row-major matrices is an order of magnitude slower).
+inline SparseMatrix transpose(const SparseMatrix& m) {
+  if (m.isCompressed()) return detail::transpose_compressed(m);
+  SparseMatrix c = m;
+  c.makeCompressed();
+  return detail::transpose_compressed(c);
+}
+
+using ProductTerms = std::vector<std::pair<const SparseMatrix*, const SparseMatrix*>>;
+
+namespace detail {
+// Shapes of a sum of products; false when some factor is not compressed.
+inline bool check_product_terms(const ProductTerms& terms) {
   if (terms.empty()) throw ComplexError("sparse product: no terms");
   const std::int64_t n = terms[0].first->rows(), m = terms[0].second->cols();
+  bool compressed = true;
   for (const auto& [a, b] : terms) {
     if (a->cols() != b->rows() || a->rows() != n || b->cols() != m) {
       throw ComplexError("sparse product: shapes (" + std::to_string(a->rows()) + "x" + std::to_string(a->cols()) + ") and (" +
                          std::to_string(b->rows()) + "x" + std::to_string(b->cols()) + ") do not match");
     }
-    if (!a->isCompressed() || !b->isCompressed()) {
-      std::vector<SparseMatrix> copies;
-      copies.reserve(2 * terms.size());
-      std::vector<std::pair<const SparseMatrix*, const SparseMatrix*>> t;
-      for (const auto& [x, y] : terms) {
-        copies.push_back(*x), copies.back().makeCompressed();
-        copies.push_back(*y), copies.back().makeCompressed();
-        t.push_back({&copies[copies.size() - 2], &copies.back()});
-      }
-      return multiply_sum(t);
-    }
+    compressed = compressed && a->isCompressed() && b->isCompressed();
   }
-  SparseMatrix c(n, m);
-  auto& data = c.data();
-  std::int64_t* outer = c.outerIndexPtr();
-  {
-    // The number of products bounds the result's size: reserve it once (no regrowth copies).
-    std::int64_t flops = 0;
-    for (const auto& [a, b] : terms)
-      for (std::int64_t p = 0; p < a->nonZeros(); ++p) flops += b->outerIndexPtr()[a->innerIndexPtr()[p] + 1] - b->outerIndexPtr()[a->innerIndexPtr()[p]];
-    data.reserve(static_cast<Eigen::Index>(std::min<std::int64_t>(flops, n * m)));
+  return compressed;
+}
+
+// Calls f(terms') with every factor compressed (copies only when needed).
+template <class F>
+SparseMatrix with_compressed_terms(const ProductTerms& terms, F&& f) {
+  std::vector<SparseMatrix> copies;
+  copies.reserve(2 * terms.size());
+  ProductTerms t;
+  for (const auto& [x, y] : terms) {
+    copies.push_back(*x), copies.back().makeCompressed();
+    copies.push_back(*y), copies.back().makeCompressed();
+    t.push_back({&copies[copies.size() - 2], &copies.back()});
   }
-  std::vector<double> acc(static_cast<std::size_t>(m), 0.0);
-  std::vector<std::int64_t> mark(static_cast<std::size_t>(m), -1), cols;
+  return f(t);
+}
+
+// The number of scalar products of a sum of products: a bound on its nonzeros.
+inline std::int64_t product_flops(const ProductTerms& terms) {
+  std::int64_t flops = 0;
+  for (const auto& [a, b] : terms) {
+    const std::int64_t* bo = b->outerIndexPtr();
+    const std::int64_t* ai = a->innerIndexPtr();
+    for (std::int64_t p = 0; p < a->nonZeros(); ++p) flops += bo[ai[p] + 1] - bo[ai[p]];
+  }
+  return flops;
+}
+
+// Gustavson's row-by-row accumulation (dense accumulator, column marks), rows left unsorted:
+// row i's columns are cols[ptr[i] .. ptr[i+1]) with values vals[..], exact zeros dropped.
+struct UnsortedRows {
+  std::unique_ptr<std::int64_t[]> ptr, cols;
+  std::unique_ptr<double[]> vals;
+};
+inline UnsortedRows accumulate_rows(const ProductTerms& terms) {
+  const std::int64_t n = terms[0].first->rows(), m = terms[0].second->cols();
+  const std::int64_t bound = std::min<std::int64_t>(product_flops(terms), n * m);
+  // + 1: the branch-free loop below also stores a column it does not keep, one slot past the
+  // last entry when a dense final row is full.
+  UnsortedRows r{scratch<std::int64_t>(n + 1), scratch<std::int64_t>(bound + 1), scratch<double>(bound + 1)};
+  std::int64_t* ptr = r.ptr.get();
+  std::int64_t* cols = r.cols.get();
+  double* vals = r.vals.get();
+  const auto acc = scratch<double>(m);
+  std::fill(acc.get(), acc.get() + m, 0.0);
+  const auto mark = scratch<std::int64_t>(m);
+  std::fill(mark.get(), mark.get() + m, std::int64_t(-1));
+  std::int64_t w = 0;
+  ptr[0] = 0;
   for (std::int64_t i = 0; i < n; ++i) {
-    cols.clear();
+    const std::int64_t start = w;
     for (const auto& [a, b] : terms) {
       const std::int64_t* ao = a->outerIndexPtr();
       const std::int64_t* ai = a->innerIndexPtr();
@@ -118,26 +162,95 @@ inline SparseMatrix multiply_sum(const std::vector<std::pair<const SparseMatrix*
       for (std::int64_t p = ao[i]; p < ao[i + 1]; ++p) {
         const std::int64_t k = ai[p];
         const double x = av[p];
+        // Branch-free: whether column j is new to this row is a coin flip for the predictor.
+        // acc is all zeros between rows (0.0 + y equals y but for the sign of a zero, and
+        // zeros are dropped below).
         for (std::int64_t q = bo[k]; q < bo[k + 1]; ++q) {
           const std::int64_t j = bi[q];
-          if (mark[static_cast<std::size_t>(j)] != i) {
-            mark[static_cast<std::size_t>(j)] = i;
-            acc[static_cast<std::size_t>(j)] = x * bv[q];
-            cols.push_back(j);
-          } else {
-            acc[static_cast<std::size_t>(j)] += x * bv[q];
-          }
+          acc[j] += x * bv[q];
+          cols[w] = j;
+          w += mark[j] != i;
+          mark[j] = i;
         }
       }
     }
-    std::sort(cols.begin(), cols.end());
-    for (std::int64_t j : cols) {
-      const double v = acc[static_cast<std::size_t>(j)];
-      if (v != 0.0) data.append(v, static_cast<Eigen::Index>(j));
+    std::int64_t kept = start;
+    for (std::int64_t e = start; e < w; ++e) {  // drop cancellations (frequent in a Hodge Laplacian), branch-free
+      const std::int64_t j = cols[e];
+      const double v = acc[j];
+      acc[j] = 0.0;
+      cols[kept] = j;
+      vals[kept] = v;
+      kept += v != 0.0;
     }
-    outer[i + 1] = static_cast<std::int64_t>(data.size());
+    w = kept;
+    ptr[i + 1] = w;
+  }
+  return r;
+}
+
+inline SparseMatrix multiply_sum_compressed(const ProductTerms& terms) {
+  const std::int64_t n = terms[0].first->rows(), m = terms[0].second->cols();
+  const UnsortedRows r = accumulate_rows(terms);
+  SparseMatrix c(n, m);
+  c.data().resize(static_cast<Eigen::Index>(r.ptr[static_cast<std::size_t>(n)]));
+  std::copy(r.ptr.get(), r.ptr.get() + n + 1, c.outerIndexPtr());
+  std::int64_t* ci = c.innerIndexPtr();
+  double* cv = c.valuePtr();
+  std::vector<std::int64_t> order;
+  for (std::int64_t i = 0; i < n; ++i) {
+    const std::int64_t b = r.ptr[static_cast<std::size_t>(i)], e = r.ptr[static_cast<std::size_t>(i) + 1];
+    order.resize(static_cast<std::size_t>(e - b));
+    std::iota(order.begin(), order.end(), b);
+    std::sort(order.begin(), order.end(), [&](std::int64_t x, std::int64_t y) { return r.cols[static_cast<std::size_t>(x)] < r.cols[static_cast<std::size_t>(y)]; });
+    for (std::size_t t = 0; t < order.size(); ++t) {
+      ci[b + static_cast<std::int64_t>(t)] = r.cols[static_cast<std::size_t>(order[t])];
+      cv[b + static_cast<std::int64_t>(t)] = r.vals[static_cast<std::size_t>(order[t])];
+    }
   }
   return c;
+}
+
+inline SparseMatrix multiply_sum_symmetric_compressed(const ProductTerms& terms) {
+  const std::int64_t n = terms[0].first->rows();
+  const UnsortedRows r = accumulate_rows(terms);
+  // Column j of a symmetric matrix is its row j, so scattering row i's entries into their
+  // transposed places, i ascending, fills every row in column order: no per-row sort.
+  SparseMatrix c(n, n);
+  c.data().resize(static_cast<Eigen::Index>(r.ptr[static_cast<std::size_t>(n)]));
+  std::int64_t* outer = c.outerIndexPtr();
+  std::copy(r.ptr.get(), r.ptr.get() + n + 1, outer);  // column counts = row counts
+  std::int64_t* ci = c.innerIndexPtr();
+  double* cv = c.valuePtr();
+  const auto fill = scratch<std::int64_t>(n);
+  std::copy(outer, outer + n, fill.get());
+  for (std::int64_t i = 0; i < n; ++i)
+    for (std::int64_t e = r.ptr[static_cast<std::size_t>(i)]; e < r.ptr[static_cast<std::size_t>(i) + 1]; ++e) {
+      const std::int64_t p = fill[static_cast<std::size_t>(r.cols[static_cast<std::size_t>(e)])]++;
+      ci[p] = i;
+      cv[p] = r.vals[static_cast<std::size_t>(e)];
+    }
+  return c;
+}
+}  // namespace detail
+
+/// A1 * B1 + A2 * B2 + ... in one Gustavson pass (dense accumulator): rows sorted, exact zeros
+/// (cancellations) dropped. Every product must have the same shape.
+inline SparseMatrix multiply_sum(const ProductTerms& terms) {
+  if (detail::check_product_terms(terms)) return detail::multiply_sum_compressed(terms);
+  return detail::with_compressed_terms(terms, [](const ProductTerms& t) { return detail::multiply_sum_compressed(t); });
+}
+
+/// multiply_sum for terms of the form (A, A^T) exactly (B^T B, B B^T and their sums: the
+/// Laplacians). Entry (i, j) and (j, i) then add the same products in the same order, so the
+/// result is exactly symmetric, and its rows come out sorted by a transposing scatter instead
+/// of a sort per row. The same matrix as multiply_sum (bit for bit); the caller guarantees the
+/// form (a weighted B W B^T is not of it: w (a b) and (w a) b may round differently).
+inline SparseMatrix multiply_sum_symmetric(const ProductTerms& terms) {
+  for (const auto& [a, b] : terms)
+    if (a->rows() != b->cols()) throw ComplexError("symmetric sparse product: a term (A, B) is not square (B must be A^T)");
+  if (detail::check_product_terms(terms)) return detail::multiply_sum_symmetric_compressed(terms);
+  return detail::with_compressed_terms(terms, [](const ProductTerms& t) { return detail::multiply_sum_symmetric_compressed(t); });
 }
 
 /// A * B (see multiply_sum).
@@ -165,11 +278,35 @@ inline SparseMatrix abs(const SparseMatrix& m) {
   return r;
 }
 
-/// The matrix with its diagonal removed (scipy's setdiag(0) followed by dropping the zeros).
-inline SparseMatrix without_diagonal(const SparseMatrix& m) {
-  SparseMatrix out = m;
-  out.prune([](const Eigen::Index& r, const Eigen::Index& c, const double& v) { return r != c && v != 0.0; });
+namespace detail {
+// The entries of a compressed matrix off the diagonal and nonzero, |.| if asked.
+inline SparseMatrix off_diagonal_compressed(const SparseMatrix& m, bool absolute) {
+  SparseMatrix out(m.rows(), m.cols());
+  out.data().resize(m.nonZeros());
+  const std::int64_t* mo = m.outerIndexPtr();
+  const std::int64_t* mi = m.innerIndexPtr();
+  const double* mv = m.valuePtr();
+  std::int64_t* oo = out.outerIndexPtr();
+  std::int64_t* oi = out.innerIndexPtr();
+  double* ov = out.valuePtr();
+  std::int64_t w = 0;
+  for (std::int64_t i = 0; i < m.rows(); ++i) {
+    for (std::int64_t k = mo[i]; k < mo[i + 1]; ++k)
+      if (mi[k] != i && mv[k] != 0.0) oi[w] = mi[k], ov[w++] = absolute ? std::abs(mv[k]) : mv[k];
+    oo[i + 1] = w;
+  }
+  out.data().resize(w);
   return out;
+}
+}  // namespace detail
+
+/// The matrix with its diagonal removed (scipy's setdiag(0) followed by dropping the zeros),
+/// entrywise |.| when `absolute`.
+inline SparseMatrix without_diagonal(const SparseMatrix& m, bool absolute = false) {
+  if (m.isCompressed()) return detail::off_diagonal_compressed(m, absolute);
+  SparseMatrix c = m;
+  c.makeCompressed();
+  return detail::off_diagonal_compressed(c, absolute);
 }
 
 /// Sum of each row.

@@ -223,6 +223,99 @@ inline void check_pickle(const char* d, std::size_t n, const std::string& source
   }
 }
 
+/// The bytes of the opcode at `p` with its argument (a pickle check_pickle accepted).
+inline std::size_t pickle_opcode_length(const char* d, std::size_t n, std::size_t p) {
+  switch (static_cast<unsigned char>(d[p])) {
+    case 0x80: case 'K': case 'q': case 'h': return 2;
+    case 'M': return 3;
+    case 'J': case 'r': case 'j': return 5;
+    case 'G': case 0x95: return 9;
+    case 0x8a: case 0x8c: case 'U': case 'C': return 2 + static_cast<unsigned char>(d[p + 1]);
+    case 'X': case 'B': return 5 + le32(d + p + 1);
+    case 'c': {
+      const auto* a = static_cast<const char*>(std::memchr(d + p + 1, '\n', n - p - 1));
+      const auto* b = static_cast<const char*>(std::memchr(a + 1, '\n', static_cast<std::size_t>(d + n - a - 1)));
+      return static_cast<std::size_t>(b - (d + p)) + 1;
+    }
+    default: return 1;
+  }
+}
+
+/// Python's torch.save(model.state_dict()) writes what LibTorch 1.13's unpickler cannot read:
+/// collections.OrderedDicts (the dict itself, each tensor's empty backward hooks, the
+/// `_metadata` attribute set by a final BUILD), which it turns into None, and SETITEM (one pair;
+/// Python's pickler writes it for a batch of one), which it does not know. The same pickle with
+/// each `OrderedDict()` as a plain empty dict, each SETITEM as MARK ... SETITEMS, and the final
+/// BUILD dropped with its state (the metadata holds only module versions; LibTorch has no POP).
+/// Tracks where each stack item's opcodes begin in the output, to put the MARK before a
+/// SETITEM's key. The input passed check_pickle; `source` names it in errors.
+inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::string& source) {
+  static const std::string kOrderedDict = "collections\nOrderedDict\n";
+  std::string out;
+  out.reserve(n + 64);
+  std::vector<std::uint32_t> class_memo;               // memo entries holding the OrderedDict class
+  std::vector<std::size_t> starts;                     // per stack item: its first byte in `out`
+  std::vector<std::pair<std::size_t, std::size_t>> marks;  // (stack depth, position in `out`)
+  const auto pop_to_mark = [&]() {
+    const auto m = marks.back();
+    marks.pop_back();
+    starts.resize(m.first);
+    return m.second;
+  };
+  std::size_t p = 0;
+  while (p < n) {
+    const unsigned char op = static_cast<unsigned char>(d[p]);
+    const std::size_t len = pickle_opcode_length(d, n, p), at = out.size();
+    std::size_t q = p + len;
+    bool ordered_dict = op == 'c' && std::string(d + p + 1, len - 1) == kOrderedDict;
+    if (op == 'h' || op == 'j') {
+      const std::uint32_t i = op == 'h' ? static_cast<unsigned char>(d[p + 1]) : le32(d + p + 1);
+      ordered_dict = std::find(class_memo.begin(), class_memo.end(), i) != class_memo.end();
+    }
+    if (ordered_dict) {
+      if (q < n && (d[q] == 'q' || d[q] == 'r')) {  // the class memoized: later BINGETs of it
+        class_memo.push_back(d[q] == 'q' ? static_cast<unsigned char>(d[q + 1]) : le32(d + q + 1));
+        q += pickle_opcode_length(d, n, q);
+      }
+      if (q + 1 >= n || d[q] != ')' || d[q + 1] != 'R') throw std::runtime_error(source + ": not a readable torch file: an OrderedDict made other than from an empty tuple");
+      out += '}';
+      starts.push_back(at);
+      p = q + 2;
+      continue;
+    }
+    if (op == 'b' && q < n && d[q] == '.') {  // BUILD just before STOP: drop its state (the _metadata)
+      out.resize(starts.back());
+      starts.pop_back();
+      p = q;
+      continue;
+    }
+    if (op == 's') {  // SETITEM: MARK before the key, SETITEMS
+      out.insert(starts[starts.size() - 2], 1, '(');
+      out += 'u';
+      starts.resize(starts.size() - 2);
+      p = q;
+      continue;
+    }
+    out.append(d + p, len);
+    p = q;
+    switch (op) {
+      case '(': marks.emplace_back(starts.size(), at); break;
+      case '0': starts.pop_back(); break;
+      case '1': pop_to_mark(); break;
+      case 't': case 'l': case 'd': starts.push_back(pop_to_mark()); break;
+      case 0x85: break;                                                       // TUPLE1: same start
+      case 0x86: starts.pop_back(); break;                                    // TUPLE2
+      case 0x87: starts.resize(starts.size() - 2); break;                     // TUPLE3
+      case 'a': case 'b': starts.pop_back(); break;                           // APPEND, BUILD
+      case 'e': case 'u': pop_to_mark(); break;                               // APPENDS, SETITEMS
+      case 'R': case 0x81: starts.pop_back(); break;                          // REDUCE, NEWOBJ
+      case 'Q': case 0x80: case 0x95: case 'q': case 'r': case 0x94: case '.': break;
+      default: starts.push_back(at); break;                                   // every other opcode pushes one item
+    }
+  }
+  return out;
+}
+
 }  // namespace detail
 
 /// Parses the bytes of a torch file holding a dict of tensors (save_parameters,
@@ -245,6 +338,7 @@ inline std::map<std::string, torch::Tensor> parse_tensor_dict(const char* data, 
   if (prefix.empty()) fail("not a readable torch file: no data.pkl (not a torch.save file)");
   const detail::ZipRecord pkl = records.at(prefix + "data.pkl");
   detail::check_pickle(data + pkl.offset, pkl.size, source);
+  const std::string pickle = detail::pickle_for_libtorch(data + pkl.offset, pkl.size, source);
 
   // Storages: every member under data/, copied out at its real size.
   auto storages = std::make_shared<torch::jit::DeserializationStorageContext>();
@@ -256,8 +350,8 @@ inline std::map<std::string, torch::Tensor> parse_tensor_dict(const char* data, 
   }
   std::size_t pos = 0;
   const auto reader = [&](char* out, std::size_t n) {
-    const std::size_t k = std::min(n, pkl.size - pos);
-    std::memcpy(out, data + pkl.offset + pos, k);
+    const std::size_t k = std::min(n, pickle.size() - pos);
+    std::memcpy(out, pickle.data() + pos, k);
     pos += k;
     return k;
   };
@@ -307,6 +401,62 @@ inline std::map<std::string, torch::Tensor> read_tensor_dict(const std::string& 
   if (!in) throw std::runtime_error(path + ": cannot open file");
   const std::vector<char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   return parse_tensor_dict(bytes.data(), bytes.size(), path);
+}
+
+/// Adam's per-parameter state as a dict of tensors by parameter name ("<name>.exp_avg",
+/// "<name>.exp_avg_sq", "<name>.max_exp_avg_sq" with amsgrad, "<name>.step" as an int64
+/// scalar), in the module's parameter order. Unlike torch::save(optimizer), which writes the
+/// state in the order of a hash map keyed by tensor addresses, the bytes are the same for the
+/// same state in every process, and Python's torch.load opens them.
+inline c10::Dict<std::string, torch::Tensor> adam_state_dict(torch::optim::Adam& opt, const torch::nn::Module& m) {
+  c10::Dict<std::string, torch::Tensor> dict;
+  auto& state = opt.state();
+  for (const auto& p : m.named_parameters()) {
+    const auto it = state.find(c10::guts::to_string(p.value().unsafeGetTensorImpl()));
+    if (it == state.end()) continue;  // never stepped (no gradient yet)
+    const auto& st = static_cast<const torch::optim::AdamParamState&>(*it->second);
+    dict.insert(p.key() + ".step", torch::tensor(st.step(), torch::kInt64));
+    dict.insert(p.key() + ".exp_avg", st.exp_avg().detach().cpu());
+    dict.insert(p.key() + ".exp_avg_sq", st.exp_avg_sq().detach().cpu());
+    if (st.max_exp_avg_sq().defined()) dict.insert(p.key() + ".max_exp_avg_sq", st.max_exp_avg_sq().detach().cpu());
+  }
+  return dict;
+}
+
+/// Restores what adam_state_dict saved into `opt` (whose parameters are m's); a tensor of the
+/// wrong shape or a name that is no parameter of m is an error naming it.
+inline void load_adam_state(torch::optim::Adam& opt, const torch::nn::Module& m, const std::map<std::string, torch::Tensor>& dict, const std::string& source) {
+  auto& state = opt.state();
+  state.clear();
+  std::size_t used = 0;
+  for (const auto& p : m.named_parameters()) {
+    const auto step = dict.find(p.key() + ".step");
+    if (step == dict.end()) continue;
+    auto st = std::make_unique<torch::optim::AdamParamState>();
+    st->step(step->second.item<std::int64_t>());
+    const auto moment = [&](const char* what, bool required) -> torch::Tensor {
+      const auto it = dict.find(p.key() + what);
+      if (it == dict.end()) {
+        if (required) throw std::runtime_error(source + ": missing tensor '" + p.key() + what + "'");
+        return {};
+      }
+      if (it->second.sizes() != p.value().sizes()) throw std::runtime_error(source + ": tensor '" + p.key() + what + "' does not have its parameter's shape");
+      ++used;
+      return it->second.to(p.value().options()).clone();
+    };
+    st->exp_avg(moment(".exp_avg", true));
+    st->exp_avg_sq(moment(".exp_avg_sq", true));
+    st->max_exp_avg_sq(moment(".max_exp_avg_sq", false));
+    ++used;
+    state[c10::guts::to_string(p.value().unsafeGetTensorImpl())] = std::move(st);
+  }
+  if (used != dict.size())
+    for (const auto& [k, v] : dict) {
+      const auto dot = k.rfind('.');
+      bool known = false;
+      for (const auto& p : m.named_parameters()) known = known || k.compare(0, dot, p.key()) == 0;
+      if (!known) throw std::runtime_error(source + ": '" + k + "' is the optimizer state of no parameter of this model");
+    }
 }
 
 /// Loads parameters by name; a missing, extra or misshapen tensor is an error naming it.

@@ -1,0 +1,170 @@
+// topos/models/zoo_case.hpp
+// Running a TopoModelX golden case (shared/reference/tdl-golden format): the model from
+// case.json's "model" and "config", its weights from state_dict/ (or a torch .pt state_dict),
+// the positional arguments from case.json's "forward" list (inputs/ tensors, operators by name,
+// tuples/lists, None), in eval mode; and the parameter gradients of Σ_outputs Σ(out · R).
+// The operators are built from complex.json and operators.json (case_operators), never read
+// from the case's operators/ folder.
+#pragma once
+
+#include "topos/data/json.hpp"
+#include "topos/data/npy.hpp"
+#include "topos/data/tdl_case.hpp"
+#include "topos/models/zoo.hpp"
+#include "topos/nn/serialization.hpp"
+
+#include <filesystem>
+#include <functional>
+#include <map>
+#include <string>
+#include <vector>
+
+namespace topos::models {
+
+/// A float32 tensor from a .npy file (any numeric dtype); errors name the file.
+inline torch::Tensor read_npy_tensor(const std::filesystem::path& path) {
+  if (!std::filesystem::exists(path)) throw data::DataError(path.string() + ": missing file");
+  const auto a = data::read_npy(path.string());
+  auto v = a.as<float>();
+  return torch::from_blob(v.data(), a.shape, torch::kFloat).clone();
+}
+
+/// Writes a tensor as float32 .npy, atomically.
+inline void write_npy_tensor(const std::filesystem::path& path, const torch::Tensor& t) {
+  const auto c = t.detach().to(torch::kCPU, torch::kFloat).contiguous();
+  data::write_npy(path.string(), c.sizes().vec(), c.data_ptr<float>());
+}
+
+/// Loads a TopoModelX state_dict into `m` by parameter name: from a folder of <name>.npy files
+/// (the names listed in state_dict.json beside it when present) or a torch.save'd .pt file. A
+/// missing, unexpected or mis-shaped tensor is an error naming it.
+inline void load_state_dict(torch::nn::Module& m, const std::filesystem::path& source) {
+  std::map<std::string, torch::Tensor> dict;
+  if (std::filesystem::is_directory(source)) {
+    const auto listing = source.parent_path() / "state_dict.json";
+    if (std::filesystem::exists(listing)) {
+      for (const auto& e : data::read_json_file(listing)) {
+        if (!e.is_array() || e.empty() || !e[0].is_string()) throw data::DataError(listing.string() + ": entries must be [name, shape]");
+        const auto name = e[0].get<std::string>();
+        auto t = read_npy_tensor(source / (name + ".npy"));
+        if (e.size() > 1 && e[1].is_array() && e[1].get<std::vector<std::int64_t>>() != t.sizes().vec())
+          throw data::DataError((source / (name + ".npy")).string() + ": shape differs from state_dict.json");
+        dict[name] = t;
+      }
+    } else {
+      for (const auto& f : std::filesystem::directory_iterator(source))
+        if (f.path().extension() == ".npy") dict[f.path().stem().string()] = read_npy_tensor(f.path());
+    }
+  } else {
+    dict = nn::read_tensor_dict(source.string());
+  }
+  nn::load_parameters(m, dict, source.string());
+}
+
+/// A case's model, its outputs' names and its arguments.
+struct ZooCase {
+  std::filesystem::path dir;
+  nlohmann::json spec;
+  ZooModel model;
+  std::vector<ZooArg> args;
+  std::vector<std::string> outputs;
+};
+
+namespace detail {
+inline ZooArg case_argument(const nlohmann::json& e, const std::filesystem::path& dir, const std::map<std::string, nn::SparseOperator>& ops, torch::Dtype dtype) {
+  if (e.is_null()) return ZooArg{};
+  if (!e.is_object()) throw ZooError("case.json: a forward entry must be an object or null, got " + e.dump());
+  for (const char* k : {"tuple", "list"}) {
+    if (e.contains(k)) {
+      std::vector<ZooArg> items;
+      for (const auto& x : e.at(k)) items.push_back(case_argument(x, dir, ops, dtype));
+      return ZooArg::list(std::move(items));
+    }
+  }
+  if (e.contains("dict")) {
+    if (!e.at("dict").is_object()) throw ZooError("case.json: a dict entry must be an object");
+    std::vector<ZooArg> items;
+    for (const auto& [k, x] : e.at("dict").items()) {
+      items.push_back(case_argument(x, dir, ops, dtype));
+      items.back().key = k;
+    }
+    return ZooArg::dict(std::move(items));
+  }
+  const auto name = e.value("name", std::string());
+  const auto from = e.value("from", std::string());
+  if (from == "inputs") return ZooArg::of(read_npy_tensor(dir / "inputs" / (name + ".npy")).to(dtype), name);
+  if (from == "operators") {
+    auto it = ops.find(name);
+    if (it == ops.end()) throw ZooError("case.json: operator '" + name + "' is not among the operators built from complex.json");
+    return ZooArg::of(it->second, name);
+  }
+  throw ZooError("case.json: forward entry '" + name + "' has unknown source '" + from + "'");
+}
+}  // namespace detail
+
+/// Reads case.json, builds the model and loads its weights (eval mode), and the arguments, in
+/// `dtype` (float64 by default: TopoModelX's float32 results carry rounding that cancellation in
+/// deep polynomial filters amplifies; computing in double keeps ours to the exact value's side).
+/// `operators` is called once the model and its weights are in place, so a bad model or config
+/// is reported before the complex is read.
+using OperatorSource = std::function<std::map<std::string, nn::SparseOperator>()>;
+inline ZooCase load_case(const std::filesystem::path& dir, const OperatorSource& operator_source, bool topomodelx_compatible = true,
+                         torch::Dtype dtype = torch::kDouble) {
+  ZooCase c;
+  c.dir = dir;
+  c.spec = data::read_json_file(dir / "case.json");
+  if (!c.spec.contains("model") || !c.spec.at("model").is_string()) throw ZooError((dir / "case.json").string() + ": no model (an operator-only case?)");
+  c.model = make_zoo_model(c.spec.at("model").get<std::string>(), c.spec.value("config", nlohmann::json::object()), topomodelx_compatible);
+  load_state_dict(*c.model.module, dir / "state_dict");
+  c.model.module->to(dtype);
+  c.model.module->eval();
+  if (c.spec.contains("kwargs") && !c.spec.at("kwargs").empty()) throw ZooError(c.model.name + ": forward keyword arguments are not supported (" + c.spec.at("kwargs").dump() + ")");
+  const auto operators = operator_source();
+  for (const auto& e : c.spec.at("forward")) c.args.push_back(detail::case_argument(e, dir, operators, dtype));
+  c.outputs = c.spec.at("outputs").get<std::vector<std::string>>();
+  return c;
+}
+inline ZooCase load_case(const std::filesystem::path& dir, const std::map<std::string, nn::SparseOperator>& operators, bool topomodelx_compatible = true,
+                         torch::Dtype dtype = torch::kDouble) {
+  return load_case(dir, OperatorSource([&operators] { return operators; }), topomodelx_compatible, dtype);
+}
+
+/// Runs the case's forward; outputs by name (as many as case.json lists).
+inline std::map<std::string, torch::Tensor> run_case(ZooCase& c) {
+  const auto out = c.model.forward(c.args);
+  if (out.size() != c.outputs.size())
+    throw ZooError(c.model.name + ": the model returns " + std::to_string(out.size()) + " outputs, case.json names " + std::to_string(c.outputs.size()));
+  std::map<std::string, torch::Tensor> named;
+  for (std::size_t i = 0; i < out.size(); ++i) named[c.outputs[i]] = out[i];
+  return named;
+}
+
+/// Gradients of Σ_outputs Σ(out · R_out) (R from grads/_R_<out>.npy) for every parameter by
+/// name; a parameter the outputs do not depend on gets zeros.
+inline std::map<std::string, torch::Tensor> case_gradients(ZooCase& c) {
+  auto& m = *c.model.module;
+  for (auto& p : m.parameters()) p.mutable_grad() = torch::Tensor();
+  const auto out = run_case(c);
+  torch::Tensor loss = torch::zeros({}, torch::kDouble);
+  for (const auto& [name, y] : out) {
+    const auto R = read_npy_tensor(c.dir / "grads" / ("_R_" + name + ".npy"));
+    if (R.sizes() != y.sizes()) throw ZooError("grads/_R_" + name + ".npy: shape differs from the output's");
+    loss = loss + (y * R.to(y.scalar_type())).sum();
+  }
+  loss.backward();
+  std::map<std::string, torch::Tensor> g;
+  for (const auto& p : m.named_parameters()) g[p.key()] = p.value().grad().defined() ? p.value().grad().clone() : torch::zeros_like(p.value());
+  return g;
+}
+
+/// The operators of a case, built from DIR/complex.json and DIR/operators.json's op/args
+/// (topos/data/tdl_case.hpp; never DIR/operators/), as float32 like the tensors TopoModelX got
+/// (its operators were saved as float32 and passed as their nonzero entries).
+inline std::map<std::string, nn::SparseOperator> case_operators(const std::filesystem::path& dir) {
+  const tdl::Operators built = tdl::compute_operators(dir);
+  std::map<std::string, nn::SparseOperator> ops;
+  for (const auto& [name, m] : built.by_name) ops.emplace(name, nn::SparseOperator::from_eigen(m, torch::kFloat));
+  return ops;
+}
+
+}  // namespace topos::models
