@@ -591,11 +591,28 @@ TEST_CASE("reference mode reproduces the reference's training: loss, gradient an
     model->train();
     const auto counts = c.tensor("complex_counts.npy");
     REQUIRE(static_cast<std::int64_t>(S.tf.frames.size()) == counts.size(0));
+    // Inputs first (input_checksums.npy: float64 sums of the normalised x0..x4, t0, t4): the
+    // features are computed in float64 from bitwise the reference's node positions, so the sums
+    // agree to rounding; a contact whose PhysX branch flips moves x3's sum by ~1e-5 relative.
+    const auto checksums = c.tensor("input_checksums.npy");
+    double worst_in = 0;
     for (std::size_t t = 0; t < S.tf.frames.size(); ++t) {
       INFO("timestep " << t);
-      REQUIRE(S.tf.frames[t].num_faces() == counts[static_cast<std::int64_t>(t)][0].item<std::int64_t>());
-      REQUIRE(S.tf.frames[t].num_contacts() == counts[static_cast<std::int64_t>(t)][1].item<std::int64_t>());
+      const auto& f = S.tf.frames[t];
+      REQUIRE(f.num_faces() == counts[static_cast<std::int64_t>(t)][0].item<std::int64_t>());
+      REQUIRE(f.num_contacts() == counts[static_cast<std::int64_t>(t)][1].item<std::int64_t>());
+      const std::pair<const char*, const RowMatrix*> inputs[7] = {{"x0", &f.x0}, {"x1", &f.x1}, {"x2", &f.x2}, {"x3", &f.x3}, {"x4", &f.x4}, {"t0", &S.tf.t0[t]}, {"t4", &S.tf.t4[t]}};
+      for (int k = 0; k < 7; ++k) {
+        const auto& [key, x] = inputs[k];
+        const double got = x->size() == 0 ? 0.0 : S.norm.normalize(key, *x).to(torch::kDouble).sum().item<double>();
+        const double want = checksums[static_cast<std::int64_t>(t)][k].item<double>();
+        const double e = std::abs(got - want) / std::max(1.0, std::abs(want));
+        worst_in = std::max(worst_in, e);
+        INFO(key << ": " << got << " vs " << want);
+        CHECK(e <= 1e-12);
+      }
     }
+    std::cout << c.name << ": inputs, worst relative checksum error " << worst_in << "\n";
     // Chunks of 160 timesteps: the gradients add up (and a test above checks that exactly).
     const auto chunks = make_training_chunks(S.g, S.tf, S.norm, 160);
     std::map<std::string, torch::Tensor> start;
