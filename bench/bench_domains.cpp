@@ -64,6 +64,14 @@ bool read_edges(Edges& edges, std::int64_t& n, std::string& why) {
   return true;
 }
 
+// The edge list, or the benchmark skipped with the reason.
+bool read_edges(benchmark::State& state, Edges& edges, std::int64_t& n) {
+  std::string why;
+  if (read_edges(edges, n, why)) return true;
+  state.SkipWithError(why.c_str());
+  return false;
+}
+
 std::vector<std::int64_t> grid101_triangles() {
   std::vector<std::int64_t> t;
   for (std::int64_t i = 0; i < 100; ++i)
@@ -106,11 +114,7 @@ void timed(benchmark::State& state, double toponetx_seconds, F&& body) {
 void BM_rgg2000_clique_ops(benchmark::State& state) {
   Edges edges;
   std::int64_t n = 0;
-  std::string why;
-  if (!read_edges(edges, n, why)) {
-    state.SkipWithError(why.c_str());
-    return;
-  }
+  if (!read_edges(state, edges, n)) return;
   timed(state, 1.12, [&] {
     const auto sc = topos::clique_complex(n, edges, 3);
     return rgg_ops(sc) + sc.num_cells(3);
@@ -123,11 +127,7 @@ BENCHMARK(BM_rgg2000_clique_ops)->Unit(benchmark::kMillisecond);
 void BM_rgg2000_clique_complex(benchmark::State& state) {
   Edges edges;
   std::int64_t n = 0;
-  std::string why;
-  if (!read_edges(edges, n, why)) {
-    state.SkipWithError(why.c_str());
-    return;
-  }
+  if (!read_edges(state, edges, n)) return;
   timed(state, 0.42, [&] { return topos::clique_complex(n, edges, 3).num_cells(3); });
 }
 BENCHMARK(BM_rgg2000_clique_complex)->Unit(benchmark::kMillisecond);
@@ -135,11 +135,7 @@ BENCHMARK(BM_rgg2000_clique_complex)->Unit(benchmark::kMillisecond);
 void BM_rgg2000_operators(benchmark::State& state) {
   Edges edges;
   std::int64_t n = 0;
-  std::string why;
-  if (!read_edges(edges, n, why)) {
-    state.SkipWithError(why.c_str());
-    return;
-  }
+  if (!read_edges(state, edges, n)) return;
   const auto sc = topos::clique_complex(n, edges, 3);
   timed(state, 0.70, [&] { return rgg_ops(sc); });
 }
