@@ -506,3 +506,28 @@ TEST_CASE("Adam's state saved by parameter name resumes the same steps, with the
   torch::optim::Adam opt_o(other->parameters());
   REQUIRE_THROWS_WITH(topos::nn::load_adam_state(opt_o, *other, dict, "adam.pt"), Catch::Contains("adam.pt: tensor '0.weight.exp_avg' does not have its parameter's shape"));
 }
+
+TEST_CASE("pickles Python writes (OrderedDict, SETITEM) reach the dict checks; a malformed OrderedDict is an error", "[nn][serialization]") {
+  // A torch file around a hand-written pickle (protocol 2).
+  const auto torch_file = [](const std::string& pickle) {
+    std::vector<char> out;
+    caffe2::serialize::PyTorchStreamWriter writer([&](const void* b, std::size_t n) {
+      out.insert(out.end(), static_cast<const char*>(b), static_cast<const char*>(b) + n);
+      return n;
+    });
+    writer.writeRecord("data.pkl", pickle.data(), pickle.size());
+    writer.writeEndOfFile();
+    return out;
+  };
+  const auto parse = [&](const std::string& pickle) {
+    const auto bytes = torch_file(pickle);
+    return topos::nn::parse_tensor_dict(bytes.data(), bytes.size(), "t.pt");
+  };
+  using namespace std::string_literals;
+  // {} via OrderedDict() (memoized class reused), with SETITEM and a _metadata BUILD: read as an
+  // empty-then-filled plain dict, so the entry check (not LibTorch's unpickler) answers.
+  const std::string od = "\x80\x02" "ccollections\nOrderedDict\nq\x00)Rq\x01"s;
+  REQUIRE(parse(od + "}q\x02" "X\x09\x00\x00\x00_metadatah\x00)Rsb."s).empty());
+  REQUIRE_THROWS_WITH(parse(od + "X\x01\x00\x00\x00" "aK\x01s."s), Catch::Contains("t.pt: an entry is not a (name, tensor) pair"));
+  REQUIRE_THROWS_WITH(parse("\x80\x02" "ccollections\nOrderedDict\nq\x00K\x01R."s), Catch::Contains("t.pt: not a readable torch file: an OrderedDict made other than from an empty tuple"));
+}
