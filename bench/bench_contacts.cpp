@@ -27,7 +27,8 @@ const hopnet::Scene& movi_a8() {
 // random orientations: many face pairs within d_c, like a settled MOVi-B frame.
 std::vector<PosedObject> kubasic_scene(std::vector<TriangleMesh>& keep) {
   hopnet::MeshLibrary lib(ref_dir() + "/data/kubasic");
-  const char* shapes[] = {"cube", "sphere", "cylinder", "cone", "torus", "gear", "torus_knot", "sponge", "spot", "teapot"};
+  const char* shapes[] = {"cube", "sphere",     "cylinder", "cone", "torus",
+                          "gear", "torus_knot", "sponge",   "spot", "teapot"};
   std::mt19937 rng(3);
   std::uniform_real_distribution<double> u(-1, 1);
   keep.clear();
@@ -40,7 +41,9 @@ std::vector<PosedObject> kubasic_scene(std::vector<TriangleMesh>& keep) {
   std::vector<PosedObject> objs;
   for (int i = 0; i < 10; ++i) {
     const Eigen::Vector3d p(1.45 * (i % 4) - 2, 1.45 * (i / 4) - 1.5, 0.74);
-    objs.push_back({pose_vertices(keep[i].vertices, p, Eigen::Vector4d(u(rng), u(rng), u(rng), u(rng))), &keep[i].faces});
+    objs.push_back(
+        {pose_vertices(keep[i].vertices, p, Eigen::Vector4d(u(rng), u(rng), u(rng), u(rng))),
+         &keep[i].faces});
   }
   objs.push_back({keep[10].vertices, &keep[10].faces});
   return objs;
@@ -59,7 +62,8 @@ static void BM_MoviA8_Reference(benchmark::State& state) {
     auto c = reference_contacts(frames[t++ % frames.size()], 0.1, &idx);
     for (auto& e : c) pairs += e.pairs.size();
   }
-  state.counters["pairs/frame"] = static_cast<double>(pairs) / static_cast<double>(state.iterations());
+  state.counters["pairs/frame"] =
+      static_cast<double>(pairs) / static_cast<double>(state.iterations());
 }
 BENCHMARK(BM_MoviA8_Reference)->Unit(benchmark::kMicrosecond);
 
@@ -70,7 +74,8 @@ static void BM_MoviA8_Native(benchmark::State& state) {
   for (std::int64_t t = 0; t < s.num_frames; ++t) frames.push_back(hopnet::pose_scene(s, t));
   std::size_t t = 0, pairs = 0;
   for (auto _ : state) pairs += find_contacts(frames[t++ % frames.size()], 0.1).size();
-  state.counters["pairs/frame"] = static_cast<double>(pairs) / static_cast<double>(state.iterations());
+  state.counters["pairs/frame"] =
+      static_cast<double>(pairs) / static_cast<double>(state.iterations());
 }
 BENCHMARK(BM_MoviA8_Native)->Unit(benchmark::kMicrosecond);
 
@@ -84,7 +89,8 @@ static void BM_KuBasic10_Reference(benchmark::State& state) {
   for (auto& o : objs) nodes += static_cast<std::size_t>(o.vertices.rows());
   for (auto _ : state)
     for (auto& e : reference_contacts(objs, 0.1, &idx)) pairs += e.pairs.size();
-  state.counters["pairs/frame"] = static_cast<double>(pairs) / static_cast<double>(state.iterations());
+  state.counters["pairs/frame"] =
+      static_cast<double>(pairs) / static_cast<double>(state.iterations());
   state.counters["nodes"] = static_cast<double>(nodes);
 }
 BENCHMARK(BM_KuBasic10_Reference)->Unit(benchmark::kMicrosecond);
@@ -95,7 +101,8 @@ static void BM_KuBasic10_Native(benchmark::State& state) {
   const auto objs = kubasic_scene(keep);
   std::size_t pairs = 0;
   for (auto _ : state) pairs += find_contacts(objs, 0.1).size();
-  state.counters["pairs/frame"] = static_cast<double>(pairs) / static_cast<double>(state.iterations());
+  state.counters["pairs/frame"] =
+      static_cast<double>(pairs) / static_cast<double>(state.iterations());
 }
 BENCHMARK(BM_KuBasic10_Native)->Unit(benchmark::kMicrosecond);
 

@@ -45,7 +45,9 @@ void BM_open_topos_dataset(benchmark::State& state) {
     benchmark::DoNotOptimize(d.scene(600).instances[0].positions(479, 2));
   }
   state.counters["scenes"] = static_cast<double>(n);
-  state.counters["MB"] = static_cast<double>(std::filesystem::file_size(dir / "positions.npy") + std::filesystem::file_size(dir / "quaternions.npy")) / 1e6;
+  state.counters["MB"] = static_cast<double>(std::filesystem::file_size(dir / "positions.npy") +
+                                             std::filesystem::file_size(dir / "quaternions.npy")) /
+                         1e6;
 }
 BENCHMARK(BM_open_topos_dataset)->Unit(benchmark::kMillisecond)->MinTime(3.0);
 }  // namespace

@@ -106,7 +106,8 @@ void timed(benchmark::State& state, double toponetx_seconds, F&& body) {
     total += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   }
   if (toponetx_seconds > 0 && state.iterations() > 0) {
-    state.counters["x_toponetx"] = toponetx_seconds / (total / static_cast<double>(state.iterations()));
+    state.counters["x_toponetx"] =
+        toponetx_seconds / (total / static_cast<double>(state.iterations()));
     state.SetLabel("TopoNetX " + std::to_string(toponetx_seconds).substr(0, 4) + " s");
   }
 }
@@ -120,7 +121,8 @@ void BM_rgg2000_clique_ops(benchmark::State& state) {
     return rgg_ops(sc) + sc.num_cells(3);
   });
   const auto sc = topos::clique_complex(n, edges, 3);
-  for (int k = 0; k <= 3; ++k) state.counters["n" + std::to_string(k)] = static_cast<double>(sc.num_cells(k));
+  for (int k = 0; k <= 3; ++k)
+    state.counters["n" + std::to_string(k)] = static_cast<double>(sc.num_cells(k));
 }
 BENCHMARK(BM_rgg2000_clique_ops)->Unit(benchmark::kMillisecond);
 
@@ -148,13 +150,16 @@ void BM_grid101_ops(benchmark::State& state) {
     return mesh_ops(sc) + sc.num_cells(2);
   });
   const auto sc = topos::SimplicialComplex::from_flat(t.data(), t.size() / 3, 3, 101 * 101);
-  for (int k = 0; k <= 2; ++k) state.counters["n" + std::to_string(k)] = static_cast<double>(sc.num_cells(k));
+  for (int k = 0; k <= 2; ++k)
+    state.counters["n" + std::to_string(k)] = static_cast<double>(sc.num_cells(k));
 }
 BENCHMARK(BM_grid101_ops)->Unit(benchmark::kMillisecond);
 
 void BM_grid101_complex(benchmark::State& state) {
   const auto t = grid101_triangles();
-  timed(state, 0.38, [&] { return topos::SimplicialComplex::from_flat(t.data(), t.size() / 3, 3, 101 * 101).num_cells(1); });
+  timed(state, 0.38, [&] {
+    return topos::SimplicialComplex::from_flat(t.data(), t.size() / 3, 3, 101 * 101).num_cells(1);
+  });
 }
 BENCHMARK(BM_grid101_complex)->Unit(benchmark::kMillisecond);
 
@@ -184,7 +189,11 @@ int main(int argc, char** argv) {
     mallopt(M_MMAP_THRESHOLD, 1 << 30);
     mallopt(M_TRIM_THRESHOLD, 1 << 30);
   }
-  benchmark::AddCustomContext("malloc", tuned ? "M_MMAP_THRESHOLD=M_TRIM_THRESHOLD=1 GiB (TOPOS_BENCH_DEFAULT_MALLOC=1: glibc defaults)" : "glibc defaults");
+  benchmark::AddCustomContext(
+      "malloc",
+      tuned
+          ? "M_MMAP_THRESHOLD=M_TRIM_THRESHOLD=1 GiB (TOPOS_BENCH_DEFAULT_MALLOC=1: glibc defaults)"
+          : "glibc defaults");
   benchmark::Initialize(&argc, argv);
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
   benchmark::RunSpecifiedBenchmarks();

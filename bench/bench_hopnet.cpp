@@ -61,8 +61,10 @@ void BM_forward(benchmark::State& state) {
   auto [mode, net, g] = make_case(state);
   const auto& S = setup();
   // The frame at t = 100 (47 faces, 49 contacts in reference mode).
-  const auto frame = build_frame(g, scene_poses(S.scene, 0), scene_poses(S.scene, 98), scene_poses(S.scene, 99), scene_poses(S.scene, 100),
-                                 detect_contacts(g, pose_objects(g, scene_poses(S.scene, 100)), 0.1));
+  const auto frame =
+      build_frame(g, scene_poses(S.scene, 0), scene_poses(S.scene, 98), scene_poses(S.scene, 99),
+                  scene_poses(S.scene, 100),
+                  detect_contacts(g, pose_objects(g, scene_poses(S.scene, 100)), 0.1));
   const auto batch = make_batch({{&g, &frame}}, S.norm);
   torch::NoGradGuard ng;
   for (auto _ : state) benchmark::DoNotOptimize(net->forward(batch, S.norm).a0);
@@ -74,10 +76,12 @@ BENCHMARK(BM_forward)->Arg(0)->Arg(1)->ArgName("native")->Unit(benchmark::kMilli
 void BM_rollout_step(benchmark::State& state) {
   auto [mode, net, g] = make_case(state);
   const auto& S = setup();
-  const Poses p0 = scene_poses(S.scene, 0), p98 = scene_poses(S.scene, 98), p99 = scene_poses(S.scene, 99), p100 = scene_poses(S.scene, 100);
+  const Poses p0 = scene_poses(S.scene, 0), p98 = scene_poses(S.scene, 98),
+              p99 = scene_poses(S.scene, 99), p100 = scene_poses(S.scene, 100);
   for (auto _ : state) {
     const auto contacts = detect_contacts(g, pose_objects(g, p100), 0.1);
-    benchmark::DoNotOptimize(predict_next(*net, S.norm, g, p0, p98, p99, p100, contacts).positions.data());
+    benchmark::DoNotOptimize(
+        predict_next(*net, S.norm, g, p0, p98, p99, p100, contacts).positions.data());
   }
 }
 BENCHMARK(BM_rollout_step)->Arg(0)->Arg(1)->ArgName("native")->Unit(benchmark::kMillisecond);
@@ -88,10 +92,16 @@ void BM_rollout_102(benchmark::State& state) {
   RolloutOptions opt;
   if (mode == FeatureMode::reference) opt.first_contacts = S.first;
   double pos100 = 0;
-  for (auto _ : state) pos100 = rollout_metrics(rollout(*net, S.norm, S.scene, g, opt).poses, S.scene).pos_rmse[100];
+  for (auto _ : state)
+    pos100 = rollout_metrics(rollout(*net, S.norm, S.scene, g, opt).poses, S.scene).pos_rmse[100];
   state.counters["pos_rmse_100"] = pos100;
 }
-BENCHMARK(BM_rollout_102)->Arg(0)->Arg(1)->ArgName("native")->Unit(benchmark::kMillisecond)->MinTime(2.0);
+BENCHMARK(BM_rollout_102)
+    ->Arg(0)
+    ->Arg(1)
+    ->ArgName("native")
+    ->Unit(benchmark::kMillisecond)
+    ->MinTime(2.0);
 
 // One optimizer step on the whole trajectory (t = 2..478: 477 timesteps), forward, backward and
 // Adam (train_step, as `hopnet train`), with BLAS threads on every core and one intra-op thread.
@@ -104,28 +114,38 @@ void BM_train_step(benchmark::State& state) {
   nn::keep_freed_memory();
   const auto& S = setup();
   const auto contacts = read_collisions_json(S.ref + "/data/movi-a/8/collisions.json");
-  const auto tf = trajectory_frames(S.scene, g, 0.1, 0.0, 2, -1, mode == FeatureMode::reference ? &contacts : nullptr);
+  const auto tf = trajectory_frames(S.scene, g, 0.1, 0.0, 2, -1,
+                                    mode == FeatureMode::reference ? &contacts : nullptr);
   const auto chunks = make_training_chunks(g, tf, S.norm, state.range(1));
   net->train();
   torch::optim::Adam opt(net->parameters(), torch::optim::AdamOptions(1e-4));
   // The first step also grows the heap to its working size (~1 s more); measure the steady state.
   const auto t0 = std::chrono::steady_clock::now();
   train_step(*net, opt, chunks, S.norm);
-  state.counters["first_step_s"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  state.counters["first_step_s"] =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   reset_peak_rss();
   for (auto _ : state) train_step(*net, opt, chunks, S.norm);
   nn::set_cpu_threads(1, 1);
   state.counters["peak_rss_mb"] = peak_rss_mb();
   state.counters["timesteps"] = static_cast<double>(tf.frames.size());
-  state.counters["timesteps_per_s"] = benchmark::Counter(static_cast<double>(tf.frames.size()), benchmark::Counter::kIsIterationInvariantRate);
+  state.counters["timesteps_per_s"] = benchmark::Counter(
+      static_cast<double>(tf.frames.size()), benchmark::Counter::kIsIterationInvariantRate);
 }
-BENCHMARK(BM_train_step)->Args({0, 0})->Args({1, 0})->Args({0, 120})->ArgNames({"native", "chunk"})->Unit(benchmark::kMillisecond)->MinTime(5.0)->UseRealTime();
-
+BENCHMARK(BM_train_step)
+    ->Args({0, 0})
+    ->Args({1, 0})
+    ->Args({0, 120})
+    ->ArgNames({"native", "chunk"})
+    ->Unit(benchmark::kMillisecond)
+    ->MinTime(5.0)
+    ->UseRealTime();
 
 // One training step of each variant (the presets of models/hopnet/variants.hpp) on the same
 // trajectory, native mode, fresh weights (seed 0), as BM_train_step. Statistics: movia.json,
 // movia-nox4.json for nox4, and movia.json's first 8 x0 columns without centre-mass distances.
-const std::vector<std::string> kVariants{"standard", "nox4", "noseq", "no-cm-distance", "mlp3", "mp2", "hidden64"};
+const std::vector<std::string> kVariants{"standard", "nox4", "noseq",   "no-cm-distance",
+                                         "mlp3",     "mp2",  "hidden64"};
 void BM_train_step_variant(benchmark::State& state) {
   const auto& S = setup();
   const std::string config = kVariants.at(static_cast<std::size_t>(state.range(0)));
@@ -135,11 +155,14 @@ void BM_train_step_variant(benchmark::State& state) {
   torch::manual_seed(0);
   const auto o = parse_config(config, HopnetOptions().mode(FeatureMode::native));
   Hopnet net(o);
-  auto stats = read_stats_json(S.ref + (o.architecture() == Architecture::no_object_cells ? "/data/normalization/movia-nox4.json" : "/data/normalization/movia.json"));
+  auto stats = read_stats_json(S.ref + (o.architecture() == Architecture::no_object_cells
+                                            ? "/data/normalization/movia-nox4.json"
+                                            : "/data/normalization/movia.json"));
   if (!o.center_mass_distance()) stats.mean["x0"].resize(8), stats.std["x0"].resize(8);
   const Normalizer norm(stats);
   const auto g = make_geometry(S.scene, o.lifting());
-  const auto item = make_training_item(g, trajectory_frames(S.scene, g, o.collision_radius()), norm);
+  const auto item =
+      make_training_item(g, trajectory_frames(S.scene, g, o.collision_radius()), norm);
   net->train();
   torch::optim::Adam opt(net->parameters(), torch::optim::AdamOptions(1e-4));
   const auto step = [&] {
@@ -152,9 +175,14 @@ void BM_train_step_variant(benchmark::State& state) {
   for (auto _ : state) step();
   nn::set_cpu_threads(1, 1);
   state.counters["parameters"] = static_cast<double>(net->num_parameters());
-  state.counters["timesteps_per_s"] = benchmark::Counter(static_cast<double>(item.timesteps), benchmark::Counter::kIsIterationInvariantRate);
+  state.counters["timesteps_per_s"] = benchmark::Counter(
+      static_cast<double>(item.timesteps), benchmark::Counter::kIsIterationInvariantRate);
 }
-BENCHMARK(BM_train_step_variant)->DenseRange(0, 6)->Unit(benchmark::kMillisecond)->MinTime(3.0)->UseRealTime();
+BENCHMARK(BM_train_step_variant)
+    ->DenseRange(0, 6)
+    ->Unit(benchmark::kMillisecond)
+    ->MinTime(3.0)
+    ->UseRealTime();
 }  // namespace
 
 BENCHMARK_MAIN();

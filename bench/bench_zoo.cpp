@@ -61,12 +61,16 @@ struct Complex {
     B2.resize(static_cast<std::int64_t>(edges.size()), static_cast<std::int64_t>(triangles.size()));
     B2.setFromTriplets(t2.begin(), t2.end());
   }
-  std::array<std::int64_t, 3> shape() const { return {n0, static_cast<std::int64_t>(edges.size()), static_cast<std::int64_t>(triangles.size())}; }
+  std::array<std::int64_t, 3> shape() const {
+    return {n0, static_cast<std::int64_t>(edges.size()),
+            static_cast<std::int64_t>(triangles.size())};
+  }
 };
 
 Complex rgg2000() {
   const char* ref = std::getenv("TOPOS_REFERENCE_DIR");
-  if (ref == nullptr) throw std::runtime_error("rgg2000 needs TOPOS_REFERENCE_DIR (shared/reference)");
+  if (ref == nullptr)
+    throw std::runtime_error("rgg2000 needs TOPOS_REFERENCE_DIR (shared/reference)");
   std::ifstream in(std::string(ref) + "/tdl-bench/rgg2000_edges.txt");
   if (!in) throw std::runtime_error("cannot open tdl-bench/rgg2000_edges.txt");
   Complex c;
@@ -95,7 +99,8 @@ Complex grid101() {
   for (std::int64_t i = 0; i < 100; ++i)
     for (std::int64_t j = 0; j < 100; ++j) {
       const auto a = i * 101 + j;
-      for (std::array<std::int64_t, 3> t : {std::array<std::int64_t, 3>{a, a + 1, a + 102}, std::array<std::int64_t, 3>{a, a + 101, a + 102}}) {
+      for (std::array<std::int64_t, 3> t : {std::array<std::int64_t, 3>{a, a + 1, a + 102},
+                                            std::array<std::int64_t, 3>{a, a + 101, a + 102}}) {
         std::sort(t.begin(), t.end());
         c.triangles.push_back(t);
         c.edges.push_back({t[0], t[1]});
@@ -111,11 +116,16 @@ SparseOperator op(const Sp& m) {
   std::vector<std::int64_t> r, c;
   std::vector<double> v;
   for (std::int64_t i = 0; i < m.outerSize(); ++i)
-    for (Sp::InnerIterator it(m, i); it; ++it) r.push_back(it.row()), c.push_back(it.col()), v.push_back(it.value());
+    for (Sp::InnerIterator it(m, i); it; ++it)
+      r.push_back(it.row()), c.push_back(it.col()), v.push_back(it.value());
   return SparseOperator::from_triplets(m.rows(), m.cols(), r, c, v);
 }
-Sp product(const Sp& a, const Sp& b) { return Sp(a * b); }
-Sp transpose(const Sp& a) { return Sp(a.transpose()); }
+Sp product(const Sp& a, const Sp& b) {
+  return Sp(a * b);
+}
+Sp transpose(const Sp& a) {
+  return Sp(a.transpose());
+}
 // D^-1/2 |L| D^-1/2-style rescale: the values differ from TopoNetX's normalised Laplacian, the
 // pattern (what the time depends on) is the same.
 Sp normalized(const Sp& L) {
@@ -124,7 +134,8 @@ Sp normalized(const Sp& L) {
     for (Sp::InnerIterator it(L, i); it; ++it) d(i) += std::abs(it.value());
   Sp out = L;
   for (std::int64_t i = 0; i < out.outerSize(); ++i)
-    for (Sp::InnerIterator it(out, i); it; ++it) it.valueRef() /= std::sqrt(std::max(d(i), 1.0) * std::max(d(it.col()), 1.0));
+    for (Sp::InnerIterator it(out, i); it; ++it)
+      it.valueRef() /= std::sqrt(std::max(d(i), 1.0) * std::max(d(it.col()), 1.0));
   return out;
 }
 Sp off_diagonal_pattern(const Sp& A) {  // |A| with the diagonal removed, entries set to 1
@@ -136,31 +147,47 @@ Sp off_diagonal_pattern(const Sp& A) {  // |A| with the diagonal removed, entrie
   out.setFromTriplets(t.begin(), t.end());
   return out;
 }
-Sp absolute(const Sp& A) { return Sp(A.cwiseAbs()); }
+Sp absolute(const Sp& A) {
+  return Sp(A.cwiseAbs());
+}
 
 // One model on one complex: its module and TopoModelX's positional arguments.
 ZooModel build(const std::string& model, const Complex& c, std::vector<ZooArg>& args) {
   const auto n = c.shape();
   torch::manual_seed(0);
-  const auto x = [&](int r) { return ZooArg::of(torch::randn({n[static_cast<std::size_t>(r)], C}), "x"); };
+  const auto x = [&](int r) {
+    return ZooArg::of(torch::randn({n[static_cast<std::size_t>(r)], C}), "x");
+  };
   const auto& B1 = c.B1;
   const auto& B2 = c.B2;
   const Sp B1t = transpose(B1), B2t = transpose(B2);
-  const Sp L0 = product(B1, B1t), Ld1 = product(B1t, B1), Lu1 = product(B2, B2t), L2 = product(B2t, B2);
+  const Sp L0 = product(B1, B1t), Ld1 = product(B1t, B1), Lu1 = product(B2, B2t),
+           L2 = product(B2t, B2);
   const auto O = [](const Sp& m) { return ZooArg::of(op(m), "op"); };
   nlohmann::json cfg;
   if (model == "SCN2") {
     cfg = {{"in_channels_0", C}, {"in_channels_1", C}, {"in_channels_2", C}, {"n_layers", 2}};
     args = {x(0), x(1), x(2), O(normalized(L0)), O(normalized(Sp(Ld1 + Lu1))), O(normalized(L2))};
   } else if (model == "SCCNN") {
-    cfg = {{"in_channels_all", {C, C, C}}, {"hidden_channels_all", {C, C, C}}, {"conv_order", 1}, {"sc_order", 2}, {"n_layers", 2}};
-    args = {ZooArg::list({x(0), x(1), x(2)}), ZooArg::list({O(L0), O(Ld1), O(Lu1), O(L2)}), ZooArg::list({O(B1), O(B2)})};
+    cfg = {{"in_channels_all", {C, C, C}},
+           {"hidden_channels_all", {C, C, C}},
+           {"conv_order", 1},
+           {"sc_order", 2},
+           {"n_layers", 2}};
+    args = {ZooArg::list({x(0), x(1), x(2)}), ZooArg::list({O(L0), O(Ld1), O(Lu1), O(L2)}),
+            ZooArg::list({O(B1), O(B2)})};
   } else if (model == "SAN") {
     cfg = {{"in_channels", C}, {"hidden_channels", C}, {"out_channels", C}, {"n_layers", 2}};
     args = {x(1), O(Lu1), O(Ld1)};
   } else if (model == "CWN") {
-    cfg = {{"in_channels_0", C}, {"in_channels_1", C}, {"in_channels_2", C}, {"hid_channels", C}, {"n_layers", 2}};
-    args = {x(0), x(1), x(2), O(off_diagonal_pattern(product(absolute(B2), transpose(absolute(B2))))), O(B2), O(B1t)};
+    cfg = {{"in_channels_0", C},
+           {"in_channels_1", C},
+           {"in_channels_2", C},
+           {"hid_channels", C},
+           {"n_layers", 2}};
+    args = {x(0),  x(1),
+            x(2),  O(off_diagonal_pattern(product(absolute(B2), transpose(absolute(B2))))),
+            O(B2), O(B1t)};
   } else if (model == "UniGCNII") {
     Triplets t;
     for (std::int64_t v = 0; v < n[0]; ++v) t.emplace_back(v, v, 1.0);
@@ -178,11 +205,14 @@ ZooModel build(const std::string& model, const Complex& c, std::vector<ZooArg>& 
 
 // TopoModelX's times from tdl-bench/README.md (seconds), forward and forward+backward.
 const std::map<std::string, std::array<double, 2>> kTopoModelX = {
-    {"scn2/rgg2000", {8.3e-3, 19.8e-3}}, {"scn2/grid101", {15.5e-3, 38.4e-3}}, {"cwn/rgg2000", {7.5e-3, 19.3e-3}},   {"cwn/grid101", {22.4e-3, 56.6e-3}},
-    {"sccnn/rgg2000", {4.36, 5.53}},     {"sccnn/grid101", {43.9, 63.3}},      {"san/rgg2000", {68.2, 147.1}},      {"unigcnii/rgg2000", {18.1, 18.1}},
+    {"scn2/rgg2000", {8.3e-3, 19.8e-3}}, {"scn2/grid101", {15.5e-3, 38.4e-3}},
+    {"cwn/rgg2000", {7.5e-3, 19.3e-3}},  {"cwn/grid101", {22.4e-3, 56.6e-3}},
+    {"sccnn/rgg2000", {4.36, 5.53}},     {"sccnn/grid101", {43.9, 63.3}},
+    {"san/rgg2000", {68.2, 147.1}},      {"unigcnii/rgg2000", {18.1, 18.1}},
     {"unigcnii/grid101", {519.0, 522.0}}};
 
-void run(benchmark::State& state, const std::string& model, const std::string& cname, const Complex* complex, bool backward) {
+void run(benchmark::State& state, const std::string& model, const std::string& cname,
+         const Complex* complex, bool backward) {
   std::vector<ZooArg> args;
   auto z = build(model, *complex, args);
   std::vector<torch::Tensor> R;
@@ -206,9 +236,12 @@ void run(benchmark::State& state, const std::string& model, const std::string& c
     total += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   }
   std::string lower = model;
-  std::transform(lower.begin(), lower.end(), lower.begin(), [](unsigned char ch) { return static_cast<char>(std::tolower(ch)); });
+  std::transform(lower.begin(), lower.end(), lower.begin(),
+                 [](unsigned char ch) { return static_cast<char>(std::tolower(ch)); });
   auto it = kTopoModelX.find(lower + "/" + cname);
-  if (it != kTopoModelX.end() && state.iterations() > 0) state.counters["x_topomodelx"] = it->second[backward ? 1 : 0] / (total / static_cast<double>(state.iterations()));
+  if (it != kTopoModelX.end() && state.iterations() > 0)
+    state.counters["x_topomodelx"] =
+        it->second[backward ? 1 : 0] / (total / static_cast<double>(state.iterations()));
 }
 
 // The sparse-dense product alone, side by side with torch's COO kernel (what TopoModelX calls) on
@@ -216,7 +249,9 @@ void run(benchmark::State& state, const std::string& model, const std::string& c
 void spmm_pair(benchmark::State& state, const SparseOperator* A, bool torch_coo) {
   torch::NoGradGuard g;
   const auto X = torch::randn({A->cols, C});
-  const auto coo = torch::sparse_coo_tensor(torch::stack({A->row, A->col}), A->values, {A->rows, A->cols}).coalesce();
+  const auto coo =
+      torch::sparse_coo_tensor(torch::stack({A->row, A->col}), A->values, {A->rows, A->cols})
+          .coalesce();
   for (auto _ : state) benchmark::DoNotOptimize(torch_coo ? torch::mm(coo, X) : nn::spmm(*A, X));
 }
 
@@ -241,11 +276,13 @@ int main(int argc, char** argv) {
     for (const auto& [cname, c] : complexes)
       for (bool bwd : {false, true}) {
         std::string lower = model;
-        std::transform(lower.begin(), lower.end(), lower.begin(), [](unsigned char ch) { return static_cast<char>(std::tolower(ch)); });
+        std::transform(lower.begin(), lower.end(), lower.begin(),
+                       [](unsigned char ch) { return static_cast<char>(std::tolower(ch)); });
         const Complex* cp = &c;
         const std::string cn = cname;
-        benchmark::RegisterBenchmark(("BM_zoo/" + lower + "/" + cname + (bwd ? "/forward_backward" : "/forward")).c_str(),
-                                     [model, cn, cp, bwd](benchmark::State& st) { run(st, model, cn, cp, bwd); })
+        benchmark::RegisterBenchmark(
+            ("BM_zoo/" + lower + "/" + cname + (bwd ? "/forward_backward" : "/forward")).c_str(),
+            [model, cn, cp, bwd](benchmark::State& st) { run(st, model, cn, cp, bwd); })
             ->Unit(benchmark::kMillisecond);
       }
   static std::map<std::string, SparseOperator> laplacians;
@@ -257,7 +294,8 @@ int main(int argc, char** argv) {
   }
   for (const auto& [name, A] : laplacians)
     for (bool coo : {false, true})
-      benchmark::RegisterBenchmark(("BM_zoo_spmm/" + name + (coo ? "/torch_coo" : "/csr")).c_str(), [p = &A, coo](benchmark::State& st) { spmm_pair(st, p, coo); })
+      benchmark::RegisterBenchmark(("BM_zoo_spmm/" + name + (coo ? "/torch_coo" : "/csr")).c_str(),
+                                   [p = &A, coo](benchmark::State& st) { spmm_pair(st, p, coo); })
           ->Unit(benchmark::kMicrosecond);
   benchmark::RunSpecifiedBenchmarks();
   benchmark::Shutdown();

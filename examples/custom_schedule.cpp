@@ -27,7 +27,8 @@ Sample make_sample(std::mt19937& rng) {
   std::uniform_real_distribution<double> u(-1, 1);
   const char* shapes[] = {"sphere", "cube", "cylinder"};
   TriangleMesh m = builtin_shape(shapes[rng() % 3]);
-  m.vertices = pose_vertices(m.vertices * (1.0 + 0.5 * u(rng)), Eigen::Vector3d::Zero(), Eigen::Vector4d(u(rng), u(rng), u(rng), u(rng)));
+  m.vertices = pose_vertices(m.vertices * (1.0 + 0.5 * u(rng)), Eigen::Vector3d::Zero(),
+                             Eigen::Vector4d(u(rng), u(rng), u(rng), u(rng)));
   auto lifted = lift_meshes({m}, LiftOptions().with_object_rank(0));
   const auto& cc = lifted.complex;
   Sample s;
@@ -35,15 +36,21 @@ Sample make_sample(std::mt19937& rng) {
   s.view.neighborhoods["B02"] = incidence_neighborhood(cc, 0, 2);
   s.view.neighborhoods["B12"] = incidence_neighborhood(cc, 1, 2);
   s.view.neighborhoods["A21"] = adjacency_neighborhood(cc, 2, 1);  // faces sharing an edge
-  auto x0 = torch::from_blob(m.vertices.data(), {m.num_vertices(), 3}, torch::kDouble).to(torch::kFloat).clone();
+  auto x0 = torch::from_blob(m.vertices.data(), {m.num_vertices(), 3}, torch::kDouble)
+                .to(torch::kFloat)
+                .clone();
   std::vector<float> e, area;
   for (const auto& [a, b] : lifted.edges) {
     const Eigen::Vector3d d = m.vertices.row(a) - m.vertices.row(b);
     e.insert(e.end(), {float(d.x()), float(d.y()), float(d.z()), float(d.norm())});
   }
   for (Eigen::Index f = 0; f < m.faces.rows(); ++f)
-    area.push_back(float(0.5 * (m.vertices.row(m.faces(f, 1)) - m.vertices.row(m.faces(f, 0))).cross(m.vertices.row(m.faces(f, 2)) - m.vertices.row(m.faces(f, 0))).norm()));
-  s.inputs = {{"x0", x0}, {"x1", torch::tensor(e).view({-1, 4})}, {"x2", torch::ones({m.num_faces(), 1})}};
+    area.push_back(
+        float(0.5 * (m.vertices.row(m.faces(f, 1)) - m.vertices.row(m.faces(f, 0)))
+                        .cross(m.vertices.row(m.faces(f, 2)) - m.vertices.row(m.faces(f, 0)))
+                        .norm()));
+  s.inputs = {
+      {"x0", x0}, {"x1", torch::tensor(e).view({-1, 4})}, {"x2", torch::ones({m.num_faces(), 1})}};
   s.target = torch::tensor(area).view({-1, 1}) * 10;  // areas of order 1
   return s;
 }
@@ -54,15 +61,25 @@ int main() {
   const int D = 32;
   Schedule s;
   s.encode(0, "", "x0", "enc0").encode(1, "", "x1", "enc1").encode(2, "", "x2", "enc2");
-  s.step(into(2).msg(from(0).via("B02").map("phi02")).msg(from(1).via("B12").map("phi12")).update_with("face_update"));
+  s.step(into(2)
+             .msg(from(0).via("B02").map("phi02"))
+             .msg(from(1).via("B12").map("phi12"))
+             .update_with("face_update"));
   s.step(into(2).msg(from(2).via("A21").reduce(Reduce::mean)).update_with("face_smooth"));
   s.decode(2, "", "area", "area");
   auto mlp = [&](std::int64_t in, std::int64_t out) { return MlpOptions(in, D, out); };
   ScheduleSignature sig;
   sig.inputs = {{"x0", 3}, {"x1", 4}, {"x2", 1}};
   sig.neighborhoods = {{"B02", {0, 2}}, {"B12", {1, 2}}, {"A21", {2, 2}}};
-  const std::map<std::string, MlpOptions> modules{{"enc0", mlp(3, D)}, {"enc1", mlp(4, D)}, {"enc2", mlp(1, D)}, {"phi02", mlp(D, D)}, {"phi12", mlp(D, D)},
-                          {"face_update", mlp(3 * D, D)}, {"face_smooth", mlp(2 * D, D)}, {"area", mlp(D, 1).final_activation(false).layer_norm(false)}};
+  const std::map<std::string, MlpOptions> modules{
+      {"enc0", mlp(3, D)},
+      {"enc1", mlp(4, D)},
+      {"enc2", mlp(1, D)},
+      {"phi02", mlp(D, D)},
+      {"phi12", mlp(D, D)},
+      {"face_update", mlp(3 * D, D)},
+      {"face_smooth", mlp(2 * D, D)},
+      {"area", mlp(D, 1).final_activation(false).layer_norm(false)}};
   ScheduleNetwork net(s, modules, sig);
   std::cout << s.str();
   std::mt19937 rng(1);
@@ -89,7 +106,8 @@ int main() {
     opt.step();
     smoothed = smoothed < 0 ? loss.item<double>() : 0.9 * smoothed + 0.1 * loss.item<double>();
     seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    if (it % 25 == 0) std::cout << "iteration " << it << "  loss " << smoothed << "  (" << seconds << " s)\n";
+    if (it % 25 == 0)
+      std::cout << "iteration " << it << "  loss " << smoothed << "  (" << seconds << " s)\n";
   }
   std::cout << "final loss " << smoothed << "\n";
   return 0;

@@ -57,12 +57,17 @@ struct VariantArgs {
 
 inline void add_variant_options(CLI::App* app, VariantArgs& v, bool with_config) {
   if (with_config)
-    app->add_option("--config", v.config, "variant: presets and/or JSON files, comma-separated (" + preset_names() + "), e.g. nox4 or mlp3,no-cm-distance");
-  app->add_option("--activation", v.activation, "relu, gelu, elu or selu (reference checkpoints do not record it)");
-  app->add_option("--collision-radius", v.collision_radius, "contact distance d_c (default 0.1)")->check(CLI::PositiveNumber);
+    app->add_option("--config", v.config,
+                    "variant: presets and/or JSON files, comma-separated (" + preset_names() +
+                        "), e.g. nox4 or mlp3,no-cm-distance");
+  app->add_option("--activation", v.activation,
+                  "relu, gelu, elu or selu (reference checkpoints do not record it)");
+  app->add_option("--collision-radius", v.collision_radius, "contact distance d_c (default 0.1)")
+      ->check(CLI::PositiveNumber);
 }
 
-/// The configuration of --config (standard when empty) with --activation and --collision-radius on top.
+/// The configuration of --config (standard when empty) with --activation and --collision-radius on
+/// top.
 inline HopnetOptions variant_options(const VariantArgs& v, const HopnetOptions& base = {}) {
   HopnetOptions o = v.config.empty() ? base : parse_config(v.config, base);
   if (!v.activation.empty()) o.activation(nn::activation_from_string(v.activation));
@@ -75,7 +80,10 @@ inline HopnetOptions variant_options(const VariantArgs& v, const HopnetOptions& 
 /// dict does not record its activation: without --activation, a file named after one by the
 /// reference's convention ("gelu_seed0_e39.pt": the name's first '_'-separated word) runs with
 /// it, and says so; otherwise ReLU, the reference's default.
-inline CheckpointOverrides checkpoint_overrides(const VariantArgs& v, const std::map<std::string, torch::Tensor>& dict, const std::string& path, std::optional<FeatureMode> mode) {
+inline CheckpointOverrides checkpoint_overrides(const VariantArgs& v,
+                                                const std::map<std::string, torch::Tensor>& dict,
+                                                const std::string& path,
+                                                std::optional<FeatureMode> mode) {
   CheckpointOverrides ov;
   ov.mode = mode;
   if (v.collision_radius > 0) ov.collision_radius = v.collision_radius;
@@ -87,7 +95,8 @@ inline CheckpointOverrides checkpoint_overrides(const VariantArgs& v, const std:
     for (const char* a : {"gelu", "elu", "selu"})
       if (word == a) {
         ov.activation = nn::activation_from_string(a);
-        std::cerr << "note: " << path << " is a reference checkpoint named after activation " << a << "; running it with " << a << " (--activation overrides)\n";
+        std::cerr << "note: " << path << " is a reference checkpoint named after activation " << a
+                  << "; running it with " << a << " (--activation overrides)\n";
       }
   }
   return ov;

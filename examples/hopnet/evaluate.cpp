@@ -1,4 +1,5 @@
-// hopnet evaluate: roll out every scene of a split; the paper's table beside a constant-velocity baseline.
+// hopnet evaluate: roll out every scene of a split; the paper's table beside a constant-velocity
+// baseline.
 #include "commands.hpp"
 #include "report.hpp"
 #include "topos/nn/device.hpp"
@@ -15,7 +16,8 @@ namespace {
 
 // ---- evaluate ---------------------------------------------------------------------------------
 struct EvaluateArgs {
-  std::string checkpoint, stats, data, assets, split = "test", split_file, mode = "reference", out, device = "cpu";
+  std::string checkpoint, stats, data, assets, split = "test", split_file, mode = "reference", out,
+                                               device = "cpu";
   int steps = 102, viewer_scenes = 6, jobs = 0;
   VariantArgs variant;
   bool no_report = false;
@@ -31,8 +33,10 @@ std::vector<Poses> constant_velocity(const Scene& s, int frames) {
     Poses n = b;
     for (Eigen::Index o = 0; o < n.positions.rows(); ++o) {
       n.positions.row(o) = 2 * b.positions.row(o) - a.positions.row(o);
-      const Eigen::Quaterniond qa(a.quaternions(o, 0), a.quaternions(o, 1), a.quaternions(o, 2), a.quaternions(o, 3));
-      const Eigen::Quaterniond qb(b.quaternions(o, 0), b.quaternions(o, 1), b.quaternions(o, 2), b.quaternions(o, 3));
+      const Eigen::Quaterniond qa(a.quaternions(o, 0), a.quaternions(o, 1), a.quaternions(o, 2),
+                                  a.quaternions(o, 3));
+      const Eigen::Quaterniond qb(b.quaternions(o, 0), b.quaternions(o, 1), b.quaternions(o, 2),
+                                  b.quaternions(o, 3));
       const Eigen::Quaterniond qn = (qb * qa.inverse() * qb).normalized();
       n.quaternions.row(o) << qn.w(), qn.x(), qn.y(), qn.z();
     }
@@ -45,20 +49,25 @@ int run_evaluate(const EvaluateArgs& a) {
   namespace fs = std::filesystem;
   const FeatureMode mode = feature_mode_from_string(a.mode);
   const torch::Device device = nn::device_from_string(a.device);
-  const auto checkpoint = nn::read_tensor_dict(a.checkpoint);  // read once; one model per thread below
+  const auto checkpoint =
+      nn::read_tensor_dict(a.checkpoint);  // read once; one model per thread below
   const auto overrides = checkpoint_overrides(a.variant, checkpoint, a.checkpoint, mode);
-  const auto options = load_hopnet(checkpoint, a.checkpoint, overrides)->options;  // fails early on a bad checkpoint
+  const auto options =
+      load_hopnet(checkpoint, a.checkpoint, overrides)->options;  // fails early on a bad checkpoint
   const auto stats = read_stats_json(a.stats);
   check_stats_fit(options, stats, a.stats);
   const Normalizer norm(stats);
   const auto dataset = data::Dataset::open(a.data);
   const auto& ids = dataset.ids();
-  const auto chosen = data::split_part(a.split_file.empty() ? data::reference_split(ids) : data::read_split_json(a.split_file), a.split, ids);
+  const auto chosen = data::split_part(
+      a.split_file.empty() ? data::reference_split(ids) : data::read_split_json(a.split_file),
+      a.split, ids);
   if (chosen.empty()) throw data::DataError(a.data + ": the " + a.split + " split is empty");
   if (!a.no_report) hopnet_web::require_js_libraries();  // before hours of rollouts, not after
   fs::create_directories(a.out);
   const std::vector<int> horizons{25, 50, 75, 100};
-  std::map<std::string, std::map<int, std::vector<double>>> per;  // "model.pos_rmse" -> frame -> values
+  std::map<std::string, std::map<int, std::vector<double>>>
+      per;  // "model.pos_rmse" -> frame -> values
   ProgressBar bar("evaluate", static_cast<std::int64_t>(chosen.size()), "scenes");
   double seconds = 0;
   // Scenes are rolled out by `jobs` threads, each with its own model (one intra-op thread each).
@@ -89,10 +98,12 @@ int run_evaluate(const EvaluateArgs& a) {
         auto r = rollout(*net, norm, scene, g, opt);
         auto& out = results[i];
         out.model = rollout_metrics(r.poses, scene);
-        out.baseline = rollout_metrics(constant_velocity(scene, static_cast<int>(r.poses.size())), scene);
+        out.baseline =
+            rollout_metrics(constant_velocity(scene, static_cast<int>(r.poses.size())), scene);
         out.seconds = r.seconds;
         for (const auto& o : scene.objects) out.objects += !o.is_floor;
-        if (static_cast<int>(i) < a.viewer_scenes) out.scene = std::move(scene), out.poses = std::move(r.poses);
+        if (static_cast<int>(i) < a.viewer_scenes)
+          out.scene = std::move(scene), out.poses = std::move(r.poses);
         std::lock_guard<std::mutex> lock(mutex);
         bar.update(1, "scene " + std::to_string(chosen[i]));
       }
@@ -101,7 +112,9 @@ int run_evaluate(const EvaluateArgs& a) {
       if (!failed.exchange(true)) error = e.what();
     }
   };
-  const int jobs = std::max(1, std::min<int>(a.jobs > 0 ? a.jobs : static_cast<int>(std::thread::hardware_concurrency()), static_cast<int>(chosen.size())));
+  const int jobs = std::max(
+      1, std::min<int>(a.jobs > 0 ? a.jobs : static_cast<int>(std::thread::hardware_concurrency()),
+                       static_cast<int>(chosen.size())));
   std::vector<std::thread> pool;
   for (int j = 0; j < jobs; ++j) pool.emplace_back(work);
   for (auto& t : pool) t.join();
@@ -110,7 +123,8 @@ int run_evaluate(const EvaluateArgs& a) {
   for (std::size_t i = 0; i < chosen.size(); ++i) {
     const auto& res = results[i];
     seconds += res.seconds;
-    for (const auto& [name, m] : std::vector<std::pair<std::string, const RolloutMetrics*>>{{"hopnet", &res.model}, {"constant_velocity", &res.baseline}}) {
+    for (const auto& [name, m] : std::vector<std::pair<std::string, const RolloutMetrics*>>{
+             {"hopnet", &res.model}, {"constant_velocity", &res.baseline}}) {
       for (int h : horizons) {
         if (h >= static_cast<int>(m->pos_rmse.size())) continue;
         per[name + ".pos_rmse"][h].push_back(m->pos_rmse[static_cast<std::size_t>(h)]);
@@ -118,22 +132,30 @@ int run_evaluate(const EvaluateArgs& a) {
         per[name + ".ori_mae"][h].push_back(m->ori_mae[static_cast<std::size_t>(h)]);
       }
     }
-    if (res.scene) viewer.push_back({"scene " + std::to_string(chosen[i]), &*res.scene, res.poses, {{"prediction", res.model.pos_rmse}, {"constant velocity", res.baseline.pos_rmse}}});
+    if (res.scene)
+      viewer.push_back(
+          {"scene " + std::to_string(chosen[i]),
+           &*res.scene,
+           res.poses,
+           {{"prediction", res.model.pos_rmse}, {"constant velocity", res.baseline.pos_rmse}}});
   }
   bar.finish();
   const auto stat = [](const std::vector<double>& v) {
     double m = 0, s = 0;
     int n = 0;
-    for (double x : v) if (std::isfinite(x)) m += x, ++n;
+    for (double x : v)
+      if (std::isfinite(x)) m += x, ++n;
     m = n ? m / n : NAN;
-    for (double x : v) if (std::isfinite(x)) s += (x - m) * (x - m);
+    for (double x : v)
+      if (std::isfinite(x)) s += (x - m) * (x - m);
     return std::pair<double, double>{m, n ? std::sqrt(s / n) : NAN};
   };
   nlohmann::json metrics;
   std::ostringstream md;
-  md << "| model | metric | " ;
+  md << "| model | metric | ";
   std::vector<int> present;
-  for (int h : horizons) if (per["hopnet.pos_rmse"].count(h)) present.push_back(h);
+  for (int h : horizons)
+    if (per["hopnet.pos_rmse"].count(h)) present.push_back(h);
   for (int h : present) md << "frame " << h << " | ";
   md << "\n|---|---|";
   for (std::size_t i = 0; i < present.size(); ++i) md << "---|";
@@ -151,7 +173,8 @@ int run_evaluate(const EvaluateArgs& a) {
       md << "\n";
     }
   }
-  // The layout: metrics.json holds, per frame, mean/std of pos_rmse, ori_rmse, ori_mae (the model's).
+  // The layout: metrics.json holds, per frame, mean/std of pos_rmse, ori_rmse, ori_mae (the
+  // model's).
   nlohmann::json top = metrics["hopnet"];
   top["baseline_constant_velocity"] = metrics["constant_velocity"];
   top["scenes"] = chosen;
@@ -161,30 +184,42 @@ int run_evaluate(const EvaluateArgs& a) {
   // scenes (bootstrap intervals, subsets, pooling; scripts/reproduction_table.py).
   nlohmann::json per_scene = nlohmann::json::array();
   for (const auto& res : results)
-    per_scene.push_back({{"pos_rmse", res.model.pos_rmse}, {"pos_mae", res.model.pos_mae}, {"ori_rmse", res.model.ori_rmse}, {"ori_mae", res.model.ori_mae},
-                         {"cv_pos_rmse", res.baseline.pos_rmse}, {"cv_ori_rmse", res.baseline.ori_rmse}, {"objects", res.objects}});
+    per_scene.push_back({{"pos_rmse", res.model.pos_rmse},
+                         {"pos_mae", res.model.pos_mae},
+                         {"ori_rmse", res.model.ori_rmse},
+                         {"ori_mae", res.model.ori_mae},
+                         {"cv_pos_rmse", res.baseline.pos_rmse},
+                         {"cv_ori_rmse", res.baseline.ori_rmse},
+                         {"objects", res.objects}});
   top["rollout_seconds"] = seconds;
   write_json_atomic(top, (fs::path(a.out) / "metrics.json").string());
-  write_json_atomic({{"scenes", chosen}, {"per_scene", per_scene}}, (fs::path(a.out) / "per_scene.json").string());
+  write_json_atomic({{"scenes", chosen}, {"per_scene", per_scene}},
+                    (fs::path(a.out) / "per_scene.json").string());
   {
     std::ostringstream t;
-    t << "# HOPNet rollout errors (" << chosen.size() << " scenes, " << a.split << " split, " << to_string(mode) << " mode)\n\n" << md.str();
+    t << "# HOPNet rollout errors (" << chosen.size() << " scenes, " << a.split << " split, "
+      << to_string(mode) << " mode)\n\n"
+      << md.str();
     write_file_atomic((fs::path(a.out) / "table.md").string(), t.str());
   }
-  const std::string title = "HOPNet rollouts (" + std::string(to_string(mode)) + " mode): " + a.data;
+  const std::string title =
+      "HOPNet rollouts (" + std::string(to_string(mode)) + " mode): " + a.data;
   if (!a.no_report) {
-    if (!viewer.empty()) hopnet_viewer::write_viewer_html((fs::path(a.out) / "viewer.html").string(), title, viewer);
+    if (!viewer.empty())
+      hopnet_viewer::write_viewer_html((fs::path(a.out) / "viewer.html").string(), title, viewer);
     hopnet_report::EvaluationReport report;
     report.title = title;
-    report.checkpoint = a.checkpoint, report.data = a.data, report.split = a.split, report.mode = to_string(mode);
+    report.checkpoint = a.checkpoint, report.data = a.data, report.split = a.split,
+    report.mode = to_string(mode);
     report.viewer = viewer.empty() ? "" : "viewer.html";
     report.horizons = horizons;
     report.rollout_seconds = seconds;
     std::vector<data::KubricScene> sources;
     for (std::size_t i = 0; i < chosen.size(); ++i) {
       sources.push_back(dataset.scene(chosen[i]));
-      report.scenes.push_back({chosen[i], static_cast<int>(sources.back().instances.size()), results[i].model,
-                               results[i].baseline, static_cast<int>(i) < a.viewer_scenes ? static_cast<int>(i) : -1});
+      report.scenes.push_back({chosen[i], static_cast<int>(sources.back().instances.size()),
+                               results[i].model, results[i].baseline,
+                               static_cast<int>(i) < a.viewer_scenes ? static_cast<int>(i) : -1});
     }
     report.dataset_kind = hopnet_report::infer_movi_kind(sources, &report.dataset_kind_why);
     // The training curves too, when the checkpoint sits beside its training logs.
@@ -199,7 +234,8 @@ int run_evaluate(const EvaluateArgs& a) {
     hopnet_report::write_evaluation_report((fs::path(a.out) / "index.html").string(), report);
   }
   std::cout << md.str() << "wrote " << a.out << "/metrics.json, table.md"
-            << (a.no_report ? "" : ", index.html") << (a.no_report || viewer.empty() ? "" : ", viewer.html") << "\n";
+            << (a.no_report ? "" : ", index.html")
+            << (a.no_report || viewer.empty() ? "" : ", viewer.html") << "\n";
   return 0;
 }
 
@@ -208,21 +244,41 @@ int run_evaluate(const EvaluateArgs& a) {
 Command add_evaluate(CLI::App& app) {
   auto args = std::make_shared<EvaluateArgs>();
   auto& ev = *args;
-  auto* ce = app.add_subcommand("evaluate", "roll out every scene of a split; the paper's table beside a constant-velocity baseline");
-  ce->add_option("--checkpoint", ev.checkpoint, "model checkpoint")->required()->check(CLI::ExistingFile);
-  ce->add_option("--stats", ev.stats, "normalisation statistics")->required()->check(CLI::ExistingFile);
+  auto* ce = app.add_subcommand(
+      "evaluate",
+      "roll out every scene of a split; the paper's table beside a constant-velocity baseline");
+  ce->add_option("--checkpoint", ev.checkpoint, "model checkpoint")
+      ->required()
+      ->check(CLI::ExistingFile);
+  ce->add_option("--stats", ev.stats, "normalisation statistics")
+      ->required()
+      ->check(CLI::ExistingFile);
   ce->add_option("--data", ev.data, "dataset folder")->required()->check(CLI::ExistingDirectory);
-  ce->add_option("--assets", ev.assets, "KuBasic-layout asset folder (built-in shapes when omitted)");
+  ce->add_option("--assets", ev.assets,
+                 "KuBasic-layout asset folder (built-in shapes when omitted)");
   ce->add_option("--split", ev.split, "train, val, test or all")->capture_default_str();
-  ce->add_option("--split-file", ev.split_file, "custom split JSON {train, val, test} (default: the reference split of the scenes present)")->check(CLI::ExistingFile);
+  ce->add_option(
+        "--split-file", ev.split_file,
+        "custom split JSON {train, val, test} (default: the reference split of the scenes present)")
+      ->check(CLI::ExistingFile);
   ce->add_option("--mode", ev.mode, "reference or native")->capture_default_str();
-  ce->add_option("--steps", ev.steps, "rollout steps")->capture_default_str()->check(CLI::PositiveNumber);
+  ce->add_option("--steps", ev.steps, "rollout steps")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
   ce->add_option("--jobs", ev.jobs, "scenes rolled out at once (default: all cores)");
-  ce->add_option("--device", ev.device, "cpu, cuda, cuda:N or auto (each job's model runs there)")->capture_default_str();
-  ce->add_option("--viewer-scenes", ev.viewer_scenes, "scenes shown in viewer.html (0: no viewer)")->capture_default_str()->check(CLI::NonNegativeNumber);
+  ce->add_option("--device", ev.device, "cpu, cuda, cuda:N or auto (each job's model runs there)")
+      ->capture_default_str();
+  ce->add_option("--viewer-scenes", ev.viewer_scenes, "scenes shown in viewer.html (0: no viewer)")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
   add_variant_options(ce, ev.variant, false);
-  ce->add_flag("--no-report", ev.no_report, "write metrics.json, per_scene.json and table.md only: no index.html, no viewer.html (no JavaScript libraries needed)");
-  ce->add_option("--out", ev.out, "output folder: metrics.json, per_scene.json, table.md, index.html (the report: tables, plots, training curves), viewer.html")->required();
+  ce->add_flag("--no-report", ev.no_report,
+               "write metrics.json, per_scene.json and table.md only: no index.html, no "
+               "viewer.html (no JavaScript libraries needed)");
+  ce->add_option("--out", ev.out,
+                 "output folder: metrics.json, per_scene.json, table.md, index.html (the report: "
+                 "tables, plots, training curves), viewer.html")
+      ->required();
   return {ce, [args] { return run_evaluate(*args); }};
 }
 

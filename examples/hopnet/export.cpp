@@ -12,10 +12,15 @@ struct ExportArgs {
 // format (weights_only-safe). With reference names the state dict loads into the authors'
 // HOPNet class (load_state_dict); normalisation statistics are float64 tensors by key.
 int run_export(const ExportArgs& a) {
-  if (a.names != "reference" && a.names != "topos") throw std::invalid_argument("unknown --names '" + a.names + "' (reference, topos)");
+  if (a.names != "reference" && a.names != "topos")
+    throw std::invalid_argument("unknown --names '" + a.names + "' (reference, topos)");
   auto model = load_hopnet(a.checkpoint);
   c10::Dict<std::string, torch::Tensor> state;
-  for (const auto& p : model->named_parameters()) state.insert(a.names == "reference" ? reference_parameter_name(p.key(), model->options.architecture()) : p.key(), p.value().detach().cpu().contiguous());
+  for (const auto& p : model->named_parameters())
+    state.insert(a.names == "reference"
+                     ? reference_parameter_name(p.key(), model->options.architecture())
+                     : p.key(),
+                 p.value().detach().cpu().contiguous());
   c10::impl::GenericDict config(c10::StringType::get(), c10::AnyType::get());
   const auto& o = model->options;
   config.insert("hidden", o.hidden());
@@ -41,7 +46,8 @@ int run_export(const ExportArgs& a) {
     top.insert("normalization", norm);
   }
   nn::write_torch_file(top, a.out);
-  std::printf("wrote %s: %zu tensors (%s names)%s, %lld parameters\n", a.out.c_str(), state.size(), a.names.c_str(), a.stats.empty() ? "" : " and normalisation statistics",
+  std::printf("wrote %s: %zu tensors (%s names)%s, %lld parameters\n", a.out.c_str(), state.size(),
+              a.names.c_str(), a.stats.empty() ? "" : " and normalisation statistics",
               static_cast<long long>(model->num_parameters()));
   return 0;
 }
@@ -51,10 +57,17 @@ int run_export(const ExportArgs& a) {
 Command add_export(CLI::App& app) {
   auto args = std::make_shared<ExportArgs>();
   auto& ex = *args;
-  auto* cx = app.add_subcommand("export", "write a model for Python: torch.load(FILE) gives config, state_dict (reference names) and statistics");
-  cx->add_option("--checkpoint", ex.checkpoint, "a topos or reference checkpoint")->required()->check(CLI::ExistingFile);
-  cx->add_option("--stats", ex.stats, "normalisation statistics to include")->check(CLI::ExistingFile);
-  cx->add_option("--names", ex.names, "parameter names: reference (the authors' HOPNet class) or topos")->capture_default_str();
+  auto* cx = app.add_subcommand("export",
+                                "write a model for Python: torch.load(FILE) gives config, "
+                                "state_dict (reference names) and statistics");
+  cx->add_option("--checkpoint", ex.checkpoint, "a topos or reference checkpoint")
+      ->required()
+      ->check(CLI::ExistingFile);
+  cx->add_option("--stats", ex.stats, "normalisation statistics to include")
+      ->check(CLI::ExistingFile);
+  cx->add_option("--names", ex.names,
+                 "parameter names: reference (the authors' HOPNet class) or topos")
+      ->capture_default_str();
   cx->add_option("--out", ex.out, "file to write")->required();
   return {cx, [args] { return run_export(*args); }};
 }

@@ -24,12 +24,17 @@ int run_grad(const GradArgs& a) {
   const Scene scene = make_scene(kubric, lib);
   const auto g = make_geometry(scene, mode);
   std::optional<ContactsByFrame> given;
-  const auto coll = a.collisions.empty() && mode == FeatureMode::reference && !a.no_collisions_json ? collisions_beside(kubric) : a.collisions;
+  const auto coll = a.collisions.empty() && mode == FeatureMode::reference && !a.no_collisions_json
+                        ? collisions_beside(kubric)
+                        : a.collisions;
   if (!coll.empty()) given = read_collisions_json(coll);
   const auto tf = trajectory_frames(scene, g, 0.1, 0.0, 2, -1, given ? &*given : nullptr);
-  const auto chunk = a.chunk > 0 ? a.chunk : auto_chunk(g, tf, model->options.hidden(), a.memory_budget_mb * 1024.0 * 1024.0);
+  const auto chunk = a.chunk > 0 ? a.chunk
+                                 : auto_chunk(g, tf, model->options.hidden(),
+                                              a.memory_budget_mb * 1024.0 * 1024.0);
   const auto chunks = make_training_chunks(g, tf, norm, chunk);
-  std::printf("grad: %zu timesteps in %zu chunk(s) of <= %lld, mode %s, contacts %s\n", tf.frames.size(), chunks.size(), static_cast<long long>(chunk), to_string(mode),
+  std::printf("grad: %zu timesteps in %zu chunk(s) of <= %lld, mode %s, contacts %s\n",
+              tf.frames.size(), chunks.size(), static_cast<long long>(chunk), to_string(mode),
               coll.empty() ? "detected" : coll.c_str());
 
   model->zero_grad();
@@ -42,15 +47,23 @@ int run_grad(const GradArgs& a) {
   fs::create_directories(fs::path(a.out) / "grads");
   double sq = 0;
   for (const auto& p : model->named_parameters()) {
-    const auto grad = p.value().grad().defined() ? p.value().grad().detach().to(torch::kCPU).contiguous() : torch::zeros_like(p.value(), torch::kCPU);
+    const auto grad = p.value().grad().defined()
+                          ? p.value().grad().detach().to(torch::kCPU).contiguous()
+                          : torch::zeros_like(p.value(), torch::kCPU);
     sq += grad.to(torch::kDouble).pow(2).sum().item<double>();
     const auto sizes = grad.sizes();
-    data::write_npy((fs::path(a.out) / "grads" / (reference_parameter_name(p.key()) + ".npy")).string(), std::vector<std::int64_t>(sizes.begin(), sizes.end()), grad.data_ptr<float>());
+    data::write_npy(
+        (fs::path(a.out) / "grads" / (reference_parameter_name(p.key()) + ".npy")).string(),
+        std::vector<std::int64_t>(sizes.begin(), sizes.end()), grad.data_ptr<float>());
   }
-  data::write_npy((fs::path(a.out) / "loss_per_timestep.npy").string(), {static_cast<std::int64_t>(per_timestep.size())}, per_timestep.data());
+  data::write_npy((fs::path(a.out) / "loss_per_timestep.npy").string(),
+                  {static_cast<std::int64_t>(per_timestep.size())}, per_timestep.data());
   data::write_npy((fs::path(a.out) / "loss_total.npy").string(), {}, &total);
-  std::printf("loss %.7g (mean per timestep %.7g), gradient norm %.7g over %lld parameters; wrote %s\n", static_cast<double>(total), static_cast<double>(total) / static_cast<double>(per_timestep.size()),
-              std::sqrt(sq), static_cast<long long>(model->num_parameters()), a.out.c_str());
+  std::printf(
+      "loss %.7g (mean per timestep %.7g), gradient norm %.7g over %lld parameters; wrote %s\n",
+      static_cast<double>(total),
+      static_cast<double>(total) / static_cast<double>(per_timestep.size()), std::sqrt(sq),
+      static_cast<long long>(model->num_parameters()), a.out.c_str());
   return 0;
 }
 
@@ -64,16 +77,35 @@ std::string collisions_beside(const data::KubricScene& scene) {
 Command add_grad(CLI::App& app) {
   auto args = std::make_shared<GradArgs>();
   auto& gr = *args;
-  auto* c = app.add_subcommand("grad", "loss and gradient of one training trajectory: loss_total.npy, loss_per_timestep.npy, grads/<reference name>.npy");
-  c->add_option("--checkpoint", gr.checkpoint, "model checkpoint (topos or reference .pt)")->required()->check(CLI::ExistingFile);
-  c->add_option("--stats", gr.stats, "normalisation statistics (JSON)")->required()->check(CLI::ExistingFile);
-  c->add_option("--scene", gr.scene, "Kubric metadata.json, or the folder holding it")->required()->check(CLI::ExistingPath);
-  c->add_option("--assets", gr.assets, "meshes in the KuBasic layout (<shape>/collision_geometry.obj); built-in shapes when omitted");
-  c->add_option("--mode", gr.mode, "reference (the reference's features and autograd) or native (true gradient)")->capture_default_str();
-  c->add_option("--collisions", gr.collisions, "contacts of every frame (default: collisions.json beside the scene, reference mode; else detected)");
-  c->add_flag("--no-collisions-json", gr.no_collisions_json, "detect the contacts even where a collisions.json is present");
-  c->add_option("--chunk", gr.chunk, "timesteps per forward/backward (0: from --memory-budget-mb)")->capture_default_str()->check(CLI::NonNegativeNumber);
-  c->add_option("--memory-budget-mb", gr.memory_budget_mb, "activation memory for one chunk")->capture_default_str()->check(CLI::PositiveNumber);
+  auto* c = app.add_subcommand("grad",
+                               "loss and gradient of one training trajectory: loss_total.npy, "
+                               "loss_per_timestep.npy, grads/<reference name>.npy");
+  c->add_option("--checkpoint", gr.checkpoint, "model checkpoint (topos or reference .pt)")
+      ->required()
+      ->check(CLI::ExistingFile);
+  c->add_option("--stats", gr.stats, "normalisation statistics (JSON)")
+      ->required()
+      ->check(CLI::ExistingFile);
+  c->add_option("--scene", gr.scene, "Kubric metadata.json, or the folder holding it")
+      ->required()
+      ->check(CLI::ExistingPath);
+  c->add_option("--assets", gr.assets,
+                "meshes in the KuBasic layout (<shape>/collision_geometry.obj); built-in shapes "
+                "when omitted");
+  c->add_option("--mode", gr.mode,
+                "reference (the reference's features and autograd) or native (true gradient)")
+      ->capture_default_str();
+  c->add_option("--collisions", gr.collisions,
+                "contacts of every frame (default: collisions.json beside the scene, reference "
+                "mode; else detected)");
+  c->add_flag("--no-collisions-json", gr.no_collisions_json,
+              "detect the contacts even where a collisions.json is present");
+  c->add_option("--chunk", gr.chunk, "timesteps per forward/backward (0: from --memory-budget-mb)")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
+  c->add_option("--memory-budget-mb", gr.memory_budget_mb, "activation memory for one chunk")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
   c->add_option("--out", gr.out, "output folder")->required();
   return {c, [args] { return run_grad(*args); }};
 }

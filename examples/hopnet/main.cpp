@@ -6,15 +6,19 @@
 
 int main(int argc, char** argv) {
   using namespace hopnet_cli;
-  CLI::App app{"hopnet: HOPNet (Wei & Fink) on topos: generate MOVi data, train, evaluate, roll out, export"};
+  CLI::App app{
+      "hopnet: HOPNet (Wei & Fink) on topos: generate MOVi data, train, evaluate, roll out, "
+      "export"};
   app.require_subcommand(1);
   int threads = 1, blas_threads = 0;
-  app.add_option("--threads", threads, "LibTorch intra-op threads (1 is fastest here)")->capture_default_str();
-  app.add_option("--blas-threads", blas_threads, "BLAS threads (default: all cores for train, 1 otherwise)");
-  const std::vector<Command> commands{add_info(app),  add_init(app),  add_export(app),
-                                      add_generate(app), add_pack(app), add_split(app),
-                                      add_grad(app), add_train(app), add_evaluate(app), add_rollout(app),
-                                      add_stats(app), add_plot(app)};
+  app.add_option("--threads", threads, "LibTorch intra-op threads (1 is fastest here)")
+      ->capture_default_str();
+  app.add_option("--blas-threads", blas_threads,
+                 "BLAS threads (default: all cores for train, 1 otherwise)");
+  const std::vector<Command> commands{add_info(app),     add_init(app),  add_export(app),
+                                      add_generate(app), add_pack(app),  add_split(app),
+                                      add_grad(app),     add_train(app), add_evaluate(app),
+                                      add_rollout(app),  add_stats(app), add_plot(app)};
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

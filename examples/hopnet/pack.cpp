@@ -16,7 +16,8 @@ int run_pack(const PackArgs& a) {
 
 }  // namespace
 
-void pack_scenes(const std::filesystem::path& from, const std::vector<std::int64_t>& ids, const std::string& out) {
+void pack_scenes(const std::filesystem::path& from, const std::vector<std::int64_t>& ids,
+                 const std::string& out) {
   std::vector<data::KubricScene> scenes;
   ProgressBar bar("pack", static_cast<std::int64_t>(ids.size()), "scenes");
   for (auto id : ids) {
@@ -25,7 +26,9 @@ void pack_scenes(const std::filesystem::path& from, const std::vector<std::int64
     bar.update();
   }
   bar.finish();
-  if (std::filesystem::exists(std::filesystem::path(out) / "dataset.json")) throw data::DataError(out + ": already holds a topos dataset (dataset.json); remove it or write elsewhere");
+  if (std::filesystem::exists(std::filesystem::path(out) / "dataset.json"))
+    throw data::DataError(
+        out + ": already holds a topos dataset (dataset.json); remove it or write elsewhere");
   // The reference's contacts (collisions.json), where a scene has them: reference-mode training
   // uses them as the reference does. Written before dataset.json, which comes last.
   std::size_t with_contacts = 0;
@@ -33,11 +36,15 @@ void pack_scenes(const std::filesystem::path& from, const std::vector<std::int64
     const auto src = from / std::to_string(id) / "collisions.json";
     if (!std::filesystem::exists(src)) continue;
     std::filesystem::create_directories(std::filesystem::path(out) / "collisions");
-    write_file_atomic((std::filesystem::path(out) / "collisions" / (std::to_string(id) + ".json")).string(), data::read_text_file(src));
+    write_file_atomic(
+        (std::filesystem::path(out) / "collisions" / (std::to_string(id) + ".json")).string(),
+        data::read_text_file(src));
     ++with_contacts;
   }
   data::write_topos_dataset(scenes, out);
-  std::printf("wrote the topos dataset %s (%zu scenes): dataset.json, positions.npy, quaternions.npy", out.c_str(), scenes.size());
+  std::printf(
+      "wrote the topos dataset %s (%zu scenes): dataset.json, positions.npy, quaternions.npy",
+      out.c_str(), scenes.size());
   if (with_contacts) std::printf(", collisions/ (%zu scenes' collisions.json)", with_contacts);
   std::printf("\n");
 }
@@ -45,10 +52,14 @@ void pack_scenes(const std::filesystem::path& from, const std::vector<std::int64
 Command add_pack(CLI::App& app) {
   auto args = std::make_shared<PackArgs>();
   auto& pa = *args;
-  auto* cp = app.add_subcommand("pack", "convert a folder of Kubric scene folders into a topos dataset");
-  cp->add_option("--data", pa.data, "Kubric scene folders (<seed>/metadata.json)")->required()->check(CLI::ExistingDirectory);
+  auto* cp =
+      app.add_subcommand("pack", "convert a folder of Kubric scene folders into a topos dataset");
+  cp->add_option("--data", pa.data, "Kubric scene folders (<seed>/metadata.json)")
+      ->required()
+      ->check(CLI::ExistingDirectory);
   cp->add_option("--seeds", pa.seeds, "only these seeds (default: every scene folder)");
-  cp->add_option("--out", pa.out, "folder for dataset.json, positions.npy, quaternions.npy")->required();
+  cp->add_option("--out", pa.out, "folder for dataset.json, positions.npy, quaternions.npy")
+      ->required();
   return {cp, [args] { return run_pack(*args); }};
 }
 

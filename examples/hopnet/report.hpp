@@ -77,15 +77,16 @@ inline CsvTable read_csv_numbers(const std::filesystem::path& path) {
     if (line == header) continue;
     const auto f = split(line);
     if (f.size() != t.columns.size())
-      throw topos::data::DataError(source + ":" + std::to_string(n) + ": " + std::to_string(f.size()) +
-                                   " fields, the header has " + std::to_string(t.columns.size()));
+      throw topos::data::DataError(source + ":" + std::to_string(n) + ": " +
+                                   std::to_string(f.size()) + " fields, the header has " +
+                                   std::to_string(t.columns.size()));
     std::vector<double> row;
     for (std::size_t c = 0; c < f.size(); ++c) {
       char* end = nullptr;
       const double v = std::strtod(f[c].c_str(), &end);
       if (f[c].empty() || end != f[c].c_str() + f[c].size())
-        throw topos::data::DataError(source + ":" + std::to_string(n) + ": column " + t.columns[c] + ": '" +
-                                     f[c] + "' is not a number");
+        throw topos::data::DataError(source + ":" + std::to_string(n) + ": column " + t.columns[c] +
+                                     ": '" + f[c] + "' is not a number");
       row.push_back(v);
     }
     t.rows.push_back(std::move(row));
@@ -97,8 +98,8 @@ inline CsvTable read_csv_numbers(const std::filesystem::path& path) {
 /// What `hopnet train` logs: one row per optimizer step, one per epoch.
 struct TrainingLog {
   std::filesystem::path folder;
-  std::vector<double> step, step_epoch, step_loss;           // steps.csv
-  std::vector<double> epoch, train_loss, val_loss, lr;       // epochs.csv
+  std::vector<double> step, step_epoch, step_loss;      // steps.csv
+  std::vector<double> epoch, train_loss, val_loss, lr;  // epochs.csv
 };
 
 /// Reads `folder`/steps.csv and `folder`/epochs.csv (either may be missing, not both).
@@ -107,7 +108,8 @@ inline TrainingLog read_training_log(const std::filesystem::path& folder) {
   log.folder = folder;
   const auto steps = folder / "steps.csv", epochs = folder / "epochs.csv";
   if (!std::filesystem::exists(steps) && !std::filesystem::exists(epochs))
-    throw topos::data::DataError(folder.string() + ": no training log (steps.csv or epochs.csv, as hopnet train writes)");
+    throw topos::data::DataError(
+        folder.string() + ": no training log (steps.csv or epochs.csv, as hopnet train writes)");
   if (std::filesystem::exists(steps)) {
     const auto t = read_csv_numbers(steps);
     log.step = t.column("step", steps.string());
@@ -132,14 +134,10 @@ inline nlohmann::json numbers(const std::vector<double>& v) {
 }
 
 inline nlohmann::json training_json(const TrainingLog& log) {
-  return {{"folder", log.folder.string()},
-          {"step", numbers(log.step)},
-          {"step_epoch", numbers(log.step_epoch)},
-          {"step_loss", numbers(log.step_loss)},
-          {"epoch", numbers(log.epoch)},
-          {"train_loss", numbers(log.train_loss)},
-          {"val_loss", numbers(log.val_loss)},
-          {"lr", numbers(log.lr)}};
+  return {{"folder", log.folder.string()},         {"step", numbers(log.step)},
+          {"step_epoch", numbers(log.step_epoch)}, {"step_loss", numbers(log.step_loss)},
+          {"epoch", numbers(log.epoch)},           {"train_loss", numbers(log.train_loss)},
+          {"val_loss", numbers(log.val_loss)},     {"lr", numbers(log.lr)}};
 }
 
 // ---- the paper's results and the dataset kind -------------------------------------------------
@@ -153,13 +151,24 @@ struct PaperRow {
 };
 
 inline const std::vector<PaperRow>& paper_rows() {
-  static const std::vector<PaperRow> rows{
-      {"movi-a", "HOPNet paper, MOVi-A (Table 4)", {0.014, 0.054, 0.115, 0.196}, {1e-4, 1e-4, 0.002, 0.003},
-       {1.634, 5.641, 11.842, 18.828}, {0.047, 0.222, 0.371, 0.489}},
-      {"movi-b", "HOPNet paper, MOVi-B (Table 5)", {0.010, 0.047, 0.101, 0.176}, {1e-4, 0.001, 0.003, 0.007},
-       {1.064, 4.911, 10.350, 17.912}, {0.013, 0.004, 0.032, 0.123}},
-      {"movi-spheres", "HOPNet paper, MOVi-spheres (Table 6)", {0.007, 0.034, 0.073, 0.124},
-       {1e-4, 1e-4, 0.002, 0.005}, {0.913, 4.051, 8.212, 13.675}, {0.018, 0.078, 0.200, 0.317}}};
+  static const std::vector<PaperRow> rows{{"movi-a",
+                                           "HOPNet paper, MOVi-A (Table 4)",
+                                           {0.014, 0.054, 0.115, 0.196},
+                                           {1e-4, 1e-4, 0.002, 0.003},
+                                           {1.634, 5.641, 11.842, 18.828},
+                                           {0.047, 0.222, 0.371, 0.489}},
+                                          {"movi-b",
+                                           "HOPNet paper, MOVi-B (Table 5)",
+                                           {0.010, 0.047, 0.101, 0.176},
+                                           {1e-4, 0.001, 0.003, 0.007},
+                                           {1.064, 4.911, 10.350, 17.912},
+                                           {0.013, 0.004, 0.032, 0.123}},
+                                          {"movi-spheres",
+                                           "HOPNet paper, MOVi-spheres (Table 6)",
+                                           {0.007, 0.034, 0.073, 0.124},
+                                           {1e-4, 1e-4, 0.002, 0.005},
+                                           {0.913, 4.051, 8.212, 13.675},
+                                           {0.018, 0.078, 0.200, 0.317}}};
   return rows;
 }
 
@@ -167,10 +176,12 @@ inline const std::vector<PaperRow>& paper_rows() {
 /// section 1): spheres has only spheres and A only cubes, cylinders and spheres, both of size
 /// 0.7 or 1.4; B has the other KuBasic shapes or sizes in between. "" when nothing fits (an
 /// asset outside KuBasic, a MOVi-C scene). `why` says what decided.
-inline std::string infer_movi_kind(const std::vector<topos::data::KubricScene>& scenes, std::string* why = nullptr) {
+inline std::string infer_movi_kind(const std::vector<topos::data::KubricScene>& scenes,
+                                   std::string* why = nullptr) {
   static const std::set<std::string> clevr{"cube", "cylinder", "sphere"};
-  static const std::set<std::string> kubasic{"cube", "cylinder", "sphere", "cone", "torus", "gear",
-                                             "torus_knot", "sponge", "spot", "teapot", "suzanne"};
+  static const std::set<std::string> kubasic{"cube",  "cylinder", "sphere",     "cone",
+                                             "torus", "gear",     "torus_knot", "sponge",
+                                             "spot",  "teapot",   "suzanne"};
   bool only_spheres = true, only_clevr = true, two_sizes = true;
   std::size_t objects = 0;
   for (const auto& s : scenes)
@@ -194,10 +205,14 @@ inline std::string infer_movi_kind(const std::vector<topos::data::KubricScene>& 
     return "";
   }
   if (!only_clevr || !two_sizes) {
-    if (why) *why = n + (only_clevr ? ": sizes between 0.7 and 1.4" : ": KuBasic shapes beyond cube, cylinder and sphere");
+    if (why)
+      *why = n + (only_clevr ? ": sizes between 0.7 and 1.4"
+                             : ": KuBasic shapes beyond cube, cylinder and sphere");
     return "movi-b";
   }
-  if (why) *why = n + (only_spheres ? ": only spheres of size 0.7 or 1.4" : ": cubes, cylinders and spheres of size 0.7 or 1.4");
+  if (why)
+    *why = n + (only_spheres ? ": only spheres of size 0.7 or 1.4"
+                             : ": cubes, cylinders and spheres of size 0.7 or 1.4");
   return only_spheres ? "movi-spheres" : "movi-a";
 }
 
@@ -211,8 +226,9 @@ struct SceneResult {
 };
 
 struct EvaluationReport {
-  std::string title, checkpoint, data, split, mode, viewer;  ///< viewer: file name beside index.html, or ""
-  std::string dataset_kind, dataset_kind_why;                ///< infer_movi_kind
+  std::string title, checkpoint, data, split, mode,
+      viewer;                                  ///< viewer: file name beside index.html, or ""
+  std::string dataset_kind, dataset_kind_why;  ///< infer_movi_kind
   std::vector<int> horizons{25, 50, 75, 100};
   std::vector<SceneResult> scenes;
   double rollout_seconds = 0;
@@ -247,11 +263,16 @@ inline FrameStats frame_stats(const std::vector<const std::vector<double>*>& cur
 inline nlohmann::json evaluation_json(const EvaluationReport& r) {
   using RM = topos::hopnet::RolloutMetrics;
   nlohmann::json models = nlohmann::json::object();
-  for (const auto& [model, pick] : std::vector<std::pair<std::string, const RM& (*)(const SceneResult&)>>{
+  for (const auto& [model, pick] :
+       std::vector<std::pair<std::string, const RM& (*)(const SceneResult&)>>{
            {"topos", [](const SceneResult& s) -> const RM& { return s.model; }},
            {"constant_velocity", [](const SceneResult& s) -> const RM& { return s.baseline; }}}) {
-    for (const auto& [metric, member] : std::vector<std::pair<std::string, std::vector<double> RM::*>>{
-             {"pos_rmse", &RM::pos_rmse}, {"pos_mae", &RM::pos_mae}, {"ori_rmse", &RM::ori_rmse}, {"ori_mae", &RM::ori_mae}}) {
+    for (const auto& [metric, member] :
+         std::vector<std::pair<std::string, std::vector<double> RM::*>>{
+             {"pos_rmse", &RM::pos_rmse},
+             {"pos_mae", &RM::pos_mae},
+             {"ori_rmse", &RM::ori_rmse},
+             {"ori_mae", &RM::ori_mae}}) {
       std::vector<const std::vector<double>*> curves;
       for (const auto& s : r.scenes) curves.push_back(&(pick(s).*member));
       const auto st = frame_stats(curves);
@@ -263,42 +284,60 @@ inline nlohmann::json evaluation_json(const EvaluationReport& r) {
     nlohmann::json at = nlohmann::json::object();
     for (int h : r.horizons) {
       const auto u = static_cast<std::size_t>(h);
-      const auto get = [&](const std::vector<double>& v) { return u < v.size() && std::isfinite(v[u]) ? nlohmann::json(v[u]) : nlohmann::json(nullptr); };
-      at[std::to_string(h)] = {{"pos_rmse", get(s.model.pos_rmse)}, {"ori_mae", get(s.model.ori_mae)},
+      const auto get = [&](const std::vector<double>& v) {
+        return u < v.size() && std::isfinite(v[u]) ? nlohmann::json(v[u]) : nlohmann::json(nullptr);
+      };
+      at[std::to_string(h)] = {{"pos_rmse", get(s.model.pos_rmse)},
+                               {"ori_mae", get(s.model.ori_mae)},
                                {"cv_pos_rmse", get(s.baseline.pos_rmse)}};
     }
-    scenes.push_back({{"seed", s.seed}, {"objects", s.objects}, {"viewer_index", s.viewer_index}, {"at", at}});
+    scenes.push_back(
+        {{"seed", s.seed}, {"objects", s.objects}, {"viewer_index", s.viewer_index}, {"at", at}});
   }
   nlohmann::json paper = nullptr;
   for (const auto& p : paper_rows())
     if (p.kind == r.dataset_kind)
-      paper = {{"label", p.label}, {"frames", {25, 50, 75, 100}},
-               {"pos_rmse", {{"mean", p.pos}, {"std", p.pos_std}}}, {"ori_mae", {{"mean", p.ori}, {"std", p.ori_std}}}};
-  return {{"checkpoint", r.checkpoint}, {"data", r.data}, {"split", r.split}, {"mode", r.mode},
-          {"viewer", r.viewer}, {"dataset_kind", r.dataset_kind}, {"dataset_kind_why", r.dataset_kind_why},
-          {"horizons", r.horizons}, {"models", models}, {"scenes", scenes}, {"paper", paper},
+      paper = {{"label", p.label},
+               {"frames", {25, 50, 75, 100}},
+               {"pos_rmse", {{"mean", p.pos}, {"std", p.pos_std}}},
+               {"ori_mae", {{"mean", p.ori}, {"std", p.ori_std}}}};
+  return {{"checkpoint", r.checkpoint},
+          {"data", r.data},
+          {"split", r.split},
+          {"mode", r.mode},
+          {"viewer", r.viewer},
+          {"dataset_kind", r.dataset_kind},
+          {"dataset_kind_why", r.dataset_kind_why},
+          {"horizons", r.horizons},
+          {"models", models},
+          {"scenes", scenes},
+          {"paper", paper},
           {"rollout_seconds", r.rollout_seconds}};
 }
 
 /// The report page: `evaluation` and `training` are each JSON or null (see evaluation_json,
 /// training_json); the page shows what it is given.
-inline std::string report_html(const std::string& title, const nlohmann::json& evaluation, const nlohmann::json& training,
-                               const std::string& note = "") {
-  const nlohmann::json data{{"title", title}, {"evaluation", evaluation}, {"training", training}, {"note", note}};
-  return hopnet_web::fill_template(hopnet_web::templates::report_html,
-                                   {{"CHARTJS", hopnet_web::chart_js_script()}, {"DATA", hopnet_web::script_json(data)}},
-                                   "report");
+inline std::string report_html(const std::string& title, const nlohmann::json& evaluation,
+                               const nlohmann::json& training, const std::string& note = "") {
+  const nlohmann::json data{
+      {"title", title}, {"evaluation", evaluation}, {"training", training}, {"note", note}};
+  return hopnet_web::fill_template(
+      hopnet_web::templates::report_html,
+      {{"CHARTJS", hopnet_web::chart_js_script()}, {"DATA", hopnet_web::script_json(data)}},
+      "report");
 }
 
 /// Writes index.html for an evaluation (atomically).
 inline void write_evaluation_report(const std::string& path, const EvaluationReport& r) {
-  topos::write_file_atomic(path, report_html(r.title, evaluation_json(r), r.training ? training_json(*r.training) : nullptr,
-                                             r.training_note));
+  topos::write_file_atomic(
+      path, report_html(r.title, evaluation_json(r),
+                        r.training ? training_json(*r.training) : nullptr, r.training_note));
 }
 
 /// Writes the training curves of `log` (atomically).
 inline void write_training_report(const std::string& path, const TrainingLog& log) {
-  topos::write_file_atomic(path, report_html("HOPNet training: " + log.folder.string(), nullptr, training_json(log)));
+  topos::write_file_atomic(
+      path, report_html("HOPNet training: " + log.folder.string(), nullptr, training_json(log)));
 }
 
 }  // namespace hopnet_report

@@ -7,7 +7,8 @@ namespace hopnet_cli {
 namespace {
 
 struct RolloutArgs {
-  std::string checkpoint, stats, scene, assets, mode = "reference", out, collisions, viewer, device = "cpu";
+  std::string checkpoint, stats, scene, assets, mode = "reference", out, collisions, viewer,
+                                                device = "cpu";
   int steps = 102;
   bool no_collisions_json = false;
   VariantArgs variant;
@@ -18,7 +19,8 @@ int run_rollout(const RolloutArgs& a) {
   if (!a.viewer.empty()) hopnet_web::require_js_libraries();
   const torch::Device device = nn::device_from_string(a.device);
   const auto dict = nn::read_tensor_dict(a.checkpoint);
-  auto net = load_hopnet(dict, a.checkpoint, checkpoint_overrides(a.variant, dict, a.checkpoint, mode));
+  auto net =
+      load_hopnet(dict, a.checkpoint, checkpoint_overrides(a.variant, dict, a.checkpoint, mode));
   net->eval();
   net->to(device);
   const auto stats = read_stats_json(a.stats);
@@ -31,9 +33,15 @@ int run_rollout(const RolloutArgs& a) {
   RolloutOptions opt;
   opt.steps = a.steps;
   opt.collision_radius = net->options.collision_radius();
-  if (scene.num_frames < opt.steps + 4) std::cerr << "note: the scene has " << scene.num_frames << " frames; metrics cover the first " << scene.num_frames << "\n";
-  // Reference mode takes the first step's contacts from collisions.json beside the scene, as the reference does.
-  const std::string coll = a.collisions.empty() && mode == FeatureMode::reference && !a.no_collisions_json ? collisions_beside(kubric) : a.collisions;
+  if (scene.num_frames < opt.steps + 4)
+    std::cerr << "note: the scene has " << scene.num_frames << " frames; metrics cover the first "
+              << scene.num_frames << "\n";
+  // Reference mode takes the first step's contacts from collisions.json beside the scene, as the
+  // reference does.
+  const std::string coll =
+      a.collisions.empty() && mode == FeatureMode::reference && !a.no_collisions_json
+          ? collisions_beside(kubric)
+          : a.collisions;
   if (!coll.empty()) {
     const auto all = read_collisions_json(coll);
     auto it = all.find(3);
@@ -64,7 +72,8 @@ int run_rollout(const RolloutArgs& a) {
       if (scene.objects[o].is_floor) continue;
       const auto i = static_cast<Eigen::Index>(o);
       fp.push_back({p.positions(i, 0), p.positions(i, 1), p.positions(i, 2)});
-      fq.push_back({p.quaternions(i, 0), p.quaternions(i, 1), p.quaternions(i, 2), p.quaternions(i, 3)});
+      fq.push_back(
+          {p.quaternions(i, 0), p.quaternions(i, 1), p.quaternions(i, 2), p.quaternions(i, 3)});
     }
     pos.push_back(fp);
     quat.push_back(fq);
@@ -72,11 +81,19 @@ int run_rollout(const RolloutArgs& a) {
   j["positions"] = pos;
   j["quaternions"] = quat;
   write_json_atomic(j, a.out);
-  if (!a.viewer.empty()) hopnet_viewer::write_viewer_html(a.viewer, "HOPNet rollout (" + std::string(to_string(mode)) + " mode): " + kubric.source, {{kubric.source, &scene, r.poses, {{"prediction", m.pos_rmse}}}});
-  std::printf("rollout: %s, %d steps in %.3f s (%.2f ms/step), mode %s\n", variant_name(net->options).c_str(), opt.steps, r.seconds, 1e3 * r.seconds / opt.steps, to_string(mode));
+  if (!a.viewer.empty())
+    hopnet_viewer::write_viewer_html(
+        a.viewer, "HOPNet rollout (" + std::string(to_string(mode)) + " mode): " + kubric.source,
+        {{kubric.source, &scene, r.poses, {{"prediction", m.pos_rmse}}}});
+  std::printf("rollout: %s, %d steps in %.3f s (%.2f ms/step), mode %s\n",
+              variant_name(net->options).c_str(), opt.steps, r.seconds, 1e3 * r.seconds / opt.steps,
+              to_string(mode));
   std::printf("%6s %10s %10s %10s %10s\n", "frame", "pos_rmse", "pos_mae", "ori_rmse", "ori_mae");
   for (int f : {4, 25, 50, 75, 100})
-    if (f < static_cast<int>(m.pos_rmse.size())) std::printf("%6d %10.6f %10.6f %10.3f %10.3f\n", f, m.pos_rmse[static_cast<std::size_t>(f)], m.pos_mae[static_cast<std::size_t>(f)], m.ori_rmse[static_cast<std::size_t>(f)], m.ori_mae[static_cast<std::size_t>(f)]);
+    if (f < static_cast<int>(m.pos_rmse.size()))
+      std::printf("%6d %10.6f %10.6f %10.3f %10.3f\n", f, m.pos_rmse[static_cast<std::size_t>(f)],
+                  m.pos_mae[static_cast<std::size_t>(f)], m.ori_rmse[static_cast<std::size_t>(f)],
+                  m.ori_mae[static_cast<std::size_t>(f)]);
   std::printf("wrote %s\n", a.out.c_str());
   return 0;
 }
@@ -86,19 +103,36 @@ int run_rollout(const RolloutArgs& a) {
 Command add_rollout(CLI::App& app) {
   auto args = std::make_shared<RolloutArgs>();
   auto& ro = *args;
-  auto* cr = app.add_subcommand("rollout", "autoregressive rollout of one scene with the paper's per-frame metrics");
-  cr->add_option("--checkpoint", ro.checkpoint, "model checkpoint (topos or reference .pt)")->required()->check(CLI::ExistingFile);
-  cr->add_option("--stats", ro.stats, "normalisation statistics (JSON)")->required()->check(CLI::ExistingFile);
-  cr->add_option("--scene", ro.scene, "Kubric metadata.json, or the folder holding it")->required()->check(CLI::ExistingPath);
-  cr->add_option("--assets", ro.assets, "meshes in the KuBasic layout (<shape>/collision_geometry.obj); built-in shapes when omitted");
-  cr->add_option("--mode", ro.mode, "reference (the published model's inputs) or native")->capture_default_str();
-  cr->add_option("--steps", ro.steps, "frames to predict")->capture_default_str()->check(CLI::PositiveNumber);
-  cr->add_option("--collisions", ro.collisions, "collisions.json for the first step (default: beside the scene, reference mode)");
-  cr->add_flag("--no-collisions-json", ro.no_collisions_json, "detect the first step's contacts too");
+  auto* cr = app.add_subcommand(
+      "rollout", "autoregressive rollout of one scene with the paper's per-frame metrics");
+  cr->add_option("--checkpoint", ro.checkpoint, "model checkpoint (topos or reference .pt)")
+      ->required()
+      ->check(CLI::ExistingFile);
+  cr->add_option("--stats", ro.stats, "normalisation statistics (JSON)")
+      ->required()
+      ->check(CLI::ExistingFile);
+  cr->add_option("--scene", ro.scene, "Kubric metadata.json, or the folder holding it")
+      ->required()
+      ->check(CLI::ExistingPath);
+  cr->add_option("--assets", ro.assets,
+                 "meshes in the KuBasic layout (<shape>/collision_geometry.obj); built-in shapes "
+                 "when omitted");
+  cr->add_option("--mode", ro.mode, "reference (the published model's inputs) or native")
+      ->capture_default_str();
+  cr->add_option("--steps", ro.steps, "frames to predict")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  cr->add_option("--collisions", ro.collisions,
+                 "collisions.json for the first step (default: beside the scene, reference mode)");
+  cr->add_flag("--no-collisions-json", ro.no_collisions_json,
+               "detect the first step's contacts too");
   cr->add_option("--out", ro.out, "output JSON")->required();
   add_variant_options(cr, ro.variant, false);
-  cr->add_option("--device", ro.device, "cpu, cuda, cuda:N or auto (one scene's small steps are fastest on the CPU)")->capture_default_str();
-  cr->add_option("--viewer", ro.viewer, "also write the HTML viewer (prediction beside ground truth) here");
+  cr->add_option("--device", ro.device,
+                 "cpu, cuda, cuda:N or auto (one scene's small steps are fastest on the CPU)")
+      ->capture_default_str();
+  cr->add_option("--viewer", ro.viewer,
+                 "also write the HTML viewer (prediction beside ground truth) here");
   return {cr, [args] { return run_rollout(*args); }};
 }
 

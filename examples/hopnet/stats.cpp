@@ -18,7 +18,8 @@ struct StatsArgs {
 int run_stats(const StatsArgs& a) {
   const FeatureMode mode = feature_mode_from_string(a.mode);
   for (double r : a.radii)
-    if (!(r > 0) || !std::isfinite(r)) throw std::invalid_argument("stats: a collision radius must be a positive number");
+    if (!(r > 0) || !std::isfinite(r))
+      throw std::invalid_argument("stats: a collision radius must be a positive number");
   const auto dataset = data::Dataset::open(a.data);
   const auto& ids = dataset.ids();
   if (ids.empty()) throw data::DataError(a.data + ": no scenes");
@@ -41,7 +42,8 @@ int run_stats(const StatsArgs& a) {
       for (std::size_t i = next++; i < ids.size() && !failed; i = next++) {
         const Scene scene = make_scene(dataset.scene(ids[i]), lib);
         const auto g = make_geometry(scene, mode);
-        Count c{std::vector<std::int64_t>(R, 0), std::vector<std::int64_t>(R, 0), std::vector<std::int64_t>(R, 0), scene.num_frames};
+        Count c{std::vector<std::int64_t>(R, 0), std::vector<std::int64_t>(R, 0),
+                std::vector<std::int64_t>(R, 0), scene.num_frames};
         for (std::int64_t t = 0; t < scene.num_frames; ++t) {
           const auto posed = pose_objects(g, scene_poses(scene, t));
           for (std::size_t k = 0; k < R; ++k) {
@@ -60,7 +62,9 @@ int run_stats(const StatsArgs& a) {
       if (!failed.exchange(true)) error = e.what();
     }
   };
-  const int jobs = std::max(1, std::min<int>(a.jobs > 0 ? a.jobs : static_cast<int>(std::thread::hardware_concurrency()), static_cast<int>(ids.size())));
+  const int jobs = std::max(
+      1, std::min<int>(a.jobs > 0 ? a.jobs : static_cast<int>(std::thread::hardware_concurrency()),
+                       static_cast<int>(ids.size())));
   std::vector<std::thread> pool;
   for (int j = 0; j < jobs; ++j) pool.emplace_back(work);
   for (auto& t : pool) t.join();
@@ -73,14 +77,21 @@ int run_stats(const StatsArgs& a) {
   std::int64_t frames = 0;
   for (const auto& c : counts) frames += c.frames;
   j["frames"] = frames;
-  std::printf("contact cells X(3) over %zu scenes (%lld frames), %s detection\n", ids.size(), static_cast<long long>(frames), to_string(mode));
+  std::printf("contact cells X(3) over %zu scenes (%lld frames), %s detection\n", ids.size(),
+              static_cast<long long>(frames), to_string(mode));
   std::printf("%8s %18s %18s %18s\n", "d_c", "training frames", "t = 2..T-2", "all frames");
   for (std::size_t k = 0; k < R; ++k) {
     std::int64_t tr = 0, tt = 0, all = 0;
     std::vector<std::int64_t> per;
-    for (const auto& c : counts) tr += c.training[k], tt += c.topos_training[k], all += c.all[k], per.push_back(c.training[k]);
-    j["radii"].push_back({{"collision_radius", a.radii[k]}, {"training_frames", tr}, {"frames_2_to_T_minus_2", tt}, {"all_frames", all}, {"per_scene_training_frames", per}});
-    std::printf("%8g %18lld %18lld %18lld\n", a.radii[k], static_cast<long long>(tr), static_cast<long long>(tt), static_cast<long long>(all));
+    for (const auto& c : counts)
+      tr += c.training[k], tt += c.topos_training[k], all += c.all[k], per.push_back(c.training[k]);
+    j["radii"].push_back({{"collision_radius", a.radii[k]},
+                          {"training_frames", tr},
+                          {"frames_2_to_T_minus_2", tt},
+                          {"all_frames", all},
+                          {"per_scene_training_frames", per}});
+    std::printf("%8g %18lld %18lld %18lld\n", a.radii[k], static_cast<long long>(tr),
+                static_cast<long long>(tt), static_cast<long long>(all));
   }
   j["ids"] = ids;
   j["note"] = "training frames: t = 2..T-3 (the reference's 476 timesteps of a 480-frame scene)";
@@ -96,11 +107,22 @@ int run_stats(const StatsArgs& a) {
 Command add_stats(CLI::App& app) {
   auto args = std::make_shared<StatsArgs>();
   auto& st = *args;
-  auto* cs = app.add_subcommand("stats", "count the contact cells X(3) of a dataset over the frames training uses (the paper's Supplementary 3.6)");
-  cs->add_option("--data", st.data, "dataset folder: topos format or Kubric scene folders")->required()->check(CLI::ExistingDirectory);
-  cs->add_option("--assets", st.assets, "KuBasic-layout asset folder (built-in shapes when omitted)");
-  cs->add_option("--collision-radius", st.radii, "contact distance d_c; several give one count each (0.05 0.1 0.2)")->capture_default_str()->expected(1, -1);
-  cs->add_option("--mode", st.mode, "reference (the reference's vertex-proximity detector) or native (exact face pairs)")->capture_default_str();
+  auto* cs = app.add_subcommand("stats",
+                                "count the contact cells X(3) of a dataset over the frames "
+                                "training uses (the paper's Supplementary 3.6)");
+  cs->add_option("--data", st.data, "dataset folder: topos format or Kubric scene folders")
+      ->required()
+      ->check(CLI::ExistingDirectory);
+  cs->add_option("--assets", st.assets,
+                 "KuBasic-layout asset folder (built-in shapes when omitted)");
+  cs->add_option("--collision-radius", st.radii,
+                 "contact distance d_c; several give one count each (0.05 0.1 0.2)")
+      ->capture_default_str()
+      ->expected(1, -1);
+  cs->add_option(
+        "--mode", st.mode,
+        "reference (the reference's vertex-proximity detector) or native (exact face pairs)")
+      ->capture_default_str();
   cs->add_option("--jobs", st.jobs, "scenes counted at once (default: all cores)");
   cs->add_option("--out", st.out, "also write the counts (totals and per scene) as JSON");
   return {cs, [args] { return run_stats(*args); }};

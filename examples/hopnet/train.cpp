@@ -40,7 +40,10 @@ struct LoadedScene {
   std::optional<ContactsByFrame> contacts;
 };
 
-std::vector<LoadedScene> load_scenes(const data::Dataset& dataset, const std::vector<std::int64_t>& ids, const std::string& assets, const LiftingOptions& lifting, int max_frames, const char* label, std::FILE* log) {
+std::vector<LoadedScene> load_scenes(const data::Dataset& dataset,
+                                     const std::vector<std::int64_t>& ids,
+                                     const std::string& assets, const LiftingOptions& lifting,
+                                     int max_frames, const char* label, std::FILE* log) {
   MeshLibrary lib(assets);
   std::vector<LoadedScene> out;
   out.reserve(ids.size());  // geometry points into its scene's objects: no reallocation
@@ -49,7 +52,8 @@ std::vector<LoadedScene> load_scenes(const data::Dataset& dataset, const std::ve
     auto k = dataset.scene(id);
     LoadedScene ls{id, make_scene(k, lib), {}, std::nullopt};
     if (lifting.mode == FeatureMode::reference)
-      if (const auto c = dataset.collisions_path(id); !c.empty()) ls.contacts = read_collisions_json(c);
+      if (const auto c = dataset.collisions_path(id); !c.empty())
+        ls.contacts = read_collisions_json(c);
     if (max_frames > 0 && ls.scene.num_frames > max_frames) {
       ls.scene.num_frames = max_frames;
       ls.scene.positions.conservativeResize(max_frames, Eigen::NoChange);
@@ -58,7 +62,8 @@ std::vector<LoadedScene> load_scenes(const data::Dataset& dataset, const std::ve
     out.push_back(std::move(ls));
     auto& b = out.back();
     b.geometry = make_geometry(b.scene, lifting);
-    for (auto& o : b.geometry.objects) o = &b.scene.objects[static_cast<std::size_t>(&o - b.geometry.objects.data())];
+    for (auto& o : b.geometry.objects)
+      o = &b.scene.objects[static_cast<std::size_t>(&o - b.geometry.objects.data())];
     bar.update();
   }
   return out;
@@ -67,17 +72,25 @@ std::vector<LoadedScene> load_scenes(const data::Dataset& dataset, const std::ve
 int run_train(const TrainArgs& a) {
   namespace fs = std::filesystem;
   // --nproc N: this process only launches the N workers (which see RANK in their environment).
-  if (a.nproc > 1 && std::getenv("RANK") == nullptr) return launch_local_workers(a.nproc, self_command_line());
+  if (a.nproc > 1 && std::getenv("RANK") == nullptr)
+    return launch_local_workers(a.nproc, self_command_line());
   const auto env = nn::DistributedEnv::from_environment();
-  if (a.nproc > 1 && env.world_size != a.nproc) throw std::invalid_argument("--nproc " + std::to_string(a.nproc) + " but WORLD_SIZE=" + std::to_string(env.world_size));
+  if (a.nproc > 1 && env.world_size != a.nproc)
+    throw std::invalid_argument("--nproc " + std::to_string(a.nproc) +
+                                " but WORLD_SIZE=" + std::to_string(env.world_size));
   const torch::Device device = nn::device_from_string(a.device, env.local_rank);
-  nn::Distributed dist(env, nn::DistributedOptions().device(device).timeout(std::chrono::milliseconds(static_cast<std::int64_t>(a.dist_timeout * 1000))));
+  nn::Distributed dist(
+      env, nn::DistributedOptions().device(device).timeout(
+               std::chrono::milliseconds(static_cast<std::int64_t>(a.dist_timeout * 1000))));
   const bool main_rank = dist.is_main();
   const int world = dist.world_size(), per_rank = a.trajectories_per_step;
   // Workers sharing this machine share its cores (the default BLAS threads are all of them).
-  if (env.local_world_size > 1 && device.is_cpu()) nn::set_blas_threads(std::max(1, static_cast<int>(std::thread::hardware_concurrency()) / env.local_world_size));
+  if (env.local_world_size > 1 && device.is_cpu())
+    nn::set_blas_threads(
+        std::max(1, static_cast<int>(std::thread::hardware_concurrency()) / env.local_world_size));
   // Only rank 0 talks (and writes); the others' progress goes nowhere.
-  std::unique_ptr<std::FILE, int (*)(std::FILE*)> devnull(main_rank ? nullptr : std::fopen("/dev/null", "w"), &std::fclose);
+  std::unique_ptr<std::FILE, int (*)(std::FILE*)> devnull(
+      main_rank ? nullptr : std::fopen("/dev/null", "w"), &std::fclose);
   std::FILE* log = main_rank ? stderr : devnull.get();
   const auto say = [&](const char* fmt, auto... args) {
     if (main_rank) std::printf(fmt, args...);
@@ -90,19 +103,28 @@ int run_train(const TrainArgs& a) {
   std::map<std::string, torch::Tensor> init;
   if (!a.init.empty()) {
     init = nn::read_tensor_dict(a.init);
-    options = checkpoint_options(init, a.init, options).mode(mode);  // the architecture is the checkpoint's
+    options = checkpoint_options(init, a.init, options)
+                  .mode(mode);  // the architecture is the checkpoint's
   }
   const double radius = options.collision_radius();
   const auto dataset = data::Dataset::open(a.data);
   const auto& ids = dataset.ids();
-  const auto split = a.split_file.empty() ? data::reference_split(ids) : data::read_split_json(a.split_file);
-  const auto train_ids = data::split_part(split, "train", ids), val_ids = data::split_part(split, "val", ids);
+  const auto split =
+      a.split_file.empty() ? data::reference_split(ids) : data::read_split_json(a.split_file);
+  const auto train_ids = data::split_part(split, "train", ids),
+             val_ids = data::split_part(split, "val", ids);
   if (train_ids.empty()) throw data::DataError(a.data + ": no training scenes");
   if (main_rank) fs::create_directories(a.out);
-  say("train: %zu scenes (%zu train, %zu val), %s format, mode %s, variant %s\n", ids.size(), train_ids.size(), val_ids.size(), dataset.format().c_str(), to_string(mode), variant_name(options).c_str());
-  if (world > 1) say("distributed: %d processes (%s), %d trajectories per rank per step\n", world, dist.backend_name().c_str(), per_rank);
-  auto train = load_scenes(dataset, train_ids, a.assets, options.lifting(), a.max_frames, "scenes (train)", log);
-  auto val = load_scenes(dataset, val_ids, a.assets, options.lifting(), a.max_frames, "scenes (val)", log);
+  say("train: %zu scenes (%zu train, %zu val), %s format, mode %s, variant %s\n", ids.size(),
+      train_ids.size(), val_ids.size(), dataset.format().c_str(), to_string(mode),
+      variant_name(options).c_str());
+  if (world > 1)
+    say("distributed: %d processes (%s), %d trajectories per rank per step\n", world,
+        dist.backend_name().c_str(), per_rank);
+  auto train = load_scenes(dataset, train_ids, a.assets, options.lifting(), a.max_frames,
+                           "scenes (train)", log);
+  auto val =
+      load_scenes(dataset, val_ids, a.assets, options.lifting(), a.max_frames, "scenes (val)", log);
   NormalizationStats stats;
   const auto stats_path = (fs::path(a.out) / "stats.json").string();
   // Rank 0 reads or computes the statistics and sends them to the others (the same numbers as a
@@ -116,7 +138,10 @@ int run_train(const TrainArgs& a) {
       StatsAccumulator acc;
       ProgressBar sb("statistics", static_cast<std::int64_t>(train.size()), "scenes");
       for (const auto& s : train) {
-        accumulate_stats(acc, trajectory_frames(s.scene, s.geometry, radius, a.min_z_collision_velocity, 2, -1, s.contacts ? &*s.contacts : nullptr), options.lifting().object_cells());
+        accumulate_stats(acc,
+                         trajectory_frames(s.scene, s.geometry, radius, a.min_z_collision_velocity,
+                                           2, -1, s.contacts ? &*s.contacts : nullptr),
+                         options.lifting().object_cells());
         sb.update();
       }
       sb.finish();
@@ -125,14 +150,17 @@ int run_train(const TrainArgs& a) {
     write_stats_json(stats, stats_path);
   }
   if (world > 1) {
-    const auto text = dist.broadcast_bytes(main_rank ? data::read_text_file(stats_path) : std::string(), 0, "statistics broadcast");
+    const auto text = dist.broadcast_bytes(
+        main_rank ? data::read_text_file(stats_path) : std::string(), 0, "statistics broadcast");
     if (!main_rank) stats = parse_stats_json(text, "rank 0's statistics");
   }
   check_stats_fit(options, stats, a.stats.empty() ? stats_path : a.stats);
   const Normalizer norm(stats);
 
   torch::manual_seed(a.seed);
-  const auto ckpt = (fs::path(a.out) / "checkpoint.pt").string(), opt_path = (fs::path(a.out) / "optimizer.pt").string(), state_path = (fs::path(a.out) / "state.json").string();
+  const auto ckpt = (fs::path(a.out) / "checkpoint.pt").string(),
+             opt_path = (fs::path(a.out) / "optimizer.pt").string(),
+             state_path = (fs::path(a.out) / "state.json").string();
   // checkpoint.pt, optimizer.pt and state.json are replaced together (FileGroup): a run killed
   // at any point resumes from the last whole epoch. Only rank 0 writes, so only it recovers.
   const auto journal = (fs::path(a.out) / "commit.journal").string();
@@ -142,18 +170,24 @@ int run_train(const TrainArgs& a) {
   std::int64_t step = 0;
   // Rank 0 decides whether and from what to resume; the others receive its model, optimizer
   // state and position, so --resume works for any world size (and needs no shared folder).
-  const bool resuming = dist.broadcast_bytes(main_rank && a.resume && fs::exists(state_path) ? "1" : "0") == "1";
+  const bool resuming =
+      dist.broadcast_bytes(main_rank && a.resume && fs::exists(state_path) ? "1" : "0") == "1";
   if (main_rank) {
-    if (resuming) load_checkpoint(*model, nn::read_tensor_dict(ckpt), ckpt);
-    else if (!a.init.empty()) load_checkpoint(*model, init, a.init);
+    if (resuming)
+      load_checkpoint(*model, nn::read_tensor_dict(ckpt), ckpt);
+    else if (!a.init.empty())
+      load_checkpoint(*model, init, a.init);
   }
   model->to(device);
   dist.broadcast_(model->parameters(), 0, "parameter broadcast");
   dist.broadcast_(model->buffers(), 0, "buffer broadcast");
   const double budget = a.memory_budget_mb * 1024.0 * 1024.0;
   const auto make_chunks = [&](const LoadedScene& s) {
-    const auto tf = trajectory_frames(s.scene, s.geometry, radius, a.min_z_collision_velocity, 2, -1, s.contacts ? &*s.contacts : nullptr);
-    auto chunks = make_training_chunks(s.geometry, tf, norm, a.chunk > 0 ? a.chunk : auto_chunk(s.geometry, tf, options.hidden(), budget));
+    const auto tf = trajectory_frames(s.scene, s.geometry, radius, a.min_z_collision_velocity, 2,
+                                      -1, s.contacts ? &*s.contacts : nullptr);
+    auto chunks = make_training_chunks(
+        s.geometry, tf, norm,
+        a.chunk > 0 ? a.chunk : auto_chunk(s.geometry, tf, options.hidden(), budget));
     for (auto& c : chunks) c = c.to(device);
     return chunks;
   };
@@ -164,17 +198,22 @@ int run_train(const TrainArgs& a) {
   };
   torch::optim::Adam opt(model->parameters(), torch::optim::AdamOptions(a.lr));
   if (resuming) {
-    const std::string opt_bytes = dist.broadcast_bytes(main_rank ? data::read_text_file(opt_path) : std::string(), 0, "optimizer state broadcast");
-    nn::load_adam_state(opt, *model, nn::parse_tensor_dict(opt_bytes.data(), opt_bytes.size(), opt_path), opt_path);
-    const auto st = nlohmann::json::parse(dist.broadcast_bytes(main_rank ? data::read_text_file(state_path) : std::string(), 0, "state broadcast"));
+    const std::string opt_bytes = dist.broadcast_bytes(
+        main_rank ? data::read_text_file(opt_path) : std::string(), 0, "optimizer state broadcast");
+    nn::load_adam_state(
+        opt, *model, nn::parse_tensor_dict(opt_bytes.data(), opt_bytes.size(), opt_path), opt_path);
+    const auto st = nlohmann::json::parse(dist.broadcast_bytes(
+        main_rank ? data::read_text_file(state_path) : std::string(), 0, "state broadcast"));
     start_epoch = st.at("epoch").get<int>();
     step = st.at("step").get<std::int64_t>();
     say("resuming after epoch %d (step %lld)\n", start_epoch, static_cast<long long>(step));
   }
-  say("model: %lld parameters, device %s\n", static_cast<long long>(model->num_parameters()), device.str().c_str());
+  say("model: %lld parameters, device %s\n", static_cast<long long>(model->num_parameters()),
+      device.str().c_str());
   std::ofstream steps_csv, epochs_csv;
   if (main_rank) {
-    const auto steps_path = fs::path(a.out) / "steps.csv", epochs_path = fs::path(a.out) / "epochs.csv";
+    const auto steps_path = fs::path(a.out) / "steps.csv",
+               epochs_path = fs::path(a.out) / "epochs.csv";
     if (a.resume) {  // the rows logged after the last committed epoch are trained again
       truncate_csv_log(steps_path.string(), 1, step);
       truncate_csv_log(epochs_path.string(), 0, start_epoch);
@@ -183,7 +222,8 @@ int run_train(const TrainArgs& a) {
     steps_csv.open(steps_path, new_logs ? std::ios::trunc : std::ios::app);
     epochs_csv.open(epochs_path, new_logs ? std::ios::trunc : std::ios::app);
     if (new_logs) {
-      steps_csv << "epoch,step,scene,loss,seconds_per_step,timesteps_per_second,chunks,peak_rss_mb\n";
+      steps_csv
+          << "epoch,step,scene,loss,seconds_per_step,timesteps_per_second,chunks,peak_rss_mb\n";
       epochs_csv << "epoch,train_loss,val_loss,seconds,lr\n";
     }
   }
@@ -192,7 +232,8 @@ int run_train(const TrainArgs& a) {
   const auto n_train = static_cast<std::int64_t>(train.size());
   const std::int64_t epoch_steps = nn::steps_per_epoch(n_train, world, per_rank);
   const std::int64_t all_steps = static_cast<std::int64_t>(a.epochs) * epoch_steps;
-  const std::int64_t total_steps = a.max_steps >= 0 ? std::min<std::int64_t>(a.max_steps, all_steps) : all_steps;
+  const std::int64_t total_steps =
+      a.max_steps >= 0 ? std::min<std::int64_t>(a.max_steps, all_steps) : all_steps;
   ProgressBar bar("train", total_steps, "steps", log);
   bar.resume_from(std::min(step, total_steps));
   const auto params = model->parameters();
@@ -214,7 +255,9 @@ int run_train(const TrainArgs& a) {
     model->train();
     std::future<std::vector<TrainingItem>> next;
     std::size_t taken = 0;
-    if (!mine.empty()) next = std::async(std::launch::async, make_chunks, std::cref(train[static_cast<std::size_t>(mine[0])]));
+    if (!mine.empty())
+      next = std::async(std::launch::async, make_chunks,
+                        std::cref(train[static_cast<std::size_t>(mine[0])]));
     for (std::int64_t s = 0; s < steps_now; ++s) {
       const auto& shard = shards[static_cast<std::size_t>(s)];
       reset_peak_rss();
@@ -226,7 +269,9 @@ int run_train(const TrainArgs& a) {
       std::size_t n_chunks = 0;
       for (std::size_t j = 0; j < shard.items.size(); ++j) {
         const std::vector<TrainingItem> chunks = next.get();
-        if (++taken < mine.size()) next = std::async(std::launch::async, make_chunks, std::cref(train[static_cast<std::size_t>(mine[taken])]));
+        if (++taken < mine.size())
+          next = std::async(std::launch::async, make_chunks,
+                            std::cref(train[static_cast<std::size_t>(mine[taken])]));
         const double loss = backward_trajectory(*model, chunks, norm);
         loss_sum += loss / static_cast<double>(timesteps(chunks));
         T += static_cast<double>(timesteps(chunks));
@@ -235,19 +280,26 @@ int run_train(const TrainArgs& a) {
       // grad = Σ over the step's trajectories / their number (one trajectory, one process: as is).
       dist.average_gradients(params, static_cast<double>(shard.total));
       opt.step();
-      const auto totals = world > 1 ? dist.all_reduce_sum({loss_sum, T}, "loss all-reduce") : std::vector<double>{loss_sum, T};
-      const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      const auto totals = world > 1 ? dist.all_reduce_sum({loss_sum, T}, "loss all-reduce")
+                                    : std::vector<double>{loss_sum, T};
+      const double secs =
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
       const double l = totals[0] / static_cast<double>(shard.total);
       sum += l, ++n, ++step;
       if (main_rank) {
         std::string scenes;  // every rank's trajectories of the step, from the shared order
-        for (std::int64_t k = s * world * per_rank; k < std::min(n_train, (s + 1) * world * per_rank); ++k)
-          scenes += (scenes.empty() ? "" : ";") + std::to_string(train[static_cast<std::size_t>(order[static_cast<std::size_t>(k)])].id);
+        for (std::int64_t k = s * world * per_rank;
+             k < std::min(n_train, (s + 1) * world * per_rank); ++k)
+          scenes += (scenes.empty() ? "" : ";") +
+                    std::to_string(
+                        train[static_cast<std::size_t>(order[static_cast<std::size_t>(k)])].id);
         // chunks and peak_rss_mb are rank 0's (each process holds its own trajectories).
-        steps_csv << epoch << "," << step << "," << scenes << "," << l << "," << secs << "," << totals[1] / secs << "," << n_chunks << "," << peak_rss_mb() << "\n";
+        steps_csv << epoch << "," << step << "," << scenes << "," << l << "," << secs << ","
+                  << totals[1] / secs << "," << n_chunks << "," << peak_rss_mb() << "\n";
       }
       char status[96];
-      std::snprintf(status, sizeof status, "epoch %d loss %.4f %.0f timesteps/s", epoch + 1, l, totals[1] / secs);
+      std::snprintf(status, sizeof status, "epoch %d loss %.4f %.0f timesteps/s", epoch + 1, l,
+                    totals[1] / secs);
       bar.update(1, status);
     }
     if (main_rank) steps_csv.flush();
@@ -257,7 +309,8 @@ int run_train(const TrainArgs& a) {
       torch::NoGradGuard ng;
       model->eval();
       double v_sum = 0;
-      for (std::size_t v = static_cast<std::size_t>(dist.rank()); v < val.size(); v += static_cast<std::size_t>(world)) {
+      for (std::size_t v = static_cast<std::size_t>(dist.rank()); v < val.size();
+           v += static_cast<std::size_t>(world)) {
         const auto chunks = make_chunks(val[v]);
         double l = 0;
         for (const auto& c : chunks) l += trajectory_loss(*model, c, norm).item<double>();
@@ -266,22 +319,30 @@ int run_train(const TrainArgs& a) {
       if (world > 1) v_sum = dist.all_reduce_sum({v_sum}, "validation all-reduce")[0];
       if (!val.empty()) vl = v_sum / static_cast<double>(val.size());
     }
-    const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_epoch).count();
+    const double secs =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t_epoch).count();
     if (!main_rank) continue;
-    epochs_csv << epoch + 1 << "," << (n ? sum / n : 0.0) << "," << vl << "," << secs << "," << lr << "\n";
+    epochs_csv << epoch + 1 << "," << (n ? sum / n : 0.0) << "," << vl << "," << secs << "," << lr
+               << "\n";
     epochs_csv.flush();
     FileGroup group(journal);
     model->to(torch::kCPU);
     save_hopnet(*model, group.stage(ckpt));
     model->to(device);
-    nn::write_tensor_dict(nn::adam_state_dict(opt, *model), group.stage(opt_path));  // same bytes for the same state
-    write_json_atomic({{"epoch", epoch + 1}, {"step", step}, {"world_size", world}, {"trajectories_per_step", world * per_rank}}, group.stage(state_path));
+    nn::write_tensor_dict(nn::adam_state_dict(opt, *model),
+                          group.stage(opt_path));  // same bytes for the same state
+    write_json_atomic({{"epoch", epoch + 1},
+                       {"step", step},
+                       {"world_size", world},
+                       {"trajectories_per_step", world * per_rank}},
+                      group.stage(state_path));
     group.commit();
   }
   bar.finish();
   // Nobody leaves before rank 0 has written the last checkpoint (a launcher may stop the rest).
   dist.barrier("final barrier");
-  say("trained %lld steps; checkpoint %s, statistics %s\n", static_cast<long long>(step), ckpt.c_str(), stats_path.c_str());
+  say("trained %lld steps; checkpoint %s, statistics %s\n", static_cast<long long>(step),
+      ckpt.c_str(), stats_path.c_str());
   return 0;
 }
 
@@ -290,35 +351,76 @@ int run_train(const TrainArgs& a) {
 Command add_train(CLI::App& app) {
   auto args = std::make_shared<TrainArgs>();
   auto& tr = *args;
-  auto* ct = app.add_subcommand("train", "train HOPNet on a dataset, topos format or Kubric scene folders (one optimizer step per trajectory)");
-  ct->add_option("--data", tr.data, "dataset folder: topos format or Kubric scene folders")->required()->check(CLI::ExistingDirectory);
-  ct->add_option("--split-file", tr.split_file, "custom split JSON {train, val, test} (default: the reference split)")->check(CLI::ExistingFile);
-  ct->add_option("--out", tr.out, "output folder: checkpoint.pt, stats.json, steps.csv (with peak_rss_mb per step), epochs.csv")->required();
-  ct->add_option("--assets", tr.assets, "KuBasic-layout asset folder (built-in shapes when omitted)");
-  ct->add_option("--stats", tr.stats, "normalisation statistics (default: computed from the training split)");
-  ct->add_option("--init", tr.init, "start from these weights (topos or reference checkpoint; its architecture wins over --hidden etc.)")->check(CLI::ExistingFile);
-  ct->add_option("--chunk", tr.chunk, "timesteps per forward/backward (0: as many as fit --memory-budget-mb)")->capture_default_str()->check(CLI::NonNegativeNumber);
-  ct->add_option("--memory-budget-mb", tr.memory_budget_mb, "activation memory for one chunk")->capture_default_str()->check(CLI::PositiveNumber);
+  auto* ct = app.add_subcommand("train",
+                                "train HOPNet on a dataset, topos format or Kubric scene folders "
+                                "(one optimizer step per trajectory)");
+  ct->add_option("--data", tr.data, "dataset folder: topos format or Kubric scene folders")
+      ->required()
+      ->check(CLI::ExistingDirectory);
+  ct->add_option("--split-file", tr.split_file,
+                 "custom split JSON {train, val, test} (default: the reference split)")
+      ->check(CLI::ExistingFile);
+  ct->add_option("--out", tr.out,
+                 "output folder: checkpoint.pt, stats.json, steps.csv (with peak_rss_mb per step), "
+                 "epochs.csv")
+      ->required();
+  ct->add_option("--assets", tr.assets,
+                 "KuBasic-layout asset folder (built-in shapes when omitted)");
+  ct->add_option("--stats", tr.stats,
+                 "normalisation statistics (default: computed from the training split)");
+  ct->add_option("--init", tr.init,
+                 "start from these weights (topos or reference checkpoint; its architecture wins "
+                 "over --hidden etc.)")
+      ->check(CLI::ExistingFile);
+  ct->add_option("--chunk", tr.chunk,
+                 "timesteps per forward/backward (0: as many as fit --memory-budget-mb)")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
+  ct->add_option("--memory-budget-mb", tr.memory_budget_mb, "activation memory for one chunk")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
   ct->add_option("--max-steps", tr.max_steps, "stop after this many optimizer steps");
-  ct->add_option("--epochs", tr.epochs, "epochs")->capture_default_str()->check(CLI::PositiveNumber);
+  ct->add_option("--epochs", tr.epochs, "epochs")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
   ct->add_option("--lr", tr.lr, "Adam learning rate")->capture_default_str();
-  ct->add_option("--lr-decay", tr.lr_decay, "exponential decay per epoch (0: constant; the paper's 0.9441)")->capture_default_str();
+  ct->add_option("--lr-decay", tr.lr_decay,
+                 "exponential decay per epoch (0: constant; the paper's 0.9441)")
+      ->capture_default_str();
   add_variant_options(ct, tr.variant, true);
-  ct->add_option("--hidden", tr.hidden, "hidden width (default: the configuration's)")->check(CLI::PositiveNumber);
-  ct->add_option("--mlp-layers", tr.mlp_layers, "Linear layers per MLP (default: the configuration's)")->check(CLI::PositiveNumber);
-  ct->add_option("--num-layers", tr.num_layers, "message-passing layers (default: the configuration's)")->check(CLI::PositiveNumber);
+  ct->add_option("--hidden", tr.hidden, "hidden width (default: the configuration's)")
+      ->check(CLI::PositiveNumber);
+  ct->add_option("--mlp-layers", tr.mlp_layers,
+                 "Linear layers per MLP (default: the configuration's)")
+      ->check(CLI::PositiveNumber);
+  ct->add_option("--num-layers", tr.num_layers,
+                 "message-passing layers (default: the configuration's)")
+      ->check(CLI::PositiveNumber);
   ct->add_option("--mode", tr.mode, "native or reference features")->capture_default_str();
-  ct->add_option("--max-frames", tr.max_frames, "use only the first frames of each scene (0: all)")->capture_default_str();
-  ct->add_option("--min-z-collision-velocity", tr.min_z_collision_velocity, "mask objects in contact slower than this vertically (m/s)")->capture_default_str();
+  ct->add_option("--max-frames", tr.max_frames, "use only the first frames of each scene (0: all)")
+      ->capture_default_str();
+  ct->add_option("--min-z-collision-velocity", tr.min_z_collision_velocity,
+                 "mask objects in contact slower than this vertically (m/s)")
+      ->capture_default_str();
   ct->add_option("--seed", tr.seed, "random seed")->capture_default_str();
-  ct->add_flag("--resume", tr.resume, "continue from the last epoch's checkpoint in --out (any number of processes)");
-  ct->add_option("--device", tr.device, "cpu, cuda, cuda:N or auto (a worker's GPU is its LOCAL_RANK)")->capture_default_str();
-  ct->add_option("--nproc", tr.nproc, "start this many local data-parallel workers (Gloo over loopback); torchrun's environment does the same across machines")
-      ->capture_default_str()->check(CLI::PositiveNumber);
-  ct->add_option("--trajectories-per-step", tr.trajectories_per_step, "trajectories per optimizer step on each process (gradients averaged)")
-      ->capture_default_str()->check(CLI::PositiveNumber);
-  ct->add_option("--dist-timeout", tr.dist_timeout, "seconds a process waits for the others in a collective before failing")
-      ->capture_default_str()->check(CLI::PositiveNumber);
+  ct->add_flag("--resume", tr.resume,
+               "continue from the last epoch's checkpoint in --out (any number of processes)");
+  ct->add_option("--device", tr.device,
+                 "cpu, cuda, cuda:N or auto (a worker's GPU is its LOCAL_RANK)")
+      ->capture_default_str();
+  ct->add_option("--nproc", tr.nproc,
+                 "start this many local data-parallel workers (Gloo over loopback); torchrun's "
+                 "environment does the same across machines")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  ct->add_option("--trajectories-per-step", tr.trajectories_per_step,
+                 "trajectories per optimizer step on each process (gradients averaged)")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  ct->add_option("--dist-timeout", tr.dist_timeout,
+                 "seconds a process waits for the others in a collective before failing")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
   ct->set_config("--config-file", "", "read options from a TOML/INI file");
   return {ct, [args] { return run_train(*args); }};
 }

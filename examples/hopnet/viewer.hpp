@@ -40,7 +40,8 @@ inline nlohmann::json viewer_scene_json(const ViewerScene& v) {
   nlohmann::json errors = nlohmann::json::array();
   for (const auto& c : v.errors) {
     nlohmann::json values = nlohmann::json::array();
-    for (double x : c.values) values.push_back(std::isfinite(x) ? nlohmann::json(x) : nlohmann::json(nullptr));
+    for (double x : c.values)
+      values.push_back(std::isfinite(x) ? nlohmann::json(x) : nlohmann::json(nullptr));
     errors.push_back({{"label", c.label}, {"values", values}});
   }
   nlohmann::json j{{"name", v.name}, {"objects", nlohmann::json::array()}, {"errors", errors}};
@@ -72,12 +73,14 @@ inline nlohmann::json viewer_scene_json(const ViewerScene& v) {
     return all;
   };
   j["gt"] = poses([&](std::size_t t, std::size_t o) {
-    const auto f = static_cast<std::int64_t>(std::min<std::size_t>(t, static_cast<std::size_t>(s.num_frames - 1)));
+    const auto f = static_cast<std::int64_t>(
+        std::min<std::size_t>(t, static_cast<std::size_t>(s.num_frames - 1)));
     return std::pair<Eigen::Vector3d, Eigen::Vector4d>{s.position(f, o), s.quaternion(f, o)};
   });
   j["pred"] = poses([&](std::size_t t, std::size_t o) {
     const auto i = static_cast<Eigen::Index>(o);
-    return std::pair<Eigen::Vector3d, Eigen::Vector4d>{v.predicted[t].positions.row(i).transpose(), v.predicted[t].quaternions.row(i).transpose()};
+    return std::pair<Eigen::Vector3d, Eigen::Vector4d>{
+        v.predicted[t].positions.row(i).transpose(), v.predicted[t].quaternions.row(i).transpose()};
   });
   return j;
 }
@@ -86,7 +89,8 @@ inline nlohmann::json viewer_scene_json(const ViewerScene& v) {
 inline std::string viewer_html(const std::string& title, const std::vector<ViewerScene>& scenes) {
   if (scenes.empty()) throw std::invalid_argument("the viewer needs at least one scene");
   // fps: playback speed at 1x; the first 4 frames are given to the model, not predicted.
-  nlohmann::json data{{"title", title}, {"fps", 60}, {"given_frames", 4}, {"scenes", nlohmann::json::array()}};
+  nlohmann::json data{
+      {"title", title}, {"fps", 60}, {"given_frames", 4}, {"scenes", nlohmann::json::array()}};
   for (const auto& s : scenes) data["scenes"].push_back(viewer_scene_json(s));
   return hopnet_web::fill_template(hopnet_web::templates::viewer_html,
                                    {{"CHARTJS", hopnet_web::chart_js_script()},
@@ -96,7 +100,8 @@ inline std::string viewer_html(const std::string& title, const std::vector<Viewe
 }
 
 /// Writes the viewer for `scenes` to `path` (atomically).
-inline void write_viewer_html(const std::string& path, const std::string& title, const std::vector<ViewerScene>& scenes) {
+inline void write_viewer_html(const std::string& path, const std::string& title,
+                              const std::vector<ViewerScene>& scenes) {
   topos::write_file_atomic(path, viewer_html(title, scenes));
 }
 

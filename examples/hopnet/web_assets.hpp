@@ -36,21 +36,24 @@ inline std::filesystem::path js_dir() {
 inline std::string read_js_file(const std::string& package, const std::string& file) {
   const auto path = js_dir() / "node_modules" / package / file;
   if (!std::filesystem::is_regular_file(path))
-    throw std::runtime_error("the HTML report needs the JavaScript library '" + package + "', and " +
-                             path.string() + " does not exist: run scripts/setup.sh (it installs it " +
-                             "with npm), or set TOPOS_JS_DIR to the folder whose node_modules holds " +
-                             "three and chart.js (or pass --no-report)");
+    throw std::runtime_error(
+        "the HTML report needs the JavaScript library '" + package + "', and " + path.string() +
+        " does not exist: run scripts/setup.sh (it installs it " +
+        "with npm), or set TOPOS_JS_DIR to the folder whose node_modules holds " +
+        "three and chart.js (or pass --no-report)");
   return topos::data::read_text_file(path);
 }
 
 /// Fails now, with read_js_file's message, when a library the pages inline is missing, so that
 /// a long run does not find out at its end.
 inline void require_js_libraries() {
-  for (const auto& [package, file] : {std::pair<std::string, std::string>{"three", "build/three.module.js"},
-                                      {"three", "build/three.core.js"},
-                                      {"three", "examples/jsm/controls/OrbitControls.js"},
-                                      {"chart.js", "dist/chart.umd.js"}})
-    if (!std::filesystem::is_regular_file(js_dir() / "node_modules" / package / file)) read_js_file(package, file);
+  for (const auto& [package, file] :
+       {std::pair<std::string, std::string>{"three", "build/three.module.js"},
+        {"three", "build/three.core.js"},
+        {"three", "examples/jsm/controls/OrbitControls.js"},
+        {"chart.js", "dist/chart.umd.js"}})
+    if (!std::filesystem::is_regular_file(js_dir() / "node_modules" / package / file))
+      read_js_file(package, file);
 }
 
 inline std::string base64(std::string_view in) {
@@ -59,11 +62,13 @@ inline std::string base64(std::string_view in) {
   out.reserve((in.size() + 2) / 3 * 4);
   std::size_t i = 0;
   for (; i + 2 < in.size(); i += 3) {
-    const auto n = (std::uint32_t(std::uint8_t(in[i])) << 16) | (std::uint32_t(std::uint8_t(in[i + 1])) << 8) | std::uint8_t(in[i + 2]);
+    const auto n = (std::uint32_t(std::uint8_t(in[i])) << 16) |
+                   (std::uint32_t(std::uint8_t(in[i + 1])) << 8) | std::uint8_t(in[i + 2]);
     for (int s : {18, 12, 6, 0}) out += abc[(n >> s) & 63];
   }
   if (i < in.size()) {
-    const std::uint32_t n = (std::uint32_t(std::uint8_t(in[i])) << 16) | (i + 1 < in.size() ? std::uint32_t(std::uint8_t(in[i + 1])) << 8 : 0);
+    const std::uint32_t n = (std::uint32_t(std::uint8_t(in[i])) << 16) |
+                            (i + 1 < in.size() ? std::uint32_t(std::uint8_t(in[i + 1])) << 8 : 0);
     out += abc[(n >> 18) & 63];
     out += abc[(n >> 12) & 63];
     out += i + 1 < in.size() ? abc[(n >> 6) & 63] : '=';
@@ -76,8 +81,10 @@ inline std::string base64(std::string_view in) {
 /// and changes state at "<!--", whatever the JavaScript around them; "<\/" and "<\!--" mean
 /// the same inside JavaScript strings, regular expressions and comments, where they occur.
 inline std::string script_safe(std::string s) {
-  for (std::size_t p = 0; (p = s.find("</", p)) != std::string::npos; p += 3) s.replace(p, 2, "<\\/");
-  for (std::size_t p = 0; (p = s.find("<!--", p)) != std::string::npos; p += 5) s.replace(p, 4, "<\\!--");
+  for (std::size_t p = 0; (p = s.find("</", p)) != std::string::npos; p += 3)
+    s.replace(p, 2, "<\\/");
+  for (std::size_t p = 0; (p = s.find("<!--", p)) != std::string::npos; p += 5)
+    s.replace(p, 4, "<\\!--");
   return s;
 }
 
@@ -87,8 +94,10 @@ inline std::string script_json(const nlohmann::json& j) {
   std::string out;
   out.reserve(s.size());
   for (char c : s) {
-    if (c == '<') out += "\\u003c";
-    else out += c;
+    if (c == '<')
+      out += "\\u003c";
+    else
+      out += c;
   }
   return out;
 }
@@ -111,11 +120,14 @@ inline std::string three_import_map() {
     module.replace(p, from.size(), "from 'three/core'");
   }
   if (count == 0)
-    throw std::runtime_error((js_dir() / "node_modules/three/build/three.module.js").string() +
-                             ": does not import './three.core.js' as three 0.187 does; install the " +
-                             "version scripts/setup.sh pins");
+    throw std::runtime_error(
+        (js_dir() / "node_modules/three/build/three.module.js").string() +
+        ": does not import './three.core.js' as three 0.187 does; install the " +
+        "version scripts/setup.sh pins");
   const std::string controls = read_js_file("three", "examples/jsm/controls/OrbitControls.js");
-  const auto url = [](const std::string& js) { return "data:text/javascript;base64," + base64(js); };
+  const auto url = [](const std::string& js) {
+    return "data:text/javascript;base64," + base64(js);
+  };
   const nlohmann::json map{{"imports",
                             {{"three/core", url(core)},
                              {"three", url(module)},
@@ -125,7 +137,8 @@ inline std::string three_import_map() {
 
 /// `tmpl` with every "@@NAME@@" replaced by slots[NAME]. A name without a slot, or a slot the
 /// template does not use, is a programming error (the templates and their writers go together).
-inline std::string fill_template(std::string_view tmpl, const std::map<std::string, std::string>& slots,
+inline std::string fill_template(std::string_view tmpl,
+                                 const std::map<std::string, std::string>& slots,
                                  const std::string& what) {
   std::string out;
   std::map<std::string, int> used;
@@ -134,10 +147,12 @@ inline std::string fill_template(std::string_view tmpl, const std::map<std::stri
     const auto a = tmpl.find("@@", p);
     if (a == std::string_view::npos) break;
     const auto b = tmpl.find("@@", a + 2);
-    if (b == std::string_view::npos) throw std::logic_error(what + " template: unclosed @@ at " + std::to_string(a));
+    if (b == std::string_view::npos)
+      throw std::logic_error(what + " template: unclosed @@ at " + std::to_string(a));
     const std::string name(tmpl.substr(a + 2, b - a - 2));
     const auto it = slots.find(name);
-    if (it == slots.end()) throw std::logic_error(what + " template: no value for @@" + name + "@@");
+    if (it == slots.end())
+      throw std::logic_error(what + " template: no value for @@" + name + "@@");
     out.append(tmpl.substr(p, a - p));
     out += it->second;
     ++used[name];
@@ -145,7 +160,8 @@ inline std::string fill_template(std::string_view tmpl, const std::map<std::stri
   }
   out.append(tmpl.substr(p));
   for (const auto& [name, value] : slots)
-    if (!used.count(name)) throw std::logic_error(what + " template: does not use @@" + name + "@@");
+    if (!used.count(name))
+      throw std::logic_error(what + " template: does not use @@" + name + "@@");
   return out;
 }
 

@@ -13,7 +13,8 @@ namespace tdl_cli {
 /// What a subcommand runs after parsing; returns the exit status.
 using Run = std::function<int()>;
 
-/// tdl operators --case DIR --out OUTDIR: every operator of DIR/operators.json as OUTDIR/<name>.npy.
+/// tdl operators --case DIR --out OUTDIR: every operator of DIR/operators.json as
+/// OUTDIR/<name>.npy.
 void register_operators(CLI::App& app, Run& run);
 
 #ifdef TOPOS_TDL_WITH_NN

@@ -10,14 +10,18 @@ namespace tdl_cli {
 
 void register_grad(CLI::App& app, Run& run) {
   auto o = std::make_shared<CaseOptions>();
-  auto* cmd = app.add_subcommand("grad", "write the parameter gradients of sum(out * R) for a case with grads/");
+  auto* cmd = app.add_subcommand(
+      "grad", "write the parameter gradients of sum(out * R) for a case with grads/");
   add_case_options(cmd, *o);
   cmd->callback([o, &run] {
     run = [o] {
-      if (!std::filesystem::is_directory(std::filesystem::path(o->case_dir) / "grads")) throw topos::data::DataError(o->case_dir + ": no grads/ folder (this case has no gradients)");
+      if (!std::filesystem::is_directory(std::filesystem::path(o->case_dir) / "grads"))
+        throw topos::data::DataError(o->case_dir +
+                                     ": no grads/ folder (this case has no gradients)");
       auto c = open_case(*o);
       const auto g = topos::models::case_gradients(c);
-      for (const auto& [name, t] : g) topos::models::write_npy_tensor(std::filesystem::path(o->out_dir) / (name + ".npy"), t);
+      for (const auto& [name, t] : g)
+        topos::models::write_npy_tensor(std::filesystem::path(o->out_dir) / (name + ".npy"), t);
       std::cout << c.model.name << ": wrote " << g.size() << " gradients to " << o->out_dir << "\n";
       return 0;
     };

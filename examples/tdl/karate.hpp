@@ -21,8 +21,8 @@ namespace tdl_cli {
 
 struct Graph {
   std::int64_t num_nodes = 0;
-  std::vector<int> label;                                   ///< per node
-  std::vector<std::array<std::int64_t, 2>> edges;           ///< u < v
+  std::vector<int> label;                          ///< per node
+  std::vector<std::array<std::int64_t, 2>> edges;  ///< u < v
 };
 
 /// Reads "node <id> <label>" and "edge <u> <v>" lines ('#' starts a comment); node ids must be
@@ -42,13 +42,18 @@ inline Graph read_labelled_graph(const std::string& path) {
     if (!(s >> kind)) continue;
     const auto where = path + ":" + std::to_string(lineno) + ": ";
     std::int64_t a = 0, b = 0;
-    if (!(s >> a >> b) || (s >> std::ws, !s.eof())) throw topos::data::DataError(where + "expected '" + kind + "' and two integers");
+    if (!(s >> a >> b) || (s >> std::ws, !s.eof()))
+      throw topos::data::DataError(where + "expected '" + kind + "' and two integers");
     if (kind == "node") {
       nodes.push_back({a, static_cast<int>(b)});
     } else if (kind == "edge") {
-      if (a == b) throw topos::data::DataError(where + "a loop (" + std::to_string(a) + ", " + std::to_string(a) + ")");
+      if (a == b)
+        throw topos::data::DataError(where + "a loop (" + std::to_string(a) + ", " +
+                                     std::to_string(a) + ")");
       const std::array<std::int64_t, 2> e{std::min(a, b), std::max(a, b)};
-      if (!seen.insert(e).second) throw topos::data::DataError(where + "edge (" + std::to_string(e[0]) + ", " + std::to_string(e[1]) + ") listed twice");
+      if (!seen.insert(e).second)
+        throw topos::data::DataError(where + "edge (" + std::to_string(e[0]) + ", " +
+                                     std::to_string(e[1]) + ") listed twice");
       g.edges.push_back(e);
     } else {
       throw topos::data::DataError(where + "unknown line kind '" + kind + "' (node, edge)");
@@ -57,13 +62,19 @@ inline Graph read_labelled_graph(const std::string& path) {
   g.num_nodes = static_cast<std::int64_t>(nodes.size());
   g.label.assign(nodes.size(), -1);
   for (const auto& [id, label] : nodes) {
-    if (id < 0 || id >= g.num_nodes) throw topos::data::DataError(path + ": node ids must be 0.." + std::to_string(g.num_nodes - 1) + ", got " + std::to_string(id));
-    if (g.label[static_cast<std::size_t>(id)] != -1) throw topos::data::DataError(path + ": node " + std::to_string(id) + " listed twice");
-    if (label < 0) throw topos::data::DataError(path + ": node " + std::to_string(id) + " has a negative label");
+    if (id < 0 || id >= g.num_nodes)
+      throw topos::data::DataError(path + ": node ids must be 0.." +
+                                   std::to_string(g.num_nodes - 1) + ", got " + std::to_string(id));
+    if (g.label[static_cast<std::size_t>(id)] != -1)
+      throw topos::data::DataError(path + ": node " + std::to_string(id) + " listed twice");
+    if (label < 0)
+      throw topos::data::DataError(path + ": node " + std::to_string(id) + " has a negative label");
     g.label[static_cast<std::size_t>(id)] = label;
   }
   for (const auto& e : g.edges)
-    if (e[1] >= g.num_nodes) throw topos::data::DataError(path + ": edge (" + std::to_string(e[0]) + ", " + std::to_string(e[1]) + ") names an unlisted node");
+    if (e[1] >= g.num_nodes)
+      throw topos::data::DataError(path + ": edge (" + std::to_string(e[0]) + ", " +
+                                   std::to_string(e[1]) + ") names an unlisted node");
   if (g.num_nodes == 0) throw topos::data::DataError(path + ": no nodes");
   return g;
 }
@@ -71,13 +82,16 @@ inline Graph read_labelled_graph(const std::string& path) {
 /// The clique complex up to dimension 2: every node, edge and triangle of the graph.
 inline topos::SimplicialComplex clique_complex_2(const Graph& g) {
   std::vector<std::set<std::int64_t>> adj(static_cast<std::size_t>(g.num_nodes));
-  for (const auto& e : g.edges) adj[static_cast<std::size_t>(e[0])].insert(e[1]), adj[static_cast<std::size_t>(e[1])].insert(e[0]);
+  for (const auto& e : g.edges)
+    adj[static_cast<std::size_t>(e[0])].insert(e[1]),
+        adj[static_cast<std::size_t>(e[1])].insert(e[0]);
   std::vector<std::vector<std::int64_t>> simplices;
   for (std::int64_t v = 0; v < g.num_nodes; ++v) simplices.push_back({v});
   for (const auto& e : g.edges) {
     simplices.push_back({e[0], e[1]});
     for (auto w : adj[static_cast<std::size_t>(e[1])])  // w > v > u: each triangle once
-      if (w > e[1] && adj[static_cast<std::size_t>(e[0])].count(w)) simplices.push_back({e[0], e[1], w});
+      if (w > e[1] && adj[static_cast<std::size_t>(e[0])].count(w))
+        simplices.push_back({e[0], e[1], w});
   }
   return topos::SimplicialComplex::from_simplices(simplices, g.num_nodes);
 }
@@ -86,7 +100,9 @@ inline topos::SimplicialComplex clique_complex_2(const Graph& g) {
 inline topos::Hypergraph neighbourhood_hypergraph(const Graph& g) {
   std::vector<std::vector<std::int64_t>> nb(static_cast<std::size_t>(g.num_nodes));
   for (std::int64_t v = 0; v < g.num_nodes; ++v) nb[static_cast<std::size_t>(v)].push_back(v);
-  for (const auto& e : g.edges) nb[static_cast<std::size_t>(e[0])].push_back(e[1]), nb[static_cast<std::size_t>(e[1])].push_back(e[0]);
+  for (const auto& e : g.edges)
+    nb[static_cast<std::size_t>(e[0])].push_back(e[1]),
+        nb[static_cast<std::size_t>(e[1])].push_back(e[0]);
   topos::Hypergraph h(g.num_nodes);
   for (auto& e : nb) h.add_hyperedge(e);
   return h;

@@ -33,14 +33,17 @@ struct TrainOptions {
   std::uint64_t seed = 0;
 };
 
-/// A model on the lifted karate club, with its classification head; logits() gives one row per node.
+/// A model on the lifted karate club, with its classification head; logits() gives one row per
+/// node.
 struct Classifier {
   std::string name;
   std::shared_ptr<torch::nn::Module> net;  ///< the model and the head
   std::function<torch::Tensor()> logits;
 };
 
-torch::Tensor one_hot_nodes(std::int64_t n) { return torch::eye(n); }
+torch::Tensor one_hot_nodes(std::int64_t n) {
+  return torch::eye(n);
+}
 
 Classifier make_classifier(const std::string& name, const Graph& g, const TrainOptions& o) {
   using namespace topos;
@@ -53,27 +56,37 @@ Classifier make_classifier(const std::string& name, const Graph& g, const TrainO
   const std::int64_t classes = *std::max_element(g.label.begin(), g.label.end()) + 1;
   if (name == "scn2" || name == "sccnn") {
     const auto sc = clique_complex_2(g);
-    if (sc.dim() < 2) throw std::invalid_argument("tdl train: the graph has no triangles, " + name + " needs ranks 0..2");
+    if (sc.dim() < 2)
+      throw std::invalid_argument("tdl train: the graph has no triangles, " + name +
+                                  " needs ranks 0..2");
     const auto x1 = torch::ones({sc.num_cells(1), 1}), x2 = torch::ones({sc.num_cells(2), 1});
     auto op = [](const SparseMatrix& m) { return nn::SparseOperator::from_eigen(m); };
     if (name == "scn2") {
       // SCN2 keeps each rank's width: the one-hot features go through, then a linear head.
       auto model = root->register_module("model", models::SCN2(models::SCN2Options(n, 1, 1)));
       auto head = root->register_module("head", torch::nn::Linear(n, classes));
-      const std::array<nn::SparseOperator, 3> L{op(sc.normalized_laplacian_matrix(0)), op(sc.normalized_laplacian_matrix(1)), op(sc.normalized_laplacian_matrix(2))};
+      const std::array<nn::SparseOperator, 3> L{op(sc.normalized_laplacian_matrix(0)),
+                                                op(sc.normalized_laplacian_matrix(1)),
+                                                op(sc.normalized_laplacian_matrix(2))};
       c.logits = [=]() mutable { return head->forward(model->forward({x0, x1, x2}, L)[0]); };
     } else {
-      auto model = root->register_module("model", models::SCCNN(models::SCCNNOptions({n, 1, 1}, {o.hidden, o.hidden, o.hidden}, 1, 2)
-                                                                     .aggr_norm(true)
-                                                                     .update_func(nn::Update::relu)));
+      auto model = root->register_module(
+          "model",
+          models::SCCNN(models::SCCNNOptions({n, 1, 1}, {o.hidden, o.hidden, o.hidden}, 1, 2)
+                            .aggr_norm(true)
+                            .update_func(nn::Update::relu)));
       auto head = root->register_module("head", torch::nn::Linear(o.hidden, classes));
-      const std::vector<nn::SparseOperator> L{op(sc.hodge_laplacian_matrix(0)), op(sc.down_laplacian_matrix(1)), op(sc.up_laplacian_matrix(1)), op(sc.hodge_laplacian_matrix(2))};
-      const std::vector<nn::SparseOperator> B{op(sc.incidence_matrix(1)), op(sc.incidence_matrix(2))};
+      const std::vector<nn::SparseOperator> L{
+          op(sc.hodge_laplacian_matrix(0)), op(sc.down_laplacian_matrix(1)),
+          op(sc.up_laplacian_matrix(1)), op(sc.hodge_laplacian_matrix(2))};
+      const std::vector<nn::SparseOperator> B{op(sc.incidence_matrix(1)),
+                                              op(sc.incidence_matrix(2))};
       c.logits = [=]() mutable { return head->forward(model->forward({x0, x1, x2}, L, B)[0]); };
     }
   } else if (name == "unigcnii") {
     const auto h = neighbourhood_hypergraph(g);
-    auto model = root->register_module("model", models::UniGCNII(models::UniGCNIIOptions(n, o.hidden).n_layers(2)));
+    auto model = root->register_module(
+        "model", models::UniGCNII(models::UniGCNIIOptions(n, o.hidden).n_layers(2)));
     auto head = root->register_module("head", torch::nn::Linear(o.hidden, classes));
     const auto B = nn::SparseOperator::from_eigen(h.incidence_matrix(0, 1));
     c.logits = [=]() mutable { return head->forward(model->forward(x0, B)[0]); };
@@ -93,7 +106,9 @@ std::pair<torch::Tensor, torch::Tensor> split(const Graph& g, double fraction, s
     for (std::int64_t v = 0; v < g.num_nodes; ++v)
       if (g.label[static_cast<std::size_t>(v)] == k) members.push_back(v);
     std::shuffle(members.begin(), members.end(), rng);
-    const auto m = static_cast<std::size_t>(std::clamp<double>(std::round(fraction * static_cast<double>(members.size())), 1.0, static_cast<double>(members.size())));
+    const auto m = static_cast<std::size_t>(
+        std::clamp<double>(std::round(fraction * static_cast<double>(members.size())), 1.0,
+                           static_cast<double>(members.size())));
     train.insert(train.end(), members.begin(), members.begin() + static_cast<std::ptrdiff_t>(m));
     test.insert(test.end(), members.begin() + static_cast<std::ptrdiff_t>(m), members.end());
   }
@@ -102,31 +117,42 @@ std::pair<torch::Tensor, torch::Tensor> split(const Graph& g, double fraction, s
 
 double accuracy(const torch::Tensor& logits, const torch::Tensor& y, const torch::Tensor& idx) {
   if (idx.numel() == 0) return NAN;
-  return logits.index_select(0, idx).argmax(1).eq(y.index_select(0, idx)).to(torch::kDouble).mean().item<double>();
+  return logits.index_select(0, idx)
+      .argmax(1)
+      .eq(y.index_select(0, idx))
+      .to(torch::kDouble)
+      .mean()
+      .item<double>();
 }
 
 int run_train(const TrainOptions& o) {
   const auto g = read_labelled_graph(o.data);
   const auto [train_idx, test_idx] = split(g, o.train_fraction, o.seed);
-  if (test_idx.numel() == 0) throw std::invalid_argument("tdl train: --train-fraction " + std::to_string(o.train_fraction) + " leaves no test nodes");
-  const auto y = torch::tensor(std::vector<std::int64_t>(g.label.begin(), g.label.end()), torch::kLong);
-  std::cout << "karate club: " << g.num_nodes << " nodes, " << g.edges.size() << " edges; " << train_idx.numel() << " training and " << test_idx.numel()
-            << " test nodes\n";
+  if (test_idx.numel() == 0)
+    throw std::invalid_argument("tdl train: --train-fraction " + std::to_string(o.train_fraction) +
+                                " leaves no test nodes");
+  const auto y =
+      torch::tensor(std::vector<std::int64_t>(g.label.begin(), g.label.end()), torch::kLong);
+  std::cout << "karate club: " << g.num_nodes << " nodes, " << g.edges.size() << " edges; "
+            << train_idx.numel() << " training and " << test_idx.numel() << " test nodes\n";
   std::vector<std::pair<std::string, std::vector<double>>> test_curves;
   std::ostringstream csv, summary;
   csv << "model,epoch,loss,train_accuracy,test_accuracy\n";
-  summary << "{\n  \"train_nodes\": " << train_idx.numel() << ",\n  \"test_nodes\": " << test_idx.numel() << ",\n  \"models\": {";
+  summary << "{\n  \"train_nodes\": " << train_idx.numel()
+          << ",\n  \"test_nodes\": " << test_idx.numel() << ",\n  \"models\": {";
   for (std::size_t m = 0; m < o.models.size(); ++m) {
     torch::manual_seed(o.seed);
     auto c = make_classifier(o.models[m], g, o);
-    torch::optim::Adam opt(c.net->parameters(), torch::optim::AdamOptions(o.lr).weight_decay(o.weight_decay));
+    torch::optim::Adam opt(c.net->parameters(),
+                           torch::optim::AdamOptions(o.lr).weight_decay(o.weight_decay));
     std::vector<double> test_acc;
     double train_acc = 0, loss_value = 0;
     topos::ProgressBar bar(c.name, o.epochs, "epoch");
     for (int e = 1; e <= o.epochs; ++e) {
       c.net->train();
       opt.zero_grad();
-      const auto loss = torch::nn::functional::cross_entropy(c.logits().index_select(0, train_idx), y.index_select(0, train_idx));
+      const auto loss = torch::nn::functional::cross_entropy(c.logits().index_select(0, train_idx),
+                                                             y.index_select(0, train_idx));
       loss.backward();
       opt.step();
       loss_value = loss.item<double>();
@@ -135,13 +161,17 @@ int run_train(const TrainOptions& o) {
       const auto logits = c.logits();
       train_acc = accuracy(logits, y, train_idx);
       test_acc.push_back(accuracy(logits, y, test_idx));
-      csv << c.name << "," << e << "," << loss_value << "," << train_acc << "," << test_acc.back() << "\n";
+      csv << c.name << "," << e << "," << loss_value << "," << train_acc << "," << test_acc.back()
+          << "\n";
       std::ostringstream status;
-      status << std::fixed << std::setprecision(3) << "loss " << loss_value << " train " << train_acc << " test " << test_acc.back();
+      status << std::fixed << std::setprecision(3) << "loss " << loss_value << " train "
+             << train_acc << " test " << test_acc.back();
       bar.update(1, status.str());
     }
     bar.finish();
-    summary << (m ? "," : "") << "\n    \"" << c.name << "\": {\"loss\": " << loss_value << ", \"train_accuracy\": " << train_acc << ", \"test_accuracy\": " << test_acc.back() << "}";
+    summary << (m ? "," : "") << "\n    \"" << c.name << "\": {\"loss\": " << loss_value
+            << ", \"train_accuracy\": " << train_acc << ", \"test_accuracy\": " << test_acc.back()
+            << "}";
     test_curves.push_back({c.name, test_acc});
   }
   summary << "\n  }\n}\n";
@@ -153,7 +183,8 @@ int run_train(const TrainOptions& o) {
   plot.ylabel = "test accuracy";
   plot.ymax = 1;
   plot.x0 = 1;
-  topos::write_file_atomic((out / "accuracy.svg").string(), topos::svg_line_plot(test_curves, plot));
+  topos::write_file_atomic((out / "accuracy.svg").string(),
+                           topos::svg_line_plot(test_curves, plot));
   topos::write_file_atomic((out / "summary.json").string(), summary.str());
   std::cout << summary.str() << "wrote " << o.out << "/accuracy.csv, accuracy.svg, summary.json\n";
   return 0;
@@ -163,16 +194,33 @@ int run_train(const TrainOptions& o) {
 
 void register_train(CLI::App& app, Run& run) {
   auto o = std::make_shared<TrainOptions>();
-  auto* cmd = app.add_subcommand("train", "node classification on Zachary's karate club with SCN2, SCCNN (clique complex) and UniGCNII (hypergraph)");
-  cmd->add_option("--data", o->data, "labelled graph: 'node <id> <class>' and 'edge <u> <v>' lines")->capture_default_str();
-  cmd->add_option("--out", o->out, "output folder: accuracy.csv, accuracy.svg, summary.json")->required();
-  cmd->add_option("--models", o->models, "models to train (scn2, sccnn, unigcnii)")->delimiter(',')->capture_default_str();
-  cmd->add_option("--epochs", o->epochs, "training epochs")->check(CLI::Range(1, 100000))->capture_default_str();
-  cmd->add_option("--hidden", o->hidden, "hidden channels (SCCNN, UniGCNII)")->check(CLI::Range(1, 4096))->capture_default_str();
-  cmd->add_option("--lr", o->lr, "Adam learning rate")->check(CLI::PositiveNumber)->capture_default_str();
-  cmd->add_option("--weight-decay", o->weight_decay, "Adam weight decay")->check(CLI::NonNegativeNumber)->capture_default_str();
-  cmd->add_option("--train-fraction", o->train_fraction, "share of each class used for training")->check(CLI::Range(0.0, 1.0))->capture_default_str();
-  cmd->add_option("--seed", o->seed, "seed of the split and the initial weights")->capture_default_str();
+  auto* cmd = app.add_subcommand("train",
+                                 "node classification on Zachary's karate club with SCN2, SCCNN "
+                                 "(clique complex) and UniGCNII (hypergraph)");
+  cmd->add_option("--data", o->data, "labelled graph: 'node <id> <class>' and 'edge <u> <v>' lines")
+      ->capture_default_str();
+  cmd->add_option("--out", o->out, "output folder: accuracy.csv, accuracy.svg, summary.json")
+      ->required();
+  cmd->add_option("--models", o->models, "models to train (scn2, sccnn, unigcnii)")
+      ->delimiter(',')
+      ->capture_default_str();
+  cmd->add_option("--epochs", o->epochs, "training epochs")
+      ->check(CLI::Range(1, 100000))
+      ->capture_default_str();
+  cmd->add_option("--hidden", o->hidden, "hidden channels (SCCNN, UniGCNII)")
+      ->check(CLI::Range(1, 4096))
+      ->capture_default_str();
+  cmd->add_option("--lr", o->lr, "Adam learning rate")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
+  cmd->add_option("--weight-decay", o->weight_decay, "Adam weight decay")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  cmd->add_option("--train-fraction", o->train_fraction, "share of each class used for training")
+      ->check(CLI::Range(0.0, 1.0))
+      ->capture_default_str();
+  cmd->add_option("--seed", o->seed, "seed of the split and the initial weights")
+      ->capture_default_str();
   cmd->callback([o, &run] { run = [o] { return run_train(*o); }; });
 }
 

@@ -19,17 +19,27 @@ struct CaseOptions {
 };
 
 inline void add_case_options(CLI::App* cmd, CaseOptions& o) {
-  cmd->add_option("--case", o.case_dir, "golden case folder (case.json, complex.json, operators.json, inputs/, state_dict/)")->required();
+  cmd->add_option(
+         "--case", o.case_dir,
+         "golden case folder (case.json, complex.json, operators.json, inputs/, state_dict/)")
+      ->required();
   cmd->add_option("--out", o.out_dir, "output folder")->required();
-  cmd->add_option("--state-dict", o.state_dict, "load the weights from this torch .pt state_dict instead of the case's state_dict/");
-  cmd->add_flag("--intended", o.intended, "the papers' behaviour where TopoModelX differs (docs/models.md), not TopoModelX's numbers");
+  cmd->add_option(
+      "--state-dict", o.state_dict,
+      "load the weights from this torch .pt state_dict instead of the case's state_dict/");
+  cmd->add_flag(
+      "--intended", o.intended,
+      "the papers' behaviour where TopoModelX differs (docs/models.md), not TopoModelX's numbers");
 }
 
 inline topos::models::ZooCase open_case(const CaseOptions& o) {
   const std::filesystem::path dir(o.case_dir);
-  if (!std::filesystem::is_directory(dir)) throw topos::data::DataError(o.case_dir + ": not a folder");
-  // The operators are computed after the model and its weights: a bad model or config is named first.
-  auto c = topos::models::load_case(dir, [&dir] { return topos::models::case_operators(dir); }, !o.intended);
+  if (!std::filesystem::is_directory(dir))
+    throw topos::data::DataError(o.case_dir + ": not a folder");
+  // The operators are computed after the model and its weights: a bad model or config is named
+  // first.
+  auto c = topos::models::load_case(
+      dir, [&dir] { return topos::models::case_operators(dir); }, !o.intended);
   if (!o.state_dict.empty()) topos::models::load_state_dict(*c.model.module, o.state_dict);
   std::filesystem::create_directories(o.out_dir);
   return c;

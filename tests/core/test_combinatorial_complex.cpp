@@ -34,7 +34,8 @@ bool subset(const std::vector<std::int64_t>& a, const std::vector<std::int64_t>&
 
 }  // namespace
 
-TEST_CASE("incidence matrices equal brute-force set inclusion on random complexes", "[core][complex]") {
+TEST_CASE("incidence matrices equal brute-force set inclusion on random complexes",
+          "[core][complex]") {
   std::mt19937 rng(42);
   for (int trial = 0; trial < 20; ++trial) {
     CC cc = random_complex(rng, 12, 60);
@@ -75,8 +76,8 @@ TEST_CASE("adjacency and coadjacency equal the Gram matrices off the diagonal", 
 TEST_CASE("signed incidences of an oriented surface satisfy B1 B2 = 0", "[core][complex]") {
   // Octahedron with outward orientation; edges oriented arbitrarily (reversed half of them).
   CC cc(6);
-  const std::vector<std::array<std::int64_t, 3>> faces = {{0, 2, 4}, {2, 1, 4}, {1, 3, 4}, {3, 0, 4},
-                                                          {2, 0, 5}, {1, 2, 5}, {3, 1, 5}, {0, 3, 5}};
+  const std::vector<std::array<std::int64_t, 3>> faces = {
+      {0, 2, 4}, {2, 1, 4}, {1, 3, 4}, {3, 0, 4}, {2, 0, 5}, {1, 2, 5}, {3, 1, 5}, {0, 3, 5}};
   int flip = 0;
   for (auto& f : faces)
     for (int k = 0; k < 3; ++k) {
@@ -86,7 +87,8 @@ TEST_CASE("signed incidences of an oriented surface satisfy B1 B2 = 0", "[core][
       cc.add_cell({a, b}, 1);
     }
   for (auto& f : faces) cc.add_cell({f[0], f[1], f[2]}, 2);
-  const Eigen::MatrixXd B1 = cc.signed_incidence_matrix(0, 1), B2 = cc.signed_incidence_matrix(1, 2);
+  const Eigen::MatrixXd B1 = cc.signed_incidence_matrix(0, 1),
+                        B2 = cc.signed_incidence_matrix(1, 2);
   REQUIRE(B1.rows() == 6);
   REQUIRE(B2.cols() == 8);
   REQUIRE((B1 * B2).cwiseAbs().maxCoeff() == 0.0);
@@ -96,7 +98,8 @@ TEST_CASE("signed incidences of an oriented surface satisfy B1 B2 = 0", "[core][
   REQUIRE(Eigen::MatrixXd(cc.incidence_matrix(1, 2)) == B2.cwiseAbs());
 }
 
-TEST_CASE("cells get dense ids in insertion order and are found by their nodes", "[core][complex]") {
+TEST_CASE("cells get dense ids in insertion order and are found by their nodes",
+          "[core][complex]") {
   CC cc(5);
   REQUIRE(cc.add_cell({3, 1}, 1) == std::make_pair<std::int64_t, bool>(0, true));
   REQUIRE(cc.add_cell({0, 4}, 1) == std::make_pair<std::int64_t, bool>(1, true));
@@ -113,7 +116,8 @@ TEST_CASE("cells get dense ids in insertion order and are found by their nodes",
   REQUIRE(cc.incidence_matrix(2, 3).cols() == 1);
 }
 
-TEST_CASE("declared values and roles reach the incidence matrix and the neighborhood", "[core][complex][neighborhood]") {
+TEST_CASE("declared values and roles reach the incidence matrix and the neighborhood",
+          "[core][complex][neighborhood]") {
   CC cc(6);
   const auto fa = cc.add_cell({0, 1, 2}, 2).first, fb = cc.add_cell({3, 4, 5}, 2).first;
   cc.add_cell({0, 1, 2, 3, 4, 5}, 3, {{2, fa, -1.0, -1}, {2, fb, +1.0, +1}});
@@ -178,9 +182,17 @@ TEST_CASE("bad cells are rejected with a message naming cell and rank", "[core][
   throws_with([&] { cc.incidence_matrix(1, 1); }, "ranks must differ");
   throws_with([&] { cc.adjacency_matrix(2, 1); }, "must be above rank 2");
   throws_with([&] { cc.cell_nodes(2, 5); }, "cell 5 of rank 2 does not exist");
-  throws_with([&] { cc.add_cell({0, 1, 2, 3}, 3, {{2, 4, 1.0, 0}}); }, "which does not exist below it");
+  throws_with(
+      [&] {
+        cc.add_cell({0, 1, 2, 3}, 3, {{2, 4, 1.0, 0}});
+      },
+      "which does not exist below it");
   CC cc5(5);
   cc5.add_cell({4, 1}, 1);
-  throws_with([&] { cc5.add_cell({0, 1, 2, 3}, 3, {{1, 0, 1.0, 0}}); }, "which is not a subset of it");
+  throws_with(
+      [&] {
+        cc5.add_cell({0, 1, 2, 3}, 3, {{1, 0, 1.0, 0}});
+      },
+      "which is not a subset of it");
   throws_with([&] { cc.rollback(CC::Mark{{2}}); }, "nodes cannot be removed");
 }

@@ -24,7 +24,9 @@ namespace {
 // Triangulated n x m torus: vertex (i, j) = i*m + j, two triangles per square, wrapping around.
 std::vector<std::vector<std::int64_t>> torus_triangles(int n, int m) {
   std::vector<std::vector<std::int64_t>> t;
-  const auto v = [&](int i, int j) { return static_cast<std::int64_t>(((i + n) % n) * m + (j + m) % m); };
+  const auto v = [&](int i, int j) {
+    return static_cast<std::int64_t>(((i + n) % n) * m + (j + m) % m);
+  };
   for (int i = 0; i < n; ++i)
     for (int j = 0; j < m; ++j) {
       t.push_back({v(i, j), v(i + 1, j), v(i + 1, j + 1)});
@@ -35,19 +37,23 @@ std::vector<std::vector<std::int64_t>> torus_triangles(int n, int m) {
 
 SimplicialComplex sphere_sc(int rings = 6, int segments = 7) {
   const TriangleMesh m = uv_sphere(rings, segments);
-  return SimplicialComplex::from_flat(m.faces.data(), static_cast<std::size_t>(m.num_faces()), 3, m.num_vertices());
+  return SimplicialComplex::from_flat(m.faces.data(), static_cast<std::size_t>(m.num_faces()), 3,
+                                      m.num_vertices());
 }
 
 // Quadrangulated n x m torus as a cell complex (square 2-cells).
 CellComplex torus_cells(int n, int m) {
   CellComplex cx(n * m);
-  const auto v = [&](int i, int j) { return static_cast<std::int64_t>(((i + n) % n) * m + (j + m) % m); };
+  const auto v = [&](int i, int j) {
+    return static_cast<std::int64_t>(((i + n) % n) * m + (j + m) % m);
+  };
   for (int i = 0; i < n; ++i)
     for (int j = 0; j < m; ++j) cx.add_cell({v(i, j), v(i, j + 1), v(i + 1, j + 1), v(i + 1, j)});
   return cx;
 }
 
-std::vector<std::int64_t> betti(const SparseMatrix& l0, const SparseMatrix& l1, const SparseMatrix& l2) {
+std::vector<std::int64_t> betti(const SparseMatrix& l0, const SparseMatrix& l1,
+                                const SparseMatrix& l2) {
   return {harmonic_basis(l0).cols(), harmonic_basis(l1).cols(), harmonic_basis(l2).cols()};
 }
 
@@ -75,7 +81,8 @@ TEST_CASE("every domain models the concept", "[core][domains]") {
   STATIC_REQUIRE(!is_domain_v<int>);
 }
 
-TEST_CASE("simplicial complex: faces implied, lexicographic order, TopoNetX signs", "[core][domains]") {
+TEST_CASE("simplicial complex: faces implied, lexicographic order, TopoNetX signs",
+          "[core][domains]") {
   const auto sc = SimplicialComplex::from_simplices({{3, 1, 2}, {0, 1}});
   REQUIRE(sc.shape() == std::vector<std::int64_t>{4, 4, 1});
   REQUIRE(sc.dim() == 2);
@@ -108,8 +115,11 @@ TEST_CASE("simplicial complex in an explicit order gives permuted operators", "[
   std::vector<std::vector<std::int64_t>> perm(cells.size());
   for (int k = 0; k <= sc.dim(); ++k) {
     perm[static_cast<std::size_t>(k)].resize(static_cast<std::size_t>(sc.num_cells(k)));
-    std::iota(perm[static_cast<std::size_t>(k)].begin(), perm[static_cast<std::size_t>(k)].end(), 0);
-    if (k > 0) std::shuffle(perm[static_cast<std::size_t>(k)].begin(), perm[static_cast<std::size_t>(k)].end(), rng);
+    std::iota(perm[static_cast<std::size_t>(k)].begin(), perm[static_cast<std::size_t>(k)].end(),
+              0);
+    if (k > 0)
+      std::shuffle(perm[static_cast<std::size_t>(k)].begin(),
+                   perm[static_cast<std::size_t>(k)].end(), rng);
     for (auto id : perm[static_cast<std::size_t>(k)]) {
       auto s = sc.simplex(k, id);
       std::reverse(s.begin(), s.end());  // any node order: orientation is the sorted order
@@ -122,7 +132,8 @@ TEST_CASE("simplicial complex in an explicit order gives permuted operators", "[
     const Dense a(sc.incidence_matrix(k)), b(ordered.incidence_matrix(k));
     for (std::size_t i = 0; i < perm[static_cast<std::size_t>(k - 1)].size(); ++i)
       for (std::size_t j = 0; j < perm[static_cast<std::size_t>(k)].size(); ++j)
-        REQUIRE(b(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j)) == a(perm[static_cast<std::size_t>(k - 1)][i], perm[static_cast<std::size_t>(k)][j]));
+        REQUIRE(b(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j)) ==
+                a(perm[static_cast<std::size_t>(k - 1)][i], perm[static_cast<std::size_t>(k)][j]));
   }
 }
 
@@ -130,20 +141,23 @@ TEST_CASE("boundary of boundary is zero for every rank of every domain", "[core]
   std::mt19937 rng(11);
   for (int trial = 0; trial < 10; ++trial) {
     const SimplicialComplex sc = random_sc(rng, 10, 8, 5);
-    for (int k = 1; k < sc.dim(); ++k) REQUIRE(sparse::multiply(sc.incidence_matrix(k), sc.incidence_matrix(k + 1)).nonZeros() == 0);
+    for (int k = 1; k < sc.dim(); ++k)
+      REQUIRE(sparse::multiply(sc.incidence_matrix(k), sc.incidence_matrix(k + 1)).nonZeros() == 0);
   }
   const CellComplex cx = torus_cells(4, 5);
   REQUIRE(sparse::multiply(cx.incidence_matrix(1), cx.incidence_matrix(2)).nonZeros() == 0);
   REQUIRE(sparse::multiply(cx.incidence_matrix(0), cx.incidence_matrix(1)).nonZeros() == 0);
   // A cell complex in an explicit order with edges oriented against the node order.
-  const auto cx2 = CellComplex::from_ordered(4, {{1, 0}, {2, 1}, {2, 3}, {3, 0}, {0, 2}}, {{0, 1, 2, 3}, {2, 0, 3}, {0, 1, 2}});
+  const auto cx2 = CellComplex::from_ordered(4, {{1, 0}, {2, 1}, {2, 3}, {3, 0}, {0, 2}},
+                                             {{0, 1, 2, 3}, {2, 0, 3}, {0, 1, 2}});
   REQUIRE(sparse::multiply(cx2.incidence_matrix(1), cx2.incidence_matrix(2)).nonZeros() == 0);
   // The combinatorial complex of a torus triangulation, with its simplicial orientation.
   const SimplicialComplex torus = SimplicialComplex::from_simplices(torus_triangles(3, 4));
   CombinatorialComplex<> cc(torus.num_nodes());
   for (int k = 1; k <= 2; ++k)
     for (const auto& s : torus.skeleton(k)) cc.add_cell(s, k);
-  REQUIRE(sparse::multiply(cc.signed_incidence_matrix(0, 1), cc.signed_incidence_matrix(1, 2)).nonZeros() == 0);
+  REQUIRE(sparse::multiply(cc.signed_incidence_matrix(0, 1), cc.signed_incidence_matrix(1, 2))
+              .nonZeros() == 0);
   // A hypergraph has one incidence (nodes x hyperedges): nothing to compose; its adjacency is
   // the Gram matrix of that incidence off the diagonal.
   Hypergraph h(5);
@@ -159,14 +173,16 @@ TEST_CASE("boundary of boundary is zero for every rank of every domain", "[core]
   REQUIRE(Dense(h.coadjacency_matrix(1, 0)) == co);
 }
 
-TEST_CASE("Hodge Laplacians equal B^T B + B B^T, unsigned ones |.|, adjacency their off-diagonal", "[core][domains]") {
+TEST_CASE("Hodge Laplacians equal B^T B + B B^T, unsigned ones |.|, adjacency their off-diagonal",
+          "[core][domains]") {
   std::mt19937 rng(5);
   const SimplicialComplex sc = random_sc(rng, 12, 14, 4);
   REQUIRE(sc.dim() == 3);
   for (int k = 0; k <= sc.dim(); ++k) {
     Dense l = Dense::Zero(sc.num_cells(k), sc.num_cells(k));
     if (k > 0) l += Dense(sc.incidence_matrix(k)).transpose() * Dense(sc.incidence_matrix(k));
-    if (k < sc.dim()) l += Dense(sc.incidence_matrix(k + 1)) * Dense(sc.incidence_matrix(k + 1)).transpose();
+    if (k < sc.dim())
+      l += Dense(sc.incidence_matrix(k + 1)) * Dense(sc.incidence_matrix(k + 1)).transpose();
     REQUIRE(Dense(sc.hodge_laplacian_matrix(k)) == l);
     REQUIRE(Dense(sc.hodge_laplacian_matrix(k, false)) == l.cwiseAbs());
     if (k < sc.dim()) {
@@ -181,7 +197,8 @@ TEST_CASE("Hodge Laplacians equal B^T B + B B^T, unsigned ones |.|, adjacency th
       down.diagonal().setZero();
       REQUIRE(Dense(sc.coadjacency_matrix(k, true)) == down);
     }
-    REQUIRE(sc.hodge_laplacian_matrix(k).isApprox(SparseMatrix(sc.hodge_laplacian_matrix(k).transpose())));
+    REQUIRE(sc.hodge_laplacian_matrix(k).isApprox(
+        SparseMatrix(sc.hodge_laplacian_matrix(k).transpose())));
   }
   const CellComplex cx = torus_cells(3, 4);
   const Dense b1(cx.incidence_matrix(1)), b2(cx.incidence_matrix(2));
@@ -196,12 +213,14 @@ TEST_CASE("Hodge Laplacians equal B^T B + B B^T, unsigned ones |.|, adjacency th
 
 TEST_CASE("weighted Hodge Laplacian with unit weights is the Hodge Laplacian", "[core][domains]") {
   const SimplicialComplex sc = sphere_sc(4, 5);
-  REQUIRE(Dense(sc.weighted_hodge_laplacian_matrix(1, {}, {})) == Dense(sc.hodge_laplacian_matrix(1)));
+  REQUIRE(Dense(sc.weighted_hodge_laplacian_matrix(1, {}, {})) ==
+          Dense(sc.hodge_laplacian_matrix(1)));
   const Eigen::VectorXd w = Eigen::VectorXd::LinSpaced(sc.num_cells(2), 1.0, 2.0);
   const Dense b2(sc.incidence_matrix(2)), b1(sc.incidence_matrix(1));
   const Dense expect = b1.transpose() * b1 + b2 * w.asDiagonal() * b2.transpose();
   REQUIRE(Dense(sc.weighted_hodge_laplacian_matrix(1, {}, w)).isApprox(expect, 1e-14));
-  REQUIRE_THROWS_WITH(sc.weighted_hodge_laplacian_matrix(1, Eigen::VectorXd::Ones(3), {}), Catch::Contains("3 entries"));
+  REQUIRE_THROWS_WITH(sc.weighted_hodge_laplacian_matrix(1, Eigen::VectorXd::Ones(3), {}),
+                      Catch::Contains("3 entries"));
 }
 
 TEST_CASE("Euler characteristic of sphere triangulations is 2, of tori 0", "[core][domains]") {
@@ -220,31 +239,41 @@ TEST_CASE("Euler characteristic of sphere triangulations is 2, of tori 0", "[cor
 
 TEST_CASE("Betti numbers from the kernels of the Hodge Laplacians", "[core][domains]") {
   const SimplicialComplex sphere = sphere_sc(5, 6);
-  REQUIRE(betti(sphere.hodge_laplacian_matrix(0), sphere.hodge_laplacian_matrix(1), sphere.hodge_laplacian_matrix(2)) == std::vector<std::int64_t>{1, 0, 1});
+  REQUIRE(betti(sphere.hodge_laplacian_matrix(0), sphere.hodge_laplacian_matrix(1),
+                sphere.hodge_laplacian_matrix(2)) == std::vector<std::int64_t>{1, 0, 1});
   const SimplicialComplex torus = SimplicialComplex::from_simplices(torus_triangles(3, 4));
   REQUIRE(torus.shape() == std::vector<std::int64_t>{12, 36, 24});
-  REQUIRE(betti(torus.hodge_laplacian_matrix(0), torus.hodge_laplacian_matrix(1), torus.hodge_laplacian_matrix(2)) == std::vector<std::int64_t>{1, 2, 1});
+  REQUIRE(betti(torus.hodge_laplacian_matrix(0), torus.hodge_laplacian_matrix(1),
+                torus.hodge_laplacian_matrix(2)) == std::vector<std::int64_t>{1, 2, 1});
   const CellComplex ct = torus_cells(3, 4);
-  REQUIRE(betti(ct.hodge_laplacian_matrix(0), ct.hodge_laplacian_matrix(1), ct.hodge_laplacian_matrix(2)) == std::vector<std::int64_t>{1, 2, 1});
+  REQUIRE(betti(ct.hodge_laplacian_matrix(0), ct.hodge_laplacian_matrix(1),
+                ct.hodge_laplacian_matrix(2)) == std::vector<std::int64_t>{1, 2, 1});
   // An annulus (orientable, one hole): the torus with one row of squares removed.
   CellComplex annulus(12);
   for (int i = 0; i < 2; ++i)
-    for (int j = 0; j < 4; ++j) annulus.add_cell({i * 4 + j, i * 4 + (j + 1) % 4, (i + 1) * 4 + (j + 1) % 4, (i + 1) * 4 + j});
-  REQUIRE(betti(annulus.hodge_laplacian_matrix(0), annulus.hodge_laplacian_matrix(1), annulus.hodge_laplacian_matrix(2)) == std::vector<std::int64_t>{1, 1, 0});
+    for (int j = 0; j < 4; ++j)
+      annulus.add_cell(
+          {i * 4 + j, i * 4 + (j + 1) % 4, (i + 1) * 4 + (j + 1) % 4, (i + 1) * 4 + j});
+  REQUIRE(betti(annulus.hodge_laplacian_matrix(0), annulus.hodge_laplacian_matrix(1),
+                annulus.hodge_laplacian_matrix(2)) == std::vector<std::int64_t>{1, 1, 0});
   // Two disjoint triangles' boundaries: b0 = 2, b1 = 2.
-  const auto two = SimplicialComplex::from_simplices({{0, 1}, {1, 2}, {0, 2}, {3, 4}, {4, 5}, {3, 5}});
+  const auto two =
+      SimplicialComplex::from_simplices({{0, 1}, {1, 2}, {0, 2}, {3, 4}, {4, 5}, {3, 5}});
   REQUIRE(harmonic_basis(two.hodge_laplacian_matrix(0)).cols() == 2);
   REQUIRE(harmonic_basis(two.hodge_laplacian_matrix(1)).cols() == 2);
 }
 
-TEST_CASE("cell complex: TopoNetX's edge order and orientation, shared boundaries as separate columns", "[core][domains]") {
+TEST_CASE(
+    "cell complex: TopoNetX's edge order and orientation, shared boundaries as separate columns",
+    "[core][domains]") {
   CellComplex cx(5);
   cx.add_cell({3, 2, 1, 0});
   cx.add_cell({1, 4, 2});
   cx.add_cell({0, 1, 2, 3});
   cx.add_cell({3, 2, 1, 0});  // the same cycle again: grouped right after the first
   REQUIRE(cx.shape() == std::vector<std::int64_t>{5, 6, 4});
-  REQUIRE(cx.edges() == std::vector<CellComplex::Edge>{{0, 1}, {0, 3}, {1, 2}, {1, 4}, {2, 3}, {2, 4}});
+  REQUIRE(cx.edges() ==
+          std::vector<CellComplex::Edge>{{0, 1}, {0, 3}, {1, 2}, {1, 4}, {2, 3}, {2, 4}});
   REQUIRE(cx.cell(0) == std::vector<std::int64_t>{3, 2, 1, 0});
   REQUIRE(cx.cell(1) == std::vector<std::int64_t>{3, 2, 1, 0});
   REQUIRE(cx.cell(2) == std::vector<std::int64_t>{1, 4, 2});
@@ -269,7 +298,8 @@ TEST_CASE("hypergraph <-> incidence matrix views", "[core][domains]") {
   h.add_hyperedge({5});
   h.add_hyperedge({0, 2, 4});  // the same node set again: its own column
   const SparseMatrix b = h.incidence_matrix(0, 1);
-  REQUIRE(Dense(b) == (Dense(6, 3) << 1, 0, 1, 0, 0, 0, 1, 0, 1, 0, 0, 0, 1, 0, 1, 0, 1, 0).finished());
+  REQUIRE(Dense(b) ==
+          (Dense(6, 3) << 1, 0, 1, 0, 0, 0, 1, 0, 1, 0, 0, 0, 1, 0, 1, 0, 1, 0).finished());
   REQUIRE(Dense(h.incidence_matrix(0, 1, true)).col(0) == 2.0 * Dense(b).col(0));
   const Hypergraph back = Hypergraph::from_incidence_matrix(b);
   REQUIRE(back.shape() == h.shape());
@@ -285,7 +315,8 @@ TEST_CASE("normalisations on small analytic cases", "[core][domains][normalizati
   REQUIRE(largest_magnitude_eigenvalue(l0) == Approx(3.0).epsilon(1e-14));
   REQUIRE(Dense(compute_laplacian_normalized_matrix(l0)).isApprox(Dense(l0) / 3.0, 1e-14));
   // Kipf with identity: A + I = [[1,1,0],[1,1,1],[0,1,1]], degrees 2, 3, 2.
-  const SparseMatrix kipf = compute_kipf_adjacency_normalized_matrix(path.adjacency_matrix(0), true);
+  const SparseMatrix kipf =
+      compute_kipf_adjacency_normalized_matrix(path.adjacency_matrix(0), true);
   REQUIRE(Dense(kipf)(0, 1) == Approx(1.0 / std::sqrt(6.0)));
   REQUIRE(Dense(kipf)(1, 1) == Approx(1.0 / 3.0));
   REQUIRE(Dense(kipf)(0, 2) == 0.0);
@@ -300,7 +331,8 @@ TEST_CASE("normalisations on small analytic cases", "[core][domains][normalizati
   REQUIRE(nl(1, 1) == Approx(0.5));
   // Bunch on a single triangle: D2 = I (every edge in one triangle), D1 = 2 diag(2, 2, 2).
   const auto tri = SimplicialComplex::from_simplices({{0, 1, 2}});
-  const auto bunch = compute_bunch_normalized_matrices(tri.incidence_matrix(1), tri.incidence_matrix(2));
+  const auto bunch =
+      compute_bunch_normalized_matrices(tri.incidence_matrix(1), tri.incidence_matrix(2));
   REQUIRE(Dense(bunch[0]).isApprox(Dense(tri.incidence_matrix(1)) / 4.0));
   REQUIRE(Dense(bunch[1]).isApprox(Dense(tri.incidence_matrix(1)).transpose() / 4.0));
   REQUIRE(Dense(bunch[2]).isApprox(Dense(tri.incidence_matrix(2)) / 3.0));
@@ -317,10 +349,12 @@ TEST_CASE("Lanczos finds the largest eigenvalue of a 50x50 grid Laplacian", "[co
     }
   // Grid graph = product of two paths: lambda_max = 2 (2 - 2 cos(pi (n-1) / n)).
   const double expect = 2.0 * (2.0 - 2.0 * std::cos(M_PI * (n - 1) / n));
-  REQUIRE(largest_magnitude_eigenvalue(grid.hodge_laplacian_matrix(0)) == Approx(expect).epsilon(1e-10));
+  REQUIRE(largest_magnitude_eigenvalue(grid.hodge_laplacian_matrix(0)) ==
+          Approx(expect).epsilon(1e-10));
 }
 
-TEST_CASE("Hodge decomposition: orthogonal parts summing to the cochain, harmonic part in ker L", "[core][domains]") {
+TEST_CASE("Hodge decomposition: orthogonal parts summing to the cochain, harmonic part in ker L",
+          "[core][domains]") {
   const SimplicialComplex torus = SimplicialComplex::from_simplices(torus_triangles(3, 4));
   std::mt19937 rng(1);
   std::normal_distribution<double> g;
@@ -350,19 +384,28 @@ TEST_CASE("pseudo-inverse satisfies the Penrose conditions", "[core][domains]") 
 }
 
 TEST_CASE("bad input to the domains is a clear error", "[core][domains][errors]") {
-  REQUIRE_THROWS_WITH(SimplicialComplex::from_simplices({{0, 1, 1}}), Catch::Contains("repeats node 1"));
+  REQUIRE_THROWS_WITH(SimplicialComplex::from_simplices({{0, 1, 1}}),
+                      Catch::Contains("repeats node 1"));
   REQUIRE_THROWS_WITH(SimplicialComplex::from_simplices({{}}), Catch::Contains("empty simplex"));
-  REQUIRE_THROWS_WITH(SimplicialComplex::from_simplices({{0, 5}}, 3), Catch::Contains("uses node 5"));
-  REQUIRE_THROWS_WITH(SimplicialComplex::from_ordered({{{0}, {1}, {2}}, {{0, 1}, {1, 2}}, {{0, 1, 2}}}), Catch::Contains("face [0, 2]"));
-  REQUIRE_THROWS_WITH(SimplicialComplex::from_ordered({{{0}, {1}}, {{0, 1}, {1, 0}}}), Catch::Contains("listed twice"));
-  REQUIRE_THROWS_WITH(SimplicialComplex::from_simplices({{0, 1}}).up_laplacian_matrix(1), Catch::Contains("rank 1"));
+  REQUIRE_THROWS_WITH(SimplicialComplex::from_simplices({{0, 5}}, 3),
+                      Catch::Contains("uses node 5"));
+  REQUIRE_THROWS_WITH(
+      SimplicialComplex::from_ordered({{{0}, {1}, {2}}, {{0, 1}, {1, 2}}, {{0, 1, 2}}}),
+      Catch::Contains("face [0, 2]"));
+  REQUIRE_THROWS_WITH(SimplicialComplex::from_ordered({{{0}, {1}}, {{0, 1}, {1, 0}}}),
+                      Catch::Contains("listed twice"));
+  REQUIRE_THROWS_WITH(SimplicialComplex::from_simplices({{0, 1}}).up_laplacian_matrix(1),
+                      Catch::Contains("rank 1"));
   CellComplex cx(4);
-  REQUIRE_THROWS_WITH(cx.add_cell_from_edges({{0, 1}, {1, 2}, {3, 0}}), Catch::Contains("not a closed cycle"));
+  REQUIRE_THROWS_WITH(cx.add_cell_from_edges({{0, 1}, {1, 2}, {3, 0}}),
+                      Catch::Contains("not a closed cycle"));
   REQUIRE_THROWS_WITH(cx.add_cell({0, 1, 7}), Catch::Contains("uses node 7"));
   REQUIRE_THROWS_WITH(cx.add_cell({0, 1, 2, 1}), Catch::Contains("repeats node 1"));
   REQUIRE_THROWS_WITH(cx.add_cell({0, 1}), Catch::Contains("at least 3"));
-  REQUIRE_THROWS_WITH(CellComplex::from_ordered(4, {{0, 1}, {1, 2}}, {{0, 1, 2}}), Catch::Contains("edge [2, 0] is not in the edge list"));
-  REQUIRE_THROWS_WITH(CellComplex::from_ordered(3, {{0, 1}, {1, 0}}, {}), Catch::Contains("listed twice"));
+  REQUIRE_THROWS_WITH(CellComplex::from_ordered(4, {{0, 1}, {1, 2}}, {{0, 1, 2}}),
+                      Catch::Contains("edge [2, 0] is not in the edge list"));
+  REQUIRE_THROWS_WITH(CellComplex::from_ordered(3, {{0, 1}, {1, 0}}, {}),
+                      Catch::Contains("listed twice"));
   REQUIRE_THROWS_WITH(cx.add_edge(2, 2), Catch::Contains("self-loop"));
   Hypergraph h(3);
   REQUIRE_THROWS_WITH(h.add_hyperedge({}), Catch::Contains("is empty"));

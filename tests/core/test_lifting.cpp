@@ -21,7 +21,8 @@ std::int64_t euler(const TriangleMesh& m) {
 }
 void check_closed_oriented(const TriangleMesh& m) {
   auto l = lift_meshes({m});
-  const Eigen::MatrixXd B1 = l.complex.signed_incidence_matrix(0, 1), B2 = l.complex.signed_incidence_matrix(1, 2);
+  const Eigen::MatrixXd B1 = l.complex.signed_incidence_matrix(0, 1),
+                        B2 = l.complex.signed_incidence_matrix(1, 2);
   REQUIRE((B1 * B2).cwiseAbs().maxCoeff() == 0.0);
   // Closed and consistently oriented: every edge has two faces with opposite signs.
   REQUIRE(B2.cwiseAbs().rowwise().sum().minCoeff() == 2.0);
@@ -29,7 +30,8 @@ void check_closed_oriented(const TriangleMesh& m) {
 }
 }  // namespace
 
-TEST_CASE("built-in shapes are closed oriented spheres of 50-70 nodes", "[core][lifting][primitives]") {
+TEST_CASE("built-in shapes are closed oriented spheres of 50-70 nodes",
+          "[core][lifting][primitives]") {
   for (const std::string name : {"sphere", "cube", "cylinder"}) {
     INFO(name);
     const TriangleMesh m = builtin_shape(name);
@@ -40,7 +42,9 @@ TEST_CASE("built-in shapes are closed oriented spheres of 50-70 nodes", "[core][
     // Outward orientation: positive signed volume.
     double vol = 0;
     for (Eigen::Index f = 0; f < m.faces.rows(); ++f)
-      vol += m.vertices.row(m.faces(f, 0)).dot(m.vertices.row(m.faces(f, 1)).cross(m.vertices.row(m.faces(f, 2)))) / 6;
+      vol += m.vertices.row(m.faces(f, 0))
+                 .dot(m.vertices.row(m.faces(f, 1)).cross(m.vertices.row(m.faces(f, 2)))) /
+             6;
     REQUIRE(vol > 0);
   }
   REQUIRE(uv_sphere(8, 8).num_vertices() == 58);
@@ -89,7 +93,8 @@ TEST_CASE("lifting rejects broken meshes with clear errors", "[core][lifting][er
   REQUIRE_THROWS_WITH(lift_meshes({bad}), Catch::Contains("vertex 2 has a non-finite coordinate"));
   bad = m;
   bad.faces.row(5) = bad.faces.row(4).reverse();
-  REQUIRE_THROWS_WITH(lift_meshes({bad}), Catch::Contains("face 5 of object 0 duplicates an earlier face"));
+  REQUIRE_THROWS_WITH(lift_meshes({bad}),
+                      Catch::Contains("face 5 of object 0 duplicates an earlier face"));
   REQUIRE_THROWS_WITH(lift_meshes({TriangleMesh{}}), Catch::Contains("is empty"));
   TriangleMesh tri;
   tri.vertices = TriangleMesh::Vertices::Identity(3, 3);
@@ -110,7 +115,8 @@ TEST_CASE("OBJ parsing: blocks, v/vt/vn triples, negative indices, trimesh merge
   REQUIRE(obj.block_mesh(1).num_vertices() == 3);
   std::istringstream in2(in.str());
   in.clear();
-  std::istringstream again("o a\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\no b\nv 0 0 0\nv 0 0 1\nf 4 2 5\n");
+  std::istringstream again(
+      "o a\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\no b\nv 0 0 0\nv 0 0 1\nf 4 2 5\n");
   auto merged = parse_obj(again, "mem.obj", ObjReadOptions().merge(true));
   REQUIRE(merged.mesh.num_vertices() == 4);
   REQUIRE(merged.mesh.faces(1, 0) == 0);
@@ -126,17 +132,20 @@ TEST_CASE("OBJ errors name the file and line", "[core][obj][errors]") {
     }
     return std::string("no error");
   };
-  CHECK(err("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3 4\n") == "bad.obj:5: face with 4 vertices; only triangles are supported");
+  CHECK(err("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3 4\n") ==
+        "bad.obj:5: face with 4 vertices; only triangles are supported");
   CHECK(err("v 0 0 0\nv 1 0 nan\n") == "bad.obj:2: non-finite coordinate 'nan'");
   CHECK(err("v 0 0 0\nv 1 0 x\n") == "bad.obj:2: bad coordinate 'x'");
-  CHECK(err("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n") == "bad.obj:4: face index 7 out of range (3 vertices so far)");
+  CHECK(err("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n") ==
+        "bad.obj:4: face index 7 out of range (3 vertices so far)");
   CHECK(err("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 2\n") == "bad.obj:4: face repeats a vertex");
   CHECK(err("v 0 0\n") == "bad.obj:1: vertex needs 3 coordinates");
   CHECK(err("") == "bad.obj: no vertices");
   CHECK_THROWS_WITH(read_obj("/nonexistent/x.obj"), "/nonexistent/x.obj: cannot open file");
 }
 
-TEST_CASE("every convex part of the KuBasic meshes has V - E + F = 2", "[core][lifting][reference]") {
+TEST_CASE("every convex part of the KuBasic meshes has V - E + F = 2",
+          "[core][lifting][reference]") {
   const auto dir = test::reference_dir("KuBasic Euler characteristic") / "data" / "kubasic";
   int parts = 0;
   for (const auto& entry : std::filesystem::directory_iterator(dir)) {
@@ -154,14 +163,17 @@ TEST_CASE("every convex part of the KuBasic meshes has V - E + F = 2", "[core][l
   REQUIRE(parts >= 180);
 }
 
-TEST_CASE("trimesh's duplicate merge gives the reference's vertex counts", "[core][obj][reference]") {
+TEST_CASE("trimesh's duplicate merge gives the reference's vertex counts",
+          "[core][obj][reference]") {
   const auto dir = test::reference_dir("KuBasic merged vertex counts") / "data" / "kubasic";
   const std::vector<std::pair<std::string, std::int64_t>> expected = {
-      {"cube", 51}, {"sphere", 64}, {"cylinder", 64}, {"cone", 64}, {"teapot", 274}, {"gear", 565},
-      {"sponge", 791}, {"spot", 681}, {"suzanne", 521}, {"torus", 639}, {"torus_knot", 1141}};
+      {"cube", 51},     {"sphere", 64}, {"cylinder", 64},    {"cone", 64},
+      {"teapot", 274},  {"gear", 565},  {"sponge", 791},     {"spot", 681},
+      {"suzanne", 521}, {"torus", 639}, {"torus_knot", 1141}};
   for (auto& [shape, n] : expected) {
     INFO(shape);
-    const auto obj = read_obj((dir / shape / "collision_geometry.obj").string(), ObjReadOptions().merge(true));
+    const auto obj =
+        read_obj((dir / shape / "collision_geometry.obj").string(), ObjReadOptions().merge(true));
     CHECK(obj.mesh.num_vertices() == n);
   }
 }

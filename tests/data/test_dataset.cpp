@@ -86,19 +86,27 @@ TEST_CASE("the reference split gives the published lists", "[data][dataset][spli
   REQUIRE(all == ids);
 }
 
-TEST_CASE("custom splits are read, checked against the dataset, and round-trip", "[data][dataset][split]") {
+TEST_CASE("custom splits are read, checked against the dataset, and round-trip",
+          "[data][dataset][split]") {
   const auto s = parse_split_json(R"({"train": [3, 1], "test": [7]})", "split.json");
   REQUIRE(s.train == std::vector<std::int64_t>{1, 3});
   REQUIRE(s.val.empty());
   REQUIRE(split_part(s, "test", {1, 3, 7}) == std::vector<std::int64_t>{7});
   REQUIRE(split_part(s, "all", {1, 3, 7}).size() == 3);
-  REQUIRE_THROWS_WITH(split_part(s, "test", {1, 3}), Catch::Contains("seed 7, which the dataset does not hold"));
-  REQUIRE_THROWS_WITH(split_part(s, "holdout", {1}), Catch::Contains("unknown split part 'holdout'"));
-  REQUIRE_THROWS_WITH(parse_split_json(R"({"train": [1, 2], "val": [2]})", "s.json"), Catch::Contains("seed 2 is listed twice"));
-  REQUIRE_THROWS_WITH(parse_split_json(R"({"train": [1], "extra": []})", "s.json"), Catch::Contains("unknown part 'extra'"));
-  REQUIRE_THROWS_WITH(parse_split_json(R"({"train": [1,)", "s.json"), Catch::Contains("malformed split"));
-  REQUIRE_THROWS_WITH(parse_split_json(R"({"train": ["a"]})", "s.json"), Catch::Contains("malformed split"));
-  const auto back = parse_split_json(split_json(reference_split(parse_seed_range("1-10"))).dump(), "x");
+  REQUIRE_THROWS_WITH(split_part(s, "test", {1, 3}),
+                      Catch::Contains("seed 7, which the dataset does not hold"));
+  REQUIRE_THROWS_WITH(split_part(s, "holdout", {1}),
+                      Catch::Contains("unknown split part 'holdout'"));
+  REQUIRE_THROWS_WITH(parse_split_json(R"({"train": [1, 2], "val": [2]})", "s.json"),
+                      Catch::Contains("seed 2 is listed twice"));
+  REQUIRE_THROWS_WITH(parse_split_json(R"({"train": [1], "extra": []})", "s.json"),
+                      Catch::Contains("unknown part 'extra'"));
+  REQUIRE_THROWS_WITH(parse_split_json(R"({"train": [1,)", "s.json"),
+                      Catch::Contains("malformed split"));
+  REQUIRE_THROWS_WITH(parse_split_json(R"({"train": ["a"]})", "s.json"),
+                      Catch::Contains("malformed split"));
+  const auto back =
+      parse_split_json(split_json(reference_split(parse_seed_range("1-10"))).dump(), "x");
   REQUIRE(back.test == std::vector<std::int64_t>{6});
 }
 
@@ -122,13 +130,14 @@ TEST_CASE("a topos dataset holds every pose and property exactly", "[data][datas
       REQUIRE(a.mass == b.mass);
       REQUIRE(a.friction == b.friction);
       REQUIRE(a.restitution == b.restitution);
-      REQUIRE(a.positions == b.positions);      // float64 on disk: bit for bit
+      REQUIRE(a.positions == b.positions);  // float64 on disk: bit for bit
       REQUIRE(a.quaternions == b.quaternions);
     }
   }
   REQUIRE_THROWS_WITH(d.scene(999), Catch::Contains("no scene 999"));
   // Never overwritten.
-  REQUIRE_THROWS_WITH(write_topos_dataset(scenes, dir), Catch::Contains("already holds a topos dataset"));
+  REQUIRE_THROWS_WITH(write_topos_dataset(scenes, dir),
+                      Catch::Contains("already holds a topos dataset"));
   // Scenes of different lengths do not make one dataset.
   auto mixed = random_scenes(2, 5, 4);
   mixed[1] = random_scenes(1, 6, 5)[0];
@@ -139,15 +148,25 @@ TEST_CASE("a Kubric folder and its packed topos dataset read alike", "[data][dat
   const auto kub = fresh_dir("kubric");
   const auto scenes = random_scenes(3, 4, 9);
   for (const auto& s : scenes) {
-    nlohmann::json j{{"metadata", {{"num_frames", s.num_frames}, {"num_instances", s.instances.size()}, {"seed", s.seed}}}, {"instances", nlohmann::json::array()}};
+    nlohmann::json j{
+        {"metadata",
+         {{"num_frames", s.num_frames}, {"num_instances", s.instances.size()}, {"seed", s.seed}}},
+        {"instances", nlohmann::json::array()}};
     for (const auto& in : s.instances) {
       nlohmann::json p = nlohmann::json::array(), q = nlohmann::json::array();
       for (std::int64_t f = 0; f < s.num_frames; ++f) {
         p.push_back({in.positions(f, 0), in.positions(f, 1), in.positions(f, 2)});
-        q.push_back({in.quaternions(f, 0), in.quaternions(f, 1), in.quaternions(f, 2), in.quaternions(f, 3)});
+        q.push_back({in.quaternions(f, 0), in.quaternions(f, 1), in.quaternions(f, 2),
+                     in.quaternions(f, 3)});
       }
-      j["instances"].push_back({{"asset_id", in.asset_id}, {"shape", in.shape}, {"size", in.size}, {"mass", in.mass}, {"friction", in.friction},
-                                {"restitution", in.restitution}, {"positions", p}, {"quaternions", q}});
+      j["instances"].push_back({{"asset_id", in.asset_id},
+                                {"shape", in.shape},
+                                {"size", in.size},
+                                {"mass", in.mass},
+                                {"friction", in.friction},
+                                {"restitution", in.restitution},
+                                {"positions", p},
+                                {"quaternions", q}});
     }
     fs::create_directories(kub / std::to_string(s.seed));
     std::ofstream(kub / std::to_string(s.seed) / "metadata.json") << j.dump();
@@ -163,37 +182,72 @@ TEST_CASE("a Kubric folder and its packed topos dataset read alike", "[data][dat
   for (auto id : k.ids()) {
     const auto a = k.scene(id), b = t.scene(id);
     REQUIRE(a.instances.size() == b.instances.size());
-    for (std::size_t o = 0; o < a.instances.size(); ++o) REQUIRE(a.instances[o].positions == b.instances[o].positions);
+    for (std::size_t o = 0; o < a.instances.size(); ++o)
+      REQUIRE(a.instances[o].positions == b.instances[o].positions);
   }
 }
 
 TEST_CASE("damaged topos datasets are clear errors", "[data][dataset][format][errors]") {
   const auto good = fresh_dir("good");
   write_topos_dataset(random_scenes(3, 6, 1), good);
-  const auto damaged = [&](const std::string& name, const std::function<void(const fs::path&)>& damage) {
+  const auto damaged = [&](const std::string& name,
+                           const std::function<void(const fs::path&)>& damage) {
     const auto d = fresh_dir(name);
-    for (const auto& f : {"dataset.json", "positions.npy", "quaternions.npy"}) fs::copy_file(good / f, d / f);
+    for (const auto& f : {"dataset.json", "positions.npy", "quaternions.npy"})
+      fs::copy_file(good / f, d / f);
     damage(d);
     return d;
   };
   const auto truncate = [](const fs::path& f, std::uintmax_t keep) { fs::resize_file(f, keep); };
-  REQUIRE_THROWS_WITH(Dataset::open(damaged("trunc", [&](const fs::path& d) { truncate(d / "positions.npy", fs::file_size(d / "positions.npy") - 8); })),
+  REQUIRE_THROWS_WITH(Dataset::open(damaged("trunc",
+                                            [&](const fs::path& d) {
+                                              truncate(d / "positions.npy",
+                                                       fs::file_size(d / "positions.npy") - 8);
+                                            })),
                       Catch::Contains("truncated data"));
-  REQUIRE_THROWS_WITH(Dataset::open(damaged("header", [&](const fs::path& d) { truncate(d / "quaternions.npy", 20); })), Catch::Contains("quaternions.npy"));
-  REQUIRE_THROWS_WITH(Dataset::open(damaged("missing", [](const fs::path& d) { fs::remove(d / "positions.npy"); })), Catch::Contains("cannot open"));
-  REQUIRE_THROWS_WITH(Dataset::open(damaged("json", [](const fs::path& d) { std::ofstream(d / "dataset.json") << "{\"format\": "; })), Catch::Contains("malformed JSON"));
+  REQUIRE_THROWS_WITH(
+      Dataset::open(
+          damaged("header", [&](const fs::path& d) { truncate(d / "quaternions.npy", 20); })),
+      Catch::Contains("quaternions.npy"));
+  REQUIRE_THROWS_WITH(
+      Dataset::open(damaged("missing", [](const fs::path& d) { fs::remove(d / "positions.npy"); })),
+      Catch::Contains("cannot open"));
+  REQUIRE_THROWS_WITH(
+      Dataset::open(damaged(
+          "json", [](const fs::path& d) { std::ofstream(d / "dataset.json") << "{\"format\": "; })),
+      Catch::Contains("malformed JSON"));
   const auto edit = [](const fs::path& d, const std::function<void(nlohmann::json&)>& f) {
     nlohmann::json j;
     std::ifstream(d / "dataset.json") >> j;
     f(j);
     std::ofstream(d / "dataset.json") << j.dump();
   };
-  REQUIRE_THROWS_WITH(Dataset::open(damaged("frames", [&](const fs::path& d) { edit(d, [](auto& j) { j["num_frames"] = 7; }); })), Catch::Contains("as dataset.json says"));
-  REQUIRE_THROWS_WITH(Dataset::open(damaged("format", [&](const fs::path& d) { edit(d, [](auto& j) { j["format"] = "other"; }); })), Catch::Contains("not 'topos-movi'"));
-  REQUIRE_THROWS_WITH(Dataset::open(damaged("offset", [&](const fs::path& d) { edit(d, [](auto& j) { j["scenes"][1]["offset"] = 0; }); })), Catch::Contains("offset"));
-  REQUIRE_THROWS_WITH(Dataset::open(damaged("dup", [&](const fs::path& d) { edit(d, [](auto& j) { j["scenes"][1]["seed"] = j["scenes"][0]["seed"]; }); })),
+  REQUIRE_THROWS_WITH(
+      Dataset::open(damaged(
+          "frames", [&](const fs::path& d) { edit(d, [](auto& j) { j["num_frames"] = 7; }); })),
+      Catch::Contains("as dataset.json says"));
+  REQUIRE_THROWS_WITH(
+      Dataset::open(damaged(
+          "format", [&](const fs::path& d) { edit(d, [](auto& j) { j["format"] = "other"; }); })),
+      Catch::Contains("not 'topos-movi'"));
+  REQUIRE_THROWS_WITH(
+      Dataset::open(damaged(
+          "offset",
+          [&](const fs::path& d) { edit(d, [](auto& j) { j["scenes"][1]["offset"] = 0; }); })),
+      Catch::Contains("offset"));
+  REQUIRE_THROWS_WITH(Dataset::open(damaged("dup",
+                                            [&](const fs::path& d) {
+                                              edit(d, [](auto& j) {
+                                                j["scenes"][1]["seed"] = j["scenes"][0]["seed"];
+                                              });
+                                            })),
                       Catch::Contains("appears twice"));
-  REQUIRE_THROWS_WITH(Dataset::open(damaged("field", [&](const fs::path& d) { edit(d, [](auto& j) { j["scenes"][0]["instances"][0].erase("mass"); }); })),
+  REQUIRE_THROWS_WITH(Dataset::open(damaged("field",
+                                            [&](const fs::path& d) {
+                                              edit(d, [](auto& j) {
+                                                j["scenes"][0]["instances"][0].erase("mass");
+                                              });
+                                            })),
                       Catch::Contains("malformed dataset index"));
   REQUIRE_THROWS_WITH(Dataset::open(fresh_dir("empty")), Catch::Contains("no scene folders"));
 }

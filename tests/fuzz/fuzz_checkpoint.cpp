@@ -16,13 +16,15 @@ TOPOS_FUZZ_TARGET(checkpoint) {
   }
   for (const auto& [name, t] : dict) {
     // Every element must be readable (ASan reports a read past the storage).
-    if (t.numel() > 0 && t.numel() < (1 << 20) && t.is_floating_point()) (void)t.to(torch::kDouble).sum().item<double>();
+    if (t.numel() > 0 && t.numel() < (1 << 20) && t.is_floating_point())
+      (void)t.to(torch::kDouble).sum().item<double>();
   }
   try {
     const auto opt = topos::hopnet::checkpoint_options(dict, source());
     // Building the network costs its parameters: only small ones (the configuration's limits
     // are the config harness's).
-    if (opt.hidden() <= 16 && opt.num_layers() <= 2 && opt.mlp_layers() <= 3) (void)topos::hopnet::load_hopnet(dict, source());
+    if (opt.hidden() <= 16 && opt.num_layers() <= 2 && opt.mlp_layers() <= 3)
+      (void)topos::hopnet::load_hopnet(dict, source());
   } catch (const std::runtime_error& e) {
     expect_error(e.what());
   }

@@ -45,9 +45,11 @@ TOPOS_FUZZ_TARGET(collisions) {
   const auto it = all.find(3);
   if (it == all.end() || it->second.size() > 64) return 0;
   try {
-    const auto f = h::build_frame(cubes.geometry, h::scene_poses(cubes.scene, 0), h::scene_poses(cubes.scene, 1), h::scene_poses(cubes.scene, 2),
+    const auto f = h::build_frame(cubes.geometry, h::scene_poses(cubes.scene, 0),
+                                  h::scene_poses(cubes.scene, 1), h::scene_poses(cubes.scene, 2),
                                   h::scene_poses(cubes.scene, 3), it->second);
-    check(f.num_contacts() <= static_cast<std::int64_t>(it->second.size()), "no more contacts than candidates");
+    check(f.num_contacts() <= static_cast<std::int64_t>(it->second.size()),
+          "no more contacts than candidates");
   } catch (const std::invalid_argument&) {
     // build_frame's message names the offending contact (the caller adds the file).
   }

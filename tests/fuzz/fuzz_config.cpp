@@ -16,15 +16,18 @@ TOPOS_FUZZ_TARGET(config) {
   }
   try {
     const auto o = topos::hopnet::HopnetOptions::from_json(j);
-    check(o.hidden() > 0 && o.hidden() <= 65536 && o.mlp_layers() >= 1 && o.mlp_layers() <= 64 && o.num_layers() >= 1 && o.num_layers() <= 64,
+    check(o.hidden() > 0 && o.hidden() <= 65536 && o.mlp_layers() >= 1 && o.mlp_layers() <= 64 &&
+              o.num_layers() >= 1 && o.num_layers() <= 64,
           "an accepted configuration is allocatable");
-    check(topos::hopnet::HopnetOptions::from_json(o.to_json()).to_json() == o.to_json(), "to_json round-trips");
+    check(topos::hopnet::HopnetOptions::from_json(o.to_json()).to_json() == o.to_json(),
+          "to_json round-trips");
     if (o.hidden() <= 8 && o.num_layers() <= 2 && o.mlp_layers() <= 3) {
       topos::hopnet::Hopnet net(o);
       check(net->num_parameters() > 0, "a network has parameters");
     }
   } catch (const std::invalid_argument&) {
-    // from_json's messages say "HOPNet configuration"; the caller (checkpoint_options) adds the file.
+    // from_json's messages say "HOPNet configuration"; the caller (checkpoint_options) adds the
+    // file.
   }
   return 0;
 }

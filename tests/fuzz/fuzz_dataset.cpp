@@ -29,7 +29,8 @@ TOPOS_FUZZ_TARGET(dataset) {
     for (auto id : ds.ids()) {
       const auto s = ds.scene(id);
       check(!s.instances.empty(), "a scene holds objects");
-      for (const auto& k : s.instances) check(k.positions.rows() == 4 && k.quaternions.rows() == 4, "one pose per frame");
+      for (const auto& k : s.instances)
+        check(k.positions.rows() == 4 && k.quaternions.rows() == 4, "one pose per frame");
     }
   } catch (const d::DataError& e) {
     expect_error(e.what());

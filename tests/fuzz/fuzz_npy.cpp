@@ -13,7 +13,8 @@ TOPOS_FUZZ_TARGET(npy) {
     const auto a = topos::data::read_npy(in, source());
     const auto item = topos::data::npy_item_size(a.dtype);
     check(item > 0, "a supported dtype");
-    check(a.bytes.size() == static_cast<std::size_t>(a.size()) * item, "the data holds every element");
+    check(a.bytes.size() == static_cast<std::size_t>(a.size()) * item,
+          "the data holds every element");
     check(a.bytes.size() <= size, "no more data than input");
     const auto v = a.as<double>();
     check(v.size() == static_cast<std::size_t>(a.size()), "conversion keeps every element");

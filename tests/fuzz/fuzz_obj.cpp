@@ -15,10 +15,12 @@ TOPOS_FUZZ_TARGET(obj) {
     const auto obj = topos::parse_obj(in, source(), topos::ObjReadOptions().merge(merge));
     const auto& m = obj.mesh;
     check(m.vertices.rows() > 0 && m.faces.rows() > 0, "a mesh read has vertices and faces");
-    check(m.faces.minCoeff() >= 0 && m.faces.maxCoeff() < m.vertices.rows(), "face indices in range");
+    check(m.faces.minCoeff() >= 0 && m.faces.maxCoeff() < m.vertices.rows(),
+          "face indices in range");
     for (std::size_t b = 0; b < obj.blocks.size(); ++b) {
       const auto& blk = obj.blocks[b];
-      check(0 <= blk.face_begin && blk.face_begin < blk.face_end && blk.face_end <= m.faces.rows(), "blocks are non-empty face ranges");
+      check(0 <= blk.face_begin && blk.face_begin < blk.face_end && blk.face_end <= m.faces.rows(),
+            "blocks are non-empty face ranges");
       const auto part = obj.block_mesh(b);
       check(part.faces.rows() == blk.face_end - blk.face_begin, "a block's mesh has its faces");
     }

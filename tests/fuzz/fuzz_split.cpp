@@ -15,10 +15,12 @@ TOPOS_FUZZ_TARGET(split) {
     try {
       const auto seeds = d::parse_seed_range(input);
       check(!seeds.empty(), "a range names seeds");
-      for (std::size_t i = 1; i < seeds.size(); ++i) check(seeds[i - 1] < seeds[i], "ascending unique seeds");
+      for (std::size_t i = 1; i < seeds.size(); ++i)
+        check(seeds[i - 1] < seeds[i], "ascending unique seeds");
       if (seeds.size() <= 100000) {  // the split shuffles: keep executions quick
         const auto s = d::reference_split(seeds);
-        check(s.train.size() + s.val.size() + s.test.size() == seeds.size(), "the split partitions the seeds");
+        check(s.train.size() + s.val.size() + s.test.size() == seeds.size(),
+              "the split partitions the seeds");
       }
     } catch (const d::DataError& e) {
       // Seed ranges come from the command line: the message names the range, not a file.
@@ -32,7 +34,8 @@ TOPOS_FUZZ_TARGET(split) {
     for (const auto* part : {&s.train, &s.val, &s.test})
       for (auto id : *part) check(all.insert(id).second, "no seed in two parts");
     std::vector<std::int64_t> ids(all.begin(), all.end());
-    for (const char* part : {"train", "val", "test", "all"}) check(d::split_part(s, part, ids).size() <= ids.size(), "a part of the seeds");
+    for (const char* part : {"train", "val", "test", "all"})
+      check(d::split_part(s, part, ids).size() <= ids.size(), "a part of the seeds");
   } catch (const d::DataError& e) {
     expect_error(e.what());
   }

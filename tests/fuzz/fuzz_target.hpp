@@ -30,7 +30,9 @@ struct Register {
 };
 
 /// The name every harness gives its input; errors must mention it.
-inline const char* source() { return "fuzz-input"; }
+inline const char* source() {
+  return "fuzz-input";
+}
 
 /// Aborts (a finding) when a reader's error does not name its input.
 inline void expect_error(const std::string& what) {
@@ -48,15 +50,18 @@ inline void check(bool ok, const char* what) {
   }
 }
 
-inline std::string text(const std::uint8_t* data, std::size_t size) { return std::string(reinterpret_cast<const char*>(data), size); }
+inline std::string text(const std::uint8_t* data, std::size_t size) {
+  return std::string(reinterpret_cast<const char*>(data), size);
+}
 
 }  // namespace topos_fuzz
 
 #ifdef TOPOS_LIBFUZZER
-#define TOPOS_FUZZ_TARGET(name) extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size)
+#define TOPOS_FUZZ_TARGET(name) \
+  extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size)
 #else
-#define TOPOS_FUZZ_TARGET(name)                                                                  \
-  static int topos_fuzz_##name(const std::uint8_t* data, std::size_t size);                     \
-  static const topos_fuzz::Register topos_fuzz_register_##name(#name, topos_fuzz_##name);       \
+#define TOPOS_FUZZ_TARGET(name)                                                           \
+  static int topos_fuzz_##name(const std::uint8_t* data, std::size_t size);               \
+  static const topos_fuzz::Register topos_fuzz_register_##name(#name, topos_fuzz_##name); \
   static int topos_fuzz_##name(const std::uint8_t* data, std::size_t size)
 #endif

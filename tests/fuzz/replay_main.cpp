@@ -25,7 +25,8 @@ int main(int argc, char** argv) {
     const std::filesystem::path p(argv[i]);
     if (std::filesystem::is_directory(p)) {
       for (const auto& e : std::filesystem::directory_iterator(p))
-        if (e.is_regular_file() && e.path().filename().string()[0] != '.') files.push_back(e.path());
+        if (e.is_regular_file() && e.path().filename().string()[0] != '.')
+          files.push_back(e.path());
     } else if (std::filesystem::exists(p)) {
       files.push_back(p);
     }
@@ -33,7 +34,8 @@ int main(int argc, char** argv) {
   std::sort(files.begin(), files.end());
   for (const auto& f : files) {
     std::ifstream in(f, std::ios::binary);
-    const std::vector<char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    const std::vector<char> bytes((std::istreambuf_iterator<char>(in)),
+                                  std::istreambuf_iterator<char>());
     std::cerr << argv[1] << ": " << f.filename().string() << " (" << bytes.size() << " bytes)\n";
     entry(reinterpret_cast<const std::uint8_t*>(bytes.data()), bytes.size());
   }

@@ -20,7 +20,8 @@ void replay(const std::string& harness) {
     for (const auto& e : std::filesystem::directory_iterator(dir)) {
       if (!e.is_regular_file()) continue;
       std::ifstream in(e.path(), std::ios::binary);
-      const std::vector<char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+      const std::vector<char> bytes((std::istreambuf_iterator<char>(in)),
+                                    std::istreambuf_iterator<char>());
       INFO(e.path().string());
       entry(reinterpret_cast<const std::uint8_t*>(bytes.data()), bytes.size());
       ++n;
@@ -30,5 +31,9 @@ void replay(const std::string& harness) {
 }
 }  // namespace
 
-TEST_CASE("fuzz regressions replay: checkpoint") { replay("checkpoint"); }
-TEST_CASE("fuzz regressions replay: config") { replay("config"); }
+TEST_CASE("fuzz regressions replay: checkpoint") {
+  replay("checkpoint");
+}
+TEST_CASE("fuzz regressions replay: config") {
+  replay("config");
+}

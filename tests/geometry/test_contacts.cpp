@@ -29,17 +29,22 @@ using EPECK = CGAL::Exact_predicates_exact_constructions_kernel;
 namespace {
 
 EPICK::Triangle_3 tri(const std::array<Eigen::Vector3d, 3>& t) {
-  return {{t[0].x(), t[0].y(), t[0].z()}, {t[1].x(), t[1].y(), t[1].z()}, {t[2].x(), t[2].y(), t[2].z()}};
+  return {{t[0].x(), t[0].y(), t[0].z()},
+          {t[1].x(), t[1].y(), t[1].z()},
+          {t[2].x(), t[2].y(), t[2].z()}};
 }
 EPECK::Triangle_3 exact_tri(const std::array<Eigen::Vector3d, 3>& t) {
-  return {{t[0].x(), t[0].y(), t[0].z()}, {t[1].x(), t[1].y(), t[1].z()}, {t[2].x(), t[2].y(), t[2].z()}};
+  return {{t[0].x(), t[0].y(), t[0].z()},
+          {t[1].x(), t[1].y(), t[1].z()},
+          {t[2].x(), t[2].y(), t[2].z()}};
 }
 double exact_sq(const std::array<Eigen::Vector3d, 3>& a, const std::array<Eigen::Vector3d, 3>& b) {
   return CGAL::to_double(CGAL::exact(CGAL::squared_distance(exact_tri(a), exact_tri(b))));
 }
 // Distance from a point to a triangle, by the exact kernel.
 double exact_point_sq(const EPICK::Point_3& p, const std::array<Eigen::Vector3d, 3>& t) {
-  return CGAL::to_double(CGAL::exact(CGAL::squared_distance(EPECK::Point_3(p.x(), p.y(), p.z()), exact_tri(t))));
+  return CGAL::to_double(
+      CGAL::exact(CGAL::squared_distance(EPECK::Point_3(p.x(), p.y(), p.z()), exact_tri(t))));
 }
 
 struct Stats {
@@ -49,7 +54,8 @@ struct Stats {
 };
 
 // Checks one pair: distance vs exact; both points on their triangles; points realise the distance.
-void check_pair(const std::array<Eigen::Vector3d, 3>& a, const std::array<Eigen::Vector3d, 3>& b, Stats& s) {
+void check_pair(const std::array<Eigen::Vector3d, 3>& a, const std::array<Eigen::Vector3d, 3>& b,
+                Stats& s) {
   const auto r = closest_points<EPICK>(tri(a), tri(b));
   const double ex = exact_sq(a, b);
   double scale = 0;
@@ -60,14 +66,17 @@ void check_pair(const std::array<Eigen::Vector3d, 3>& a, const std::array<Eigen:
   INFO("exact " << ex << " got " << r.squared_distance);
   if (ex == 0) REQUIRE(r.squared_distance == 0);
   s.worst_rel = std::max(s.worst_rel, err);
-  const double on_p = std::sqrt(exact_point_sq(r.p, a)) / scale, on_q = std::sqrt(exact_point_sq(r.q, b)) / scale;
+  const double on_p = std::sqrt(exact_point_sq(r.p, a)) / scale,
+               on_q = std::sqrt(exact_point_sq(r.q, b)) / scale;
   s.worst_on = std::max({s.worst_on, on_p, on_q});
   const double realised = CGAL::to_double(CGAL::squared_distance(r.p, r.q));
-  REQUIRE(std::abs(realised - r.squared_distance) <= 1e-12 * std::max(r.squared_distance, 1e-300) + 1e-30 * scale * scale);
+  REQUIRE(std::abs(realised - r.squared_distance) <=
+          1e-12 * std::max(r.squared_distance, 1e-300) + 1e-30 * scale * scale);
   ++s.pairs;
 }
 
-std::array<Eigen::Vector3d, 3> random_tri(std::mt19937_64& rng, double scale, const Eigen::Vector3d& centre) {
+std::array<Eigen::Vector3d, 3> random_tri(std::mt19937_64& rng, double scale,
+                                          const Eigen::Vector3d& centre) {
   std::uniform_real_distribution<double> u(-1, 1);
   std::array<Eigen::Vector3d, 3> t;
   for (auto& v : t) v = centre + scale * Eigen::Vector3d(u(rng), u(rng), u(rng));
@@ -77,7 +86,8 @@ std::array<Eigen::Vector3d, 3> random_tri(std::mt19937_64& rng, double scale, co
 }  // namespace
 
 TEST_CASE("closest points: analytic cases", "[geometry][closest]") {
-  const std::array<Eigen::Vector3d, 3> a{Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, 1, 0)};
+  const std::array<Eigen::Vector3d, 3> a{Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(1, 0, 0),
+                                         Eigen::Vector3d(0, 1, 0)};
   // Parallel, 2 apart, overlapping in projection: distance 2, deterministic pair.
   std::array<Eigen::Vector3d, 3> b = a;
   for (auto& v : b) v.z() = 2;
@@ -88,32 +98,39 @@ TEST_CASE("closest points: analytic cases", "[geometry][closest]") {
   REQUIRE(again.p == r.p);
   REQUIRE(again.q == r.q);
   // Piercing: distance exactly 0, both points equal, on both triangles.
-  const std::array<Eigen::Vector3d, 3> c{Eigen::Vector3d(0.2, 0.2, -1), Eigen::Vector3d(0.2, 0.2, 1), Eigen::Vector3d(0.3, 0.25, 1)};
+  const std::array<Eigen::Vector3d, 3> c{
+      Eigen::Vector3d(0.2, 0.2, -1), Eigen::Vector3d(0.2, 0.2, 1), Eigen::Vector3d(0.3, 0.25, 1)};
   r = closest_points<EPICK>(tri(a), tri(c));
   REQUIRE(r.intersecting);
   REQUIRE(r.squared_distance == 0.0);
   REQUIRE(r.p == r.q);
   REQUIRE(r.p.z() == Approx(0).margin(1e-15));
   // Shared vertex.
-  const std::array<Eigen::Vector3d, 3> d{Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(2, 0, 1), Eigen::Vector3d(2, 1, 1)};
+  const std::array<Eigen::Vector3d, 3> d{Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(2, 0, 1),
+                                         Eigen::Vector3d(2, 1, 1)};
   REQUIRE(closest_points<EPICK>(tri(a), tri(d)).squared_distance == 0.0);
   // Vertex over the face: distance along the normal.
-  const std::array<Eigen::Vector3d, 3> e{Eigen::Vector3d(0.25, 0.25, 0.5), Eigen::Vector3d(0.25, 0.25, 3), Eigen::Vector3d(1, 1, 3)};
+  const std::array<Eigen::Vector3d, 3> e{Eigen::Vector3d(0.25, 0.25, 0.5),
+                                         Eigen::Vector3d(0.25, 0.25, 3), Eigen::Vector3d(1, 1, 3)};
   r = closest_points<EPICK>(tri(a), tri(e));
   REQUIRE(r.squared_distance == Approx(0.25));
   REQUIRE(r.p.x() == Approx(0.25));
   // Zero-area triangle (a segment) and a point triangle.
-  const std::array<Eigen::Vector3d, 3> seg{Eigen::Vector3d(2, 0, 0), Eigen::Vector3d(3, 0, 0), Eigen::Vector3d(4, 0, 0)};
+  const std::array<Eigen::Vector3d, 3> seg{Eigen::Vector3d(2, 0, 0), Eigen::Vector3d(3, 0, 0),
+                                           Eigen::Vector3d(4, 0, 0)};
   REQUIRE(closest_points<EPICK>(tri(a), tri(seg)).squared_distance == Approx(1.0));
-  const std::array<Eigen::Vector3d, 3> pt{Eigen::Vector3d(0.1, 0.1, 3), Eigen::Vector3d(0.1, 0.1, 3), Eigen::Vector3d(0.1, 0.1, 3)};
+  const std::array<Eigen::Vector3d, 3> pt{
+      Eigen::Vector3d(0.1, 0.1, 3), Eigen::Vector3d(0.1, 0.1, 3), Eigen::Vector3d(0.1, 0.1, 3)};
   REQUIRE(closest_points<EPICK>(tri(a), tri(pt)).squared_distance == Approx(9.0));
   // float kernel
   using KF = CGAL::Simple_cartesian<float>;
-  const auto rf = closest_points<KF>(KF::Triangle_3({0, 0, 0}, {1, 0, 0}, {0, 1, 0}), KF::Triangle_3({0, 0, 2}, {1, 0, 2}, {0, 1, 2}));
+  const auto rf = closest_points<KF>(KF::Triangle_3({0, 0, 0}, {1, 0, 0}, {0, 1, 0}),
+                                     KF::Triangle_3({0, 0, 2}, {1, 0, 2}, {0, 1, 2}));
   REQUIRE(rf.squared_distance == 4.0f);
 }
 
-TEST_CASE("closest points agree with CGAL's exact squared distance on random and adversarial pairs", "[geometry][closest]") {
+TEST_CASE("closest points agree with CGAL's exact squared distance on random and adversarial pairs",
+          "[geometry][closest]") {
   std::mt19937_64 rng(1234);
   std::uniform_real_distribution<double> u(-1, 1);
   Stats s;
@@ -131,31 +148,49 @@ TEST_CASE("closest points agree with CGAL's exact squared distance on random and
     a[0].z() = a[1].z() = a[2].z() = 0;
     auto b = random_tri(rng, scale, Eigen::Vector3d::Zero());
     const int kind = i % 6;
-    if (kind == 0) for (auto& v : b) v.z() = 0.3 * scale;                                      // parallel
-    if (kind == 1) for (auto& v : b) v.z() = 0;                                                // coplanar
-    if (kind == 2) for (int k = 0; k < 3; ++k) b[k].z() = scale * (0.2 + 1e-7 * k);            // nearly parallel
-    if (kind == 3) { b[0] = a[0] + Eigen::Vector3d(0, 0, 0.1 * scale); b[1] = a[1] + Eigen::Vector3d(0, 0, 0.1 * scale); }  // edge over edge
-    if (kind == 4) { b[0] = a[0]; b[1] = a[1]; }                                               // shared edge
-    if (kind == 5) { b[0].z() = -scale; b[1].z() = scale; }                                    // likely crossing
+    if (kind == 0)
+      for (auto& v : b) v.z() = 0.3 * scale;  // parallel
+    if (kind == 1)
+      for (auto& v : b) v.z() = 0;  // coplanar
+    if (kind == 2)
+      for (int k = 0; k < 3; ++k) b[k].z() = scale * (0.2 + 1e-7 * k);  // nearly parallel
+    if (kind == 3) {
+      b[0] = a[0] + Eigen::Vector3d(0, 0, 0.1 * scale);
+      b[1] = a[1] + Eigen::Vector3d(0, 0, 0.1 * scale);
+    }  // edge over edge
+    if (kind == 4) {
+      b[0] = a[0];
+      b[1] = a[1];
+    }  // shared edge
+    if (kind == 5) {
+      b[0].z() = -scale;
+      b[1].z() = scale;
+    }  // likely crossing
     check_pair(a, b, s);
   }
-  INFO("pairs " << s.pairs << ", worst relative error " << s.worst_rel << ", worst off-triangle " << s.worst_on);
+  INFO("pairs " << s.pairs << ", worst relative error " << s.worst_rel << ", worst off-triangle "
+                << s.worst_on);
   CHECK(s.worst_rel <= 1e-12);
   CHECK(s.worst_on <= 1e-12);
   REQUIRE(s.pairs == 12000);
 }
 
 TEST_CASE("the PhysX port reproduces the reference's quirks", "[geometry][physx]") {
-  const std::array<Eigen::Vector3d, 3> a{Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, 1, 0)};
+  const std::array<Eigen::Vector3d, 3> a{Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(1, 0, 0),
+                                         Eigen::Vector3d(0, 1, 0)};
   // Vertex over the face interior: Euclidean distance.
-  const std::array<Eigen::Vector3d, 3> over{Eigen::Vector3d(0.25, 0.25, 0.5), Eigen::Vector3d(0.25, 0.3, 3), Eigen::Vector3d(1, 1, 3)};
+  const std::array<Eigen::Vector3d, 3> over{
+      Eigen::Vector3d(0.25, 0.25, 0.5), Eigen::Vector3d(0.25, 0.3, 3), Eigen::Vector3d(1, 1, 3)};
   REQUIRE(physx_triangle_triangle(a, over).distance == Approx(0.5));
   // Edge-edge closest (crossed edges above each other): squared distance 0.25 for a gap of 0.5.
-  const std::array<Eigen::Vector3d, 3> crossed{Eigen::Vector3d(0.5, -0.5, 0.5), Eigen::Vector3d(0.5, 0.5 - 1e-3, 0.5), Eigen::Vector3d(0.5, 0, 3)};
+  const std::array<Eigen::Vector3d, 3> crossed{Eigen::Vector3d(0.5, -0.5, 0.5),
+                                               Eigen::Vector3d(0.5, 0.5 - 1e-3, 0.5),
+                                               Eigen::Vector3d(0.5, 0, 3)};
   const auto r = physx_triangle_triangle(a, crossed);
   REQUIRE(r.distance == Approx(0.25));
   // Piercing triangles: unsafe, distance 0.
-  const std::array<Eigen::Vector3d, 3> pierce{Eigen::Vector3d(0.2, 0.2, -1), Eigen::Vector3d(0.2, 0.2, 1), Eigen::Vector3d(0.3, 0.25, 1)};
+  const std::array<Eigen::Vector3d, 3> pierce{
+      Eigen::Vector3d(0.2, 0.2, -1), Eigen::Vector3d(0.2, 0.2, 1), Eigen::Vector3d(0.3, 0.25, 1)};
   REQUIRE(physx_triangle_triangle(a, pierce).distance == 0.0);
 
   // Only a new closest edge pair may return early (PhysX, utils/triangles.py). Expected values:
@@ -163,43 +198,54 @@ TEST_CASE("the PhysX port reproduces the reference's quirks", "[geometry][physx]
   // agrees with it bitwise on 19,415 random pairs, 9 of which it missed while every edge pair
   // could return. Here an earlier, farther pair passes the separation test: the reference goes
   // on to the vertex-face path (Euclidean), the old port returned 0.125 (a squared distance).
-  const auto P = [](double x0, double y0, double z0, double x1, double y1, double z1, double x2, double y2, double z2) {
-    return std::array<Eigen::Vector3d, 3>{Eigen::Vector3d(x0, y0, z0), Eigen::Vector3d(x1, y1, z1), Eigen::Vector3d(x2, y2, z2)};
+  const auto P = [](double x0, double y0, double z0, double x1, double y1, double z1, double x2,
+                    double y2, double z2) {
+    return std::array<Eigen::Vector3d, 3>{Eigen::Vector3d(x0, y0, z0), Eigen::Vector3d(x1, y1, z1),
+                                          Eigen::Vector3d(x2, y2, z2)};
   };
-  const auto e = physx_triangle_triangle(P(-1, -1, 0.5, -0.5, 0, 0, 0, 0, -0.5), P(-0.5, 0, 0.5, 0.5, -1, -0.5, 0, 0.5, 0));
+  const auto e = physx_triangle_triangle(P(-1, -1, 0.5, -0.5, 0, 0, 0, 0, -0.5),
+                                         P(-0.5, 0, 0.5, 0.5, -1, -0.5, 0, 0.5, 0));
   CHECK(e.distance == 0.3535533905932738);
   CHECK(e.cp == Eigen::Vector3d(-0.5, 0, 0));
   CHECK(e.cq == Eigen::Vector3d(-0.25, 0, 0.25));
   // Parallel faces 0.093 apart: the edge path returns a squared distance between closest points
   // that are not vertically above each other; which pair depends on the same rule.
   const double h = 0.09325078866262293;
-  const auto f = physx_triangle_triangle(P(-0.25, -1.25, 0, -1.5, -2.75, 0, -1, 1.75, 0), P(0, -1.25, h, 2.75, -0.25, h, -0.5, 0.75, h));
+  const auto f = physx_triangle_triangle(P(-0.25, -1.25, 0, -1.5, -2.75, 0, -1, 1.75, 0),
+                                         P(0, -1.25, h, 2.75, -0.25, h, -0.5, 0.75, h));
   CHECK(f.distance == 0.06751923899796587);
   CHECK(f.cp == Eigen::Vector3d(-0.25, -1.25, 0));
   CHECK(f.cq == Eigen::Vector3d(-0.01470588235294118, -1.1911764705882353, h));
 }
 
-TEST_CASE("trimesh posing reproduces the reference's node positions bitwise (golden movi-a-8)", "[geometry][rigid][reference]") {
+TEST_CASE("trimesh posing reproduces the reference's node positions bitwise (golden movi-a-8)",
+          "[geometry][rigid][reference]") {
   const auto ref = test::reference_dir("reference posing on movi-a/8");
   const auto dir = ref / "data" / "golden" / "movi-a-8";
   hopnet::MeshLibrary lib(ref / "data" / "kubasic");
-  const hopnet::Scene scene = hopnet::make_scene(data::read_kubric_metadata(ref / "data" / "movi-a" / "8"), lib);
+  const hopnet::Scene scene =
+      hopnet::make_scene(data::read_kubric_metadata(ref / "data" / "movi-a" / "8"), lib);
   std::int64_t nodes = 0;
   for (const auto& o : scene.objects) nodes += o.mesh.vertices.rows();
   // step000/nodes_pos_in.npy: GT frames 1, 2, 3; step001's last frame: step000's predicted poses.
   const auto gt = data::read_npy((dir / "step000" / "nodes_pos_in.npy").string()).as<double>();
   const auto next = data::read_npy((dir / "step001" / "nodes_pos_in.npy").string()).as<double>();
-  const auto pred_pos = data::read_npy((dir / "step000" / "pred_obj_pos.npy").string()).as<double>();
-  const auto pred_quat = data::read_npy((dir / "step000" / "pred_obj_quat.npy").string()).as<double>();
+  const auto pred_pos =
+      data::read_npy((dir / "step000" / "pred_obj_pos.npy").string()).as<double>();
+  const auto pred_quat =
+      data::read_npy((dir / "step000" / "pred_obj_quat.npy").string()).as<double>();
   REQUIRE(static_cast<std::int64_t>(gt.size()) == 3 * nodes * 3);
   std::int64_t differ = 0, differ_eigen = 0, total = 0;
-  const auto compare = [&](const std::vector<double>& want, std::int64_t slot, const std::function<Eigen::Vector3d(std::size_t)>& pos,
+  const auto compare = [&](const std::vector<double>& want, std::int64_t slot,
+                           const std::function<Eigen::Vector3d(std::size_t)>& pos,
                            const std::function<Eigen::Vector4d(std::size_t)>& quat) {
     std::int64_t offset = 0;
     for (std::size_t o = 0; o < scene.objects.size(); ++o) {
       const auto& obj = scene.objects[o];
-      const Vertices got = obj.is_floor ? obj.mesh.vertices : pose_vertices_trimesh(obj.mesh.vertices, pos(o), quat(o));
-      const Vertices eigen = obj.is_floor ? obj.mesh.vertices : pose_vertices(obj.mesh.vertices, pos(o), quat(o));
+      const Vertices got = obj.is_floor ? obj.mesh.vertices
+                                        : pose_vertices_trimesh(obj.mesh.vertices, pos(o), quat(o));
+      const Vertices eigen =
+          obj.is_floor ? obj.mesh.vertices : pose_vertices(obj.mesh.vertices, pos(o), quat(o));
       for (Eigen::Index v = 0; v < got.rows(); ++v)
         for (int c = 0; c < 3; ++c) {
           const double w = want[static_cast<std::size_t>(((slot * nodes) + offset + v) * 3 + c)];
@@ -210,13 +256,25 @@ TEST_CASE("trimesh posing reproduces the reference's node positions bitwise (gol
       offset += got.rows();
     }
   };
-  for (std::int64_t k = 0; k < 3; ++k) compare(gt, k, [&](std::size_t o) { return scene.position(k + 1, o); }, [&](std::size_t o) { return scene.quaternion(k + 1, o); });
+  for (std::int64_t k = 0; k < 3; ++k)
+    compare(
+        gt, k, [&](std::size_t o) { return scene.position(k + 1, o); },
+        [&](std::size_t o) { return scene.quaternion(k + 1, o); });
   compare(
-      next, 2, [&](std::size_t o) { return Eigen::Vector3d(pred_pos[3 * o], pred_pos[3 * o + 1], pred_pos[3 * o + 2]); },
-      [&](std::size_t o) { return Eigen::Vector4d(pred_quat[4 * o], pred_quat[4 * o + 1], pred_quat[4 * o + 2], pred_quat[4 * o + 3]); });
-  std::cout << "reference posing: " << differ << " of " << total << " coordinates differ (Eigen's rotation: " << differ_eigen << ")\n";
+      next, 2,
+      [&](std::size_t o) {
+        return Eigen::Vector3d(pred_pos[3 * o], pred_pos[3 * o + 1], pred_pos[3 * o + 2]);
+      },
+      [&](std::size_t o) {
+        return Eigen::Vector4d(pred_quat[4 * o], pred_quat[4 * o + 1], pred_quat[4 * o + 2],
+                               pred_quat[4 * o + 3]);
+      });
+  std::cout << "reference posing: " << differ << " of " << total
+            << " coordinates differ (Eigen's rotation: " << differ_eigen << ")\n";
   REQUIRE(differ == 0);
-  REQUIRE_THROWS_WITH(pose_vertices_trimesh(scene.objects[0].mesh.vertices, Eigen::Vector3d::Zero(), Eigen::Vector4d::Zero()), Catch::Contains("zero or non-finite norm"));
+  REQUIRE_THROWS_WITH(pose_vertices_trimesh(scene.objects[0].mesh.vertices, Eigen::Vector3d::Zero(),
+                                            Eigen::Vector4d::Zero()),
+                      Catch::Contains("zero or non-finite norm"));
 }
 
 TEST_CASE("native contacts equal brute force on random scenes", "[geometry][contacts]") {
@@ -228,7 +286,9 @@ TEST_CASE("native contacts equal brute force on random scenes", "[geometry][cont
     std::vector<PosedObject> objs;
     for (int o = 0; o < 4; ++o) {
       const Eigen::Vector4d q(u(rng), u(rng), u(rng), u(rng));
-      objs.push_back({pose_vertices(shapes[o % 3].vertices * 0.5, Eigen::Vector3d(u(rng), u(rng), 0.5 + 0.5 * u(rng)), q), &shapes[o % 3].faces});
+      objs.push_back({pose_vertices(shapes[o % 3].vertices * 0.5,
+                                    Eigen::Vector3d(u(rng), u(rng), 0.5 + 0.5 * u(rng)), q),
+                      &shapes[o % 3].faces});
     }
     objs.push_back({floor.vertices, &floor.faces});
     const double dc = 0.1;
@@ -238,8 +298,10 @@ TEST_CASE("native contacts equal brute force on random scenes", "[geometry][cont
       for (std::size_t k = i + 1; k < objs.size(); ++k)
         for (Eigen::Index fi = 0; fi < objs[i].faces->rows(); ++fi)
           for (Eigen::Index fk = 0; fk < objs[k].faces->rows(); ++fk) {
-            const double d = exact_sq(detail::face_points(objs[i], fi), detail::face_points(objs[k], fk));
-            if (d <= dc * dc) brute.push_back({static_cast<std::int64_t>(i), fi, static_cast<std::int64_t>(k), fk});
+            const double d =
+                exact_sq(detail::face_points(objs[i], fi), detail::face_points(objs[k], fk));
+            if (d <= dc * dc)
+              brute.push_back({static_cast<std::int64_t>(i), fi, static_cast<std::int64_t>(k), fk});
           }
     std::vector<std::array<std::int64_t, 4>> got;
     for (const auto& c : found) {
@@ -256,7 +318,9 @@ TEST_CASE("centre of mass and shape matching", "[geometry][rigid]") {
   Vertices moved = b.vertices;
   moved.rowwise() += Eigen::RowVector3d(1, 2, 3);
   REQUIRE((volumetric_center_of_mass(moved, b.faces) - Eigen::Vector3d(1, 2, 3)).norm() < 1e-12);
-  REQUIRE(volumetric_center_of_mass(hopnet::floor_mesh().vertices, hopnet::floor_mesh().faces).norm() == 0.0);
+  REQUIRE(
+      volumetric_center_of_mass(hopnet::floor_mesh().vertices, hopnet::floor_mesh().faces).norm() ==
+      0.0);
   // Shape matching recovers a pose.
   const TriangleMesh s = cylinder_mesh();
   const Eigen::Vector3d com = volumetric_center_of_mass(s.vertices, s.faces);
@@ -268,10 +332,12 @@ TEST_CASE("centre of mass and shape matching", "[geometry][rigid]") {
   REQUIRE_THROWS(rotation_from_wxyz(Eigen::Vector4d::Zero()));
 }
 
-TEST_CASE("the reference detector reproduces collisions.json of MOVi-A scene 8 for all 480 frames", "[geometry][contacts][reference]") {
+TEST_CASE("the reference detector reproduces collisions.json of MOVi-A scene 8 for all 480 frames",
+          "[geometry][contacts][reference]") {
   const auto ref = test::reference_dir("reference contacts on movi-a/8");
   hopnet::MeshLibrary lib(ref / "data" / "kubasic");
-  const hopnet::Scene scene = hopnet::make_scene(data::read_kubric_metadata(ref / "data" / "movi-a" / "8"), lib);
+  const hopnet::Scene scene =
+      hopnet::make_scene(data::read_kubric_metadata(ref / "data" / "movi-a" / "8"), lib);
   std::ifstream in(ref / "data" / "movi-a" / "8" / "collisions.json");
   const auto golden = nlohmann::json::parse(in);
   std::vector<VertexFaceIndex> index;
@@ -284,7 +350,8 @@ TEST_CASE("the reference detector reproduces collisions.json of MOVi-A scene 8 f
     std::vector<ReferenceContactEntry> want;
     for (const auto& e : golden[std::to_string(t)]) {
       ReferenceContactEntry r{e["obj0"].get<std::int64_t>(), e["obj1"].get<std::int64_t>(), {}};
-      for (const auto& p : e["pairs"]) r.pairs.push_back({p[0].get<std::int64_t>(), p[1].get<std::int64_t>()});
+      for (const auto& p : e["pairs"])
+        r.pairs.push_back({p[0].get<std::int64_t>(), p[1].get<std::int64_t>()});
       pairs += static_cast<std::int64_t>(r.pairs.size());
       want.push_back(r);
     }
@@ -296,9 +363,11 @@ TEST_CASE("the reference detector reproduces collisions.json of MOVi-A scene 8 f
       UNSCOPED_INFO("frame " << t << " differs; three-way ties there: " << ties);
     }
   }
-  INFO(identical << " identical frames, " << differing << " differing (" << explained << " at three-way ties), " << pairs << " golden pairs");
+  INFO(identical << " identical frames, " << differing << " differing (" << explained
+                 << " at three-way ties), " << pairs << " golden pairs");
   // Every difference must sit at a documented three-way tie (frame 73 has one), and be rare.
   REQUIRE(explained == differing);
   REQUIRE(identical >= 478);
-  std::cout << "reference contacts: " << identical << "/480 frames identical, " << differing << " at three-way ties\n";
+  std::cout << "reference contacts: " << identical << "/480 frames identical, " << differing
+            << " at three-way ties\n";
 }

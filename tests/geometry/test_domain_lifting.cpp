@@ -49,7 +49,8 @@ TEST_CASE("cell complex from a cycle basis fills every independent cycle", "[geo
   REQUIRE(harmonic_basis(cx.hodge_laplacian_matrix(0)).cols() == 1);
 }
 
-TEST_CASE("Delaunay complexes: a disc in 2-D, a ball in 3-D, empty circumcircles", "[geometry][lifting]") {
+TEST_CASE("Delaunay complexes: a disc in 2-D, a ball in 3-D, empty circumcircles",
+          "[geometry][lifting]") {
   std::mt19937 rng(2);
   std::uniform_real_distribution<double> u(0, 1);
   Eigen::MatrixXd p2(60, 2);
@@ -60,32 +61,41 @@ TEST_CASE("Delaunay complexes: a disc in 2-D, a ball in 3-D, empty circumcircles
   for (const auto& t : d2.skeleton(2)) {
     // Circumcircle of t contains no other point.
     const Eigen::Vector2d a = p2.row(t[0]), b = p2.row(t[1]), c = p2.row(t[2]);
-    const double d = 2 * (a.x() * (b.y() - c.y()) + b.x() * (c.y() - a.y()) + c.x() * (a.y() - b.y()));
-    const Eigen::Vector2d o((a.squaredNorm() * (b.y() - c.y()) + b.squaredNorm() * (c.y() - a.y()) + c.squaredNorm() * (a.y() - b.y())) / d,
-                            (a.squaredNorm() * (c.x() - b.x()) + b.squaredNorm() * (a.x() - c.x()) + c.squaredNorm() * (b.x() - a.x())) / d);
+    const double d =
+        2 * (a.x() * (b.y() - c.y()) + b.x() * (c.y() - a.y()) + c.x() * (a.y() - b.y()));
+    const Eigen::Vector2d o((a.squaredNorm() * (b.y() - c.y()) + b.squaredNorm() * (c.y() - a.y()) +
+                             c.squaredNorm() * (a.y() - b.y())) /
+                                d,
+                            (a.squaredNorm() * (c.x() - b.x()) + b.squaredNorm() * (a.x() - c.x()) +
+                             c.squaredNorm() * (b.x() - a.x())) /
+                                d);
     const double r2 = (a - o).squaredNorm();
     for (Eigen::Index i = 0; i < p2.rows(); ++i)
-      if (i != t[0] && i != t[1] && i != t[2]) REQUIRE((Eigen::Vector2d(p2.row(i)) - o).squaredNorm() >= r2 * (1 - 1e-9));
+      if (i != t[0] && i != t[1] && i != t[2])
+        REQUIRE((Eigen::Vector2d(p2.row(i)) - o).squaredNorm() >= r2 * (1 - 1e-9));
   }
   Eigen::MatrixXd p3(40, 3);
   for (Eigen::Index i = 0; i < p3.rows(); ++i) p3.row(i) << u(rng), u(rng), u(rng);
   const SimplicialComplex d3 = delaunay_complex(p3);
   REQUIRE(d3.dim() == 3);
   REQUIRE(d3.euler_characteristic() == 1);
-  REQUIRE_THROWS_WITH(delaunay_complex(Eigen::MatrixXd::Zero(3, 4)), Catch::Contains("n x 2 or n x 3"));
+  REQUIRE_THROWS_WITH(delaunay_complex(Eigen::MatrixXd::Zero(3, 4)),
+                      Catch::Contains("n x 2 or n x 3"));
 }
 
 namespace {
 
 // Centre and squared radius of the smallest sphere (circle in 2-D) through the points of s.
-std::pair<Eigen::VectorXd, double> smallest_circumsphere(const Eigen::MatrixXd& p, const std::vector<std::int64_t>& s) {
+std::pair<Eigen::VectorXd, double> smallest_circumsphere(const Eigen::MatrixXd& p,
+                                                         const std::vector<std::int64_t>& s) {
   const Eigen::VectorXd a = p.row(s[0]).transpose();
   if (s.size() == 1) return {a, 0.0};
   // The centre a + U^T y lies in the affine hull (U: the rows p_i - a) and is equidistant from
   // all points: (U U^T) y = |u_i|^2 / 2.
   const Eigen::Index m = static_cast<Eigen::Index>(s.size()) - 1;
   Eigen::MatrixXd u(m, p.cols());
-  for (Eigen::Index i = 0; i < m; ++i) u.row(i) = p.row(s[static_cast<std::size_t>(i) + 1]) - a.transpose();
+  for (Eigen::Index i = 0; i < m; ++i)
+    u.row(i) = p.row(s[static_cast<std::size_t>(i) + 1]) - a.transpose();
   const Eigen::VectorXd rhs = 0.5 * u.rowwise().squaredNorm();
   const Eigen::VectorXd y = (u * u.transpose()).fullPivLu().solve(rhs);
   const Eigen::VectorXd c = a + u.transpose() * y;
@@ -96,7 +106,8 @@ std::pair<Eigen::VectorXd, double> smallest_circumsphere(const Eigen::MatrixXd& 
 // simplex gets its squared circumradius; a lower one its smallest circumsphere's squared radius
 // when no other point lies strictly inside that sphere, else the least value of its cofaces
 // (the Voronoi face dual to it then reaches the balls first on its boundary).
-std::vector<std::vector<double>> alpha_filtration(const Eigen::MatrixXd& p, const SimplicialComplex& del) {
+std::vector<std::vector<double>> alpha_filtration(const Eigen::MatrixXd& p,
+                                                  const SimplicialComplex& del) {
   std::vector<std::vector<double>> f(static_cast<std::size_t>(del.dim()) + 1);
   for (int k = del.dim(); k >= 0; --k) {
     auto& fk = f[static_cast<std::size_t>(k)];
@@ -106,11 +117,15 @@ std::vector<std::vector<double>> alpha_filtration(const Eigen::MatrixXd& p, cons
       const auto [c, r2] = smallest_circumsphere(p, s);
       bool attached = false;
       for (Eigen::Index i = 0; i < p.rows() && !attached; ++i)
-        if (std::find(s.begin(), s.end(), i) == s.end()) attached = (p.row(i).transpose() - c).squaredNorm() < r2 * (1 - 1e-12);
+        if (std::find(s.begin(), s.end(), i) == s.end())
+          attached = (p.row(i).transpose() - c).squaredNorm() < r2 * (1 - 1e-12);
       if (k == del.dim() || !attached) {
         fk[static_cast<std::size_t>(id)] = r2;
       } else {
-        for (std::int64_t t : del.cofaces(k, id, k + 1)) fk[static_cast<std::size_t>(id)] = std::min(fk[static_cast<std::size_t>(id)], f[static_cast<std::size_t>(k) + 1][static_cast<std::size_t>(t)]);
+        for (std::int64_t t : del.cofaces(k, id, k + 1))
+          fk[static_cast<std::size_t>(id)] =
+              std::min(fk[static_cast<std::size_t>(id)],
+                       f[static_cast<std::size_t>(k) + 1][static_cast<std::size_t>(t)]);
       }
     }
   }
@@ -127,7 +142,8 @@ void check_alpha_complexes(const Eigen::MatrixXd& p) {
   std::sort(values.begin(), values.end());
   values.erase(std::unique(values.begin(), values.end()), values.end());
   std::vector<double> alphas{0.0, 100.0, 1e300};
-  for (std::size_t i = 0; i + 1 < values.size(); ++i) alphas.push_back(0.5 * (values[i] + values[i + 1]));
+  for (std::size_t i = 0; i + 1 < values.size(); ++i)
+    alphas.push_back(0.5 * (values[i] + values[i + 1]));
   for (double alpha : alphas) {
     CAPTURE(alpha);
     const SimplicialComplex a = alpha_complex(p, alpha);
@@ -135,7 +151,8 @@ void check_alpha_complexes(const Eigen::MatrixXd& p) {
     for (int k = 0; k <= del.dim(); ++k) {
       std::vector<std::vector<std::int64_t>> expected;
       for (std::int64_t id = 0; id < del.num_cells(k); ++id)
-        if (f[static_cast<std::size_t>(k)][static_cast<std::size_t>(id)] <= alpha) expected.push_back(del.simplex(k, id));
+        if (f[static_cast<std::size_t>(k)][static_cast<std::size_t>(id)] <= alpha)
+          expected.push_back(del.simplex(k, id));
       if (expected.empty()) break;
       shape.push_back(static_cast<std::int64_t>(expected.size()));
       CAPTURE(k);
@@ -150,7 +167,8 @@ void check_alpha_complexes(const Eigen::MatrixXd& p) {
 
 }  // namespace
 
-TEST_CASE("alpha complexes equal a brute-force alpha filtration of the Delaunay complex", "[geometry][lifting]") {
+TEST_CASE("alpha complexes equal a brute-force alpha filtration of the Delaunay complex",
+          "[geometry][lifting]") {
   std::mt19937 rng(6);
   std::uniform_real_distribution<double> u(0, 1);
   Eigen::MatrixXd p3(40, 3);
@@ -169,6 +187,7 @@ TEST_CASE("alpha complexes equal a brute-force alpha filtration of the Delaunay 
   check_alpha_complexes(p2);
   const SimplicialComplex mid = alpha_complex(p3, 0.02);
   REQUIRE(sparse::multiply(mid.incidence_matrix(1), mid.incidence_matrix(2)).nonZeros() == 0);
-  REQUIRE_THROWS_WITH(alpha_complex(Eigen::MatrixXd::Zero(3, 4), 1.0), Catch::Contains("n x 2 or n x 3"));
+  REQUIRE_THROWS_WITH(alpha_complex(Eigen::MatrixXd::Zero(3, 4), 1.0),
+                      Catch::Contains("n x 2 or n x 3"));
   REQUIRE_THROWS_WITH(alpha_complex(p3, -1.0), Catch::Contains(">= 0"));
 }

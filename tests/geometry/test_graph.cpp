@@ -22,7 +22,9 @@ TEST_CASE("BGL breadth-first search on a RankGraph equals a direct BFS", "[geome
   boost::breadth_first_search(
       g, std::int64_t{0},
       boost::visitor(boost::make_bfs_visitor(boost::record_distances(
-          boost::make_iterator_property_map(dist.begin(), boost::typed_identity_property_map<std::int64_t>()), boost::on_tree_edge()))));
+          boost::make_iterator_property_map(dist.begin(),
+                                            boost::typed_identity_property_map<std::int64_t>()),
+          boost::on_tree_edge()))));
   // Direct BFS over the first-seen edge list.
   std::vector<std::vector<std::int64_t>> adj(static_cast<std::size_t>(l.complex.size(0)));
   for (auto& e : l.edges) {
@@ -59,7 +61,8 @@ TEST_CASE("a triangle soup splits into its connected objects", "[geometry][graph
   soup.vertices.resize(a.num_vertices() + b.num_vertices() + c.num_vertices(), 3);
   soup.vertices << a.vertices, b.vertices, c.vertices;
   soup.faces.resize(a.num_faces() + b.num_faces() + c.num_faces(), 3);
-  soup.faces << a.faces, (b.faces.array() + a.num_vertices()).matrix(), (c.faces.array() + a.num_vertices() + b.num_vertices()).matrix();
+  soup.faces << a.faces, (b.faces.array() + a.num_vertices()).matrix(),
+      (c.faces.array() + a.num_vertices() + b.num_vertices()).matrix();
   const auto parts = split_connected(soup);
   REQUIRE(parts.size() == 3);
   REQUIRE(parts[0].vertices == a.vertices);

@@ -19,7 +19,9 @@ std::string slurp(const fs::path& p) {
   s << in.rdbuf();
   return s.str();
 }
-void put(const fs::path& p, const std::string& text) { std::ofstream(p, std::ios::binary) << text; }
+void put(const fs::path& p, const std::string& text) {
+  std::ofstream(p, std::ios::binary) << text;
+}
 fs::path fresh_dir(const std::string& name) {
   const auto d = fs::temp_directory_path() / ("topos_io_test_" + name);
   fs::remove_all(d);
@@ -28,7 +30,8 @@ fs::path fresh_dir(const std::string& name) {
 }
 }  // namespace
 
-TEST_CASE("a file group replaces its files together, and recovery completes an interrupted commit", "[io][atomic]") {
+TEST_CASE("a file group replaces its files together, and recovery completes an interrupted commit",
+          "[io][atomic]") {
   const auto d = fresh_dir("group");
   const auto a = (d / "a").string(), b = (d / "b").string(), journal = (d / "journal").string();
   put(a, "old-a");
@@ -69,7 +72,8 @@ TEST_CASE("a file group replaces its files together, and recovery completes an i
   fs::remove_all(d);
 }
 
-TEST_CASE("a resumed CSV log keeps the header and the committed rows, never a row cut short", "[io][log]") {
+TEST_CASE("a resumed CSV log keeps the header and the committed rows, never a row cut short",
+          "[io][log]") {
   const auto d = fresh_dir("log");
   const auto steps = (d / "steps.csv").string();
   put(steps, "epoch,step,loss\n0,1,0.5\n0,2,0.4\n1,3,0.3\n1,4,0.2\n2,5,0.");

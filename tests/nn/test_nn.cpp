@@ -27,7 +27,8 @@ namespace {
 // Two small closed meshes; faces are per-complex cells; optionally a "contact" rank-3 cell
 // joining face 0 of object 0 (role -1) and face 0 of object 1 (role +1).
 ComplexView make_view(int variant, bool with_contact) {
-  auto lifted = lift_meshes({box_mesh(1), uv_sphere(3, 4 + variant)}, LiftOptions().with_object_rank(4));
+  auto lifted =
+      lift_meshes({box_mesh(1), uv_sphere(3, 4 + variant)}, LiftOptions().with_object_rank(4));
   auto& cc = lifted.complex;
   if (with_contact) {
     const auto f0 = lifted.faces.row(0), f1 = lifted.faces.row(lifted.face_offset[1]);
@@ -48,7 +49,10 @@ ComplexView make_view(int variant, bool with_contact) {
     v.neighborhoods["B32"] = incidence_neighborhood(cc, 3, 2);
   } else {
     Neighborhood e23;
-    e23.source_rank = 2; e23.target_rank = 3; e23.num_source = cc.size(2); e23.num_target = 0;
+    e23.source_rank = 2;
+    e23.target_rank = 3;
+    e23.num_source = cc.size(2);
+    e23.num_target = 0;
     e23.roles = {};
     v.neighborhoods["B23"] = e23;
     v.neighborhoods["B32"] = e23.reversed("B32");
@@ -59,18 +63,33 @@ ComplexView make_view(int variant, bool with_contact) {
 ScheduleSignature signature(const std::map<std::string, std::int64_t>& inputs) {
   ScheduleSignature s;
   s.inputs = inputs;
-  s.neighborhoods = {{"B01", {0, 1}}, {"B02", {0, 2}}, {"B12", {1, 2}}, {"B04", {0, 4}}, {"B40", {4, 0}}, {"B23", {2, 3}}, {"B32", {3, 2}}};
+  s.neighborhoods = {{"B01", {0, 1}}, {"B02", {0, 2}}, {"B12", {1, 2}}, {"B04", {0, 4}},
+                     {"B40", {4, 0}}, {"B23", {2, 3}}, {"B32", {3, 2}}};
   return s;
 }
 
 // A multi-step schedule with roles, a guard and a parallel group; hidden width D.
 Schedule test_schedule() {
   Schedule s;
-  s.encode(0, "", "x0", "e0").encode(1, "", "x1", "e1").encode(2, "", "x2", "e2").encode(4, "", "x4", "e4")
-      .encode(3, "minus", "x3", "e3").encode(3, "plus", "x3", "e3", {1, 0, 2}, {0});
-  s.step(into(2).msg(from(0).via("B02").map("p02")).msg(from(1).via("B12").map("p12").reduce(Reduce::mean)).update_with("u2"));
-  s.step(into(3, "plus").msg(from(2).via("B23").map("p23").by_role({-1, 1})).update_with("u3").when_nonempty(3));
-  s.step(into(2).msg(from(3, "plus").via("B32").only(1)).msg(from(3, "minus").via("B32").only(-1)).update_with("u2b").when_nonempty(3));
+  s.encode(0, "", "x0", "e0")
+      .encode(1, "", "x1", "e1")
+      .encode(2, "", "x2", "e2")
+      .encode(4, "", "x4", "e4")
+      .encode(3, "minus", "x3", "e3")
+      .encode(3, "plus", "x3", "e3", {1, 0, 2}, {0});
+  s.step(into(2)
+             .msg(from(0).via("B02").map("p02"))
+             .msg(from(1).via("B12").map("p12").reduce(Reduce::mean))
+             .update_with("u2"));
+  s.step(into(3, "plus")
+             .msg(from(2).via("B23").map("p23").by_role({-1, 1}))
+             .update_with("u3")
+             .when_nonempty(3));
+  s.step(into(2)
+             .msg(from(3, "plus").via("B32").only(1))
+             .msg(from(3, "minus").via("B32").only(-1))
+             .update_with("u2b")
+             .when_nonempty(3));
   s.parallel({into(0).msg(from(4).via("B40").map("p40")).update_with("u0"),
               into(4).msg(from(0).via("B04").map("p04").reduce(Reduce::max)).update_with("u4")});
   s.decode(0, "", "d0", "a0").decode(2, "", "d2", "a2");
@@ -78,24 +97,37 @@ Schedule test_schedule() {
 }
 
 std::map<std::string, MlpOptions> test_modules(int D) {
-  auto m = [&](std::int64_t in, std::int64_t out, bool last = true) { return MlpOptions(in, D, out).final_activation(last).layer_norm(last).activation(Activation::gelu); };
-  return {{"e0", m(3, D)}, {"e1", m(2, D)}, {"e2", m(2, D)}, {"e4", m(2, D)}, {"e3", m(3, D)},
-          {"p02", m(D, D)}, {"p12", m(D, D)}, {"u2", m(3 * D, D)}, {"p23", m(D, D)}, {"u3", m(3 * D, D)},
-          {"u2b", m(3 * D, D)}, {"p40", m(D, D)}, {"u0", m(2 * D, D)}, {"p04", m(D, D)}, {"u4", m(2 * D, D)},
-          {"d0", m(D, 3, false)}, {"d2", m(D, 1, false)}};
+  auto m = [&](std::int64_t in, std::int64_t out, bool last = true) {
+    return MlpOptions(in, D, out)
+        .final_activation(last)
+        .layer_norm(last)
+        .activation(Activation::gelu);
+  };
+  return {{"e0", m(3, D)},       {"e1", m(2, D)},     {"e2", m(2, D)},      {"e4", m(2, D)},
+          {"e3", m(3, D)},       {"p02", m(D, D)},    {"p12", m(D, D)},     {"u2", m(3 * D, D)},
+          {"p23", m(D, D)},      {"u3", m(3 * D, D)}, {"u2b", m(3 * D, D)}, {"p40", m(D, D)},
+          {"u0", m(2 * D, D)},   {"p04", m(D, D)},    {"u4", m(2 * D, D)},  {"d0", m(D, 3, false)},
+          {"d2", m(D, 1, false)}};
 }
 
-std::map<std::string, torch::Tensor> random_inputs(const ComplexBatch& b, torch::Dtype dt, int seed) {
+std::map<std::string, torch::Tensor> random_inputs(const ComplexBatch& b, torch::Dtype dt,
+                                                   int seed) {
   torch::manual_seed(seed);
-  return {{"x0", torch::randn({b.size(0), 3}, dt)}, {"x1", torch::randn({b.size(1), 2}, dt)}, {"x2", torch::randn({b.size(2), 2}, dt)},
-          {"x3", torch::randn({b.size(3), 3}, dt)}, {"x4", torch::randn({b.size(4), 2}, dt)}};
+  return {{"x0", torch::randn({b.size(0), 3}, dt)},
+          {"x1", torch::randn({b.size(1), 2}, dt)},
+          {"x2", torch::randn({b.size(2), 2}, dt)},
+          {"x3", torch::randn({b.size(3), 3}, dt)},
+          {"x4", torch::randn({b.size(4), 2}, dt)}};
 }
 
 }  // namespace
 
 TEST_CASE("aggregations equal hand-written loops", "[nn][aggregate]") {
   Neighborhood n;
-  n.source_rank = 0; n.target_rank = 1; n.num_source = 4; n.num_target = 3;
+  n.source_rank = 0;
+  n.target_rank = 1;
+  n.num_source = 4;
+  n.num_target = 3;
   n.source = {0, 1, 2, 3, 1};
   n.target = {0, 0, 1, 1, 1};
   n.values = {2.0, -1.0, 0.5, 1.0, 3.0};
@@ -112,28 +144,36 @@ TEST_CASE("aggregations equal hand-written loops", "[nn][aggregate]") {
       if (role != 0 && n.roles[k] != role) continue;
       auto m = x[n.source[k]] * (weighted ? n.values[k] : 1.0);
       const auto t = n.target[k];
-      if (r == Reduce::max) out[t] = seen[static_cast<std::size_t>(t)] ? torch::max(out[t], m) : m;
-      else out[t] += m;
+      if (r == Reduce::max)
+        out[t] = seen[static_cast<std::size_t>(t)] ? torch::max(out[t], m) : m;
+      else
+        out[t] += m;
       seen[static_cast<std::size_t>(t)] = true;
       ++count[static_cast<std::size_t>(t)];
     }
     if (r == Reduce::mean)
-      for (int t = 0; t < 3; ++t) if (count[static_cast<std::size_t>(t)]) out[t] /= count[static_cast<std::size_t>(t)];
+      for (int t = 0; t < 3; ++t)
+        if (count[static_cast<std::size_t>(t)]) out[t] /= count[static_cast<std::size_t>(t)];
     return out;
   };
   for (Reduce r : {Reduce::sum, Reduce::mean, Reduce::max})
     for (bool w : {false, true})
       for (int role : {0, 1, -1}) {
         INFO(to_string(r) << " weighted " << w << " role " << role);
-        const auto got = aggregate(x, tn, AggregateOptions().with_reduce(r).with_weighted(w).with_role(role));
+        const auto got =
+            aggregate(x, tn, AggregateOptions().with_reduce(r).with_weighted(w).with_role(role));
         REQUIRE(torch::allclose(got, loop(r, w, role), 1e-12, 1e-12));
         REQUIRE(got[2].abs().sum().item<double>() == 0.0);  // target 2 receives nothing
       }
 }
 
-TEST_CASE("a neighbourhood with one pair per target, in order, aggregates as a gather", "[nn][aggregate]") {
+TEST_CASE("a neighbourhood with one pair per target, in order, aggregates as a gather",
+          "[nn][aggregate]") {
   Neighborhood n;
-  n.source_rank = 1; n.target_rank = 0; n.num_source = 2; n.num_target = 4;
+  n.source_rank = 1;
+  n.target_rank = 0;
+  n.num_source = 2;
+  n.num_target = 4;
   n.source = {1, 0, 0, 1};
   n.target = {0, 1, 2, 3};
   n.values = {2.0, -1.0, 0.5, 1.0};
@@ -142,20 +182,28 @@ TEST_CASE("a neighbourhood with one pair per target, in order, aggregates as a g
   const auto x = torch::randn({2, 3}, torch::kDouble);
   for (Reduce r : {Reduce::sum, Reduce::mean, Reduce::max})
     for (bool w : {false, true}) {
-      const auto got = aggregate(x, b.neighborhood("n"), AggregateOptions().with_reduce(r).with_weighted(w));
-      for (int t = 0; t < 4; ++t) REQUIRE(torch::allclose(got[t], x[n.source[static_cast<std::size_t>(t)]] * (w ? n.values[static_cast<std::size_t>(t)] : 1.0)));
+      const auto got =
+          aggregate(x, b.neighborhood("n"), AggregateOptions().with_reduce(r).with_weighted(w));
+      for (int t = 0; t < 4; ++t)
+        REQUIRE(torch::allclose(got[t], x[n.source[static_cast<std::size_t>(t)]] *
+                                            (w ? n.values[static_cast<std::size_t>(t)] : 1.0)));
     }
   n.target = {0, 1, 3, 2};  // a permutation is not "in order"
-  REQUIRE_FALSE(ComplexBatch::collate({ComplexView{{4, 2}, {{"n", n}}}}, 1).neighborhood("n").one_per_target);
+  REQUIRE_FALSE(
+      ComplexBatch::collate({ComplexView{{4, 2}, {{"n", n}}}}, 1).neighborhood("n").one_per_target);
 }
 
 TEST_CASE("Mlp follows the reference layout and parameter count", "[nn][mlp]") {
   Mlp m(MlpOptions(16, 128, 128));
   std::int64_t count = 0;
   std::vector<std::string> names;
-  for (const auto& p : m->named_parameters()) { count += p.value().numel(); names.push_back(p.key()); }
+  for (const auto& p : m->named_parameters()) {
+    count += p.value().numel();
+    names.push_back(p.key());
+  }
   REQUIRE(count == 128 * 16 + 16896);
-  REQUIRE(names == std::vector<std::string>{"0.weight", "0.bias", "2.weight", "2.bias", "4.weight", "4.bias"});
+  REQUIRE(names == std::vector<std::string>{"0.weight", "0.bias", "2.weight", "2.bias", "4.weight",
+                                            "4.bias"});
   Mlp dec(MlpOptions(128, 128, 3).final_activation(false).layer_norm(false));
   REQUIRE(dec->named_parameters().size() == 4);
   Mlp one(MlpOptions(4, 8, 5).layers(1));
@@ -169,7 +217,8 @@ TEST_CASE("a batch of complexes gives the per-complex results", "[nn][batch][sch
   const auto batch = ComplexBatch::collate(views, 4);
   REQUIRE(batch.size(3) == 2);
   REQUIRE(batch.counts(3) == std::vector<std::int64_t>{1, 0, 1});
-  ScheduleNetwork net(test_schedule(), test_modules(16), signature({{"x0", 3}, {"x1", 2}, {"x2", 2}, {"x3", 3}, {"x4", 2}}));
+  ScheduleNetwork net(test_schedule(), test_modules(16),
+                      signature({{"x0", 3}, {"x1", 2}, {"x2", 2}, {"x3", 3}, {"x4", 2}}));
   const auto inputs = random_inputs(batch, torch::kFloat, 3);
   const auto all = net->forward(inputs, batch);
   for (std::size_t c = 0; c < views.size(); ++c) {
@@ -177,14 +226,18 @@ TEST_CASE("a batch of complexes gives the per-complex results", "[nn][batch][sch
     std::map<std::string, torch::Tensor> in;
     const int ranks[] = {0, 1, 2, 3, 4};
     const char* names[] = {"x0", "x1", "x2", "x3", "x4"};
-    for (int r : ranks) in[names[r]] = inputs.at(names[r]).slice(0, batch.ptr(r)[c], batch.ptr(r)[c + 1]);
+    for (int r : ranks)
+      in[names[r]] = inputs.at(names[r]).slice(0, batch.ptr(r)[c], batch.ptr(r)[c + 1]);
     const auto out = net->forward(in, single);
-    REQUIRE(torch::allclose(out.at("a0"), all.at("a0").slice(0, batch.ptr(0)[c], batch.ptr(0)[c + 1]), 1e-6, 1e-6));
-    REQUIRE(torch::allclose(out.at("a2"), all.at("a2").slice(0, batch.ptr(2)[c], batch.ptr(2)[c + 1]), 1e-6, 1e-6));
+    REQUIRE(torch::allclose(
+        out.at("a0"), all.at("a0").slice(0, batch.ptr(0)[c], batch.ptr(0)[c + 1]), 1e-6, 1e-6));
+    REQUIRE(torch::allclose(
+        out.at("a2"), all.at("a2").slice(0, batch.ptr(2)[c], batch.ptr(2)[c + 1]), 1e-6, 1e-6));
   }
   // All-guarded batch (no rank-3 cells anywhere) and an empty batch run too.
   const auto guarded = ComplexBatch::collate({views[1]}, 4);
-  REQUIRE(net->forward(random_inputs(guarded, torch::kFloat, 4), guarded).at("a0").size(0) == guarded.size(0));
+  REQUIRE(net->forward(random_inputs(guarded, torch::kFloat, 4), guarded).at("a0").size(0) ==
+          guarded.size(0));
   const auto empty = ComplexBatch::collate({}, 4, &views[0]);
   REQUIRE(net->forward(random_inputs(empty, torch::kFloat, 5), empty).at("a0").size(0) == 0);
 }
@@ -200,12 +253,14 @@ TEST_CASE("the fast paths give the plain schedule's outputs and gradients", "[nn
       Neighborhood kept = n;
       kept.source.clear(), kept.target.clear(), kept.values.clear(), kept.roles.clear();
       for (std::size_t k = 0; k < n.source.size(); ++k)
-        if (n.target[k] < n.num_target / 2) kept.source.push_back(n.source[k]), kept.target.push_back(n.target[k]);
+        if (n.target[k] < n.num_target / 2)
+          kept.source.push_back(n.source[k]), kept.target.push_back(n.target[k]);
       n = kept;
     }
   }
   const auto batch = ComplexBatch::collate(views, 4);
-  ScheduleNetwork net(test_schedule(), test_modules(8), signature({{"x0", 3}, {"x1", 2}, {"x2", 2}, {"x3", 3}, {"x4", 2}}));
+  ScheduleNetwork net(test_schedule(), test_modules(8),
+                      signature({{"x0", 3}, {"x1", 2}, {"x2", 2}, {"x3", 3}, {"x4", 2}}));
   net->to(torch::kDouble);
   const auto inputs = random_inputs(batch, torch::kDouble, 11);
   auto run = [&](bool fast) {
@@ -214,7 +269,8 @@ TEST_CASE("the fast paths give the plain schedule's outputs and gradients", "[nn
     auto out = net->forward(inputs, batch);
     (out.at("a0").pow(2).sum() + out.at("a2").sin().sum()).backward();
     std::vector<torch::Tensor> r{out.at("a0").detach(), out.at("a2").detach()};
-    for (const auto& p : net->parameters()) r.push_back(p.grad().defined() ? p.grad().clone() : torch::zeros_like(p));
+    for (const auto& p : net->parameters())
+      r.push_back(p.grad().defined() ? p.grad().clone() : torch::zeros_like(p));
     return r;
   };
   const auto fast = run(true), plain = run(false);
@@ -226,9 +282,11 @@ TEST_CASE("the fast paths give the plain schedule's outputs and gradients", "[nn
   REQUIRE(fast[0].abs().sum().item<double>() > 0);
 }
 
-TEST_CASE("schedule gradients match finite differences in double precision", "[nn][schedule][grad]") {
+TEST_CASE("schedule gradients match finite differences in double precision",
+          "[nn][schedule][grad]") {
   const auto batch = ComplexBatch::collate({make_view(0, true), make_view(1, false)}, 4);
-  ScheduleNetwork net(test_schedule(), test_modules(6), signature({{"x0", 3}, {"x1", 2}, {"x2", 2}, {"x3", 3}, {"x4", 2}}));
+  ScheduleNetwork net(test_schedule(), test_modules(6),
+                      signature({{"x0", 3}, {"x1", 2}, {"x2", 2}, {"x3", 3}, {"x4", 2}}));
   net->to(torch::kDouble);
   const auto inputs = random_inputs(batch, torch::kDouble, 7);
   auto loss = [&] {
@@ -242,7 +300,8 @@ TEST_CASE("schedule gradients match finite differences in double precision", "[n
   for (const auto& p : net->named_parameters()) {
     auto data = p.value().detach();
     auto flat = data.view({-1});
-    const auto grad = p.value().grad().defined() ? p.value().grad().view({-1}) : torch::zeros_like(flat);
+    const auto grad =
+        p.value().grad().defined() ? p.value().grad().view({-1}) : torch::zeros_like(flat);
     for (int k = 0; k < 2; ++k) {
       const auto i = static_cast<std::int64_t>(rng() % static_cast<unsigned>(flat.size(0)));
       const double eps = 1e-6, orig = flat[i].item<double>();
@@ -263,7 +322,8 @@ TEST_CASE("schedule gradients match finite differences in double precision", "[n
 
 TEST_CASE("schedules are validated when the network is built", "[nn][schedule][errors]") {
   const auto sig = signature({{"x0", 3}, {"x1", 2}, {"x2", 2}, {"x3", 3}, {"x4", 2}});
-  auto expect = [&](const Schedule& s, std::map<std::string, MlpOptions> mods, const std::string& what) {
+  auto expect = [&](const Schedule& s, std::map<std::string, MlpOptions> mods,
+                    const std::string& what) {
     try {
       ScheduleNetwork net(s, mods, sig);
     } catch (const ScheduleError& e) {
@@ -275,33 +335,46 @@ TEST_CASE("schedules are validated when the network is built", "[nn][schedule][e
   };
   auto mods = test_modules(8);
   Schedule s = test_schedule();
-  expect(Schedule(s).step(into(2).msg(from(0).via("B99")).update_with("u2").named("bad nbh")), mods, "bad nbh (into (2)): unknown neighborhood 'B99'");
-  expect(Schedule(s).step(into(2).msg(from(1).via("B02")).update_with("u2").named("wrong dir")), mods, "wrong dir (into (2)): neighborhood 'B02' goes from rank 0 to rank 2, not from 1 to 2");
-  expect(Schedule(s).step(into(2).msg(from(0).via("B02")).update_with("u2").named("chan")), mods, "chan (into (2)): update module 'u2' takes 24 channels but the combined input has 16");
-  expect(Schedule(s).step(into(2).msg(from(0).via("B02")).update_with("nope").named("mod")), mods, "mod (into (2)): unknown module 'nope'");
-  expect(Schedule(s).step(into(2, "ghost").msg(from(0).via("B02")).update_with("u0").named("st")), mods, "st (into (2, \"ghost\")): target (2, \"ghost\") has no cochain");
+  expect(Schedule(s).step(into(2).msg(from(0).via("B99")).update_with("u2").named("bad nbh")), mods,
+         "bad nbh (into (2)): unknown neighborhood 'B99'");
+  expect(Schedule(s).step(into(2).msg(from(1).via("B02")).update_with("u2").named("wrong dir")),
+         mods,
+         "wrong dir (into (2)): neighborhood 'B02' goes from rank 0 to rank 2, not from 1 to 2");
+  expect(Schedule(s).step(into(2).msg(from(0).via("B02")).update_with("u2").named("chan")), mods,
+         "chan (into (2)): update module 'u2' takes 24 channels but the combined input has 16");
+  expect(Schedule(s).step(into(2).msg(from(0).via("B02")).update_with("nope").named("mod")), mods,
+         "mod (into (2)): unknown module 'nope'");
+  expect(Schedule(s).step(into(2, "ghost").msg(from(0).via("B02")).update_with("u0").named("st")),
+         mods, "st (into (2, \"ghost\")): target (2, \"ghost\") has no cochain");
   expect(Schedule().encode(0, "", "x9", "e0"), mods, "encode (0): unknown input 'x9'");
-  expect(Schedule().encode(0, "", "x0", "e1"), mods, "encode (0): module 'e1' takes 2 channels but gets 3");
+  expect(Schedule().encode(0, "", "x0", "e1"), mods,
+         "encode (0): module 'e1' takes 2 channels but gets 3");
   expect(Schedule().encode(0, "", "x0", "e0", {0, 7}), mods, "column 7 out of range");
   expect(Schedule(s).decode(3, "", "d0", "z"), mods, "decode (3): no cochain to decode");
-  REQUIRE(test_schedule().str().find("step 1: into (3, \"plus\") when rank 3 nonempty = u3(cat[self, p23·(2) via B23 by role])") != std::string::npos);
+  REQUIRE(test_schedule().str().find("step 1: into (3, \"plus\") when rank 3 nonempty = "
+                                     "u3(cat[self, p23·(2) via B23 by role])") !=
+          std::string::npos);
 }
 
 TEST_CASE("parameters round-trip by name through a file", "[nn][checkpoint]") {
   const auto sig = signature({{"x0", 3}, {"x1", 2}, {"x2", 2}, {"x3", 3}, {"x4", 2}});
-  ScheduleNetwork a(test_schedule(), test_modules(8), sig), b(test_schedule(), test_modules(8), sig);
+  ScheduleNetwork a(test_schedule(), test_modules(8), sig),
+      b(test_schedule(), test_modules(8), sig);
   const std::string path = "topos_test_params.pt";
   save_parameters(*a, path);
   const auto dict = read_tensor_dict(path);
   REQUIRE(dict.count("modules.p23.0.weight") == 1);
   load_parameters(*b, dict, path);
-  for (const auto& p : a->named_parameters()) REQUIRE(torch::equal(p.value(), b->named_parameters()[p.key()]));
+  for (const auto& p : a->named_parameters())
+    REQUIRE(torch::equal(p.value(), b->named_parameters()[p.key()]));
   auto missing = dict;
   missing.erase("modules.u3.2.bias");
-  REQUIRE_THROWS_WITH(load_parameters(*b, missing, "x.pt"), "x.pt: missing tensor 'modules.u3.2.bias'");
+  REQUIRE_THROWS_WITH(load_parameters(*b, missing, "x.pt"),
+                      "x.pt: missing tensor 'modules.u3.2.bias'");
   auto shaped = dict;
   shaped["modules.u3.2.bias"] = torch::zeros({3});
-  REQUIRE_THROWS_WITH(load_parameters(*b, shaped, "x.pt"), Catch::Contains("tensor 'modules.u3.2.bias' has shape [3], expected [8]"));
+  REQUIRE_THROWS_WITH(load_parameters(*b, shaped, "x.pt"),
+                      Catch::Contains("tensor 'modules.u3.2.bias' has shape [3], expected [8]"));
   auto extra = dict;
   extra["bogus"] = torch::zeros({1});
   REQUIRE_THROWS_WITH(load_parameters(*b, extra, "x.pt"), "x.pt: unexpected tensor 'bogus'");
@@ -309,7 +382,8 @@ TEST_CASE("parameters round-trip by name through a file", "[nn][checkpoint]") {
   std::remove(path.c_str());
 }
 
-TEST_CASE("epoch sharding: every item once per epoch, the same steps for any world size", "[nn][distributed]") {
+TEST_CASE("epoch sharding: every item once per epoch, the same steps for any world size",
+          "[nn][distributed]") {
   const std::int64_t n = 11;
   const auto order = epoch_order(n, 5, 0);
   REQUIRE(order == epoch_order(n, 5, 0));
@@ -319,7 +393,8 @@ TEST_CASE("epoch sharding: every item once per epoch, the same steps for any wor
   REQUIRE(order != epoch_order(n, 5, 1));  // 1 in 11! to coincide
   REQUIRE(order != epoch_order(n, 6, 0));
   REQUIRE(epoch_order(0, 1, 0).empty());
-  for (auto [world, per_rank] : std::vector<std::pair<int, int>>{{1, 1}, {1, 2}, {2, 1}, {3, 2}, {4, 1}, {16, 1}}) {
+  for (auto [world, per_rank] :
+       std::vector<std::pair<int, int>>{{1, 1}, {1, 2}, {2, 1}, {3, 2}, {4, 1}, {16, 1}}) {
     INFO("world " << world << " per rank " << per_rank);
     const auto steps = steps_per_epoch(n, world, per_rank);
     REQUIRE(steps == (n + world * per_rank - 1) / (world * per_rank));
@@ -347,7 +422,8 @@ TEST_CASE("epoch sharding: every item once per epoch, the same steps for any wor
   }
 }
 
-TEST_CASE("a world of one: collectives are the identity, gradients are divided", "[nn][distributed]") {
+TEST_CASE("a world of one: collectives are the identity, gradients are divided",
+          "[nn][distributed]") {
   Distributed one;
   REQUIRE(one.world_size() == 1);
   REQUIRE(one.is_main());
@@ -364,33 +440,47 @@ TEST_CASE("a world of one: collectives are the identity, gradients are divided",
 
 TEST_CASE("the environment of torchrun: read, and refused when inconsistent", "[nn][distributed]") {
   const auto with_env = [](std::vector<std::pair<const char*, const char*>> vars) {
-    for (const char* k : {"RANK", "WORLD_SIZE", "LOCAL_RANK", "LOCAL_WORLD_SIZE", "MASTER_ADDR", "MASTER_PORT", "TOPOS_RENDEZVOUS_FILE"}) unsetenv(k);
+    for (const char* k : {"RANK", "WORLD_SIZE", "LOCAL_RANK", "LOCAL_WORLD_SIZE", "MASTER_ADDR",
+                          "MASTER_PORT", "TOPOS_RENDEZVOUS_FILE"})
+      unsetenv(k);
     for (auto [k, v] : vars) setenv(k, v, 1);
   };
   with_env({});
   auto e = DistributedEnv::from_environment();
   REQUIRE((e.world_size == 1 && e.rank == 0 && e.local_rank == 0));
-  with_env({{"RANK", "3"}, {"WORLD_SIZE", "4"}, {"LOCAL_RANK", "1"}, {"LOCAL_WORLD_SIZE", "2"}, {"MASTER_ADDR", "node7"}, {"MASTER_PORT", "29555"}});
+  with_env({{"RANK", "3"},
+            {"WORLD_SIZE", "4"},
+            {"LOCAL_RANK", "1"},
+            {"LOCAL_WORLD_SIZE", "2"},
+            {"MASTER_ADDR", "node7"},
+            {"MASTER_PORT", "29555"}});
   e = DistributedEnv::from_environment();
-  REQUIRE((e.rank == 3 && e.world_size == 4 && e.local_rank == 1 && e.local_world_size == 2 && e.master_addr == "node7" && e.master_port == 29555));
+  REQUIRE((e.rank == 3 && e.world_size == 4 && e.local_rank == 1 && e.local_world_size == 2 &&
+           e.master_addr == "node7" && e.master_port == 29555));
   REQUIRE_FALSE(e.loopback());
   with_env({{"RANK", "2"}, {"WORLD_SIZE", "2"}});
   REQUIRE_THROWS_WITH(DistributedEnv::from_environment(), "RANK=2 is not below WORLD_SIZE=2");
   with_env({{"WORLD_SIZE", "2"}});
   REQUIRE_THROWS_WITH(DistributedEnv::from_environment(), "WORLD_SIZE=2 is set but RANK is not");
   with_env({{"RANK", "0"}, {"WORLD_SIZE", "two"}});
-  REQUIRE_THROWS_WITH(DistributedEnv::from_environment(), "environment variable WORLD_SIZE='two' is not an integer >= 1");
+  REQUIRE_THROWS_WITH(DistributedEnv::from_environment(),
+                      "environment variable WORLD_SIZE='two' is not an integer >= 1");
   with_env({{"RANK", "0"}, {"WORLD_SIZE", "1"}, {"MASTER_PORT", "70000"}});
-  REQUIRE_THROWS_WITH(DistributedEnv::from_environment(), Catch::Contains("MASTER_PORT=70000 is not a port"));
+  REQUIRE_THROWS_WITH(DistributedEnv::from_environment(),
+                      Catch::Contains("MASTER_PORT=70000 is not a port"));
   with_env({});
 }
 
-TEST_CASE("two ranks over Gloo: gradients averaged in buckets, broadcasts, and a dead peer is an error, not a hang", "[nn][distributed]") {
+TEST_CASE(
+    "two ranks over Gloo: gradients averaged in buckets, broadcasts, and a dead peer is an error, "
+    "not a hang",
+    "[nn][distributed]") {
   if (!gloo_available()) {
     std::cout << "SKIPPED: this build has no c10d Gloo process group (libgloo-dev)\n";
     std::exit(TOPOS_SKIP_CODE);
   }
-  const auto dir = std::filesystem::temp_directory_path() / ("topos_gloo_test_" + std::to_string(::getpid()));
+  const auto dir =
+      std::filesystem::temp_directory_path() / ("topos_gloo_test_" + std::to_string(::getpid()));
   std::filesystem::remove_all(dir);
   std::filesystem::create_directories(dir);
   const auto env = [&](int rank) {
@@ -412,20 +502,25 @@ TEST_CASE("two ranks over Gloo: gradients averaged in buckets, broadcasts, and a
       try {
         Distributed d(env(r), opts);
         names[static_cast<std::size_t>(r)] = d.backend_name();
-        torch::manual_seed(static_cast<std::uint64_t>(10 + r));  // different replicas until the broadcast
+        torch::manual_seed(
+            static_cast<std::uint64_t>(10 + r));  // different replicas until the broadcast
         torch::nn::Linear a(4, 3), b(3, 1), c(1, 1);
         std::vector<torch::Tensor> params = a->parameters();
         for (auto& p : b->parameters()) params.push_back(p);
         params.push_back(c->weight);  // no gradient on either rank
         d.broadcast_(params);
-        weights[static_cast<std::size_t>(r)] = torch::cat({a->weight.reshape(-1), b->weight.reshape(-1)}).clone();
+        weights[static_cast<std::size_t>(r)] =
+            torch::cat({a->weight.reshape(-1), b->weight.reshape(-1)}).clone();
         for (std::size_t i = 0; i < params.size(); ++i)
-          if (!(r == 1 && i == 3) && i != 4) params[i].mutable_grad() = torch::full_like(params[i], static_cast<double>((r + 1) * (i + 1)));
+          if (!(r == 1 && i == 3) && i != 4)
+            params[i].mutable_grad() =
+                torch::full_like(params[i], static_cast<double>((r + 1) * (i + 1)));
         d.average_gradients(params, 2.0);
         grads[static_cast<std::size_t>(r)] = a->weight.grad().clone();
         bias_grads[static_cast<std::size_t>(r)] = b->bias.grad().clone();
         ghost[static_cast<std::size_t>(r)] = c->weight.grad().defined();
-        bytes[static_cast<std::size_t>(r)] = d.broadcast_bytes(r == 0 ? std::string("statistics\0json", 15) : std::string());
+        bytes[static_cast<std::size_t>(r)] =
+            d.broadcast_bytes(r == 0 ? std::string("statistics\0json", 15) : std::string());
         sums[static_cast<std::size_t>(r)] = d.all_reduce_sum({1.0 + r, 0.25});
         d.barrier();
         if (r == 1) return;  // rank 1 leaves: its group closes its connections
@@ -442,7 +537,8 @@ TEST_CASE("two ranks over Gloo: gradients averaged in buckets, broadcasts, and a
   REQUIRE(errors[1].empty());
   REQUIRE(ghost == std::vector<int>{0, 0});  // no gradient anywhere: none after averaging
   REQUIRE(torch::equal(weights[0], weights[1]));
-  // a.weight is parameter 0: (1·1 + 2·1) / 2; b.bias is parameter 3, absent on rank 1: (1·4 + 0) / 2.
+  // a.weight is parameter 0: (1·1 + 2·1) / 2; b.bias is parameter 3, absent on rank 1: (1·4 + 0) /
+  // 2.
   for (int r = 0; r < 2; ++r) {
     REQUIRE(torch::allclose(grads[static_cast<std::size_t>(r)], torch::full({3, 4}, 1.5)));
     REQUIRE(torch::allclose(bias_grads[static_cast<std::size_t>(r)], torch::full({1}, 2.0)));
@@ -450,12 +546,15 @@ TEST_CASE("two ranks over Gloo: gradients averaged in buckets, broadcasts, and a
     REQUIRE(sums[static_cast<std::size_t>(r)] == std::vector<double>{3.0, 0.5});
   }
   INFO(errors[0]);
-  REQUIRE_THAT(errors[0], Catch::Contains("distributed (rank 0 of 2): all-reduce failed: another worker died or stopped responding"));
+  REQUIRE_THAT(errors[0], Catch::Contains("distributed (rank 0 of 2): all-reduce failed: another "
+                                          "worker died or stopped responding"));
 }
 
-TEST_CASE("devices by name: cpu, auto, and a clear error for CUDA where there is none", "[nn][device]") {
+TEST_CASE("devices by name: cpu, auto, and a clear error for CUDA where there is none",
+          "[nn][device]") {
   REQUIRE(device_from_string("cpu") == torch::Device(torch::kCPU));
-  REQUIRE_THROWS_WITH(device_from_string("tpu"), "--device tpu: expected cpu, cuda, cuda:<index> or auto");
+  REQUIRE_THROWS_WITH(device_from_string("tpu"),
+                      "--device tpu: expected cpu, cuda, cuda:<index> or auto");
   REQUIRE_THROWS_WITH(device_from_string("cuda:x"), "--device cuda:x: expected cuda:<index>");
   if (cuda_available()) {
     REQUIRE(device_from_string("auto").is_cuda());
@@ -463,15 +562,20 @@ TEST_CASE("devices by name: cpu, auto, and a clear error for CUDA where there is
     REQUIRE_THROWS_WITH(device_from_string("cuda:999"), Catch::Contains("GPU 999 does not exist"));
   } else {
     REQUIRE(device_from_string("auto") == torch::Device(torch::kCPU));
-    REQUIRE_THROWS_WITH(device_from_string("cuda"), Catch::Contains("--device cuda: no CUDA device"));
+    REQUIRE_THROWS_WITH(device_from_string("cuda"),
+                        Catch::Contains("--device cuda: no CUDA device"));
     REQUIRE_THROWS_WITH(device_from_string("cuda:0"), Catch::Contains("use --device cpu"));
   }
 }
 
-TEST_CASE("Adam's state saved by parameter name resumes the same steps, with the same bytes in any process", "[nn][serialization]") {
+TEST_CASE(
+    "Adam's state saved by parameter name resumes the same steps, with the same bytes in any "
+    "process",
+    "[nn][serialization]") {
   const auto make = [] {
     torch::manual_seed(3);
-    return torch::nn::Sequential(torch::nn::Linear(4, 8), torch::nn::ReLU(), torch::nn::Linear(8, 2));
+    return torch::nn::Sequential(torch::nn::Linear(4, 8), torch::nn::ReLU(),
+                                 torch::nn::Linear(8, 2));
   };
   const auto x = torch::randn({16, 4}), y = torch::randn({16, 2});
   const auto step = [&](torch::nn::Sequential& m, torch::optim::Adam& opt) {
@@ -483,7 +587,8 @@ TEST_CASE("Adam's state saved by parameter name resumes the same steps, with the
   auto a = make();
   torch::optim::Adam opt_a(a->parameters(), torch::optim::AdamOptions(1e-2).amsgrad(true));
   for (int i = 0; i < 2; ++i) step(a, opt_a);
-  const auto saved = topos::nn::torch_file_bytes(c10::IValue(topos::nn::adam_state_dict(opt_a, *a)));
+  const auto saved =
+      topos::nn::torch_file_bytes(c10::IValue(topos::nn::adam_state_dict(opt_a, *a)));
   for (int i = 0; i < 3; ++i) step(a, opt_a);
   // Interrupted after two: a new model (new tensor addresses) and optimizer from the saved state.
   auto b = make();
@@ -493,21 +598,28 @@ TEST_CASE("Adam's state saved by parameter name resumes the same steps, with the
   auto c = make();
   {
     torch::NoGradGuard ng;
-    for (std::size_t i = 0; i < b->parameters().size(); ++i) c->parameters()[i].copy_(b->parameters()[i]);
+    for (std::size_t i = 0; i < b->parameters().size(); ++i)
+      c->parameters()[i].copy_(b->parameters()[i]);
   }
   torch::optim::Adam opt_c(c->parameters(), torch::optim::AdamOptions(1e-2).amsgrad(true));
   const auto dict = topos::nn::parse_tensor_dict(saved.data(), saved.size(), "adam.pt");
   REQUIRE(dict.count("0.weight.max_exp_avg_sq") == 1);
   topos::nn::load_adam_state(opt_c, *c, dict, "adam.pt");
   for (int i = 0; i < 3; ++i) step(c, opt_c);
-  for (std::size_t i = 0; i < a->parameters().size(); ++i) REQUIRE(torch::equal(a->parameters()[i], c->parameters()[i]));
+  for (std::size_t i = 0; i < a->parameters().size(); ++i)
+    REQUIRE(torch::equal(a->parameters()[i], c->parameters()[i]));
   // A state of another model is an error naming the tensor.
   auto other = torch::nn::Sequential(torch::nn::Linear(4, 3));
   torch::optim::Adam opt_o(other->parameters());
-  REQUIRE_THROWS_WITH(topos::nn::load_adam_state(opt_o, *other, dict, "adam.pt"), Catch::Contains("adam.pt: tensor '0.weight.exp_avg' does not have its parameter's shape"));
+  REQUIRE_THROWS_WITH(
+      topos::nn::load_adam_state(opt_o, *other, dict, "adam.pt"),
+      Catch::Contains("adam.pt: tensor '0.weight.exp_avg' does not have its parameter's shape"));
 }
 
-TEST_CASE("pickles Python writes (OrderedDict, SETITEM) reach the dict checks; a malformed OrderedDict is an error", "[nn][serialization]") {
+TEST_CASE(
+    "pickles Python writes (OrderedDict, SETITEM) reach the dict checks; a malformed OrderedDict "
+    "is an error",
+    "[nn][serialization]") {
   // A torch file around a hand-written pickle (protocol 2).
   const auto torch_file = [](const std::string& pickle) {
     std::vector<char> out;
@@ -526,8 +638,18 @@ TEST_CASE("pickles Python writes (OrderedDict, SETITEM) reach the dict checks; a
   using namespace std::string_literals;
   // {} via OrderedDict() (memoized class reused), with SETITEM and a _metadata BUILD: read as an
   // empty-then-filled plain dict, so the entry check (not LibTorch's unpickler) answers.
-  const std::string od = "\x80\x02" "ccollections\nOrderedDict\nq\x00)Rq\x01"s;
-  REQUIRE(parse(od + "}q\x02" "X\x09\x00\x00\x00_metadatah\x00)Rsb."s).empty());
-  REQUIRE_THROWS_WITH(parse(od + "X\x01\x00\x00\x00" "aK\x01s."s), Catch::Contains("t.pt: an entry is not a (name, tensor) pair"));
-  REQUIRE_THROWS_WITH(parse("\x80\x02" "ccollections\nOrderedDict\nq\x00K\x01R."s), Catch::Contains("t.pt: not a readable torch file: an OrderedDict made other than from an empty tuple"));
+  const std::string od =
+      "\x80\x02"
+      "ccollections\nOrderedDict\nq\x00)Rq\x01"s;
+  REQUIRE(parse(od + "}q\x02"
+                     "X\x09\x00\x00\x00_metadatah\x00)Rsb."s)
+              .empty());
+  REQUIRE_THROWS_WITH(parse(od + "X\x01\x00\x00\x00"
+                                 "aK\x01s."s),
+                      Catch::Contains("t.pt: an entry is not a (name, tensor) pair"));
+  REQUIRE_THROWS_WITH(
+      parse("\x80\x02"
+            "ccollections\nOrderedDict\nq\x00K\x01R."s),
+      Catch::Contains(
+          "t.pt: not a readable torch file: an OrderedDict made other than from an empty tuple"));
 }

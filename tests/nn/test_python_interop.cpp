@@ -25,23 +25,27 @@ const char* kPython = "/usr/bin/python3";
 void require_python_torch() {
   const std::string probe = std::string(kPython) + " -c 'import torch' >/dev/null 2>&1";
   if (std::system(probe.c_str()) != 0) {
-    std::cout << "SKIPPED: Python interop needs " << kPython << " with torch (apt-get install python3-torch; scripts/setup.sh installs it)\n";
+    std::cout << "SKIPPED: Python interop needs " << kPython
+              << " with torch (apt-get install python3-torch; scripts/setup.sh installs it)\n";
     std::exit(TOPOS_SKIP_CODE);
   }
 }
 
 std::filesystem::path work_dir(const std::string& name) {
-  const auto d = std::filesystem::temp_directory_path() / ("topos_interop_" + name + "_" + std::to_string(::getpid()));
+  const auto d = std::filesystem::temp_directory_path() /
+                 ("topos_interop_" + name + "_" + std::to_string(::getpid()));
   std::filesystem::remove_all(d);
   std::filesystem::create_directories(d);
   return d;
 }
 
 /// Runs a Python script (given as text) with arguments; requires exit status 0.
-void run_python(const std::filesystem::path& dir, const std::string& script, const std::string& args) {
+void run_python(const std::filesystem::path& dir, const std::string& script,
+                const std::string& args) {
   const auto file = dir / "script.py";
   std::ofstream(file) << script;
-  const std::string cmd = std::string(kPython) + " " + file.string() + " " + args + " > " + (dir / "python.log").string() + " 2>&1";
+  const std::string cmd = std::string(kPython) + " " + file.string() + " " + args + " > " +
+                          (dir / "python.log").string() + " 2>&1";
   const int rc = std::system(cmd.c_str());
   std::ifstream log(dir / "python.log");
   const std::string out((std::istreambuf_iterator<char>(log)), std::istreambuf_iterator<char>());
@@ -61,7 +65,8 @@ for path in sys.argv[1:]:
         json.dump(out, f)
 )";
 
-void require_same_as_python(const std::map<std::string, torch::Tensor>& mine, const std::string& json_path) {
+void require_same_as_python(const std::map<std::string, torch::Tensor>& mine,
+                            const std::string& json_path) {
   std::ifstream in(json_path);
   const auto j = nlohmann::json::parse(in);
   REQUIRE(j.size() == mine.size());
@@ -69,19 +74,26 @@ void require_same_as_python(const std::map<std::string, torch::Tensor>& mine, co
     INFO("tensor " << name);
     REQUIRE(j.contains(name));
     const auto& e = j[name];
-    const std::string want_dtype = t.scalar_type() == torch::kFloat ? "float32" : t.scalar_type() == torch::kDouble ? "float64" : t.scalar_type() == torch::kLong ? "int64" : "uint8";
+    const std::string want_dtype = t.scalar_type() == torch::kFloat    ? "float32"
+                                   : t.scalar_type() == torch::kDouble ? "float64"
+                                   : t.scalar_type() == torch::kLong   ? "int64"
+                                                                       : "uint8";
     CHECK(e["dtype"].get<std::string>() == want_dtype);
     REQUIRE(e["shape"].get<std::vector<std::int64_t>>() == t.sizes().vec());
     const auto values = e["values"].get<std::vector<double>>();
     const auto flat = t.to(torch::kDouble).contiguous().reshape({-1});
     REQUIRE(static_cast<std::int64_t>(values.size()) == flat.numel());
-    for (std::int64_t i = 0; i < flat.numel(); ++i) REQUIRE(values[static_cast<std::size_t>(i)] == flat[i].item<double>());
+    for (std::int64_t i = 0; i < flat.numel(); ++i)
+      REQUIRE(values[static_cast<std::size_t>(i)] == flat[i].item<double>());
   }
 }
 
 }  // namespace
 
-TEST_CASE("every torch file topos writes opens in Python's torch.load(weights_only=True) with the same tensors", "[nn][interop]") {
+TEST_CASE(
+    "every torch file topos writes opens in Python's torch.load(weights_only=True) with the same "
+    "tensors",
+    "[nn][interop]") {
   require_python_torch();
   const auto dir = work_dir("export");
   torch::manual_seed(3);
@@ -100,12 +112,15 @@ TEST_CASE("every torch file topos writes opens in Python's torch.load(weights_on
   mixed.insert("view", torch::arange(12, torch::kFloat).reshape({3, 4}).slice(1, 1, 3));
   mixed.insert("scalar", torch::tensor(2.5f));
   topos::nn::write_tensor_dict(mixed, (dir / "mixed.pt").string());
-  run_python(dir, kLoadScript, (dir / "hopnet.pt").string() + " " + (dir / "params.pt").string() + " " + (dir / "mixed.pt").string());
+  run_python(dir, kLoadScript,
+             (dir / "hopnet.pt").string() + " " + (dir / "params.pt").string() + " " +
+                 (dir / "mixed.pt").string());
 
   std::map<std::string, torch::Tensor> hop;
   for (const auto& p : net->named_parameters()) hop[p.key()] = p.value().detach();
   const std::string cfg = net->options.to_json().dump();
-  hop["topos.config"] = torch::tensor(std::vector<std::uint8_t>(cfg.begin(), cfg.end()), torch::kUInt8);
+  hop["topos.config"] =
+      torch::tensor(std::vector<std::uint8_t>(cfg.begin(), cfg.end()), torch::kUInt8);
   require_same_as_python(hop, (dir / "hopnet.pt.json").string());
   std::map<std::string, torch::Tensor> params;
   for (const auto& p : seq->named_parameters()) params[p.key()] = p.value().detach();
@@ -118,7 +133,9 @@ TEST_CASE("every torch file topos writes opens in Python's torch.load(weights_on
   std::filesystem::remove_all(dir);
 }
 
-TEST_CASE("a state_dict saved by Python's torch.save loads in topos and computes what Python computed", "[nn][interop]") {
+TEST_CASE(
+    "a state_dict saved by Python's torch.save loads in topos and computes what Python computed",
+    "[nn][interop]") {
   require_python_torch();
   const auto dir = work_dir("import");
   // Python: a Linear-ReLU-Linear-BatchNorm model, trained one step so the BatchNorm buffers
@@ -126,7 +143,8 @@ TEST_CASE("a state_dict saved by Python's torch.save loads in topos and computes
   const char* script = R"(
 import json, sys, torch
 torch.manual_seed(7)
-model = torch.nn.Sequential(torch.nn.Linear(3, 5), torch.nn.ReLU(), torch.nn.Linear(5, 2), torch.nn.BatchNorm1d(2))
+model = torch.nn.Sequential(torch.nn.Linear(3, 5), torch.nn.ReLU(), torch.nn.Linear(5, 2),
+                            torch.nn.BatchNorm1d(2))
 opt = torch.optim.SGD(model.parameters(), lr=0.1)
 model(torch.randn(8, 3)).pow(2).sum().backward()
 opt.step()
@@ -137,12 +155,14 @@ with torch.no_grad():
     y = model(x)
 json.dump({"x": x.reshape(-1).tolist(), "y": y.reshape(-1).tolist()}, open(sys.argv[2], "w"))
 )";
-  const auto pt = (dir / "python_state_dict.pt").string(), expect = (dir / "expected.json").string();
+  const auto pt = (dir / "python_state_dict.pt").string(),
+             expect = (dir / "expected.json").string();
   run_python(dir, script, pt + " " + expect);
   const auto dict = topos::nn::read_tensor_dict(pt);
   CHECK(dict.size() == 9);  // 3 Linear/BatchNorm weights and biases, 3 BatchNorm buffers
   REQUIRE(dict.at("3.num_batches_tracked").item<std::int64_t>() == 1);
-  torch::nn::Sequential model(torch::nn::Linear(3, 5), torch::nn::ReLU(), torch::nn::Linear(5, 2), torch::nn::BatchNorm1d(2));
+  torch::nn::Sequential model(torch::nn::Linear(3, 5), torch::nn::ReLU(), torch::nn::Linear(5, 2),
+                              torch::nn::BatchNorm1d(2));
   topos::nn::load_parameters(*model, dict, pt);
   model->eval();
   std::ifstream in(expect);
@@ -150,6 +170,8 @@ json.dump({"x": x.reshape(-1).tolist(), "y": y.reshape(-1).tolist()}, open(sys.a
   const auto xs = j["x"].get<std::vector<float>>(), ys = j["y"].get<std::vector<float>>();
   const auto x = torch::tensor(xs).reshape({4, 3});
   const auto y = model->forward(x).reshape({-1});
-  for (std::size_t i = 0; i < ys.size(); ++i) CHECK(y[static_cast<std::int64_t>(i)].item<float>() == Approx(ys[i]).epsilon(1e-6).margin(1e-6));
+  for (std::size_t i = 0; i < ys.size(); ++i)
+    CHECK(y[static_cast<std::int64_t>(i)].item<float>() ==
+          Approx(ys[i]).epsilon(1e-6).margin(1e-6));
   std::filesystem::remove_all(dir);
 }

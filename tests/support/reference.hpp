@@ -12,12 +12,14 @@ namespace topos::test {
 inline std::filesystem::path reference_dir(const char* test_name) {
   const char* dir = std::getenv("TOPOS_REFERENCE_DIR");
   if (dir == nullptr || *dir == '\0') {
-    std::cout << "SKIPPED: '" << test_name << "' needs the reference data; set TOPOS_REFERENCE_DIR to ../shared/reference\n";
+    std::cout << "SKIPPED: '" << test_name
+              << "' needs the reference data; set TOPOS_REFERENCE_DIR to ../shared/reference\n";
     std::exit(TOPOS_SKIP_CODE);
   }
   std::filesystem::path p(dir);
   if (!std::filesystem::exists(p / "README.md")) {
-    std::cerr << "TOPOS_REFERENCE_DIR=" << dir << " does not hold the reference data (no README.md)\n";
+    std::cerr << "TOPOS_REFERENCE_DIR=" << dir
+              << " does not hold the reference data (no README.md)\n";
     std::exit(1);
   }
   return p;

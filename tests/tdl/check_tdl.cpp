@@ -36,7 +36,8 @@ int run(const std::string& cmd) {
 int check_golden(const std::string& tdl, const fs::path& work) {
   const char* ref = std::getenv("TOPOS_REFERENCE_DIR");
   if (ref == nullptr || *ref == '\0') {
-    std::cout << "SKIPPED: tdl_golden needs the reference data; set TOPOS_REFERENCE_DIR to ../shared/reference\n";
+    std::cout << "SKIPPED: tdl_golden needs the reference data; set TOPOS_REFERENCE_DIR to "
+                 "../shared/reference\n";
     return TOPOS_SKIP_CODE;
   }
   const fs::path cases = fs::path(ref) / "tdl-golden" / "cases";
@@ -58,7 +59,8 @@ int check_golden(const std::string& tdl, const fs::path& work) {
     const std::string name = dir.filename().string();
     const fs::path out = work / name;
     fs::remove_all(out);
-    if (run(quote(tdl) + " operators --case " + quote(dir.string()) + " --out " + quote(out.string()) + " > /dev/null") != 0) {
+    if (run(quote(tdl) + " operators --case " + quote(dir.string()) + " --out " +
+            quote(out.string()) + " > /dev/null") != 0) {
       std::cout << name << ": tdl operators FAILED\n";
       ++failures;
       continue;
@@ -71,16 +73,21 @@ int check_golden(const std::string& tdl, const fs::path& work) {
       try {
         const auto golden = topos::data::read_npy((dir / "operators" / (op + ".npy")).string());
         const auto ours = topos::data::read_npy((out / (op + ".npy")).string());
-        if (ours.dtype != "f4") throw std::runtime_error("written as " + ours.dtype + ", not float32");
-        if (ours.shape != golden.shape) throw std::runtime_error("shape differs from the reference");
+        if (ours.dtype != "f4")
+          throw std::runtime_error("written as " + ours.dtype + ", not float32");
+        if (ours.shape != golden.shape)
+          throw std::runtime_error("shape differs from the reference");
         const auto g = golden.as<double>(), o = ours.as<double>();
-        const bool integral = std::all_of(g.begin(), g.end(), [](double v) { return std::isfinite(v) && v == std::round(v); });
+        const bool integral = std::all_of(
+            g.begin(), g.end(), [](double v) { return std::isfinite(v) && v == std::round(v); });
         for (std::size_t k = 0; k < g.size(); ++k) {
           const double d = std::abs(g[k] - o[k]);
           worst = std::max(worst, d);
           if (!(integral ? g[k] == o[k] : d <= 1e-6)) {
-            throw std::runtime_error("entry " + std::to_string(k) + ": reference " + std::to_string(g[k]) + ", tdl " + std::to_string(o[k]) +
-                                     (integral ? " (integer operator: must be exact)" : " (tolerance 1e-6)"));
+            throw std::runtime_error(
+                "entry " + std::to_string(k) + ": reference " + std::to_string(g[k]) + ", tdl " +
+                std::to_string(o[k]) +
+                (integral ? " (integer operator: must be exact)" : " (tolerance 1e-6)"));
           }
         }
         ++compared;
@@ -89,7 +96,8 @@ int check_golden(const std::string& tdl, const fs::path& work) {
         ++case_fail;
       }
     }
-    std::printf("%-26s %3zu operators  max |diff| %.3g  %s\n", name.c_str(), ops.size(), worst, case_fail ? "FAILED" : "ok");
+    std::printf("%-26s %3zu operators  max |diff| %.3g  %s\n", name.c_str(), ops.size(), worst,
+                case_fail ? "FAILED" : "ok");
     failures += case_fail;
   }
   std::printf("%zu cases, %zu operators matched, %d failures\n", dirs.size(), compared, failures);
@@ -97,7 +105,8 @@ int check_golden(const std::string& tdl, const fs::path& work) {
 }
 
 // Writes a case, runs tdl on it, expects exit 1, every `needles` in stderr and no .npy written.
-bool expect_failure(const std::string& tdl, const fs::path& work, const std::string& name, const std::string& complex_json, const std::string& operators_json,
+bool expect_failure(const std::string& tdl, const fs::path& work, const std::string& name,
+                    const std::string& complex_json, const std::string& operators_json,
                     const std::vector<std::string>& needles) {
   const fs::path dir = work / name, out = work / (name + "-out");
   fs::remove_all(dir);
@@ -106,7 +115,8 @@ bool expect_failure(const std::string& tdl, const fs::path& work, const std::str
   topos::write_file_atomic((dir / "complex.json").string(), complex_json);
   topos::write_file_atomic((dir / "operators.json").string(), operators_json);
   const fs::path err = work / (name + ".stderr");
-  const int rc = run(quote(tdl) + " operators --case " + quote(dir.string()) + " --out " + quote(out.string()) + " > /dev/null 2> " + quote(err.string()));
+  const int rc = run(quote(tdl) + " operators --case " + quote(dir.string()) + " --out " +
+                     quote(out.string()) + " > /dev/null 2> " + quote(err.string()));
   const std::string msg = topos::data::read_text_file(err);
   bool ok = rc == 1;
   for (const auto& n : needles) ok = ok && msg.find(n) != std::string::npos;
@@ -119,22 +129,43 @@ bool expect_failure(const std::string& tdl, const fs::path& work, const std::str
 }
 
 int check_bad(const std::string& tdl, const fs::path& work) {
-  const std::string sc = R"({"domain": "simplicial", "cells": {"0": [[0], [1], [2]], "1": [[0, 1], [1, 2]]}})";
+  const std::string sc =
+      R"({"domain": "simplicial", "cells": {"0": [[0], [1], [2]], "1": [[0, 1], [1, 2]]}})";
   bool ok = true;
-  ok &= expect_failure(tdl, work, "unknown-op", sc,
-                       R"({"incidence_1": {"op": "incidence_matrix", "args": {"rank": 1, "signed": true}}, "weird": {"op": "frobnicate_matrix", "args": {"rank": 1}}})",
-                       {"'weird'", "frobnicate_matrix", "unknown op"});
-  ok &= expect_failure(tdl, work, "missing-argument", sc, R"({"L": {"op": "hodge_laplacian_matrix", "args": {"signed": true}}})", {"'L'", "missing argument 'rank'"});
-  ok &= expect_failure(tdl, work, "cell-missing-vertex", R"({"domain": "cell", "nodes": [0, 1, 2], "edges": [[0, 1], [1, 2], [0, 2]], "cells": [[0, 1, 5]]})",
-                       R"({"incidence_2": {"op": "incidence_matrix", "args": {"rank": 2, "signed": true}}})", {"2-cell 0", "node 5"});
-  ok &= expect_failure(tdl, work, "cell-not-closed", R"({"domain": "cell", "nodes": [0, 1, 2, 3], "edges": [[0, 1], [1, 2], [2, 3]], "cells": [[0, 1, 2, 3]]})",
-                       R"({"incidence_2": {"op": "incidence_matrix", "args": {"rank": 2, "signed": true}}})", {"not a closed cycle", "[3, 0]"});
-  ok &= expect_failure(tdl, work, "empty-hyperedge", R"({"domain": "hypergraph", "nodes": [0, 1], "hyperedges": [[0, 1], []]})",
-                       R"({"incidence_1": {"op": "incidence_matrix", "args": {"rank": 0, "to_rank": 1}}})", {"hyperedge 1", "empty"});
-  ok &= expect_failure(tdl, work, "repeated-vertex", R"({"domain": "simplicial", "cells": {"0": [[0], [1]], "1": [[0, 0]]}})",
-                       R"({"incidence_1": {"op": "incidence_matrix", "args": {"rank": 1}}})", {"repeats node 0"});
-  ok &= expect_failure(tdl, work, "wrong-domain-op", R"({"domain": "hypergraph", "nodes": [0, 1], "hyperedges": [[0, 1]]})",
-                       R"({"L": {"op": "hodge_laplacian_matrix", "args": {"rank": 0, "signed": true}}})", {"'L'", "not defined on a hypergraph"});
+  ok &= expect_failure(
+      tdl, work, "unknown-op", sc,
+      R"({"incidence_1": {"op": "incidence_matrix", "args": {"rank": 1, "signed": true}}, )"
+      R"("weird": {"op": "frobnicate_matrix", "args": {"rank": 1}}})",
+      {"'weird'", "frobnicate_matrix", "unknown op"});
+  ok &= expect_failure(tdl, work, "missing-argument", sc,
+                       R"({"L": {"op": "hodge_laplacian_matrix", "args": {"signed": true}}})",
+                       {"'L'", "missing argument 'rank'"});
+  ok &= expect_failure(
+      tdl, work, "cell-missing-vertex",
+      R"({"domain": "cell", "nodes": [0, 1, 2], "edges": [[0, 1], [1, 2], [0, 2]], )"
+      R"("cells": [[0, 1, 5]]})",
+      R"({"incidence_2": {"op": "incidence_matrix", "args": {"rank": 2, "signed": true}}})",
+      {"2-cell 0", "node 5"});
+  ok &= expect_failure(
+      tdl, work, "cell-not-closed",
+      R"({"domain": "cell", "nodes": [0, 1, 2, 3], "edges": [[0, 1], [1, 2], [2, 3]], )"
+      R"("cells": [[0, 1, 2, 3]]})",
+      R"({"incidence_2": {"op": "incidence_matrix", "args": {"rank": 2, "signed": true}}})",
+      {"not a closed cycle", "[3, 0]"});
+  ok &= expect_failure(
+      tdl, work, "empty-hyperedge",
+      R"({"domain": "hypergraph", "nodes": [0, 1], "hyperedges": [[0, 1], []]})",
+      R"({"incidence_1": {"op": "incidence_matrix", "args": {"rank": 0, "to_rank": 1}}})",
+      {"hyperedge 1", "empty"});
+  ok &= expect_failure(tdl, work, "repeated-vertex",
+                       R"({"domain": "simplicial", "cells": {"0": [[0], [1]], "1": [[0, 0]]}})",
+                       R"({"incidence_1": {"op": "incidence_matrix", "args": {"rank": 1}}})",
+                       {"repeats node 0"});
+  ok &= expect_failure(
+      tdl, work, "wrong-domain-op",
+      R"({"domain": "hypergraph", "nodes": [0, 1], "hyperedges": [[0, 1]]})",
+      R"({"L": {"op": "hodge_laplacian_matrix", "args": {"rank": 0, "signed": true}}})",
+      {"'L'", "not defined on a hypergraph"});
   return ok ? 0 : 1;
 }
 
@@ -147,7 +178,8 @@ int main(int argc, char** argv) {
   }
   try {
     fs::create_directories(argv[3]);
-    return std::string(argv[1]) == "golden" ? check_golden(argv[2], argv[3]) : check_bad(argv[2], argv[3]);
+    return std::string(argv[1]) == "golden" ? check_golden(argv[2], argv[3])
+                                            : check_bad(argv[2], argv[3]);
   } catch (const std::exception& e) {
     std::cerr << "check_tdl: " << e.what() << "\n";
     return 1;

@@ -37,23 +37,28 @@ class CellComplex {
 
   /// Edges and cells in exactly the given order; each edge oriented as given. Every
   /// consecutive pair of a cell's cycle (and its closing pair) must be a listed edge.
-  static CellComplex from_ordered(Index num_nodes, const std::vector<Edge>& edges, const std::vector<std::vector<Index>>& cells) {
+  static CellComplex from_ordered(Index num_nodes, const std::vector<Edge>& edges,
+                                  const std::vector<std::vector<Index>>& cells) {
     CellComplex cx(num_nodes);
     cx.given_order_ = true;
     for (const Edge& e : edges) {
       cx.check_edge(e[0], e[1], "from_ordered");
       if (!cx.edge_index_.emplace(key(e[0], e[1]), static_cast<Index>(cx.edges_.size())).second) {
-        throw ComplexError("CellComplex::from_ordered: edge [" + std::to_string(e[0]) + ", " + std::to_string(e[1]) + "] is listed twice");
+        throw ComplexError("CellComplex::from_ordered: edge [" + std::to_string(e[0]) + ", " +
+                           std::to_string(e[1]) + "] is listed twice");
       }
       cx.edges_.push_back(e);
     }
     for (std::size_t c = 0; c < cells.size(); ++c) {
-      const std::vector<Index> cycle = cx.check_cycle(cells[c], "from_ordered: cell " + std::to_string(c));
+      const std::vector<Index> cycle =
+          cx.check_cycle(cells[c], "from_ordered: cell " + std::to_string(c));
       for (std::size_t i = 0; i < cycle.size(); ++i) {
         const Index u = cycle[i], v = cycle[(i + 1) % cycle.size()];
         if (!cx.edge_index_.count(key(u, v))) {
-          throw ComplexError("CellComplex::from_ordered: cell " + std::to_string(c) + " " + describe(cells[c]) + " is not a closed cycle of listed edges: edge [" +
-                             std::to_string(u) + ", " + std::to_string(v) + "] is not in the edge list");
+          throw ComplexError("CellComplex::from_ordered: cell " + std::to_string(c) + " " +
+                             describe(cells[c]) + " is not a closed cycle of listed edges: edge [" +
+                             std::to_string(u) + ", " + std::to_string(v) +
+                             "] is not in the edge list");
         }
       }
       cx.append_cell(cycle);
@@ -87,14 +92,18 @@ class CellComplex {
   /// Adds a 2-cell given by its boundary as a chain of edges (u0,u1), (u1,u2), ..., (uk,u0);
   /// a chain that does not close is an error.
   void add_cell_from_edges(const std::vector<Edge>& boundary) {
-    if (boundary.size() < 3) throw ComplexError("add_cell_from_edges: a 2-cell needs at least 3 boundary edges, got " + std::to_string(boundary.size()));
+    if (boundary.size() < 3)
+      throw ComplexError("add_cell_from_edges: a 2-cell needs at least 3 boundary edges, got " +
+                         std::to_string(boundary.size()));
     std::vector<Index> cycle;
     for (std::size_t i = 0; i < boundary.size(); ++i) {
       const Edge& e = boundary[i];
       const Edge& next = boundary[(i + 1) % boundary.size()];
       if (e[1] != next[0]) {
-        throw ComplexError("add_cell_from_edges: the boundary is not a closed cycle: edge " + std::to_string(i) + " [" + std::to_string(e[0]) + ", " + std::to_string(e[1]) +
-                           "] is followed by [" + std::to_string(next[0]) + ", " + std::to_string(next[1]) + "]");
+        throw ComplexError("add_cell_from_edges: the boundary is not a closed cycle: edge " +
+                           std::to_string(i) + " [" + std::to_string(e[0]) + ", " +
+                           std::to_string(e[1]) + "] is followed by [" + std::to_string(next[0]) +
+                           ", " + std::to_string(next[1]) + "]");
       }
       cycle.push_back(e[0]);
     }
@@ -108,14 +117,18 @@ class CellComplex {
   Index num_2cells() const { return static_cast<Index>(cell_offsets_.size()) - 1; }
   /// 2 with 2-cells, 1 with edges only, 0 with nodes only, -1 when empty (TopoNetX's dim).
   int dim() const { return num_2cells() > 0 ? 2 : num_edges() > 0 ? 1 : num_nodes_ > 0 ? 0 : -1; }
-  Index num_cells(int rank) const { return rank == 0 ? num_nodes_ : rank == 1 ? num_edges() : rank == 2 ? num_2cells() : 0; }
+  Index num_cells(int rank) const {
+    return rank == 0 ? num_nodes_ : rank == 1 ? num_edges() : rank == 2 ? num_2cells() : 0;
+  }
   std::vector<Index> shape() const { return {num_nodes_, num_edges(), num_2cells()}; }
   bool explicit_order() const { return given_order_; }
 
   /// Edge `id` as (tail, head).
   Edge edge(Index id) const {
     sort_edges();
-    if (id < 0 || id >= num_edges()) throw ComplexError("edge: edge " + std::to_string(id) + " does not exist (" + std::to_string(num_edges()) + " edges)");
+    if (id < 0 || id >= num_edges())
+      throw ComplexError("edge: edge " + std::to_string(id) + " does not exist (" +
+                         std::to_string(num_edges()) + " edges)");
     return edges_[static_cast<std::size_t>(id)];
   }
   std::vector<Edge> edges() const {
@@ -129,16 +142,23 @@ class CellComplex {
   }
   /// The vertex cycle of 2-cell `id`.
   std::vector<Index> cell(Index id) const {
-    if (id < 0 || id >= num_2cells()) throw ComplexError("cell: 2-cell " + std::to_string(id) + " does not exist (" + std::to_string(num_2cells()) + " 2-cells)");
-    return {cell_nodes_.begin() + cell_offsets_[static_cast<std::size_t>(id)], cell_nodes_.begin() + cell_offsets_[static_cast<std::size_t>(id) + 1]};
+    if (id < 0 || id >= num_2cells())
+      throw ComplexError("cell: 2-cell " + std::to_string(id) + " does not exist (" +
+                         std::to_string(num_2cells()) + " 2-cells)");
+    return {cell_nodes_.begin() + cell_offsets_[static_cast<std::size_t>(id)],
+            cell_nodes_.begin() + cell_offsets_[static_cast<std::size_t>(id) + 1]};
   }
   /// Cells of a rank as node lists (nodes: [v]; edges: [tail, head]; 2-cells: their cycles).
   std::vector<std::vector<Index>> skeleton(int rank) const {
     std::vector<std::vector<Index>> out;
-    if (rank == 0) for (Index v = 0; v < num_nodes_; ++v) out.push_back({v});
-    else if (rank == 1) for (const Edge& e : edges()) out.push_back({e[0], e[1]});
-    else if (rank == 2) for (Index c = 0; c < num_2cells(); ++c) out.push_back(cell(c));
-    else throw ComplexError("skeleton: a cell complex has ranks 0..2, got " + std::to_string(rank));
+    if (rank == 0)
+      for (Index v = 0; v < num_nodes_; ++v) out.push_back({v});
+    else if (rank == 1)
+      for (const Edge& e : edges()) out.push_back({e[0], e[1]});
+    else if (rank == 2)
+      for (Index c = 0; c < num_2cells(); ++c) out.push_back(cell(c));
+    else
+      throw ComplexError("skeleton: a cell complex has ranks 0..2, got " + std::to_string(rank));
     return out;
   }
   Index euler_characteristic() const { return num_nodes_ - num_edges() + num_2cells(); }
@@ -149,18 +169,28 @@ class CellComplex {
   SparseMatrix incidence_matrix(int rank, bool signed_ = true) const {
     SparseMatrix m;
     if (rank == 0) return SparseMatrix(0, num_nodes_);
-    if (rank == 1) m = sparse::transpose(coboundary1());
-    else if (rank == 2) m = boundary2();
-    else throw ComplexError("incidence_matrix: a cell complex has ranks 0..2, got " + std::to_string(rank));
+    if (rank == 1)
+      m = sparse::transpose(coboundary1());
+    else if (rank == 2)
+      m = boundary2();
+    else
+      throw ComplexError("incidence_matrix: a cell complex has ranks 0..2, got " +
+                         std::to_string(rank));
     if (!signed_) sparse::make_abs(m);
     return m;
   }
-  SparseMatrix coincidence_matrix(int rank, bool signed_ = true) const { return sparse::transpose(incidence_matrix(rank, signed_)); }
+  SparseMatrix coincidence_matrix(int rank, bool signed_ = true) const {
+    return sparse::transpose(incidence_matrix(rank, signed_));
+  }
   /// Unsigned inclusion between two ranks (n_rank x n_to_rank).
   SparseMatrix incidence_matrix(int rank, int to_rank) const {
-    if (rank == to_rank) throw ComplexError("incidence_matrix: ranks must differ (got " + std::to_string(rank) + " twice)");
+    if (rank == to_rank)
+      throw ComplexError("incidence_matrix: ranks must differ (got " + std::to_string(rank) +
+                         " twice)");
     const int lo = std::min(rank, to_rank), hi = std::max(rank, to_rank);
-    if (lo < 0 || hi > 2) throw ComplexError("incidence_matrix: a cell complex has ranks 0..2, got " + std::to_string(rank) + " and " + std::to_string(to_rank));
+    if (lo < 0 || hi > 2)
+      throw ComplexError("incidence_matrix: a cell complex has ranks 0..2, got " +
+                         std::to_string(rank) + " and " + std::to_string(to_rank));
     SparseMatrix m;
     if (hi == lo + 1) {
       m = sparse::abs(incidence_matrix(hi, true));
@@ -177,13 +207,17 @@ class CellComplex {
   }
 
   SparseMatrix up_laplacian_matrix(int rank, bool signed_ = true) const {
-    if (rank < 0 || rank >= std::max(dim(), 1)) throw ComplexError("up_laplacian_matrix: rank " + std::to_string(rank) + " must be in [0, " + std::to_string(dim() - 1) + "]");
+    if (rank < 0 || rank >= std::max(dim(), 1))
+      throw ComplexError("up_laplacian_matrix: rank " + std::to_string(rank) + " must be in [0, " +
+                         std::to_string(dim() - 1) + "]");
     SparseMatrix l = up_laplacian(incidence_matrix(rank + 1, true));
     if (!signed_) sparse::make_abs(l);
     return l;
   }
   SparseMatrix down_laplacian_matrix(int rank, bool signed_ = true) const {
-    if (rank < 1 || rank > dim()) throw ComplexError("down_laplacian_matrix: rank " + std::to_string(rank) + " must be in [1, " + std::to_string(dim()) + "]");
+    if (rank < 1 || rank > dim())
+      throw ComplexError("down_laplacian_matrix: rank " + std::to_string(rank) +
+                         " must be in [1, " + std::to_string(dim()) + "]");
     SparseMatrix l = down_laplacian(incidence_matrix(rank, true));
     if (!signed_) sparse::make_abs(l);
     return l;
@@ -197,25 +231,34 @@ class CellComplex {
   /// and has no effect (its incidence_to_adjacency takes |B|).
   SparseMatrix adjacency_matrix(int rank, bool signed_ = false) const {
     (void)signed_;
-    if (rank < 0 || rank > 1) throw ComplexError("adjacency_matrix: rank " + std::to_string(rank) + " must be 0 or 1 (cells of rank + 1 must exist)");
+    if (rank < 0 || rank > 1)
+      throw ComplexError("adjacency_matrix: rank " + std::to_string(rank) +
+                         " must be 0 or 1 (cells of rank + 1 must exist)");
     return incidence_to_adjacency(sparse::transpose(incidence_matrix(rank + 1, true)));
   }
   /// Cells of `rank` sharing a cell of rank - 1 (counts); `signed_` has no effect, as in TopoNetX.
   SparseMatrix coadjacency_matrix(int rank, bool signed_ = false) const {
     (void)signed_;
-    if (rank < 0 || rank > 2) throw ComplexError("coadjacency_matrix: rank " + std::to_string(rank) + " must be in [0, 2]");
+    if (rank < 0 || rank > 2)
+      throw ComplexError("coadjacency_matrix: rank " + std::to_string(rank) + " must be in [0, 2]");
     return incidence_to_adjacency(incidence_matrix(rank, true));
   }
   SparseMatrix adjacency_matrix(int rank, int via_rank) const {
-    if (via_rank <= rank) throw ComplexError("adjacency_matrix: via rank " + std::to_string(via_rank) + " must be above rank " + std::to_string(rank));
+    if (via_rank <= rank)
+      throw ComplexError("adjacency_matrix: via rank " + std::to_string(via_rank) +
+                         " must be above rank " + std::to_string(rank));
     return incidence_to_adjacency(incidence_matrix(via_rank, rank));
   }
   SparseMatrix coadjacency_matrix(int rank, int via_rank) const {
-    if (via_rank >= rank) throw ComplexError("coadjacency_matrix: via rank " + std::to_string(via_rank) + " must be below rank " + std::to_string(rank));
+    if (via_rank >= rank)
+      throw ComplexError("coadjacency_matrix: via rank " + std::to_string(via_rank) +
+                         " must be below rank " + std::to_string(rank));
     return incidence_to_adjacency(incidence_matrix(via_rank, rank));
   }
   /// D^{-1/2} L D^{-1/2} of the signed Hodge Laplacian (as SimplicialComplex's).
-  SparseMatrix normalized_laplacian_matrix(int rank) const { return normalized_laplacian(hodge_laplacian_matrix(rank, true)); }
+  SparseMatrix normalized_laplacian_matrix(int rank) const {
+    return normalized_laplacian(hodge_laplacian_matrix(rank, true));
+  }
 
  private:
   Index num_nodes_ = 0;
@@ -227,7 +270,8 @@ class CellComplex {
   std::vector<Index> cell_offsets_{0};
 
   static std::uint64_t key(Index u, Index v) {
-    const auto a = static_cast<std::uint64_t>(std::min(u, v)), b = static_cast<std::uint64_t>(std::max(u, v));
+    const auto a = static_cast<std::uint64_t>(std::min(u, v)),
+               b = static_cast<std::uint64_t>(std::max(u, v));
     return (a << 32) | b;
   }
   static std::string describe(const std::vector<Index>& c) {
@@ -239,19 +283,32 @@ class CellComplex {
   }
   void check_edge(Index u, Index v, const char* what) const {
     for (Index x : {u, v})
-      if (x < 0 || x >= num_nodes_) throw ComplexError(std::string(what) + ": edge [" + std::to_string(u) + ", " + std::to_string(v) + "] uses node " + std::to_string(x) + ", which is not in the complex (nodes 0.." + std::to_string(num_nodes_ - 1) + ")");
-    if (u == v) throw ComplexError(std::string(what) + ": edge [" + std::to_string(u) + ", " + std::to_string(v) + "] is a self-loop");
-    if (num_nodes_ >= (Index(1) << 32)) throw ComplexError(std::string(what) + ": more than 2^32 nodes");
+      if (x < 0 || x >= num_nodes_)
+        throw ComplexError(std::string(what) + ": edge [" + std::to_string(u) + ", " +
+                           std::to_string(v) + "] uses node " + std::to_string(x) +
+                           ", which is not in the complex (nodes 0.." +
+                           std::to_string(num_nodes_ - 1) + ")");
+    if (u == v)
+      throw ComplexError(std::string(what) + ": edge [" + std::to_string(u) + ", " +
+                         std::to_string(v) + "] is a self-loop");
+    if (num_nodes_ >= (Index(1) << 32))
+      throw ComplexError(std::string(what) + ": more than 2^32 nodes");
   }
   std::vector<Index> check_cycle(std::vector<Index> c, const std::string& what) const {
     if (c.size() > 1 && c.front() == c.back()) c.pop_back();  // explicitly closed
-    if (c.size() < 3) throw ComplexError(what + ": 2-cell " + describe(c) + " needs a cycle of at least 3 distinct vertices");
+    if (c.size() < 3)
+      throw ComplexError(what + ": 2-cell " + describe(c) +
+                         " needs a cycle of at least 3 distinct vertices");
     for (Index v : c)
-      if (v < 0 || v >= num_nodes_) throw ComplexError(what + ": 2-cell " + describe(c) + " uses node " + std::to_string(v) + ", which is not in the complex (nodes 0.." + std::to_string(num_nodes_ - 1) + ")");
+      if (v < 0 || v >= num_nodes_)
+        throw ComplexError(what + ": 2-cell " + describe(c) + " uses node " + std::to_string(v) +
+                           ", which is not in the complex (nodes 0.." +
+                           std::to_string(num_nodes_ - 1) + ")");
     std::vector<Index> s(c);
     std::sort(s.begin(), s.end());
     if (auto it = std::adjacent_find(s.begin(), s.end()); it != s.end()) {
-      throw ComplexError(what + ": 2-cell " + describe(c) + " repeats node " + std::to_string(*it) + " (a regular 2-cell is a simple cycle)");
+      throw ComplexError(what + ": 2-cell " + describe(c) + " repeats node " + std::to_string(*it) +
+                         " (a regular 2-cell is a simple cycle)");
     }
     return c;
   }
@@ -260,21 +317,25 @@ class CellComplex {
     if (!given_order_) {
       // TopoNetX groups cells with the same vertex sequence: after the last such cell.
       for (std::size_t i = 0; i + 1 < cell_offsets_.size(); ++i) {
-        const auto b = cell_nodes_.begin() + cell_offsets_[i], e = cell_nodes_.begin() + cell_offsets_[i + 1];
+        const auto b = cell_nodes_.begin() + cell_offsets_[i],
+                   e = cell_nodes_.begin() + cell_offsets_[i + 1];
         if (static_cast<std::size_t>(e - b) == c.size() && std::equal(b, e, c.begin())) at = i + 1;
       }
     }
     const Index pos = cell_offsets_[at];
     cell_nodes_.insert(cell_nodes_.begin() + pos, c.begin(), c.end());
-    cell_offsets_.insert(cell_offsets_.begin() + static_cast<std::ptrdiff_t>(at) + 1, pos + static_cast<Index>(c.size()));
-    for (std::size_t i = at + 2; i < cell_offsets_.size(); ++i) cell_offsets_[i] += static_cast<Index>(c.size());
+    cell_offsets_.insert(cell_offsets_.begin() + static_cast<std::ptrdiff_t>(at) + 1,
+                         pos + static_cast<Index>(c.size()));
+    for (std::size_t i = at + 2; i < cell_offsets_.size(); ++i)
+      cell_offsets_[i] += static_cast<Index>(c.size());
   }
   void sort_edges() const {
     if (edges_sorted_) return;
     for (Edge& e : edges_)
       if (e[0] > e[1]) std::swap(e[0], e[1]);
     std::sort(edges_.begin(), edges_.end());
-    for (std::size_t i = 0; i < edges_.size(); ++i) edge_index_[key(edges_[i][0], edges_[i][1])] = static_cast<Index>(i);
+    for (std::size_t i = 0; i < edges_.size(); ++i)
+      edge_index_[key(edges_[i][0], edges_[i][1])] = static_cast<Index>(i);
     edges_sorted_ = true;
   }
   SparseMatrix signed_hodge(int rank) const {
@@ -286,7 +347,9 @@ class CellComplex {
     }
     if (rank == 1) return down_laplacian(incidence_matrix(1, true));
     if (rank == 2 && dim() == 2) return down_laplacian(incidence_matrix(2, true));
-    throw ComplexError("hodge_laplacian_matrix: rank " + std::to_string(rank) + " must be in [0, " + std::to_string(std::max(dim(), 0)) + "] (the complex has dimension " + std::to_string(dim()) + ")");
+    throw ComplexError("hodge_laplacian_matrix: rank " + std::to_string(rank) + " must be in [0, " +
+                       std::to_string(std::max(dim(), 0)) + "] (the complex has dimension " +
+                       std::to_string(dim()) + ")");
   }
 
   // B_1^T: row e has -1 at the tail, +1 at the head.
@@ -309,9 +372,11 @@ class CellComplex {
     std::vector<Eigen::Triplet<double, std::int64_t>> t;
     t.reserve(cell_nodes_.size());
     for (Index c = 0; c < num_2cells(); ++c) {
-      const Index b = cell_offsets_[static_cast<std::size_t>(c)], n = cell_offsets_[static_cast<std::size_t>(c) + 1] - b;
+      const Index b = cell_offsets_[static_cast<std::size_t>(c)],
+                  n = cell_offsets_[static_cast<std::size_t>(c) + 1] - b;
       for (Index i = 0; i < n; ++i) {
-        const Index u = cell_nodes_[static_cast<std::size_t>(b + i)], v = cell_nodes_[static_cast<std::size_t>(b + (i + 1) % n)];
+        const Index u = cell_nodes_[static_cast<std::size_t>(b + i)],
+                    v = cell_nodes_[static_cast<std::size_t>(b + (i + 1) % n)];
         const Index e = edge_index_.at(key(u, v));
         t.emplace_back(e, c, edges_[static_cast<std::size_t>(e)][0] == u ? 1.0 : -1.0);
       }

@@ -35,10 +35,10 @@ struct DefaultComplexOptions {
 /// -1 / +1 sides of a HOPNet contact cell). Role 0 means "no role".
 template <class Index, class Scalar>
 struct DeclaredIncidence {
-  int rank;        ///< rank of the lower cell
-  Index id;        ///< id of the lower cell within its rank
-  Scalar value;    ///< value of the incidence entry (replaces the default 1)
-  int role = 0;    ///< optional role tag carried into Neighborhood::roles
+  int rank;      ///< rank of the lower cell
+  Index id;      ///< id of the lower cell within its rank
+  Scalar value;  ///< value of the incidence entry (replaces the default 1)
+  int role = 0;  ///< optional role tag carried into Neighborhood::roles
 };
 
 template <class Options = DefaultComplexOptions>
@@ -53,7 +53,9 @@ class CombinatorialComplex {
   struct Cell {
     int rank;
     Index id;
-    friend bool operator==(const Cell& a, const Cell& b) { return a.rank == b.rank && a.id == b.id; }
+    friend bool operator==(const Cell& a, const Cell& b) {
+      return a.rank == b.rank && a.id == b.id;
+    }
   };
 
   /// Records the number of cells of each rank, so that later cells can be removed again
@@ -83,7 +85,8 @@ class CombinatorialComplex {
     }
     // Many nodes at once: the set -> cell table is rebuilt when next needed instead.
     if (n > 64) lookup_dirty_ = true;
-    for (Index v = first; v < first + n && !lookup_dirty_; ++v) lookup_.insert(hash_nodes(&v, 1), {0, v});
+    for (Index v = first; v < first + n && !lookup_dirty_; ++v)
+      lookup_.insert(hash_nodes(&v, 1), {0, v});
     index_dirty_ = true;
     min_index_.clear();  // sized by the node count
     return first;
@@ -123,14 +126,16 @@ class CombinatorialComplex {
     ensure_rank(rank);
     for (const Declared& d : declared) {
       if (d.rank < 0 || d.rank >= rank || d.id < 0 || d.id >= size(d.rank)) {
-        throw ComplexError("add_cell: cell " + describe(nodes) + " at rank " + std::to_string(rank) +
-                           " declares an incidence with cell " + std::to_string(d.id) + " of rank " +
-                           std::to_string(d.rank) + ", which does not exist below it");
+        throw ComplexError("add_cell: cell " + describe(nodes) + " at rank " +
+                           std::to_string(rank) + " declares an incidence with cell " +
+                           std::to_string(d.id) + " of rank " + std::to_string(d.rank) +
+                           ", which does not exist below it");
       }
       if (!is_subset(cell_nodes(d.rank, d.id), sorted)) {
-        throw ComplexError("add_cell: cell " + describe(nodes) + " at rank " + std::to_string(rank) +
-                           " declares an incidence with cell " + std::to_string(d.id) + " of rank " +
-                           std::to_string(d.rank) + ", which is not a subset of it");
+        throw ComplexError("add_cell: cell " + describe(nodes) + " at rank " +
+                           std::to_string(rank) + " declares an incidence with cell " +
+                           std::to_string(d.id) + " of rank " + std::to_string(d.rank) +
+                           ", which is not a subset of it");
       }
     }
     Rank& R = ranks_[static_cast<std::size_t>(rank)];
@@ -175,7 +180,8 @@ class CombinatorialComplex {
     R.nodes.insert(R.nodes.end(), oriented, oriented + count * arity);
     R.oriented_nodes.insert(R.oriented_nodes.end(), oriented, oriented + count * arity);
     R.offsets.reserve(R.offsets.size() + count);
-    R.declared_offsets.resize(R.declared_offsets.size() + count, static_cast<Index>(R.declared.size()));
+    R.declared_offsets.resize(R.declared_offsets.size() + count,
+                              static_cast<Index>(R.declared.size()));
     for (std::size_t c = 0; c < count; ++c) {
       Index* b = R.nodes.data() + begin + c * arity;
       if (arity == 2) {
@@ -215,7 +221,8 @@ class CombinatorialComplex {
 
   /// Removes every cell added after `m` (cells of ranks >= 1 only; nodes cannot be removed).
   void rollback(const Mark& m) {
-    if (!m.counts.empty() && static_cast<std::size_t>(m.counts[0]) != static_cast<std::size_t>(num_nodes())) {
+    if (!m.counts.empty() &&
+        static_cast<std::size_t>(m.counts[0]) != static_cast<std::size_t>(num_nodes())) {
       throw ComplexError("rollback: nodes were added after the mark; nodes cannot be removed");
     }
     for (std::size_t r = ranks_.size(); r-- > 1;) {
@@ -244,7 +251,8 @@ class CombinatorialComplex {
         R.nodes.resize(static_cast<std::size_t>(R.offsets[static_cast<std::size_t>(keep)]));
         R.oriented_nodes.resize(R.nodes.size());
         R.offsets.resize(static_cast<std::size_t>(keep) + 1);
-        R.declared.resize(static_cast<std::size_t>(R.declared_offsets[static_cast<std::size_t>(keep)]));
+        R.declared.resize(
+            static_cast<std::size_t>(R.declared_offsets[static_cast<std::size_t>(keep)]));
         R.declared_offsets.resize(static_cast<std::size_t>(keep) + 1);
       }
     }
@@ -315,12 +323,16 @@ class CombinatorialComplex {
   void for_each_inclusion(int lo, int hi, F&& visit) const {
     require_rank(lo, "incidence");
     require_rank(hi, "incidence");
-    if (lo >= hi) throw ComplexError("incidence: lower rank " + std::to_string(lo) + " must be below " + std::to_string(hi));
+    if (lo >= hi)
+      throw ComplexError("incidence: lower rank " + std::to_string(lo) + " must be below " +
+                         std::to_string(hi));
     const Rank& U = ranks_[static_cast<std::size_t>(hi)];
     if (lo == 0 && U.declared.empty()) {
       // Every node of a cell, ascending (cells store their nodes sorted), value 1: no buffer.
       for (Index j = 0; j + 1 < static_cast<Index>(U.offsets.size()); ++j)
-        for (Index k = U.offsets[static_cast<std::size_t>(j)]; k < U.offsets[static_cast<std::size_t>(j) + 1]; ++k) visit(U.nodes[static_cast<std::size_t>(k)], j, Scalar(1), 0);
+        for (Index k = U.offsets[static_cast<std::size_t>(j)];
+             k < U.offsets[static_cast<std::size_t>(j) + 1]; ++k)
+          visit(U.nodes[static_cast<std::size_t>(k)], j, Scalar(1), 0);
       return;
     }
     const MinIndex* M = lo > 0 ? &min_index(lo) : nullptr;
@@ -335,19 +347,23 @@ class CombinatorialComplex {
       } else {
         // Each subset is found once: through its smallest node.
         for (const Index* p = b; p != e; ++p) {
-          for (Index k = M->offsets[static_cast<std::size_t>(*p)]; k < M->offsets[static_cast<std::size_t>(*p) + 1]; ++k) {
+          for (Index k = M->offsets[static_cast<std::size_t>(*p)];
+               k < M->offsets[static_cast<std::size_t>(*p) + 1]; ++k) {
             const Index id = M->ids[static_cast<std::size_t>(k)];
             const Index* lb = L.nodes.data() + L.offsets[static_cast<std::size_t>(id)];
             const Index* le = L.nodes.data() + L.offsets[static_cast<std::size_t>(id) + 1];
             if (includes(b, e, lb, le)) found.push_back({id, {Scalar(1), 0}});
           }
         }
-        if (found.size() > 1) std::sort(found.begin(), found.end(), [](auto& x, auto& y) { return x.first < y.first; });
+        if (found.size() > 1)
+          std::sort(found.begin(), found.end(), [](auto& x, auto& y) { return x.first < y.first; });
       }
-      for (Index k = U.declared_offsets[static_cast<std::size_t>(j)]; k < U.declared_offsets[static_cast<std::size_t>(j) + 1]; ++k) {
+      for (Index k = U.declared_offsets[static_cast<std::size_t>(j)];
+           k < U.declared_offsets[static_cast<std::size_t>(j) + 1]; ++k) {
         const Declared& d = U.declared[static_cast<std::size_t>(k)];
         if (d.rank != lo) continue;
-        auto it = std::lower_bound(found.begin(), found.end(), d.id, [](auto& x, Index v) { return x.first < v; });
+        auto it = std::lower_bound(found.begin(), found.end(), d.id,
+                                   [](auto& x, Index v) { return x.first < v; });
         if (it != found.end() && it->first == d.id) it->second = {d.value, d.role};
       }
       for (auto& f : found) visit(f.first, j, f.second.first, f.second.second);
@@ -358,7 +374,9 @@ class CombinatorialComplex {
   /// rank r is a subset of cell j of rank s (or the value cell j declared); for r > s it is the
   /// transpose of incidence_matrix(s, r).
   SparseMatrix incidence_matrix(int r, int s) const {
-    if (r == s) throw ComplexError("incidence_matrix: ranks must differ (got " + std::to_string(r) + " twice)");
+    if (r == s)
+      throw ComplexError("incidence_matrix: ranks must differ (got " + std::to_string(r) +
+                         " twice)");
     const int lo = std::min(r, s), hi = std::max(r, s);
     // The visit order (upper cells in order, lower ids ascending) is the CSR of the hi × lo
     // matrix: fill it directly; the lo × hi one is its transpose (Eigen's counting sort).
@@ -366,7 +384,9 @@ class CombinatorialComplex {
     // faults cost as much as the enumeration).
     SparseMatrix up(size(hi), size(lo));
     auto& data = up.data();
-    data.reserve(lo == 0 ? static_cast<Eigen::Index>(ranks_[static_cast<std::size_t>(hi)].nodes.size()) : 3 * static_cast<Eigen::Index>(size(hi)));
+    data.reserve(lo == 0
+                     ? static_cast<Eigen::Index>(ranks_[static_cast<std::size_t>(hi)].nodes.size())
+                     : 3 * static_cast<Eigen::Index>(size(hi)));
     std::int64_t* outer = up.outerIndexPtr();
     for_each_inclusion(lo, hi, [&](Index i, Index j, Scalar v, int) {
       data.append(v, static_cast<Eigen::Index>(i));
@@ -381,7 +401,9 @@ class CombinatorialComplex {
   /// from the orientation given at insertion: removing node i of (v0..vk) gives sign (-1)^i times
   /// the parity between that face and the stored orientation of the lower cell. So B1·B2 = 0.
   SparseMatrix signed_incidence_matrix(int r, int s) const {
-    if (s != r + 1) throw ComplexError("signed_incidence_matrix: needs s = r + 1 (got " + std::to_string(r) + ", " + std::to_string(s) + ")");
+    if (s != r + 1)
+      throw ComplexError("signed_incidence_matrix: needs s = r + 1 (got " + std::to_string(r) +
+                         ", " + std::to_string(s) + ")");
     require_rank(r, "signed_incidence_matrix");
     require_rank(s, "signed_incidence_matrix");
     std::vector<Eigen::Triplet<Scalar, std::int64_t>> t;
@@ -389,13 +411,15 @@ class CombinatorialComplex {
     for (Index j = 0; j < size(s); ++j) {
       const std::vector<Index> up = oriented_nodes(s, j);
       if (static_cast<int>(up.size()) != s + 1) {
-        throw ComplexError("signed_incidence_matrix: cell " + std::to_string(j) + " of rank " + std::to_string(s) +
-                           " has " + std::to_string(up.size()) + " nodes; signed incidence needs simplicial cells");
+        throw ComplexError("signed_incidence_matrix: cell " + std::to_string(j) + " of rank " +
+                           std::to_string(s) + " has " + std::to_string(up.size()) +
+                           " nodes; signed incidence needs simplicial cells");
       }
       (void)U;
       for (std::size_t i = 0; i < up.size(); ++i) {
         std::vector<Index> face;
-        for (std::size_t k = 0; k < up.size(); ++k) if (k != i) face.push_back(up[k]);
+        for (std::size_t k = 0; k < up.size(); ++k)
+          if (k != i) face.push_back(up[k]);
         auto c = find(face);
         if (!c || c->rank != r) continue;
         const std::vector<Index> lo = oriented_nodes(r, c->id);
@@ -411,36 +435,49 @@ class CombinatorialComplex {
   /// Cells of rank r adjacent through cells of rank via > r: (B Bᵀ) with the diagonal removed,
   /// where B = |incidence_matrix(r, via)|; entry = number of shared upper cells.
   SparseMatrix adjacency_matrix(int r, int via) const {
-    if (via <= r) throw ComplexError("adjacency_matrix: via rank " + std::to_string(via) + " must be above rank " + std::to_string(r));
+    if (via <= r)
+      throw ComplexError("adjacency_matrix: via rank " + std::to_string(via) +
+                         " must be above rank " + std::to_string(r));
     std::vector<Index> group_offsets{0}, members;
     Index current = 0;
     for_each_inclusion(r, via, [&](Index lo, Index hi, Scalar, int) {
-      while (current < hi) { group_offsets.push_back(static_cast<Index>(members.size())); ++current; }
+      while (current < hi) {
+        group_offsets.push_back(static_cast<Index>(members.size()));
+        ++current;
+      }
       members.push_back(lo);
     });
-    while (current < size(via)) { group_offsets.push_back(static_cast<Index>(members.size())); ++current; }
+    while (current < size(via)) {
+      group_offsets.push_back(static_cast<Index>(members.size()));
+      ++current;
+    }
     group_offsets.push_back(static_cast<Index>(members.size()));
     return pair_counts(group_offsets, members, size(r));
   }
   /// Cells of rank r coadjacent through cells of rank via < r: (Bᵀ B) with the diagonal removed,
   /// where B = |incidence_matrix(via, r)|; entry = number of shared lower cells.
   SparseMatrix coadjacency_matrix(int r, int via) const {
-    if (via >= r) throw ComplexError("coadjacency_matrix: via rank " + std::to_string(via) + " must be below rank " + std::to_string(r));
+    if (via >= r)
+      throw ComplexError("coadjacency_matrix: via rank " + std::to_string(via) +
+                         " must be below rank " + std::to_string(r));
     // Group the upper cells (rank r) by each shared lower cell (rank via): a counting sort.
     std::vector<std::pair<Index, Index>> inc;
     for_each_inclusion(via, r, [&](Index lo, Index hi, Scalar, int) { inc.push_back({lo, hi}); });
-    std::vector<Index> group_offsets(static_cast<std::size_t>(size(via)) + 1, 0), members(inc.size());
+    std::vector<Index> group_offsets(static_cast<std::size_t>(size(via)) + 1, 0),
+        members(inc.size());
     for (auto& p : inc) ++group_offsets[static_cast<std::size_t>(p.first) + 1];
-    for (std::size_t i = 0; i + 1 < group_offsets.size(); ++i) group_offsets[i + 1] += group_offsets[i];
+    for (std::size_t i = 0; i + 1 < group_offsets.size(); ++i)
+      group_offsets[i + 1] += group_offsets[i];
     std::vector<Index> fill(group_offsets.begin(), group_offsets.end() - 1);
-    for (auto& p : inc) members[static_cast<std::size_t>(fill[static_cast<std::size_t>(p.first)]++)] = p.second;
+    for (auto& p : inc)
+      members[static_cast<std::size_t>(fill[static_cast<std::size_t>(p.first)]++)] = p.second;
     return pair_counts(group_offsets, members, size(r));
   }
 
  private:
   struct Rank {
-    std::vector<Index> nodes;            // sorted node ids, CSR
-    std::vector<Index> oriented_nodes;   // node ids in insertion order, same offsets
+    std::vector<Index> nodes;           // sorted node ids, CSR
+    std::vector<Index> oriented_nodes;  // node ids in insertion order, same offsets
     std::vector<Index> offsets{0};
     std::vector<Declared> declared;
     std::vector<Index> declared_offsets{0};
@@ -460,14 +497,18 @@ class CombinatorialComplex {
     template <class Pred>
     std::optional<Cell> find(std::uint64_t h, Pred&& matches) const {
       if (slots_.empty()) return std::nullopt;
-      for (std::size_t i = h & (slots_.size() - 1); slots_[i].rank != kEmpty; i = (i + 1) & (slots_.size() - 1)) {
-        if (slots_[i].rank >= 0 && slots_[i].hash == h && matches(Cell{slots_[i].rank, slots_[i].id})) return Cell{slots_[i].rank, slots_[i].id};
+      for (std::size_t i = h & (slots_.size() - 1); slots_[i].rank != kEmpty;
+           i = (i + 1) & (slots_.size() - 1)) {
+        if (slots_[i].rank >= 0 && slots_[i].hash == h &&
+            matches(Cell{slots_[i].rank, slots_[i].id}))
+          return Cell{slots_[i].rank, slots_[i].id};
       }
       return std::nullopt;
     }
     void erase(std::uint64_t h, Cell c) {
       if (slots_.empty()) return;
-      for (std::size_t i = h & (slots_.size() - 1); slots_[i].rank != kEmpty; i = (i + 1) & (slots_.size() - 1)) {
+      for (std::size_t i = h & (slots_.size() - 1); slots_[i].rank != kEmpty;
+           i = (i + 1) & (slots_.size() - 1)) {
         if (slots_[i].rank == c.rank && slots_[i].id == c.id) {
           slots_[i].rank = kTombstone;
           return;
@@ -511,7 +552,8 @@ class CombinatorialComplex {
       const Rank& R = ranks_[r];
       for (std::size_t id = 0; id + 1 < R.offsets.size(); ++id) {
         const Index* b = R.nodes.data() + R.offsets[id];
-        lookup_.insert(hash_nodes(b, static_cast<std::size_t>(R.offsets[id + 1] - R.offsets[id])), Cell{static_cast<int>(r), static_cast<Index>(id)});
+        lookup_.insert(hash_nodes(b, static_cast<std::size_t>(R.offsets[id + 1] - R.offsets[id])),
+                       Cell{static_cast<int>(r), static_cast<Index>(id)});
       }
     }
     lookup_dirty_ = false;
@@ -525,7 +567,8 @@ class CombinatorialComplex {
   };
   mutable std::vector<MinIndex> min_index_;
   void invalidate_min_index(int r) {
-    if (static_cast<std::size_t>(r) < min_index_.size()) min_index_[static_cast<std::size_t>(r)].valid = false;
+    if (static_cast<std::size_t>(r) < min_index_.size())
+      min_index_[static_cast<std::size_t>(r)].valid = false;
   }
   const MinIndex& min_index(int r) const {
     if (min_index_.size() < ranks_.size()) min_index_.resize(ranks_.size());
@@ -534,11 +577,15 @@ class CombinatorialComplex {
     const Rank& R = ranks_[static_cast<std::size_t>(r)];
     const std::size_t n = static_cast<std::size_t>(num_nodes()), count = R.offsets.size() - 1;
     M.offsets.assign(n + 1, 0);
-    for (std::size_t id = 0; id < count; ++id) ++M.offsets[static_cast<std::size_t>(R.nodes[static_cast<std::size_t>(R.offsets[id])]) + 1];
+    for (std::size_t id = 0; id < count; ++id)
+      ++M.offsets[static_cast<std::size_t>(R.nodes[static_cast<std::size_t>(R.offsets[id])]) + 1];
     for (std::size_t v = 0; v < n; ++v) M.offsets[v + 1] += M.offsets[v];
     M.ids.resize(count);
     std::vector<Index> fill(M.offsets.begin(), M.offsets.end() - 1);
-    for (std::size_t id = 0; id < count; ++id) M.ids[static_cast<std::size_t>(fill[static_cast<std::size_t>(R.nodes[static_cast<std::size_t>(R.offsets[id])])]++)] = static_cast<Index>(id);
+    for (std::size_t id = 0; id < count; ++id)
+      M.ids[static_cast<std::size_t>(
+          fill[static_cast<std::size_t>(R.nodes[static_cast<std::size_t>(R.offsets[id])])]++)] =
+          static_cast<Index>(id);
     M.valid = true;
     return M;
   }
@@ -553,10 +600,13 @@ class CombinatorialComplex {
   Index tail_entries_ = 0;
 
   Index indexed_count(int r) const {
-    return static_cast<std::size_t>(r) < indexed_counts_.size() ? indexed_counts_[static_cast<std::size_t>(r)] : 0;
+    return static_cast<std::size_t>(r) < indexed_counts_.size()
+               ? indexed_counts_[static_cast<std::size_t>(r)]
+               : 0;
   }
   void ensure_index() const {
-    if (!index_dirty_ && 4 * tail_entries_ <= static_cast<Index>(index_cells_.size()) + 4096) return;
+    if (!index_dirty_ && 4 * tail_entries_ <= static_cast<Index>(index_cells_.size()) + 4096)
+      return;
     auto* self = const_cast<CombinatorialComplex*>(this);
     self->tail_index_.clear();
     self->tail_entries_ = 0;
@@ -572,8 +622,11 @@ class CombinatorialComplex {
       const Rank& R = ranks_[r];
       const Index count = static_cast<Index>(R.offsets.size()) - 1;
       for (Index id = 0; id < count; ++id)
-        for (Index k = R.offsets[static_cast<std::size_t>(id)]; k < R.offsets[static_cast<std::size_t>(id) + 1]; ++k)
-          index_cells_[static_cast<std::size_t>(fill[static_cast<std::size_t>(R.nodes[static_cast<std::size_t>(k)])]++)] = Cell{static_cast<int>(r), id};
+        for (Index k = R.offsets[static_cast<std::size_t>(id)];
+             k < R.offsets[static_cast<std::size_t>(id) + 1]; ++k)
+          index_cells_[static_cast<std::size_t>(
+              fill[static_cast<std::size_t>(R.nodes[static_cast<std::size_t>(k)])]++)] =
+              Cell{static_cast<int>(r), id};
       indexed_counts_.push_back(count);
     }
     index_dirty_ = false;
@@ -581,7 +634,9 @@ class CombinatorialComplex {
   /// Calls f(cell) for every cell containing node v (index must be current).
   template <class F>
   void for_each_cell_of_node(Index v, F&& f) const {
-    for (Index k = index_offsets_[static_cast<std::size_t>(v)]; k < index_offsets_[static_cast<std::size_t>(v) + 1]; ++k) f(index_cells_[static_cast<std::size_t>(k)]);
+    for (Index k = index_offsets_[static_cast<std::size_t>(v)];
+         k < index_offsets_[static_cast<std::size_t>(v) + 1]; ++k)
+      f(index_cells_[static_cast<std::size_t>(k)]);
     if (tail_entries_ == 0) return;
     auto it = tail_index_.find(v);
     if (it != tail_index_.end())
@@ -603,8 +658,10 @@ class CombinatorialComplex {
     ensure_lookup();
     return lookup_.find(h, [&](const Cell& c) {
       const Rank& R = ranks_[static_cast<std::size_t>(c.rank)];
-      const auto b = R.offsets[static_cast<std::size_t>(c.id)], e = R.offsets[static_cast<std::size_t>(c.id) + 1];
-      return static_cast<std::size_t>(e - b) == sorted.size() && std::equal(sorted.begin(), sorted.end(), R.nodes.begin() + b);
+      const auto b = R.offsets[static_cast<std::size_t>(c.id)],
+                 e = R.offsets[static_cast<std::size_t>(c.id) + 1];
+      return static_cast<std::size_t>(e - b) == sorted.size() &&
+             std::equal(sorted.begin(), sorted.end(), R.nodes.begin() + b);
     });
   }
 
@@ -613,7 +670,8 @@ class CombinatorialComplex {
     const auto n = e - b, k = le - lb;
     if (k > n) return false;
     if (n > 16 * k) {
-      for (const Index* p = lb; p != le; ++p) if (!std::binary_search(b, e, *p)) return false;
+      for (const Index* p = lb; p != le; ++p)
+        if (!std::binary_search(b, e, *p)) return false;
       return true;
     }
     return std::includes(b, e, lb, le);
@@ -622,7 +680,8 @@ class CombinatorialComplex {
     return includes(big.data(), big.data() + big.size(), small.data(), small.data() + small.size());
   }
 
-  void check_rank_condition(const std::vector<Index>& sorted, int rank, const std::vector<Index>& given) const {
+  void check_rank_condition(const std::vector<Index>& sorted, int rank,
+                            const std::vector<Index>& given) const {
     const Index* b = sorted.data();
     const Index* e = b + sorted.size();
     // Supersets contain sorted[0]; subsets have their smallest node in the cell.
@@ -632,9 +691,9 @@ class CombinatorialComplex {
       const Index* cb = R.nodes.data() + R.offsets[static_cast<std::size_t>(c.id)];
       const Index* ce = R.nodes.data() + R.offsets[static_cast<std::size_t>(c.id) + 1];
       if ((c.rank < rank) && (ce - cb) > (e - b) && includes(cb, ce, b, e)) {
-        throw ComplexError("add_cell: cell " + describe(given) + " at rank " + std::to_string(rank) +
-                           " is a subset of cell " + std::to_string(c.id) + " of lower rank " + std::to_string(c.rank) +
-                           " (rank condition)");
+        throw ComplexError("add_cell: cell " + describe(given) + " at rank " +
+                           std::to_string(rank) + " is a subset of cell " + std::to_string(c.id) +
+                           " of lower rank " + std::to_string(c.rank) + " (rank condition)");
       }
     });
     for (const Index* p = b; p != e; ++p) {
@@ -645,9 +704,9 @@ class CombinatorialComplex {
         const Index* ce = R.nodes.data() + R.offsets[static_cast<std::size_t>(c.id) + 1];
         if (*cb != *p || (ce - cb) >= (e - b)) return;
         if (includes(b, e, cb, ce)) {
-          throw ComplexError("add_cell: cell " + describe(given) + " at rank " + std::to_string(rank) +
-                             " contains cell " + std::to_string(c.id) + " of higher rank " + std::to_string(c.rank) +
-                             " (rank condition)");
+          throw ComplexError("add_cell: cell " + describe(given) + " at rank " +
+                             std::to_string(rank) + " contains cell " + std::to_string(c.id) +
+                             " of higher rank " + std::to_string(c.rank) + " (rank condition)");
         }
       });
     }
@@ -659,14 +718,16 @@ class CombinatorialComplex {
   void require_rank(int r, const char* what) const {
     if (r < 0 || r > max_rank()) {
       throw ComplexError(std::string(what) + ": rank " + std::to_string(r) +
-                         " holds no cells (the complex has ranks 0.." + std::to_string(max_rank()) + ")");
+                         " holds no cells (the complex has ranks 0.." + std::to_string(max_rank()) +
+                         ")");
     }
   }
   void check_cell(int r, Index id, const char* what) const {
     require_rank(r, what);
     if (id < 0 || id >= size(r)) {
-      throw ComplexError(std::string(what) + ": cell " + std::to_string(id) + " of rank " + std::to_string(r) +
-                         " does not exist (rank has " + std::to_string(size(r)) + " cells)");
+      throw ComplexError(std::string(what) + ": cell " + std::to_string(id) + " of rank " +
+                         std::to_string(r) + " does not exist (rank has " +
+                         std::to_string(size(r)) + " cells)");
     }
   }
   static std::string describe(const std::vector<Index>& nodes) {
@@ -680,7 +741,8 @@ class CombinatorialComplex {
   static int permutation_parity(const std::vector<Index>& a, const std::vector<Index>& b) {
     // Parity of the permutation taking b to a (same node set).
     std::vector<Index> p(a.size());
-    for (std::size_t i = 0; i < a.size(); ++i) p[i] = static_cast<Index>(std::find(b.begin(), b.end(), a[i]) - b.begin());
+    for (std::size_t i = 0; i < a.size(); ++i)
+      p[i] = static_cast<Index>(std::find(b.begin(), b.end(), a[i]) - b.begin());
     int parity = 1;
     for (std::size_t i = 0; i < p.size(); ++i)
       for (std::size_t j = i + 1; j < p.size(); ++j)
@@ -689,7 +751,8 @@ class CombinatorialComplex {
   }
   // Counts, for every ordered pair (i, k), i != k, the groups that hold both: the off-diagonal
   // part of the Gram matrix of the group-membership matrix, without forming the product.
-  static SparseMatrix pair_counts(const std::vector<Index>& offsets, const std::vector<Index>& members, Index n) {
+  static SparseMatrix pair_counts(const std::vector<Index>& offsets,
+                                  const std::vector<Index>& members, Index n) {
     // Invert the membership (cell -> its groups) by a counting sort, then emit each row's
     // co-members sorted and counted: CSR directly, no triplet sort.
     std::vector<Index> gstart(static_cast<std::size_t>(n) + 1, 0), groups(members.size());
@@ -698,11 +761,15 @@ class CombinatorialComplex {
     {
       std::vector<Index> fill(gstart.begin(), gstart.end() - 1);
       for (std::size_t g = 0; g + 1 < offsets.size(); ++g)
-        for (Index a = offsets[g]; a < offsets[g + 1]; ++a) groups[static_cast<std::size_t>(fill[static_cast<std::size_t>(members[static_cast<std::size_t>(a)])]++)] = static_cast<Index>(g);
+        for (Index a = offsets[g]; a < offsets[g + 1]; ++a)
+          groups[static_cast<std::size_t>(
+              fill[static_cast<std::size_t>(members[static_cast<std::size_t>(a)])]++)] =
+              static_cast<Index>(g);
     }
     // At most Σ_g |g|(|g| - 1) entries (before merging repeats): reserve that, fill in place.
     std::int64_t bound = 0;
-    for (std::size_t g = 0; g + 1 < offsets.size(); ++g) bound += (offsets[g + 1] - offsets[g]) * (offsets[g + 1] - offsets[g] - 1);
+    for (std::size_t g = 0; g + 1 < offsets.size(); ++g)
+      bound += (offsets[g + 1] - offsets[g]) * (offsets[g + 1] - offsets[g] - 1);
     SparseMatrix m(n, n);
     auto& data = m.data();
     data.reserve(static_cast<Eigen::Index>(bound));
@@ -710,10 +777,12 @@ class CombinatorialComplex {
     std::vector<Index> row;
     for (Index i = 0; i < n; ++i) {
       row.clear();
-      for (Index k = gstart[static_cast<std::size_t>(i)]; k < gstart[static_cast<std::size_t>(i) + 1]; ++k) {
+      for (Index k = gstart[static_cast<std::size_t>(i)];
+           k < gstart[static_cast<std::size_t>(i) + 1]; ++k) {
         const auto g = static_cast<std::size_t>(groups[static_cast<std::size_t>(k)]);
         for (Index a = offsets[g]; a < offsets[g + 1]; ++a)
-          if (members[static_cast<std::size_t>(a)] != i) row.push_back(members[static_cast<std::size_t>(a)]);
+          if (members[static_cast<std::size_t>(a)] != i)
+            row.push_back(members[static_cast<std::size_t>(a)]);
       }
       std::sort(row.begin(), row.end());
       for (std::size_t a = 0; a < row.size();) {

@@ -6,7 +6,8 @@
 //   int D::dim() const                                   highest rank holding cells (-1: empty)
 //   std::vector<Index> D::shape() const                  num_cells of ranks 0..dim()
 //   Index D::num_cells(int rank) const                   0 for ranks without cells
-//   std::vector<std::vector<Index>> D::skeleton(int r)   the cells of rank r as node lists, id order
+//   std::vector<std::vector<Index>> D::skeleton(int r)   the cells of rank r as node lists, id
+//     order
 //   SparseMatrix D::incidence_matrix(int r, int s)       n_r x n_s unsigned inclusion (r != s)
 //   SparseMatrix D::adjacency_matrix(int r, int via)     via > r: off-diagonal |B||B|^T, counts
 //   SparseMatrix D::coadjacency_matrix(int r, int via)   via < r: off-diagonal |B|^T|B|, counts
@@ -33,13 +34,17 @@ namespace detail {
 template <class D, class = void>
 struct is_domain_impl : std::false_type {};
 template <class D>
-struct is_domain_impl<D, std::void_t<decltype(std::declval<const D&>().dim()), decltype(std::declval<const D&>().shape()),
-                                     decltype(std::declval<const D&>().num_cells(0)), decltype(std::declval<const D&>().skeleton(0)),
+struct is_domain_impl<D, std::void_t<decltype(std::declval<const D&>().dim()),
+                                     decltype(std::declval<const D&>().shape()),
+                                     decltype(std::declval<const D&>().num_cells(0)),
+                                     decltype(std::declval<const D&>().skeleton(0)),
                                      decltype(std::declval<const D&>().incidence_matrix(0, 1)),
                                      decltype(std::declval<const D&>().adjacency_matrix(0, 1)),
                                      decltype(std::declval<const D&>().coadjacency_matrix(1, 0))>>
-    : std::bool_constant<std::is_convertible_v<decltype(std::declval<const D&>().incidence_matrix(0, 1)), SparseMatrix> &&
-                         std::is_convertible_v<decltype(std::declval<const D&>().num_cells(0)), std::int64_t>> {};
+    : std::bool_constant<
+          std::is_convertible_v<decltype(std::declval<const D&>().incidence_matrix(0, 1)),
+                                SparseMatrix> &&
+          std::is_convertible_v<decltype(std::declval<const D&>().num_cells(0)), std::int64_t>> {};
 }  // namespace detail
 
 /// True when D models the Domain concept above.
@@ -55,7 +60,8 @@ static_assert(is_domain_v<Hypergraph>);
 template <class D, class = std::enable_if_t<is_domain_v<D>>>
 std::int64_t euler_characteristic(const D& d) {
   std::int64_t chi = 0;
-  for (int r = 0; r <= d.dim(); ++r) chi += (r % 2 ? -1 : 1) * static_cast<std::int64_t>(d.num_cells(r));
+  for (int r = 0; r <= d.dim(); ++r)
+    chi += (r % 2 ? -1 : 1) * static_cast<std::int64_t>(d.num_cells(r));
   return chi;
 }
 

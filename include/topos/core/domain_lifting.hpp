@@ -34,13 +34,19 @@ namespace detail {
 struct GraphCsr {
   std::vector<std::int64_t> offsets, neighbors;
 };
-inline GraphCsr graph_csr(std::int64_t n, const std::vector<std::array<std::int64_t, 2>>& edges, bool forward_only) {
+inline GraphCsr graph_csr(std::int64_t n, const std::vector<std::array<std::int64_t, 2>>& edges,
+                          bool forward_only) {
   GraphCsr g;
   g.offsets.assign(static_cast<std::size_t>(n) + 1, 0);
   for (const auto& e : edges) {
     for (auto v : e)
-      if (v < 0 || v >= n) throw ComplexError("graph: edge [" + std::to_string(e[0]) + ", " + std::to_string(e[1]) + "] uses node " + std::to_string(v) + ", outside [0, " + std::to_string(n) + ")");
-    if (e[0] == e[1]) throw ComplexError("graph: edge [" + std::to_string(e[0]) + ", " + std::to_string(e[1]) + "] is a self-loop");
+      if (v < 0 || v >= n)
+        throw ComplexError("graph: edge [" + std::to_string(e[0]) + ", " + std::to_string(e[1]) +
+                           "] uses node " + std::to_string(v) + ", outside [0, " +
+                           std::to_string(n) + ")");
+    if (e[0] == e[1])
+      throw ComplexError("graph: edge [" + std::to_string(e[0]) + ", " + std::to_string(e[1]) +
+                         "] is a self-loop");
     ++g.offsets[static_cast<std::size_t>(std::min(e[0], e[1])) + 1];
     if (!forward_only) ++g.offsets[static_cast<std::size_t>(std::max(e[0], e[1])) + 1];
   }
@@ -50,7 +56,8 @@ inline GraphCsr graph_csr(std::int64_t n, const std::vector<std::array<std::int6
   for (const auto& e : edges) {
     const auto a = std::min(e[0], e[1]), b = std::max(e[0], e[1]);
     g.neighbors[static_cast<std::size_t>(fill[static_cast<std::size_t>(a)]++)] = b;
-    if (!forward_only) g.neighbors[static_cast<std::size_t>(fill[static_cast<std::size_t>(b)]++)] = a;
+    if (!forward_only)
+      g.neighbors[static_cast<std::size_t>(fill[static_cast<std::size_t>(b)]++)] = a;
   }
   // Sort and de-duplicate each list in place, compacting.
   std::int64_t w = 0;
@@ -71,9 +78,14 @@ inline GraphCsr graph_csr(std::int64_t n, const std::vector<std::array<std::int6
 /// The clique complex of a graph on nodes 0..n-1: every clique of k + 1 <= max_rank + 1 nodes
 /// is a k-simplex. Cliques are enumerated depth-first over ascending forward neighbours, which
 /// yields every rank directly in lexicographic order (no sort).
-inline SimplicialComplex clique_complex(std::int64_t num_nodes, const std::vector<std::array<std::int64_t, 2>>& edges, int max_rank) {
-  if (max_rank < 0) throw ComplexError("clique_complex: max_rank " + std::to_string(max_rank) + " must be >= 0");
-  if (max_rank > 30) throw ComplexError("clique_complex: max_rank " + std::to_string(max_rank) + " is above the supported 30");
+inline SimplicialComplex clique_complex(std::int64_t num_nodes,
+                                        const std::vector<std::array<std::int64_t, 2>>& edges,
+                                        int max_rank) {
+  if (max_rank < 0)
+    throw ComplexError("clique_complex: max_rank " + std::to_string(max_rank) + " must be >= 0");
+  if (max_rank > 30)
+    throw ComplexError("clique_complex: max_rank " + std::to_string(max_rank) +
+                       " is above the supported 30");
   const detail::GraphCsr g = detail::graph_csr(num_nodes, edges, true);
   std::vector<std::vector<std::int64_t>> flat(static_cast<std::size_t>(max_rank));
   // candidates[d]: common forward neighbours of the current d+1 nodes.
@@ -87,7 +99,8 @@ inline SimplicialComplex clique_complex(std::int64_t num_nodes, const std::vecto
   std::vector<std::size_t> pos(static_cast<std::size_t>(max_rank) + 1);
   for (std::int64_t v = 0; v < num_nodes && max_rank > 0; ++v) {
     clique[0] = v;
-    candidates[0].assign(g.neighbors.begin() + g.offsets[static_cast<std::size_t>(v)], g.neighbors.begin() + g.offsets[static_cast<std::size_t>(v) + 1]);
+    candidates[0].assign(g.neighbors.begin() + g.offsets[static_cast<std::size_t>(v)],
+                         g.neighbors.begin() + g.offsets[static_cast<std::size_t>(v) + 1]);
     int d = 0;
     pos[0] = 0;
     while (d >= 0) {
@@ -110,9 +123,12 @@ inline SimplicialComplex clique_complex(std::int64_t num_nodes, const std::vecto
         next.resize(static_cast<std::size_t>(std::min(xe - x, ye - y)));
         std::int64_t* out = next.data();
         while (x != xe && y != ye) {
-          if (*x < *y) ++x;
-          else if (*y < *x) ++y;
-          else *out++ = *x++, ++y;
+          if (*x < *y)
+            ++x;
+          else if (*y < *x)
+            ++y;
+          else
+            *out++ = *x++, ++y;
         }
         next.resize(static_cast<std::size_t>(out - next.data()));
         if (!next.empty()) {
@@ -128,7 +144,8 @@ inline SimplicialComplex clique_complex(std::int64_t num_nodes, const std::vecto
 /// The simplicial complex of a triangle mesh (its faces and all their edges and vertices).
 inline SimplicialComplex simplicial_complex_from_mesh(const TriangleMesh& mesh) {
   mesh.validate();
-  return SimplicialComplex::from_flat(mesh.faces.data(), static_cast<std::size_t>(mesh.num_faces()), 3, mesh.num_vertices());
+  return SimplicialComplex::from_flat(mesh.faces.data(), static_cast<std::size_t>(mesh.num_faces()),
+                                      3, mesh.num_vertices());
 }
 
 /// Every simplex of rank >= 1 as a hyperedge (rank by rank, id order), nodes kept.
@@ -144,8 +161,11 @@ inline Hypergraph to_hypergraph(const SimplicialComplex& sc) {
 inline CombinatorialComplex<> to_combinatorial_complex(const SimplicialComplex& sc) {
   CombinatorialComplex<> cc(sc.num_nodes());
   for (int k = 1; k <= sc.dim(); ++k) {
-    cc.reserve(k, static_cast<std::size_t>(sc.num_cells(k)), static_cast<std::size_t>(sc.num_cells(k) * (k + 1)));
-    cc.add_cells_trusted(sc.num_cells(k) ? sc.data(k, 0) : nullptr, static_cast<std::size_t>(sc.num_cells(k)), static_cast<std::size_t>(k) + 1, k);
+    cc.reserve(k, static_cast<std::size_t>(sc.num_cells(k)),
+               static_cast<std::size_t>(sc.num_cells(k) * (k + 1)));
+    cc.add_cells_trusted(sc.num_cells(k) ? sc.data(k, 0) : nullptr,
+                         static_cast<std::size_t>(sc.num_cells(k)), static_cast<std::size_t>(k) + 1,
+                         k);
   }
   return cc;
 }
@@ -153,18 +173,21 @@ inline CombinatorialComplex<> to_combinatorial_complex(const SimplicialComplex& 
 /// Nodes, edges and triangles of a simplicial complex as a cell complex (same ids per rank).
 inline CellComplex to_cell_complex(const SimplicialComplex& sc) {
   std::vector<CellComplex::Edge> edges;
-  for (std::int64_t e = 0; e < sc.num_cells(1); ++e) edges.push_back({sc.data(1, e)[0], sc.data(1, e)[1]});
+  for (std::int64_t e = 0; e < sc.num_cells(1); ++e)
+    edges.push_back({sc.data(1, e)[0], sc.data(1, e)[1]});
   std::vector<std::vector<std::int64_t>> cells;
   for (std::int64_t t = 0; t < sc.num_cells(2); ++t) cells.push_back(sc.simplex(2, t));
   return CellComplex::from_ordered(sc.num_nodes(), edges, cells);
 }
 
 /// One hyperedge per node v: {v} and its neighbours (closed neighbourhood), in node order.
-inline Hypergraph neighborhood_hypergraph(std::int64_t num_nodes, const std::vector<std::array<std::int64_t, 2>>& edges) {
+inline Hypergraph neighborhood_hypergraph(std::int64_t num_nodes,
+                                          const std::vector<std::array<std::int64_t, 2>>& edges) {
   const detail::GraphCsr g = detail::graph_csr(num_nodes, edges, false);
   Hypergraph h(num_nodes);
   for (std::int64_t v = 0; v < num_nodes; ++v) {
-    std::vector<std::int64_t> e(g.neighbors.begin() + g.offsets[static_cast<std::size_t>(v)], g.neighbors.begin() + g.offsets[static_cast<std::size_t>(v) + 1]);
+    std::vector<std::int64_t> e(g.neighbors.begin() + g.offsets[static_cast<std::size_t>(v)],
+                                g.neighbors.begin() + g.offsets[static_cast<std::size_t>(v) + 1]);
     e.push_back(v);
     h.add_hyperedge(e);
   }

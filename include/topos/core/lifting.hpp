@@ -56,31 +56,40 @@ class FlatKeyMap {
 }  // namespace detail
 
 struct LiftOptions {
-  bool faces = true;     ///< add rank-2 cells for every face
-  int object_rank = 3;   ///< rank of the object cells (HOPNet: 4); 0 disables them
-  LiftOptions& with_faces(bool v) { faces = v; return *this; }
-  LiftOptions& with_object_rank(int r) { object_rank = r; return *this; }
+  bool faces = true;    ///< add rank-2 cells for every face
+  int object_rank = 3;  ///< rank of the object cells (HOPNet: 4); 0 disables them
+  LiftOptions& with_faces(bool v) {
+    faces = v;
+    return *this;
+  }
+  LiftOptions& with_object_rank(int r) {
+    object_rank = r;
+    return *this;
+  }
 };
 
 template <class Options = DefaultComplexOptions>
 struct LiftedMeshes {
   using Index = typename Options::Index;
   CombinatorialComplex<Options> complex;
-  std::vector<Index> node_offset;                 ///< O+1 offsets of each object's nodes
-  std::vector<Index> face_offset;                 ///< O+1 offsets into the global face list
-  Eigen::Matrix<Index, Eigen::Dynamic, 3, Eigen::RowMajor> faces;  ///< global face list (global node ids)
-  std::vector<std::array<Index, 2>> edges;        ///< edge id -> first-seen (a, b)
-  std::vector<Index> node_object;                 ///< object of each node
+  std::vector<Index> node_offset;  ///< O+1 offsets of each object's nodes
+  std::vector<Index> face_offset;  ///< O+1 offsets into the global face list
+  Eigen::Matrix<Index, Eigen::Dynamic, 3, Eigen::RowMajor>
+      faces;                                ///< global face list (global node ids)
+  std::vector<std::array<Index, 2>> edges;  ///< edge id -> first-seen (a, b)
+  std::vector<Index> node_object;           ///< object of each node
   int object_rank = 0;
 
   Index num_objects() const { return static_cast<Index>(node_offset.size()) - 1; }
 };
 
 template <class Options = DefaultComplexOptions>
-LiftedMeshes<Options> lift_meshes(const std::vector<TriangleMesh>& meshes, const LiftOptions& opt = {}) {
+LiftedMeshes<Options> lift_meshes(const std::vector<TriangleMesh>& meshes,
+                                  const LiftOptions& opt = {}) {
   using Index = typename Options::Index;
   if (opt.object_rank != 0 && opt.object_rank < (opt.faces ? 3 : 2)) {
-    throw ComplexError("lift_meshes: object rank " + std::to_string(opt.object_rank) + " must be above the face rank 2");
+    throw ComplexError("lift_meshes: object rank " + std::to_string(opt.object_rank) +
+                       " must be above the face rank 2");
   }
   LiftedMeshes<Options> out;
   out.object_rank = opt.object_rank;
@@ -98,8 +107,10 @@ LiftedMeshes<Options> lift_meshes(const std::vector<TriangleMesh>& meshes, const
   out.node_object.resize(static_cast<std::size_t>(n_nodes));
   for (std::size_t o = 0; o < meshes.size(); ++o) {
     const Index off = out.node_offset[o];
-    out.faces.middleRows(out.face_offset[o], meshes[o].num_faces()) = (meshes[o].faces.array() + off).matrix();
-    for (Index v = off; v < out.node_offset[o + 1]; ++v) out.node_object[static_cast<std::size_t>(v)] = static_cast<Index>(o);
+    out.faces.middleRows(out.face_offset[o], meshes[o].num_faces()) =
+        (meshes[o].faces.array() + off).matrix();
+    for (Index v = off; v < out.node_offset[o + 1]; ++v)
+      out.node_object[static_cast<std::size_t>(v)] = static_cast<Index>(o);
   }
 
   if (n_nodes >= (Index(1) << 31)) throw ComplexError("lift_meshes: more than 2^31 nodes");
@@ -126,12 +137,16 @@ LiftedMeshes<Options> lift_meshes(const std::vector<TriangleMesh>& meshes, const
     std::vector<Index> fill(bucket.begin(), bucket.end() - 1);
     for (std::size_t pos = 0; pos < n_pairs; ++pos) {
       auto [a, b] = pair_at(pos);
-      entries[static_cast<std::size_t>(fill[static_cast<std::size_t>(std::min(a, b))]++)] = static_cast<Index>(pos);
+      entries[static_cast<std::size_t>(fill[static_cast<std::size_t>(std::min(a, b))]++)] =
+          static_cast<Index>(pos);
     }
   }
   // Within a group, a pair whose larger node appeared before is a repeated edge. Two faces with
   // the same three nodes share an edge and its opposite node: that is how duplicates show.
-  const auto larger = [&](Index pos) { auto [a, b] = pair_at(static_cast<std::size_t>(pos)); return std::max(a, b); };
+  const auto larger = [&](Index pos) {
+    auto [a, b] = pair_at(static_cast<std::size_t>(pos));
+    return std::max(a, b);
+  };
   const auto opposite = [&](Index pos) { return out.faces(pos / 3, (pos % 3 + 2) % 3); };
   std::vector<char> first(n_pairs, 0);
   for (std::size_t v = 0; v < static_cast<std::size_t>(n_nodes); ++v) {
@@ -146,7 +161,9 @@ LiftedMeshes<Options> lift_meshes(const std::vector<TriangleMesh>& meshes, const
           const Index f = pi / 3;
           Index o = 0;
           while (out.face_offset[static_cast<std::size_t>(o) + 1] <= f) ++o;
-          throw MeshError("lift_meshes: face " + std::to_string(f - out.face_offset[static_cast<std::size_t>(o)]) + " of object " + std::to_string(o) + " duplicates an earlier face");
+          throw MeshError("lift_meshes: face " +
+                          std::to_string(f - out.face_offset[static_cast<std::size_t>(o)]) +
+                          " of object " + std::to_string(o) + " duplicates an earlier face");
         }
       }
       if (!seen) first[static_cast<std::size_t>(pi)] = 1;
@@ -160,7 +177,8 @@ LiftedMeshes<Options> lift_meshes(const std::vector<TriangleMesh>& meshes, const
     auto [a, b] = pair_at(pos);
     out.edges.push_back({a, b});
   }
-  static_assert(sizeof(std::array<Index, 2>) == 2 * sizeof(Index), "edges must be contiguous pairs");
+  static_assert(sizeof(std::array<Index, 2>) == 2 * sizeof(Index),
+                "edges must be contiguous pairs");
   cc.add_cells_trusted(out.edges.empty() ? nullptr : out.edges.front().data(), n_edges, 2, 1);
   if (opt.faces) {
     // Duplicate faces were rejected with the edges above.
@@ -173,8 +191,9 @@ LiftedMeshes<Options> lift_meshes(const std::vector<TriangleMesh>& meshes, const
       // An object holds all its mesh's nodes and nothing else, so it can only break the rank
       // condition by equalling one of its own faces or edges (a one-triangle object).
       if (auto c = nodes.size() <= 3 ? cc.find(nodes) : std::nullopt) {
-        throw ComplexError("lift_meshes: object " + std::to_string(o) + " has the same nodes as a cell of rank " +
-                           std::to_string(c->rank) + "; it already exists at rank " + std::to_string(c->rank));
+        throw ComplexError("lift_meshes: object " + std::to_string(o) +
+                           " has the same nodes as a cell of rank " + std::to_string(c->rank) +
+                           "; it already exists at rank " + std::to_string(c->rank));
       }
       cc.add_cell_trusted(nodes.data(), nodes.size(), opt.object_rank);
     }

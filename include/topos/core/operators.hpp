@@ -20,7 +20,8 @@
 
 namespace topos {
 
-/// B W B^T, with W = diag(weights) (no weights: W = I). B = B_{k+1} gives the up-Laplacian of rank k.
+/// B W B^T, with W = diag(weights) (no weights: W = I). B = B_{k+1} gives the up-Laplacian of rank
+/// k.
 inline SparseMatrix up_laplacian(const SparseMatrix& b_next, const Eigen::VectorXd& weights = {}) {
   const SparseMatrix bt = sparse::transpose(b_next);
   if (weights.size() == 0) return sparse::multiply_sum_symmetric({{&b_next, &bt}});
@@ -78,7 +79,8 @@ inline double largest_magnitude_eigenvalue(const SparseMatrix& m) {
   for (Eigen::Index k = 0; k < steps; ++k) {
     Eigen::VectorXd w = m * q.col(k);
     alpha[k] = q.col(k).dot(w);
-    for (int pass = 0; pass < 2; ++pass) w -= q.leftCols(k + 1) * (q.leftCols(k + 1).transpose() * w);
+    for (int pass = 0; pass < 2; ++pass)
+      w -= q.leftCols(k + 1) * (q.leftCols(k + 1).transpose() * w);
     beta[k] = w.norm();
     Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es;
     Eigen::MatrixXd t = Eigen::MatrixXd::Zero(k + 1, k + 1);
@@ -88,7 +90,9 @@ inline double largest_magnitude_eigenvalue(const SparseMatrix& m) {
     }
     es.compute(t, Eigen::EigenvaluesOnly);
     const double now = pick(es.eigenvalues());
-    if (beta[k] < 1e-12 * std::max(1.0, std::abs(now)) || (k > 5 && std::abs(now - previous) <= 1e-14 * std::abs(now))) return now;
+    if (beta[k] < 1e-12 * std::max(1.0, std::abs(now)) ||
+        (k > 5 && std::abs(now - previous) <= 1e-14 * std::abs(now)))
+      return now;
     previous = now;
     q.col(k + 1) = w / beta[k];
   }
@@ -143,10 +147,12 @@ struct HodgeDecomposition {
   Eigen::VectorXd gradient, curl, harmonic;
 };
 
-inline HodgeDecomposition hodge_decomposition(const SparseMatrix& b_k, const SparseMatrix& b_next, const Eigen::VectorXd& x) {
+inline HodgeDecomposition hodge_decomposition(const SparseMatrix& b_k, const SparseMatrix& b_next,
+                                              const Eigen::VectorXd& x) {
   const Eigen::Index n = x.size();
   if ((b_k.size() && b_k.cols() != n) || (b_next.size() && b_next.rows() != n)) {
-    throw ComplexError("hodge_decomposition: the cochain has " + std::to_string(n) + " entries, the incidence matrices do not fit");
+    throw ComplexError("hodge_decomposition: the cochain has " + std::to_string(n) +
+                       " entries, the incidence matrices do not fit");
   }
   // Projection of x onto the column space of A by least squares (pseudo-inverse of the normal
   // equations' matrix, which handles rank deficiency).

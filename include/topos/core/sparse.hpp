@@ -96,8 +96,9 @@ inline bool check_product_terms(const ProductTerms& terms) {
   bool compressed = true;
   for (const auto& [a, b] : terms) {
     if (a->cols() != b->rows() || a->rows() != n || b->cols() != m) {
-      throw ComplexError("sparse product: shapes (" + std::to_string(a->rows()) + "x" + std::to_string(a->cols()) + ") and (" +
-                         std::to_string(b->rows()) + "x" + std::to_string(b->cols()) + ") do not match");
+      throw ComplexError("sparse product: shapes (" + std::to_string(a->rows()) + "x" +
+                         std::to_string(a->cols()) + ") and (" + std::to_string(b->rows()) + "x" +
+                         std::to_string(b->cols()) + ") do not match");
     }
     compressed = compressed && a->isCompressed() && b->isCompressed();
   }
@@ -140,7 +141,8 @@ inline UnsortedRows accumulate_rows(const ProductTerms& terms) {
   const std::int64_t bound = std::min<std::int64_t>(product_flops(terms), n * m);
   // + 1: the branch-free loop below also stores a column it does not keep, one slot past the
   // last entry when a dense final row is full.
-  UnsortedRows r{scratch<std::int64_t>(n + 1), scratch<std::int64_t>(bound + 1), scratch<double>(bound + 1)};
+  UnsortedRows r{scratch<std::int64_t>(n + 1), scratch<std::int64_t>(bound + 1),
+                 scratch<double>(bound + 1)};
   std::int64_t* ptr = r.ptr.get();
   std::int64_t* cols = r.cols.get();
   double* vals = r.vals.get();
@@ -175,7 +177,8 @@ inline UnsortedRows accumulate_rows(const ProductTerms& terms) {
       }
     }
     std::int64_t kept = start;
-    for (std::int64_t e = start; e < w; ++e) {  // drop cancellations (frequent in a Hodge Laplacian), branch-free
+    for (std::int64_t e = start; e < w;
+         ++e) {  // drop cancellations (frequent in a Hodge Laplacian), branch-free
       const std::int64_t j = cols[e];
       const double v = acc[j];
       acc[j] = 0.0;
@@ -199,10 +202,13 @@ inline SparseMatrix multiply_sum_compressed(const ProductTerms& terms) {
   double* cv = c.valuePtr();
   std::vector<std::int64_t> order;
   for (std::int64_t i = 0; i < n; ++i) {
-    const std::int64_t b = r.ptr[static_cast<std::size_t>(i)], e = r.ptr[static_cast<std::size_t>(i) + 1];
+    const std::int64_t b = r.ptr[static_cast<std::size_t>(i)],
+                       e = r.ptr[static_cast<std::size_t>(i) + 1];
     order.resize(static_cast<std::size_t>(e - b));
     std::iota(order.begin(), order.end(), b);
-    std::sort(order.begin(), order.end(), [&](std::int64_t x, std::int64_t y) { return r.cols[static_cast<std::size_t>(x)] < r.cols[static_cast<std::size_t>(y)]; });
+    std::sort(order.begin(), order.end(), [&](std::int64_t x, std::int64_t y) {
+      return r.cols[static_cast<std::size_t>(x)] < r.cols[static_cast<std::size_t>(y)];
+    });
     for (std::size_t t = 0; t < order.size(); ++t) {
       ci[b + static_cast<std::int64_t>(t)] = r.cols[static_cast<std::size_t>(order[t])];
       cv[b + static_cast<std::int64_t>(t)] = r.vals[static_cast<std::size_t>(order[t])];
@@ -225,7 +231,8 @@ inline SparseMatrix multiply_sum_symmetric_compressed(const ProductTerms& terms)
   const auto fill = scratch<std::int64_t>(n);
   std::copy(outer, outer + n, fill.get());
   for (std::int64_t i = 0; i < n; ++i)
-    for (std::int64_t e = r.ptr[static_cast<std::size_t>(i)]; e < r.ptr[static_cast<std::size_t>(i) + 1]; ++e) {
+    for (std::int64_t e = r.ptr[static_cast<std::size_t>(i)];
+         e < r.ptr[static_cast<std::size_t>(i) + 1]; ++e) {
       const std::int64_t p = fill[static_cast<std::size_t>(r.cols[static_cast<std::size_t>(e)])]++;
       ci[p] = i;
       cv[p] = r.vals[static_cast<std::size_t>(e)];
@@ -238,7 +245,8 @@ inline SparseMatrix multiply_sum_symmetric_compressed(const ProductTerms& terms)
 /// (cancellations) dropped. Every product must have the same shape.
 inline SparseMatrix multiply_sum(const ProductTerms& terms) {
   if (detail::check_product_terms(terms)) return detail::multiply_sum_compressed(terms);
-  return detail::with_compressed_terms(terms, [](const ProductTerms& t) { return detail::multiply_sum_compressed(t); });
+  return detail::with_compressed_terms(
+      terms, [](const ProductTerms& t) { return detail::multiply_sum_compressed(t); });
 }
 
 /// multiply_sum for terms of the form (A, A^T) exactly (B^T B, B B^T and their sums: the
@@ -248,19 +256,24 @@ inline SparseMatrix multiply_sum(const ProductTerms& terms) {
 /// form (a weighted B W B^T is not of it: w (a b) and (w a) b may round differently).
 inline SparseMatrix multiply_sum_symmetric(const ProductTerms& terms) {
   for (const auto& [a, b] : terms)
-    if (a->rows() != b->cols()) throw ComplexError("symmetric sparse product: a term (A, B) is not square (B must be A^T)");
+    if (a->rows() != b->cols())
+      throw ComplexError("symmetric sparse product: a term (A, B) is not square (B must be A^T)");
   if (detail::check_product_terms(terms)) return detail::multiply_sum_symmetric_compressed(terms);
-  return detail::with_compressed_terms(terms, [](const ProductTerms& t) { return detail::multiply_sum_symmetric_compressed(t); });
+  return detail::with_compressed_terms(
+      terms, [](const ProductTerms& t) { return detail::multiply_sum_symmetric_compressed(t); });
 }
 
 /// A * B (see multiply_sum).
-inline SparseMatrix multiply(const SparseMatrix& a, const SparseMatrix& b) { return multiply_sum({{&a, &b}}); }
+inline SparseMatrix multiply(const SparseMatrix& a, const SparseMatrix& b) {
+  return multiply_sum({{&a, &b}});
+}
 
 /// A + B (same shape), exact zeros dropped.
 inline SparseMatrix add(const SparseMatrix& a, const SparseMatrix& b) {
   if (a.rows() != b.rows() || a.cols() != b.cols()) {
-    throw ComplexError("sparse sum: shapes (" + std::to_string(a.rows()) + "x" + std::to_string(a.cols()) + ") and (" +
-                       std::to_string(b.rows()) + "x" + std::to_string(b.cols()) + ") differ");
+    throw ComplexError("sparse sum: shapes (" + std::to_string(a.rows()) + "x" +
+                       std::to_string(a.cols()) + ") and (" + std::to_string(b.rows()) + "x" +
+                       std::to_string(b.cols()) + ") differ");
   }
   SparseMatrix s = a + b;
   s.prune(0.0, 0.0);
@@ -325,7 +338,8 @@ inline Eigen::VectorXd abs_row_sums(const SparseMatrix& m) {
 }
 
 /// diag(left) * m * diag(right); an empty vector stands for the identity. Zeros dropped.
-inline SparseMatrix scale(const SparseMatrix& in, const Eigen::VectorXd& left, const Eigen::VectorXd& right) {
+inline SparseMatrix scale(const SparseMatrix& in, const Eigen::VectorXd& left,
+                          const Eigen::VectorXd& right) {
   SparseMatrix m = in;
   if ((left.size() && left.size() != m.rows()) || (right.size() && right.size() != m.cols())) {
     throw ComplexError("sparse scale: diagonal sizes do not match the matrix");

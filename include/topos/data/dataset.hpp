@@ -30,16 +30,20 @@ inline std::vector<std::int64_t> parse_seed_range(const std::string& text) {
   constexpr long long max_seeds = 10000000;
   std::vector<std::pair<long long, long long>> parts;
   std::size_t pos = 0;
-  const auto fail = [&](const std::string& why) { throw DataError("seed range '" + text + "': " + why); };
+  const auto fail = [&](const std::string& why) {
+    throw DataError("seed range '" + text + "': " + why);
+  };
   if (text.empty()) fail("empty");
   while (pos <= text.size()) {
     const auto comma = text.find(',', pos);
-    const std::string part = text.substr(pos, comma == std::string::npos ? std::string::npos : comma - pos);
+    const std::string part =
+        text.substr(pos, comma == std::string::npos ? std::string::npos : comma - pos);
     const auto dash = part.find('-', 1);
     try {
       std::size_t used = 0;
       const long long a = std::stoll(part.substr(0, dash), &used);
-      if (used != (dash == std::string::npos ? part.size() : dash)) fail("'" + part + "' is not a number or a range");
+      if (used != (dash == std::string::npos ? part.size() : dash))
+        fail("'" + part + "' is not a number or a range");
       long long b = a;
       if (dash != std::string::npos) {
         const std::string rest = part.substr(dash + 1);
@@ -76,11 +80,14 @@ inline std::vector<std::int64_t> parse_seed_range(const std::string& text) {
 
 /// Numeric scene folders holding metadata.json, ascending (the reference's sample list).
 inline std::vector<std::int64_t> list_scenes(const std::filesystem::path& root) {
-  if (!std::filesystem::is_directory(root)) throw DataError(root.string() + ": dataset folder does not exist");
+  if (!std::filesystem::is_directory(root))
+    throw DataError(root.string() + ": dataset folder does not exist");
   std::vector<std::int64_t> ids;
   for (const auto& e : std::filesystem::directory_iterator(root)) {
     const std::string n = e.path().filename().string();
-    if (!e.is_directory() || n.empty() || n.size() > 9 || !std::all_of(n.begin(), n.end(), ::isdigit)) continue;
+    if (!e.is_directory() || n.empty() || n.size() > 9 ||
+        !std::all_of(n.begin(), n.end(), ::isdigit))
+      continue;
     if (std::filesystem::exists(e.path() / "metadata.json")) ids.push_back(std::stoll(n));
   }
   std::sort(ids.begin(), ids.end());
@@ -96,12 +103,29 @@ struct Split {
 /// (numpy default_rng(0) choices); otherwise train/val/test take ceil(0.8n)/ceil(0.1n)/rest of
 /// a std::mt19937(0) shuffle, sorted.
 inline Split reference_split(const std::vector<std::int64_t>& ids) {
-  static const std::vector<std::int64_t> val1200{15, 16, 26, 27, 37, 39, 45, 46, 50, 52, 67, 74, 80, 87, 91, 95, 98, 101, 123, 129, 132, 154, 159, 173, 176, 183, 188, 197, 207, 217, 222, 226, 256, 260, 261, 263, 265, 306, 311, 319, 350, 354, 379, 380, 383, 416, 433, 445, 460, 463, 466, 479, 480, 489, 490, 494, 509, 522, 532, 587, 588, 598, 602, 607, 613, 623, 624, 646, 647, 667, 669, 675, 676, 677, 687, 691, 693, 701, 703, 713, 775, 796, 802, 811, 829, 835, 837, 846, 851, 855, 863, 866, 868, 870, 879, 887, 896, 902, 904, 917, 946, 961, 977, 1027, 1031, 1044, 1049, 1051, 1059, 1064, 1072, 1074, 1083, 1085, 1093, 1131, 1158, 1164, 1184, 1192};
-  static const std::vector<std::int64_t> test1200{4, 40, 47, 54, 55, 72, 78, 82, 93, 124, 126, 131, 140, 143, 152, 172, 180, 203, 236, 255, 264, 271, 273, 281, 290, 301, 309, 315, 316, 327, 330, 342, 348, 349, 381, 391, 415, 419, 423, 437, 469, 482, 487, 491, 499, 504, 507, 542, 545, 547, 551, 553, 595, 599, 616, 626, 641, 652, 655, 672, 694, 716, 724, 729, 731, 747, 755, 764, 772, 794, 804, 809, 812, 817, 826, 830, 849, 854, 860, 883, 905, 908, 924, 926, 944, 959, 969, 975, 982, 1000, 1011, 1019, 1021, 1028, 1033, 1034, 1039, 1042, 1060, 1061, 1073, 1092, 1102, 1103, 1104, 1106, 1111, 1118, 1121, 1124, 1136, 1139, 1144, 1150, 1167, 1169, 1175, 1179, 1190, 1197};
+  static const std::vector<std::int64_t> val1200{
+      15,   16,   26,   27,   37,   39,   45,   46,   50,   52,   67,   74,   80,   87,   91,
+      95,   98,   101,  123,  129,  132,  154,  159,  173,  176,  183,  188,  197,  207,  217,
+      222,  226,  256,  260,  261,  263,  265,  306,  311,  319,  350,  354,  379,  380,  383,
+      416,  433,  445,  460,  463,  466,  479,  480,  489,  490,  494,  509,  522,  532,  587,
+      588,  598,  602,  607,  613,  623,  624,  646,  647,  667,  669,  675,  676,  677,  687,
+      691,  693,  701,  703,  713,  775,  796,  802,  811,  829,  835,  837,  846,  851,  855,
+      863,  866,  868,  870,  879,  887,  896,  902,  904,  917,  946,  961,  977,  1027, 1031,
+      1044, 1049, 1051, 1059, 1064, 1072, 1074, 1083, 1085, 1093, 1131, 1158, 1164, 1184, 1192};
+  static const std::vector<std::int64_t> test1200{
+      4,    40,   47,   54,   55,   72,   78,   82,   93,   124,  126,  131,  140,  143,  152,
+      172,  180,  203,  236,  255,  264,  271,  273,  281,  290,  301,  309,  315,  316,  327,
+      330,  342,  348,  349,  381,  391,  415,  419,  423,  437,  469,  482,  487,  491,  499,
+      504,  507,  542,  545,  547,  551,  553,  595,  599,  616,  626,  641,  652,  655,  672,
+      694,  716,  724,  729,  731,  747,  755,  764,  772,  794,  804,  809,  812,  817,  826,
+      830,  849,  854,  860,  883,  905,  908,  924,  926,  944,  959,  969,  975,  982,  1000,
+      1011, 1019, 1021, 1028, 1033, 1034, 1039, 1042, 1060, 1061, 1073, 1092, 1102, 1103, 1104,
+      1106, 1111, 1118, 1121, 1124, 1136, 1139, 1144, 1150, 1167, 1169, 1175, 1179, 1190, 1197};
   Split s;
   const auto consecutive = [&](std::int64_t n) {
     if (static_cast<std::int64_t>(ids.size()) != n) return false;
-    for (std::int64_t i = 0; i < n; ++i) if (ids[static_cast<std::size_t>(i)] != i + 1) return false;
+    for (std::int64_t i = 0; i < n; ++i)
+      if (ids[static_cast<std::size_t>(i)] != i + 1) return false;
     return true;
   };
   std::set<std::int64_t> val, test;
@@ -115,16 +139,21 @@ inline Split reference_split(const std::vector<std::int64_t>& ids) {
     std::vector<std::int64_t> order = ids;
     std::mt19937 rng(0);
     std::shuffle(order.begin(), order.end(), rng);
-    const auto n = order.size(), ntrain = static_cast<std::size_t>(std::ceil(0.8 * static_cast<double>(n))), nval = std::min(n - ntrain, static_cast<std::size_t>(std::ceil(0.1 * static_cast<double>(n))));
-    val.insert(order.begin() + static_cast<std::ptrdiff_t>(ntrain), order.begin() + static_cast<std::ptrdiff_t>(ntrain + nval));
+    const auto n = order.size(),
+               ntrain = static_cast<std::size_t>(std::ceil(0.8 * static_cast<double>(n))),
+               nval = std::min(n - ntrain,
+                               static_cast<std::size_t>(std::ceil(0.1 * static_cast<double>(n))));
+    val.insert(order.begin() + static_cast<std::ptrdiff_t>(ntrain),
+               order.begin() + static_cast<std::ptrdiff_t>(ntrain + nval));
     test.insert(order.begin() + static_cast<std::ptrdiff_t>(ntrain + nval), order.end());
   }
   for (auto id : ids) (val.count(id) ? s.val : test.count(id) ? s.test : s.train).push_back(id);
   return s;
 }
 
-
-inline nlohmann::json split_json(const Split& s) { return {{"train", s.train}, {"val", s.val}, {"test", s.test}}; }
+inline nlohmann::json split_json(const Split& s) {
+  return {{"train", s.train}, {"val", s.val}, {"test", s.test}};
+}
 
 /// A custom split: {"train": [...], "val": [...], "test": [...]} (any part may be missing). A seed
 /// in two parts is an error.
@@ -133,16 +162,20 @@ inline Split parse_split_json(const std::string& text, const std::string& source
   std::set<std::int64_t> seen;
   try {
     const auto j = nlohmann::json::parse(text);
-    if (!j.is_object()) throw DataError(source + ": a split is a JSON object with train/val/test seed lists");
-    for (auto& [key, part] : std::vector<std::pair<const char*, std::vector<std::int64_t>*>>{{"train", &s.train}, {"val", &s.val}, {"test", &s.test}}) {
+    if (!j.is_object())
+      throw DataError(source + ": a split is a JSON object with train/val/test seed lists");
+    for (auto& [key, part] : std::vector<std::pair<const char*, std::vector<std::int64_t>*>>{
+             {"train", &s.train}, {"val", &s.val}, {"test", &s.test}}) {
       if (!j.contains(key)) continue;
       *part = j.at(key).get<std::vector<std::int64_t>>();
       for (auto id : *part)
-        if (!seen.insert(id).second) throw DataError(source + ": seed " + std::to_string(id) + " is listed twice");
+        if (!seen.insert(id).second)
+          throw DataError(source + ": seed " + std::to_string(id) + " is listed twice");
       std::sort(part->begin(), part->end());
     }
     for (const auto& [k, v] : j.items())
-      if (k != "train" && k != "val" && k != "test") throw DataError(source + ": unknown part '" + k + "' (train, val, test)");
+      if (k != "train" && k != "val" && k != "test")
+        throw DataError(source + ": unknown part '" + k + "' (train, val, test)");
   } catch (const nlohmann::json::exception& e) {
     throw DataError(source + ": malformed split: " + e.what());
   }
@@ -155,15 +188,23 @@ inline Split read_split_json(const std::filesystem::path& path) {
 
 /// The seeds of `part` ("train", "val", "test" or "all") that a dataset must hold; a listed seed
 /// the dataset lacks is an error naming it.
-inline std::vector<std::int64_t> split_part(const Split& s, const std::string& part, const std::vector<std::int64_t>& available) {
+inline std::vector<std::int64_t> split_part(const Split& s, const std::string& part,
+                                            const std::vector<std::int64_t>& available) {
   std::vector<std::int64_t> ids;
-  if (part == "all") ids = available;
-  else if (part == "train") ids = s.train;
-  else if (part == "val") ids = s.val;
-  else if (part == "test") ids = s.test;
-  else throw DataError("unknown split part '" + part + "' (train, val, test, all)");
+  if (part == "all")
+    ids = available;
+  else if (part == "train")
+    ids = s.train;
+  else if (part == "val")
+    ids = s.val;
+  else if (part == "test")
+    ids = s.test;
+  else
+    throw DataError("unknown split part '" + part + "' (train, val, test, all)");
   for (auto id : ids)
-    if (!std::binary_search(available.begin(), available.end(), id)) throw DataError("the " + part + " split lists seed " + std::to_string(id) + ", which the dataset does not hold");
+    if (!std::binary_search(available.begin(), available.end(), id))
+      throw DataError("the " + part + " split lists seed " + std::to_string(id) +
+                      ", which the dataset does not hold");
   return ids;
 }
 
@@ -191,14 +232,16 @@ class Dataset {
   /// The reference's contacts of every frame of a scene (collisions.json: beside the scene's
   /// metadata.json, or collisions/<seed>.json in a topos dataset), or "" when there are none.
   std::string collisions_path(std::int64_t id) const {
-    const auto p = format_ == "kubric" ? root_ / std::to_string(id) / "collisions.json" : root_ / "collisions" / (std::to_string(id) + ".json");
+    const auto p = format_ == "kubric" ? root_ / std::to_string(id) / "collisions.json"
+                                       : root_ / "collisions" / (std::to_string(id) + ".json");
     return std::filesystem::exists(p) ? p.string() : std::string();
   }
 
   KubricScene scene(std::int64_t id) const {
     if (format_ == "kubric") return read_kubric_metadata(root_ / std::to_string(id));
     auto it = scenes_.find(id);
-    if (it == scenes_.end()) throw DataError((root_ / "dataset.json").string() + ": no scene " + std::to_string(id));
+    if (it == scenes_.end())
+      throw DataError((root_ / "dataset.json").string() + ": no scene " + std::to_string(id));
     return it->second;
   }
 
@@ -223,7 +266,8 @@ class Dataset {
  public:
   /// A topos dataset from its index and arrays as read from `root` (what open does after
   /// reading the three files); every inconsistency is a DataError naming the file.
-  static Dataset from_topos(const std::filesystem::path& root, const nlohmann::json& index, const NpyArray& positions, const NpyArray& quaternions) {
+  static Dataset from_topos(const std::filesystem::path& root, const nlohmann::json& index,
+                            const NpyArray& positions, const NpyArray& quaternions) {
     Dataset d;
     d.root_ = root;
     d.format_ = "topos";
@@ -235,13 +279,19 @@ class Dataset {
   void load_topos(const nlohmann::json& j, const NpyArray& pos, const NpyArray& quat) {
     const auto index_path = (root_ / "dataset.json").string();
     try {
-      if (j.at("format").get<std::string>() != "topos-movi") throw DataError(index_path + ": format is not 'topos-movi'");
-      if (j.at("version").get<int>() != 1) throw DataError(index_path + ": unsupported version " + j.at("version").dump());
-      const std::int64_t frames = j.at("num_frames").get<std::int64_t>(), total = j.at("num_objects").get<std::int64_t>();
-      if (frames <= 0 || total <= 0) throw DataError(index_path + ": num_frames and num_objects must be positive");
+      if (j.at("format").get<std::string>() != "topos-movi")
+        throw DataError(index_path + ": format is not 'topos-movi'");
+      if (j.at("version").get<int>() != 1)
+        throw DataError(index_path + ": unsupported version " + j.at("version").dump());
+      const std::int64_t frames = j.at("num_frames").get<std::int64_t>(),
+                         total = j.at("num_objects").get<std::int64_t>();
+      if (frames <= 0 || total <= 0)
+        throw DataError(index_path + ": num_frames and num_objects must be positive");
       const auto check = [&](const NpyArray& a, const char* name, std::int64_t cols) {
         if (a.dtype != "f8" || a.shape != std::vector<std::int64_t>{total, frames, cols})
-          throw DataError((root_ / name).string() + ": expected float64 of shape (" + std::to_string(total) + ", " + std::to_string(frames) + ", " + std::to_string(cols) + ") as dataset.json says");
+          throw DataError((root_ / name).string() + ": expected float64 of shape (" +
+                          std::to_string(total) + ", " + std::to_string(frames) + ", " +
+                          std::to_string(cols) + ") as dataset.json says");
       };
       check(pos, "positions.npy", 3);
       check(quat, "quaternions.npy", 4);
@@ -253,25 +303,36 @@ class Dataset {
         s.seed = js.at("seed").get<std::int64_t>();
         s.num_frames = frames;
         s.source = index_path + " (seed " + std::to_string(s.seed) + ")";
-        if (js.at("offset").get<std::int64_t>() != next) throw DataError(s.source + ": offset " + js.at("offset").dump() + ", expected " + std::to_string(next));
+        if (js.at("offset").get<std::int64_t>() != next)
+          throw DataError(s.source + ": offset " + js.at("offset").dump() + ", expected " +
+                          std::to_string(next));
         for (const auto& ji : js.at("instances")) {
           if (next >= total) throw DataError(s.source + ": more objects than num_objects");
           KubricInstance k;
           k.asset_id = ji.at("asset_id").get<std::string>();
           k.shape = ji.value("shape", k.asset_id);
           k.size = ji.at("size").get<double>(), k.mass = ji.at("mass").get<double>();
-          k.friction = ji.at("friction").get<double>(), k.restitution = ji.at("restitution").get<double>();
-          k.positions = Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>>(P + next * frames * 3, frames, 3);
-          k.quaternions = Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, 4, Eigen::RowMajor>>(Q + next * frames * 4, frames, 4);
-          if (!k.positions.allFinite() || !k.quaternions.allFinite()) throw DataError(s.source + ": non-finite pose of object " + std::to_string(s.instances.size()));
+          k.friction = ji.at("friction").get<double>(),
+          k.restitution = ji.at("restitution").get<double>();
+          k.positions = Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>>(
+              P + next * frames * 3, frames, 3);
+          k.quaternions =
+              Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, 4, Eigen::RowMajor>>(
+                  Q + next * frames * 4, frames, 4);
+          if (!k.positions.allFinite() || !k.quaternions.allFinite())
+            throw DataError(s.source + ": non-finite pose of object " +
+                            std::to_string(s.instances.size()));
           s.instances.push_back(std::move(k));
           ++next;
         }
         if (s.instances.empty()) throw DataError(s.source + ": the scene has no instances");
-        if (!scenes_.emplace(s.seed, s).second) throw DataError(index_path + ": seed " + std::to_string(s.seed) + " appears twice");
+        if (!scenes_.emplace(s.seed, s).second)
+          throw DataError(index_path + ": seed " + std::to_string(s.seed) + " appears twice");
         ids_.push_back(s.seed);
       }
-      if (next != total) throw DataError(index_path + ": the scenes hold " + std::to_string(next) + " objects, num_objects is " + std::to_string(total));
+      if (next != total)
+        throw DataError(index_path + ": the scenes hold " + std::to_string(next) +
+                        " objects, num_objects is " + std::to_string(total));
     } catch (const nlohmann::json::exception& e) {
       throw DataError(index_path + ": malformed dataset index: " + e.what());
     }
@@ -283,24 +344,41 @@ class Dataset {
 /// Writes scenes (all with the same number of frames) as a topos dataset in `root`: the arrays
 /// first, then dataset.json, each atomically, so a reader never sees a half-written dataset.
 /// An existing dataset in `root` is never overwritten (that is an error).
-inline void write_topos_dataset(const std::vector<KubricScene>& scenes, const std::filesystem::path& root) {
+inline void write_topos_dataset(const std::vector<KubricScene>& scenes,
+                                const std::filesystem::path& root) {
   if (scenes.empty()) throw DataError(root.string() + ": no scenes to write");
-  if (std::filesystem::exists(root / "dataset.json")) throw DataError(root.string() + ": already holds a topos dataset (dataset.json); remove it or write elsewhere");
+  if (std::filesystem::exists(root / "dataset.json"))
+    throw DataError(root.string() +
+                    ": already holds a topos dataset (dataset.json); remove it or write elsewhere");
   const std::int64_t frames = scenes.front().num_frames;
   std::int64_t total = 0;
   for (const auto& s : scenes) {
-    if (s.num_frames != frames) throw DataError(s.source + ": has " + std::to_string(s.num_frames) + " frames, the dataset " + std::to_string(frames));
+    if (s.num_frames != frames)
+      throw DataError(s.source + ": has " + std::to_string(s.num_frames) + " frames, the dataset " +
+                      std::to_string(frames));
     total += static_cast<std::int64_t>(s.instances.size());
   }
-  std::vector<double> P(static_cast<std::size_t>(total * frames * 3)), Q(static_cast<std::size_t>(total * frames * 4));
-  nlohmann::json index{{"format", "topos-movi"}, {"version", 1}, {"num_frames", frames}, {"num_objects", total}, {"scenes", nlohmann::json::array()}};
+  std::vector<double> P(static_cast<std::size_t>(total * frames * 3)),
+      Q(static_cast<std::size_t>(total * frames * 4));
+  nlohmann::json index{{"format", "topos-movi"},
+                       {"version", 1},
+                       {"num_frames", frames},
+                       {"num_objects", total},
+                       {"scenes", nlohmann::json::array()}};
   std::int64_t next = 0;
   for (const auto& s : scenes) {
     nlohmann::json js{{"seed", s.seed}, {"offset", next}, {"instances", nlohmann::json::array()}};
     for (const auto& k : s.instances) {
-      js["instances"].push_back({{"asset_id", k.asset_id}, {"shape", k.shape}, {"size", k.size}, {"mass", k.mass}, {"friction", k.friction}, {"restitution", k.restitution}});
-      Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>>(P.data() + next * frames * 3, frames, 3) = k.positions;
-      Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 4, Eigen::RowMajor>>(Q.data() + next * frames * 4, frames, 4) = k.quaternions;
+      js["instances"].push_back({{"asset_id", k.asset_id},
+                                 {"shape", k.shape},
+                                 {"size", k.size},
+                                 {"mass", k.mass},
+                                 {"friction", k.friction},
+                                 {"restitution", k.restitution}});
+      Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>>(
+          P.data() + next * frames * 3, frames, 3) = k.positions;
+      Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 4, Eigen::RowMajor>>(
+          Q.data() + next * frames * 4, frames, 4) = k.quaternions;
       ++next;
     }
     index["scenes"].push_back(js);

@@ -35,7 +35,9 @@ inline nlohmann::json parse_json(const std::string& text, const std::string& sou
   }
 }
 
-inline nlohmann::json read_json_file(const std::filesystem::path& path) { return parse_json(read_text_file(path), path.string()); }
+inline nlohmann::json read_json_file(const std::filesystem::path& path) {
+  return parse_json(read_text_file(path), path.string());
+}
 
 /// As read_json_file, keeping objects' keys in file order (where the order means something,
 /// e.g. operators listed in creation order).

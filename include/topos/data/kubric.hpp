@@ -35,18 +35,25 @@ struct KubricScene {
 
 namespace detail {
 template <int C>
-Eigen::Matrix<double, Eigen::Dynamic, C, Eigen::RowMajor> read_rows(const nlohmann::json& j, const std::string& where, std::int64_t frames) {
+Eigen::Matrix<double, Eigen::Dynamic, C, Eigen::RowMajor> read_rows(const nlohmann::json& j,
+                                                                    const std::string& where,
+                                                                    std::int64_t frames) {
   if (!j.is_array()) throw DataError(where + ": expected an array");
   if (static_cast<std::int64_t>(j.size()) != frames)
-    throw DataError(where + ": has " + std::to_string(j.size()) + " rows, metadata.num_frames is " + std::to_string(frames));
+    throw DataError(where + ": has " + std::to_string(j.size()) + " rows, metadata.num_frames is " +
+                    std::to_string(frames));
   Eigen::Matrix<double, Eigen::Dynamic, C, Eigen::RowMajor> m(frames, C);
   for (std::int64_t r = 0; r < frames; ++r) {
     const auto& row = j[static_cast<std::size_t>(r)];
-    if (!row.is_array() || row.size() != C) throw DataError(where + "[" + std::to_string(r) + "]: expected " + std::to_string(C) + " numbers");
+    if (!row.is_array() || row.size() != C)
+      throw DataError(where + "[" + std::to_string(r) + "]: expected " + std::to_string(C) +
+                      " numbers");
     for (int c = 0; c < C; ++c) {
-      if (!row[static_cast<std::size_t>(c)].is_number()) throw DataError(where + "[" + std::to_string(r) + "]: not a number");
+      if (!row[static_cast<std::size_t>(c)].is_number())
+        throw DataError(where + "[" + std::to_string(r) + "]: not a number");
       m(r, c) = row[static_cast<std::size_t>(c)].get<double>();
-      if (!std::isfinite(m(r, c))) throw DataError(where + "[" + std::to_string(r) + "]: non-finite value");
+      if (!std::isfinite(m(r, c)))
+        throw DataError(where + "[" + std::to_string(r) + "]: non-finite value");
     }
   }
   return m;
@@ -56,8 +63,10 @@ Eigen::Matrix<double, Eigen::Dynamic, C, Eigen::RowMajor> read_rows(const nlohma
 /// Parses Kubric metadata JSON text; `source` names it in errors.
 inline KubricScene parse_kubric_metadata(const std::string& text, const std::string& source) {
   const nlohmann::json j = parse_json(text, source);
-  const auto field = [&](const nlohmann::json& obj, const char* key, const std::string& where) -> const nlohmann::json& {
-    if (!obj.is_object() || !obj.contains(key)) throw DataError(source + ": missing field '" + where + key + "'");
+  const auto field = [&](const nlohmann::json& obj, const char* key,
+                         const std::string& where) -> const nlohmann::json& {
+    if (!obj.is_object() || !obj.contains(key))
+      throw DataError(source + ": missing field '" + where + key + "'");
     return obj[key];
   };
   KubricScene s;
@@ -71,7 +80,8 @@ inline KubricScene parse_kubric_metadata(const std::string& text, const std::str
     if (!inst.is_array()) throw DataError(source + ": 'instances' is not an array");
     if (s.num_frames <= 0) throw DataError(source + ": metadata.num_frames must be positive");
     if (n < static_cast<std::int64_t>(inst.size()))
-      throw DataError(source + ": metadata.num_instances (" + std::to_string(n) + ") is below the " + std::to_string(inst.size()) + " instances listed");
+      throw DataError(source + ": metadata.num_instances (" + std::to_string(n) +
+                      ") is below the " + std::to_string(inst.size()) + " instances listed");
     for (std::size_t i = 0; i < inst.size(); ++i) {
       const std::string w = "instances[" + std::to_string(i) + "].";
       KubricInstance k;
@@ -81,8 +91,10 @@ inline KubricScene parse_kubric_metadata(const std::string& text, const std::str
       k.mass = field(inst[i], "mass", w).get<double>();
       k.friction = field(inst[i], "friction", w).get<double>();
       k.restitution = field(inst[i], "restitution", w).get<double>();
-      k.positions = detail::read_rows<3>(field(inst[i], "positions", w), source + ": " + w + "positions", s.num_frames);
-      k.quaternions = detail::read_rows<4>(field(inst[i], "quaternions", w), source + ": " + w + "quaternions", s.num_frames);
+      k.positions = detail::read_rows<3>(field(inst[i], "positions", w),
+                                         source + ": " + w + "positions", s.num_frames);
+      k.quaternions = detail::read_rows<4>(field(inst[i], "quaternions", w),
+                                           source + ": " + w + "quaternions", s.num_frames);
       if (!(k.size > 0)) throw DataError(source + ": " + w + "size must be positive");
       s.instances.push_back(std::move(k));
     }

@@ -45,8 +45,12 @@ inline MoviKind movi_kind_from_string(const std::string& s) {
   if (s == "movi-b") return MoviKind::b;
   throw DataError("unknown dataset '" + s + "' (movi-spheres, movi-a, movi-b)");
 }
-inline const char* to_string(MoviKind k) { return k == MoviKind::spheres ? "movi-spheres" : (k == MoviKind::a ? "movi-a" : "movi-b"); }
-inline int step_rate(MoviKind k) { return k == MoviKind::spheres ? 1200 : 2400; }
+inline const char* to_string(MoviKind k) {
+  return k == MoviKind::spheres ? "movi-spheres" : (k == MoviKind::a ? "movi-a" : "movi-b");
+}
+inline int step_rate(MoviKind k) {
+  return k == MoviKind::spheres ? 1200 : 2400;
+}
 
 /// A physics asset: convex parts as the face corners of each `o` block (float32-parsed, in
 /// file order), data.json bounds and unit-density mass.
@@ -59,7 +63,8 @@ struct MoviAsset {
 
 namespace detail {
 // Face corners per `o`/`g` block, as tinyobj hands them to PyBullet's hull builder.
-inline std::vector<std::vector<std::array<double, 3>>> obj_corner_parts(const std::filesystem::path& path) {
+inline std::vector<std::vector<std::array<double, 3>>> obj_corner_parts(
+    const std::filesystem::path& path) {
   std::ifstream in(path);
   if (!in) throw DataError(path.string() + ": cannot open file");
   std::vector<std::array<double, 3>> v;
@@ -73,7 +78,8 @@ inline std::vector<std::vector<std::array<double, 3>>> obj_corner_parts(const st
     ss >> tag;
     if (tag == "v") {
       float x, y, z;
-      if (!(ss >> x >> y >> z)) throw DataError(path.string() + ":" + std::to_string(lineno) + ": malformed vertex");
+      if (!(ss >> x >> y >> z))
+        throw DataError(path.string() + ":" + std::to_string(lineno) + ": malformed vertex");
       v.push_back({x, y, z});
     } else if ((tag == "o" || tag == "g") && !parts.back().empty()) {
       parts.emplace_back();
@@ -82,7 +88,9 @@ inline std::vector<std::vector<std::array<double, 3>>> obj_corner_parts(const st
       while (ss >> tok) {
         long idx = std::strtol(tok.c_str(), nullptr, 10);
         if (idx < 0) idx += static_cast<long>(v.size()) + 1;
-        if (idx < 1 || idx > static_cast<long>(v.size())) throw DataError(path.string() + ":" + std::to_string(lineno) + ": face index out of range");
+        if (idx < 1 || idx > static_cast<long>(v.size()))
+          throw DataError(path.string() + ":" + std::to_string(lineno) +
+                          ": face index out of range");
         parts.back().push_back(v[static_cast<std::size_t>(idx - 1)]);
       }
     }
@@ -98,7 +106,8 @@ inline MoviAsset load_movi_asset(const std::filesystem::path& assets, const std:
   MoviAsset a;
   a.name = name;
   if (assets.empty()) {
-    static const std::map<std::string, double> unit_mass{{"cube", 0.9936}, {"sphere", 0.5225}, {"cylinder", 0.7808}};
+    static const std::map<std::string, double> unit_mass{
+        {"cube", 0.9936}, {"sphere", 0.5225}, {"cylinder", 0.7808}};
     if (name == "dome") {
       // A flat disc like the dome's collision hull (radius 39.70, z in [-0.412, 0]).
       std::vector<std::array<double, 3>> pts;
@@ -112,22 +121,28 @@ inline MoviAsset load_movi_asset(const std::filesystem::path& assets, const std:
       return a;
     }
     auto it = unit_mass.find(name);
-    if (it == unit_mass.end()) throw DataError("shape '" + name + "' has no built-in mesh (built-ins: cube, sphere, cylinder); give --assets");
+    if (it == unit_mass.end())
+      throw DataError("shape '" + name +
+                      "' has no built-in mesh (built-ins: cube, sphere, cylinder); give --assets");
     const TriangleMesh m = builtin_shape(name);
     std::vector<std::array<double, 3>> pts;
     for (Eigen::Index f = 0; f < m.faces.rows(); ++f)
       for (int c = 0; c < 3; ++c) {
         const auto r = m.vertices.row(m.faces(f, c));
-        pts.push_back({static_cast<float>(r(0)), static_cast<float>(r(1)), static_cast<float>(r(2))});
+        pts.push_back(
+            {static_cast<float>(r(0)), static_cast<float>(r(1)), static_cast<float>(r(2))});
       }
     a.parts.push_back(pts);
     a.unit_mass = it->second;
     return a;
   }
   const auto dir = assets / name;
-  if (!std::filesystem::exists(dir / "collision_geometry.obj")) throw DataError((dir / "collision_geometry.obj").string() + ": missing asset for shape '" + name + "'");
+  if (!std::filesystem::exists(dir / "collision_geometry.obj"))
+    throw DataError((dir / "collision_geometry.obj").string() + ": missing asset for shape '" +
+                    name + "'");
   a.parts = detail::obj_corner_parts(dir / "collision_geometry.obj");
-  if (name == "dome") return a;  // static: no mass or bounds needed (and its data.json is not strict JSON)
+  if (name == "dome")
+    return a;  // static: no mass or bounds needed (and its data.json is not strict JSON)
   std::ifstream in(dir / "data.json");
   if (!in) throw DataError((dir / "data.json").string() + ": missing asset description");
   try {
@@ -173,7 +188,8 @@ class MoviWorld {
     broadphase_ = std::make_unique<btDbvtBroadphase>(pair_cache_.get());
     broadphase_->setVelocityPrediction(0);
     solver_ = std::make_unique<btMultiBodyConstraintSolver>();
-    world_ = std::make_unique<btMultiBodyDynamicsWorld>(dispatcher_.get(), broadphase_.get(), solver_.get(), config_.get());
+    world_ = std::make_unique<btMultiBodyDynamicsWorld>(dispatcher_.get(), broadphase_.get(),
+                                                        solver_.get(), config_.get());
     world_->setGravity(btVector3(0, 0, -10));
     world_->setForceUpdateAllAabbs(false);
     world_->getDispatchInfo().m_deterministicOverlappingPairs = true;
@@ -200,7 +216,8 @@ class MoviWorld {
     for (const auto& part : a.parts) {
       auto hull = std::make_unique<btConvexHullShape>();
       hull->setMargin(0.001);
-      for (const auto& p : part) hull->addPoint(btVector3(p[0] * size, p[1] * size, p[2] * size), false);
+      for (const auto& p : part)
+        hull->addPoint(btVector3(p[0] * size, p[1] * size, p[2] * size), false);
       hull->recalcLocalAabb();
       hull->optimizeConvexHull();
       btTransform id;
@@ -213,7 +230,8 @@ class MoviWorld {
     return raw;
   }
 
-  btRigidBody* add_body(btCollisionShape* shape, double mass, double friction, double restitution, const std::array<double, 3>& pos, const std::array<double, 4>& wxyz) {
+  btRigidBody* add_body(btCollisionShape* shape, double mass, double friction, double restitution,
+                        const std::array<double, 3>& pos, const std::array<double, 4>& wxyz) {
     btVector3 inertia(0, 0, 0);
     if (mass > 0) shape->calculateLocalInertia(mass, inertia);
     btTransform tr;
@@ -241,7 +259,8 @@ class MoviWorld {
   bool overlaps_any(btRigidBody* b) {
     struct Cb : btCollisionWorld::ContactResultCallback {
       bool hit = false;
-      btScalar addSingleResult(btManifoldPoint& cp, const btCollisionObjectWrapper*, int, int, const btCollisionObjectWrapper*, int, int) override {
+      btScalar addSingleResult(btManifoldPoint& cp, const btCollisionObjectWrapper*, int, int,
+                               const btCollisionObjectWrapper*, int, int) override {
         // Bullet also reports points within the contact breaking threshold; PyBullet's
         // getClosestPoints(distance = 0) keeps only those at distance <= 0.
         if (cp.getDistance() <= 0) hit = true;
@@ -277,7 +296,8 @@ class MoviWorld {
 class MoviAssets {
  public:
   explicit MoviAssets(std::filesystem::path dir = {}) : dir_(std::move(dir)) {
-    if (!dir_.empty() && !std::filesystem::is_directory(dir_)) throw DataError(dir_.string() + ": asset folder does not exist");
+    if (!dir_.empty() && !std::filesystem::is_directory(dir_))
+      throw DataError(dir_.string() + ": asset folder does not exist");
   }
   const MoviAsset& get(const std::string& name) {
     auto it = cache_.find(name);
@@ -291,18 +311,23 @@ class MoviAssets {
 };
 
 /// Generates one scene: the draws of movi-generation.md 1.1, then the simulation.
-inline MoviScene generate_movi_scene(MoviKind kind, std::uint32_t seed, MoviAssets& assets, int num_frames = 480) {
+inline MoviScene generate_movi_scene(MoviKind kind, std::uint32_t seed, MoviAssets& assets,
+                                     int num_frames = 480) {
   static const char* clevr_shapes[] = {"cube", "cylinder", "sphere"};
-  static const char* kubasic_shapes[] = {"cube", "cylinder", "sphere", "cone", "torus", "gear", "torus_knot", "sponge", "spot", "teapot", "suzanne"};
-  static const char* colors[] = {"blue", "brown", "cyan", "gray", "green", "purple", "red", "yellow"};
+  static const char* kubasic_shapes[] = {"cube",  "cylinder", "sphere",     "cone",
+                                         "torus", "gear",     "torus_knot", "sponge",
+                                         "spot",  "teapot",   "suzanne"};
+  static const char* colors[] = {"blue",  "brown",  "cyan", "gray",
+                                 "green", "purple", "red",  "yellow"};
   NumpyRandomState rng(seed);
   MoviScene s;
   s.kind = kind;
   s.seed = seed;
   s.step_rate = step_rate(kind);
   s.num_frames = num_frames;
-  for (int i = 0; i < 12; ++i) rng.random();                   // 4 CLEVR lights × rand(3)
-  if (kind != MoviKind::b) for (int i = 0; i < 3; ++i) rng.random();  // the "clevr" camera
+  for (int i = 0; i < 12; ++i) rng.random();  // 4 CLEVR lights × rand(3)
+  if (kind != MoviKind::b)
+    for (int i = 0; i < 3; ++i) rng.random();  // the "clevr" camera
   const auto n = rng.randint(3, 11);
 
   MoviWorld world(1.0 / s.step_rate);
@@ -310,7 +335,9 @@ inline MoviScene generate_movi_scene(MoviKind kind, std::uint32_t seed, MoviAsse
   world.add_body(world.make_shape(dome, 2.0), 0.0, 0.3, 0.5, {0, 0, 0}, {1, 0, 0, 0});
   for (std::int64_t i = 0; i < n; ++i) {
     MoviObject o;
-    o.shape = kind == MoviKind::spheres ? "sphere" : (kind == MoviKind::a ? clevr_shapes[rng.choice(3)] : kubasic_shapes[rng.choice(11)]);
+    o.shape = kind == MoviKind::spheres ? "sphere"
+                                        : (kind == MoviKind::a ? clevr_shapes[rng.choice(3)]
+                                                               : kubasic_shapes[rng.choice(11)]);
     if (kind == MoviKind::b) {
       o.size = rng.uniform(0.7, 1.4);
       o.color = {rng.random(), 1.0, 1.0};  // hue (saturation and value are fixed, no draws)
@@ -331,26 +358,38 @@ inline MoviScene generate_movi_scene(MoviKind kind, std::uint32_t seed, MoviAsse
     bool placed = false;
     for (int trial = 0; trial < 100 && !placed; ++trial) {
       const double r1 = rng.random(), r2 = rng.random(), r3 = rng.random();
-      o.wxyz = {std::sqrt(1 - r1) * std::sin(2 * M_PI * r2), std::sqrt(1 - r1) * std::cos(2 * M_PI * r2), std::sqrt(r1) * std::sin(2 * M_PI * r3), std::sqrt(r1) * std::cos(2 * M_PI * r3)};
+      o.wxyz = {std::sqrt(1 - r1) * std::sin(2 * M_PI * r2),
+                std::sqrt(1 - r1) * std::cos(2 * M_PI * r2),
+                std::sqrt(r1) * std::sin(2 * M_PI * r3), std::sqrt(r1) * std::cos(2 * M_PI * r3)};
       // AABB of the rotated bounds corners (bounds × size in float32).
       const btMatrix3x3 R(btQuaternion(o.wxyz[1], o.wxyz[2], o.wxyz[3], o.wxyz[0]));
       std::array<double, 3> lo{1e30, 1e30, 1e30}, hi{-1e30, -1e30, -1e30};
       for (int c = 0; c < 8; ++c) {
         btVector3 p;
         for (int k = 0; k < 3; ++k) {
-          const float b = ((c >> k) & 1) ? asset.bounds_hi[static_cast<std::size_t>(k)] : asset.bounds_lo[static_cast<std::size_t>(k)];
+          const float b = ((c >> k) & 1) ? asset.bounds_hi[static_cast<std::size_t>(k)]
+                                         : asset.bounds_lo[static_cast<std::size_t>(k)];
           p[k] = static_cast<double>(b * static_cast<float>(o.size));
         }
         const btVector3 q = R * p;
-        for (int k = 0; k < 3; ++k) lo[static_cast<std::size_t>(k)] = std::min(lo[static_cast<std::size_t>(k)], static_cast<double>(q[k])), hi[static_cast<std::size_t>(k)] = std::max(hi[static_cast<std::size_t>(k)], static_cast<double>(q[k]));
+        for (int k = 0; k < 3; ++k)
+          lo[static_cast<std::size_t>(k)] =
+              std::min(lo[static_cast<std::size_t>(k)], static_cast<double>(q[k])),
+          hi[static_cast<std::size_t>(k)] =
+              std::max(hi[static_cast<std::size_t>(k)], static_cast<double>(q[k]));
       }
       const double region_lo[3] = {-5, -5, 1}, region_hi[3] = {5, 5, 5};
-      for (int k = 0; k < 3; ++k) o.position[static_cast<std::size_t>(k)] = rng.uniform(region_lo[k] - lo[static_cast<std::size_t>(k)], region_hi[k] - hi[static_cast<std::size_t>(k)]);
+      for (int k = 0; k < 3; ++k)
+        o.position[static_cast<std::size_t>(k)] =
+            rng.uniform(region_lo[k] - lo[static_cast<std::size_t>(k)],
+                        region_hi[k] - hi[static_cast<std::size_t>(k)]);
       if (body) world.remove_last_body();
       body = world.add_body(shape, o.mass, o.friction, o.restitution, o.position, o.wxyz);
       placed = !world.overlaps_any(body);
     }
-    if (!placed) throw DataError("seed " + std::to_string(seed) + ": object " + std::to_string(i) + " found no free place in 100 trials");
+    if (!placed)
+      throw DataError("seed " + std::to_string(seed) + ": object " + std::to_string(i) +
+                      " found no free place in 100 trials");
     const double vx = rng.uniform(-4, 4), vy = rng.uniform(-4, 4);
     rng.uniform(0, 0);  // the z draw is consumed though its range is 0
     o.velocity = {vx - o.position[0], vy - o.position[1], 0.0};
@@ -372,7 +411,8 @@ inline MoviScene generate_movi_scene(MoviKind kind, std::uint32_t seed, MoviAsse
         const btRigidBody* b = world.bodies()[i + 1].get();
         const btTransform& t = b->getWorldTransform();
         const btQuaternion q = t.getRotation();
-        const btVector3 &p = t.getOrigin(), &v = b->getLinearVelocity(), &w = b->getAngularVelocity();
+        const btVector3 &p = t.getOrigin(), &v = b->getLinearVelocity(),
+                        &w = b->getAngularVelocity();
         s.positions[i].push_back({f32(p.x()), f32(p.y()), f32(p.z())});
         s.quaternions[i].push_back({f32(q.w()), f32(q.x()), f32(q.y()), f32(q.z())});
         s.velocities[i].push_back({f32(v.x()), f32(v.y()), f32(v.z())});
@@ -387,11 +427,23 @@ inline MoviScene generate_movi_scene(MoviKind kind, std::uint32_t seed, MoviAsse
 /// Kubric's metadata.json schema (the fields the reference loaders read, and more).
 inline nlohmann::json movi_scene_json(const MoviScene& s) {
   nlohmann::json j;
-  const char* set = s.kind == MoviKind::spheres ? "spheres" : (s.kind == MoviKind::a ? "clevr" : "kubasic");
-  j["flags"] = {{"floor_friction", 0.3}, {"floor_restitution", 0.5}, {"frame_rate", s.frame_rate}, {"step_rate", s.step_rate}, {"frame_start", 0},
-                {"frame_end", s.num_frames - 1}, {"min_num_objects", 3}, {"max_num_objects", 10}, {"objects_set", set}, {"seed", s.seed}, {"generator", "topos bullet-float64"}};
-  j["metadata"] = {{"num_instances", s.objects.size()}, {"num_frames", s.num_frames}, {"frame_rate", s.frame_rate}, {"step_rate", s.step_rate},
-                   {"gravity", {0.0, 0.0, -10.0}}, {"seed", s.seed}, {"resolution", {256, 256}}, {"background", "clevr"}};
+  const char* set =
+      s.kind == MoviKind::spheres ? "spheres" : (s.kind == MoviKind::a ? "clevr" : "kubasic");
+  j["flags"] = {{"floor_friction", 0.3},
+                {"floor_restitution", 0.5},
+                {"frame_rate", s.frame_rate},
+                {"step_rate", s.step_rate},
+                {"frame_start", 0},
+                {"frame_end", s.num_frames - 1},
+                {"min_num_objects", 3},
+                {"max_num_objects", 10},
+                {"objects_set", set},
+                {"seed", s.seed},
+                {"generator", "topos bullet-float64"}};
+  j["metadata"] = {{"num_instances", s.objects.size()}, {"num_frames", s.num_frames},
+                   {"frame_rate", s.frame_rate},        {"step_rate", s.step_rate},
+                   {"gravity", {0.0, 0.0, -10.0}},      {"seed", s.seed},
+                   {"resolution", {256, 256}},          {"background", "clevr"}};
   j["instances"] = nlohmann::json::array();
   for (std::size_t i = 0; i < s.objects.size(); ++i) {
     const auto& o = s.objects[i];

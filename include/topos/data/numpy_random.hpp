@@ -31,9 +31,11 @@ class NumpyRandomState {
     for (int s = 1; s < 64; s <<= 1) mask |= mask >> s;
     std::uint64_t v;
     if (range <= 0xffffffffULL) {
-      do v = next32() & mask; while (v > range);
+      do v = next32() & mask;
+      while (v > range);
     } else {
-      do v = ((static_cast<std::uint64_t>(next32()) << 32) | next32()) & mask; while (v > range);
+      do v = ((static_cast<std::uint64_t>(next32()) << 32) | next32()) & mask;
+      while (v > range);
     }
     return lo + static_cast<std::int64_t>(v);
   }

@@ -37,24 +37,31 @@ struct FaceContact {
 namespace detail {
 inline std::array<Eigen::Vector3d, 3> face_points(const PosedObject& o, std::int64_t f) {
   const auto& F = *o.faces;
-  return {o.vertices.row(F(f, 0)).transpose(), o.vertices.row(F(f, 1)).transpose(), o.vertices.row(F(f, 2)).transpose()};
+  return {o.vertices.row(F(f, 0)).transpose(), o.vertices.row(F(f, 1)).transpose(),
+          o.vertices.row(F(f, 2)).transpose()};
 }
 inline CGAL::Bbox_3 face_box(const PosedObject& o, std::int64_t f, double inflate) {
   const auto t = face_points(o, f);
   Eigen::Vector3d lo = t[0].cwiseMin(t[1]).cwiseMin(t[2]), hi = t[0].cwiseMax(t[1]).cwiseMax(t[2]);
-  return CGAL::Bbox_3(lo.x() - inflate, lo.y() - inflate, lo.z() - inflate, hi.x() + inflate, hi.y() + inflate, hi.z() + inflate);
+  return CGAL::Bbox_3(lo.x() - inflate, lo.y() - inflate, lo.z() - inflate, hi.x() + inflate,
+                      hi.y() + inflate, hi.z() + inflate);
 }
 inline void check_objects(const std::vector<PosedObject>& objects, const char* who) {
   for (std::size_t o = 0; o < objects.size(); ++o) {
-    if (objects[o].faces == nullptr) throw std::invalid_argument(std::string(who) + ": object " + std::to_string(o) + " has no faces");
-    if (!objects[o].vertices.allFinite()) throw std::invalid_argument(std::string(who) + ": object " + std::to_string(o) + " has non-finite vertices");
+    if (objects[o].faces == nullptr)
+      throw std::invalid_argument(std::string(who) + ": object " + std::to_string(o) +
+                                  " has no faces");
+    if (!objects[o].vertices.allFinite())
+      throw std::invalid_argument(std::string(who) + ": object " + std::to_string(o) +
+                                  " has non-finite vertices");
   }
 }
 }  // namespace detail
 
 inline std::vector<FaceContact> find_contacts(const std::vector<PosedObject>& objects, double d_c) {
   using K = CGAL::Exact_predicates_inexact_constructions_kernel;
-  using Box = CGAL::Box_intersection_d::Box_with_info_d<double, 3, std::int64_t, CGAL::Box_intersection_d::ID_EXPLICIT>;
+  using Box = CGAL::Box_intersection_d::Box_with_info_d<double, 3, std::int64_t,
+                                                        CGAL::Box_intersection_d::ID_EXPLICIT>;
   detail::check_objects(objects, "find_contacts");
   const std::size_t n = objects.size();
   std::vector<CGAL::Bbox_3> object_box(n);
@@ -76,23 +83,34 @@ inline std::vector<FaceContact> find_contacts(const std::vector<PosedObject>& ob
     for (std::size_t k = i + 1; k < n; ++k) {
       if (!CGAL::do_overlap(object_box[i], object_box[k])) continue;
       std::vector<std::pair<std::int64_t, std::int64_t>> candidates;
-      CGAL::box_intersection_d(boxes[i].begin(), boxes[i].end(), boxes[k].begin(), boxes[k].end(),
-                               [&](const Box& a, const Box& b) { candidates.emplace_back(a.info(), b.info()); });
+      CGAL::box_intersection_d(
+          boxes[i].begin(), boxes[i].end(), boxes[k].begin(), boxes[k].end(),
+          [&](const Box& a, const Box& b) { candidates.emplace_back(a.info(), b.info()); });
       std::sort(candidates.begin(), candidates.end());
       for (auto [fi, fk] : candidates) {
         const auto P = detail::face_points(objects[i], fi), Q = detail::face_points(objects[k], fk);
-        const auto r = closest_points<K>(K::Triangle_3({P[0].x(), P[0].y(), P[0].z()}, {P[1].x(), P[1].y(), P[1].z()}, {P[2].x(), P[2].y(), P[2].z()}),
-                                         K::Triangle_3({Q[0].x(), Q[0].y(), Q[0].z()}, {Q[1].x(), Q[1].y(), Q[1].z()}, {Q[2].x(), Q[2].y(), Q[2].z()}));
+        const auto r = closest_points<K>(
+            K::Triangle_3({P[0].x(), P[0].y(), P[0].z()}, {P[1].x(), P[1].y(), P[1].z()},
+                          {P[2].x(), P[2].y(), P[2].z()}),
+            K::Triangle_3({Q[0].x(), Q[0].y(), Q[0].z()}, {Q[1].x(), Q[1].y(), Q[1].z()},
+                          {Q[2].x(), Q[2].y(), Q[2].z()}));
         if (r.squared_distance > d_c * d_c) continue;
-        out.push_back({static_cast<std::int64_t>(i), fi, static_cast<std::int64_t>(k), fk, {r.p.x(), r.p.y(), r.p.z()},
-                       {r.q.x(), r.q.y(), r.q.z()}, std::sqrt(r.squared_distance), r.intersecting});
+        out.push_back({static_cast<std::int64_t>(i),
+                       fi,
+                       static_cast<std::int64_t>(k),
+                       fk,
+                       {r.p.x(), r.p.y(), r.p.z()},
+                       {r.q.x(), r.q.y(), r.q.z()},
+                       std::sqrt(r.squared_distance),
+                       r.intersecting});
       }
     }
   }
   return out;
 }
 
-/// One entry of the reference's per-frame collision list: object pair and (face of obj0, face of obj1) pairs.
+/// One entry of the reference's per-frame collision list: object pair and (face of obj0, face of
+/// obj1) pairs.
 struct ReferenceContactEntry {
   std::int64_t obj0, obj1;
   std::vector<std::array<std::int64_t, 2>> pairs;
@@ -104,7 +122,8 @@ struct ReferenceContactEntry {
 /// Per-object data the reference detector reuses across frames: which faces hold each vertex.
 struct VertexFaceIndex {
   std::vector<std::vector<std::int64_t>> faces_of_vertex;  ///< ascending face ids
-  explicit VertexFaceIndex(const TriangleMesh::Faces& F, std::int64_t n_vertices) : faces_of_vertex(static_cast<std::size_t>(n_vertices)) {
+  explicit VertexFaceIndex(const TriangleMesh::Faces& F, std::int64_t n_vertices)
+      : faces_of_vertex(static_cast<std::size_t>(n_vertices)) {
     for (Eigen::Index f = 0; f < F.rows(); ++f)
       for (int c = 0; c < 3; ++c) faces_of_vertex[static_cast<std::size_t>(F(f, c))].push_back(f);
   }
@@ -113,9 +132,9 @@ struct VertexFaceIndex {
 /// `ties`, when given, receives the number of kept vertices whose closest triangle was a tie of
 /// three or more triangles within trimesh's 1e-8: there the rtree's candidate order decided in
 /// the reference, and this port may pick another (equally close) triangle.
-inline std::vector<ReferenceContactEntry> reference_contacts(const std::vector<PosedObject>& objects, double d_c,
-                                                             const std::vector<VertexFaceIndex>* indices = nullptr,
-                                                             std::int64_t* ties = nullptr) {
+inline std::vector<ReferenceContactEntry> reference_contacts(
+    const std::vector<PosedObject>& objects, double d_c,
+    const std::vector<VertexFaceIndex>* indices = nullptr, std::int64_t* ties = nullptr) {
   using V = detail::V3<double>;
   detail::check_objects(objects, "reference_contacts");
   const std::size_t n = objects.size();
@@ -145,16 +164,19 @@ inline std::vector<ReferenceContactEntry> reference_contacts(const std::vector<P
   std::vector<ReferenceContactEntry> entries;
   for (std::size_t i = 0; i < n; ++i) {
     const auto& Fi = *objects[i].faces;
-    const CGAL::Bbox_3 bi(obox[i].xmin() - margin, obox[i].ymin() - margin, obox[i].zmin() - margin, obox[i].xmax() + margin,
-                          obox[i].ymax() + margin, obox[i].zmax() + margin);
+    const CGAL::Bbox_3 bi(obox[i].xmin() - margin, obox[i].ymin() - margin, obox[i].zmin() - margin,
+                          obox[i].xmax() + margin, obox[i].ymax() + margin,
+                          obox[i].zmax() + margin);
     for (std::size_t k = 0; k < n; ++k) {
       if (k == i) continue;
       const auto& Vk = objects[k].vertices;
-      std::vector<std::int64_t> close;    // vertex ids of k within d_c of mesh i
-      std::vector<std::int64_t> tri_of;   // their closest triangle of i
+      std::vector<std::int64_t> close;   // vertex ids of k within d_c of mesh i
+      std::vector<std::int64_t> tri_of;  // their closest triangle of i
       for (Eigen::Index p = 0; p < Vk.rows(); ++p) {
         const Eigen::Vector3d x = Vk.row(p).transpose();
-        if (x.x() < bi.xmin() || x.x() > bi.xmax() || x.y() < bi.ymin() || x.y() > bi.ymax() || x.z() < bi.zmin() || x.z() > bi.zmax()) continue;
+        if (x.x() < bi.xmin() || x.x() > bi.xmax() || x.y() < bi.ymin() || x.y() > bi.ymax() ||
+            x.z() < bi.zmin() || x.z() > bi.zmax())
+          continue;
         // Two best (squared distance, face) over faces whose box is within the margin.
         double d0 = std::numeric_limits<double>::infinity(), d1 = d0;
         std::int64_t f0 = -1, f1 = -1;
@@ -162,34 +184,48 @@ inline std::vector<ReferenceContactEntry> reference_contacts(const std::vector<P
         Eigen::Vector3d c0, c1;
         for (Eigen::Index f = 0; f < Fi.rows(); ++f) {
           const CGAL::Bbox_3& b = fbox[i][static_cast<std::size_t>(f)];
-          if (x.x() < b.xmin() - margin || x.x() > b.xmax() + margin || x.y() < b.ymin() - margin || x.y() > b.ymax() + margin ||
-              x.z() < b.zmin() - margin || x.z() > b.zmax() + margin)
+          if (x.x() < b.xmin() - margin || x.x() > b.xmax() + margin || x.y() < b.ymin() - margin ||
+              x.y() > b.ymax() + margin || x.z() < b.zmin() - margin || x.z() > b.zmax() + margin)
             continue;
           const auto t = detail::face_points(objects[i], f);
           V on;
-          if (!detail::closest_point_triangle(V{x.x(), x.y(), x.z()}, V{t[0].x(), t[0].y(), t[0].z()}, V{t[1].x(), t[1].y(), t[1].z()},
-                                              V{t[2].x(), t[2].y(), t[2].z()}, on))
+          if (!detail::closest_point_triangle(
+                  V{x.x(), x.y(), x.z()}, V{t[0].x(), t[0].y(), t[0].z()},
+                  V{t[1].x(), t[1].y(), t[1].z()}, V{t[2].x(), t[2].y(), t[2].z()}, on))
             continue;
           const Eigen::Vector3d c(on.x, on.y, on.z);
           const double d = (x - c).squaredNorm();
           if (ties) all_d.push_back(d);
           if (d < d0) {
-            d1 = d0; f1 = f0; c1 = c0;
-            d0 = d; f0 = f; c0 = c;
+            d1 = d0;
+            f1 = f0;
+            c1 = c0;
+            d0 = d;
+            f0 = f;
+            c0 = c;
           } else if (d < d1) {
-            d1 = d; f1 = f; c1 = c;
+            d1 = d;
+            f1 = f;
+            c1 = c;
           }
         }
         if (f0 < 0) continue;
         std::int64_t best = f0;
         double best_d = d0;
         if (f1 >= 0 && std::abs(d0 - d1) < 1e-8 && std::abs(d0) > 1e-8 && std::abs(d1) > 1e-8) {
-          const double dot0 = normals[i][static_cast<std::size_t>(f0)].dot((x - c0) / std::sqrt(d0));
-          const double dot1 = normals[i][static_cast<std::size_t>(f1)].dot((x - c1) / std::sqrt(d1));
-          if (dot1 > dot0) { best = f1; best_d = d1; }
+          const double dot0 =
+              normals[i][static_cast<std::size_t>(f0)].dot((x - c0) / std::sqrt(d0));
+          const double dot1 =
+              normals[i][static_cast<std::size_t>(f1)].dot((x - c1) / std::sqrt(d1));
+          if (dot1 > dot0) {
+            best = f1;
+            best_d = d1;
+          }
         }
         if (std::sqrt(best_d) <= d_c) {
-          if (ties && std::count_if(all_d.begin(), all_d.end(), [&](double d) { return std::abs(d - d0) < 1e-8; }) >= 3) ++*ties;
+          if (ties && std::count_if(all_d.begin(), all_d.end(),
+                                    [&](double d) { return std::abs(d - d0) < 1e-8; }) >= 3)
+            ++*ties;
           close.push_back(p);
           tri_of.push_back(best);
         }

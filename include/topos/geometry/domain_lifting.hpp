@@ -7,7 +7,8 @@
 //                                        fundamental cycle of a breadth-first spanning forest
 //                                        (roots: the lowest unvisited vertex; cells in the order
 //                                        of their non-tree edges (u, v), u < v, sorted), each
-//                                        cycle running u -> ... -> v along the tree, closed by v -> u
+//                                        cycle running u -> ... -> v along the tree, closed by v ->
+//                                          u
 //   delaunay_complex(points)             2-D points (n x 2): the Delaunay triangulation's
 //                                        triangles; 3-D points (n x 3): its tetrahedra; all faces
 //                                        added, lexicographic order, nodes = point rows
@@ -56,7 +57,8 @@ std::vector<std::array<std::int64_t, 2>> boost_edges(const Graph& g) {
   const auto index = get(boost::vertex_index, g);
   std::vector<std::array<std::int64_t, 2>> out;
   for (auto [it, end] = edges(g); it != end; ++it)
-    out.push_back({static_cast<std::int64_t>(get(index, source(*it, g))), static_cast<std::int64_t>(get(index, target(*it, g)))});
+    out.push_back({static_cast<std::int64_t>(get(index, source(*it, g))),
+                   static_cast<std::int64_t>(get(index, target(*it, g)))});
   return out;
 }
 // Inserts the rows of `points` (n x D) into a Delaunay triangulation whose vertices carry their
@@ -67,18 +69,22 @@ void insert_indexed_points(Dt& dt, const Eigen::MatrixXd& points, const char* wh
   std::vector<std::pair<Point, std::int64_t>> pts;
   pts.reserve(static_cast<std::size_t>(points.rows()));
   for (std::int64_t i = 0; i < points.rows(); ++i) {
-    if constexpr (D == 2) pts.push_back({Point(points(i, 0), points(i, 1)), i});
-    else pts.push_back({Point(points(i, 0), points(i, 1), points(i, 2)), i});
+    if constexpr (D == 2)
+      pts.push_back({Point(points(i, 0), points(i, 1)), i});
+    else
+      pts.push_back({Point(points(i, 0), points(i, 1), points(i, 2)), i});
   }
   dt.insert(pts.begin(), pts.end());
-  if (static_cast<std::int64_t>(dt.number_of_vertices()) != points.rows()) throw ComplexError(std::string(who) + ": the points are not distinct");
+  if (static_cast<std::int64_t>(dt.number_of_vertices()) != points.rows())
+    throw ComplexError(std::string(who) + ": the points are not distinct");
 }
 }  // namespace detail
 
 /// The clique complex of an undirected Boost.Graph graph (nodes = vertex indices).
 template <class Graph>
 SimplicialComplex clique_complex(const Graph& g, int max_rank) {
-  return clique_complex(static_cast<std::int64_t>(num_vertices(g)), detail::boost_edges(g), max_rank);
+  return clique_complex(static_cast<std::int64_t>(num_vertices(g)), detail::boost_edges(g),
+                        max_rank);
 }
 
 /// The graph's nodes and edges plus one 2-cell per fundamental cycle of a BFS spanning forest.
@@ -91,7 +97,8 @@ CellComplex cell_complex_from_cycle_basis(const Graph& g) {
   std::sort(edges.begin(), edges.end());
   edges.erase(std::unique(edges.begin(), edges.end()), edges.end());
   const detail::GraphCsr adj = detail::graph_csr(n, edges, false);  // rejects self-loops
-  std::vector<std::int64_t> parent(static_cast<std::size_t>(n), -2), depth(static_cast<std::size_t>(n), 0);
+  std::vector<std::int64_t> parent(static_cast<std::size_t>(n), -2),
+      depth(static_cast<std::size_t>(n), 0);
   for (std::int64_t root = 0; root < n; ++root) {
     if (parent[static_cast<std::size_t>(root)] != -2) continue;
     parent[static_cast<std::size_t>(root)] = -1;
@@ -100,7 +107,8 @@ CellComplex cell_complex_from_cycle_basis(const Graph& g) {
     while (!q.empty()) {
       const std::int64_t u = q.front();
       q.pop();
-      for (std::int64_t k = adj.offsets[static_cast<std::size_t>(u)]; k < adj.offsets[static_cast<std::size_t>(u) + 1]; ++k) {
+      for (std::int64_t k = adj.offsets[static_cast<std::size_t>(u)];
+           k < adj.offsets[static_cast<std::size_t>(u) + 1]; ++k) {
         const std::int64_t v = adj.neighbors[static_cast<std::size_t>(k)];
         if (parent[static_cast<std::size_t>(v)] != -2) continue;
         parent[static_cast<std::size_t>(v)] = u;
@@ -113,13 +121,16 @@ CellComplex cell_complex_from_cycle_basis(const Graph& g) {
   for (const auto& e : edges) cx.add_edge(e[0], e[1]);
   for (const auto& e : edges) {
     const std::int64_t u = e[0], v = e[1];
-    if (parent[static_cast<std::size_t>(v)] == u || parent[static_cast<std::size_t>(u)] == v) continue;  // tree edge
+    if (parent[static_cast<std::size_t>(v)] == u || parent[static_cast<std::size_t>(u)] == v)
+      continue;  // tree edge
     // Walk both ends up to their lowest common ancestor.
     std::vector<std::int64_t> up_u{u}, up_v{v};
     std::int64_t a = u, b = v;
     while (a != b) {
-      if (depth[static_cast<std::size_t>(a)] >= depth[static_cast<std::size_t>(b)]) up_u.push_back(a = parent[static_cast<std::size_t>(a)]);
-      else up_v.push_back(b = parent[static_cast<std::size_t>(b)]);
+      if (depth[static_cast<std::size_t>(a)] >= depth[static_cast<std::size_t>(b)])
+        up_u.push_back(a = parent[static_cast<std::size_t>(a)]);
+      else
+        up_v.push_back(b = parent[static_cast<std::size_t>(b)]);
     }
     up_v.pop_back();  // the common ancestor is the last of up_u
     std::vector<std::int64_t> cycle(up_u);
@@ -143,7 +154,8 @@ inline SimplicialComplex delaunay_complex(const Eigen::MatrixXd& points) {
       for (int k = 0; k < 3; ++k) flat.push_back(f->vertex(k)->info());
     if (flat.empty()) {  // collinear: the triangulation's edges
       for (auto e = dt.finite_edges_begin(); e != dt.finite_edges_end(); ++e)
-        flat.insert(flat.end(), {e->first->vertex((e->second + 1) % 3)->info(), e->first->vertex((e->second + 2) % 3)->info()});
+        flat.insert(flat.end(), {e->first->vertex((e->second + 1) % 3)->info(),
+                                 e->first->vertex((e->second + 2) % 3)->info()});
       return SimplicialComplex::from_flat(flat.data(), flat.size() / 2, 2, n);
     }
     return SimplicialComplex::from_flat(flat.data(), flat.size() / 3, 3, n);
@@ -153,12 +165,15 @@ inline SimplicialComplex delaunay_complex(const Eigen::MatrixXd& points) {
     using Tds = CGAL::Triangulation_data_structure_3<Vb>;
     CGAL::Delaunay_triangulation_3<K, Tds> dt;
     detail::insert_indexed_points<3>(dt, points, "delaunay_complex");
-    if (dt.dimension() < 3) throw ComplexError("delaunay_complex: the 3-D points are coplanar (dimension " + std::to_string(dt.dimension()) + "); pass them as 2-D");
+    if (dt.dimension() < 3)
+      throw ComplexError("delaunay_complex: the 3-D points are coplanar (dimension " +
+                         std::to_string(dt.dimension()) + "); pass them as 2-D");
     for (auto c = dt.finite_cells_begin(); c != dt.finite_cells_end(); ++c)
       for (int k = 0; k < 4; ++k) flat.push_back(c->vertex(k)->info());
     return SimplicialComplex::from_flat(flat.data(), flat.size() / 4, 4, n);
   }
-  throw ComplexError("delaunay_complex: points must be n x 2 or n x 3, got n x " + std::to_string(points.cols()));
+  throw ComplexError("delaunay_complex: points must be n x 2 or n x 3, got n x " +
+                     std::to_string(points.cols()));
 }
 
 /// The alpha complex of 2-D (n x 2) or 3-D (n x 3) points for squared radius alpha2: the
@@ -166,37 +181,52 @@ inline SimplicialComplex delaunay_complex(const Eigen::MatrixXd& points) {
 /// alpha values) does not classify EXTERIOR, i.e. those whose alpha filtration value is
 /// <= alpha2, with all their faces; every point is a node.
 inline SimplicialComplex alpha_complex(const Eigen::MatrixXd& points, double alpha2) {
-  if (points.cols() != 2 && points.cols() != 3) throw ComplexError("alpha_complex: points must be n x 2 or n x 3, got n x " + std::to_string(points.cols()));
-  if (!(alpha2 >= 0)) throw ComplexError("alpha_complex: alpha^2 must be >= 0, got " + std::to_string(alpha2));
+  if (points.cols() != 2 && points.cols() != 3)
+    throw ComplexError("alpha_complex: points must be n x 2 or n x 3, got n x " +
+                       std::to_string(points.cols()));
+  if (!(alpha2 >= 0))
+    throw ComplexError("alpha_complex: alpha^2 must be >= 0, got " + std::to_string(alpha2));
   using K = CGAL::Exact_predicates_inexact_constructions_kernel;
-  using Exact = CGAL::Tag_true;  // alpha values compared exactly (slivers' values are ill-conditioned)
+  using Exact =
+      CGAL::Tag_true;  // alpha values compared exactly (slivers' values are ill-conditioned)
   const std::int64_t n = points.rows();
   std::vector<std::vector<std::int64_t>> simplices;
   if (points.cols() == 2) {
-    using Vb = CGAL::Alpha_shape_vertex_base_2<K, CGAL::Triangulation_vertex_base_with_info_2<std::int64_t, K>, Exact>;
+    using Vb = CGAL::Alpha_shape_vertex_base_2<
+        K, CGAL::Triangulation_vertex_base_with_info_2<std::int64_t, K>, Exact>;
     using Fb = CGAL::Alpha_shape_face_base_2<K, CGAL::Triangulation_face_base_2<K>, Exact>;
     using Dt = CGAL::Delaunay_triangulation_2<K, CGAL::Triangulation_data_structure_2<Vb, Fb>>;
     using Shape = CGAL::Alpha_shape_2<Dt, Exact>;
     Dt dt;
     detail::insert_indexed_points<2>(dt, points, "alpha_complex");
-    if (dt.dimension() < 2) throw ComplexError("alpha_complex: the 2-D points are collinear (dimension " + std::to_string(dt.dimension()) + ")");
+    if (dt.dimension() < 2)
+      throw ComplexError("alpha_complex: the 2-D points are collinear (dimension " +
+                         std::to_string(dt.dimension()) + ")");
     Shape as(dt, alpha2, Shape::GENERAL);
     for (auto f = as.finite_faces_begin(); f != as.finite_faces_end(); ++f)
-      if (as.classify(f) != Shape::EXTERIOR) simplices.push_back({f->vertex(0)->info(), f->vertex(1)->info(), f->vertex(2)->info()});
+      if (as.classify(f) != Shape::EXTERIOR)
+        simplices.push_back({f->vertex(0)->info(), f->vertex(1)->info(), f->vertex(2)->info()});
     for (auto e = as.finite_edges_begin(); e != as.finite_edges_end(); ++e)
-      if (as.classify(*e) != Shape::EXTERIOR) simplices.push_back({e->first->vertex(Dt::cw(e->second))->info(), e->first->vertex(Dt::ccw(e->second))->info()});
+      if (as.classify(*e) != Shape::EXTERIOR)
+        simplices.push_back({e->first->vertex(Dt::cw(e->second))->info(),
+                             e->first->vertex(Dt::ccw(e->second))->info()});
     return SimplicialComplex::from_simplices(simplices, n);
   }
-  using Vb = CGAL::Alpha_shape_vertex_base_3<K, CGAL::Triangulation_vertex_base_with_info_3<std::int64_t, K>, Exact>;
+  using Vb = CGAL::Alpha_shape_vertex_base_3<
+      K, CGAL::Triangulation_vertex_base_with_info_3<std::int64_t, K>, Exact>;
   using Cb = CGAL::Alpha_shape_cell_base_3<K, CGAL::Delaunay_triangulation_cell_base_3<K>, Exact>;
   using Dt = CGAL::Delaunay_triangulation_3<K, CGAL::Triangulation_data_structure_3<Vb, Cb>>;
   using Shape = CGAL::Alpha_shape_3<Dt, Exact>;
   Dt dt;
   detail::insert_indexed_points<3>(dt, points, "alpha_complex");
-  if (dt.dimension() < 3) throw ComplexError("alpha_complex: the 3-D points are coplanar (dimension " + std::to_string(dt.dimension()) + "); pass them as 2-D");
+  if (dt.dimension() < 3)
+    throw ComplexError("alpha_complex: the 3-D points are coplanar (dimension " +
+                       std::to_string(dt.dimension()) + "); pass them as 2-D");
   Shape as(dt, alpha2, Shape::GENERAL);
   for (auto c = as.finite_cells_begin(); c != as.finite_cells_end(); ++c)
-    if (as.classify(c) != Shape::EXTERIOR) simplices.push_back({c->vertex(0)->info(), c->vertex(1)->info(), c->vertex(2)->info(), c->vertex(3)->info()});
+    if (as.classify(c) != Shape::EXTERIOR)
+      simplices.push_back(
+          {c->vertex(0)->info(), c->vertex(1)->info(), c->vertex(2)->info(), c->vertex(3)->info()});
   for (auto f = as.finite_facets_begin(); f != as.finite_facets_end(); ++f) {
     if (as.classify(*f) == Shape::EXTERIOR) continue;
     std::vector<std::int64_t> s;
@@ -205,8 +235,11 @@ inline SimplicialComplex alpha_complex(const Eigen::MatrixXd& points, double alp
     simplices.push_back(s);
   }
   for (auto e = as.finite_edges_begin(); e != as.finite_edges_end(); ++e)
-    if (as.classify(*e) != Shape::EXTERIOR) simplices.push_back({e->first->vertex(e->second)->info(), e->first->vertex(e->third)->info()});
-  return SimplicialComplex::from_simplices(simplices, n);  // every point is a node (alpha = 0: isolated)
+    if (as.classify(*e) != Shape::EXTERIOR)
+      simplices.push_back(
+          {e->first->vertex(e->second)->info(), e->first->vertex(e->third)->info()});
+  return SimplicialComplex::from_simplices(simplices,
+                                           n);  // every point is a node (alpha = 0: isolated)
 }
 
 }  // namespace topos

@@ -29,13 +29,16 @@ class RankGraph {
   struct Edge {
     Vertex source;
     std::int64_t slot;  // position in the CSR neighbor array
-    friend bool operator==(const Edge& a, const Edge& b) { return a.source == b.source && a.slot == b.slot; }
+    friend bool operator==(const Edge& a, const Edge& b) {
+      return a.source == b.source && a.slot == b.slot;
+    }
     friend bool operator!=(const Edge& a, const Edge& b) { return !(a == b); }
   };
 
   RankGraph() = default;
 
-  /// Adjacency of rank r through rank `via` (via > r: shared upper cells; via < r: shared lower cells).
+  /// Adjacency of rank r through rank `via` (via > r: shared upper cells; via < r: shared lower
+  /// cells).
   template <class Options>
   RankGraph(const CombinatorialComplex<Options>& cc, int r, int via) : rank_(r) {
     const auto m = via > r ? cc.adjacency_matrix(r, via) : cc.coadjacency_matrix(r, via);
@@ -46,8 +49,12 @@ class RankGraph {
   int rank() const { return rank_; }
   std::int64_t num_vertices() const { return static_cast<std::int64_t>(offsets_.size()) - 1; }
   std::int64_t num_directed_edges() const { return static_cast<std::int64_t>(neighbors_.size()); }
-  const std::int64_t* neighbors_begin(Vertex v) const { return neighbors_.data() + offsets_[static_cast<std::size_t>(v)]; }
-  const std::int64_t* neighbors_end(Vertex v) const { return neighbors_.data() + offsets_[static_cast<std::size_t>(v) + 1]; }
+  const std::int64_t* neighbors_begin(Vertex v) const {
+    return neighbors_.data() + offsets_[static_cast<std::size_t>(v)];
+  }
+  const std::int64_t* neighbors_end(Vertex v) const {
+    return neighbors_.data() + offsets_[static_cast<std::size_t>(v) + 1];
+  }
   std::int64_t slot_begin(Vertex v) const { return offsets_[static_cast<std::size_t>(v)]; }
   std::int64_t slot_end(Vertex v) const { return offsets_[static_cast<std::size_t>(v) + 1]; }
   Vertex neighbor_at(std::int64_t slot) const { return neighbors_[static_cast<std::size_t>(slot)]; }
@@ -59,8 +66,8 @@ class RankGraph {
 };
 
 class RankGraphOutEdgeIterator
-    : public boost::iterator_facade<RankGraphOutEdgeIterator, RankGraph::Edge, boost::random_access_traversal_tag,
-                                    RankGraph::Edge> {
+    : public boost::iterator_facade<RankGraphOutEdgeIterator, RankGraph::Edge,
+                                    boost::random_access_traversal_tag, RankGraph::Edge> {
  public:
   RankGraphOutEdgeIterator() = default;
   RankGraphOutEdgeIterator(RankGraph::Vertex s, std::int64_t slot) : s_(s), slot_(slot) {}
@@ -77,7 +84,9 @@ class RankGraphOutEdgeIterator
   std::int64_t slot_ = 0;
 };
 
-struct RankGraphTraversalCategory : boost::incidence_graph_tag, boost::adjacency_graph_tag, boost::vertex_list_graph_tag {};
+struct RankGraphTraversalCategory : boost::incidence_graph_tag,
+                                    boost::adjacency_graph_tag,
+                                    boost::vertex_list_graph_tag {};
 
 }  // namespace topos
 
@@ -112,24 +121,40 @@ struct property_map<topos::RankGraph, vertex_index_t> {
 namespace topos {
 
 // BGL free functions, found by argument-dependent lookup.
-inline std::pair<boost::counting_iterator<std::int64_t>, boost::counting_iterator<std::int64_t>> vertices(const RankGraph& g) {
-  return {boost::counting_iterator<std::int64_t>(0), boost::counting_iterator<std::int64_t>(g.num_vertices())};
+inline std::pair<boost::counting_iterator<std::int64_t>, boost::counting_iterator<std::int64_t>>
+vertices(const RankGraph& g) {
+  return {boost::counting_iterator<std::int64_t>(0),
+          boost::counting_iterator<std::int64_t>(g.num_vertices())};
 }
-inline std::int64_t num_vertices(const RankGraph& g) { return g.num_vertices(); }
-inline std::pair<RankGraphOutEdgeIterator, RankGraphOutEdgeIterator> out_edges(RankGraph::Vertex v, const RankGraph& g) {
+inline std::int64_t num_vertices(const RankGraph& g) {
+  return g.num_vertices();
+}
+inline std::pair<RankGraphOutEdgeIterator, RankGraphOutEdgeIterator> out_edges(RankGraph::Vertex v,
+                                                                               const RankGraph& g) {
   return {RankGraphOutEdgeIterator(v, g.slot_begin(v)), RankGraphOutEdgeIterator(v, g.slot_end(v))};
 }
-inline std::int64_t out_degree(RankGraph::Vertex v, const RankGraph& g) { return g.slot_end(v) - g.slot_begin(v); }
-inline RankGraph::Vertex source(const RankGraph::Edge& e, const RankGraph&) { return e.source; }
-inline RankGraph::Vertex target(const RankGraph::Edge& e, const RankGraph& g) { return g.neighbor_at(e.slot); }
-inline std::pair<const std::int64_t*, const std::int64_t*> adjacent_vertices(RankGraph::Vertex v, const RankGraph& g) {
+inline std::int64_t out_degree(RankGraph::Vertex v, const RankGraph& g) {
+  return g.slot_end(v) - g.slot_begin(v);
+}
+inline RankGraph::Vertex source(const RankGraph::Edge& e, const RankGraph&) {
+  return e.source;
+}
+inline RankGraph::Vertex target(const RankGraph::Edge& e, const RankGraph& g) {
+  return g.neighbor_at(e.slot);
+}
+inline std::pair<const std::int64_t*, const std::int64_t*> adjacent_vertices(RankGraph::Vertex v,
+                                                                             const RankGraph& g) {
   return {g.neighbors_begin(v), g.neighbors_end(v)};
 }
-inline boost::typed_identity_property_map<std::int64_t> get(boost::vertex_index_t, const RankGraph&) { return {}; }
+inline boost::typed_identity_property_map<std::int64_t> get(boost::vertex_index_t,
+                                                            const RankGraph&) {
+  return {};
+}
 
 /// Connected components of the cells of rank r through rank `via`; returns (count, label per cell).
 template <class Options>
-std::pair<int, std::vector<int>> connected_components(const CombinatorialComplex<Options>& cc, int r, int via) {
+std::pair<int, std::vector<int>> connected_components(const CombinatorialComplex<Options>& cc,
+                                                      int r, int via) {
   const RankGraph g(cc, r, via);
   std::vector<int> label(static_cast<std::size_t>(g.num_vertices()));
   const int n = boost::connected_components(g, label.data());
@@ -139,11 +164,13 @@ std::pair<int, std::vector<int>> connected_components(const CombinatorialComplex
 /// Splits a triangle soup into its edge-connected parts, in order of each part's first face;
 /// vertices keep their relative order and unreferenced vertices are dropped.
 inline std::vector<TriangleMesh> split_connected(const TriangleMesh& soup) {
-  auto lifted = lift_meshes(std::vector<TriangleMesh>{soup}, LiftOptions().with_faces(false).with_object_rank(0));
+  auto lifted = lift_meshes(std::vector<TriangleMesh>{soup},
+                            LiftOptions().with_faces(false).with_object_rank(0));
   auto [count, label] = connected_components(lifted.complex, 0, 1);
   std::map<int, int> part_of_label;  // label -> part index in order of first face
   for (Eigen::Index f = 0; f < soup.faces.rows(); ++f) {
-    part_of_label.emplace(label[static_cast<std::size_t>(soup.faces(f, 0))], static_cast<int>(part_of_label.size()));
+    part_of_label.emplace(label[static_cast<std::size_t>(soup.faces(f, 0))],
+                          static_cast<int>(part_of_label.size()));
   }
   std::vector<TriangleMesh> parts(part_of_label.size());
   std::vector<std::int64_t> local(static_cast<std::size_t>(soup.vertices.rows()), -1);
@@ -151,18 +178,25 @@ inline std::vector<TriangleMesh> split_connected(const TriangleMesh& soup) {
   for (Eigen::Index v = 0; v < soup.vertices.rows(); ++v) {
     auto it = part_of_label.find(label[static_cast<std::size_t>(v)]);
     if (it == part_of_label.end()) continue;  // isolated vertex
-    local[static_cast<std::size_t>(v)] = static_cast<std::int64_t>(verts[static_cast<std::size_t>(it->second)].size());
+    local[static_cast<std::size_t>(v)] =
+        static_cast<std::int64_t>(verts[static_cast<std::size_t>(it->second)].size());
     verts[static_cast<std::size_t>(it->second)].push_back(v);
   }
   std::vector<std::vector<std::int64_t>> faces(parts.size());
-  for (Eigen::Index f = 0; f < soup.faces.rows(); ++f) faces[static_cast<std::size_t>(part_of_label[label[static_cast<std::size_t>(soup.faces(f, 0))]])].push_back(f);
+  for (Eigen::Index f = 0; f < soup.faces.rows(); ++f)
+    faces[static_cast<std::size_t>(
+              part_of_label[label[static_cast<std::size_t>(soup.faces(f, 0))]])]
+        .push_back(f);
   for (std::size_t p = 0; p < parts.size(); ++p) {
     parts[p].name = soup.name + "#" + std::to_string(p);
     parts[p].vertices.resize(static_cast<Eigen::Index>(verts[p].size()), 3);
-    for (std::size_t k = 0; k < verts[p].size(); ++k) parts[p].vertices.row(static_cast<Eigen::Index>(k)) = soup.vertices.row(verts[p][k]);
+    for (std::size_t k = 0; k < verts[p].size(); ++k)
+      parts[p].vertices.row(static_cast<Eigen::Index>(k)) = soup.vertices.row(verts[p][k]);
     parts[p].faces.resize(static_cast<Eigen::Index>(faces[p].size()), 3);
     for (std::size_t k = 0; k < faces[p].size(); ++k)
-      for (int c = 0; c < 3; ++c) parts[p].faces(static_cast<Eigen::Index>(k), c) = local[static_cast<std::size_t>(soup.faces(faces[p][k], c))];
+      for (int c = 0; c < 3; ++c)
+        parts[p].faces(static_cast<Eigen::Index>(k), c) =
+            local[static_cast<std::size_t>(soup.faces(faces[p][k], c))];
   }
   return parts;
 }

@@ -39,7 +39,8 @@ FT clamp01(const FT& t) {
 // Closest points of segments p0 + s (p1 - p0) and q0 + t (q1 - q0), s, t in [0, 1]
 // (Ericson, Real-Time Collision Detection 5.1.9), degenerate segments included.
 template <class FT>
-void closest_segment_segment(const V3<FT>& p0, const V3<FT>& p1, const V3<FT>& q0, const V3<FT>& q1, V3<FT>& cp, V3<FT>& cq) {
+void closest_segment_segment(const V3<FT>& p0, const V3<FT>& p1, const V3<FT>& q0, const V3<FT>& q1,
+                             V3<FT>& cp, V3<FT>& cq) {
   const V3<FT> d1 = p1 - p0, d2 = q1 - q0, r = p0 - q0;
   const FT a = d1.dot(d1), e = d2.dot(d2), f = d2.dot(r);
   FT s(0), t(0);
@@ -75,13 +76,20 @@ void closest_segment_segment(const V3<FT>& p0, const V3<FT>& p1, const V3<FT>& q
 // for a zero-area triangle whose interior region would need a division by zero; its edges are
 // then covered by the edge-edge candidates.
 template <class FT>
-bool closest_point_triangle(const V3<FT>& p, const V3<FT>& a, const V3<FT>& b, const V3<FT>& c, V3<FT>& out) {
+bool closest_point_triangle(const V3<FT>& p, const V3<FT>& a, const V3<FT>& b, const V3<FT>& c,
+                            V3<FT>& out) {
   const V3<FT> ab = b - a, ac = c - a, ap = p - a;
   const FT d1 = ab.dot(ap), d2 = ac.dot(ap);
-  if (d1 <= FT(0) && d2 <= FT(0)) { out = a; return true; }
+  if (d1 <= FT(0) && d2 <= FT(0)) {
+    out = a;
+    return true;
+  }
   const V3<FT> bp = p - b;
   const FT d3 = ab.dot(bp), d4 = ac.dot(bp);
-  if (d3 >= FT(0) && d4 <= d3) { out = b; return true; }
+  if (d3 >= FT(0) && d4 <= d3) {
+    out = b;
+    return true;
+  }
   const FT vc = d1 * d4 - d3 * d2;
   if (vc <= FT(0) && d1 >= FT(0) && d3 <= FT(0)) {
     if (d1 - d3 == FT(0)) return false;
@@ -90,7 +98,10 @@ bool closest_point_triangle(const V3<FT>& p, const V3<FT>& a, const V3<FT>& b, c
   }
   const V3<FT> cp = p - c;
   const FT d5 = ab.dot(cp), d6 = ac.dot(cp);
-  if (d6 >= FT(0) && d5 <= d6) { out = c; return true; }
+  if (d6 >= FT(0) && d5 <= d6) {
+    out = c;
+    return true;
+  }
   const FT vb = d5 * d2 - d1 * d6;
   if (vb <= FT(0) && d2 >= FT(0) && d6 <= FT(0)) {
     if (d2 - d6 == FT(0)) return false;
@@ -114,16 +125,18 @@ bool closest_point_triangle(const V3<FT>& p, const V3<FT>& a, const V3<FT>& b, c
 /// Result of closest_points: a point on each triangle and their squared distance.
 template <class Point, class FT>
 struct TrianglePairClosest {
-  Point p;               ///< on the first triangle
-  Point q;               ///< on the second triangle
-  FT squared_distance;   ///< |p - q|², exactly 0 when the triangles intersect
-  bool intersecting;     ///< the triangles share at least one point
+  Point p;              ///< on the first triangle
+  Point q;              ///< on the second triangle
+  FT squared_distance;  ///< |p - q|², exactly 0 when the triangles intersect
+  bool intersecting;    ///< the triangles share at least one point
 };
 
 /// Closest points of two triangles given as arrays of 3 points each with number type FT.
 /// `intersect` reports whether they intersect (exact for a CGAL kernel with exact predicates).
 template <class FT>
-std::pair<std::array<detail::V3<FT>, 2>, FT> closest_points_raw(const std::array<detail::V3<FT>, 3>& P, const std::array<detail::V3<FT>, 3>& Q, bool intersect) {
+std::pair<std::array<detail::V3<FT>, 2>, FT> closest_points_raw(
+    const std::array<detail::V3<FT>, 3>& P, const std::array<detail::V3<FT>, 3>& Q,
+    bool intersect) {
   using V = detail::V3<FT>;
   V bp = P[0], bq = Q[0], cp, cq;
   bool have = false;
@@ -131,7 +144,12 @@ std::pair<std::array<detail::V3<FT>, 2>, FT> closest_points_raw(const std::array
   const auto consider = [&](const V& a, const V& b) {
     const V d = b - a;
     const FT dd = d.dot(d);
-    if (!have || dd < best) { best = dd; bp = a; bq = b; have = true; }
+    if (!have || dd < best) {
+      best = dd;
+      bp = a;
+      bq = b;
+      have = true;
+    }
   };
   for (int i = 0; i < 3; ++i)
     for (int j = 0; j < 3; ++j) {
@@ -159,7 +177,10 @@ std::pair<std::array<detail::V3<FT>, 2>, FT> closest_points_raw(const std::array
         V on;
         if (!detail::closest_point_triangle(x, B[0], B[1], B[2], on)) continue;
         const FT gap = (on - x).dot(on - x);
-        if (gap < best_gap) { best_gap = gap; common = x; }
+        if (gap < best_gap) {
+          best_gap = gap;
+          common = x;
+        }
       }
     }
     return {{common, common}, FT(0)};
@@ -170,11 +191,13 @@ std::pair<std::array<detail::V3<FT>, 2>, FT> closest_points_raw(const std::array
 /// Closest points between two CGAL triangles, for any CGAL kernel K (EPICK, EPECK,
 /// Simple_cartesian<double> or <float>). Distance 0 exactly when the triangles intersect.
 template <class K>
-TrianglePairClosest<typename K::Point_3, typename K::FT> closest_points(const typename K::Triangle_3& P, const typename K::Triangle_3& Q) {
+TrianglePairClosest<typename K::Point_3, typename K::FT> closest_points(
+    const typename K::Triangle_3& P, const typename K::Triangle_3& Q) {
   using FT = typename K::FT;
   using V = detail::V3<FT>;
   const auto conv = [](const typename K::Point_3& p) { return V{p.x(), p.y(), p.z()}; };
-  const std::array<V, 3> a{conv(P[0]), conv(P[1]), conv(P[2])}, b{conv(Q[0]), conv(Q[1]), conv(Q[2])};
+  const std::array<V, 3> a{conv(P[0]), conv(P[1]), conv(P[2])},
+      b{conv(Q[0]), conv(Q[1]), conv(Q[2])};
   const bool degenerate = P.is_degenerate() || Q.is_degenerate();
   // CGAL's do_intersect for triangles needs non-degenerate input; degenerate ones are handled by
   // the candidate search (a zero distance there means touching).

@@ -43,9 +43,12 @@ inline void write_file_atomic(const std::string& path, const char* data, std::si
     out.write(data, static_cast<std::streamsize>(size));
     if (!out) throw std::runtime_error(tmp + ": write failed");
   }
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) throw std::runtime_error(path + ": cannot rename the temporary file into place");
+  if (std::rename(tmp.c_str(), path.c_str()) != 0)
+    throw std::runtime_error(path + ": cannot rename the temporary file into place");
 }
-inline void write_file_atomic(const std::string& path, const std::string& text) { write_file_atomic(path, text.data(), text.size()); }
+inline void write_file_atomic(const std::string& path, const std::string& text) {
+  write_file_atomic(path, text.data(), text.size());
+}
 
 /// Completes an interrupted FileGroup commit: when `journal` exists, every file it lists whose
 /// `<path>.next` remains is renamed into place, then the journal is removed. Without a journal
@@ -60,7 +63,8 @@ inline void recover_file_group(const std::string& journal) {
   in.close();
   for (const auto& p : paths) {
     const std::string next = p + ".next";
-    if (std::ifstream(next).good() && std::rename(next.c_str(), p.c_str()) != 0) throw std::runtime_error(p + ": cannot rename " + next + " into place");
+    if (std::ifstream(next).good() && std::rename(next.c_str(), p.c_str()) != 0)
+      throw std::runtime_error(p + ": cannot rename " + next + " into place");
     if (detail::crash_test_point()) std::raise(SIGKILL);
   }
   std::remove(journal.c_str());

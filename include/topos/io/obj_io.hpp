@@ -52,7 +52,10 @@ struct ObjMesh {
 
 struct ObjReadOptions {
   bool merge_duplicate_vertices = false;  ///< trimesh's default processing (the reference's meshes)
-  ObjReadOptions& merge(bool v) { merge_duplicate_vertices = v; return *this; }
+  ObjReadOptions& merge(bool v) {
+    merge_duplicate_vertices = v;
+    return *this;
+  }
 };
 
 /// Merges exact duplicate vertices as trimesh does (round(v * 1e8)), dropping unreferenced ones.
@@ -62,7 +65,9 @@ inline void merge_duplicate_vertices(TriangleMesh& m) {
   std::vector<std::int64_t> keep;
   for (Eigen::Index v = 0; v < m.vertices.rows(); ++v) {
     std::array<std::int64_t, 3> key;
-    for (int k = 0; k < 3; ++k) key[static_cast<std::size_t>(k)] = static_cast<std::int64_t>(std::llround(m.vertices(v, k) * 1e8));
+    for (int k = 0; k < 3; ++k)
+      key[static_cast<std::size_t>(k)] =
+          static_cast<std::int64_t>(std::llround(m.vertices(v, k) * 1e8));
     auto [it, fresh] = first.emplace(key, static_cast<std::int64_t>(keep.size()));
     if (fresh) keep.push_back(v);
     remap[static_cast<std::size_t>(v)] = it->second;
@@ -70,7 +75,8 @@ inline void merge_duplicate_vertices(TriangleMesh& m) {
   // Drop vertices no face references (renumbering in order).
   std::vector<char> used(keep.size(), 0);
   for (Eigen::Index f = 0; f < m.faces.rows(); ++f)
-    for (int k = 0; k < 3; ++k) used[static_cast<std::size_t>(remap[static_cast<std::size_t>(m.faces(f, k))])] = 1;
+    for (int k = 0; k < 3; ++k)
+      used[static_cast<std::size_t>(remap[static_cast<std::size_t>(m.faces(f, k))])] = 1;
   std::vector<std::int64_t> final_id(keep.size(), -1);
   TriangleMesh::Vertices nv(static_cast<Eigen::Index>(keep.size()), 3);
   std::int64_t n = 0;
@@ -81,18 +87,23 @@ inline void merge_duplicate_vertices(TriangleMesh& m) {
   }
   nv.conservativeResize(n, 3);
   for (Eigen::Index f = 0; f < m.faces.rows(); ++f)
-    for (int k = 0; k < 3; ++k) m.faces(f, k) = final_id[static_cast<std::size_t>(remap[static_cast<std::size_t>(m.faces(f, k))])];
+    for (int k = 0; k < 3; ++k)
+      m.faces(f, k) =
+          final_id[static_cast<std::size_t>(remap[static_cast<std::size_t>(m.faces(f, k))])];
   m.vertices = std::move(nv);
 }
 
 /// Parses OBJ text; `source` names it in errors.
-inline ObjMesh parse_obj(std::istream& in, const std::string& source, const ObjReadOptions& opt = {}) {
+inline ObjMesh parse_obj(std::istream& in, const std::string& source,
+                         const ObjReadOptions& opt = {}) {
   std::vector<double> v;
   std::vector<std::int64_t> f;
   ObjMesh out;
   std::string line;
   std::int64_t lineno = 0;
-  const auto fail = [&](const std::string& why) { throw MeshError(source + ":" + std::to_string(lineno) + ": " + why); };
+  const auto fail = [&](const std::string& why) {
+    throw MeshError(source + ":" + std::to_string(lineno) + ": " + why);
+  };
   while (std::getline(in, line)) {
     ++lineno;
     if (!line.empty() && line.back() == '\r') line.pop_back();
@@ -120,20 +131,26 @@ inline ObjMesh parse_obj(std::istream& in, const std::string& source, const ObjR
         if (first.empty() || *end != '\0' || i == 0) fail("bad face index '" + tok + "'");
         const std::int64_t nverts = static_cast<std::int64_t>(v.size() / 3);
         const std::int64_t zero_based = i > 0 ? i - 1 : nverts + i;
-        if (zero_based < 0 || zero_based >= nverts) fail("face index " + std::to_string(i) + " out of range (" + std::to_string(nverts) + " vertices so far)");
+        if (zero_based < 0 || zero_based >= nverts)
+          fail("face index " + std::to_string(i) + " out of range (" + std::to_string(nverts) +
+               " vertices so far)");
         idx.push_back(zero_based);
       }
-      if (idx.size() != 3) fail("face with " + std::to_string(idx.size()) + " vertices; only triangles are supported");
+      if (idx.size() != 3)
+        fail("face with " + std::to_string(idx.size()) + " vertices; only triangles are supported");
       if (idx[0] == idx[1] || idx[1] == idx[2] || idx[0] == idx[2]) fail("face repeats a vertex");
       if (out.blocks.empty()) out.blocks.push_back({"", 0, 0});
       f.insert(f.end(), idx.begin(), idx.end());
       out.blocks.back().face_end = static_cast<std::int64_t>(f.size() / 3);
     } else if (tag == "o" || tag == "g") {
-      if (tag == "g" && !out.blocks.empty() && out.blocks.back().face_end == out.blocks.back().face_begin) continue;
+      if (tag == "g" && !out.blocks.empty() &&
+          out.blocks.back().face_end == out.blocks.back().face_begin)
+        continue;
       std::string name;
       std::getline(ls >> std::ws, name);
       const std::int64_t at = static_cast<std::int64_t>(f.size() / 3);
-      if (!out.blocks.empty() && out.blocks.back().face_end == at && out.blocks.back().face_begin == at) {
+      if (!out.blocks.empty() && out.blocks.back().face_end == at &&
+          out.blocks.back().face_begin == at) {
         out.blocks.back().name = name;  // an empty block is renamed rather than kept
       } else {
         out.blocks.push_back({name, at, at});
@@ -142,11 +159,16 @@ inline ObjMesh parse_obj(std::istream& in, const std::string& source, const ObjR
     // vt, vn, s, usemtl, mtllib and others carry nothing the meshes need.
   }
   if (in.bad()) throw MeshError(source + ": read error");
-  if (v.empty() || f.empty()) throw MeshError(source + ": no " + std::string(v.empty() ? "vertices" : "faces"));
-  out.blocks.erase(std::remove_if(out.blocks.begin(), out.blocks.end(), [](const ObjBlock& b) { return b.face_begin == b.face_end; }), out.blocks.end());
+  if (v.empty() || f.empty())
+    throw MeshError(source + ": no " + std::string(v.empty() ? "vertices" : "faces"));
+  out.blocks.erase(std::remove_if(out.blocks.begin(), out.blocks.end(),
+                                  [](const ObjBlock& b) { return b.face_begin == b.face_end; }),
+                   out.blocks.end());
   out.mesh.name = source;
-  out.mesh.vertices = Eigen::Map<TriangleMesh::Vertices>(v.data(), static_cast<Eigen::Index>(v.size() / 3), 3);
-  out.mesh.faces = Eigen::Map<TriangleMesh::Faces>(f.data(), static_cast<Eigen::Index>(f.size() / 3), 3);
+  out.mesh.vertices =
+      Eigen::Map<TriangleMesh::Vertices>(v.data(), static_cast<Eigen::Index>(v.size() / 3), 3);
+  out.mesh.faces =
+      Eigen::Map<TriangleMesh::Faces>(f.data(), static_cast<Eigen::Index>(f.size() / 3), 3);
   if (opt.merge_duplicate_vertices) merge_duplicate_vertices(out.mesh);
   out.mesh.validate();
   return out;

@@ -3,7 +3,8 @@
 // default shapes when no KuBasic assets are given):
 //   uv_sphere(8, 8)   radius 1, 58 vertices, 112 faces;
 //   box_mesh(3)       cube [-1,1]^3, each side a 3x3 grid: 56 vertices, 108 faces;
-//   cylinder_mesh(20, 3)  radius 1, z in [-1,1], 3 rings of 20 plus 2 cap centres: 62 vertices, 120 faces.
+//   cylinder_mesh(20, 3)  radius 1, z in [-1,1], 3 rings of 20 plus 2 cap centres: 62 vertices, 120
+//     faces.
 // builtin_shape() halves them to KuBasic's ±0.5 convention (a `size` multiplies the mesh).
 // Std + Eigen only.
 #pragma once
@@ -31,12 +32,15 @@ inline TriangleMesh uv_sphere(int rings = 8, int segments = 8) {
     const double th = pi * r / rings;
     for (int s = 0; s < segments; ++s) {
       const double ph = 2 * pi * s / segments;
-      m.vertices.row(1 + (r - 1) * segments + s) << std::sin(th) * std::cos(ph), std::sin(th) * std::sin(ph), std::cos(th);
+      m.vertices.row(1 + (r - 1) * segments + s) << std::sin(th) * std::cos(ph),
+          std::sin(th) * std::sin(ph), std::cos(th);
     }
   }
   m.vertices.row(nv - 1) << 0, 0, -1;
   std::vector<std::array<std::int64_t, 3>> f;
-  auto ring = [&](int r, int s) { return static_cast<std::int64_t>(1 + (r - 1) * segments + (s % segments)); };
+  auto ring = [&](int r, int s) {
+    return static_cast<std::int64_t>(1 + (r - 1) * segments + (s % segments));
+  };
   for (int s = 0; s < segments; ++s) f.push_back({0, ring(1, s), ring(1, s + 1)});
   for (int r = 1; r < rings - 1; ++r) {
     for (int s = 0; s < segments; ++s) {
@@ -44,9 +48,11 @@ inline TriangleMesh uv_sphere(int rings = 8, int segments = 8) {
       f.push_back({ring(r, s), ring(r + 1, s + 1), ring(r, s + 1)});
     }
   }
-  for (int s = 0; s < segments; ++s) f.push_back({ring(rings - 1, s), nv - 1, ring(rings - 1, s + 1)});
+  for (int s = 0; s < segments; ++s)
+    f.push_back({ring(rings - 1, s), nv - 1, ring(rings - 1, s + 1)});
   m.faces.resize(static_cast<Eigen::Index>(f.size()), 3);
-  for (std::size_t i = 0; i < f.size(); ++i) m.faces.row(static_cast<Eigen::Index>(i)) << f[i][0], f[i][1], f[i][2];
+  for (std::size_t i = 0; i < f.size(); ++i)
+    m.faces.row(static_cast<Eigen::Index>(i)) << f[i][0], f[i][1], f[i][2];
   return m;
 }
 
@@ -58,7 +64,8 @@ inline TriangleMesh box_mesh(int k = 3) {
   std::vector<Eigen::Vector3d> verts;
   std::vector<std::array<std::int64_t, 3>> faces;
   auto vid = [&](int x, int y, int z) {
-    auto [it, fresh] = index.emplace(std::make_tuple(x, y, z), static_cast<std::int64_t>(verts.size()));
+    auto [it, fresh] =
+        index.emplace(std::make_tuple(x, y, z), static_cast<std::int64_t>(verts.size()));
     if (fresh) verts.emplace_back(2.0 * x / k - 1, 2.0 * y / k - 1, 2.0 * z / k - 1);
     return it->second;
   };
@@ -88,14 +95,17 @@ inline TriangleMesh box_mesh(int k = 3) {
     }
   }
   m.vertices.resize(static_cast<Eigen::Index>(verts.size()), 3);
-  for (std::size_t i = 0; i < verts.size(); ++i) m.vertices.row(static_cast<Eigen::Index>(i)) = verts[i].transpose();
+  for (std::size_t i = 0; i < verts.size(); ++i)
+    m.vertices.row(static_cast<Eigen::Index>(i)) = verts[i].transpose();
   m.faces.resize(static_cast<Eigen::Index>(faces.size()), 3);
-  for (std::size_t i = 0; i < faces.size(); ++i) m.faces.row(static_cast<Eigen::Index>(i)) << faces[i][0], faces[i][1], faces[i][2];
+  for (std::size_t i = 0; i < faces.size(); ++i)
+    m.faces.row(static_cast<Eigen::Index>(i)) << faces[i][0], faces[i][1], faces[i][2];
   return m;
 }
 
 inline TriangleMesh cylinder_mesh(int segments = 20, int rings = 3) {
-  if (segments < 3 || rings < 2) throw MeshError("cylinder_mesh: needs segments >= 3 and rings >= 2");
+  if (segments < 3 || rings < 2)
+    throw MeshError("cylinder_mesh: needs segments >= 3 and rings >= 2");
   const double pi = std::acos(-1.0);
   TriangleMesh m;
   m.name = "cylinder";
@@ -103,7 +113,8 @@ inline TriangleMesh cylinder_mesh(int segments = 20, int rings = 3) {
   m.vertices.resize(nv, 3);
   for (int r = 0; r < rings; ++r)
     for (int s = 0; s < segments; ++s)
-      m.vertices.row(r * segments + s) << std::cos(2 * pi * s / segments), std::sin(2 * pi * s / segments), -1.0 + 2.0 * r / (rings - 1);
+      m.vertices.row(r * segments + s) << std::cos(2 * pi * s / segments),
+          std::sin(2 * pi * s / segments), -1.0 + 2.0 * r / (rings - 1);
   const std::int64_t bottom = nv - 2, top = nv - 1;
   m.vertices.row(bottom) << 0, 0, -1;
   m.vertices.row(top) << 0, 0, 1;
@@ -119,7 +130,8 @@ inline TriangleMesh cylinder_mesh(int segments = 20, int rings = 3) {
     f.push_back({top, V(rings - 1, s), V(rings - 1, s + 1)});
   }
   m.faces.resize(static_cast<Eigen::Index>(f.size()), 3);
-  for (std::size_t i = 0; i < f.size(); ++i) m.faces.row(static_cast<Eigen::Index>(i)) << f[i][0], f[i][1], f[i][2];
+  for (std::size_t i = 0; i < f.size(); ++i)
+    m.faces.row(static_cast<Eigen::Index>(i)) << f[i][0], f[i][1], f[i][2];
   return m;
 }
 
@@ -128,10 +140,14 @@ inline TriangleMesh cylinder_mesh(int segments = 20, int rings = 3) {
 /// Throws MeshError for other names.
 inline TriangleMesh builtin_shape(const std::string& name) {
   TriangleMesh m;
-  if (name == "sphere") m = uv_sphere();
-  else if (name == "cube") m = box_mesh();
-  else if (name == "cylinder") m = cylinder_mesh();
-  else throw MeshError("unknown built-in shape '" + name + "' (known: sphere, cube, cylinder)");
+  if (name == "sphere")
+    m = uv_sphere();
+  else if (name == "cube")
+    m = box_mesh();
+  else if (name == "cylinder")
+    m = cylinder_mesh();
+  else
+    throw MeshError("unknown built-in shape '" + name + "' (known: sphere, cube, cylinder)");
   m.vertices *= 0.5;
   m.name = name;
   return m;

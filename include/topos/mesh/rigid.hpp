@@ -21,7 +21,8 @@ using Vertices = TriangleMesh::Vertices;
 /// Rotation of a quaternion given as (w, x, y, z), normalised first (trimesh rescales by 2/|q|²).
 inline Eigen::Matrix3d rotation_from_wxyz(const Eigen::Vector4d& q) {
   const double n = q.norm();
-  if (!(n > 0) || !std::isfinite(n)) throw std::invalid_argument("rotation_from_wxyz: quaternion has zero or non-finite norm");
+  if (!(n > 0) || !std::isfinite(n))
+    throw std::invalid_argument("rotation_from_wxyz: quaternion has zero or non-finite norm");
   return Eigen::Quaterniond(q[0] / n, q[1] / n, q[2] / n, q[3] / n).toRotationMatrix();
 }
 
@@ -32,7 +33,8 @@ inline Eigen::Vector4d wxyz_from_rotation(const Eigen::Matrix3d& R) {
 }
 
 /// x = R(q) v + p for every row v.
-inline Vertices pose_vertices(const Vertices& v, const Eigen::Vector3d& position, const Eigen::Vector4d& wxyz) {
+inline Vertices pose_vertices(const Vertices& v, const Eigen::Vector3d& position,
+                              const Eigen::Vector4d& wxyz) {
   const Eigen::Matrix3d R = rotation_from_wxyz(wxyz);
   Vertices out = v * R.transpose();
   out.rowwise() += position.transpose();
@@ -51,7 +53,8 @@ inline Vertices pose_vertices(const Vertices& v, const Eigen::Vector3d& position
 /// needs its contact features exactly). Assumes no floating-point contraction (the default
 /// x86-64 build emits no FMA instructions of its own). Measured: the reference's node positions
 /// of MOVi-A scene 8 at frames 1 to 3 (golden step000/nodes_pos_in.npy) reproduced bitwise.
-inline Vertices pose_vertices_trimesh(const Vertices& v, const Eigen::Vector3d& position, const Eigen::Vector4d& wxyz) {
+inline Vertices pose_vertices_trimesh(const Vertices& v, const Eigen::Vector3d& position,
+                                      const Eigen::Vector4d& wxyz) {
   double q[4] = {wxyz[0], wxyz[1], wxyz[2], wxyz[3]};
   double sq[4];
   for (int i = 0; i < 4; ++i) sq[i] = q[i] * q[i];
@@ -63,16 +66,20 @@ inline Vertices pose_vertices_trimesh(const Vertices& v, const Eigen::Vector3d& 
   double Q[4][4];
   for (int a = 0; a < 4; ++a)
     for (int b = 0; b < 4; ++b) Q[a][b] = q[a] * q[b];
-  const double m[3][4] = {{1.0 - Q[2][2] - Q[3][3], Q[1][2] - Q[3][0], Q[1][3] + Q[2][0], position.x()},
-                          {Q[1][2] + Q[3][0], 1.0 - Q[1][1] - Q[3][3], Q[2][3] - Q[1][0], position.y()},
-                          {Q[1][3] - Q[2][0], Q[2][3] + Q[1][0], 1.0 - Q[1][1] - Q[2][2], position.z()}};
+  const double m[3][4] = {
+      {1.0 - Q[2][2] - Q[3][3], Q[1][2] - Q[3][0], Q[1][3] + Q[2][0], position.x()},
+      {Q[1][2] + Q[3][0], 1.0 - Q[1][1] - Q[3][3], Q[2][3] - Q[1][0], position.y()},
+      {Q[1][3] - Q[2][0], Q[2][3] + Q[1][0], 1.0 - Q[1][1] - Q[2][2], position.z()}};
   bool identity = true;
   for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 4; ++j) identity = identity && std::abs(m[i][j] - (i == j ? 1.0 : 0.0)) < 1e-8;
+    for (int j = 0; j < 4; ++j)
+      identity = identity && std::abs(m[i][j] - (i == j ? 1.0 : 0.0)) < 1e-8;
   if (identity) return v;
   Vertices out(v.rows(), 3);
   for (Eigen::Index r = 0; r < v.rows(); ++r)
-    for (int i = 0; i < 3; ++i) out(r, i) = std::fma(m[i][3], 1.0, std::fma(m[i][2], v(r, 2), std::fma(m[i][1], v(r, 1), m[i][0] * v(r, 0))));
+    for (int i = 0; i < 3; ++i)
+      out(r, i) = std::fma(
+          m[i][3], 1.0, std::fma(m[i][2], v(r, 2), std::fma(m[i][1], v(r, 1), m[i][0] * v(r, 0))));
   return out;
 }
 
@@ -85,7 +92,8 @@ inline Eigen::Vector3d volumetric_center_of_mass(const Vertices& v, const Triang
     const Eigen::Vector3d a = v.row(f(i, 0)), b = v.row(f(i, 1)), c = v.row(f(i, 2));
     const Eigen::Vector3d k = (b - a).cross(c - a);
     const Eigen::Vector3d f1 = a + b + c;
-    const Eigen::Vector3d f2 = a.cwiseProduct(a) + b.cwiseProduct(b) + a.cwiseProduct(b) + c.cwiseProduct(f1);
+    const Eigen::Vector3d f2 =
+        a.cwiseProduct(a) + b.cwiseProduct(b) + a.cwiseProduct(b) + c.cwiseProduct(f1);
     vol += k.x() * f1.x() / 6.0;
     acc += k.cwiseProduct(f2) / 24.0;
   }
@@ -108,11 +116,14 @@ struct RigidPose {
 /// vertices x with the same faces: R is the orthogonal polar factor of A = (1/n) Σ p qᵀ with
 /// p = x - c, q = X - c̄, c the volumetric centre of mass of x; position = c - R c̄.
 /// Like the reference, a reflection (det R = -1) is not guarded against.
-inline RigidPose shape_match(const Vertices& X, const Eigen::Vector3d& com_canonical, const Vertices& x, const TriangleMesh::Faces& f) {
-  if (X.rows() != x.rows() || X.rows() == 0) throw std::invalid_argument("shape_match: vertex counts differ or are zero");
+inline RigidPose shape_match(const Vertices& X, const Eigen::Vector3d& com_canonical,
+                             const Vertices& x, const TriangleMesh::Faces& f) {
+  if (X.rows() != x.rows() || X.rows() == 0)
+    throw std::invalid_argument("shape_match: vertex counts differ or are zero");
   const Eigen::Vector3d c = volumetric_center_of_mass(x, f);
   Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
-  for (Eigen::Index i = 0; i < X.rows(); ++i) A += (x.row(i).transpose() - c) * (X.row(i).transpose() - com_canonical).transpose();
+  for (Eigen::Index i = 0; i < X.rows(); ++i)
+    A += (x.row(i).transpose() - c) * (X.row(i).transpose() - com_canonical).transpose();
   A /= static_cast<double>(X.rows());
   const Eigen::JacobiSVD<Eigen::Matrix3d> svd(A, Eigen::ComputeFullU | Eigen::ComputeFullV);
   const Eigen::Matrix3d R = svd.matrixU() * svd.matrixV().transpose();

@@ -31,14 +31,20 @@ struct TriangleMesh {
   /// faces that repeat a vertex.
   void validate() const {
     const std::string who = name.empty() ? std::string("mesh") : "mesh '" + name + "'";
-    if (vertices.rows() == 0 || faces.rows() == 0) throw MeshError(who + " is empty (" + std::to_string(vertices.rows()) + " vertices, " + std::to_string(faces.rows()) + " faces)");
+    if (vertices.rows() == 0 || faces.rows() == 0)
+      throw MeshError(who + " is empty (" + std::to_string(vertices.rows()) + " vertices, " +
+                      std::to_string(faces.rows()) + " faces)");
     for (Eigen::Index i = 0; i < vertices.rows(); ++i) {
-      if (!vertices.row(i).allFinite()) throw MeshError(who + ": vertex " + std::to_string(i) + " has a non-finite coordinate");
+      if (!vertices.row(i).allFinite())
+        throw MeshError(who + ": vertex " + std::to_string(i) + " has a non-finite coordinate");
     }
     for (Eigen::Index f = 0; f < faces.rows(); ++f) {
       for (int k = 0; k < 3; ++k) {
         const auto v = faces(f, k);
-        if (v < 0 || v >= vertices.rows()) throw MeshError(who + ": face " + std::to_string(f) + " uses vertex " + std::to_string(v) + ", out of range [0, " + std::to_string(vertices.rows()) + ")");
+        if (v < 0 || v >= vertices.rows())
+          throw MeshError(who + ": face " + std::to_string(f) + " uses vertex " +
+                          std::to_string(v) + ", out of range [0, " +
+                          std::to_string(vertices.rows()) + ")");
       }
       if (faces(f, 0) == faces(f, 1) || faces(f, 1) == faces(f, 2) || faces(f, 0) == faces(f, 2)) {
         throw MeshError(who + ": face " + std::to_string(f) + " repeats a vertex");

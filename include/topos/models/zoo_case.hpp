@@ -44,16 +44,20 @@ inline void load_state_dict(torch::nn::Module& m, const std::filesystem::path& s
     const auto listing = source.parent_path() / "state_dict.json";
     if (std::filesystem::exists(listing)) {
       for (const auto& e : data::read_json_file(listing)) {
-        if (!e.is_array() || e.empty() || !e[0].is_string()) throw data::DataError(listing.string() + ": entries must be [name, shape]");
+        if (!e.is_array() || e.empty() || !e[0].is_string())
+          throw data::DataError(listing.string() + ": entries must be [name, shape]");
         const auto name = e[0].get<std::string>();
         auto t = read_npy_tensor(source / (name + ".npy"));
-        if (e.size() > 1 && e[1].is_array() && e[1].get<std::vector<std::int64_t>>() != t.sizes().vec())
-          throw data::DataError((source / (name + ".npy")).string() + ": shape differs from state_dict.json");
+        if (e.size() > 1 && e[1].is_array() &&
+            e[1].get<std::vector<std::int64_t>>() != t.sizes().vec())
+          throw data::DataError((source / (name + ".npy")).string() +
+                                ": shape differs from state_dict.json");
         dict[name] = t;
       }
     } else {
       for (const auto& f : std::filesystem::directory_iterator(source))
-        if (f.path().extension() == ".npy") dict[f.path().stem().string()] = read_npy_tensor(f.path());
+        if (f.path().extension() == ".npy")
+          dict[f.path().stem().string()] = read_npy_tensor(f.path());
     }
   } else {
     dict = nn::read_tensor_dict(source.string());
@@ -71,9 +75,12 @@ struct ZooCase {
 };
 
 namespace detail {
-inline ZooArg case_argument(const nlohmann::json& e, const std::filesystem::path& dir, const std::map<std::string, nn::SparseOperator>& ops, torch::Dtype dtype) {
+inline ZooArg case_argument(const nlohmann::json& e, const std::filesystem::path& dir,
+                            const std::map<std::string, nn::SparseOperator>& ops,
+                            torch::Dtype dtype) {
   if (e.is_null()) return ZooArg{};
-  if (!e.is_object()) throw ZooError("case.json: a forward entry must be an object or null, got " + e.dump());
+  if (!e.is_object())
+    throw ZooError("case.json: a forward entry must be an object or null, got " + e.dump());
   for (const char* k : {"tuple", "list"}) {
     if (e.contains(k)) {
       std::vector<ZooArg> items;
@@ -92,10 +99,13 @@ inline ZooArg case_argument(const nlohmann::json& e, const std::filesystem::path
   }
   const auto name = e.value("name", std::string());
   const auto from = e.value("from", std::string());
-  if (from == "inputs") return ZooArg::of(read_npy_tensor(dir / "inputs" / (name + ".npy")).to(dtype), name);
+  if (from == "inputs")
+    return ZooArg::of(read_npy_tensor(dir / "inputs" / (name + ".npy")).to(dtype), name);
   if (from == "operators") {
     auto it = ops.find(name);
-    if (it == ops.end()) throw ZooError("case.json: operator '" + name + "' is not among the operators built from complex.json");
+    if (it == ops.end())
+      throw ZooError("case.json: operator '" + name +
+                     "' is not among the operators built from complex.json");
     return ZooArg::of(it->second, name);
   }
   throw ZooError("case.json: forward entry '" + name + "' has unknown source '" + from + "'");
@@ -108,32 +118,40 @@ inline ZooArg case_argument(const nlohmann::json& e, const std::filesystem::path
 /// `operators` is called once the model and its weights are in place, so a bad model or config
 /// is reported before the complex is read.
 using OperatorSource = std::function<std::map<std::string, nn::SparseOperator>()>;
-inline ZooCase load_case(const std::filesystem::path& dir, const OperatorSource& operator_source, bool topomodelx_compatible = true,
-                         torch::Dtype dtype = torch::kDouble) {
+inline ZooCase load_case(const std::filesystem::path& dir, const OperatorSource& operator_source,
+                         bool topomodelx_compatible = true, torch::Dtype dtype = torch::kDouble) {
   ZooCase c;
   c.dir = dir;
   c.spec = data::read_json_file(dir / "case.json");
-  if (!c.spec.contains("model") || !c.spec.at("model").is_string()) throw ZooError((dir / "case.json").string() + ": no model (an operator-only case?)");
-  c.model = make_zoo_model(c.spec.at("model").get<std::string>(), c.spec.value("config", nlohmann::json::object()), topomodelx_compatible);
+  if (!c.spec.contains("model") || !c.spec.at("model").is_string())
+    throw ZooError((dir / "case.json").string() + ": no model (an operator-only case?)");
+  c.model = make_zoo_model(c.spec.at("model").get<std::string>(),
+                           c.spec.value("config", nlohmann::json::object()), topomodelx_compatible);
   load_state_dict(*c.model.module, dir / "state_dict");
   c.model.module->to(dtype);
   c.model.module->eval();
-  if (c.spec.contains("kwargs") && !c.spec.at("kwargs").empty()) throw ZooError(c.model.name + ": forward keyword arguments are not supported (" + c.spec.at("kwargs").dump() + ")");
+  if (c.spec.contains("kwargs") && !c.spec.at("kwargs").empty())
+    throw ZooError(c.model.name + ": forward keyword arguments are not supported (" +
+                   c.spec.at("kwargs").dump() + ")");
   const auto operators = operator_source();
-  for (const auto& e : c.spec.at("forward")) c.args.push_back(detail::case_argument(e, dir, operators, dtype));
+  for (const auto& e : c.spec.at("forward"))
+    c.args.push_back(detail::case_argument(e, dir, operators, dtype));
   c.outputs = c.spec.at("outputs").get<std::vector<std::string>>();
   return c;
 }
-inline ZooCase load_case(const std::filesystem::path& dir, const std::map<std::string, nn::SparseOperator>& operators, bool topomodelx_compatible = true,
-                         torch::Dtype dtype = torch::kDouble) {
-  return load_case(dir, OperatorSource([&operators] { return operators; }), topomodelx_compatible, dtype);
+inline ZooCase load_case(const std::filesystem::path& dir,
+                         const std::map<std::string, nn::SparseOperator>& operators,
+                         bool topomodelx_compatible = true, torch::Dtype dtype = torch::kDouble) {
+  return load_case(dir, OperatorSource([&operators] { return operators; }), topomodelx_compatible,
+                   dtype);
 }
 
 /// Runs the case's forward; outputs by name (as many as case.json lists).
 inline std::map<std::string, torch::Tensor> run_case(ZooCase& c) {
   const auto out = c.model.forward(c.args);
   if (out.size() != c.outputs.size())
-    throw ZooError(c.model.name + ": the model returns " + std::to_string(out.size()) + " outputs, case.json names " + std::to_string(c.outputs.size()));
+    throw ZooError(c.model.name + ": the model returns " + std::to_string(out.size()) +
+                   " outputs, case.json names " + std::to_string(c.outputs.size()));
   std::map<std::string, torch::Tensor> named;
   for (std::size_t i = 0; i < out.size(); ++i) named[c.outputs[i]] = out[i];
   return named;
@@ -148,12 +166,15 @@ inline std::map<std::string, torch::Tensor> case_gradients(ZooCase& c) {
   torch::Tensor loss = torch::zeros({}, torch::kDouble);
   for (const auto& [name, y] : out) {
     const auto R = read_npy_tensor(c.dir / "grads" / ("_R_" + name + ".npy"));
-    if (R.sizes() != y.sizes()) throw ZooError("grads/_R_" + name + ".npy: shape differs from the output's");
+    if (R.sizes() != y.sizes())
+      throw ZooError("grads/_R_" + name + ".npy: shape differs from the output's");
     loss = loss + (y * R.to(y.scalar_type())).sum();
   }
   loss.backward();
   std::map<std::string, torch::Tensor> g;
-  for (const auto& p : m.named_parameters()) g[p.key()] = p.value().grad().defined() ? p.value().grad().clone() : torch::zeros_like(p.value());
+  for (const auto& p : m.named_parameters())
+    g[p.key()] =
+        p.value().grad().defined() ? p.value().grad().clone() : torch::zeros_like(p.value());
   return g;
 }
 
@@ -163,7 +184,8 @@ inline std::map<std::string, torch::Tensor> case_gradients(ZooCase& c) {
 inline std::map<std::string, nn::SparseOperator> case_operators(const std::filesystem::path& dir) {
   const tdl::Operators built = tdl::compute_operators(dir);
   std::map<std::string, nn::SparseOperator> ops;
-  for (const auto& [name, m] : built.by_name) ops.emplace(name, nn::SparseOperator::from_eigen(m, torch::kFloat));
+  for (const auto& [name, m] : built.by_name)
+    ops.emplace(name, nn::SparseOperator::from_eigen(m, torch::kFloat));
   return ops;
 }
 

@@ -15,32 +15,46 @@ namespace topos::nn {
 
 enum class Reduce { sum, mean, max };
 
-inline const char* to_string(Reduce r) { return r == Reduce::sum ? "sum" : (r == Reduce::mean ? "mean" : "max"); }
+inline const char* to_string(Reduce r) {
+  return r == Reduce::sum ? "sum" : (r == Reduce::mean ? "mean" : "max");
+}
 
 struct AggregateOptions {
   Reduce reduce = Reduce::sum;
   bool weighted = false;  ///< multiply messages by the neighbourhood's values
   int role = 0;           ///< keep only pairs of this role (0: all)
-  AggregateOptions& with_reduce(Reduce r) { reduce = r; return *this; }
-  AggregateOptions& with_weighted(bool w) { weighted = w; return *this; }
-  AggregateOptions& with_role(int r) { role = r; return *this; }
+  AggregateOptions& with_reduce(Reduce r) {
+    reduce = r;
+    return *this;
+  }
+  AggregateOptions& with_weighted(bool w) {
+    weighted = w;
+    return *this;
+  }
+  AggregateOptions& with_role(int r) {
+    role = r;
+    return *this;
+  }
 };
 
 namespace detail {
 /// rows · w going forward, grad · w_backward going back (Neighborhood::backward_values).
 struct WeightRows : torch::autograd::Function<WeightRows> {
-  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& x, const torch::Tensor& w, const torch::Tensor& w_backward) {
+  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& x,
+                               const torch::Tensor& w, const torch::Tensor& w_backward) {
     ctx->saved_data["w"] = w_backward;
     return x * w.unsqueeze(1);
   }
-  static torch::autograd::variable_list backward(torch::autograd::AutogradContext* ctx, torch::autograd::variable_list g) {
+  static torch::autograd::variable_list backward(torch::autograd::AutogradContext* ctx,
+                                                 torch::autograd::variable_list g) {
     return {g[0] * ctx->saved_data["w"].toTensor().unsqueeze(1), torch::Tensor(), torch::Tensor()};
   }
 };
 }  // namespace detail
 
 /// Messages from source rows `x` (num_source × C) to the n.num_target targets.
-inline torch::Tensor aggregate(const torch::Tensor& x, const TensorNeighborhood& n, const AggregateOptions& opt = {}) {
+inline torch::Tensor aggregate(const torch::Tensor& x, const TensorNeighborhood& n,
+                               const AggregateOptions& opt = {}) {
   torch::Tensor src = n.source, tgt = n.target, w = n.values, wb = n.backward_values;
   if (opt.role != 0) {
     if (!n.roles.defined()) {
@@ -56,15 +70,18 @@ inline torch::Tensor aggregate(const torch::Tensor& x, const TensorNeighborhood&
   }
   torch::Tensor msg = x.index_select(0, src);
   if (opt.weighted && w.defined()) {
-    if (wb.defined() && msg.requires_grad()) msg = detail::WeightRows::apply(msg, w.to(msg.dtype()), wb.to(msg.dtype()));
-    else msg = msg * w.to(msg.dtype()).unsqueeze(1);
+    if (wb.defined() && msg.requires_grad())
+      msg = detail::WeightRows::apply(msg, w.to(msg.dtype()), wb.to(msg.dtype()));
+    else
+      msg = msg * w.to(msg.dtype()).unsqueeze(1);
   }
   if (opt.role == 0 && n.one_per_target) return msg;  // every target gets exactly its own pair
   auto out = torch::zeros({n.num_target, x.size(1)}, x.options());
   if (opt.reduce == Reduce::sum) return out.index_add(0, tgt, msg);
   if (opt.reduce == Reduce::mean) {
     out = out.index_add(0, tgt, msg);
-    auto count = torch::zeros({n.num_target}, x.options()).index_add(0, tgt, torch::ones({tgt.size(0)}, x.options()));
+    auto count = torch::zeros({n.num_target}, x.options())
+                     .index_add(0, tgt, torch::ones({tgt.size(0)}, x.options()));
     return out / count.clamp_min(1).unsqueeze(1);
   }
   const auto idx = tgt.unsqueeze(1).expand_as(msg);

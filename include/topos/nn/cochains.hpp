@@ -15,9 +15,16 @@ namespace topos::nn {
 struct CochainKey {
   int rank = 0;
   std::string state;
-  friend bool operator<(const CochainKey& a, const CochainKey& b) { return std::tie(a.rank, a.state) < std::tie(b.rank, b.state); }
-  friend bool operator==(const CochainKey& a, const CochainKey& b) { return a.rank == b.rank && a.state == b.state; }
-  std::string str() const { return state.empty() ? "(" + std::to_string(rank) + ")" : "(" + std::to_string(rank) + ", \"" + state + "\")"; }
+  friend bool operator<(const CochainKey& a, const CochainKey& b) {
+    return std::tie(a.rank, a.state) < std::tie(b.rank, b.state);
+  }
+  friend bool operator==(const CochainKey& a, const CochainKey& b) {
+    return a.rank == b.rank && a.state == b.state;
+  }
+  std::string str() const {
+    return state.empty() ? "(" + std::to_string(rank) + ")"
+                         : "(" + std::to_string(rank) + ", \"" + state + "\")";
+  }
 };
 
 /// A cochain may be held compactly: only the rows some message reads were computed, and
@@ -41,7 +48,8 @@ class Cochains {
   bool has(int rank, const std::string& state = "") const { return data_.count({rank, state}) > 0; }
   const torch::Tensor& at(int rank, const std::string& state = "") const {
     auto it = data_.find({rank, state});
-    if (it == data_.end()) throw std::out_of_range("Cochains: no cochain " + CochainKey{rank, state}.str());
+    if (it == data_.end())
+      throw std::out_of_range("Cochains: no cochain " + CochainKey{rank, state}.str());
     return it->second;
   }
   const std::map<CochainKey, torch::Tensor>& items() const { return data_; }

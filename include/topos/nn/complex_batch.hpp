@@ -29,7 +29,7 @@ struct TensorNeighborhood {
 
 /// One complex as message passing sees it: cell counts per rank and named neighbourhoods.
 struct ComplexView {
-  std::vector<std::int64_t> sizes;                 ///< cells per rank, ranks 0..max
+  std::vector<std::int64_t> sizes;  ///< cells per rank, ranks 0..max
   std::map<std::string, Neighborhood> neighborhoods;
 };
 
@@ -39,14 +39,19 @@ class ComplexBatch {
 
   /// Concatenates complexes; all must name the same neighbourhoods with the same ranks. An
   /// empty batch takes its neighbourhood names and ranks from `layout` (else it has none).
-  static ComplexBatch collate(const std::vector<ComplexView>& complexes, int max_rank, const ComplexView* layout = nullptr) {
+  static ComplexBatch collate(const std::vector<ComplexView>& complexes, int max_rank,
+                              const ComplexView* layout = nullptr) {
     ComplexBatch b;
     b.num_complexes_ = static_cast<std::int64_t>(complexes.size());
-    b.counts_.assign(static_cast<std::size_t>(max_rank) + 1, std::vector<std::int64_t>(complexes.size(), 0));
-    b.ptr_.assign(static_cast<std::size_t>(max_rank) + 1, std::vector<std::int64_t>(complexes.size() + 1, 0));
+    b.counts_.assign(static_cast<std::size_t>(max_rank) + 1,
+                     std::vector<std::int64_t>(complexes.size(), 0));
+    b.ptr_.assign(static_cast<std::size_t>(max_rank) + 1,
+                  std::vector<std::int64_t>(complexes.size() + 1, 0));
     for (std::size_t c = 0; c < complexes.size(); ++c) {
       for (int r = 0; r <= max_rank; ++r) {
-        const std::int64_t n = static_cast<std::size_t>(r) < complexes[c].sizes.size() ? complexes[c].sizes[static_cast<std::size_t>(r)] : 0;
+        const std::int64_t n = static_cast<std::size_t>(r) < complexes[c].sizes.size()
+                                   ? complexes[c].sizes[static_cast<std::size_t>(r)]
+                                   : 0;
         b.counts_[static_cast<std::size_t>(r)][c] = n;
         b.ptr_[static_cast<std::size_t>(r)][c + 1] = b.ptr_[static_cast<std::size_t>(r)][c] + n;
       }
@@ -54,7 +59,10 @@ class ComplexBatch {
     for (int r = 0; r <= max_rank; ++r) {
       std::vector<std::int64_t> batch;
       batch.reserve(static_cast<std::size_t>(b.size(r)));
-      for (std::size_t c = 0; c < complexes.size(); ++c) batch.insert(batch.end(), static_cast<std::size_t>(b.counts_[static_cast<std::size_t>(r)][c]), static_cast<std::int64_t>(c));
+      for (std::size_t c = 0; c < complexes.size(); ++c)
+        batch.insert(batch.end(),
+                     static_cast<std::size_t>(b.counts_[static_cast<std::size_t>(r)][c]),
+                     static_cast<std::int64_t>(c));
       b.batch_.push_back(torch::tensor(batch, torch::kLong));
     }
     if (complexes.empty()) {
@@ -76,23 +84,34 @@ class ComplexBatch {
       std::vector<std::int64_t> src, tgt;
       std::vector<float> vals, bvals;
       std::vector<std::int8_t> roles;
-      const bool has_vals = !first.values.empty(), has_bvals = !first.backward_values.empty(), has_roles = !first.roles.empty();
+      const bool has_vals = !first.values.empty(), has_bvals = !first.backward_values.empty(),
+                 has_roles = !first.roles.empty();
       for (std::size_t c = 0; c < complexes.size(); ++c) {
         auto it = complexes[c].neighborhoods.find(name);
-        if (it == complexes[c].neighborhoods.end()) throw std::invalid_argument("ComplexBatch: complex " + std::to_string(c) + " lacks neighborhood '" + name + "'");
+        if (it == complexes[c].neighborhoods.end())
+          throw std::invalid_argument("ComplexBatch: complex " + std::to_string(c) +
+                                      " lacks neighborhood '" + name + "'");
         const Neighborhood& n = it->second;
         if (n.source_rank != first.source_rank || n.target_rank != first.target_rank)
-          throw std::invalid_argument("ComplexBatch: neighborhood '" + name + "' has different ranks in complex " + std::to_string(c));
+          throw std::invalid_argument("ComplexBatch: neighborhood '" + name +
+                                      "' has different ranks in complex " + std::to_string(c));
         if (n.source_rank > max_rank || n.target_rank > max_rank)
-          throw std::invalid_argument("ComplexBatch: neighborhood '" + name + "' uses a rank above " + std::to_string(max_rank));
-        if (n.num_source != b.counts_[static_cast<std::size_t>(n.source_rank)][c] || n.num_target != b.counts_[static_cast<std::size_t>(n.target_rank)][c])
-          throw std::invalid_argument("ComplexBatch: neighborhood '" + name + "' of complex " + std::to_string(c) + " does not match the cell counts");
-        const std::int64_t so = b.ptr_[static_cast<std::size_t>(n.source_rank)][c], to = b.ptr_[static_cast<std::size_t>(n.target_rank)][c];
+          throw std::invalid_argument("ComplexBatch: neighborhood '" + name +
+                                      "' uses a rank above " + std::to_string(max_rank));
+        if (n.num_source != b.counts_[static_cast<std::size_t>(n.source_rank)][c] ||
+            n.num_target != b.counts_[static_cast<std::size_t>(n.target_rank)][c])
+          throw std::invalid_argument("ComplexBatch: neighborhood '" + name + "' of complex " +
+                                      std::to_string(c) + " does not match the cell counts");
+        const std::int64_t so = b.ptr_[static_cast<std::size_t>(n.source_rank)][c],
+                           to = b.ptr_[static_cast<std::size_t>(n.target_rank)][c];
         for (std::size_t k = 0; k < n.source.size(); ++k) {
           src.push_back(n.source[k] + so);
           tgt.push_back(n.target[k] + to);
           if (has_vals) vals.push_back(static_cast<float>(n.values.empty() ? 1.0 : n.values[k]));
-          if (has_bvals) bvals.push_back(static_cast<float>(n.backward_values.empty() ? (n.values.empty() ? 1.0 : n.values[k]) : n.backward_values[k]));
+          if (has_bvals)
+            bvals.push_back(static_cast<float>(n.backward_values.empty()
+                                                   ? (n.values.empty() ? 1.0 : n.values[k])
+                                                   : n.backward_values[k]));
           if (has_roles) roles.push_back(n.roles.empty() ? 0 : n.roles[k]);
         }
       }
@@ -103,11 +122,14 @@ class ComplexBatch {
       t.target = torch::tensor(tgt, torch::kLong);
       if (has_vals) t.values = torch::tensor(vals, torch::kFloat);
       if (has_bvals) t.backward_values = torch::tensor(bvals, torch::kFloat);
-      if (has_roles) t.roles = torch::tensor(std::vector<std::int64_t>(roles.begin(), roles.end()), torch::kLong).to(torch::kChar);
+      if (has_roles)
+        t.roles = torch::tensor(std::vector<std::int64_t>(roles.begin(), roles.end()), torch::kLong)
+                      .to(torch::kChar);
       t.num_source = b.size(first.source_rank);
       t.num_target = b.size(first.target_rank);
       t.one_per_target = static_cast<std::int64_t>(tgt.size()) == t.num_target;
-      for (std::size_t k = 0; t.one_per_target && k < tgt.size(); ++k) t.one_per_target = tgt[k] == static_cast<std::int64_t>(k);
+      for (std::size_t k = 0; t.one_per_target && k < tgt.size(); ++k)
+        t.one_per_target = tgt[k] == static_cast<std::int64_t>(k);
       b.neighborhoods_[name] = t;
     }
     return b;
@@ -116,13 +138,16 @@ class ComplexBatch {
   std::int64_t num_complexes() const { return num_complexes_; }
   int max_rank() const { return static_cast<int>(counts_.size()) - 1; }
   std::int64_t size(int r) const { return ptr_.at(static_cast<std::size_t>(r)).back(); }
-  const std::vector<std::int64_t>& counts(int r) const { return counts_.at(static_cast<std::size_t>(r)); }
+  const std::vector<std::int64_t>& counts(int r) const {
+    return counts_.at(static_cast<std::size_t>(r));
+  }
   const std::vector<std::int64_t>& ptr(int r) const { return ptr_.at(static_cast<std::size_t>(r)); }
   const torch::Tensor& batch(int r) const { return batch_.at(static_cast<std::size_t>(r)); }
   bool has_neighborhood(const std::string& n) const { return neighborhoods_.count(n) > 0; }
   const TensorNeighborhood& neighborhood(const std::string& n) const {
     auto it = neighborhoods_.find(n);
-    if (it == neighborhoods_.end()) throw std::out_of_range("ComplexBatch: no neighborhood '" + n + "'");
+    if (it == neighborhoods_.end())
+      throw std::out_of_range("ComplexBatch: no neighborhood '" + n + "'");
     return it->second;
   }
   const std::map<std::string, TensorNeighborhood>& neighborhoods() const { return neighborhoods_; }

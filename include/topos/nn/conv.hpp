@@ -29,17 +29,24 @@ inline Update update_from_string(const std::string& s) {
   if (s == "tanh") return Update::tanh;
   if (s == "elu") return Update::elu;
   if (s == "leaky_relu") return Update::leaky_relu;
-  throw std::invalid_argument("unknown update function '" + s + "' (relu, sigmoid, tanh, elu, leaky_relu, none)");
+  throw std::invalid_argument("unknown update function '" + s +
+                              "' (relu, sigmoid, tanh, elu, leaky_relu, none)");
 }
 
 inline torch::Tensor apply_update(const torch::Tensor& x, Update u, double negative_slope = 0.01) {
   switch (u) {
-    case Update::relu: return torch::relu(x);
-    case Update::sigmoid: return torch::sigmoid(x);
-    case Update::tanh: return torch::tanh(x);
-    case Update::elu: return torch::elu(x);
-    case Update::leaky_relu: return torch::leaky_relu(x, negative_slope);
-    default: return x;
+    case Update::relu:
+      return torch::relu(x);
+    case Update::sigmoid:
+      return torch::sigmoid(x);
+    case Update::tanh:
+      return torch::tanh(x);
+    case Update::elu:
+      return torch::elu(x);
+    case Update::leaky_relu:
+      return torch::leaky_relu(x, negative_slope);
+    default:
+      return x;
   }
 }
 
@@ -47,11 +54,14 @@ enum class Aggr { sum, mean };
 
 /// TopoModelX's Aggregation: messages from several neighbourhoods (same shape) summed or
 /// averaged, then updated.
-inline torch::Tensor aggregate_messages(const std::vector<torch::Tensor>& messages, Aggr aggr = Aggr::sum, Update update = Update::sigmoid) {
+inline torch::Tensor aggregate_messages(const std::vector<torch::Tensor>& messages,
+                                        Aggr aggr = Aggr::sum, Update update = Update::sigmoid) {
   if (messages.empty()) throw std::invalid_argument("aggregate_messages: no messages");
   torch::Tensor x = messages[0];
   for (std::size_t i = 1; i < messages.size(); ++i) {
-    if (messages[i].sizes() != x.sizes()) throw std::invalid_argument("aggregate_messages: message " + std::to_string(i) + " has another shape than message 0");
+    if (messages[i].sizes() != x.sizes())
+      throw std::invalid_argument("aggregate_messages: message " + std::to_string(i) +
+                                  " has another shape than message 0");
     x = x + messages[i];
   }
   if (aggr == Aggr::mean) x = x / static_cast<double>(messages.size());
@@ -69,7 +79,8 @@ inline torch::Tensor divide_by_row_sums(const SparseOperator& A, const torch::Te
 /// each target row gets the sum, or the mean, of its sources' rows; a target without sources gets
 /// zeros (the count is clamped at 1, as scatter_mean does). A two-stage hypergraph message is
 /// pattern_aggregate(B, pattern_aggregate(Bᵀ, x_0)) with B the node × hyperedge incidence.
-inline torch::Tensor pattern_aggregate(const SparseOperator& A, const torch::Tensor& x, Aggr aggr = Aggr::sum) {
+inline torch::Tensor pattern_aggregate(const SparseOperator& A, const torch::Tensor& x,
+                                       Aggr aggr = Aggr::sum) {
   auto y = spmm(A.pattern().to(x.scalar_type()), x);
   if (aggr == Aggr::mean) {
     const auto count = torch::diff(A.crow).to(x.scalar_type()).clamp_min(1).to(x.device());
@@ -80,7 +91,8 @@ inline torch::Tensor pattern_aggregate(const SparseOperator& A, const torch::Ten
 
 /// Polynomial filter terms A x, A² x, ..., A^K x. With `row_norm`, each term is divided by A's
 /// row sums (from power `norm_from` on: SCCNN normalises every power, SCNN skips the first).
-inline std::vector<torch::Tensor> powers(const SparseOperator& A, torch::Tensor x, int K, bool row_norm = false, int norm_from = 1) {
+inline std::vector<torch::Tensor> powers(const SparseOperator& A, torch::Tensor x, int K,
+                                         bool row_norm = false, int norm_from = 1) {
   std::vector<torch::Tensor> out;
   for (int k = 1; k <= K; ++k) {
     x = spmm(A, x);
@@ -90,12 +102,17 @@ inline std::vector<torch::Tensor> powers(const SparseOperator& A, torch::Tensor 
   return out;
 }
 
-/// Per-entry attention scores of A's pattern: score_k = <x_col[col k], a_col> + <x_row[row k], a_row>
+/// Per-entry attention scores of A's pattern: score_k = <x_col[col k], a_col> + <x_row[row k],
+/// a_row>
 /// (a target's row and a source's column; GAT's a·[W h_j || W h_i] split in two halves),
 /// computed per cell first so the cost is O(n C + nnz).
-inline torch::Tensor pair_scores(const SparseOperator& A, const torch::Tensor& x_col, const torch::Tensor& a_col, const torch::Tensor& x_row, const torch::Tensor& a_row) {
+inline torch::Tensor pair_scores(const SparseOperator& A, const torch::Tensor& x_col,
+                                 const torch::Tensor& a_col, const torch::Tensor& x_row,
+                                 const torch::Tensor& a_row) {
   if (x_col.size(1) != a_col.numel() || x_row.size(1) != a_row.numel())
-    throw std::invalid_argument("pair_scores: attention vector of " + std::to_string(a_col.numel() + a_row.numel()) + " entries for features of " + std::to_string(x_col.size(1)) +
+    throw std::invalid_argument("pair_scores: attention vector of " +
+                                std::to_string(a_col.numel() + a_row.numel()) +
+                                " entries for features of " + std::to_string(x_col.size(1)) +
                                 " + " + std::to_string(x_row.size(1)) + " channels");
   const auto sc = x_col.matmul(a_col.reshape({-1}));
   const auto sr = x_row.matmul(a_row.reshape({-1}));
@@ -105,7 +122,9 @@ inline torch::Tensor pair_scores(const SparseOperator& A, const torch::Tensor& x
 /// How per-entry scores become weights: a per-target softmax, division by the row sum, or as is.
 enum class AttentionNorm { softmax, row_sum, none };
 
-inline torch::Tensor attention_weights(const SparseOperator& A, const torch::Tensor& raw, Update activation, double negative_slope, AttentionNorm norm) {
+inline torch::Tensor attention_weights(const SparseOperator& A, const torch::Tensor& raw,
+                                       Update activation, double negative_slope,
+                                       AttentionNorm norm) {
   const auto s = apply_update(raw, activation, negative_slope);
   if (norm == AttentionNorm::softmax) return row_softmax(A, s);
   if (norm == AttentionNorm::row_sum) return row_normalize(A, s);
@@ -116,7 +135,8 @@ inline torch::Tensor attention_weights(const SparseOperator& A, const torch::Ten
 /// fan_out = size(0)·rest, as torch.nn.init computes them).
 inline void xavier_uniform(const torch::Tensor& w, double gain = 1.414) {
   torch::NoGradGuard g;
-  auto v = w.dim() < 2 ? w.view({-1, 1}) : w;  // a vector as a column, like TopoModelX's view(-1, 1)
+  auto v =
+      w.dim() < 2 ? w.view({-1, 1}) : w;  // a vector as a column, like TopoModelX's view(-1, 1)
   torch::nn::init::xavier_uniform_(v, gain);
 }
 
@@ -124,9 +144,9 @@ struct ConvOptions {
   ConvOptions(std::int64_t in, std::int64_t out) : in_channels_(in), out_channels_(out) {}
   TORCH_ARG(std::int64_t, in_channels);
   TORCH_ARG(std::int64_t, out_channels);
-  TORCH_ARG(bool, aggr_norm) = false;               ///< divide by the operator's row sums
+  TORCH_ARG(bool, aggr_norm) = false;  ///< divide by the operator's row sums
   TORCH_ARG(Update, update_func) = Update::none;
-  TORCH_ARG(bool, att) = false;                     ///< elu attention on [x_source_j, x_target_i]
+  TORCH_ARG(bool, att) = false;  ///< elu attention on [x_source_j, x_target_i]
   TORCH_ARG(bool, with_linear_transform) = true;
 };
 
@@ -136,23 +156,33 @@ class ConvImpl : public torch::nn::Module {
  public:
   explicit ConvImpl(ConvOptions o) : options(std::move(o)) {
     if (!options.with_linear_transform() && options.in_channels() != options.out_channels())
-      throw std::invalid_argument("Conv: without a linear transform in_channels must equal out_channels");
-    if (options.with_linear_transform()) weight = register_parameter("weight", torch::empty({options.in_channels(), options.out_channels()}));
-    if (options.att()) att_weight = register_parameter("att_weight", torch::empty({2 * options.in_channels()}));
+      throw std::invalid_argument(
+          "Conv: without a linear transform in_channels must equal out_channels");
+    if (options.with_linear_transform())
+      weight = register_parameter("weight",
+                                  torch::empty({options.in_channels(), options.out_channels()}));
+    if (options.att())
+      att_weight = register_parameter("att_weight", torch::empty({2 * options.in_channels()}));
     reset_parameters();
   }
   void reset_parameters() {
     if (weight.defined()) xavier_uniform(weight);
     if (att_weight.defined()) xavier_uniform(att_weight);
   }
-  torch::Tensor forward(const torch::Tensor& x_source, const SparseOperator& A, const torch::Tensor& x_target = {}) {
+  torch::Tensor forward(const torch::Tensor& x_source, const SparseOperator& A,
+                        const torch::Tensor& x_target = {}) {
     if (x_source.size(1) != options.in_channels())
-      throw std::invalid_argument("Conv: features have " + std::to_string(x_source.size(1)) + " channels, the layer takes " + std::to_string(options.in_channels()));
+      throw std::invalid_argument("Conv: features have " + std::to_string(x_source.size(1)) +
+                                  " channels, the layer takes " +
+                                  std::to_string(options.in_channels()));
     SparseOperator N = A;
     if (options.att()) {
       const auto C = options.in_channels();
-      const auto raw = pair_scores(A, x_source, att_weight.narrow(0, 0, C), x_target.defined() ? x_target : x_source, att_weight.narrow(0, C, C));
-      N = A.with_values(attention_weights(A, raw, Update::elu, 0, AttentionNorm::none) * A.values.to(raw.scalar_type()));
+      const auto raw =
+          pair_scores(A, x_source, att_weight.narrow(0, 0, C),
+                      x_target.defined() ? x_target : x_source, att_weight.narrow(0, C, C));
+      N = A.with_values(attention_weights(A, raw, Update::elu, 0, AttentionNorm::none) *
+                        A.values.to(raw.scalar_type()));
     }
     const auto m = weight.defined() ? x_source.matmul(weight) : x_source;
     auto y = spmm(N, m);
@@ -166,39 +196,47 @@ TORCH_MODULE(Conv);
 
 /// A weight tensor for the combination of several filter terms: y = Σ_k X_k W[:, :, k]
 /// (TopoModelX's einsum "nik,iok->no" over stacked terms), computed without the stack.
-inline torch::Tensor combine_terms(const std::vector<torch::Tensor>& terms, const torch::Tensor& weight) {
+inline torch::Tensor combine_terms(const std::vector<torch::Tensor>& terms,
+                                   const torch::Tensor& weight) {
   if (static_cast<std::int64_t>(terms.size()) != weight.size(2))
-    throw std::invalid_argument("combine_terms: " + std::to_string(terms.size()) + " terms for a weight with " + std::to_string(weight.size(2)) + " filters");
-  const auto X = torch::cat(terms, 1);                               // n × (K·in), term-major
+    throw std::invalid_argument("combine_terms: " + std::to_string(terms.size()) +
+                                " terms for a weight with " + std::to_string(weight.size(2)) +
+                                " filters");
+  const auto X = torch::cat(terms, 1);  // n × (K·in), term-major
   const auto W = weight.permute({2, 0, 1}).reshape({-1, weight.size(1)});  // (K·in) × out
   return X.matmul(W);
 }
 
 /// GCNII's initial-residual and identity-mapping update: x̃ = (1-α) x + α x0, then
 /// (1-β) x̃ + β x̃ W (W: a bias-free linear map).
-inline torch::Tensor initial_residual(const torch::Tensor& x, const torch::Tensor& x0, double alpha, double beta, torch::nn::Linear& W) {
+inline torch::Tensor initial_residual(const torch::Tensor& x, const torch::Tensor& x0, double alpha,
+                                      double beta, torch::nn::Linear& W) {
   const auto mixed = (1 - alpha) * x + alpha * x0;
   return (1 - beta) * mixed + beta * W->forward(mixed);
 }
 
 /// (a I + b A)^k x by k sparse products, never forming the matrix power: SAN's harmonic
 /// projection (I - εL)^k without the dense n × n power.
-inline torch::Tensor apply_affine_power(const SparseOperator& A, torch::Tensor x, int k, double a, double b) {
+inline torch::Tensor apply_affine_power(const SparseOperator& A, torch::Tensor x, int k, double a,
+                                        double b) {
   for (int i = 0; i < k; ++i) x = a * x + b * spmm(A, x);
   return x;
 }
 
 /// A named group of submodules with no parameters of its own, to reproduce a parameter path
 /// such as "layers.0.conv_1_to_1.conv_2_to_1.weight".
-inline std::shared_ptr<torch::nn::Module> submodule_group(torch::nn::Module& parent, const std::string& name) {
+inline std::shared_ptr<torch::nn::Module> submodule_group(torch::nn::Module& parent,
+                                                          const std::string& name) {
   return parent.register_module(name, std::make_shared<torch::nn::Module>());
 }
 
 /// Sum of y over the cells of each complex of a batch (`batch[i]` = complex of row i): readout.
-inline torch::Tensor readout(const torch::Tensor& y, const torch::Tensor& batch, std::int64_t num_complexes, Aggr aggr = Aggr::sum) {
+inline torch::Tensor readout(const torch::Tensor& y, const torch::Tensor& batch,
+                             std::int64_t num_complexes, Aggr aggr = Aggr::sum) {
   auto out = torch::zeros({num_complexes, y.size(1)}, y.options()).index_add(0, batch, y);
   if (aggr == Aggr::mean) {
-    const auto count = torch::zeros({num_complexes}, y.options()).index_add(0, batch, torch::ones({y.size(0)}, y.options()));
+    const auto count = torch::zeros({num_complexes}, y.options())
+                           .index_add(0, batch, torch::ones({y.size(0)}, y.options()));
     out = out / count.clamp_min(1).unsqueeze(1);
   }
   return out;

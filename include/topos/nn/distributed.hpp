@@ -85,7 +85,9 @@ struct DistributedEnv {
       } catch (const std::exception&) {
         used = 0;
       }
-      if (used != s.size() || v < min) throw DistributedError(std::string("environment variable ") + name + "='" + s + "' is not an integer >= " + std::to_string(min));
+      if (used != s.size() || v < min)
+        throw DistributedError(std::string("environment variable ") + name + "='" + s +
+                               "' is not an integer >= " + std::to_string(min));
       return v;
     };
     e.world_size = integer("WORLD_SIZE", 1, 1);
@@ -93,14 +95,22 @@ struct DistributedEnv {
     e.local_rank = integer("LOCAL_RANK", e.rank, 0);
     e.local_world_size = integer("LOCAL_WORLD_SIZE", e.world_size, 1);
     e.master_port = integer("MASTER_PORT", 29500, 1);
-    if (e.master_port > 65535) throw DistributedError("environment variable MASTER_PORT=" + std::to_string(e.master_port) + " is not a port");
+    if (e.master_port > 65535)
+      throw DistributedError("environment variable MASTER_PORT=" + std::to_string(e.master_port) +
+                             " is not a port");
     if (!get("MASTER_ADDR").empty()) e.master_addr = get("MASTER_ADDR");
     e.rendezvous_file = get("TOPOS_RENDEZVOUS_FILE");
-    if (e.rank >= e.world_size) throw DistributedError("RANK=" + std::to_string(e.rank) + " is not below WORLD_SIZE=" + std::to_string(e.world_size));
-    if (e.world_size > 1 && std::getenv("RANK") == nullptr) throw DistributedError("WORLD_SIZE=" + std::to_string(e.world_size) + " is set but RANK is not");
+    if (e.rank >= e.world_size)
+      throw DistributedError("RANK=" + std::to_string(e.rank) +
+                             " is not below WORLD_SIZE=" + std::to_string(e.world_size));
+    if (e.world_size > 1 && std::getenv("RANK") == nullptr)
+      throw DistributedError("WORLD_SIZE=" + std::to_string(e.world_size) +
+                             " is set but RANK is not");
     return e;
   }
-  bool loopback() const { return master_addr == "localhost" || master_addr == "::1" || master_addr.rfind("127.", 0) == 0; }
+  bool loopback() const {
+    return master_addr == "localhost" || master_addr == "::1" || master_addr.rfind("127.", 0) == 0;
+  }
 };
 
 struct DistributedOptions {
@@ -126,20 +136,33 @@ class Distributed {
   Distributed() = default;
 
   /// Joins the job `env` describes (rendezvous with every other rank; fails after the timeout).
-  explicit Distributed(const DistributedEnv& env, DistributedOptions opt = {}) : env_(env), opt_(std::move(opt)) {
+  explicit Distributed(const DistributedEnv& env, DistributedOptions opt = {})
+      : env_(env), opt_(std::move(opt)) {
     if (env_.world_size == 1) return;
-    if (opt_.backend_ != "auto" && opt_.backend_ != "gloo" && opt_.backend_ != "nccl") throw DistributedError("unknown distributed backend '" + opt_.backend_ + "' (auto, gloo or nccl)");
-    const bool want_nccl = opt_.backend_ == "nccl" || (opt_.backend_ == "auto" && opt_.device_.is_cuda());
-    if (want_nccl && !opt_.device_.is_cuda()) throw DistributedError("the NCCL backend needs the model on a CUDA device");
-    if (want_nccl && !nccl_available()) throw DistributedError("this build of topos has no NCCL process group (needs a CUDA LibTorch with its c10d NCCL headers); use --device cpu for Gloo");
-    if (!want_nccl && !gloo_available()) throw DistributedError("this build of topos has no Gloo process group: install Debian's libgloo-dev (scripts/setup.sh) and reconfigure");
-    if (!want_nccl && opt_.device_.is_cuda()) opt_.device_ = torch::kCPU;  // Gloo reduces on the host
+    if (opt_.backend_ != "auto" && opt_.backend_ != "gloo" && opt_.backend_ != "nccl")
+      throw DistributedError("unknown distributed backend '" + opt_.backend_ +
+                             "' (auto, gloo or nccl)");
+    const bool want_nccl =
+        opt_.backend_ == "nccl" || (opt_.backend_ == "auto" && opt_.device_.is_cuda());
+    if (want_nccl && !opt_.device_.is_cuda())
+      throw DistributedError("the NCCL backend needs the model on a CUDA device");
+    if (want_nccl && !nccl_available())
+      throw DistributedError(
+          "this build of topos has no NCCL process group (needs a CUDA LibTorch with its c10d NCCL "
+          "headers); use --device cpu for Gloo");
+    if (!want_nccl && !gloo_available())
+      throw DistributedError(
+          "this build of topos has no Gloo process group: install Debian's libgloo-dev "
+          "(scripts/setup.sh) and reconfigure");
+    if (!want_nccl && opt_.device_.is_cuda())
+      opt_.device_ = torch::kCPU;  // Gloo reduces on the host
     try {
       connect(want_nccl);
     } catch (const DistributedError&) {
       throw;
     } catch (const std::exception& e) {
-      throw DistributedError(where() + "rendezvous failed (" + rendezvous_description() + ", timeout " + seconds(opt_.timeout_) + "): " + first_line(e.what()));
+      throw DistributedError(where() + "rendezvous failed (" + rendezvous_description() +
+                             ", timeout " + seconds(opt_.timeout_) + "): " + first_line(e.what()));
     }
   }
 
@@ -209,15 +232,20 @@ class Distributed {
     }
     auto has_grad = torch::zeros({static_cast<std::int64_t>(params.size())}, torch::kDouble);
     for (std::size_t i = 0; i < params.size(); ++i) {
-      if (params[i].grad().defined()) has_grad[static_cast<std::int64_t>(i)] = 1.0;
-      else params[i].mutable_grad() = torch::zeros_like(params[i]);
+      if (params[i].grad().defined())
+        has_grad[static_cast<std::int64_t>(i)] = 1.0;
+      else
+        params[i].mutable_grad() = torch::zeros_like(params[i]);
     }
     // Buckets in parameter order (the same on every rank), split by dtype and size.
     std::vector<std::vector<std::size_t>> buckets;
     std::int64_t bytes = 0;
     for (std::size_t i = 0; i < params.size(); ++i) {
-      const std::int64_t b = params[i].numel() * static_cast<std::int64_t>(params[i].element_size());
-      if (buckets.empty() || bytes + b > opt_.bucket_bytes_ || params[buckets.back().front()].scalar_type() != params[i].scalar_type()) buckets.emplace_back(), bytes = 0;
+      const std::int64_t b =
+          params[i].numel() * static_cast<std::int64_t>(params[i].element_size());
+      if (buckets.empty() || bytes + b > opt_.bucket_bytes_ ||
+          params[buckets.back().front()].scalar_type() != params[i].scalar_type())
+        buckets.emplace_back(), bytes = 0;
       buckets.back().push_back(i);
       bytes += b;
     }
@@ -235,15 +263,18 @@ class Distributed {
       std::int64_t at = 0;
       for (auto i : buckets[k]) {
         auto& g = params[i].mutable_grad();
-        if (anywhere[static_cast<std::int64_t>(i)].item<double>() == 0.0) g = torch::Tensor();
-        else g.copy_(flat[k].narrow(0, at, g.numel()).view_as(g));
+        if (anywhere[static_cast<std::int64_t>(i)].item<double>() == 0.0)
+          g = torch::Tensor();
+        else
+          g.copy_(flat[k].narrow(0, at, g.numel()).view_as(g));
         at += params[i].numel();
       }
     }
   }
 
   /// Overwrites every tensor with rank `root`'s (parameters at start: identical replicas).
-  void broadcast_(const std::vector<torch::Tensor>& tensors, int root = 0, const char* what = "broadcast") {
+  void broadcast_(const std::vector<torch::Tensor>& tensors, int root = 0,
+                  const char* what = "broadcast") {
     if (!backend_ || tensors.empty()) return;
     torch::NoGradGuard no_grad;
     std::vector<torch::Tensor> staged;
@@ -258,7 +289,8 @@ class Distributed {
   }
 
   /// Rank `root`'s bytes on every rank (statistics, optimizer state, small files).
-  std::string broadcast_bytes(const std::string& bytes, int root = 0, const char* what = "broadcast") {
+  std::string broadcast_bytes(const std::string& bytes, int root = 0,
+                              const char* what = "broadcast") {
     if (!backend_) return bytes;
     auto n = torch::tensor({static_cast<std::int64_t>(bytes.size())}, torch::kLong);
     broadcast_({n}, root, what);
@@ -266,7 +298,8 @@ class Distributed {
     auto buf = torch::empty({size}, torch::kUInt8);
     if (env_.rank == root) std::memcpy(buf.data_ptr<std::uint8_t>(), bytes.data(), bytes.size());
     broadcast_({buf}, root, what);
-    return std::string(reinterpret_cast<const char*>(buf.data_ptr<std::uint8_t>()), static_cast<std::size_t>(size));
+    return std::string(reinterpret_cast<const char*>(buf.data_ptr<std::uint8_t>()),
+                       static_cast<std::size_t>(size));
   }
 
   /// Waits until every rank arrives (or fails after the timeout).
@@ -283,7 +316,8 @@ class Distributed {
   };
   template <class Group>
   struct BackendOf : Backend {
-    BackendOf(c10::intrusive_ptr<Group> g, std::string n) : group(std::move(g)), label(std::move(n)) {}
+    BackendOf(c10::intrusive_ptr<Group> g, std::string n)
+        : group(std::move(g)), label(std::move(n)) {}
     c10::intrusive_ptr<c10d::Work> all_reduce(torch::Tensor& t) override {
       std::vector<torch::Tensor> v{t};
       return group->allreduce(v);
@@ -309,9 +343,14 @@ class Distributed {
     const auto nl = s.find('\n');
     return nl == std::string::npos ? s : s.substr(0, nl);
   }
-  std::string where() const { return "distributed (rank " + std::to_string(env_.rank) + " of " + std::to_string(env_.world_size) + "): "; }
+  std::string where() const {
+    return "distributed (rank " + std::to_string(env_.rank) + " of " +
+           std::to_string(env_.world_size) + "): ";
+  }
   std::string rendezvous_description() const {
-    return env_.rendezvous_file.empty() ? "TCPStore at " + env_.master_addr + ":" + std::to_string(env_.master_port) : "FileStore " + env_.rendezvous_file;
+    return env_.rendezvous_file.empty()
+               ? "TCPStore at " + env_.master_addr + ":" + std::to_string(env_.master_port)
+               : "FileStore " + env_.rendezvous_file;
   }
 
   template <class F>
@@ -321,7 +360,10 @@ class Distributed {
       f();
     } catch (const std::exception& e) {
       failed_ = true;
-      throw DistributedError(where() + what + " failed: another worker died or stopped responding within the timeout of " + seconds(opt_.timeout_) + " (" + first_line(e.what()) + ")");
+      throw DistributedError(
+          where() + what +
+          " failed: another worker died or stopped responding within the timeout of " +
+          seconds(opt_.timeout_) + " (" + first_line(e.what()) + ")");
     }
   }
 
@@ -346,7 +388,9 @@ class Distributed {
 #ifdef TOPOS_WITH_C10D_NCCL
       auto o = c10d::ProcessGroupNCCL::Options::create();
       o->timeout = opt_.timeout_;
-      backend_ = std::make_unique<BackendOf<c10d::ProcessGroupNCCL>>(c10::make_intrusive<c10d::ProcessGroupNCCL>(prefixed, env_.rank, env_.world_size, o), "nccl");
+      backend_ = std::make_unique<BackendOf<c10d::ProcessGroupNCCL>>(
+          c10::make_intrusive<c10d::ProcessGroupNCCL>(prefixed, env_.rank, env_.world_size, o),
+          "nccl");
 #endif
     } else {
 #ifdef TOPOS_WITH_C10D_GLOO
@@ -360,7 +404,9 @@ class Distributed {
       else
         o->devices.push_back(c10d::ProcessGroupGloo::createDefaultDevice());
       o->threads = 2;
-      backend_ = std::make_unique<BackendOf<c10d::ProcessGroupGloo>>(c10::make_intrusive<c10d::ProcessGroupGloo>(prefixed, env_.rank, env_.world_size, o), "gloo");
+      backend_ = std::make_unique<BackendOf<c10d::ProcessGroupGloo>>(
+          c10::make_intrusive<c10d::ProcessGroupGloo>(prefixed, env_.rank, env_.world_size, o),
+          "gloo");
 #endif
     }
 #else
@@ -386,7 +432,8 @@ class Distributed {
 /// The order of `n` items in `epoch` for `seed`: a Fisher–Yates shuffle driven by a
 /// std::mt19937_64 (whose output the standard fixes), so every rank, machine and world size
 /// computes the same order.
-inline std::vector<std::int64_t> epoch_order(std::int64_t n, std::uint64_t seed, std::int64_t epoch) {
+inline std::vector<std::int64_t> epoch_order(std::int64_t n, std::uint64_t seed,
+                                             std::int64_t epoch) {
   std::vector<std::int64_t> order(static_cast<std::size_t>(n));
   std::iota(order.begin(), order.end(), std::int64_t{0});
   std::mt19937_64 rng(seed * 0x9E3779B97F4A7C15ULL + static_cast<std::uint64_t>(epoch));
@@ -411,12 +458,16 @@ struct StepShard {
   std::vector<std::int64_t> items;  ///< this rank's
   std::int64_t total = 0;
 };
-inline StepShard step_shard(const std::vector<std::int64_t>& order, std::int64_t step, int world, int rank, int per_rank) {
+inline StepShard step_shard(const std::vector<std::int64_t>& order, std::int64_t step, int world,
+                            int rank, int per_rank) {
   const auto n = static_cast<std::int64_t>(order.size());
-  const std::int64_t begin = step * world * per_rank, end = std::min(n, begin + static_cast<std::int64_t>(world) * per_rank);
+  const std::int64_t begin = step * world * per_rank,
+                     end = std::min(n, begin + static_cast<std::int64_t>(world) * per_rank);
   StepShard s;
   s.total = std::max<std::int64_t>(0, end - begin);
-  for (std::int64_t k = begin + static_cast<std::int64_t>(rank) * per_rank; k < std::min(end, begin + static_cast<std::int64_t>(rank + 1) * per_rank); ++k) s.items.push_back(order[static_cast<std::size_t>(k)]);
+  for (std::int64_t k = begin + static_cast<std::int64_t>(rank) * per_rank;
+       k < std::min(end, begin + static_cast<std::int64_t>(rank + 1) * per_rank); ++k)
+    s.items.push_back(order[static_cast<std::size_t>(k)]);
   return s;
 }
 

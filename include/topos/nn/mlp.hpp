@@ -23,15 +23,20 @@ inline Activation activation_from_string(const std::string& s) {
 }
 inline const char* to_string(Activation a) {
   switch (a) {
-    case Activation::relu: return "relu";
-    case Activation::gelu: return "gelu";
-    case Activation::elu: return "elu";
-    default: return "selu";
+    case Activation::relu:
+      return "relu";
+    case Activation::gelu:
+      return "gelu";
+    case Activation::elu:
+      return "elu";
+    default:
+      return "selu";
   }
 }
 
 struct MlpOptions {
-  MlpOptions(std::int64_t in, std::int64_t hidden, std::int64_t out) : in_(in), hidden_(hidden), out_(out) {}
+  MlpOptions(std::int64_t in, std::int64_t hidden, std::int64_t out)
+      : in_(in), hidden_(hidden), out_(out) {}
   TORCH_ARG(std::int64_t, in);
   TORCH_ARG(std::int64_t, hidden);
   TORCH_ARG(std::int64_t, out);
@@ -44,7 +49,8 @@ struct MlpOptions {
 class MlpImpl : public torch::nn::Module {
  public:
   explicit MlpImpl(const MlpOptions& o) : options(o) {
-    if (o.in() <= 0 || o.out() <= 0 || o.hidden() <= 0 || o.layers() < 1) throw std::invalid_argument("Mlp: sizes must be positive and layers >= 1");
+    if (o.in() <= 0 || o.out() <= 0 || o.hidden() <= 0 || o.layers() < 1)
+      throw std::invalid_argument("Mlp: sizes must be positive and layers >= 1");
     int idx = 0;
     auto add = [&](auto module) {
       register_module(std::to_string(idx++), module.ptr());
@@ -53,10 +59,18 @@ class MlpImpl : public torch::nn::Module {
     auto add_linear = [&](std::int64_t i, std::int64_t out) { add(torch::nn::Linear(i, out)); };
     auto add_act = [&] {
       switch (o.activation()) {
-        case Activation::relu: add(torch::nn::ReLU(torch::nn::ReLUOptions().inplace(true))); break;
-        case Activation::gelu: add(torch::nn::GELU()); break;
-        case Activation::elu: add(torch::nn::ELU()); break;
-        case Activation::selu: add(torch::nn::SELU()); break;
+        case Activation::relu:
+          add(torch::nn::ReLU(torch::nn::ReLUOptions().inplace(true)));
+          break;
+        case Activation::gelu:
+          add(torch::nn::GELU());
+          break;
+        case Activation::elu:
+          add(torch::nn::ELU());
+          break;
+        case Activation::selu:
+          add(torch::nn::SELU());
+          break;
       }
     };
     if (o.layers() == 1) {
@@ -71,7 +85,8 @@ class MlpImpl : public torch::nn::Module {
       }
       add_linear(o.hidden(), o.out());
       if (o.final_activation()) add_act();
-      if (o.layer_norm()) add(torch::nn::LayerNorm(torch::nn::LayerNormOptions({o.out()}).eps(1e-5)));
+      if (o.layer_norm())
+        add(torch::nn::LayerNorm(torch::nn::LayerNormOptions({o.out()}).eps(1e-5)));
     }
   }
   torch::Tensor forward(torch::Tensor x) {

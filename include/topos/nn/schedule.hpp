@@ -3,7 +3,8 @@
 //
 //   using namespace topos::nn::dsl;
 //   Schedule s;
-//   s.encode(0, "", "enc0")                                   // (rank, state) <- module(input columns)
+//   s.encode(0, "", "enc0")                                   // (rank, state) <- module(input
+//     columns)
 //    .step(into(2).msg(from(0).via("B02").map("phi02"))        // messages, mapped then reduced
 //                 .msg(from(1).via("B12").map("phi12"))
 //                 .combine(Combine::cat_self).update("psi2")   // [self, m1, m2] -> update module
@@ -49,54 +50,98 @@ enum class Combine { cat_self, sum_self };
 struct Message {
   CochainKey source;
   std::string via;
-  std::string map;                 ///< module applied to source rows ("" = identity)
+  std::string map;  ///< module applied to source rows ("" = identity)
   AggregateOptions agg;
-  std::vector<int> by_role;        ///< non-empty: concatenate per-role sums in this order
-  bool accumulate = false;         ///< added to the previous message instead of concatenated
-  Message& with_via(std::string n) { via = std::move(n); return *this; }
+  std::vector<int> by_role;  ///< non-empty: concatenate per-role sums in this order
+  bool accumulate = false;   ///< added to the previous message instead of concatenated
+  Message& with_via(std::string n) {
+    via = std::move(n);
+    return *this;
+  }
 };
 
 namespace dsl {
 struct From {
   Message m;
-  From& via(std::string n) { m.via = std::move(n); return *this; }
-  From& map(std::string module) { m.map = std::move(module); return *this; }
-  From& weighted() { m.agg.weighted = true; return *this; }
-  From& only(int role) { m.agg.role = role; return *this; }
-  From& reduce(Reduce r) { m.agg.reduce = r; return *this; }
-  From& by_role(std::vector<int> order) { m.by_role = std::move(order); return *this; }
+  From& via(std::string n) {
+    m.via = std::move(n);
+    return *this;
+  }
+  From& map(std::string module) {
+    m.map = std::move(module);
+    return *this;
+  }
+  From& weighted() {
+    m.agg.weighted = true;
+    return *this;
+  }
+  From& only(int role) {
+    m.agg.role = role;
+    return *this;
+  }
+  From& reduce(Reduce r) {
+    m.agg.reduce = r;
+    return *this;
+  }
+  From& by_role(std::vector<int> order) {
+    m.by_role = std::move(order);
+    return *this;
+  }
 };
-inline From from(int rank, std::string state = "") { From f; f.m.source = {rank, std::move(state)}; return f; }
+inline From from(int rank, std::string state = "") {
+  From f;
+  f.m.source = {rank, std::move(state)};
+  return f;
+}
 }  // namespace dsl
 
 struct Step {
   CochainKey target;
   std::vector<Message> messages;
   Combine combine = Combine::cat_self;
-  std::string update;       ///< module producing the new target state
-  int guard_rank = -1;      ///< >= 0: only complexes with at least one cell of this rank
-  std::string name;         ///< for errors and printing (default "step <i>")
+  std::string update;   ///< module producing the new target state
+  int guard_rank = -1;  ///< >= 0: only complexes with at least one cell of this rank
+  std::string name;     ///< for errors and printing (default "step <i>")
 
-  Step& msg(const dsl::From& f) { messages.push_back(f.m); return *this; }
+  Step& msg(const dsl::From& f) {
+    messages.push_back(f.m);
+    return *this;
+  }
   /// A message summed into the previous one (same width), e.g. r = Σ_role+ h3p + Σ_role- h3m.
   Step& add(const dsl::From& f) {
     messages.push_back(f.m);
     messages.back().accumulate = true;
     return *this;
   }
-  Step& combine_with(Combine c) { combine = c; return *this; }
-  Step& update_with(std::string module) { update = std::move(module); return *this; }
-  Step& when_nonempty(int rank) { guard_rank = rank; return *this; }
-  Step& named(std::string n) { name = std::move(n); return *this; }
+  Step& combine_with(Combine c) {
+    combine = c;
+    return *this;
+  }
+  Step& update_with(std::string module) {
+    update = std::move(module);
+    return *this;
+  }
+  Step& when_nonempty(int rank) {
+    guard_rank = rank;
+    return *this;
+  }
+  Step& named(std::string n) {
+    name = std::move(n);
+    return *this;
+  }
 };
 
 namespace dsl {
-inline Step into(int rank, std::string state = "") { Step s; s.target = {rank, std::move(state)}; return s; }
+inline Step into(int rank, std::string state = "") {
+  Step s;
+  s.target = {rank, std::move(state)};
+  return s;
+}
 }  // namespace dsl
 
 struct Encoder {
   CochainKey key;
-  std::string input;               ///< name of the input feature tensor
+  std::string input;                  ///< name of the input feature tensor
   std::vector<std::int64_t> columns;  ///< empty: all, else this column order
   std::vector<std::int64_t> negate;   ///< columns (of the input, before selection) negated
   std::string module;
@@ -111,8 +156,13 @@ class Schedule {
  public:
   /// Encodes input tensor `input` into cochain (rank, state) with `module` (after column
   /// negation, then selection).
-  Schedule& encode(int rank, std::string state, std::string input, std::string module, std::vector<std::int64_t> columns = {}, std::vector<std::int64_t> negate = {}) {
-    encoders_.push_back({{rank, std::move(state)}, std::move(input), std::move(columns), std::move(negate), std::move(module)});
+  Schedule& encode(int rank, std::string state, std::string input, std::string module,
+                   std::vector<std::int64_t> columns = {}, std::vector<std::int64_t> negate = {}) {
+    encoders_.push_back({{rank, std::move(state)},
+                         std::move(input),
+                         std::move(columns),
+                         std::move(negate),
+                         std::move(module)});
     return *this;
   }
   Schedule& step(Step s) {
@@ -146,23 +196,30 @@ class Schedule {
 
   std::string str() const {
     std::ostringstream o;
-    for (const auto& e : encoders_) o << "encode " << e.key.str() << " <- " << e.module << "(" << e.input << ")\n";
+    for (const auto& e : encoders_)
+      o << "encode " << e.key.str() << " <- " << e.module << "(" << e.input << ")\n";
     for (const auto& g : groups_) {
       if (g.size() > 1) o << "parallel {\n";
       for (const auto& s : g) {
         o << (g.size() > 1 ? "  " : "") << s.name << ": into " << s.target.str();
         if (s.guard_rank >= 0) o << " when rank " << s.guard_rank << " nonempty";
-        o << " = " << s.update << "(" << (s.combine == Combine::cat_self ? "cat" : "sum") << "[self";
+        o << " = " << s.update << "(" << (s.combine == Combine::cat_self ? "cat" : "sum")
+          << "[self";
         for (const auto& m : s.messages) {
-          o << (m.accumulate ? " + " : ", ") << (m.map.empty() ? "" : m.map + "·") << m.source.str() << " via " << m.via;
-          if (!m.by_role.empty()) o << " by role";
-          else o << " " << to_string(m.agg.reduce) << (m.agg.weighted ? " weighted" : "") << (m.agg.role ? " role " + std::to_string(m.agg.role) : "");
+          o << (m.accumulate ? " + " : ", ") << (m.map.empty() ? "" : m.map + "·") << m.source.str()
+            << " via " << m.via;
+          if (!m.by_role.empty())
+            o << " by role";
+          else
+            o << " " << to_string(m.agg.reduce) << (m.agg.weighted ? " weighted" : "")
+              << (m.agg.role ? " role " + std::to_string(m.agg.role) : "");
         }
         o << "])\n";
       }
       if (g.size() > 1) o << "}\n";
     }
-    for (const auto& d : decoders_) o << "decode " << d.key.str() << " -> " << d.module << " -> " << d.output << "\n";
+    for (const auto& d : decoders_)
+      o << "decode " << d.key.str() << " -> " << d.module << " -> " << d.output << "\n";
     return o.str();
   }
 
@@ -176,18 +233,20 @@ class Schedule {
 /// What the network knows of the batches it will see: neighbourhood directions and input widths.
 struct ScheduleSignature {
   std::map<std::string, std::pair<int, int>> neighborhoods;  ///< name -> (source rank, target rank)
-  std::map<std::string, std::int64_t> inputs;                 ///< input tensor name -> columns
+  std::map<std::string, std::int64_t> inputs;                ///< input tensor name -> columns
 };
 
 /// Runs a Schedule with named Mlp modules. Validated at construction: unknown modules,
 /// neighbourhoods, ranks or states, and channel mismatches throw ScheduleError naming the step.
 class ScheduleNetworkImpl : public torch::nn::Module {
  public:
-  ScheduleNetworkImpl(Schedule schedule, const std::map<std::string, MlpOptions>& modules, ScheduleSignature sig)
+  ScheduleNetworkImpl(Schedule schedule, const std::map<std::string, MlpOptions>& modules,
+                      ScheduleSignature sig)
       : schedule_(std::move(schedule)), sig_(std::move(sig)) {
     auto dict = register_module("modules", std::make_shared<torch::nn::Module>());
     for (const auto& [name, opt] : modules) {
-      if (name.empty() || name.find('.') != std::string::npos) throw ScheduleError("module name '" + name + "' must be non-empty and contain no '.'");
+      if (name.empty() || name.find('.') != std::string::npos)
+        throw ScheduleError("module name '" + name + "' must be non-empty and contain no '.'");
       Mlp m(opt);
       dict->register_module(name, m);
       modules_.emplace(name, m);
@@ -197,7 +256,8 @@ class ScheduleNetworkImpl : public torch::nn::Module {
   }
 
   /// Runs the schedule: inputs by name -> outputs by name.
-  std::map<std::string, torch::Tensor> forward(const std::map<std::string, torch::Tensor>& inputs, const ComplexBatch& batch) {
+  std::map<std::string, torch::Tensor> forward(const std::map<std::string, torch::Tensor>& inputs,
+                                               const ComplexBatch& batch) {
     Cochains h = encode(inputs, &batch);
     process(h, batch);
     return decode(h);
@@ -206,25 +266,30 @@ class ScheduleNetworkImpl : public torch::nn::Module {
   /// Encodes the inputs. Given the batch, a cochain that is only ever read by messages (never
   /// updated or decoded) is encoded on the rows those messages read, and nowhere else: HOPNet's
   /// edges reach the network only through the faces in contact, a third of them.
-  Cochains encode(const std::map<std::string, torch::Tensor>& inputs, const ComplexBatch* batch = nullptr) {
+  Cochains encode(const std::map<std::string, torch::Tensor>& inputs,
+                  const ComplexBatch* batch = nullptr) {
     Cochains h;
     for (const auto& e : schedule_.encoders()) {
       auto it = inputs.find(e.input);
-      if (it == inputs.end()) throw ScheduleError("encode " + e.key.str() + ": input '" + e.input + "' was not given");
+      if (it == inputs.end())
+        throw ScheduleError("encode " + e.key.str() + ": input '" + e.input + "' was not given");
       torch::Tensor x = it->second;
       if (!e.negate.empty()) {
         auto sign = torch::ones({x.size(1)}, x.options());
         for (auto c : e.negate) sign[c] = -1;
         x = x * sign;
       }
-      if (!e.columns.empty()) x = x.index_select(1, torch::tensor(e.columns, torch::kLong).to(x.device()));
+      if (!e.columns.empty())
+        x = x.index_select(1, torch::tensor(e.columns, torch::kLong).to(x.device()));
       auto readers = read_only_.find(e.key);
       if (fast_ && batch != nullptr && readers != read_only_.end()) {
         std::vector<torch::Tensor> sources;
         for (const auto& via : readers->second) sources.push_back(batch->neighborhood(via).source);
         const auto used = std::get<0>(torch::_unique(torch::cat(sources), /*sorted=*/true));
         if (used.size(0) < x.size(0)) {
-          h.set_compact(e.key.rank, e.key.state, modules_.at(e.module)->forward(x.index_select(0, used)), compact_rows(used, x.size(0)));
+          h.set_compact(e.key.rank, e.key.state,
+                        modules_.at(e.module)->forward(x.index_select(0, used)),
+                        compact_rows(used, x.size(0)));
           continue;
         }
       }
@@ -238,14 +303,16 @@ class ScheduleNetworkImpl : public torch::nn::Module {
       const Cochains snapshot = h;
       MapCache cache;  // a module mapped over all rows of a source is computed once per group
       std::vector<std::pair<CochainKey, torch::Tensor>> updates;
-      for (const auto& s : group) updates.emplace_back(s.target, run_step(s, snapshot, batch, cache));
+      for (const auto& s : group)
+        updates.emplace_back(s.target, run_step(s, snapshot, batch, cache));
       for (auto& [k, v] : updates) h.set(k.rank, k.state, v);
     }
   }
 
   std::map<std::string, torch::Tensor> decode(const Cochains& h) {
     std::map<std::string, torch::Tensor> out;
-    for (const auto& d : schedule_.decoders()) out[d.output] = modules_.at(d.module)->forward(h.at(d.key.rank, d.key.state));
+    for (const auto& d : schedule_.decoders())
+      out[d.output] = modules_.at(d.module)->forward(h.at(d.key.rank, d.key.state));
     return out;
   }
 
@@ -266,7 +333,8 @@ class ScheduleNetworkImpl : public torch::nn::Module {
   std::map<std::string, Mlp> modules_;
 
   bool fast_ = true;
-  std::map<CochainKey, std::vector<std::string>> read_only_;  ///< encoded cochains only messages read -> their neighbourhoods
+  std::map<CochainKey, std::vector<std::string>>
+      read_only_;  ///< encoded cochains only messages read -> their neighbourhoods
 
   using MapCache = std::map<std::pair<CochainKey, std::string>, torch::Tensor>;
 
@@ -293,7 +361,8 @@ class ScheduleNetworkImpl : public torch::nn::Module {
     }
   }
 
-  torch::Tensor run_step(const Step& s, const Cochains& h, const ComplexBatch& batch, MapCache& cache) {
+  torch::Tensor run_step(const Step& s, const Cochains& h, const ComplexBatch& batch,
+                         MapCache& cache) {
     const torch::Tensor& self = h.at(s.target.rank, s.target.state);
     Mlp update = modules_.at(s.update);
     // cat_self feeds [self, m1, m2, ...] to the update's first Linear layer. A message reduced
@@ -302,9 +371,9 @@ class ScheduleNetworkImpl : public torch::nn::Module {
     // then costs one matmul over the objects instead of one over every node.
     const bool cat = s.combine == Combine::cat_self;
     const torch::Tensor W = cat ? update->first_linear()->weight : torch::Tensor();
-    std::vector<torch::Tensor> parts;       // concatenated, then one matmul
-    std::vector<std::int64_t> part_cols;   // their columns of W
-    torch::Tensor early;                    // Σ of messages already multiplied by their block
+    std::vector<torch::Tensor> parts;     // concatenated, then one matmul
+    std::vector<std::int64_t> part_cols;  // their columns of W
+    torch::Tensor early;                  // Σ of messages already multiplied by their block
     std::int64_t col = 0;
     auto add_part = [&](const torch::Tensor& t) {
       parts.push_back(t);
@@ -325,7 +394,9 @@ class ScheduleNetworkImpl : public torch::nn::Module {
         auto cached = cache.find({m.source, m.map});
         if (cached != cache.end()) {
           x = cached->second;
-        } else if (const auto used = fast_ ? std::get<0>(torch::_unique(n.source, /*sorted=*/true)) : torch::Tensor(); used.defined() && used.size(0) < x.size(0)) {
+        } else if (const auto used = fast_ ? std::get<0>(torch::_unique(n.source, /*sorted=*/true))
+                                           : torch::Tensor();
+                   used.defined() && used.size(0) < x.size(0)) {
           // Some source rows send nothing here: map only those that do (the module acts row by
           // row, so the messages are the same), and renumber the pairs' sources.
           x = modules_.at(m.map)->forward(x.index_select(0, used));
@@ -340,7 +411,8 @@ class ScheduleNetworkImpl : public torch::nn::Module {
       // Not with backward values: they scale the gradient reaching the message, which must not
       // reach the update's weight.
       const bool scaled_backward = m.agg.weighted && n.backward_values.defined();
-      if (fast_ && cat && !m.accumulate && !next_adds && m.by_role.empty() && m.agg.reduce != Reduce::max && x.size(0) < n.num_target && !scaled_backward) {
+      if (fast_ && cat && !m.accumulate && !next_adds && m.by_role.empty() &&
+          m.agg.reduce != Reduce::max && x.size(0) < n.num_target && !scaled_backward) {
         const auto block = aggregate(x.matmul(W.narrow(1, col, x.size(1)).t()), n, m.agg);
         early = early.defined() ? early + block : block;
         col += x.size(1);
@@ -351,12 +423,15 @@ class ScheduleNetworkImpl : public torch::nn::Module {
         agg = aggregate(x, n, m.agg);
       } else {
         std::vector<torch::Tensor> per_role;
-        for (int r : m.by_role) per_role.push_back(aggregate(x, n, AggregateOptions(m.agg).with_role(r)));
+        for (int r : m.by_role)
+          per_role.push_back(aggregate(x, n, AggregateOptions(m.agg).with_role(r)));
         agg = torch::cat(per_role, 1);
       }
       if (m.accumulate) {
-        if (cat) parts.back() = parts.back() + agg;
-        else total = total + agg;
+        if (cat)
+          parts.back() = parts.back() + agg;
+        else
+          total = total + agg;
       } else if (cat) {
         add_part(agg);
       } else {
@@ -370,17 +445,26 @@ class ScheduleNetworkImpl : public torch::nn::Module {
       updated = update->forward(parts.size() == 1 ? parts[0] : torch::cat(parts, 1));
     } else {
       const auto first = update->first_linear();
-      const auto Wd = static_cast<std::int64_t>(part_cols.size()) == W.size(1) ? W : W.index_select(1, torch::tensor(part_cols, torch::kLong).to(W.device()));
+      const auto Wd =
+          static_cast<std::int64_t>(part_cols.size()) == W.size(1)
+              ? W
+              : W.index_select(1, torch::tensor(part_cols, torch::kLong).to(W.device()));
       const auto dense = parts.size() == 1 ? parts[0] : torch::cat(parts, 1);
-      auto z = first->bias.defined() ? torch::addmm(first->bias, dense, Wd.t()) : dense.matmul(Wd.t());
+      auto z =
+          first->bias.defined() ? torch::addmm(first->bias, dense, Wd.t()) : dense.matmul(Wd.t());
       z.add_(early);
       updated = update->forward_after_first(z);
     }
     if (s.guard_rank >= 0) {
-      // Per complex: does it hold a cell of the guard rank? Applied through the target's batch vector.
+      // Per complex: does it hold a cell of the guard rank? Applied through the target's batch
+      // vector.
       std::vector<std::int64_t> has;
       for (auto c : batch.counts(s.guard_rank)) has.push_back(c > 0);
-      const auto active = torch::tensor(has, torch::kLong).to(self.device()).index_select(0, batch.batch(s.target.rank)).to(torch::kBool).unsqueeze(1);
+      const auto active = torch::tensor(has, torch::kLong)
+                              .to(self.device())
+                              .index_select(0, batch.batch(s.target.rank))
+                              .to(torch::kBool)
+                              .unsqueeze(1);
       if (updated.size(1) != self.size(1)) return updated * active.to(updated.dtype());
       updated = torch::where(active, updated, self);
     }
@@ -399,11 +483,20 @@ class ScheduleNetworkImpl : public torch::nn::Module {
       const std::string where = "encode " + e.key.str();
       auto in = sig_.inputs.find(e.input);
       if (in == sig_.inputs.end()) throw ScheduleError(where + ": unknown input '" + e.input + "'");
-      for (auto c : e.columns) if (c < 0 || c >= in->second) throw ScheduleError(where + ": column " + std::to_string(c) + " out of range for input '" + e.input + "' of " + std::to_string(in->second) + " columns");
-      for (auto c : e.negate) if (c < 0 || c >= in->second) throw ScheduleError(where + ": negated column " + std::to_string(c) + " out of range");
-      const std::int64_t cols = e.columns.empty() ? in->second : static_cast<std::int64_t>(e.columns.size());
+      for (auto c : e.columns)
+        if (c < 0 || c >= in->second)
+          throw ScheduleError(where + ": column " + std::to_string(c) +
+                              " out of range for input '" + e.input + "' of " +
+                              std::to_string(in->second) + " columns");
+      for (auto c : e.negate)
+        if (c < 0 || c >= in->second)
+          throw ScheduleError(where + ": negated column " + std::to_string(c) + " out of range");
+      const std::int64_t cols =
+          e.columns.empty() ? in->second : static_cast<std::int64_t>(e.columns.size());
       const auto& m = mod(where, e.module);
-      if (m.in() != cols) throw ScheduleError(where + ": module '" + e.module + "' takes " + std::to_string(m.in()) + " channels but gets " + std::to_string(cols));
+      if (m.in() != cols)
+        throw ScheduleError(where + ": module '" + e.module + "' takes " + std::to_string(m.in()) +
+                            " channels but gets " + std::to_string(cols));
       width[e.key] = m.out();
     }
     for (const auto& group : schedule_.groups()) {
@@ -411,38 +504,61 @@ class ScheduleNetworkImpl : public torch::nn::Module {
       for (const auto& s : group) {
         const std::string where = s.name + " (into " + s.target.str() + ")";
         auto self = width.find(s.target);
-        if (self == width.end()) throw ScheduleError(where + ": target " + s.target.str() + " has no cochain (no encoder or earlier step produces it)");
+        if (self == width.end())
+          throw ScheduleError(where + ": target " + s.target.str() +
+                              " has no cochain (no encoder or earlier step produces it)");
         std::int64_t cat = s.combine == Combine::cat_self ? self->second : 0;
         std::int64_t last = 0;  // width of the previous message
         for (const auto& m : s.messages) {
           auto src = width.find(m.source);
-          if (src == width.end()) throw ScheduleError(where + ": source " + m.source.str() + " has no cochain");
+          if (src == width.end())
+            throw ScheduleError(where + ": source " + m.source.str() + " has no cochain");
           auto n = sig_.neighborhoods.find(m.via);
-          if (n == sig_.neighborhoods.end()) throw ScheduleError(where + ": unknown neighborhood '" + m.via + "'");
+          if (n == sig_.neighborhoods.end())
+            throw ScheduleError(where + ": unknown neighborhood '" + m.via + "'");
           if (n->second.first != m.source.rank || n->second.second != s.target.rank)
-            throw ScheduleError(where + ": neighborhood '" + m.via + "' goes from rank " + std::to_string(n->second.first) + " to rank " + std::to_string(n->second.second) +
-                                ", not from " + std::to_string(m.source.rank) + " to " + std::to_string(s.target.rank));
+            throw ScheduleError(where + ": neighborhood '" + m.via + "' goes from rank " +
+                                std::to_string(n->second.first) + " to rank " +
+                                std::to_string(n->second.second) + ", not from " +
+                                std::to_string(m.source.rank) + " to " +
+                                std::to_string(s.target.rank));
           std::int64_t c = src->second;
           if (!m.map.empty()) {
             const auto& mm = mod(where, m.map);
-            if (mm.in() != c) throw ScheduleError(where + ": message module '" + m.map + "' takes " + std::to_string(mm.in()) + " channels but " + m.source.str() + " has " + std::to_string(c));
+            if (mm.in() != c)
+              throw ScheduleError(where + ": message module '" + m.map + "' takes " +
+                                  std::to_string(mm.in()) + " channels but " + m.source.str() +
+                                  " has " + std::to_string(c));
             c = mm.out();
           }
           if (!m.by_role.empty()) c *= static_cast<std::int64_t>(m.by_role.size());
           if (m.accumulate) {
-            if (&m == &s.messages.front()) throw ScheduleError(where + ": an added message needs a message before it");
-            if (c != last) throw ScheduleError(where + ": added message from " + m.source.str() + " has " + std::to_string(c) + " channels, the message it is added to has " + std::to_string(last));
+            if (&m == &s.messages.front())
+              throw ScheduleError(where + ": an added message needs a message before it");
+            if (c != last)
+              throw ScheduleError(where + ": added message from " + m.source.str() + " has " +
+                                  std::to_string(c) + " channels, the message it is added to has " +
+                                  std::to_string(last));
             continue;
           }
           last = c;
-          if (s.combine == Combine::cat_self) cat += c;
-          else if (c != self->second) throw ScheduleError(where + ": summed message from " + m.source.str() + " has " + std::to_string(c) + " channels, the target has " + std::to_string(self->second));
+          if (s.combine == Combine::cat_self)
+            cat += c;
+          else if (c != self->second)
+            throw ScheduleError(where + ": summed message from " + m.source.str() + " has " +
+                                std::to_string(c) + " channels, the target has " +
+                                std::to_string(self->second));
         }
         if (s.combine == Combine::sum_self) cat = self->second;
         const auto& u = mod(where, s.update);
-        if (u.in() != cat) throw ScheduleError(where + ": update module '" + s.update + "' takes " + std::to_string(u.in()) + " channels but the combined input has " + std::to_string(cat));
+        if (u.in() != cat)
+          throw ScheduleError(where + ": update module '" + s.update + "' takes " +
+                              std::to_string(u.in()) + " channels but the combined input has " +
+                              std::to_string(cat));
         if (s.guard_rank >= 0 && u.out() != self->second)
-          throw ScheduleError(where + ": a guarded step must keep the target's width (" + std::to_string(self->second) + "), its update gives " + std::to_string(u.out()));
+          throw ScheduleError(where + ": a guarded step must keep the target's width (" +
+                              std::to_string(self->second) + "), its update gives " +
+                              std::to_string(u.out()));
         next[s.target] = u.out();
       }
       width = std::move(next);
@@ -452,7 +568,9 @@ class ScheduleNetworkImpl : public torch::nn::Module {
       auto w = width.find(d.key);
       if (w == width.end()) throw ScheduleError(where + ": no cochain to decode");
       const auto& m = mod(where, d.module);
-      if (m.in() != w->second) throw ScheduleError(where + ": module '" + d.module + "' takes " + std::to_string(m.in()) + " channels but the cochain has " + std::to_string(w->second));
+      if (m.in() != w->second)
+        throw ScheduleError(where + ": module '" + d.module + "' takes " + std::to_string(m.in()) +
+                            " channels but the cochain has " + std::to_string(w->second));
     }
   }
 };

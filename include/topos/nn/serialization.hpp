@@ -31,8 +31,10 @@ namespace topos::nn {
 /// the file with its default weights_only=True (a tag is a global it refuses).
 inline std::vector<char> torch_file_bytes(const c10::IValue& value) {
   std::vector<char> pickle;
-  torch::jit::Pickler pickler([&](const char* b, std::size_t n) { pickle.insert(pickle.end(), b, b + n); }, nullptr, nullptr, nullptr, nullptr,
-                              /*tag_aggregates=*/false);
+  torch::jit::Pickler pickler(
+      [&](const char* b, std::size_t n) { pickle.insert(pickle.end(), b, b + n); }, nullptr,
+      nullptr, nullptr, nullptr,
+      /*tag_aggregates=*/false);
   pickler.protocol();
   pickler.pushIValue(value);
   pickler.stop();
@@ -41,7 +43,8 @@ inline std::vector<char> torch_file_bytes(const c10::IValue& value) {
     out.insert(out.end(), static_cast<const char*>(b), static_cast<const char*>(b) + n);
     return n;
   });
-  torch::jit::writeArchiveAndTensors("data", pickle.data(), pickle.size(), pickler.tensorData(), writer);
+  torch::jit::writeArchiveAndTensors("data", pickle.data(), pickle.size(), pickler.tensorData(),
+                                     writer);
   writer.writeEndOfFile();
   return out;
 }
@@ -54,7 +57,10 @@ inline void write_torch_file(const c10::IValue& value, const std::string& path) 
 }
 
 /// Writes a dict of tensors that Python's torch.load reads (write_torch_file).
-inline void write_tensor_dict(const c10::Dict<std::string, torch::Tensor>& dict, const std::string& path) { write_torch_file(c10::IValue(dict), path); }
+inline void write_tensor_dict(const c10::Dict<std::string, torch::Tensor>& dict,
+                              const std::string& path) {
+  write_torch_file(c10::IValue(dict), path);
+}
 
 /// Saves parameters (and buffers) by name (write_tensor_dict).
 inline void save_parameters(const torch::nn::Module& m, const std::string& path) {
@@ -76,14 +82,20 @@ inline std::uint32_t le32(const char* p) {
   for (int i = 3; i >= 0; --i) v = (v << 8) | static_cast<unsigned char>(p[i]);
   return v;
 }
-inline std::uint16_t le16(const char* p) { return static_cast<std::uint16_t>(static_cast<unsigned char>(p[0]) | (static_cast<unsigned char>(p[1]) << 8)); }
+inline std::uint16_t le16(const char* p) {
+  return static_cast<std::uint16_t>(static_cast<unsigned char>(p[0]) |
+                                    (static_cast<unsigned char>(p[1]) << 8));
+}
 
 /// The members of a torch.save zip archive, checked before anything is read from them: every
 /// member stored uncompressed (as torch.save writes them) and lying inside the file, so no read
 /// can allocate more than the file holds (a zip bomb or a forged size is an error, not an
 /// out-of-memory kill).
-inline std::map<std::string, ZipRecord> torch_zip_records(const char* data, std::size_t size, const std::string& source) {
-  const auto fail = [&](const std::string& why) -> void { throw std::runtime_error(source + ": not a readable torch file: " + why); };
+inline std::map<std::string, ZipRecord> torch_zip_records(const char* data, std::size_t size,
+                                                          const std::string& source) {
+  const auto fail = [&](const std::string& why) -> void {
+    throw std::runtime_error(source + ": not a readable torch file: " + why);
+  };
   if (size < 22) fail("too short for a zip archive");
   // The end-of-central-directory record: the last signature within 64 KiB + 22 bytes of the end.
   std::size_t eocd = std::string::npos;
@@ -94,7 +106,8 @@ inline std::map<std::string, ZipRecord> torch_zip_records(const char* data, std:
     }
   }
   if (eocd == std::string::npos) fail("no zip end-of-central-directory record");
-  const std::size_t entries = le16(data + eocd + 10), cd_size = le32(data + eocd + 12), cd_offset = le32(data + eocd + 16);
+  const std::size_t entries = le16(data + eocd + 10), cd_size = le32(data + eocd + 12),
+                    cd_offset = le32(data + eocd + 16);
   if (cd_offset > eocd || cd_size > eocd - cd_offset) fail("central directory outside the file");
   std::map<std::string, ZipRecord> out;
   std::size_t p = cd_offset;
@@ -102,16 +115,21 @@ inline std::map<std::string, ZipRecord> torch_zip_records(const char* data, std:
     if (eocd - p < 46 || le32(data + p) != 0x02014b50u) fail("malformed central directory");
     const std::uint16_t method = le16(data + p + 10);
     const std::uint32_t csize = le32(data + p + 20), usize = le32(data + p + 24);
-    const std::size_t name_len = le16(data + p + 28), extra_len = le16(data + p + 30), comment_len = le16(data + p + 32);
+    const std::size_t name_len = le16(data + p + 28), extra_len = le16(data + p + 30),
+                      comment_len = le16(data + p + 32);
     const std::size_t local = le32(data + p + 42);
     if (eocd - p - 46 < name_len + extra_len + comment_len) fail("malformed central directory");
     const std::string name(data + p + 46, name_len);
-    if (method != 0 || csize != usize) fail("member '" + name + "' is compressed (torch.save stores members uncompressed)");
+    if (method != 0 || csize != usize)
+      fail("member '" + name + "' is compressed (torch.save stores members uncompressed)");
     if (csize == 0xFFFFFFFFu || local == 0xFFFFFFFFu) fail("zip64 archives are not supported");
-    if (local > cd_offset || cd_offset - local < 30 || le32(data + local) != 0x04034b50u) fail("member '" + name + "' has no local header");
+    if (local > cd_offset || cd_offset - local < 30 || le32(data + local) != 0x04034b50u)
+      fail("member '" + name + "' has no local header");
     const std::size_t begin = local + 30 + le16(data + local + 26) + le16(data + local + 28);
-    if (begin > cd_offset || cd_offset - begin < csize) fail("member '" + name + "' extends past its archive");
-    if (!out.emplace(name, ZipRecord{begin, csize}).second) fail("member '" + name + "' appears twice");
+    if (begin > cd_offset || cd_offset - begin < csize)
+      fail("member '" + name + "' extends past its archive");
+    if (!out.emplace(name, ZipRecord{begin, csize}).second)
+      fail("member '" + name + "' appears twice");
     p += 46 + name_len + extra_len + comment_len;
   }
   return out;
@@ -122,14 +140,17 @@ inline std::map<std::string, ZipRecord> torch_zip_records(const char* data, std:
 /// no pickle writer produces (the unpickler reserves memory by them), and stack or mark
 /// underflow (the unpickler does not check them). `n` is the pickle's size.
 inline void check_pickle(const char* d, std::size_t n, const std::string& source) {
-  const auto fail = [&](const std::string& why) -> void { throw std::runtime_error(source + ": not a readable torch file: " + why); };
+  const auto fail = [&](const std::string& why) -> void {
+    throw std::runtime_error(source + ": not a readable torch file: " + why);
+  };
   std::size_t p = 0, depth = 0, memo = 0;
   std::vector<std::size_t> marks;
   const auto need = [&](std::size_t k) {
     if (n - p < k) fail("pickle truncated");
   };
   const auto pop = [&](std::size_t k) {  // k items off the stack, never below the top mark
-    if (depth < k || (!marks.empty() && depth - k < marks.back())) fail("pickle pops more than its stack holds");
+    if (depth < k || (!marks.empty() && depth - k < marks.back()))
+      fail("pickle pops more than its stack holds");
     depth -= k;
   };
   const auto pop_mark = [&]() -> std::size_t {
@@ -145,75 +166,139 @@ inline void check_pickle(const char* d, std::size_t n, const std::string& source
     if (index == memo) ++memo;
   };
   const auto get = [&](std::size_t index) {
-    if (index >= memo) fail("pickle reads memo entry " + std::to_string(index) + ", which it has not set");
+    if (index >= memo)
+      fail("pickle reads memo entry " + std::to_string(index) + ", which it has not set");
     ++depth;
   };
   while (true) {
     need(1);
     const unsigned char op = static_cast<unsigned char>(d[p++]);
     switch (op) {
-      case 0x80: need(1), ++p; break;                                        // PROTO
-      case '.': if (depth != 1 || !marks.empty()) fail("pickle stops with a malformed stack"); return;  // STOP
-      case '(': marks.push_back(depth); break;                               // MARK
-      case '0': pop(1); break;                                               // POP
-      case '1': pop_mark(); break;                                           // POP_MARK
-      case 'N': case 0x88: case 0x89: case ')': case ']': case '}': ++depth; break;  // NONE, NEWTRUE, NEWFALSE, EMPTY_*
-      case 'K': need(1), p += 1, ++depth; break;                             // BININT1
-      case 'M': need(2), p += 2, ++depth; break;                             // BININT2
-      case 'J': need(4), p += 4, ++depth; break;                             // BININT
-      case 'G': need(8), p += 8, ++depth; break;                             // BINFLOAT
-      case 0x8a: {                                                           // LONG1
+      case 0x80:
+        need(1), ++p;
+        break;  // PROTO
+      case '.':
+        if (depth != 1 || !marks.empty()) fail("pickle stops with a malformed stack");
+        return;  // STOP
+      case '(':
+        marks.push_back(depth);
+        break;  // MARK
+      case '0':
+        pop(1);
+        break;  // POP
+      case '1':
+        pop_mark();
+        break;  // POP_MARK
+      case 'N':
+      case 0x88:
+      case 0x89:
+      case ')':
+      case ']':
+      case '}':
+        ++depth;
+        break;  // NONE, NEWTRUE, NEWFALSE, EMPTY_*
+      case 'K':
+        need(1), p += 1, ++depth;
+        break;  // BININT1
+      case 'M':
+        need(2), p += 2, ++depth;
+        break;  // BININT2
+      case 'J':
+        need(4), p += 4, ++depth;
+        break;  // BININT
+      case 'G':
+        need(8), p += 8, ++depth;
+        break;      // BINFLOAT
+      case 0x8a: {  // LONG1
         need(1);
         const std::size_t k = static_cast<unsigned char>(d[p++]);
         if (k > 8) fail("pickle integer wider than 64 bits");
         need(k), p += k, ++depth;
         break;
       }
-      case 'X': case 'B': {                                                  // BINUNICODE, BINBYTES
+      case 'X':
+      case 'B': {  // BINUNICODE, BINBYTES
         need(4);
         const std::size_t k = le32(d + p);
         p += 4, need(k), p += k, ++depth;
         break;
       }
-      case 0x8c: case 'U': case 'C': {                                       // SHORT_BINUNICODE, SHORT_BINSTRING, SHORT_BINBYTES
+      case 0x8c:
+      case 'U':
+      case 'C': {  // SHORT_BINUNICODE, SHORT_BINSTRING, SHORT_BINBYTES
         need(1);
         const std::size_t k = static_cast<unsigned char>(d[p++]);
         need(k), p += k, ++depth;
         break;
       }
-      case 'c': {                                                            // GLOBAL: two lines
+      case 'c': {  // GLOBAL: two lines
         for (int line = 0; line < 2; ++line) {
-          const auto* nl = static_cast<const char*>(std::memchr(d + p, '\n', std::min<std::size_t>(n - p, 256)));
+          const auto* nl =
+              static_cast<const char*>(std::memchr(d + p, '\n', std::min<std::size_t>(n - p, 256)));
           if (!nl) fail("pickle GLOBAL name unterminated or too long");
           p = static_cast<std::size_t>(nl - d) + 1;
         }
         ++depth;
         break;
       }
-      case 'q': need(1), put(static_cast<unsigned char>(d[p])), p += 1; break;  // BINPUT
-      case 'r': need(4), put(le32(d + p)), p += 4; break;                    // LONG_BINPUT
-      case 0x94: put(memo); break;                                           // MEMOIZE
-      case 'h': need(1), get(static_cast<unsigned char>(d[p])), p += 1; break;  // BINGET
-      case 'j': need(4), get(le32(d + p)), p += 4; break;                    // LONG_BINGET
-      case 't': case 'l': pop_mark(), ++depth; break;                        // TUPLE, LIST
-      case 'd':                                                              // DICT
+      case 'q':
+        need(1), put(static_cast<unsigned char>(d[p])), p += 1;
+        break;  // BINPUT
+      case 'r':
+        need(4), put(le32(d + p)), p += 4;
+        break;  // LONG_BINPUT
+      case 0x94:
+        put(memo);
+        break;  // MEMOIZE
+      case 'h':
+        need(1), get(static_cast<unsigned char>(d[p])), p += 1;
+        break;  // BINGET
+      case 'j':
+        need(4), get(le32(d + p)), p += 4;
+        break;  // LONG_BINGET
+      case 't':
+      case 'l':
+        pop_mark(), ++depth;
+        break;   // TUPLE, LIST
+      case 'd':  // DICT
         if (pop_mark() % 2) fail("pickle dict with an odd number of items");
         ++depth;
         break;
-      case 0x85: pop(1), ++depth; break;                                     // TUPLE1
-      case 0x86: pop(2), ++depth; break;                                     // TUPLE2
-      case 0x87: pop(3), ++depth; break;                                     // TUPLE3
-      case 'a': pop(2), ++depth; break;                                      // APPEND
-      case 'e': pop_mark(), pop(1), ++depth; break;                          // APPENDS
-      case 's': pop(3), ++depth; break;                                      // SETITEM
-      case 'u':                                                              // SETITEMS
+      case 0x85:
+        pop(1), ++depth;
+        break;  // TUPLE1
+      case 0x86:
+        pop(2), ++depth;
+        break;  // TUPLE2
+      case 0x87:
+        pop(3), ++depth;
+        break;  // TUPLE3
+      case 'a':
+        pop(2), ++depth;
+        break;  // APPEND
+      case 'e':
+        pop_mark(), pop(1), ++depth;
+        break;  // APPENDS
+      case 's':
+        pop(3), ++depth;
+        break;   // SETITEM
+      case 'u':  // SETITEMS
         if (pop_mark() % 2) fail("pickle SETITEMS with an odd number of items");
         pop(1), ++depth;
         break;
-      case 'R': case 0x81: pop(2), ++depth; break;                           // REDUCE, NEWOBJ
-      case 'b': pop(2), ++depth; break;                                      // BUILD
-      case 'Q': pop(1), ++depth; break;                                      // BINPERSID
-      case 0x95: need(8), p += 8; break;                                     // FRAME
+      case 'R':
+      case 0x81:
+        pop(2), ++depth;
+        break;  // REDUCE, NEWOBJ
+      case 'b':
+        pop(2), ++depth;
+        break;  // BUILD
+      case 'Q':
+        pop(1), ++depth;
+        break;  // BINPERSID
+      case 0x95:
+        need(8), p += 8;
+        break;  // FRAME
       default: {
         char hex[8];
         std::snprintf(hex, sizeof hex, "0x%02x", op);
@@ -226,18 +311,36 @@ inline void check_pickle(const char* d, std::size_t n, const std::string& source
 /// The bytes of the opcode at `p` with its argument (a pickle check_pickle accepted).
 inline std::size_t pickle_opcode_length(const char* d, std::size_t n, std::size_t p) {
   switch (static_cast<unsigned char>(d[p])) {
-    case 0x80: case 'K': case 'q': case 'h': return 2;
-    case 'M': return 3;
-    case 'J': case 'r': case 'j': return 5;
-    case 'G': case 0x95: return 9;
-    case 0x8a: case 0x8c: case 'U': case 'C': return 2 + static_cast<unsigned char>(d[p + 1]);
-    case 'X': case 'B': return 5 + le32(d + p + 1);
+    case 0x80:
+    case 'K':
+    case 'q':
+    case 'h':
+      return 2;
+    case 'M':
+      return 3;
+    case 'J':
+    case 'r':
+    case 'j':
+      return 5;
+    case 'G':
+    case 0x95:
+      return 9;
+    case 0x8a:
+    case 0x8c:
+    case 'U':
+    case 'C':
+      return 2 + static_cast<unsigned char>(d[p + 1]);
+    case 'X':
+    case 'B':
+      return 5 + le32(d + p + 1);
     case 'c': {
       const auto* a = static_cast<const char*>(std::memchr(d + p + 1, '\n', n - p - 1));
-      const auto* b = static_cast<const char*>(std::memchr(a + 1, '\n', static_cast<std::size_t>(d + n - a - 1)));
+      const auto* b = static_cast<const char*>(
+          std::memchr(a + 1, '\n', static_cast<std::size_t>(d + n - a - 1)));
       return static_cast<std::size_t>(b - (d + p)) + 1;
     }
-    default: return 1;
+    default:
+      return 1;
   }
 }
 
@@ -253,8 +356,8 @@ inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::
   static const std::string kOrderedDict = "collections\nOrderedDict\n";
   std::string out;
   out.reserve(n + 64);
-  std::vector<std::uint32_t> class_memo;               // memo entries holding the OrderedDict class
-  std::vector<std::size_t> starts;                     // per stack item: its first byte in `out`
+  std::vector<std::uint32_t> class_memo;  // memo entries holding the OrderedDict class
+  std::vector<std::size_t> starts;        // per stack item: its first byte in `out`
   std::vector<std::pair<std::size_t, std::size_t>> marks;  // (stack depth, position in `out`)
   const auto pop_to_mark = [&]() {
     const auto m = marks.back();
@@ -277,13 +380,17 @@ inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::
         class_memo.push_back(d[q] == 'q' ? static_cast<unsigned char>(d[q + 1]) : le32(d + q + 1));
         q += pickle_opcode_length(d, n, q);
       }
-      if (q + 1 >= n || d[q] != ')' || d[q + 1] != 'R') throw std::runtime_error(source + ": not a readable torch file: an OrderedDict made other than from an empty tuple");
+      if (q + 1 >= n || d[q] != ')' || d[q + 1] != 'R')
+        throw std::runtime_error(
+            source +
+            ": not a readable torch file: an OrderedDict made other than from an empty tuple");
       out += '}';
       starts.push_back(at);
       p = q + 2;
       continue;
     }
-    if (op == 'b' && q < n && d[q] == '.') {  // BUILD just before STOP: drop its state (the _metadata)
+    if (op == 'b' && q < n &&
+        d[q] == '.') {  // BUILD just before STOP: drop its state (the _metadata)
       out.resize(starts.back());
       starts.pop_back();
       p = q;
@@ -299,18 +406,51 @@ inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::
     out.append(d + p, len);
     p = q;
     switch (op) {
-      case '(': marks.emplace_back(starts.size(), at); break;
-      case '0': starts.pop_back(); break;
-      case '1': pop_to_mark(); break;
-      case 't': case 'l': case 'd': starts.push_back(pop_to_mark()); break;
-      case 0x85: break;                                                       // TUPLE1: same start
-      case 0x86: starts.pop_back(); break;                                    // TUPLE2
-      case 0x87: starts.resize(starts.size() - 2); break;                     // TUPLE3
-      case 'a': case 'b': starts.pop_back(); break;                           // APPEND, BUILD
-      case 'e': case 'u': pop_to_mark(); break;                               // APPENDS, SETITEMS
-      case 'R': case 0x81: starts.pop_back(); break;                          // REDUCE, NEWOBJ
-      case 'Q': case 0x80: case 0x95: case 'q': case 'r': case 0x94: case '.': break;
-      default: starts.push_back(at); break;                                   // every other opcode pushes one item
+      case '(':
+        marks.emplace_back(starts.size(), at);
+        break;
+      case '0':
+        starts.pop_back();
+        break;
+      case '1':
+        pop_to_mark();
+        break;
+      case 't':
+      case 'l':
+      case 'd':
+        starts.push_back(pop_to_mark());
+        break;
+      case 0x85:
+        break;  // TUPLE1: same start
+      case 0x86:
+        starts.pop_back();
+        break;  // TUPLE2
+      case 0x87:
+        starts.resize(starts.size() - 2);
+        break;  // TUPLE3
+      case 'a':
+      case 'b':
+        starts.pop_back();
+        break;  // APPEND, BUILD
+      case 'e':
+      case 'u':
+        pop_to_mark();
+        break;  // APPENDS, SETITEMS
+      case 'R':
+      case 0x81:
+        starts.pop_back();
+        break;  // REDUCE, NEWOBJ
+      case 'Q':
+      case 0x80:
+      case 0x95:
+      case 'q':
+      case 'r':
+      case 0x94:
+      case '.':
+        break;
+      default:
+        starts.push_back(at);
+        break;  // every other opcode pushes one item
     }
   }
   return out;
@@ -324,8 +464,11 @@ inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::
 /// the archive's members at their real sizes (whatever element count the pickle claims), and
 /// every tensor must lie inside its storage, so a forged file is an error naming it, never a
 /// read out of bounds or an allocation larger than the file.
-inline std::map<std::string, torch::Tensor> parse_tensor_dict(const char* data, std::size_t size, const std::string& source) {
-  const auto fail = [&](const std::string& why) -> void { throw std::runtime_error(source + ": " + why); };
+inline std::map<std::string, torch::Tensor> parse_tensor_dict(const char* data, std::size_t size,
+                                                              const std::string& source) {
+  const auto fail = [&](const std::string& why) -> void {
+    throw std::runtime_error(source + ": " + why);
+  };
   const auto records = detail::torch_zip_records(data, size, source);
   std::string prefix;
   for (const auto& [name, r] : records) {
@@ -346,7 +489,9 @@ inline std::map<std::string, torch::Tensor> parse_tensor_dict(const char* data, 
     if (name.compare(0, prefix.size() + 5, prefix + "data/") != 0) continue;
     at::DataPtr ptr = at::getCPUAllocator()->allocate(r.size);
     if (r.size) std::memcpy(ptr.get(), data + r.offset, r.size);
-    storages->addStorage(name.substr(prefix.size() + 5), c10::Storage(c10::Storage::use_byte_size_t(), r.size, std::move(ptr), nullptr, false));
+    storages->addStorage(
+        name.substr(prefix.size() + 5),
+        c10::Storage(c10::Storage::use_byte_size_t(), r.size, std::move(ptr), nullptr, false));
   }
   std::size_t pos = 0;
   const auto reader = [&](char* out, std::size_t n) {
@@ -358,10 +503,18 @@ inline std::map<std::string, torch::Tensor> parse_tensor_dict(const char* data, 
   c10::IValue v;
   try {
     torch::jit::Unpickler unpickler(
-        reader, [](const c10::QualifiedName& q) -> c10::StrongTypePtr { throw std::runtime_error("unsupported type " + q.qualifiedName()); },
-        [](const at::StrongTypePtr&, const c10::IValue&) -> c10::intrusive_ptr<c10::ivalue::Object> { throw std::runtime_error("objects are not supported"); },
-        [](const std::string& key) -> at::DataPtr { throw std::runtime_error("no storage member data/" + key); }, c10::Device(c10::kCPU), false,
-        torch::jit::Unpickler::defaultTypeParser, storages);
+        reader,
+        [](const c10::QualifiedName& q) -> c10::StrongTypePtr {
+          throw std::runtime_error("unsupported type " + q.qualifiedName());
+        },
+        [](const at::StrongTypePtr&,
+           const c10::IValue&) -> c10::intrusive_ptr<c10::ivalue::Object> {
+          throw std::runtime_error("objects are not supported");
+        },
+        [](const std::string& key) -> at::DataPtr {
+          throw std::runtime_error("no storage member data/" + key);
+        },
+        c10::Device(c10::kCPU), false, torch::jit::Unpickler::defaultTypeParser, storages);
     v = unpickler.parse_ivalue();
   } catch (const c10::Error& e) {
     fail(std::string("not a readable torch file: ") + e.what_without_backtrace());
@@ -371,23 +524,29 @@ inline std::map<std::string, torch::Tensor> parse_tensor_dict(const char* data, 
   if (!v.isGenericDict()) fail("does not hold a dict of tensors");
   std::map<std::string, torch::Tensor> out;
   for (const auto& kv : v.toGenericDict()) {
-    if (!kv.key().isString() || !kv.value().isTensor()) fail("an entry is not a (name, tensor) pair");
+    if (!kv.key().isString() || !kv.value().isTensor())
+      fail("an entry is not a (name, tensor) pair");
     const std::string& name = kv.key().toStringRef();
     const torch::Tensor t = kv.value().toTensor();
     // The tensor's elements must lie inside its storage (the pickle sets sizes and strides freely).
-    if (!t.defined() || t.layout() != torch::kStrided || !t.device().is_cpu() || !t.has_storage()) fail("tensor '" + name + "' is not a dense CPU tensor");
+    if (!t.defined() || t.layout() != torch::kStrided || !t.device().is_cpu() || !t.has_storage())
+      fail("tensor '" + name + "' is not a dense CPU tensor");
     if (t.dim() > 64) fail("tensor '" + name + "' has more than 64 dimensions");
     __extension__ typedef unsigned __int128 u128;  // sizes × strides cannot overflow it
     u128 last = 0;
     bool empty = false;
     for (int64_t d = 0; d < t.dim(); ++d) {
-      if (t.size(d) < 0 || t.stride(d) < 0) fail("tensor '" + name + "' has a negative size or stride");
-      if (t.size(d) == 0) empty = true;
-      else last += static_cast<u128>(t.size(d) - 1) * static_cast<u128>(t.stride(d));
+      if (t.size(d) < 0 || t.stride(d) < 0)
+        fail("tensor '" + name + "' has a negative size or stride");
+      if (t.size(d) == 0)
+        empty = true;
+      else
+        last += static_cast<u128>(t.size(d) - 1) * static_cast<u128>(t.stride(d));
     }
     if (t.storage_offset() < 0) fail("tensor '" + name + "' has a negative storage offset");
     if (!empty) {
-      const u128 end = (last + 1 + static_cast<u128>(t.storage_offset())) * static_cast<u128>(t.element_size());
+      const u128 end =
+          (last + 1 + static_cast<u128>(t.storage_offset())) * static_cast<u128>(t.element_size());
       if (end > t.storage().nbytes()) fail("tensor '" + name + "' extends past its storage");
     }
     out[name] = t;
@@ -395,11 +554,13 @@ inline std::map<std::string, torch::Tensor> parse_tensor_dict(const char* data, 
   return out;
 }
 
-/// Reads a dict of tensors written by save_parameters or torch.save(state_dict) (parse_tensor_dict).
+/// Reads a dict of tensors written by save_parameters or torch.save(state_dict)
+/// (parse_tensor_dict).
 inline std::map<std::string, torch::Tensor> read_tensor_dict(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw std::runtime_error(path + ": cannot open file");
-  const std::vector<char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::vector<char> bytes((std::istreambuf_iterator<char>(in)),
+                                std::istreambuf_iterator<char>());
   return parse_tensor_dict(bytes.data(), bytes.size(), path);
 }
 
@@ -408,7 +569,8 @@ inline std::map<std::string, torch::Tensor> read_tensor_dict(const std::string& 
 /// scalar), in the module's parameter order. Unlike torch::save(optimizer), which writes the
 /// state in the order of a hash map keyed by tensor addresses, the bytes are the same for the
 /// same state in every process, and Python's torch.load opens them.
-inline c10::Dict<std::string, torch::Tensor> adam_state_dict(torch::optim::Adam& opt, const torch::nn::Module& m) {
+inline c10::Dict<std::string, torch::Tensor> adam_state_dict(torch::optim::Adam& opt,
+                                                             const torch::nn::Module& m) {
   c10::Dict<std::string, torch::Tensor> dict;
   auto& state = opt.state();
   for (const auto& p : m.named_parameters()) {
@@ -418,14 +580,17 @@ inline c10::Dict<std::string, torch::Tensor> adam_state_dict(torch::optim::Adam&
     dict.insert(p.key() + ".step", torch::tensor(st.step(), torch::kInt64));
     dict.insert(p.key() + ".exp_avg", st.exp_avg().detach().cpu());
     dict.insert(p.key() + ".exp_avg_sq", st.exp_avg_sq().detach().cpu());
-    if (st.max_exp_avg_sq().defined()) dict.insert(p.key() + ".max_exp_avg_sq", st.max_exp_avg_sq().detach().cpu());
+    if (st.max_exp_avg_sq().defined())
+      dict.insert(p.key() + ".max_exp_avg_sq", st.max_exp_avg_sq().detach().cpu());
   }
   return dict;
 }
 
 /// Restores what adam_state_dict saved into `opt` (whose parameters are m's); a tensor of the
 /// wrong shape or a name that is no parameter of m is an error naming it.
-inline void load_adam_state(torch::optim::Adam& opt, const torch::nn::Module& m, const std::map<std::string, torch::Tensor>& dict, const std::string& source) {
+inline void load_adam_state(torch::optim::Adam& opt, const torch::nn::Module& m,
+                            const std::map<std::string, torch::Tensor>& dict,
+                            const std::string& source) {
   auto& state = opt.state();
   state.clear();
   std::size_t used = 0;
@@ -437,10 +602,13 @@ inline void load_adam_state(torch::optim::Adam& opt, const torch::nn::Module& m,
     const auto moment = [&](const char* what, bool required) -> torch::Tensor {
       const auto it = dict.find(p.key() + what);
       if (it == dict.end()) {
-        if (required) throw std::runtime_error(source + ": missing tensor '" + p.key() + what + "'");
+        if (required)
+          throw std::runtime_error(source + ": missing tensor '" + p.key() + what + "'");
         return {};
       }
-      if (it->second.sizes() != p.value().sizes()) throw std::runtime_error(source + ": tensor '" + p.key() + what + "' does not have its parameter's shape");
+      if (it->second.sizes() != p.value().sizes())
+        throw std::runtime_error(source + ": tensor '" + p.key() + what +
+                                 "' does not have its parameter's shape");
       ++used;
       return it->second.to(p.value().options()).clone();
     };
@@ -455,12 +623,15 @@ inline void load_adam_state(torch::optim::Adam& opt, const torch::nn::Module& m,
       const auto dot = k.rfind('.');
       bool known = false;
       for (const auto& p : m.named_parameters()) known = known || k.compare(0, dot, p.key()) == 0;
-      if (!known) throw std::runtime_error(source + ": '" + k + "' is the optimizer state of no parameter of this model");
+      if (!known)
+        throw std::runtime_error(source + ": '" + k +
+                                 "' is the optimizer state of no parameter of this model");
     }
 }
 
 /// Loads parameters by name; a missing, extra or misshapen tensor is an error naming it.
-inline void load_parameters(torch::nn::Module& m, const std::map<std::string, torch::Tensor>& dict, const std::string& source) {
+inline void load_parameters(torch::nn::Module& m, const std::map<std::string, torch::Tensor>& dict,
+                            const std::string& source) {
   torch::NoGradGuard guard;
   std::size_t used = 0;
   auto assign = [&](const std::string& name, torch::Tensor& target) {
@@ -468,7 +639,8 @@ inline void load_parameters(torch::nn::Module& m, const std::map<std::string, to
     if (it == dict.end()) throw std::runtime_error(source + ": missing tensor '" + name + "'");
     if (it->second.sizes() != target.sizes()) {
       std::ostringstream s;
-      s << source << ": tensor '" << name << "' has shape " << it->second.sizes() << ", expected " << target.sizes();
+      s << source << ": tensor '" << name << "' has shape " << it->second.sizes() << ", expected "
+        << target.sizes();
       throw std::runtime_error(s.str());
     }
     target.copy_(it->second);
@@ -478,7 +650,8 @@ inline void load_parameters(torch::nn::Module& m, const std::map<std::string, to
   for (auto& b : m.named_buffers()) assign(b.key(), b.value());
   if (used != dict.size()) {
     for (const auto& [k, v] : dict) {
-      if (!m.named_parameters().contains(k) && !m.named_buffers().contains(k)) throw std::runtime_error(source + ": unexpected tensor '" + k + "'");
+      if (!m.named_parameters().contains(k) && !m.named_buffers().contains(k))
+        throw std::runtime_error(source + ": unexpected tensor '" + k + "'");
     }
   }
 }

@@ -37,21 +37,30 @@ struct SparseOperator {
   /// From (row, col, value) triplets in any order; duplicates are summed and entries that are
   /// exactly zero in `dtype` dropped, so the pattern is the nonzero entries (what a dense
   /// matrix's to_sparse() keeps, which attention over the pattern depends on).
-  static SparseOperator from_triplets(std::int64_t rows, std::int64_t cols, const std::vector<std::int64_t>& r, const std::vector<std::int64_t>& c,
-                                      const std::vector<double>& v, torch::Dtype dtype = torch::kFloat) {
-    if (r.size() != c.size() || r.size() != v.size()) throw std::invalid_argument("SparseOperator: triplet arrays differ in length");
+  static SparseOperator from_triplets(std::int64_t rows, std::int64_t cols,
+                                      const std::vector<std::int64_t>& r,
+                                      const std::vector<std::int64_t>& c,
+                                      const std::vector<double>& v,
+                                      torch::Dtype dtype = torch::kFloat) {
+    if (r.size() != c.size() || r.size() != v.size())
+      throw std::invalid_argument("SparseOperator: triplet arrays differ in length");
     std::vector<std::size_t> order(r.size());
     std::iota(order.begin(), order.end(), std::size_t{0});
     for (std::size_t k = 0; k < r.size(); ++k)
       if (r[k] < 0 || r[k] >= rows || c[k] < 0 || c[k] >= cols)
-        throw std::invalid_argument("SparseOperator: entry (" + std::to_string(r[k]) + ", " + std::to_string(c[k]) + ") outside " + std::to_string(rows) + " x " + std::to_string(cols));
-    std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return r[a] != r[b] ? r[a] < r[b] : c[a] < c[b]; });
+        throw std::invalid_argument("SparseOperator: entry (" + std::to_string(r[k]) + ", " +
+                                    std::to_string(c[k]) + ") outside " + std::to_string(rows) +
+                                    " x " + std::to_string(cols));
+    std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) {
+      return r[a] != r[b] ? r[a] < r[b] : c[a] < c[b];
+    });
     std::vector<std::int64_t> rr, cc;
     std::vector<double> vv;
     for (std::size_t i = 0; i < order.size();) {
       std::size_t j = i;
       double s = 0;
-      for (; j < order.size() && r[order[j]] == r[order[i]] && c[order[j]] == c[order[i]]; ++j) s += v[order[j]];
+      for (; j < order.size() && r[order[j]] == r[order[i]] && c[order[j]] == c[order[i]]; ++j)
+        s += v[order[j]];
       const bool zero = dtype == torch::kFloat ? static_cast<float>(s) == 0.0f : s == 0.0;
       if (!zero) rr.push_back(r[order[i]]), cc.push_back(c[order[i]]), vv.push_back(s);
       i = j;
@@ -66,35 +75,47 @@ struct SparseOperator {
   static SparseOperator from_eigen(const EigenSparse& m, torch::Dtype dtype = torch::kFloat) {
     std::vector<std::int64_t> r, c;
     std::vector<double> v;
-    r.reserve(static_cast<std::size_t>(m.nonZeros())), c.reserve(r.capacity()), v.reserve(r.capacity());
+    r.reserve(static_cast<std::size_t>(m.nonZeros())), c.reserve(r.capacity()),
+        v.reserve(r.capacity());
     for (std::int64_t o = 0; o < static_cast<std::int64_t>(m.outerSize()); ++o)
       for (typename EigenSparse::InnerIterator it(m, o); it; ++it)
-        r.push_back(static_cast<std::int64_t>(it.row())), c.push_back(static_cast<std::int64_t>(it.col())), v.push_back(static_cast<double>(it.value()));
-    return from_triplets(static_cast<std::int64_t>(m.rows()), static_cast<std::int64_t>(m.cols()), r, c, v, dtype);
+        r.push_back(static_cast<std::int64_t>(it.row())),
+            c.push_back(static_cast<std::int64_t>(it.col())),
+            v.push_back(static_cast<double>(it.value()));
+    return from_triplets(static_cast<std::int64_t>(m.rows()), static_cast<std::int64_t>(m.cols()),
+                         r, c, v, dtype);
   }
 
   /// The nonzero entries of a dense 2-d tensor.
   static SparseOperator from_dense(const torch::Tensor& dense) {
-    if (dense.dim() != 2) throw std::invalid_argument("SparseOperator: a dense operator must be 2-d");
+    if (dense.dim() != 2)
+      throw std::invalid_argument("SparseOperator: a dense operator must be 2-d");
     const auto d = dense.detach().to(torch::kCPU).contiguous();
     const auto nz = d.nonzero();
     const auto r = nz.select(1, 0).contiguous(), c = nz.select(1, 1).contiguous();
-    std::vector<std::int64_t> rv(r.data_ptr<std::int64_t>(), r.data_ptr<std::int64_t>() + r.numel());
-    std::vector<std::int64_t> cv(c.data_ptr<std::int64_t>(), c.data_ptr<std::int64_t>() + c.numel());
+    std::vector<std::int64_t> rv(r.data_ptr<std::int64_t>(),
+                                 r.data_ptr<std::int64_t>() + r.numel());
+    std::vector<std::int64_t> cv(c.data_ptr<std::int64_t>(),
+                                 c.data_ptr<std::int64_t>() + c.numel());
     return from_sorted(d.size(0), d.size(1), rv, cv, d.index({r, c}));
   }
 
   /// Entries already in row-major order without duplicates.
-  static SparseOperator from_sorted(std::int64_t rows, std::int64_t cols, const std::vector<std::int64_t>& r, const std::vector<std::int64_t>& c, torch::Tensor values) {
+  static SparseOperator from_sorted(std::int64_t rows, std::int64_t cols,
+                                    const std::vector<std::int64_t>& r,
+                                    const std::vector<std::int64_t>& c, torch::Tensor values) {
     SparseOperator a;
     a.rows = rows;
     a.cols = cols;
     const auto n = static_cast<std::int64_t>(r.size());
-    std::vector<std::int64_t> crow(static_cast<std::size_t>(rows) + 1, 0), tcrow(static_cast<std::size_t>(cols) + 1, 0);
-    for (std::int64_t k = 0; k < n; ++k) ++crow[static_cast<std::size_t>(r[k]) + 1], ++tcrow[static_cast<std::size_t>(c[k]) + 1];
+    std::vector<std::int64_t> crow(static_cast<std::size_t>(rows) + 1, 0),
+        tcrow(static_cast<std::size_t>(cols) + 1, 0);
+    for (std::int64_t k = 0; k < n; ++k)
+      ++crow[static_cast<std::size_t>(r[k]) + 1], ++tcrow[static_cast<std::size_t>(c[k]) + 1];
     std::partial_sum(crow.begin(), crow.end(), crow.begin());
     std::partial_sum(tcrow.begin(), tcrow.end(), tcrow.begin());
-    std::vector<std::int64_t> tcol(static_cast<std::size_t>(n)), trow(static_cast<std::size_t>(n)), tperm(static_cast<std::size_t>(n));
+    std::vector<std::int64_t> tcol(static_cast<std::size_t>(n)), trow(static_cast<std::size_t>(n)),
+        tperm(static_cast<std::size_t>(n));
     std::vector<std::int64_t> next(tcrow.begin(), tcrow.end() - 1);
     for (std::int64_t k = 0; k < n; ++k) {  // rows ascending, so each column of Aᵀ stays sorted
       const auto p = static_cast<std::size_t>(next[static_cast<std::size_t>(c[k])]++);
@@ -120,12 +141,15 @@ struct SparseOperator {
     b.cols = rows;
     b.crow = t_crow, b.col = t_col, b.row = t_row, b.values = values.index_select(0, t_perm);
     b.t_crow = crow, b.t_col = col, b.t_row = row;
-    b.t_perm = torch::empty_like(t_perm).index_put_({t_perm}, torch::arange(nnz(), t_perm.options()));
+    b.t_perm =
+        torch::empty_like(t_perm).index_put_({t_perm}, torch::arange(nnz(), t_perm.options()));
     return b;
   }
   /// The same pattern with other values (one per entry, row-major order), e.g. attention.
   SparseOperator with_values(torch::Tensor v) const {
-    if (v.dim() != 1 || v.size(0) != nnz()) throw std::invalid_argument("SparseOperator::with_values: expected " + std::to_string(nnz()) + " values");
+    if (v.dim() != 1 || v.size(0) != nnz())
+      throw std::invalid_argument("SparseOperator::with_values: expected " + std::to_string(nnz()) +
+                                  " values");
     SparseOperator b = *this;
     b.values = std::move(v);
     return b;
@@ -141,9 +165,15 @@ struct SparseOperator {
     const auto k = torch::arange(nnz(), row.options());
     return crow.index_select(0, row) + crow.index_select(0, row + 1) - 1 - k;
   }
-  torch::Tensor row_sums() const { return torch::zeros({rows}, values.options()).index_add(0, row, values); }
-  torch::Tensor col_sums() const { return torch::zeros({cols}, values.options()).index_add(0, col, values); }
-  torch::Tensor to_dense() const { return torch::zeros({rows, cols}, values.options()).index_put({row, col}, values); }
+  torch::Tensor row_sums() const {
+    return torch::zeros({rows}, values.options()).index_add(0, row, values);
+  }
+  torch::Tensor col_sums() const {
+    return torch::zeros({cols}, values.options()).index_add(0, col, values);
+  }
+  torch::Tensor to_dense() const {
+    return torch::zeros({rows, cols}, values.options()).index_put({row, col}, values);
+  }
   /// diag(left) · A · diag(right) (either may be undefined): a differentiable rescale.
   SparseOperator scaled(const torch::Tensor& left, const torch::Tensor& right = {}) const {
     auto v = values;
@@ -159,16 +189,20 @@ struct SparseOperator {
   }
   /// A square operator's pattern with every diagonal entry added (values one): GAT's self loops.
   SparseOperator pattern_with_self_loops() const {
-    if (rows != cols) throw std::invalid_argument("SparseOperator::pattern_with_self_loops: the operator is not square");
+    if (rows != cols)
+      throw std::invalid_argument(
+          "SparseOperator::pattern_with_self_loops: the operator is not square");
     return sum(pattern(), identity(rows, values.scalar_type())).pattern();
   }
   /// A ⊙ B (same shape), entry by entry: the entries where both patterns meet (products that
   /// are zero dropped). Operator algebra, not differentiable.
   static SparseOperator hadamard(const SparseOperator& a, const SparseOperator& b) {
-    if (a.rows != b.rows || a.cols != b.cols) throw std::invalid_argument("SparseOperator::hadamard: shapes differ");
+    if (a.rows != b.rows || a.cols != b.cols)
+      throw std::invalid_argument("SparseOperator::hadamard: shapes differ");
     auto vec = [](const torch::Tensor& t) {
       const auto c = t.to(torch::kCPU).contiguous();
-      return std::vector<std::int64_t>(c.data_ptr<std::int64_t>(), c.data_ptr<std::int64_t>() + c.numel());
+      return std::vector<std::int64_t>(c.data_ptr<std::int64_t>(),
+                                       c.data_ptr<std::int64_t>() + c.numel());
     };
     auto dvec = [](const torch::Tensor& t) {
       const auto c = t.detach().to(torch::kCPU, torch::kDouble).contiguous();
@@ -183,25 +217,32 @@ struct SparseOperator {
       const auto pe = ca[static_cast<std::size_t>(i) + 1], qe = cb[static_cast<std::size_t>(i) + 1];
       while (p < pe && q < qe) {
         const auto jp = cola[static_cast<std::size_t>(p)], jq = colb[static_cast<std::size_t>(q)];
-        if (jp < jq) ++p;
-        else if (jq < jp) ++q;
-        else r.push_back(i), c.push_back(jp), v.push_back(va[static_cast<std::size_t>(p++)] * vb[static_cast<std::size_t>(q++)]);
+        if (jp < jq)
+          ++p;
+        else if (jq < jp)
+          ++q;
+        else
+          r.push_back(i), c.push_back(jp),
+              v.push_back(va[static_cast<std::size_t>(p++)] * vb[static_cast<std::size_t>(q++)]);
       }
     }
     return from_triplets(a.rows, a.cols, r, c, v, a.values.scalar_type());
   }
   /// A + B (same shape): the union of both patterns.
   static SparseOperator sum(const SparseOperator& a, const SparseOperator& b) {
-    if (a.rows != b.rows || a.cols != b.cols) throw std::invalid_argument("SparseOperator::sum: shapes differ");
+    if (a.rows != b.rows || a.cols != b.cols)
+      throw std::invalid_argument("SparseOperator::sum: shapes differ");
     auto vec = [](const torch::Tensor& t) {
       const auto c = t.to(torch::kCPU).contiguous();
-      return std::vector<std::int64_t>(c.data_ptr<std::int64_t>(), c.data_ptr<std::int64_t>() + c.numel());
+      return std::vector<std::int64_t>(c.data_ptr<std::int64_t>(),
+                                       c.data_ptr<std::int64_t>() + c.numel());
     };
     auto r = vec(a.row), c = vec(a.col);
     auto rb = vec(b.row), cb = vec(b.col);
     r.insert(r.end(), rb.begin(), rb.end());
     c.insert(c.end(), cb.begin(), cb.end());
-    const auto vals = torch::cat({a.values.detach(), b.values.detach()}).to(torch::kDouble).contiguous();
+    const auto vals =
+        torch::cat({a.values.detach(), b.values.detach()}).to(torch::kDouble).contiguous();
     std::vector<double> v(vals.data_ptr<double>(), vals.data_ptr<double>() + vals.numel());
     return from_triplets(a.rows, a.cols, r, c, v, a.values.scalar_type());
   }
@@ -217,9 +258,12 @@ namespace detail {
 #define TOPOS_SIMD_CLONES
 #endif
 
-// Y[i] = Σ_k v[perm k] X[col k] over the entries k of rows [begin, end); C channels, contiguous rows.
+// Y[i] = Σ_k v[perm k] X[col k] over the entries k of rows [begin, end); C channels, contiguous
+// rows.
 template <class T>
-static inline void csr_rows(const std::int64_t* crow, const std::int64_t* col, const T* val, const std::int64_t* perm, const T* X, T* Y, std::int64_t begin, std::int64_t end, std::int64_t C) {
+static inline void csr_rows(const std::int64_t* crow, const std::int64_t* col, const T* val,
+                            const std::int64_t* perm, const T* X, T* Y, std::int64_t begin,
+                            std::int64_t end, std::int64_t C) {
   for (std::int64_t i = begin; i < end; ++i) {
     T* __restrict y = Y + i * C;
     std::fill(y, y + C, T(0));
@@ -230,22 +274,28 @@ static inline void csr_rows(const std::int64_t* crow, const std::int64_t* col, c
     }
   }
 }
-TOPOS_SIMD_CLONES static void csr_rows_float(const std::int64_t* crow, const std::int64_t* col, const float* val, const std::int64_t* perm, const float* X, float* Y,
-                                             std::int64_t begin, std::int64_t end, std::int64_t C) {
+TOPOS_SIMD_CLONES static void csr_rows_float(const std::int64_t* crow, const std::int64_t* col,
+                                             const float* val, const std::int64_t* perm,
+                                             const float* X, float* Y, std::int64_t begin,
+                                             std::int64_t end, std::int64_t C) {
   csr_rows<float>(crow, col, val, perm, X, Y, begin, end, C);
 }
 
 template <class T>
-void csr_mm(const std::int64_t* crow, const std::int64_t* col, const T* val, const std::int64_t* perm, const T* X, T* Y, std::int64_t rows, std::int64_t C) {
+void csr_mm(const std::int64_t* crow, const std::int64_t* col, const T* val,
+            const std::int64_t* perm, const T* X, T* Y, std::int64_t rows, std::int64_t C) {
   at::parallel_for(0, rows, 256, [&](std::int64_t begin, std::int64_t end) {
-    if constexpr (std::is_same_v<T, float>) csr_rows_float(crow, col, val, perm, X, Y, begin, end, C);
-    else csr_rows<T>(crow, col, val, perm, X, Y, begin, end, C);
+    if constexpr (std::is_same_v<T, float>)
+      csr_rows_float(crow, col, val, perm, X, Y, begin, end, C);
+    else
+      csr_rows<T>(crow, col, val, perm, X, Y, begin, end, C);
   });
 }
 
 // g[k] = <dY[row k], X[col k]>.
 template <class T>
-void csr_value_grad(const std::int64_t* row, const std::int64_t* col, const T* dY, const T* X, T* g, std::int64_t nnz, std::int64_t C) {
+void csr_value_grad(const std::int64_t* row, const std::int64_t* col, const T* dY, const T* X, T* g,
+                    std::int64_t nnz, std::int64_t C) {
   at::parallel_for(0, nnz, 2048, [&](std::int64_t begin, std::int64_t end) {
     for (std::int64_t k = begin; k < end; ++k) {
       const T* __restrict a = dY + row[k] * C;
@@ -257,26 +307,35 @@ void csr_value_grad(const std::int64_t* row, const std::int64_t* col, const T* d
   });
 }
 
-inline torch::Tensor csr_apply(const torch::Tensor& crow, const torch::Tensor& col, const torch::Tensor& values, const torch::Tensor& perm, const torch::Tensor& X, std::int64_t rows) {
+inline torch::Tensor csr_apply(const torch::Tensor& crow, const torch::Tensor& col,
+                               const torch::Tensor& values, const torch::Tensor& perm,
+                               const torch::Tensor& X, std::int64_t rows) {
   const auto x = X.contiguous();
   const auto v = values.contiguous();
   auto y = torch::empty({rows, x.size(1)}, x.options());
   AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "topos_csr_mm", [&] {
-    csr_mm<scalar_t>(crow.data_ptr<std::int64_t>(), col.data_ptr<std::int64_t>(), v.data_ptr<scalar_t>(), perm.defined() ? perm.data_ptr<std::int64_t>() : nullptr,
+    csr_mm<scalar_t>(crow.data_ptr<std::int64_t>(), col.data_ptr<std::int64_t>(),
+                     v.data_ptr<scalar_t>(),
+                     perm.defined() ? perm.data_ptr<std::int64_t>() : nullptr,
                      x.data_ptr<scalar_t>(), y.data_ptr<scalar_t>(), rows, x.size(1));
   });
   return y;
 }
 
 struct SpmmFunction : public torch::autograd::Function<SpmmFunction> {
-  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& values, const torch::Tensor& X, const torch::Tensor& crow, const torch::Tensor& col,
-                               const torch::Tensor& row, const torch::Tensor& t_crow, const torch::Tensor& t_col, const torch::Tensor& t_perm, std::int64_t rows) {
+  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& values,
+                               const torch::Tensor& X, const torch::Tensor& crow,
+                               const torch::Tensor& col, const torch::Tensor& row,
+                               const torch::Tensor& t_crow, const torch::Tensor& t_col,
+                               const torch::Tensor& t_perm, std::int64_t rows) {
     ctx->save_for_backward({values, X, col, row, t_crow, t_col, t_perm});
     return csr_apply(crow, col, values, torch::Tensor(), X, rows);
   }
-  static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx, torch::autograd::tensor_list grads) {
+  static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx,
+                                               torch::autograd::tensor_list grads) {
     const auto saved = ctx->get_saved_variables();
-    const auto &values = saved[0], &X = saved[1], &col = saved[2], &row = saved[3], &t_crow = saved[4], &t_col = saved[5], &t_perm = saved[6];
+    const auto &values = saved[0], &X = saved[1], &col = saved[2], &row = saved[3],
+               &t_crow = saved[4], &t_col = saved[5], &t_perm = saved[6];
     const auto dY = grads[0].contiguous();
     torch::Tensor dvalues, dX;
     if (ctx->needs_input_grad(1)) dX = csr_apply(t_crow, t_col, values, t_perm, dY, X.size(0));
@@ -284,8 +343,9 @@ struct SpmmFunction : public torch::autograd::Function<SpmmFunction> {
       const auto x = X.contiguous();
       dvalues = torch::empty({values.size(0)}, values.options());
       AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "topos_csr_value_grad", [&] {
-        csr_value_grad<scalar_t>(row.data_ptr<std::int64_t>(), col.data_ptr<std::int64_t>(), dY.data_ptr<scalar_t>(), x.data_ptr<scalar_t>(), dvalues.data_ptr<scalar_t>(),
-                                 values.size(0), x.size(1));
+        csr_value_grad<scalar_t>(row.data_ptr<std::int64_t>(), col.data_ptr<std::int64_t>(),
+                                 dY.data_ptr<scalar_t>(), x.data_ptr<scalar_t>(),
+                                 dvalues.data_ptr<scalar_t>(), values.size(0), x.size(1));
       });
     }
     return {dvalues, dX, {}, {}, {}, {}, {}, {}, {}};
@@ -298,20 +358,27 @@ struct SpmmFunction : public torch::autograd::Function<SpmmFunction> {
 /// CPU tensors use the CSR kernel; other devices fall back to torch's sparse product.
 inline torch::Tensor spmm(const SparseOperator& A, const torch::Tensor& X) {
   if (X.dim() != 2 || X.size(0) != A.cols)
-    throw std::invalid_argument("spmm: operator is " + std::to_string(A.rows) + " x " + std::to_string(A.cols) + " but the features have " +
-                                (X.dim() == 2 ? std::to_string(X.size(0)) + " rows" : std::to_string(X.dim()) + " dimensions"));
+    throw std::invalid_argument("spmm: operator is " + std::to_string(A.rows) + " x " +
+                                std::to_string(A.cols) + " but the features have " +
+                                (X.dim() == 2 ? std::to_string(X.size(0)) + " rows"
+                                              : std::to_string(X.dim()) + " dimensions"));
   auto values = A.values.scalar_type() == X.scalar_type() ? A.values : A.values.to(X.scalar_type());
   if (!X.device().is_cpu()) {
     const auto idx = torch::stack({A.row, A.col}).to(X.device());
-    return torch::sparse_coo_tensor(idx, values.to(X.device()), {A.rows, A.cols})._coalesced_(true).mm(X);
+    return torch::sparse_coo_tensor(idx, values.to(X.device()), {A.rows, A.cols})
+        ._coalesced_(true)
+        .mm(X);
   }
-  return detail::SpmmFunction::apply(values, X, A.crow, A.col, A.row, A.t_crow, A.t_col, A.t_perm, A.rows);
+  return detail::SpmmFunction::apply(values, X, A.crow, A.col, A.row, A.t_crow, A.t_col, A.t_perm,
+                                     A.rows);
 }
 
 /// Softmax of per-entry scores within each row of A's pattern (a target's incoming messages),
 /// as torch.sparse.softmax(·, dim=1): every row's entries sum to one, empty rows stay empty.
 inline torch::Tensor row_softmax(const SparseOperator& A, const torch::Tensor& scores) {
-  if (scores.dim() != 1 || scores.size(0) != A.nnz()) throw std::invalid_argument("row_softmax: expected one score per entry (" + std::to_string(A.nnz()) + ")");
+  if (scores.dim() != 1 || scores.size(0) != A.nnz())
+    throw std::invalid_argument("row_softmax: expected one score per entry (" +
+                                std::to_string(A.nnz()) + ")");
   const auto row = A.row.to(scores.device());
   const auto max = torch::full({A.rows}, -std::numeric_limits<double>::infinity(), scores.options())
                        .scatter_reduce(0, row, scores.detach(), "amax", /*include_self=*/true);

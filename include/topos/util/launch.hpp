@@ -34,22 +34,27 @@ inline std::vector<std::string> self_command_line() {
   std::vector<std::string> argv;
   std::string cur;
   for (char c : all) {
-    if (c == '\0') argv.push_back(cur), cur.clear();
-    else cur += c;
+    if (c == '\0')
+      argv.push_back(cur), cur.clear();
+    else
+      cur += c;
   }
   if (!cur.empty()) argv.push_back(cur);
-  if (argv.empty()) throw std::runtime_error("cannot read this program's command line from /proc/self/cmdline");
+  if (argv.empty())
+    throw std::runtime_error("cannot read this program's command line from /proc/self/cmdline");
   return argv;
 }
 
 /// Runs `argv` (argv[0] is replaced by this executable) as `nproc` local workers and waits for
 /// them. Returns 0 when every worker succeeds, else the first failure's exit status (128 +
 /// signal for a killed worker), after stopping the rest (SIGTERM, SIGKILL after `grace`).
-inline int launch_local_workers(int nproc, const std::vector<std::string>& argv, std::chrono::seconds grace = std::chrono::seconds(10)) {
+inline int launch_local_workers(int nproc, const std::vector<std::string>& argv,
+                                std::chrono::seconds grace = std::chrono::seconds(10)) {
   if (nproc < 1) throw std::invalid_argument("launch: the number of workers must be positive");
   if (argv.empty()) throw std::invalid_argument("launch: empty command line");
   char tmpl[] = "/tmp/topos-rendezvous-XXXXXX";
-  if (::mkdtemp(tmpl) == nullptr) throw std::runtime_error("launch: cannot create a rendezvous folder in /tmp");
+  if (::mkdtemp(tmpl) == nullptr)
+    throw std::runtime_error("launch: cannot create a rendezvous folder in /tmp");
   const std::filesystem::path dir(tmpl);
   const std::string store = (dir / "store").string();
   std::vector<pid_t> pids(static_cast<std::size_t>(nproc), -1);
@@ -102,10 +107,17 @@ inline int launch_local_workers(int nproc, const std::vector<std::string>& argv,
     if (r < 0) continue;
     pids[static_cast<std::size_t>(r)] = -1;
     --running;
-    const int code = WIFEXITED(status) ? WEXITSTATUS(status) : (WIFSIGNALED(status) ? 128 + WTERMSIG(status) : 1);
+    const int code = WIFEXITED(status) ? WEXITSTATUS(status)
+                                       : (WIFSIGNALED(status) ? 128 + WTERMSIG(status) : 1);
     if (code != 0 && !stopping) {
-      if (WIFSIGNALED(status)) std::fprintf(stderr, "launch: worker %d of %d was killed by signal %d; stopping the others\n", r, nproc, WTERMSIG(status));
-      else std::fprintf(stderr, "launch: worker %d of %d failed (exit status %d); stopping the others\n", r, nproc, code);
+      if (WIFSIGNALED(status))
+        std::fprintf(stderr,
+                     "launch: worker %d of %d was killed by signal %d; stopping the others\n", r,
+                     nproc, WTERMSIG(status));
+      else
+        std::fprintf(stderr,
+                     "launch: worker %d of %d failed (exit status %d); stopping the others\n", r,
+                     nproc, code);
       result = code;
       stopping = true;
       stop_deadline = std::chrono::steady_clock::now() + grace;

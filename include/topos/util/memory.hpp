@@ -21,10 +21,14 @@ inline double proc_status_mb(const char* key) {
 }  // namespace detail
 
 /// Resident memory now (MB), or -1 where unknown.
-inline double current_rss_mb() { return detail::proc_status_mb("VmRSS"); }
+inline double current_rss_mb() {
+  return detail::proc_status_mb("VmRSS");
+}
 
 /// Peak resident memory since the start or the last reset_peak_rss() (MB), or -1.
-inline double peak_rss_mb() { return detail::proc_status_mb("VmHWM"); }
+inline double peak_rss_mb() {
+  return detail::proc_status_mb("VmHWM");
+}
 
 /// Starts a new peak at the current resident memory (Linux >= 4.0: writes 5 to clear_refs).
 /// Returns false where the kernel does not allow it.

@@ -15,8 +15,15 @@ namespace topos {
 
 class ProgressBar {
  public:
-  ProgressBar(std::string label, std::int64_t total, std::string unit = "it", std::FILE* out = stderr)
-      : label_(std::move(label)), unit_(std::move(unit)), total_(total), out_(out), tty_(isatty(fileno(out)) != 0), start_(clock::now()), last_(start_) {}
+  ProgressBar(std::string label, std::int64_t total, std::string unit = "it",
+              std::FILE* out = stderr)
+      : label_(std::move(label)),
+        unit_(std::move(unit)),
+        total_(total),
+        out_(out),
+        tty_(isatty(fileno(out)) != 0),
+        start_(clock::now()),
+        last_(start_) {}
   ~ProgressBar() { finish(); }
 
   /// Advances by `n` (units since the bar started or was resumed at `done`).
@@ -39,7 +46,9 @@ class ProgressBar {
   /// Units already done before this run (a resumed job): counted in the bar, not in the rate.
   void resume_from(std::int64_t done) { done_ = offset_ = done; }
   double elapsed() const { return std::chrono::duration<double>(clock::now() - start_).count(); }
-  double rate() const { return elapsed() > 0 ? static_cast<double>(done_ - offset_) / elapsed() : 0.0; }
+  double rate() const {
+    return elapsed() > 0 ? static_cast<double>(done_ - offset_) / elapsed() : 0.0;
+  }
   void finish() {
     if (finished_) return;
     finished_ = true;
@@ -58,8 +67,10 @@ class ProgressBar {
     if (!(s >= 0) || s > 1e7) return "--:--";
     const long t = static_cast<long>(s + 0.5);
     char b[32];
-    if (t >= 3600) std::snprintf(b, sizeof b, "%ld:%02ld:%02ld", t / 3600, t / 60 % 60, t % 60);
-    else std::snprintf(b, sizeof b, "%02ld:%02ld", t / 60, t % 60);
+    if (t >= 3600)
+      std::snprintf(b, sizeof b, "%ld:%02ld:%02ld", t / 3600, t / 60 % 60, t % 60);
+    else
+      std::snprintf(b, sizeof b, "%02ld:%02ld", t / 60, t % 60);
     return b;
   }
   void draw(bool final_line) {
@@ -69,8 +80,10 @@ class ProgressBar {
     bar.resize(width, '.');
     const double r = rate();
     const double eta = r > 0 ? static_cast<double>(total_ - done_) / r : -1;
-    std::fprintf(out_, "%s%s [%s] %lld/%lld %.2f %s/s elapsed %s eta %s%s%s%s", tty_ ? "\r\033[K" : "", label_.c_str(), bar.c_str(), static_cast<long long>(done_),
-                 static_cast<long long>(total_), r, unit_.c_str(), hms(elapsed()).c_str(), hms(eta).c_str(), status_.empty() ? "" : "  ", status_.c_str(),
+    std::fprintf(out_, "%s%s [%s] %lld/%lld %.2f %s/s elapsed %s eta %s%s%s%s",
+                 tty_ ? "\r\033[K" : "", label_.c_str(), bar.c_str(), static_cast<long long>(done_),
+                 static_cast<long long>(total_), r, unit_.c_str(), hms(elapsed()).c_str(),
+                 hms(eta).c_str(), status_.empty() ? "" : "  ", status_.c_str(),
                  (!tty_ || final_line) ? "\n" : "");
     std::fflush(out_);
   }

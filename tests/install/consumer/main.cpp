@@ -15,8 +15,8 @@ int main() {
   auto lifted = topos::lift_meshes({tet});
   auto [components, labels] = topos::connected_components(lifted.complex, 0, 1);
   auto x = torch::ones({lifted.complex.size(1), 2});
-  const bool ok = lifted.complex.shape() == std::vector<std::int64_t>{4, 6, 4, 1} && components == 1 &&
-                  x.sum().item<float>() == 12.0f;
+  const bool ok = lifted.complex.shape() == std::vector<std::int64_t>{4, 6, 4, 1} &&
+                  components == 1 && x.sum().item<float>() == 12.0f;
   std::cout << (ok ? "consumer ok" : "consumer FAILED") << "\n";
   return ok ? 0 : 1;
 }

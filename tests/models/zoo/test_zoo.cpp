@@ -18,7 +18,8 @@ using namespace topos::models;
 
 namespace {
 
-SparseOperator random_operator(std::int64_t rows, std::int64_t cols, double density, torch::Dtype dt, int seed) {
+SparseOperator random_operator(std::int64_t rows, std::int64_t cols, double density,
+                               torch::Dtype dt, int seed) {
   torch::manual_seed(seed);
   auto d = torch::randn({rows, cols}, dt) * (torch::rand({rows, cols}, dt) < density).to(dt);
   return SparseOperator::from_dense(d);
@@ -40,7 +41,8 @@ bool close(const torch::Tensor& ref, const torch::Tensor& got, std::string& why)
 }
 
 // Central finite differences of Σ f(inputs) · R against autograd, every input entry (double).
-bool gradcheck(const std::function<torch::Tensor(const std::vector<torch::Tensor>&)>& f, std::vector<torch::Tensor> in) {
+bool gradcheck(const std::function<torch::Tensor(const std::vector<torch::Tensor>&)>& f,
+               std::vector<torch::Tensor> in) {
   for (auto& t : in) t = t.detach().clone().requires_grad_(true);
   const auto y = f(in);
   const auto R = torch::randn(y.sizes(), y.options());
@@ -58,7 +60,9 @@ bool gradcheck(const std::function<torch::Tensor(const std::vector<torch::Tensor
       flat[i] = x0 - h;
       const double down = (f(d) * R).sum().item<double>();
       flat[i] = x0;
-      if (std::abs((up - down) / (2 * h) - g[i].item<double>()) > 1e-6 * (1 + std::abs(g[i].item<double>()))) return false;
+      if (std::abs((up - down) / (2 * h) - g[i].item<double>()) >
+          1e-6 * (1 + std::abs(g[i].item<double>())))
+        return false;
     }
   }
   return true;
@@ -82,27 +86,34 @@ TEST_CASE("spmm equals the dense product, forward and backward", "[nn][sparse]")
     REQUIRE(torch::allclose(v.grad(), expect, 1e-12, 1e-12));
     // The transpose, and gradients through it.
     REQUIRE(torch::allclose(A.t().to_dense(), D.t()));
-    REQUIRE(gradcheck([&](const std::vector<torch::Tensor>& in) { return spmm(A.with_values(in[0]).t(), in[1]); },
-                                       {A.values.clone().requires_grad_(true), torch::randn({37, 4}, torch::kDouble).requires_grad_(true)}));
+    REQUIRE(gradcheck(
+        [&](const std::vector<torch::Tensor>& in) { return spmm(A.with_values(in[0]).t(), in[1]); },
+        {A.values.clone().requires_grad_(true),
+         torch::randn({37, 4}, torch::kDouble).requires_grad_(true)}));
   }
   // Float, several channel counts, empty rows.
   auto d = torch::zeros({5, 4});
-  d[0][1] = 2; d[0][3] = -1; d[3][0] = 0.5;
+  d[0][1] = 2;
+  d[0][3] = -1;
+  d[3][0] = 0.5;
   const auto A = SparseOperator::from_dense(d);
   REQUIRE(A.nnz() == 3);
   for (int C : {1, 3, 8, 33}) {
     const auto X = torch::randn({4, C});
     REQUIRE(torch::allclose(spmm(A, X), d.matmul(X)));
   }
-  REQUIRE_THROWS_WITH(spmm(A, torch::randn({5, 2})), Catch::Contains("5 x 4") && Catch::Contains("5 rows"));
+  REQUIRE_THROWS_WITH(spmm(A, torch::randn({5, 2})),
+                      Catch::Contains("5 x 4") && Catch::Contains("5 rows"));
 }
 
 TEST_CASE("from_triplets sums duplicates and drops zeros", "[nn][sparse]") {
-  const auto A = SparseOperator::from_triplets(2, 3, {1, 0, 1, 0}, {2, 1, 2, 0}, {1.0, 3.0, -1.0, 2.0});
+  const auto A =
+      SparseOperator::from_triplets(2, 3, {1, 0, 1, 0}, {2, 1, 2, 0}, {1.0, 3.0, -1.0, 2.0});
   REQUIRE(A.nnz() == 2);  // (1, 2) cancels
   REQUIRE(torch::equal(A.to_dense(), torch::tensor({{2.0f, 3.0f, 0.0f}, {0.0f, 0.0f, 0.0f}})));
   REQUIRE(torch::equal(A.row_sums(), torch::tensor({5.0f, 0.0f})));
-  REQUIRE_THROWS_WITH(SparseOperator::from_triplets(2, 2, {2}, {0}, {1.0}), Catch::Contains("outside 2 x 2"));
+  REQUIRE_THROWS_WITH(SparseOperator::from_triplets(2, 2, {2}, {0}, {1.0}),
+                      Catch::Contains("outside 2 x 2"));
 }
 
 TEST_CASE("row softmax normalises each target's incoming scores", "[nn][attention]") {
@@ -112,21 +123,26 @@ TEST_CASE("row softmax normalises each target's incoming scores", "[nn][attentio
   const auto dense = torch::full({20, 15}, -INFINITY, torch::kDouble).index_put({A.row, A.col}, s);
   const auto ref = torch::softmax(dense, 1).nan_to_num(0);  // empty rows: NaN -> 0
   REQUIRE(torch::allclose(A.with_values(w).to_dense(), ref, 1e-12, 1e-12));
-  REQUIRE(gradcheck([&](const std::vector<torch::Tensor>& in) { return row_softmax(A, in[0]); }, {s.clone().requires_grad_(true)}));
+  REQUIRE(gradcheck([&](const std::vector<torch::Tensor>& in) { return row_softmax(A, in[0]); },
+                    {s.clone().requires_grad_(true)}));
 }
 
 TEST_CASE("operator algebra: entrywise product, self loops, mirrored rows", "[nn][sparse]") {
-  const auto A = random_operator(9, 9, 0.4, torch::kDouble, 7), B = random_operator(9, 9, 0.5, torch::kDouble, 8);
+  const auto A = random_operator(9, 9, 0.4, torch::kDouble, 7),
+             B = random_operator(9, 9, 0.5, torch::kDouble, 8);
   const auto H = SparseOperator::hadamard(A, B);
   REQUIRE(torch::allclose(H.to_dense(), A.to_dense() * B.to_dense()));
   REQUIRE(H.nnz() == (A.to_dense().ne(0) & B.to_dense().ne(0)).sum().item<std::int64_t>());
-  REQUIRE_THROWS_WITH(SparseOperator::hadamard(A, random_operator(9, 8, 0.5, torch::kDouble, 1)), Catch::Contains("shapes differ"));
-  // Self loops: the pattern with the diagonal, values one, even where a diagonal entry was negative.
+  REQUIRE_THROWS_WITH(SparseOperator::hadamard(A, random_operator(9, 8, 0.5, torch::kDouble, 1)),
+                      Catch::Contains("shapes differ"));
+  // Self loops: the pattern with the diagonal, values one, even where a diagonal entry was
+  // negative.
   auto d = A.to_dense();
   d[2][2] = -1.0;
   const auto P = SparseOperator::from_dense(d).pattern_with_self_loops();
   REQUIRE(torch::equal(P.to_dense(), (d.ne(0) | torch::eye(9, torch::kBool)).to(torch::kDouble)));
-  REQUIRE(torch::equal(SparseOperator::identity(4, torch::kDouble).to_dense(), torch::eye(4, torch::kDouble)));
+  REQUIRE(torch::equal(SparseOperator::identity(4, torch::kDouble).to_dense(),
+                       torch::eye(4, torch::kDouble)));
   // Mirrored rows: entry k of a row with n entries <-> its (n-1-k)-th; twice is the identity.
   const auto m = A.row_mirror();
   REQUIRE(torch::equal(m.index_select(0, m), torch::arange(A.nnz())));
@@ -137,32 +153,48 @@ TEST_CASE("operator algebra: entrywise product, self loops, mirrored rows", "[nn
   }
 }
 
-TEST_CASE("compatible and intended modes: where they agree and where they differ", "[models][zoo]") {
+TEST_CASE("compatible and intended modes: where they agree and where they differ",
+          "[models][zoo]") {
   torch::manual_seed(11);
   // Dist2Cycle: the intended layer applied to x = I is TopoModelX's fc(relu(A ⊙ L⁺)).
-  const auto A = random_operator(7, 7, 0.5, torch::kDouble, 12).abs(), L = random_operator(7, 7, 0.6, torch::kDouble, 13);
-  Dist2Cycle compat(Dist2CycleOptions(7).n_layers(1).topomodelx_compatible(true)), intended(Dist2CycleOptions(7).n_layers(1));
+  const auto A = random_operator(7, 7, 0.5, torch::kDouble, 12).abs(),
+             L = random_operator(7, 7, 0.6, torch::kDouble, 13);
+  Dist2Cycle compat(Dist2CycleOptions(7).n_layers(1).topomodelx_compatible(true)),
+      intended(Dist2CycleOptions(7).n_layers(1));
   compat->to(torch::kDouble), intended->to(torch::kDouble);
   torch::NoGradGuard g;
-  for (std::size_t i = 0; i < compat->parameters().size(); ++i) intended->parameters()[i].copy_(compat->parameters()[i]);
+  for (std::size_t i = 0; i < compat->parameters().size(); ++i)
+    intended->parameters()[i].copy_(compat->parameters()[i]);
   const auto M = SparseOperator::hadamard(A, L).to_dense();
   const auto expect = torch::relu(M).matmul(compat->parameters()[0].t()) + compat->parameters()[1];
-  REQUIRE(torch::allclose(compat->forward(torch::randn({7, 7}, torch::kDouble), L, A), expect, 1e-12, 1e-12));
-  REQUIRE(torch::allclose(intended->forward(torch::eye(7, torch::kDouble), L, A), expect, 1e-12, 1e-12));
+  REQUIRE(torch::allclose(compat->forward(torch::randn({7, 7}, torch::kDouble), L, A), expect,
+                          1e-12, 1e-12));
+  REQUIRE(torch::allclose(intended->forward(torch::eye(7, torch::kDouble), L, A), expect, 1e-12,
+                          1e-12));
   // SCNN: TopoModelX's first layer skips aggr_norm and the update; the intended one does not.
-  SCNN a(SCNNOptions(3, 3, 2, 1).aggr_norm(true).update_func(Update::relu).n_layers(1).topomodelx_compatible(true)),
+  SCNN a(SCNNOptions(3, 3, 2, 1)
+             .aggr_norm(true)
+             .update_func(Update::relu)
+             .n_layers(1)
+             .topomodelx_compatible(true)),
       b(SCNNOptions(3, 3, 2, 1).aggr_norm(true).update_func(Update::relu).n_layers(1));
   a->to(torch::kDouble), b->to(torch::kDouble);
   b->parameters()[0].copy_(a->parameters()[0]);
-  const auto Ld = random_operator(9, 9, 0.4, torch::kDouble, 14).abs(), Lu = random_operator(9, 9, 0.4, torch::kDouble, 15).abs();
+  const auto Ld = random_operator(9, 9, 0.4, torch::kDouble, 14).abs(),
+             Lu = random_operator(9, 9, 0.4, torch::kDouble, 15).abs();
   const auto x = torch::randn({9, 3}, torch::kDouble);
   const auto W = a->parameters()[0];
   const auto Dd = Ld.to_dense(), Du = Lu.to_dense();
-  const auto plain = x.matmul(W.select(2, 0)) + Dd.matmul(x).matmul(W.select(2, 1)) + Dd.matmul(Dd.matmul(x)).matmul(W.select(2, 2)) + Du.matmul(x).matmul(W.select(2, 3));
+  const auto plain = x.matmul(W.select(2, 0)) + Dd.matmul(x).matmul(W.select(2, 1)) +
+                     Dd.matmul(Dd.matmul(x)).matmul(W.select(2, 2)) +
+                     Du.matmul(x).matmul(W.select(2, 3));
   REQUIRE(torch::allclose(a->forward(x, Ld, Lu), plain, 1e-10, 1e-10));
   auto inv = Dd.sum(1, true).reciprocal();
-  inv = torch::where(torch::isfinite(inv), inv, torch::zeros_like(inv));  // rows summing to 0: factor 0
-  const auto normed = x.matmul(W.select(2, 0)) + Dd.matmul(x).matmul(W.select(2, 1)) + (Dd.matmul(Dd.matmul(x)) * inv).matmul(W.select(2, 2)) + Du.matmul(x).matmul(W.select(2, 3));
+  inv = torch::where(torch::isfinite(inv), inv,
+                     torch::zeros_like(inv));  // rows summing to 0: factor 0
+  const auto normed = x.matmul(W.select(2, 0)) + Dd.matmul(x).matmul(W.select(2, 1)) +
+                      (Dd.matmul(Dd.matmul(x)) * inv).matmul(W.select(2, 2)) +
+                      Du.matmul(x).matmul(W.select(2, 3));
   REQUIRE(torch::allclose(b->forward(x, Ld, Lu), torch::relu(normed), 1e-10, 1e-10));
 }
 
@@ -174,7 +206,8 @@ TEST_CASE("polynomial filters and the affine power equal dense matrix powers", "
   REQUIRE(p.size() == 3);
   REQUIRE(torch::allclose(p[2], torch::linalg_matrix_power(D, 3).matmul(x)));
   const auto I = torch::eye(12, torch::kDouble);
-  REQUIRE(torch::allclose(apply_affine_power(A, x, 5, 1.0, -0.1), torch::linalg_matrix_power(I - 0.1 * D, 5).matmul(x)));
+  REQUIRE(torch::allclose(apply_affine_power(A, x, 5, 1.0, -0.1),
+                          torch::linalg_matrix_power(I - 0.1 * D, 5).matmul(x)));
   // Row-normalised powers: 0 where a row sums to 0.
   auto inv = D.sum(1).reciprocal();
   inv = torch::where(torch::isfinite(inv), inv, torch::zeros_like(inv));
@@ -239,7 +272,8 @@ int check_case(const std::filesystem::path& dir, const std::string& model, bool 
 }
 
 // The model cases of the shared golden data whose model the zoo has: (folder, model).
-std::vector<std::pair<std::filesystem::path, std::string>> zoo_cases(std::vector<std::string>& unsupported, int& models) {
+std::vector<std::pair<std::filesystem::path, std::string>> zoo_cases(
+    std::vector<std::string>& unsupported, int& models) {
   const auto cases = test::reference_dir("zoo golden parity") / "tdl-golden" / "cases";
   const auto known = zoo_model_names();
   std::vector<std::pair<std::filesystem::path, std::string>> out;
@@ -248,8 +282,10 @@ std::vector<std::pair<std::filesystem::path, std::string>> zoo_cases(std::vector
     if (!spec.contains("model") || spec.at("model").is_null()) continue;
     ++models;
     const auto model = spec.at("model").get<std::string>();
-    if (std::find(known.begin(), known.end(), model) == known.end()) unsupported.push_back(model);
-    else out.emplace_back(entry.path(), model);
+    if (std::find(known.begin(), known.end(), model) == known.end())
+      unsupported.push_back(model);
+    else
+      out.emplace_back(entry.path(), model);
   }
   std::sort(out.begin(), out.end());
   return out;
@@ -257,7 +293,8 @@ std::vector<std::pair<std::filesystem::path, std::string>> zoo_cases(std::vector
 
 }  // namespace
 
-TEST_CASE("every shared TopoModelX case matches its golden outputs and gradients", "[models][zoo][reference]") {
+TEST_CASE("every shared TopoModelX case matches its golden outputs and gradients",
+          "[models][zoo][reference]") {
   std::vector<std::string> unsupported;
   int models = 0, checked = 0;
   for (const auto& [dir, model] : zoo_cases(unsupported, models)) {
@@ -268,15 +305,20 @@ TEST_CASE("every shared TopoModelX case matches its golden outputs and gradients
   for (const auto& m : unsupported) list += " " + m;
   for (const auto& [model, names] : known_mismatches()) {
     mismatches += " " + model + " (";
-    for (const auto& n : names) mismatches += (mismatches.back() == '(' ? "" : ", ") + (n == "*" ? std::string("all outputs") : n);
+    for (const auto& n : names)
+      mismatches +=
+          (mismatches.back() == '(' ? "" : ", ") + (n == "*" ? std::string("all outputs") : n);
     mismatches += ")";
   }
-  WARN("zoo parity: " << checked << " of " << models << " model cases checked; known mismatches, checked separately ([!mayfail]):" << mismatches
-                      << "; not yet in the zoo:" << list);
+  WARN("zoo parity: " << checked << " of " << models
+                      << " model cases checked; known mismatches, checked separately ([!mayfail]):"
+                      << mismatches << "; not yet in the zoo:" << list);
   REQUIRE(checked >= 6);
 }
 
-TEST_CASE("every zoo model runs in its intended mode on its case: TopoModelX's shapes, finite values", "[models][zoo][reference]") {
+TEST_CASE(
+    "every zoo model runs in its intended mode on its case: TopoModelX's shapes, finite values",
+    "[models][zoo][reference]") {
   std::vector<std::string> unsupported;
   int models = 0;
   std::set<std::string> lacking;
@@ -303,7 +345,8 @@ TEST_CASE("every zoo model runs in its intended mode on its case: TopoModelX's s
   CHECK((lacking.empty() || lacking == std::set<std::string>{"UniGCN"}));
 }
 
-TEST_CASE("known TopoModelX mismatches (docs/models.md): still differ", "[models][zoo][reference][!mayfail]") {
+TEST_CASE("known TopoModelX mismatches (docs/models.md): still differ",
+          "[models][zoo][reference][!mayfail]") {
   std::vector<std::string> unsupported;
   int models = 0, compared = 0;
   for (const auto& [dir, model] : zoo_cases(unsupported, models))
@@ -312,44 +355,70 @@ TEST_CASE("known TopoModelX mismatches (docs/models.md): still differ", "[models
 }
 
 TEST_CASE("the zoo names unknown models, parameters and bad tensors", "[models][zoo]") {
-  REQUIRE_THROWS_WITH(make_zoo_model("NoSuchNet", nlohmann::json::object()), Catch::Contains("unknown model 'NoSuchNet'") && Catch::Contains("SCN2"));
-  REQUIRE_THROWS_WITH(make_zoo_model("SCN2", {{"in_channels_0", 2}, {"in_channels_1", 2}, {"in_channels_2", 2}, {"dropout", 0.5}}),
-                      Catch::Contains("unknown config parameter 'dropout'"));
-  REQUIRE_THROWS_WITH(make_zoo_model("SCN2", {{"in_channels_0", 2}, {"in_channels_1", 2}}), Catch::Contains("lacks 'in_channels_2'"));
-  REQUIRE_THROWS_WITH(make_zoo_model("SAN", {{"in_channels", "four"}, {"hidden_channels", 2}}), Catch::Contains("'in_channels' has the wrong type"));
-  REQUIRE_THROWS_WITH(make_zoo_model("SCCNN", {{"in_channels_all", {1, 2, 3}}, {"hidden_channels_all", {4, 4, 4}}, {"conv_order", 1}, {"sc_order", 2}, {"update_func", "gelu"}}),
+  REQUIRE_THROWS_WITH(make_zoo_model("NoSuchNet", nlohmann::json::object()),
+                      Catch::Contains("unknown model 'NoSuchNet'") && Catch::Contains("SCN2"));
+  REQUIRE_THROWS_WITH(
+      make_zoo_model(
+          "SCN2",
+          {{"in_channels_0", 2}, {"in_channels_1", 2}, {"in_channels_2", 2}, {"dropout", 0.5}}),
+      Catch::Contains("unknown config parameter 'dropout'"));
+  REQUIRE_THROWS_WITH(make_zoo_model("SCN2", {{"in_channels_0", 2}, {"in_channels_1", 2}}),
+                      Catch::Contains("lacks 'in_channels_2'"));
+  REQUIRE_THROWS_WITH(make_zoo_model("SAN", {{"in_channels", "four"}, {"hidden_channels", 2}}),
+                      Catch::Contains("'in_channels' has the wrong type"));
+  REQUIRE_THROWS_WITH(make_zoo_model("SCCNN", {{"in_channels_all", {1, 2, 3}},
+                                               {"hidden_channels_all", {4, 4, 4}},
+                                               {"conv_order", 1},
+                                               {"sc_order", 2},
+                                               {"update_func", "gelu"}}),
                       Catch::Contains("update_func"));
 
-  auto z = make_zoo_model("SCN2", {{"in_channels_0", 2}, {"in_channels_1", 3}, {"in_channels_2", 1}, {"n_layers", 1}});
+  auto z = make_zoo_model(
+      "SCN2", {{"in_channels_0", 2}, {"in_channels_1", 3}, {"in_channels_2", 1}, {"n_layers", 1}});
   const auto tmp = std::filesystem::temp_directory_path() / "topos_zoo_test";
   std::filesystem::remove_all(tmp);
   std::filesystem::create_directories(tmp / "sd");
   std::map<std::string, torch::Tensor> good;
-  for (const auto& p : z.module->named_parameters()) good[p.key()] = torch::randn(p.value().sizes());
+  for (const auto& p : z.module->named_parameters())
+    good[p.key()] = torch::randn(p.value().sizes());
   // A complete .pt state_dict loads; values arrive by name.
   c10::Dict<std::string, torch::Tensor> dict;
   for (const auto& [k, v] : good) dict.insert(k, v);
   nn::write_tensor_dict(dict, (tmp / "w.pt").string());
   load_state_dict(*z.module, tmp / "w.pt");
-  REQUIRE(torch::equal(z.module->named_parameters()["layers.0.conv_1_to_1.weight"], good["layers.0.conv_1_to_1.weight"]));
+  REQUIRE(torch::equal(z.module->named_parameters()["layers.0.conv_1_to_1.weight"],
+                       good["layers.0.conv_1_to_1.weight"]));
   // .npy folder: a missing, a mis-shaped and an unexpected tensor are named.
-  for (const auto& [k, v] : good) if (k != "layers.0.conv_2_to_2.weight") write_npy_tensor(tmp / "sd" / (k + ".npy"), v);
-  REQUIRE_THROWS_WITH(load_state_dict(*z.module, tmp / "sd"), Catch::Contains("missing tensor 'layers.0.conv_2_to_2.weight'"));
+  for (const auto& [k, v] : good)
+    if (k != "layers.0.conv_2_to_2.weight") write_npy_tensor(tmp / "sd" / (k + ".npy"), v);
+  REQUIRE_THROWS_WITH(load_state_dict(*z.module, tmp / "sd"),
+                      Catch::Contains("missing tensor 'layers.0.conv_2_to_2.weight'"));
   write_npy_tensor(tmp / "sd" / "layers.0.conv_2_to_2.weight.npy", torch::zeros({2, 2}));
-  REQUIRE_THROWS_WITH(load_state_dict(*z.module, tmp / "sd"), Catch::Contains("'layers.0.conv_2_to_2.weight' has shape [2, 2], expected [1, 1]"));
+  REQUIRE_THROWS_WITH(
+      load_state_dict(*z.module, tmp / "sd"),
+      Catch::Contains("'layers.0.conv_2_to_2.weight' has shape [2, 2], expected [1, 1]"));
   write_npy_tensor(tmp / "sd" / "layers.0.conv_2_to_2.weight.npy", torch::zeros({1, 1}));
   write_npy_tensor(tmp / "sd" / "layers.0.extra.npy", torch::zeros({1}));
-  REQUIRE_THROWS_WITH(load_state_dict(*z.module, tmp / "sd"), Catch::Contains("unexpected tensor 'layers.0.extra'"));
+  REQUIRE_THROWS_WITH(load_state_dict(*z.module, tmp / "sd"),
+                      Catch::Contains("unexpected tensor 'layers.0.extra'"));
   // Wrong argument kinds and counts.
-  const auto L = [](std::int64_t n) { return ZooArg::of(SparseOperator::from_dense(torch::eye(n)), "L"); };
-  std::vector<ZooArg> args{ZooArg::of(torch::randn({4, 2}), "x_0"), ZooArg::of(torch::randn({5, 3}), "x_1"), ZooArg::of(torch::randn({2, 1}), "x_2"), L(4), L(5), L(2)};
+  const auto L = [](std::int64_t n) {
+    return ZooArg::of(SparseOperator::from_dense(torch::eye(n)), "L");
+  };
+  std::vector<ZooArg> args{ZooArg::of(torch::randn({4, 2}), "x_0"),
+                           ZooArg::of(torch::randn({5, 3}), "x_1"),
+                           ZooArg::of(torch::randn({2, 1}), "x_2"),
+                           L(4),
+                           L(5),
+                           L(2)};
   REQUIRE(z.forward(args).size() == 3);
   args.pop_back();
   REQUIRE_THROWS_WITH(z.forward(args), Catch::Contains("SCN2: forward takes 6 arguments, got 5"));
   args.push_back(ZooArg::of(torch::randn({2, 1}), "x_2"));
   REQUIRE_THROWS_WITH(z.forward(args), Catch::Contains("('x_2') must be an operator"));
   args.back() = L(3);
-  REQUIRE_THROWS_WITH(z.forward(args), Catch::Contains("operator is 3 x 3 but the features have 2 rows"));
+  REQUIRE_THROWS_WITH(z.forward(args),
+                      Catch::Contains("operator is 3 x 3 but the features have 2 rows"));
   std::filesystem::remove_all(tmp);
 }
 
@@ -378,7 +447,10 @@ TEST_CASE("pattern_aggregate and from_eigen agree with dense products", "[nn][sp
   m.insert(2, 0) = 0;  // an explicit zero is not part of the pattern
   const auto op = SparseOperator::from_eigen(m, torch::kDouble);
   REQUIRE(op.nnz() == 2);
-  REQUIRE(torch::equal(op.to_dense(), torch::tensor({{0.0, 2.5, 0.0, 0.0}, {0.0, 0.0, 0.0, 0.0}, {0.0, 0.0, 0.0, -1.0}}, torch::kDouble)));
+  REQUIRE(torch::equal(
+      op.to_dense(),
+      torch::tensor({{0.0, 2.5, 0.0, 0.0}, {0.0, 0.0, 0.0, 0.0}, {0.0, 0.0, 0.0, -1.0}},
+                    torch::kDouble)));
 }
 
 TEST_CASE("HNHN's normalised incidences follow the paper's formula", "[models][zoo][hypergraph]") {
@@ -394,7 +466,8 @@ TEST_CASE("HNHN's normalised incidences follow the paper's formula", "[models][z
   REQUIRE(torch::allclose(Btn.to_dense(), expect_t));
 }
 
-TEST_CASE("HyperGAT's attention is a softmax per hyperedge and per node", "[models][zoo][hypergraph]") {
+TEST_CASE("HyperGAT's attention is a softmax per hyperedge and per node",
+          "[models][zoo][hypergraph]") {
   // With identical node features every score of a hyperedge (and of a node) is equal, so the
   // softmax averages: x_1 = relu(x W1) on every hyperedge and x_0 = relu(x_1 W2) on every node,
   // where TopoModelX's unit weights would sum instead.
@@ -425,21 +498,62 @@ TEST_CASE("HyperGAT's attention is a softmax per hyperedge and per node", "[mode
   }
 }
 
-TEST_CASE("every hypergraph model runs under its options: shapes, finite values and gradients", "[models][zoo][hypergraph]") {
+TEST_CASE("every hypergraph model runs under its options: shapes, finite values and gradients",
+          "[models][zoo][hypergraph]") {
   const auto B = random_incidence(10, 6, 14);
   const auto x0 = torch::randn({10, 3}), x1 = torch::randn({6, 3});
   const std::vector<std::pair<std::string, nlohmann::json>> configs = {
-      {"AllSet", {{"in_channels", 3}, {"hidden_channels", 4}, {"mlp_num_layers", 2}, {"mlp_activation", "torch.nn.ReLU"}, {"mlp_norm", "torch.nn.LayerNorm"}}},
-      {"AllSet", {{"in_channels", 3}, {"hidden_channels", 4}, {"mlp_num_layers", 3}, {"mlp_activation", "torch.nn.Tanh"}, {"mlp_norm", "torch.nn.BatchNorm1d"}}},
-      {"AllSetTransformer", {{"in_channels", 3}, {"hidden_channels", 8}, {"heads", 4}, {"n_layers", 2}, {"mlp_num_layers", 1}}},
-      {"HNHN", {{"in_channels", 3}, {"hidden_channels", 4}, {"use_bias", false}, {"use_normalized_incidence", false}}},
-      {"HNHN", {{"in_channels", 3}, {"hidden_channels", 4}, {"alpha", -1.0}, {"beta", 0.5}, {"n_layers", 3}}},
+      {"AllSet",
+       {{"in_channels", 3},
+        {"hidden_channels", 4},
+        {"mlp_num_layers", 2},
+        {"mlp_activation", "torch.nn.ReLU"},
+        {"mlp_norm", "torch.nn.LayerNorm"}}},
+      {"AllSet",
+       {{"in_channels", 3},
+        {"hidden_channels", 4},
+        {"mlp_num_layers", 3},
+        {"mlp_activation", "torch.nn.Tanh"},
+        {"mlp_norm", "torch.nn.BatchNorm1d"}}},
+      {"AllSetTransformer",
+       {{"in_channels", 3},
+        {"hidden_channels", 8},
+        {"heads", 4},
+        {"n_layers", 2},
+        {"mlp_num_layers", 1}}},
+      {"HNHN",
+       {{"in_channels", 3},
+        {"hidden_channels", 4},
+        {"use_bias", false},
+        {"use_normalized_incidence", false}}},
+      {"HNHN",
+       {{"in_channels", 3},
+        {"hidden_channels", 4},
+        {"alpha", -1.0},
+        {"beta", 0.5},
+        {"n_layers", 3}}},
       {"HyperGAT", {{"in_channels", 3}, {"hidden_channels", 4}, {"update_func", "sigmoid"}}},
-      {"HyperSAGE", {{"in_channels", 3}, {"hidden_channels", 4}, {"alpha", 2}, {"initialization", "xavier_uniform"}}},
-      {"UniGCN", {{"in_channels", 3}, {"hidden_channels", 3}, {"aggr_norm", true}, {"use_bn", true}}},
-      {"UniGIN", {{"in_channels", 3}, {"hidden_channels", 4}, {"eps", 0.5}, {"train_eps", true}, {"use_norm", true}}},
-      {"UniSAGE", {{"in_channels", 3}, {"hidden_channels", 4}, {"e_aggr", "mean"}, {"v_aggr", "sum"}, {"use_norm", true}}},
-      {"HMPNN", {{"in_channels", 3}, {"hidden_channels", 4}, {"aggr_func", "mean"}, {"n_layers", 3}}},
+      {"HyperSAGE",
+       {{"in_channels", 3},
+        {"hidden_channels", 4},
+        {"alpha", 2},
+        {"initialization", "xavier_uniform"}}},
+      {"UniGCN",
+       {{"in_channels", 3}, {"hidden_channels", 3}, {"aggr_norm", true}, {"use_bn", true}}},
+      {"UniGIN",
+       {{"in_channels", 3},
+        {"hidden_channels", 4},
+        {"eps", 0.5},
+        {"train_eps", true},
+        {"use_norm", true}}},
+      {"UniSAGE",
+       {{"in_channels", 3},
+        {"hidden_channels", 4},
+        {"e_aggr", "mean"},
+        {"v_aggr", "sum"},
+        {"use_norm", true}}},
+      {"HMPNN",
+       {{"in_channels", 3}, {"hidden_channels", 4}, {"aggr_func", "mean"}, {"n_layers", 3}}},
   };
   for (bool compatible : {true, false}) {
     for (const auto& [name, config] : configs) {
@@ -461,25 +575,49 @@ TEST_CASE("every hypergraph model runs under its options: shapes, finite values 
         for (auto& p : z.module->parameters()) p.mutable_grad() = torch::Tensor();
         loss.backward();
         for (const auto& p : z.module->named_parameters())
-          if (p.value().grad().defined()) REQUIRE(torch::isfinite(p.value().grad()).all().item<bool>());
+          if (p.value().grad().defined())
+            REQUIRE(torch::isfinite(p.value().grad()).all().item<bool>());
       }
     }
   }
   // Options TopoModelX cannot run, and bad configs, are errors naming them.
-  REQUIRE_THROWS_WITH(make_zoo_model("AllSet", {{"in_channels", 3}, {"hidden_channels", 4}, {"mlp_num_layers", 2}}), Catch::Contains("mlp_activation None"));
-  REQUIRE_NOTHROW(make_zoo_model("AllSet", {{"in_channels", 3}, {"hidden_channels", 4}, {"mlp_num_layers", 2}}, false));
-  REQUIRE_THROWS_WITH(make_zoo_model("AllSetTransformer", {{"in_channels", 3}, {"hidden_channels", 5}, {"heads", 2}}), Catch::Contains("divisible by heads"));
-  REQUIRE_THROWS_WITH(make_zoo_model("AllSet", {{"in_channels", 3}, {"hidden_channels", 4}, {"mlp_activation", "torch.nn.Softmax"}}), Catch::Contains("unsupported activation"));
-  REQUIRE_THROWS_WITH(make_zoo_model("UniSAGE", {{"in_channels", 3}, {"hidden_channels", 4}, {"v_aggr", "max"}}), Catch::Contains("unknown aggregation 'max'"));
-  REQUIRE_THROWS_WITH(make_zoo_model("HyperSAGE", {{"in_channels", 3}, {"hidden_channels", 4}, {"alpha", 0}}), Catch::Contains("alpha must be -1"));
-  REQUIRE_THROWS_WITH(make_zoo_model("HNHN", {{"in_channels", 3}, {"hidden_channels", 4}, {"incidence_1", {{1, 0}}}}), Catch::Contains("'incidence_1' must be null"));
+  REQUIRE_THROWS_WITH(
+      make_zoo_model("AllSet", {{"in_channels", 3}, {"hidden_channels", 4}, {"mlp_num_layers", 2}}),
+      Catch::Contains("mlp_activation None"));
+  REQUIRE_NOTHROW(make_zoo_model(
+      "AllSet", {{"in_channels", 3}, {"hidden_channels", 4}, {"mlp_num_layers", 2}}, false));
+  REQUIRE_THROWS_WITH(make_zoo_model("AllSetTransformer",
+                                     {{"in_channels", 3}, {"hidden_channels", 5}, {"heads", 2}}),
+                      Catch::Contains("divisible by heads"));
+  REQUIRE_THROWS_WITH(make_zoo_model("AllSet", {{"in_channels", 3},
+                                                {"hidden_channels", 4},
+                                                {"mlp_activation", "torch.nn.Softmax"}}),
+                      Catch::Contains("unsupported activation"));
+  REQUIRE_THROWS_WITH(
+      make_zoo_model("UniSAGE", {{"in_channels", 3}, {"hidden_channels", 4}, {"v_aggr", "max"}}),
+      Catch::Contains("unknown aggregation 'max'"));
+  REQUIRE_THROWS_WITH(
+      make_zoo_model("HyperSAGE", {{"in_channels", 3}, {"hidden_channels", 4}, {"alpha", 0}}),
+      Catch::Contains("alpha must be -1"));
+  REQUIRE_THROWS_WITH(
+      make_zoo_model("HNHN",
+                     {{"in_channels", 3}, {"hidden_channels", 4}, {"incidence_1", {{1, 0}}}}),
+      Catch::Contains("'incidence_1' must be null"));
   // UniGCN: TopoModelX skips the first linear map when the widths are equal; the default keeps it.
-  REQUIRE(make_zoo_model("UniGCN", {{"in_channels", 3}, {"hidden_channels", 3}}, true).module->named_parameters().size() == 2);
-  REQUIRE(make_zoo_model("UniGCN", {{"in_channels", 3}, {"hidden_channels", 3}}, false).module->named_parameters().size() == 4);
+  REQUIRE(make_zoo_model("UniGCN", {{"in_channels", 3}, {"hidden_channels", 3}}, true)
+              .module->named_parameters()
+              .size() == 2);
+  REQUIRE(make_zoo_model("UniGCN", {{"in_channels", 3}, {"hidden_channels", 3}}, false)
+              .module->named_parameters()
+              .size() == 4);
   // HyperSAGE: TopoModelX normalises by the whole matrix's norm, the default per node.
-  auto a = make_zoo_model("HyperSAGE", {{"in_channels", 3}, {"hidden_channels", 4}, {"n_layers", 1}}, true);
-  auto b = make_zoo_model("HyperSAGE", {{"in_channels", 3}, {"hidden_channels", 4}, {"n_layers", 1}}, false);
-  load_parameters(*b.module, {{"layers.0.weight", a.module->named_parameters()["layers.0.weight"].detach().clone()}}, "a");
+  auto a = make_zoo_model("HyperSAGE",
+                          {{"in_channels", 3}, {"hidden_channels", 4}, {"n_layers", 1}}, true);
+  auto b = make_zoo_model("HyperSAGE",
+                          {{"in_channels", 3}, {"hidden_channels", 4}, {"n_layers", 1}}, false);
+  load_parameters(
+      *b.module,
+      {{"layers.0.weight", a.module->named_parameters()["layers.0.weight"].detach().clone()}}, "a");
   const std::vector<ZooArg> args{ZooArg::of(x0, "x_0"), ZooArg::of(B, "incidence_1")};
   const auto ya = a.forward(args)[0], yb = b.forward(args)[0];
   REQUIRE(!torch::allclose(ya, yb));

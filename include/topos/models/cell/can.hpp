@@ -45,18 +45,29 @@ struct CANOptions {
 /// and MultiHeadCellAttention_v2).
 class CellAttentionImpl : public torch::nn::Module {
  public:
-  CellAttentionImpl(std::int64_t in, std::int64_t out, std::int64_t heads, bool concat, double dropout, const CANOptions& o)
-      : out_(out), heads_(heads), concat_(concat), v2_(o.version() == "v2"), self_loops_(o.add_self_loops()), dropout_(dropout), act_(o.att_activation()),
+  CellAttentionImpl(std::int64_t in, std::int64_t out, std::int64_t heads, bool concat,
+                    double dropout, const CANOptions& o)
+      : out_(out),
+        heads_(heads),
+        concat_(concat),
+        v2_(o.version() == "v2"),
+        self_loops_(o.add_self_loops()),
+        dropout_(dropout),
+        act_(o.att_activation()),
         slope_(o.att_negative_slope()) {
     const auto c = out / heads;
     if (v2_) {
-      lin_src = register_module("lin_src", torch::nn::Linear(torch::nn::LinearOptions(in, out).bias(false)));
-      lin_dst = o.share_weights() ? lin_src : torch::nn::Linear(torch::nn::LinearOptions(in, out).bias(false));
+      lin_src = register_module("lin_src",
+                                torch::nn::Linear(torch::nn::LinearOptions(in, out).bias(false)));
+      lin_dst = o.share_weights()
+                    ? lin_src
+                    : torch::nn::Linear(torch::nn::LinearOptions(in, out).bias(false));
       register_module("lin_dst", lin_dst);
       att_weight = register_parameter("att_weight", torch::empty({1, heads, c}));
       torch::nn::init::xavier_uniform_(att_weight);
     } else {
-      lin_src = register_module("lin", torch::nn::Linear(torch::nn::LinearOptions(in, out).bias(false)));
+      lin_src =
+          register_module("lin", torch::nn::Linear(torch::nn::LinearOptions(in, out).bias(false)));
       att_src = register_parameter("att_weight_src", torch::empty({1, heads, c}));
       att_dst = register_parameter("att_weight_dst", torch::empty({1, heads, c}));
       torch::nn::init::xavier_uniform_(att_src);
@@ -65,14 +76,16 @@ class CellAttentionImpl : public torch::nn::Module {
   }
   torch::Tensor forward(const torch::Tensor& x, const nn::SparseOperator& L) {
     const auto n = x.size(0), c = out_ / heads_;
-    if (L.nnz() == 0 || !L.values.ne(0).any().item<bool>()) return torch::zeros({n, concat_ ? out_ : c}, x.options());  // no neighbours at all
+    if (L.nnz() == 0 || !L.values.ne(0).any().item<bool>())
+      return torch::zeros({n, concat_ ? out_ : c}, x.options());  // no neighbours at all
     const auto P = self_loops_ ? L.pattern_with_self_loops() : L.pattern();
     const auto row = P.row.to(x.device()), col = P.col.to(x.device());
     const auto xs = lin_src->forward(x).view({n, heads_, c});
     torch::Tensor score;  // nnz × heads
     if (v2_) {
       const auto xd = lin_dst->forward(x).view({n, heads_, c});
-      const auto e = nn::apply_update(xs.index_select(0, col) + xd.index_select(0, row), act_, slope_);
+      const auto e =
+          nn::apply_update(xs.index_select(0, col) + xd.index_select(0, row), act_, slope_);
       score = (e * att_weight).sum(-1);
     } else {
       const auto a_s = (xs * att_src).sum(-1), a_d = (xs * att_dst).sum(-1);  // n × heads
@@ -80,7 +93,8 @@ class CellAttentionImpl : public torch::nn::Module {
     }
     std::vector<torch::Tensor> per_head;
     for (std::int64_t h = 0; h < heads_; ++h) {
-      auto alpha = torch::dropout(nn::row_softmax(P, score.select(1, h).contiguous()), dropout_, is_training());
+      auto alpha = torch::dropout(nn::row_softmax(P, score.select(1, h).contiguous()), dropout_,
+                                  is_training());
       per_head.push_back(nn::spmm(P.with_values(alpha), xs.select(1, h).contiguous()));
     }
     return concat_ ? torch::cat(per_head, 1) : torch::stack(per_head, 0).mean(0);
@@ -100,16 +114,21 @@ TORCH_MODULE(CellAttention);
 class CANImpl : public torch::nn::Module {
  public:
   explicit CANImpl(const CANOptions& o) : options(o) {
-    if (o.heads() < 1 || o.out_channels() % o.heads() != 0) throw std::invalid_argument("CAN: out_channels must be a multiple of heads (>= 1)");
-    if (o.version() != "v1" && o.version() != "v2") throw std::invalid_argument("CAN: version must be v1 or v2");
-    if (o.share_weights() && o.version() != "v2") throw std::invalid_argument("CAN: share_weights needs version v2");
+    if (o.heads() < 1 || o.out_channels() % o.heads() != 0)
+      throw std::invalid_argument("CAN: out_channels must be a multiple of heads (>= 1)");
+    if (o.version() != "v1" && o.version() != "v2")
+      throw std::invalid_argument("CAN: version must be v1 or v2");
+    if (o.share_weights() && o.version() != "v2")
+      throw std::invalid_argument("CAN: share_weights needs version v2");
     if (o.n_layers() < 1) throw std::invalid_argument("CAN: n_layers must be >= 1");
-    if (o.dropout() < 0 || o.dropout() > 1) throw std::invalid_argument("CAN: dropout must be in [0, 1]");
+    if (o.dropout() < 0 || o.dropout() > 1)
+      throw std::invalid_argument("CAN: dropout must be in [0, 1]");
     std::int64_t in = o.in_channels_1();
     if (o.att_lift()) {
       auto lift = nn::submodule_group(*this, "lift_layer");
       auto lifts = nn::submodule_group(*lift, "lifts");
-      lift_ = lifts->register_parameter("att_parameter", torch::empty({2 * o.in_channels_0(), o.in_channels_0()}));
+      lift_ = lifts->register_parameter("att_parameter",
+                                        torch::empty({2 * o.in_channels_0(), o.in_channels_0()}));
       nn::xavier_uniform(lift_, std::sqrt(2.0));
       in += o.in_channels_0();
     }
@@ -118,30 +137,45 @@ class CANImpl : public torch::nn::Module {
       const auto layer_in = l == 0 ? in : o.out_channels();
       const double drop = l == 0 && o.topomodelx_compatible() ? 0.0 : o.dropout();
       auto m = std::make_shared<torch::nn::Module>();
-      Layer layer{m->register_module("lower_att", CellAttention(layer_in, o.out_channels(), o.heads(), o.concat(), drop, o)),
-                  m->register_module("upper_att", CellAttention(layer_in, o.out_channels(), o.heads(), o.concat(), drop, o)), nullptr};
+      Layer layer{m->register_module("lower_att", CellAttention(layer_in, o.out_channels(),
+                                                                o.heads(), o.concat(), drop, o)),
+                  m->register_module("upper_att", CellAttention(layer_in, o.out_channels(),
+                                                                o.heads(), o.concat(), drop, o)),
+                  nullptr};
       if (o.skip_connection())
-        layer.skip = m->register_module("lin", torch::nn::Linear(torch::nn::LinearOptions(layer_in, o.concat() ? o.out_channels() : o.out_channels() / o.heads()).bias(false)));
+        layer.skip = m->register_module(
+            "lin", torch::nn::Linear(
+                       torch::nn::LinearOptions(
+                           layer_in, o.concat() ? o.out_channels() : o.out_channels() / o.heads())
+                           .bias(false)));
       layers_.push_back(layer);
       list->push_back(m);
     }
   }
-  /// Node and edge features, the node adjacency (for the lift), L_1↓ and L_1↑. Returns the edge features.
-  torch::Tensor forward(const torch::Tensor& x_0, torch::Tensor x_1, const nn::SparseOperator& adjacency_0, const nn::SparseOperator& down_laplacian_1,
+  /// Node and edge features, the node adjacency (for the lift), L_1↓ and L_1↑. Returns the edge
+  /// features.
+  torch::Tensor forward(const torch::Tensor& x_0, torch::Tensor x_1,
+                        const nn::SparseOperator& adjacency_0,
+                        const nn::SparseOperator& down_laplacian_1,
                         const nn::SparseOperator& up_laplacian_1) {
     if (lift_.defined()) {
       if (adjacency_0.nnz() != x_1.size(0))
-        throw std::invalid_argument("CAN: att_lift makes one edge row per entry of adjacency_0 (" + std::to_string(adjacency_0.nnz()) + "), but x_1 has " +
-                                    std::to_string(x_1.size(0)) + " rows (pass an adjacency that holds each edge once)");
+        throw std::invalid_argument("CAN: att_lift makes one edge row per entry of adjacency_0 (" +
+                                    std::to_string(adjacency_0.nnz()) + "), but x_1 has " +
+                                    std::to_string(x_1.size(0)) +
+                                    " rows (pass an adjacency that holds each edge once)");
       const auto u = adjacency_0.row.to(x_0.device()), v = adjacency_0.col.to(x_0.device());
-      auto lifted = torch::relu(torch::cat({x_0.index_select(0, u), x_0.index_select(0, v)}, 1).matmul(lift_));
+      auto lifted = torch::relu(
+          torch::cat({x_0.index_select(0, u), x_0.index_select(0, v)}, 1).matmul(lift_));
       lifted = torch::dropout(lifted, 0.5, is_training());
       x_1 = torch::cat({lifted, x_1}, 1);
     }
     for (auto& l : layers_) {
-      std::vector<torch::Tensor> m{l.lower->forward(x_1, down_laplacian_1), l.upper->forward(x_1, up_laplacian_1)};
+      std::vector<torch::Tensor> m{l.lower->forward(x_1, down_laplacian_1),
+                                   l.upper->forward(x_1, up_laplacian_1)};
       if (l.skip) m.push_back(l.skip->forward(x_1) * (1 + 1e-6));
-      x_1 = torch::dropout(nn::aggregate_messages(m, nn::Aggr::sum, nn::Update::relu), 0.5, is_training());
+      x_1 = torch::dropout(nn::aggregate_messages(m, nn::Aggr::sum, nn::Update::relu), 0.5,
+                           is_training());
     }
     return x_1;
   }

@@ -15,13 +15,15 @@
 namespace topos::models {
 
 struct CCXNOptions {
-  CCXNOptions(std::int64_t c0, std::int64_t c1, std::int64_t c2) : in_channels_0_(c0), in_channels_1_(c1), in_channels_2_(c2) {}
+  CCXNOptions(std::int64_t c0, std::int64_t c1, std::int64_t c2)
+      : in_channels_0_(c0), in_channels_1_(c1), in_channels_2_(c2) {}
   TORCH_ARG(std::int64_t, in_channels_0);
   TORCH_ARG(std::int64_t, in_channels_1);
   TORCH_ARG(std::int64_t, in_channels_2);
   TORCH_ARG(int, n_layers) = 2;
   TORCH_ARG(bool, att) = false;
-  TORCH_ARG(bool, topomodelx_compatible) = false;  ///< attention targets as TopoModelX indexes them (above)
+  TORCH_ARG(bool, topomodelx_compatible) =
+      false;  ///< attention targets as TopoModelX indexes them (above)
 };
 
 class CCXNImpl : public torch::nn::Module {
@@ -31,13 +33,21 @@ class CCXNImpl : public torch::nn::Module {
     auto list = register_module("layers", torch::nn::ModuleList());
     for (int l = 0; l < o.n_layers(); ++l) {
       auto m = std::make_shared<torch::nn::Module>();
-      layers_.push_back({m->register_module("conv_0_to_0", nn::Conv(nn::ConvOptions(o.in_channels_0(), o.in_channels_0()).att(o.att()))),
-                         m->register_module("conv_1_to_2", nn::Conv(nn::ConvOptions(o.in_channels_1(), o.in_channels_2()).att(o.att())))});
+      layers_.push_back(
+          {m->register_module(
+               "conv_0_to_0",
+               nn::Conv(nn::ConvOptions(o.in_channels_0(), o.in_channels_0()).att(o.att()))),
+           m->register_module(
+               "conv_1_to_2",
+               nn::Conv(nn::ConvOptions(o.in_channels_1(), o.in_channels_2()).att(o.att())))});
       list->push_back(m);
     }
   }
-  /// Node and edge features, the node adjacency and B_2ᵀ (2-cells × edges). Returns (x_0, x_1, x_2).
-  std::vector<torch::Tensor> forward(torch::Tensor x_0, torch::Tensor x_1, const nn::SparseOperator& adjacency_0, const nn::SparseOperator& incidence_2_t) {
+  /// Node and edge features, the node adjacency and B_2ᵀ (2-cells × edges). Returns (x_0, x_1,
+  /// x_2).
+  std::vector<torch::Tensor> forward(torch::Tensor x_0, torch::Tensor x_1,
+                                     const nn::SparseOperator& adjacency_0,
+                                     const nn::SparseOperator& incidence_2_t) {
     torch::Tensor x_2;
     for (auto& l : layers_) {
       x_0 = torch::relu(l.c00->forward(torch::relu(x_0), adjacency_0));
@@ -45,7 +55,9 @@ class CCXNImpl : public torch::nn::Module {
       torch::Tensor target;
       if (options.att()) {
         if (options.topomodelx_compatible()) {
-          if (incidence_2_t.rows > x_1.size(0)) throw std::invalid_argument("CCXN: TopoModelX-compatible attention needs no more 2-cells than edges");
+          if (incidence_2_t.rows > x_1.size(0))
+            throw std::invalid_argument(
+                "CCXN: TopoModelX-compatible attention needs no more 2-cells than edges");
         } else {
           target = nn::spmm(incidence_2_t.abs(), x_1);
         }

@@ -37,8 +37,10 @@ struct NormalizationStats {
     return l;
   }
   /// The layout of a file with `x0_width` node columns, with or without x4/t4.
-  static std::vector<std::pair<std::string, std::size_t>> layout_for(std::size_t x0_width, bool objects) {
-    std::vector<std::pair<std::string, std::size_t>> l{{"x0", x0_width}, {"x1", 8}, {"x2", 3}, {"x3", 28}};
+  static std::vector<std::pair<std::string, std::size_t>> layout_for(std::size_t x0_width,
+                                                                     bool objects) {
+    std::vector<std::pair<std::string, std::size_t>> l{
+        {"x0", x0_width}, {"x1", 8}, {"x2", 3}, {"x3", 28}};
     if (objects) l.push_back({"x4", 13});
     l.push_back({"t0", 3});
     if (objects) l.push_back({"t4", 3});
@@ -57,16 +59,25 @@ struct NormalizationStats {
   void validate(const std::string& source) const {
     const std::size_t w = x0_width();
     if (mean.count("x0") && w != 8 && w != 13 && w != 16 && w != 21)
-      throw data::DataError(source + ": 'x0_mean' has " + std::to_string(w) + " entries, expected 16 (HOPNet), 21 (no object cells) or 8 (no centre-mass distance)");
-    if (mean.count("x4") != mean.count("t4")) throw data::DataError(source + ": 'x4' and 't4' statistics must both be present or both be null");
+      throw data::DataError(
+          source + ": 'x0_mean' has " + std::to_string(w) +
+          " entries, expected 16 (HOPNet), 21 (no object cells) or 8 (no centre-mass distance)");
+    if (mean.count("x4") != mean.count("t4"))
+      throw data::DataError(source +
+                            ": 'x4' and 't4' statistics must both be present or both be null");
     for (const auto& [k, n] : keys()) {
       for (const auto* m : {&mean, &std}) {
         const std::string name = k + (m == &mean ? "_mean" : "_std");
         auto it = m->find(k);
         if (it == m->end()) throw data::DataError(source + ": missing statistics '" + name + "'");
-        if (it->second.size() != n) throw data::DataError(source + ": '" + name + "' has " + std::to_string(it->second.size()) + " entries, expected " + std::to_string(n));
+        if (it->second.size() != n)
+          throw data::DataError(source + ": '" + name + "' has " +
+                                std::to_string(it->second.size()) + " entries, expected " +
+                                std::to_string(n));
         for (double v : it->second)
-          if (!std::isfinite(v) || (m == &std && !(v > 0))) throw data::DataError(source + ": '" + name + "' holds a non-finite or non-positive value");
+          if (!std::isfinite(v) || (m == &std && !(v > 0)))
+            throw data::DataError(source + ": '" + name +
+                                  "' holds a non-finite or non-positive value");
       }
     }
   }
@@ -88,7 +99,10 @@ inline NormalizationStats parse_stats_json(const std::string& text, const std::s
       }
     }
   }
-  if (s.mean.count("x4") != s.std.count("x4") || s.mean.count("t4") != s.std.count("t4")) throw data::DataError(source + ": object statistics are null for the mean but not the std, or the other way round");
+  if (s.mean.count("x4") != s.std.count("x4") || s.mean.count("t4") != s.std.count("t4"))
+    throw data::DataError(
+        source +
+        ": object statistics are null for the mean but not the std, or the other way round");
   s.validate(source);
   return s;
 }
@@ -123,14 +137,17 @@ class StatsAccumulator {
     if (rows.rows() == 0) return;
     if (a.shift.empty()) {
       a.shift.resize(static_cast<std::size_t>(rows.cols()));
-      for (Eigen::Index c = 0; c < rows.cols(); ++c) a.shift[static_cast<std::size_t>(c)] = rows(0, c);
+      for (Eigen::Index c = 0; c < rows.cols(); ++c)
+        a.shift[static_cast<std::size_t>(c)] = rows(0, c);
       a.sum.assign(a.shift.size(), 0.0L);
       a.sumsq.assign(a.shift.size(), 0.0L);
     }
-    if (static_cast<std::size_t>(rows.cols()) != a.shift.size()) throw std::invalid_argument("StatsAccumulator: '" + key + "' changed width");
+    if (static_cast<std::size_t>(rows.cols()) != a.shift.size())
+      throw std::invalid_argument("StatsAccumulator: '" + key + "' changed width");
     for (Eigen::Index r = 0; r < rows.rows(); ++r)
       for (Eigen::Index c = 0; c < rows.cols(); ++c) {
-        const long double d = static_cast<long double>(rows(r, c)) - a.shift[static_cast<std::size_t>(c)];
+        const long double d =
+            static_cast<long double>(rows(r, c)) - a.shift[static_cast<std::size_t>(c)];
         a.sum[static_cast<std::size_t>(c)] += d;
         a.sumsq[static_cast<std::size_t>(c)] += d * d;
       }
@@ -163,8 +180,10 @@ class StatsAccumulator {
   NormalizationStats finalize() const {
     NormalizationStats s;
     const auto x0 = acc_.find("x0");
-    const std::size_t w = x0 == acc_.end() || x0->second.shift.empty() ? 16 : x0->second.shift.size();
-    for (const auto& [k, n] : NormalizationStats::layout_for(w, acc_.count("x4") > 0 || x0 == acc_.end())) {
+    const std::size_t w =
+        x0 == acc_.end() || x0->second.shift.empty() ? 16 : x0->second.shift.size();
+    for (const auto& [k, n] :
+         NormalizationStats::layout_for(w, acc_.count("x4") > 0 || x0 == acc_.end())) {
       auto it = acc_.find(k);
       std::vector<double> mean(n, 0.0), sd(n, 1.0);
       if (it != acc_.end() && it->second.count > 0) {
@@ -188,10 +207,13 @@ class StatsAccumulator {
       if (k == "x0") {
         share({{0, 8}});
         if (n >= 16) share({{8, 16}});
-        if (n == 13 || n == 21) mean[n - 5] = mean[n - 4] = 0.5, sd[n - 5] = sd[n - 4] = 0.5;  // object type
+        if (n == 13 || n == 21)
+          mean[n - 5] = mean[n - 4] = 0.5, sd[n - 5] = sd[n - 4] = 0.5;  // object type
       }
       if (k == "x1" || k == "x2" || k == "t0" || k == "t4") share({{0, n}});
-      if (k == "x3") share({{0, 4}}), share({{4, 8}, {16, 20}}), share({{8, 12}, {20, 24}}), share({{12, 16}, {24, 28}});
+      if (k == "x3")
+        share({{0, 4}}), share({{4, 8}, {16, 20}}), share({{8, 12}, {20, 24}}),
+            share({{12, 16}, {24, 28}});
       if (k == "x4") {
         share({{0, 8}});
         mean[8] = mean[9] = 0.5;

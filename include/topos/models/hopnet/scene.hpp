@@ -21,20 +21,24 @@ struct SceneObject {
   std::string asset_id, shape;
   double mass = 0, friction = 0, restitution = 0;
   bool is_floor = false;
-  TriangleMesh mesh;                 ///< canonical (scaled) mesh in the object frame
-  Eigen::Vector3d center_of_mass;    ///< volumetric centre of mass of `mesh`
+  TriangleMesh mesh;               ///< canonical (scaled) mesh in the object frame
+  Eigen::Vector3d center_of_mass;  ///< volumetric centre of mass of `mesh`
 };
 
 struct Scene {
-  std::vector<SceneObject> objects;  ///< metadata order, floor last
-  Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic> positions;    ///< frames × 3·O
+  std::vector<SceneObject> objects;                                 ///< metadata order, floor last
+  Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic> positions;  ///< frames × 3·O
   Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic> quaternions;  ///< frames × 4·O (w x y z)
   std::int64_t num_frames = 0;
   std::string source;
 
   std::size_t num_objects() const { return objects.size(); }
-  Eigen::Vector3d position(std::int64_t frame, std::size_t o) const { return positions.block<1, 3>(frame, 3 * static_cast<Eigen::Index>(o)).transpose(); }
-  Eigen::Vector4d quaternion(std::int64_t frame, std::size_t o) const { return quaternions.block<1, 4>(frame, 4 * static_cast<Eigen::Index>(o)).transpose(); }
+  Eigen::Vector3d position(std::int64_t frame, std::size_t o) const {
+    return positions.block<1, 3>(frame, 3 * static_cast<Eigen::Index>(o)).transpose();
+  }
+  Eigen::Vector4d quaternion(std::int64_t frame, std::size_t o) const {
+    return quaternions.block<1, 4>(frame, 4 * static_cast<Eigen::Index>(o)).transpose();
+  }
 };
 
 inline TriangleMesh floor_mesh() {
@@ -47,12 +51,14 @@ inline TriangleMesh floor_mesh() {
   return m;
 }
 
-/// Loads canonical meshes by shape name from a KuBasic-layout folder (`<shape>/collision_geometry.obj`,
+/// Loads canonical meshes by shape name from a KuBasic-layout folder
+/// (`<shape>/collision_geometry.obj`,
 /// merged as trimesh does), or the built-in shapes when `assets` is empty. Caches per shape.
 class MeshLibrary {
  public:
   explicit MeshLibrary(std::filesystem::path assets = {}) : assets_(std::move(assets)) {
-    if (!assets_.empty() && !std::filesystem::is_directory(assets_)) throw data::DataError(assets_.string() + ": asset folder does not exist");
+    if (!assets_.empty() && !std::filesystem::is_directory(assets_))
+      throw data::DataError(assets_.string() + ": asset folder does not exist");
   }
   const TriangleMesh& unit_mesh(const std::string& shape) {
     auto it = cache_.find(shape);
@@ -62,7 +68,8 @@ class MeshLibrary {
       m = builtin_shape(shape);
     } else {
       const auto path = assets_ / shape / "collision_geometry.obj";
-      if (!std::filesystem::exists(path)) throw data::DataError(path.string() + ": missing asset for shape '" + shape + "'");
+      if (!std::filesystem::exists(path))
+        throw data::DataError(path.string() + ": missing asset for shape '" + shape + "'");
       m = read_obj(path.string(), ObjReadOptions().merge(true)).mesh;
       m.name = shape;
     }
@@ -114,7 +121,9 @@ inline std::vector<PosedObject> pose_scene(const Scene& s, std::int64_t t) {
   std::vector<PosedObject> out(s.num_objects());
   for (std::size_t o = 0; o < s.num_objects(); ++o) {
     out[o].faces = &s.objects[o].mesh.faces;
-    out[o].vertices = s.objects[o].is_floor ? s.objects[o].mesh.vertices : pose_vertices(s.objects[o].mesh.vertices, s.position(t, o), s.quaternion(t, o));
+    out[o].vertices = s.objects[o].is_floor ? s.objects[o].mesh.vertices
+                                            : pose_vertices(s.objects[o].mesh.vertices,
+                                                            s.position(t, o), s.quaternion(t, o));
   }
   return out;
 }

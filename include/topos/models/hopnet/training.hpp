@@ -29,10 +29,14 @@ using ContactsByFrame = std::map<std::int64_t, std::vector<ContactCandidate>>;
 /// Features at t = first..last (inclusive; default 2..T-2) from the scene's GT poses. Contacts
 /// are detected, or taken from `given` (the reference trains on collisions.json), which must
 /// then hold every frame used.
-inline TrajectoryFrames trajectory_frames(const Scene& scene, const HopnetGeometry& g, double collision_radius = 0.1, double min_z_collision_velocity = 0.0,
-                                          std::int64_t first = 2, std::int64_t last = -1, const ContactsByFrame* given = nullptr) {
+inline TrajectoryFrames trajectory_frames(const Scene& scene, const HopnetGeometry& g,
+                                          double collision_radius = 0.1,
+                                          double min_z_collision_velocity = 0.0,
+                                          std::int64_t first = 2, std::int64_t last = -1,
+                                          const ContactsByFrame* given = nullptr) {
   if (last < 0) last = scene.num_frames - 2;
-  if (first < 2 || last > scene.num_frames - 2 || first > last) throw std::invalid_argument(scene.source + ": a training trajectory needs at least 4 frames");
+  if (first < 2 || last > scene.num_frames - 2 || first > last)
+    throw std::invalid_argument(scene.source + ": a training trajectory needs at least 4 frames");
   TrajectoryFrames out;
   std::vector<Poses> p;
   for (std::int64_t t = 0; t < scene.num_frames; ++t) p.push_back(scene_poses(scene, t));
@@ -43,24 +47,31 @@ inline TrajectoryFrames trajectory_frames(const Scene& scene, const HopnetGeomet
     std::vector<ContactCandidate> contacts;
     if (given) {
       const auto it = given->find(t);
-      if (it == given->end()) throw std::invalid_argument(scene.source + ": the given contacts have no frame " + std::to_string(t));
+      if (it == given->end())
+        throw std::invalid_argument(scene.source + ": the given contacts have no frame " +
+                                    std::to_string(t));
       contacts = it->second;
     } else {
       contacts = detect_contacts(g, posed[static_cast<std::size_t>(t)], collision_radius);
     }
-    out.frames.push_back(build_frame(g, p[0], p[static_cast<std::size_t>(t - 2)], p[static_cast<std::size_t>(t - 1)], p[static_cast<std::size_t>(t)], contacts));
+    out.frames.push_back(build_frame(g, p[0], p[static_cast<std::size_t>(t - 2)],
+                                     p[static_cast<std::size_t>(t - 1)],
+                                     p[static_cast<std::size_t>(t)], contacts));
     RowMatrix a0(N, 3), a4(O, 3), m = RowMatrix::Ones(O, 1);
     for (std::int64_t o = 0; o < O; ++o) {
       const auto& xp = posed[static_cast<std::size_t>(t - 1)][static_cast<std::size_t>(o)].vertices;
       const auto& xt = posed[static_cast<std::size_t>(t)][static_cast<std::size_t>(o)].vertices;
       const auto& xn = posed[static_cast<std::size_t>(t + 1)][static_cast<std::size_t>(o)].vertices;
       a0.middleRows(g.node_offset[static_cast<std::size_t>(o)], xt.rows()) = xn - 2.0 * xt + xp;
-      a4.row(o) = p[static_cast<std::size_t>(t + 1)].positions.row(o) - 2.0 * p[static_cast<std::size_t>(t)].positions.row(o) + p[static_cast<std::size_t>(t - 1)].positions.row(o);
+      a4.row(o) = p[static_cast<std::size_t>(t + 1)].positions.row(o) -
+                  2.0 * p[static_cast<std::size_t>(t)].positions.row(o) +
+                  p[static_cast<std::size_t>(t - 1)].positions.row(o);
     }
     if (min_z_collision_velocity > 0) {
       for (const auto& c : contacts)
         for (auto o : {c.obj0, c.obj1}) {
-          const double vz = p[static_cast<std::size_t>(t)].positions(o, 2) - p[static_cast<std::size_t>(t - 1)].positions(o, 2);
+          const double vz = p[static_cast<std::size_t>(t)].positions(o, 2) -
+                            p[static_cast<std::size_t>(t - 1)].positions(o, 2);
           if (std::abs(vz) < min_z_collision_velocity / 240.0) m(o, 0) = 0;
         }
     }
@@ -78,7 +89,8 @@ inline TrajectoryFrames trajectory_frames(const Scene& scene, const HopnetGeomet
 
 /// Adds a trajectory's raw features and targets to the statistics (`objects`: x4 and t4 too;
 /// false without object cells, whose statistics have none).
-inline void accumulate_stats(StatsAccumulator& acc, const TrajectoryFrames& tf, bool objects = true) {
+inline void accumulate_stats(StatsAccumulator& acc, const TrajectoryFrames& tf,
+                             bool objects = true) {
   for (std::size_t i = 0; i < tf.frames.size(); ++i) {
     const auto& f = tf.frames[i];
     acc.add("x0", f.x0), acc.add("x1", f.x1), acc.add("x2", f.x2), acc.add("x3", f.x3);
@@ -93,12 +105,15 @@ struct TrainingItem {
   torch::Tensor t0, t4, node_weight, object_weight;  ///< weights: mask / N, mask / O per row
   std::int64_t timesteps = 0;
   TrainingItem to(const torch::Device& d) const {
-    return {batch.to(d), t0.to(d), t4.defined() ? t4.to(d) : t4, node_weight.to(d), object_weight.to(d), timesteps};
+    return {batch.to(d),         t0.to(d), t4.defined() ? t4.to(d) : t4, node_weight.to(d),
+            object_weight.to(d), timesteps};
   }
 };
 
 /// The timesteps [begin, end) of a trajectory (end -1: to the last) as one item.
-inline TrainingItem make_training_item(const HopnetGeometry& g, const TrajectoryFrames& tf, const Normalizer& norm, std::size_t begin = 0, std::size_t end = static_cast<std::size_t>(-1)) {
+inline TrainingItem make_training_item(const HopnetGeometry& g, const TrajectoryFrames& tf,
+                                       const Normalizer& norm, std::size_t begin = 0,
+                                       std::size_t end = static_cast<std::size_t>(-1)) {
   end = std::min(end, tf.frames.size());
   if (begin >= end) throw std::invalid_argument("make_training_item: empty range of timesteps");
   TrainingItem it;
@@ -106,7 +121,8 @@ inline TrainingItem make_training_item(const HopnetGeometry& g, const Trajectory
   std::vector<torch::Tensor> t0, t4, nw, ow;
   const bool objects = g.lifting.object_cells();
   const double N = static_cast<double>(g.num_rank0()), O = static_cast<double>(g.num_objects());
-  const auto node_object = torch::tensor(std::vector<std::int64_t>(g.node_object.begin(), g.node_object.end()), torch::kLong);
+  const auto node_object = torch::tensor(
+      std::vector<std::int64_t>(g.node_object.begin(), g.node_object.end()), torch::kLong);
   for (std::size_t i = begin; i < end; ++i) {
     frames.push_back({&g, &tf.frames[i]});
     t0.push_back(norm.normalize("t0", tf.t0[i]));
@@ -114,7 +130,9 @@ inline TrainingItem make_training_item(const HopnetGeometry& g, const Trajectory
     const auto m = Normalizer::to_tensor(tf.mask[i]).squeeze(1);
     ow.push_back(objects ? m / O : torch::zeros({0}, torch::kFloat));
     auto w = m.index_select(0, node_object) / N;
-    if (!objects) w = torch::cat({w, torch::zeros({g.num_objects()}, torch::kFloat)});  // virtual nodes: never supervised
+    if (!objects)
+      w = torch::cat(
+          {w, torch::zeros({g.num_objects()}, torch::kFloat)});  // virtual nodes: never supervised
     nw.push_back(w);
   }
   it.batch = make_batch(frames, norm);
@@ -130,25 +148,33 @@ inline TrainingItem make_training_item(const HopnetGeometry& g, const Trajectory
 /// its cell counts: about kActivationRows rows of `hidden` float32 per node, face, contact
 /// and read edge. Measured on MOVi-A and MOVi-B (docs/hopnet.md).
 inline constexpr double kActivationRows = 40.0;
-inline double timestep_activation_bytes(const HopnetGeometry& g, const HopnetFrame& f, std::int64_t hidden) {
-  const double rows = static_cast<double>(g.num_nodes() + g.num_objects()) + 4.0 * static_cast<double>(f.num_faces()) + 2.0 * static_cast<double>(f.num_contacts());
+inline double timestep_activation_bytes(const HopnetGeometry& g, const HopnetFrame& f,
+                                        std::int64_t hidden) {
+  const double rows = static_cast<double>(g.num_nodes() + g.num_objects()) +
+                      4.0 * static_cast<double>(f.num_faces()) +
+                      2.0 * static_cast<double>(f.num_contacts());
   return kActivationRows * rows * static_cast<double>(hidden) * 4.0;
 }
 
 /// Timesteps per chunk so that a chunk's activations fit `budget_bytes` (at least 1; at most
 /// the whole trajectory), from the trajectory's most expensive timestep.
-inline std::int64_t auto_chunk(const HopnetGeometry& g, const TrajectoryFrames& tf, std::int64_t hidden, double budget_bytes) {
+inline std::int64_t auto_chunk(const HopnetGeometry& g, const TrajectoryFrames& tf,
+                               std::int64_t hidden, double budget_bytes) {
   double worst = 1.0;
   for (const auto& f : tf.frames) worst = std::max(worst, timestep_activation_bytes(g, f, hidden));
   const auto t = static_cast<std::int64_t>(budget_bytes / worst);
-  return std::clamp<std::int64_t>(t, 1, std::max<std::int64_t>(1, static_cast<std::int64_t>(tf.frames.size())));
+  return std::clamp<std::int64_t>(
+      t, 1, std::max<std::int64_t>(1, static_cast<std::int64_t>(tf.frames.size())));
 }
 
 /// A trajectory as consecutive chunks of `chunk` timesteps (<= 0: one chunk).
-inline std::vector<TrainingItem> make_training_chunks(const HopnetGeometry& g, const TrajectoryFrames& tf, const Normalizer& norm, std::int64_t chunk) {
+inline std::vector<TrainingItem> make_training_chunks(const HopnetGeometry& g,
+                                                      const TrajectoryFrames& tf,
+                                                      const Normalizer& norm, std::int64_t chunk) {
   std::vector<TrainingItem> out;
   const std::size_t T = tf.frames.size(), step = chunk <= 0 ? T : static_cast<std::size_t>(chunk);
-  for (std::size_t b = 0; b < T; b += step) out.push_back(make_training_item(g, tf, norm, b, b + step));
+  for (std::size_t b = 0; b < T; b += step)
+    out.push_back(make_training_item(g, tf, norm, b, b + step));
   return out;
 }
 
@@ -156,11 +182,14 @@ inline std::vector<TrainingItem> make_training_chunks(const HopnetGeometry& g, c
 inline torch::Tensor timestep_losses(const HopnetOutput& out, const TrainingItem& it) {
   const auto node = ((out.a0 - it.t0).pow(2) * it.node_weight).sum(1);
   const auto obj = ((out.a4 - it.t4).pow(2) * it.object_weight).sum(1);
-  return torch::zeros({it.timesteps}, node.options()).index_add(0, it.batch.complex.batch(0).to(node.device()), node).index_add(0, it.batch.complex.batch(4).to(node.device()), obj);
+  return torch::zeros({it.timesteps}, node.options())
+      .index_add(0, it.batch.complex.batch(0).to(node.device()), node)
+      .index_add(0, it.batch.complex.batch(4).to(node.device()), obj);
 }
 
 /// The summed loss of spec 8 for one trajectory (divide by `timesteps` for the logged value).
-inline torch::Tensor trajectory_loss(HopnetImpl& model, const TrainingItem& it, const Normalizer& norm) {
+inline torch::Tensor trajectory_loss(HopnetImpl& model, const TrainingItem& it,
+                                     const Normalizer& norm) {
   const auto out = model.forward(it.batch, norm);
   const auto nodes = ((out.a0 - it.t0).pow(2) * it.node_weight).sum();
   return out.a4.defined() ? nodes + ((out.a4 - it.t4).pow(2) * it.object_weight).sum() : nodes;
@@ -169,7 +198,9 @@ inline torch::Tensor trajectory_loss(HopnetImpl& model, const TrainingItem& it, 
 /// Forward and backward of a trajectory given as chunks: the gradient of the summed loss is
 /// accumulated into the parameters' gradients (zero them first). Returns the summed loss and,
 /// when `per_timestep` is given, the per-timestep losses (all chunks, in order).
-inline double backward_trajectory(HopnetImpl& model, const std::vector<TrainingItem>& chunks, const Normalizer& norm, std::vector<double>* per_timestep = nullptr) {
+inline double backward_trajectory(HopnetImpl& model, const std::vector<TrainingItem>& chunks,
+                                  const Normalizer& norm,
+                                  std::vector<double>* per_timestep = nullptr) {
   double total = 0;
   for (const auto& c : chunks) {
     torch::Tensor loss;
@@ -177,7 +208,8 @@ inline double backward_trajectory(HopnetImpl& model, const std::vector<TrainingI
       const auto l = timestep_losses(model.forward(c.batch, norm), c);
       loss = l.sum();
       const auto d = l.detach().to(torch::kCPU, torch::kDouble).contiguous();
-      per_timestep->insert(per_timestep->end(), d.data_ptr<double>(), d.data_ptr<double>() + d.numel());
+      per_timestep->insert(per_timestep->end(), d.data_ptr<double>(),
+                           d.data_ptr<double>() + d.numel());
     } else {
       loss = trajectory_loss(model, c, norm);
     }
@@ -191,7 +223,9 @@ inline double backward_trajectory(HopnetImpl& model, const std::vector<TrainingI
 /// PyTorch >= 2.0's zero_grad, so a parameter the trajectory does not reach is skipped by Adam
 /// rather than moved by its momentum), forward and backward by chunks, then `opt.step()`.
 /// Returns the summed loss (and the per-timestep losses when asked).
-inline double train_step(HopnetImpl& model, torch::optim::Optimizer& opt, const std::vector<TrainingItem>& chunks, const Normalizer& norm, std::vector<double>* per_timestep = nullptr) {
+inline double train_step(HopnetImpl& model, torch::optim::Optimizer& opt,
+                         const std::vector<TrainingItem>& chunks, const Normalizer& norm,
+                         std::vector<double>* per_timestep = nullptr) {
   for (auto& p : model.parameters()) p.mutable_grad() = torch::Tensor();
   const double loss = backward_trajectory(model, chunks, norm, per_timestep);
   opt.step();

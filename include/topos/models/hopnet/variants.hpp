@@ -53,45 +53,62 @@ inline std::vector<std::string> split_config(const std::string& text) {
   std::stringstream ss(text);
   for (std::string item; std::getline(ss, item, ',');) {
     const auto b = item.find_first_not_of(" \t"), e = item.find_last_not_of(" \t");
-    if (b == std::string::npos) throw std::invalid_argument("configuration '" + text + "': empty item");
+    if (b == std::string::npos)
+      throw std::invalid_argument("configuration '" + text + "': empty item");
     items.push_back(item.substr(b, e - b + 1));
   }
-  if (items.empty()) throw std::invalid_argument("empty configuration (presets: " + preset_names() + ", or a JSON file)");
+  if (items.empty())
+    throw std::invalid_argument("empty configuration (presets: " + preset_names() +
+                                ", or a JSON file)");
   return items;
 }
 
 /// Merges `fields` (from item `who`) into `into`, remembering which item set each field.
-inline void merge_fields(nlohmann::json& into, std::map<std::string, std::string>& set_by, const nlohmann::json& fields, const std::string& who) {
-  static const std::set<std::string> known{"model", "architecture", "center_mass_distance", "hidden", "mlp_layers", "num_layers", "activation", "collision_radius", "mode", "presets"};
+inline void merge_fields(nlohmann::json& into, std::map<std::string, std::string>& set_by,
+                         const nlohmann::json& fields, const std::string& who) {
+  static const std::set<std::string> known{
+      "model",      "architecture", "center_mass_distance", "hidden", "mlp_layers",
+      "num_layers", "activation",   "collision_radius",     "mode",   "presets"};
   for (const auto& [k, v] : fields.items()) {
-    if (!known.count(k)) throw std::invalid_argument(who + ": unknown configuration field '" + k + "'");
+    if (!known.count(k))
+      throw std::invalid_argument(who + ": unknown configuration field '" + k + "'");
     if (k == "presets") continue;
     auto it = set_by.find(k);
     if (it != set_by.end() && into[k] != v)
-      throw std::invalid_argument("conflicting configuration: " + it->second + " sets " + k + " = " + into[k].dump() + ", " + who + " sets " + k + " = " + v.dump());
+      throw std::invalid_argument("conflicting configuration: " + it->second + " sets " + k +
+                                  " = " + into[k].dump() + ", " + who + " sets " + k + " = " +
+                                  v.dump());
     into[k] = v;
     set_by.emplace(k, who);
   }
 }
 
-inline void add_config_item(nlohmann::json& cfg, std::map<std::string, std::string>& set_by, const std::string& item, int depth) {
+inline void add_config_item(nlohmann::json& cfg, std::map<std::string, std::string>& set_by,
+                            const std::string& item, int depth) {
   const auto& presets = hopnet_presets();
   auto p = presets.find(item);
   if (p != presets.end()) return merge_fields(cfg, set_by, p->second, "preset '" + item + "'");
-  const bool looks_like_file = item.find('/') != std::string::npos || item.find('.') != std::string::npos;
+  const bool looks_like_file =
+      item.find('/') != std::string::npos || item.find('.') != std::string::npos;
   if (!looks_like_file || !std::filesystem::exists(item))
-    throw std::invalid_argument("unknown configuration '" + item + "': not a preset (" + preset_names() + ")" + (looks_like_file ? " and no such file" : ""));
+    throw std::invalid_argument("unknown configuration '" + item + "': not a preset (" +
+                                preset_names() + ")" +
+                                (looks_like_file ? " and no such file" : ""));
   if (depth > 4) throw std::invalid_argument(item + ": configuration files nest too deeply");
   const nlohmann::json j = data::read_json_file(item);
-  if (!j.is_object()) throw std::invalid_argument(item + ": a configuration file must hold a JSON object");
+  if (!j.is_object())
+    throw std::invalid_argument(item + ": a configuration file must hold a JSON object");
   if (j.contains("presets")) {
-    if (!j["presets"].is_array() && !j["presets"].is_string()) throw std::invalid_argument(item + ": 'presets' must be a string or a list of strings");
+    if (!j["presets"].is_array() && !j["presets"].is_string())
+      throw std::invalid_argument(item + ": 'presets' must be a string or a list of strings");
     std::vector<std::string> names;
-    if (j["presets"].is_string()) names = split_config(j["presets"].get<std::string>());
-    else for (const auto& n : j["presets"]) {
-      if (!n.is_string()) throw std::invalid_argument(item + ": 'presets' must list strings");
-      names.push_back(n.get<std::string>());
-    }
+    if (j["presets"].is_string())
+      names = split_config(j["presets"].get<std::string>());
+    else
+      for (const auto& n : j["presets"]) {
+        if (!n.is_string()) throw std::invalid_argument(item + ": 'presets' must list strings");
+        names.push_back(n.get<std::string>());
+      }
     for (const auto& n : names) add_config_item(cfg, set_by, n, depth + 1);
   }
   merge_fields(cfg, set_by, j, "file '" + item + "'");
@@ -117,9 +134,15 @@ inline std::string variant_name(const HopnetOptions& o) {
   std::int64_t hidden = 128;
   int layers = 1;
   switch (o.architecture()) {
-    case Architecture::hopnet: parts.push_back("standard"); break;
-    case Architecture::no_object_cells: parts.push_back("nox4"); break;
-    case Architecture::no_sequential: parts.push_back("noseq"), hidden = 64, layers = 3; break;
+    case Architecture::hopnet:
+      parts.push_back("standard");
+      break;
+    case Architecture::no_object_cells:
+      parts.push_back("nox4");
+      break;
+    case Architecture::no_sequential:
+      parts.push_back("noseq"), hidden = 64, layers = 3;
+      break;
   }
   if (!o.center_mass_distance()) parts.push_back("no-cm-distance");
   if (o.mlp_layers() == 3) parts.push_back("mlp3");
@@ -129,10 +152,14 @@ inline std::string variant_name(const HopnetOptions& o) {
   std::string s;
   for (const auto& p : parts) s += (s.empty() ? "" : ",") + p;
   std::vector<std::string> extra;
-  if (o.hidden() != hidden && !(o.hidden() == 64 && hidden == 128)) extra.push_back("hidden " + std::to_string(o.hidden()));
-  if (o.mlp_layers() != 2 && o.mlp_layers() != 3) extra.push_back("mlp_layers " + std::to_string(o.mlp_layers()));
-  if (o.num_layers() != layers && !(o.num_layers() == 2 && layers == 1)) extra.push_back("num_layers " + std::to_string(o.num_layers()));
-  if (o.activation() != nn::Activation::relu) extra.push_back(std::string("activation ") + nn::to_string(o.activation()));
+  if (o.hidden() != hidden && !(o.hidden() == 64 && hidden == 128))
+    extra.push_back("hidden " + std::to_string(o.hidden()));
+  if (o.mlp_layers() != 2 && o.mlp_layers() != 3)
+    extra.push_back("mlp_layers " + std::to_string(o.mlp_layers()));
+  if (o.num_layers() != layers && !(o.num_layers() == 2 && layers == 1))
+    extra.push_back("num_layers " + std::to_string(o.num_layers()));
+  if (o.activation() != nn::Activation::relu)
+    extra.push_back(std::string("activation ") + nn::to_string(o.activation()));
   if (o.collision_radius() != 0.1) {
     std::ostringstream r;
     r << "collision radius " << o.collision_radius();

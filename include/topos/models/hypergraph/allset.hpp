@@ -22,18 +22,25 @@ enum class MlpNorm { none, layer_norm, batch_norm };
 /// `activation` is absent (std::nullopt) where TopoModelX received None.
 class TopoMLPImpl : public torch::nn::Module {
  public:
-  TopoMLPImpl(std::int64_t in, std::int64_t width, int layers, std::optional<nn::Update> activation, MlpNorm norm, double dropout, bool topomodelx_compatible)
+  TopoMLPImpl(std::int64_t in, std::int64_t width, int layers, std::optional<nn::Update> activation,
+              MlpNorm norm, double dropout, bool topomodelx_compatible)
       : dropout_(dropout) {
-    if (layers < 1) throw std::invalid_argument("MLP: mlp_num_layers (" + std::to_string(layers) + ") must be positive");
+    if (layers < 1)
+      throw std::invalid_argument("MLP: mlp_num_layers (" + std::to_string(layers) +
+                                  ") must be positive");
     if (layers > 1 && !activation && topomodelx_compatible)
-      throw std::invalid_argument("MLP: mlp_activation None with " + std::to_string(layers) + " MLP layers fails in TopoModelX (name an activation)");
+      throw std::invalid_argument("MLP: mlp_activation None with " + std::to_string(layers) +
+                                  " MLP layers fails in TopoModelX (name an activation)");
     int idx = 0;
     for (int l = 0; l < layers; ++l) {
-      auto lin = register_module(std::to_string(idx++), torch::nn::Linear(torch::nn::LinearOptions(l == 0 ? in : width, width).bias(false)));
+      auto lin = register_module(
+          std::to_string(idx++),
+          torch::nn::Linear(torch::nn::LinearOptions(l == 0 ? in : width, width).bias(false)));
       steps_.push_back([lin](const torch::Tensor& x) { return lin->forward(x); });
       if (l + 1 == layers) break;
       if (norm == MlpNorm::layer_norm) {
-        auto ln = register_module(std::to_string(idx++), torch::nn::LayerNorm(torch::nn::LayerNormOptions({width})));
+        auto ln = register_module(std::to_string(idx++),
+                                  torch::nn::LayerNorm(torch::nn::LayerNormOptions({width})));
         steps_.push_back([ln](const torch::Tensor& x) { return ln->forward(x); });
       } else if (norm == MlpNorm::batch_norm) {
         auto bn = register_module(std::to_string(idx++), torch::nn::BatchNorm1d(width));
@@ -42,7 +49,8 @@ class TopoMLPImpl : public torch::nn::Module {
       const auto act = activation.value_or(nn::Update::none);
       steps_.push_back([act](const torch::Tensor& x) { return nn::apply_update(x, act); });
       ++idx;  // the activation module
-      steps_.push_back([this](const torch::Tensor& x) { return torch::dropout(x, dropout_, is_training()); });
+      steps_.push_back(
+          [this](const torch::Tensor& x) { return torch::dropout(x, dropout_, is_training()); });
       ++idx;  // Dropout
     }
   }
@@ -58,13 +66,15 @@ class TopoMLPImpl : public torch::nn::Module {
 TORCH_MODULE(TopoMLP);
 
 struct AllSetOptions {
-  AllSetOptions(std::int64_t in, std::int64_t hidden) : in_channels_(in), hidden_channels_(hidden) {}
+  AllSetOptions(std::int64_t in, std::int64_t hidden)
+      : in_channels_(in), hidden_channels_(hidden) {}
   TORCH_ARG(std::int64_t, in_channels);
   TORCH_ARG(std::int64_t, hidden_channels);
   TORCH_ARG(int, n_layers) = 2;
   TORCH_ARG(double, layer_dropout) = 0.2;
   TORCH_ARG(int, mlp_num_layers) = 2;
-  TORCH_ARG(std::optional<nn::Update>, mlp_activation) = nn::Update::relu;  ///< nullopt: TopoModelX's None
+  TORCH_ARG(std::optional<nn::Update>,
+            mlp_activation) = nn::Update::relu;  ///< nullopt: TopoModelX's None
   TORCH_ARG(double, mlp_dropout) = 0.0;
   TORCH_ARG(MlpNorm, mlp_norm) = MlpNorm::none;
   TORCH_ARG(bool, topomodelx_compatible) = false;
@@ -76,9 +86,14 @@ class AllSetBlockImpl : public torch::nn::Module {
  public:
   AllSetBlockImpl(std::int64_t in, const AllSetOptions& o) : dropout_(o.layer_dropout()) {
     const auto h = o.hidden_channels();
-    encoder = register_module("encoder", TopoMLP(in, h, o.mlp_num_layers(), o.mlp_activation(), o.mlp_norm(), o.mlp_dropout(), o.topomodelx_compatible()));
-    decoder = register_module("decoder", TopoMLP(h, h, o.mlp_num_layers(), o.mlp_activation(), o.mlp_norm(), o.mlp_dropout(), o.topomodelx_compatible()));
-    conv = register_module("conv", nn::Conv(nn::ConvOptions(h, h).aggr_norm(true).update_func(nn::Update::relu)));
+    encoder = register_module("encoder",
+                              TopoMLP(in, h, o.mlp_num_layers(), o.mlp_activation(), o.mlp_norm(),
+                                      o.mlp_dropout(), o.topomodelx_compatible()));
+    decoder = register_module("decoder",
+                              TopoMLP(h, h, o.mlp_num_layers(), o.mlp_activation(), o.mlp_norm(),
+                                      o.mlp_dropout(), o.topomodelx_compatible()));
+    conv = register_module(
+        "conv", nn::Conv(nn::ConvOptions(h, h).aggr_norm(true).update_func(nn::Update::relu)));
   }
   torch::Tensor forward(const torch::Tensor& x_source, const nn::SparseOperator& A) {
     auto x = torch::dropout(torch::relu(encoder->forward(x_source)), dropout_, is_training());
@@ -98,7 +113,8 @@ class AllSetImpl : public torch::nn::Module {
     auto list = register_module("layers", torch::nn::ModuleList());
     for (int l = 0; l < o.n_layers(); ++l) {
       auto layer = std::make_shared<torch::nn::Module>();
-      v2e_.push_back(layer->register_module("vertex2edge", AllSetBlock(l == 0 ? o.in_channels() : o.hidden_channels(), o)));
+      v2e_.push_back(layer->register_module(
+          "vertex2edge", AllSetBlock(l == 0 ? o.in_channels() : o.hidden_channels(), o)));
       e2v_.push_back(layer->register_module("edge2vertex", AllSetBlock(o.hidden_channels(), o)));
       list->push_back(layer);
     }
@@ -106,12 +122,15 @@ class AllSetImpl : public torch::nn::Module {
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
   std::vector<torch::Tensor> forward(torch::Tensor x0, const nn::SparseOperator& incidence_1) {
     if (x0.size(0) != incidence_1.rows)
-      throw std::invalid_argument("AllSet: " + std::to_string(x0.size(0)) + " node features for an incidence of " + std::to_string(incidence_1.rows) + " nodes");
+      throw std::invalid_argument("AllSet: " + std::to_string(x0.size(0)) +
+                                  " node features for an incidence of " +
+                                  std::to_string(incidence_1.rows) + " nodes");
     const auto Bt = incidence_1.t();
     torch::Tensor x1;
     for (std::size_t l = 0; l < v2e_.size(); ++l) {
       x1 = torch::dropout(v2e_[l]->forward(x0, Bt), options.layer_dropout(), is_training());
-      x0 = torch::dropout(e2v_[l]->forward(x1, incidence_1), options.layer_dropout(), is_training());
+      x0 =
+          torch::dropout(e2v_[l]->forward(x1, incidence_1), options.layer_dropout(), is_training());
     }
     return {x0, x1};
   }

@@ -13,7 +13,8 @@
 namespace topos::models {
 
 struct AllSetTransformerOptions {
-  AllSetTransformerOptions(std::int64_t in, std::int64_t hidden) : in_channels_(in), hidden_channels_(hidden) {}
+  AllSetTransformerOptions(std::int64_t in, std::int64_t hidden)
+      : in_channels_(in), hidden_channels_(hidden) {}
   TORCH_ARG(std::int64_t, in_channels);
   TORCH_ARG(std::int64_t, hidden_channels);
   TORCH_ARG(int, n_layers) = 1;
@@ -57,7 +58,8 @@ class AllSetTransformerBlockImpl : public torch::nn::Module {
   AllSetTransformerBlockImpl(std::int64_t in, const AllSetTransformerOptions& o) {
     const auto h = o.hidden_channels();
     multihead_att = register_module("multihead_att", SetAttention(in, h / o.heads(), o.heads()));
-    mlp = register_module("mlp", TopoMLP(h, h, o.mlp_num_layers(), o.mlp_activation(), o.mlp_norm(), o.mlp_dropout(), true));
+    mlp = register_module("mlp", TopoMLP(h, h, o.mlp_num_layers(), o.mlp_activation(), o.mlp_norm(),
+                                         o.mlp_dropout(), true));
     ln0 = register_module("ln0", torch::nn::LayerNorm(torch::nn::LayerNormOptions({h})));
     ln1 = register_module("ln1", torch::nn::LayerNorm(torch::nn::LayerNormOptions({h})));
   }
@@ -74,24 +76,39 @@ TORCH_MODULE(AllSetTransformerBlock);
 class AllSetTransformerImpl : public torch::nn::Module {
  public:
   explicit AllSetTransformerImpl(const AllSetTransformerOptions& o) : options(o) {
-    if (o.heads() <= 0) throw std::invalid_argument("AllSetTransformer: heads (" + std::to_string(o.heads()) + ") must be positive");
+    if (o.heads() <= 0)
+      throw std::invalid_argument("AllSetTransformer: heads (" + std::to_string(o.heads()) +
+                                  ") must be positive");
     if (o.hidden_channels() % o.heads() != 0)
-      throw std::invalid_argument("AllSetTransformer: hidden_channels (" + std::to_string(o.hidden_channels()) + ") must be divisible by heads (" + std::to_string(o.heads()) + ")");
+      throw std::invalid_argument(
+          "AllSetTransformer: hidden_channels (" + std::to_string(o.hidden_channels()) +
+          ") must be divisible by heads (" + std::to_string(o.heads()) + ")");
     // TopoModelX broadcasts the keys against the queries, which only works for one query.
-    if (o.number_queries() != 1) throw std::invalid_argument("AllSetTransformer: number_queries must be 1 (TopoModelX's attention supports one query per head)");
-    if (o.mlp_norm() == MlpNorm::batch_norm) throw std::invalid_argument("AllSetTransformer: mlp_norm BatchNorm1d is not supported (the MLP sees targets x queries x channels)");
+    if (o.number_queries() != 1)
+      throw std::invalid_argument(
+          "AllSetTransformer: number_queries must be 1 (TopoModelX's attention supports one query "
+          "per head)");
+    if (o.mlp_norm() == MlpNorm::batch_norm)
+      throw std::invalid_argument(
+          "AllSetTransformer: mlp_norm BatchNorm1d is not supported (the MLP sees targets x "
+          "queries x channels)");
     auto list = register_module("layers", torch::nn::ModuleList());
     for (int l = 0; l < o.n_layers(); ++l) {
       auto layer = std::make_shared<torch::nn::Module>();
-      v2e_.push_back(layer->register_module("vertex2edge", AllSetTransformerBlock(l == 0 ? o.in_channels() : o.hidden_channels(), o)));
-      e2v_.push_back(layer->register_module("edge2vertex", AllSetTransformerBlock(o.hidden_channels(), o)));
+      v2e_.push_back(layer->register_module(
+          "vertex2edge",
+          AllSetTransformerBlock(l == 0 ? o.in_channels() : o.hidden_channels(), o)));
+      e2v_.push_back(
+          layer->register_module("edge2vertex", AllSetTransformerBlock(o.hidden_channels(), o)));
       list->push_back(layer);
     }
   }
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
   std::vector<torch::Tensor> forward(torch::Tensor x0, const nn::SparseOperator& incidence_1) {
     if (x0.size(0) != incidence_1.rows)
-      throw std::invalid_argument("AllSetTransformer: " + std::to_string(x0.size(0)) + " node features for an incidence of " + std::to_string(incidence_1.rows) + " nodes");
+      throw std::invalid_argument("AllSetTransformer: " + std::to_string(x0.size(0)) +
+                                  " node features for an incidence of " +
+                                  std::to_string(incidence_1.rows) + " nodes");
     const auto B = incidence_1.pattern(), Bt = B.t();
     torch::Tensor x1;
     for (std::size_t l = 0; l < v2e_.size(); ++l) {

@@ -37,21 +37,27 @@ class HMPNNImpl : public torch::nn::Module {
       auto layer = std::make_shared<torch::nn::Module>();
       Layer L;
       auto n2e = nn::submodule_group(*layer, "node_to_hyperedge_messenger");
-      auto seq = n2e->register_module("messaging_func", torch::nn::Sequential(torch::nn::Linear(h, h), torch::nn::Sigmoid()));
+      auto seq = n2e->register_module(
+          "messaging_func", torch::nn::Sequential(torch::nn::Linear(h, h), torch::nn::Sigmoid()));
       L.node_message = torch::nn::Linear(seq->ptr<torch::nn::LinearImpl>(0));
       auto e2n = nn::submodule_group(*layer, "hyperedge_to_node_messenger");
-      L.edge_message = nn::submodule_group(*e2n, "messaging_func")->register_module("linear", torch::nn::Linear(2 * h, h));
+      L.edge_message = nn::submodule_group(*e2n, "messaging_func")
+                           ->register_module("linear", torch::nn::Linear(2 * h, h));
       L.node_bn = layer->register_module("node_batchnorm", torch::nn::BatchNorm1d(h));
       L.edge_bn = layer->register_module("hyperedge_batchnorm", torch::nn::BatchNorm1d(h));
       list->push_back(layer);
       layers_.push_back(L);
     }
   }
-  /// x_0 (nodes), x_1 (hyperedges) and the node × hyperedge incidence (its pattern); returns (x_0, x_1).
-  std::vector<torch::Tensor> forward(torch::Tensor x0, torch::Tensor x1, const nn::SparseOperator& incidence_1) {
+  /// x_0 (nodes), x_1 (hyperedges) and the node × hyperedge incidence (its pattern); returns (x_0,
+  /// x_1).
+  std::vector<torch::Tensor> forward(torch::Tensor x0, torch::Tensor x1,
+                                     const nn::SparseOperator& incidence_1) {
     if (x0.size(0) != incidence_1.rows || x1.size(0) != incidence_1.cols)
-      throw std::invalid_argument("HMPNN: " + std::to_string(x0.size(0)) + " node and " + std::to_string(x1.size(0)) + " hyperedge features for an incidence of " +
-                                  std::to_string(incidence_1.rows) + " x " + std::to_string(incidence_1.cols));
+      throw std::invalid_argument(
+          "HMPNN: " + std::to_string(x0.size(0)) + " node and " + std::to_string(x1.size(0)) +
+          " hyperedge features for an incidence of " + std::to_string(incidence_1.rows) + " x " +
+          std::to_string(incidence_1.cols));
     x0 = linear_node->forward(x0);
     x1 = linear_edge->forward(x1);
     for (auto& L : layers_) {
@@ -59,7 +65,7 @@ class HMPNNImpl : public torch::nn::Module {
       const auto m0 = torch::sigmoid(L.node_message->forward(x0));
       const auto M1 = nn::pattern_aggregate(Bt, m0, options.aggr_func());  // per hyperedge
       const auto m1 = torch::sigmoid(L.edge_message->forward(torch::cat({x1, M1}, 1)));
-      const auto M0 = nn::pattern_aggregate(B, m1, options.aggr_func());   // per node
+      const auto M0 = nn::pattern_aggregate(B, m1, options.aggr_func());  // per node
       x0 = torch::sigmoid(feature_dropout(L.node_bn->forward(x0)) + M0);
       x1 = torch::sigmoid(feature_dropout(L.edge_bn->forward(x1)) + M1);
     }
@@ -70,15 +76,24 @@ class HMPNNImpl : public torch::nn::Module {
 
  private:
   nn::SparseOperator incidence_dropout(const nn::SparseOperator& B) const {
-    if (!is_training() || options.topomodelx_compatible() || options.adjacency_dropout_rate() <= 0) return B;
-    const auto keep = (torch::rand({B.nnz()}) >= options.adjacency_dropout_rate()).nonzero().squeeze(1);
-    const auto r = B.row.index_select(0, keep).contiguous(), c = B.col.index_select(0, keep).contiguous();
-    return nn::SparseOperator::from_sorted(B.rows, B.cols, std::vector<std::int64_t>(r.data_ptr<std::int64_t>(), r.data_ptr<std::int64_t>() + r.numel()),
-                                           std::vector<std::int64_t>(c.data_ptr<std::int64_t>(), c.data_ptr<std::int64_t>() + c.numel()), B.values.index_select(0, keep));
+    if (!is_training() || options.topomodelx_compatible() || options.adjacency_dropout_rate() <= 0)
+      return B;
+    const auto keep =
+        (torch::rand({B.nnz()}) >= options.adjacency_dropout_rate()).nonzero().squeeze(1);
+    const auto r = B.row.index_select(0, keep).contiguous(),
+               c = B.col.index_select(0, keep).contiguous();
+    return nn::SparseOperator::from_sorted(
+        B.rows, B.cols,
+        std::vector<std::int64_t>(r.data_ptr<std::int64_t>(),
+                                  r.data_ptr<std::int64_t>() + r.numel()),
+        std::vector<std::int64_t>(c.data_ptr<std::int64_t>(),
+                                  c.data_ptr<std::int64_t>() + c.numel()),
+        B.values.index_select(0, keep));
   }
   torch::Tensor feature_dropout(const torch::Tensor& x) const {
     if (!is_training()) return x;
-    if (!options.topomodelx_compatible()) return torch::dropout(x, options.regular_dropout_rate(), true);
+    if (!options.topomodelx_compatible())
+      return torch::dropout(x, options.regular_dropout_rate(), true);
     const auto mask = torch::bernoulli(torch::full_like(x, options.regular_dropout_rate()));
     const double n = static_cast<double>(x.size(0));
     return x * mask * ((2 * n - mask.sum(1, true)) / n);

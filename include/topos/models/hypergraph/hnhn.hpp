@@ -25,11 +25,14 @@ struct HNHNOptions {
 };
 
 /// HNHN's normalised incidences (node × hyperedge, hyperedge × node) from B's values.
-inline std::pair<nn::SparseOperator, nn::SparseOperator> hnhn_normalized_incidences(const nn::SparseOperator& B, double alpha, double beta) {
+inline std::pair<nn::SparseOperator, nn::SparseOperator> hnhn_normalized_incidences(
+    const nn::SparseOperator& B, double alpha, double beta) {
   const auto edge_card = B.col_sums().pow(alpha), node_card = B.row_sums().pow(beta);
   const auto P = B.pattern();
-  const auto left0 = nn::spmm(P, edge_card.unsqueeze(1)).squeeze(1).reciprocal();     // 1 / Σ_{e∋v} |e|^α
-  const auto left1 = nn::spmm(P.t(), node_card.unsqueeze(1)).squeeze(1).reciprocal();  // 1 / Σ_{u∈e} d_u^β
+  const auto left0 =
+      nn::spmm(P, edge_card.unsqueeze(1)).squeeze(1).reciprocal();  // 1 / Σ_{e∋v} |e|^α
+  const auto left1 =
+      nn::spmm(P.t(), node_card.unsqueeze(1)).squeeze(1).reciprocal();  // 1 / Σ_{u∈e} d_u^β
   return {B.scaled(left0, edge_card), B.t().scaled(left1, node_card)};
 }
 
@@ -41,13 +44,18 @@ class HNHNImpl : public torch::nn::Module {
       auto layer = std::make_shared<torch::nn::Module>();
       Layer L;
       if (o.use_bias()) {
-        L.bias_1_to_0 = layer->register_parameter("bias_1_to_0", torch::empty({1, o.hidden_channels()}));
-        L.bias_0_to_1 = layer->register_parameter("bias_0_to_1", torch::empty({1, o.hidden_channels()}));
+        L.bias_1_to_0 =
+            layer->register_parameter("bias_1_to_0", torch::empty({1, o.hidden_channels()}));
+        L.bias_0_to_1 =
+            layer->register_parameter("bias_0_to_1", torch::empty({1, o.hidden_channels()}));
         nn::xavier_uniform(L.bias_0_to_1, o.bias_gain());
         nn::xavier_uniform(L.bias_1_to_0, o.bias_gain());
       }
-      L.conv_0_to_1 = layer->register_module("conv_0_to_1", nn::Conv(nn::ConvOptions(l == 0 ? o.in_channels() : o.hidden_channels(), o.hidden_channels())));
-      L.conv_1_to_0 = layer->register_module("conv_1_to_0", nn::Conv(nn::ConvOptions(o.hidden_channels(), o.hidden_channels())));
+      L.conv_0_to_1 = layer->register_module(
+          "conv_0_to_1", nn::Conv(nn::ConvOptions(l == 0 ? o.in_channels() : o.hidden_channels(),
+                                                  o.hidden_channels())));
+      L.conv_1_to_0 = layer->register_module(
+          "conv_1_to_0", nn::Conv(nn::ConvOptions(o.hidden_channels(), o.hidden_channels())));
       list->push_back(layer);
       layers_.push_back(L);
     }
@@ -55,9 +63,12 @@ class HNHNImpl : public torch::nn::Module {
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
   std::vector<torch::Tensor> forward(torch::Tensor x0, const nn::SparseOperator& incidence_1) {
     if (x0.size(0) != incidence_1.rows)
-      throw std::invalid_argument("HNHN: " + std::to_string(x0.size(0)) + " node features for an incidence of " + std::to_string(incidence_1.rows) + " nodes");
+      throw std::invalid_argument("HNHN: " + std::to_string(x0.size(0)) +
+                                  " node features for an incidence of " +
+                                  std::to_string(incidence_1.rows) + " nodes");
     nn::SparseOperator B = incidence_1, Bt = incidence_1.t();
-    if (options.use_normalized_incidence()) std::tie(B, Bt) = hnhn_normalized_incidences(incidence_1, options.alpha(), options.beta());
+    if (options.use_normalized_incidence())
+      std::tie(B, Bt) = hnhn_normalized_incidences(incidence_1, options.alpha(), options.beta());
     torch::Tensor x1;
     for (auto& L : layers_) {
       x1 = L.conv_0_to_1->forward(x0, Bt);

@@ -15,7 +15,8 @@
 namespace topos::models {
 
 struct HyperGATOptions {
-  HyperGATOptions(std::int64_t in, std::int64_t hidden) : in_channels_(in), hidden_channels_(hidden) {}
+  HyperGATOptions(std::int64_t in, std::int64_t hidden)
+      : in_channels_(in), hidden_channels_(hidden) {}
   TORCH_ARG(std::int64_t, in_channels);
   TORCH_ARG(std::int64_t, hidden_channels);
   TORCH_ARG(int, n_layers) = 2;
@@ -33,11 +34,13 @@ class HyperGATImpl : public torch::nn::Module {
     for (int l = 0; l < o.n_layers(); ++l) {
       auto layer = std::make_shared<torch::nn::Module>();
       Layer L;
-      L.weight1 = layer->register_parameter("weight1", torch::empty({l == 0 ? o.in_channels() : h, h}));
+      L.weight1 =
+          layer->register_parameter("weight1", torch::empty({l == 0 ? o.in_channels() : h, h}));
       L.weight2 = layer->register_parameter("weight2", torch::empty({h, h}));
       L.att_weight1 = layer->register_parameter("att_weight1", torch::empty({h, 1}));
       L.att_weight2 = layer->register_parameter("att_weight2", torch::empty({2 * h, 1}));
-      for (auto* w : {&L.weight1, &L.weight2, &L.att_weight1, &L.att_weight2}) nn::xavier_uniform(*w, o.initialization_gain());
+      for (auto* w : {&L.weight1, &L.weight2, &L.att_weight1, &L.att_weight2})
+        nn::xavier_uniform(*w, o.initialization_gain());
       list->push_back(layer);
       layers_.push_back(L);
     }
@@ -45,7 +48,9 @@ class HyperGATImpl : public torch::nn::Module {
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
   std::vector<torch::Tensor> forward(torch::Tensor x0, const nn::SparseOperator& incidence_1) {
     if (x0.size(0) != incidence_1.rows)
-      throw std::invalid_argument("HyperGAT: " + std::to_string(x0.size(0)) + " node features for an incidence of " + std::to_string(incidence_1.rows) + " nodes");
+      throw std::invalid_argument("HyperGAT: " + std::to_string(x0.size(0)) +
+                                  " node features for an incidence of " +
+                                  std::to_string(incidence_1.rows) + " nodes");
     const auto& B = incidence_1;
     const auto Bt = B.t();
     const auto h = options.hidden_channels();
@@ -57,13 +62,17 @@ class HyperGATImpl : public torch::nn::Module {
         x0 = nn::apply_update(nn::spmm(B, x1.matmul(L.weight2)), options.update_func());
       } else {
         // Node level: each hyperedge (row of Bᵀ) attends over its nodes.
-        const auto s1 = torch::leaky_relu(m0).matmul(L.att_weight1).squeeze(1).index_select(0, Bt.col);
-        x1 = nn::apply_update(nn::spmm(Bt.with_values(nn::row_softmax(Bt, s1) * Bt.values), m0), options.update_func());
+        const auto s1 =
+            torch::leaky_relu(m0).matmul(L.att_weight1).squeeze(1).index_select(0, Bt.col);
+        x1 = nn::apply_update(nn::spmm(Bt.with_values(nn::row_softmax(Bt, s1) * Bt.values), m0),
+                              options.update_func());
         // Edge level: each node (row of B) attends over its hyperedges.
         const auto m1 = x1.matmul(L.weight2);
         const auto a = L.att_weight2.squeeze(1);
-        const auto s2 = nn::pair_scores(B, torch::leaky_relu(m1), a.narrow(0, 0, h), torch::leaky_relu(m0), a.narrow(0, h, h));
-        x0 = nn::apply_update(nn::spmm(B.with_values(nn::row_softmax(B, s2) * B.values), m1), options.update_func());
+        const auto s2 = nn::pair_scores(B, torch::leaky_relu(m1), a.narrow(0, 0, h),
+                                        torch::leaky_relu(m0), a.narrow(0, h, h));
+        x0 = nn::apply_update(nn::spmm(B.with_values(nn::row_softmax(B, s2) * B.values), m1),
+                              options.update_func());
       }
       x0 = torch::dropout(x0, options.layer_drop(), is_training());
     }

@@ -14,7 +14,8 @@
 namespace topos::models {
 
 struct UniGCNIIOptions {
-  UniGCNIIOptions(std::int64_t in, std::int64_t hidden) : in_channels_(in), hidden_channels_(hidden) {}
+  UniGCNIIOptions(std::int64_t in, std::int64_t hidden)
+      : in_channels_(in), hidden_channels_(hidden) {}
   TORCH_ARG(std::int64_t, in_channels);
   TORCH_ARG(std::int64_t, hidden_channels);
   TORCH_ARG(int, n_layers) = 2;
@@ -29,11 +30,15 @@ struct UniGCNIIOptions {
 class UniGCNIIImpl : public torch::nn::Module {
  public:
   explicit UniGCNIIImpl(const UniGCNIIOptions& o) : options(o) {
-    initial_ = register_module("initial_linear_layer", torch::nn::Linear(o.in_channels(), o.hidden_channels()));
+    initial_ = register_module("initial_linear_layer",
+                               torch::nn::Linear(o.in_channels(), o.hidden_channels()));
     auto list = register_module("layers", torch::nn::ModuleList());
     for (int l = 0; l < o.n_layers(); ++l) {
       auto layer = std::make_shared<torch::nn::Module>();
-      linear_.push_back(layer->register_module("linear", torch::nn::Linear(torch::nn::LinearOptions(o.hidden_channels(), o.hidden_channels()).bias(false))));
+      linear_.push_back(layer->register_module(
+          "linear",
+          torch::nn::Linear(
+              torch::nn::LinearOptions(o.hidden_channels(), o.hidden_channels()).bias(false))));
       list->push_back(layer);
       beta_.push_back(std::log((o.topomodelx_compatible() ? o.alpha() : o.beta()) / (l + 1) + 1));
     }
@@ -41,9 +46,11 @@ class UniGCNIIImpl : public torch::nn::Module {
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1 of the last layer).
   std::vector<torch::Tensor> forward(torch::Tensor x0, const nn::SparseOperator& incidence_1) {
     const auto dv = incidence_1.row_sums();
-    if ((dv <= 0).any().item<bool>()) throw std::invalid_argument("UniGCNII: every node must be in a hyperedge (add self-loops)");
+    if ((dv <= 0).any().item<bool>())
+      throw std::invalid_argument("UniGCNII: every node must be in a hyperedge (add self-loops)");
     const auto de = incidence_1.scaled(dv).col_sums() / incidence_1.col_sums();
-    if (!(de > 0).all().item<bool>()) throw std::invalid_argument("UniGCNII: every hyperedge must contain a node");
+    if (!(de > 0).all().item<bool>())
+      throw std::invalid_argument("UniGCNII: every hyperedge must contain a node");
     const auto Bt = incidence_1.t();
     const auto B = incidence_1.scaled(dv.rsqrt(), de.rsqrt());  // D_v^-1/2 B D_e^-1/2
     x0 = torch::relu(initial_->forward(torch::dropout(x0, options.input_drop(), is_training())));

@@ -12,7 +12,8 @@
 namespace topos::models {
 
 struct UniGINOptions {
-  UniGINOptions(std::int64_t in, std::int64_t hidden) : in_channels_(in), hidden_channels_(hidden) {}
+  UniGINOptions(std::int64_t in, std::int64_t hidden)
+      : in_channels_(in), hidden_channels_(hidden) {}
   TORCH_ARG(std::int64_t, in_channels);
   TORCH_ARG(std::int64_t, hidden_channels);
   TORCH_ARG(int, n_layers) = 2;
@@ -34,22 +35,28 @@ inline torch::Tensor unit_rows(const torch::Tensor& x) {
 class UniGINImpl : public torch::nn::Module {
  public:
   explicit UniGINImpl(const UniGINOptions& o) : options(o) {
-    initial_ = register_module("initial_linear_layer", torch::nn::Linear(o.in_channels(), o.hidden_channels()));
+    initial_ = register_module("initial_linear_layer",
+                               torch::nn::Linear(o.in_channels(), o.hidden_channels()));
     auto list = register_module("layers", torch::nn::ModuleList());
     for (int l = 0; l < o.n_layers(); ++l) {
       auto layer = std::make_shared<torch::nn::Module>();
       const auto e = torch::full({1}, o.eps());
-      eps_.push_back(o.train_eps() ? layer->register_parameter("eps", e) : layer->register_buffer("eps", e));
-      linear_.push_back(layer->register_module("linear", torch::nn::Linear(o.hidden_channels(), o.hidden_channels())));
+      eps_.push_back(o.train_eps() ? layer->register_parameter("eps", e)
+                                   : layer->register_buffer("eps", e));
+      linear_.push_back(layer->register_module(
+          "linear", torch::nn::Linear(o.hidden_channels(), o.hidden_channels())));
       list->push_back(layer);
     }
   }
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
   std::vector<torch::Tensor> forward(torch::Tensor x0, const nn::SparseOperator& incidence_1) {
     if (x0.size(0) != incidence_1.rows)
-      throw std::invalid_argument("UniGIN: " + std::to_string(x0.size(0)) + " node features for an incidence of " + std::to_string(incidence_1.rows) + " nodes");
+      throw std::invalid_argument("UniGIN: " + std::to_string(x0.size(0)) +
+                                  " node features for an incidence of " +
+                                  std::to_string(incidence_1.rows) + " nodes");
     const auto Bt = incidence_1.t();
-    if (!options.topomodelx_compatible()) x0 = torch::dropout(x0, options.input_drop(), is_training());
+    if (!options.topomodelx_compatible())
+      x0 = torch::dropout(x0, options.input_drop(), is_training());
     x0 = initial_->forward(x0);
     torch::Tensor x1;
     for (std::size_t l = 0; l < linear_.size(); ++l) {

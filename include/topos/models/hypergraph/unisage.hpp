@@ -10,7 +10,8 @@
 namespace topos::models {
 
 struct UniSAGEOptions {
-  UniSAGEOptions(std::int64_t in, std::int64_t hidden) : in_channels_(in), hidden_channels_(hidden) {}
+  UniSAGEOptions(std::int64_t in, std::int64_t hidden)
+      : in_channels_(in), hidden_channels_(hidden) {}
   TORCH_ARG(std::int64_t, in_channels);
   TORCH_ARG(std::int64_t, hidden_channels);
   TORCH_ARG(int, n_layers) = 2;
@@ -28,16 +29,25 @@ class UniSAGEImpl : public torch::nn::Module {
     const auto h = o.hidden_channels();
     for (int l = 0; l < o.n_layers(); ++l) {
       auto layer = std::make_shared<torch::nn::Module>();
-      linear_.push_back(layer->register_module("linear", torch::nn::Linear(l == 0 ? o.in_channels() : h, h)));
-      v2e_.push_back(layer->register_module("vertex2edge", nn::Conv(nn::ConvOptions(h, h).aggr_norm(o.e_aggr() == nn::Aggr::mean).with_linear_transform(false))));
-      e2v_.push_back(layer->register_module("edge2vertex", nn::Conv(nn::ConvOptions(h, h).aggr_norm(o.v_aggr() == nn::Aggr::mean).with_linear_transform(false))));
+      linear_.push_back(
+          layer->register_module("linear", torch::nn::Linear(l == 0 ? o.in_channels() : h, h)));
+      v2e_.push_back(layer->register_module("vertex2edge",
+                                            nn::Conv(nn::ConvOptions(h, h)
+                                                         .aggr_norm(o.e_aggr() == nn::Aggr::mean)
+                                                         .with_linear_transform(false))));
+      e2v_.push_back(layer->register_module("edge2vertex",
+                                            nn::Conv(nn::ConvOptions(h, h)
+                                                         .aggr_norm(o.v_aggr() == nn::Aggr::mean)
+                                                         .with_linear_transform(false))));
       list->push_back(layer);
     }
   }
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
   std::vector<torch::Tensor> forward(torch::Tensor x0, const nn::SparseOperator& incidence_1) {
     if (x0.size(0) != incidence_1.rows)
-      throw std::invalid_argument("UniSAGE: " + std::to_string(x0.size(0)) + " node features for an incidence of " + std::to_string(incidence_1.rows) + " nodes");
+      throw std::invalid_argument("UniSAGE: " + std::to_string(x0.size(0)) +
+                                  " node features for an incidence of " +
+                                  std::to_string(incidence_1.rows) + " nodes");
     const auto Bt = incidence_1.t();
     x0 = torch::dropout(x0, options.input_drop(), is_training());
     torch::Tensor x1;

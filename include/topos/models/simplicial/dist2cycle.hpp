@@ -16,7 +16,8 @@ struct Dist2CycleOptions {
   explicit Dist2CycleOptions(std::int64_t channels) : channels_(channels) {}
   TORCH_ARG(std::int64_t, channels);
   TORCH_ARG(int, n_layers) = 2;
-  TORCH_ARG(bool, topomodelx_compatible) = false;  ///< every layer returns fc(relu(M)), ignoring its input
+  TORCH_ARG(bool, topomodelx_compatible) =
+      false;  ///< every layer returns fc(relu(M)), ignoring its input
 };
 
 class Dist2CycleImpl : public torch::nn::Module {
@@ -30,12 +31,16 @@ class Dist2CycleImpl : public torch::nn::Module {
       list->push_back(m);
     }
   }
-  /// Edge features, the pseudo-inverse L⁺ and the edge adjacency (any two operators multiplied entrywise).
-  torch::Tensor forward(torch::Tensor x, const nn::SparseOperator& linv, const nn::SparseOperator& adjacency) {
+  /// Edge features, the pseudo-inverse L⁺ and the edge adjacency (any two operators multiplied
+  /// entrywise).
+  torch::Tensor forward(torch::Tensor x, const nn::SparseOperator& linv,
+                        const nn::SparseOperator& adjacency) {
     const auto M = nn::SparseOperator::hadamard(adjacency, linv);
     if (options.topomodelx_compatible()) {
       if (M.cols != options.channels())
-        throw std::invalid_argument("Dist2Cycle: TopoModelX-compatible mode needs channels (" + std::to_string(options.channels()) + ") = number of edges (" + std::to_string(M.cols) + ")");
+        throw std::invalid_argument("Dist2Cycle: TopoModelX-compatible mode needs channels (" +
+                                    std::to_string(options.channels()) + ") = number of edges (" +
+                                    std::to_string(M.cols) + ")");
       const auto R = M.with_values(torch::relu(M.values));  // relu(M), still sparse
       for (auto& fc : fc_) x = nn::spmm(R, fc->weight.t().contiguous()) + fc->bias;
       return x;

@@ -25,18 +25,24 @@ class HSNImpl : public torch::nn::Module {
     for (int l = 0; l < o.n_layers(); ++l) {
       auto m = std::make_shared<torch::nn::Module>();
       const auto sig = nn::ConvOptions(c, c).update_func(nn::Update::sigmoid);
-      layers_.push_back({m->register_module("conv_level1_0_to_0", nn::Conv(sig)), m->register_module("conv_level1_0_to_1", nn::Conv(sig)),
-                         m->register_module("conv_level2_0_to_0", nn::Conv(nn::ConvOptions(c, c))), m->register_module("conv_level2_1_to_0", nn::Conv(nn::ConvOptions(c, c)))});
+      layers_.push_back(
+          {m->register_module("conv_level1_0_to_0", nn::Conv(sig)),
+           m->register_module("conv_level1_0_to_1", nn::Conv(sig)),
+           m->register_module("conv_level2_0_to_0", nn::Conv(nn::ConvOptions(c, c))),
+           m->register_module("conv_level2_1_to_0", nn::Conv(nn::ConvOptions(c, c)))});
       list->push_back(m);
     }
   }
   /// Node features, the node × edge incidence B_1 and the node adjacency.
-  torch::Tensor forward(torch::Tensor x_0, const nn::SparseOperator& incidence_1, const nn::SparseOperator& adjacency_0) {
+  torch::Tensor forward(torch::Tensor x_0, const nn::SparseOperator& incidence_1,
+                        const nn::SparseOperator& adjacency_0) {
     const auto incidence_1_t = incidence_1.t();
     for (auto& l : layers_) {
       const auto x_0_level1 = l.c00_1->forward(x_0, adjacency_0);
       const auto x_1_level1 = l.c01_1->forward(x_0, incidence_1_t);
-      x_0 = nn::aggregate_messages({l.c00_2->forward(x_0_level1, adjacency_0), l.c10_2->forward(x_1_level1, incidence_1)}, nn::Aggr::sum, nn::Update::sigmoid);
+      x_0 = nn::aggregate_messages(
+          {l.c00_2->forward(x_0_level1, adjacency_0), l.c10_2->forward(x_1_level1, incidence_1)},
+          nn::Aggr::sum, nn::Update::sigmoid);
     }
     return x_0;
   }

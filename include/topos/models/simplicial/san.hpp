@@ -21,7 +21,8 @@ struct SANOptions {
   TORCH_ARG(int, n_layers) = 2;
 };
 
-/// One attention filter bank: parameters "weight" (filters × in × out), "att_weight" (2·out·filters).
+/// One attention filter bank: parameters "weight" (filters × in × out), "att_weight"
+/// (2·out·filters).
 class SANConvImpl : public torch::nn::Module {
  public:
   SANConvImpl(std::int64_t in, std::int64_t out, int filters) : out_(out), filters_(filters) {
@@ -31,11 +32,13 @@ class SANConvImpl : public torch::nn::Module {
     nn::xavier_uniform(att_weight);
   }
   torch::Tensor forward(const torch::Tensor& x, const nn::SparseOperator& L) {
-    const auto m = torch::matmul(x, weight);                                 // filters × n × out
+    const auto m = torch::matmul(x, weight);  // filters × n × out
     const auto flat = m.permute({1, 0, 2}).reshape({x.size(0), out_ * filters_});
     const auto C = out_ * filters_;
-    const auto raw = nn::pair_scores(L, flat, att_weight.narrow(0, 0, C), flat, att_weight.narrow(0, C, C));
-    const auto A = L.with_values(nn::attention_weights(L, raw, nn::Update::elu, 0, nn::AttentionNorm::softmax));
+    const auto raw =
+        nn::pair_scores(L, flat, att_weight.narrow(0, 0, C), flat, att_weight.narrow(0, C, C));
+    const auto A = L.with_values(
+        nn::attention_weights(L, raw, nn::Update::elu, 0, nn::AttentionNorm::softmax));
     torch::Tensor y;
     for (int p = 0; p < filters_; ++p) {  // A^(p+1) m_p
       auto z = m[p];
@@ -61,16 +64,20 @@ class SANImpl : public torch::nn::Module {
       const auto in = l == 0 ? o.in_channels() : o.hidden_channels();
       const auto c = l + 1 == o.n_layers() ? out : o.hidden_channels();
       auto layer = std::make_shared<torch::nn::Module>();
-      Layer L{layer->register_module("conv_down", SANConv(in, c, o.n_filters())), layer->register_module("conv_up", SANConv(in, c, o.n_filters())),
+      Layer L{layer->register_module("conv_down", SANConv(in, c, o.n_filters())),
+              layer->register_module("conv_up", SANConv(in, c, o.n_filters())),
               layer->register_module("conv_harmonic", nn::Conv(nn::ConvOptions(in, c)))};
       list->push_back(layer);
       layers_.push_back(L);
     }
   }
-  torch::Tensor forward(torch::Tensor x, const nn::SparseOperator& laplacian_up, const nn::SparseOperator& laplacian_down) {
+  torch::Tensor forward(torch::Tensor x, const nn::SparseOperator& laplacian_up,
+                        const nn::SparseOperator& laplacian_down) {
     const auto L = nn::SparseOperator::sum(laplacian_up, laplacian_down);
     for (auto& l : layers_) {
-      const auto harmonic = nn::apply_affine_power(L, x.matmul(l.harmonic->weight), options.order_harmonic(), 1.0, -options.epsilon_harmonic());
+      const auto harmonic =
+          nn::apply_affine_power(L, x.matmul(l.harmonic->weight), options.order_harmonic(), 1.0,
+                                 -options.epsilon_harmonic());
       x = l.down->forward(x, laplacian_down) + l.up->forward(x, laplacian_up) + harmonic;
     }
     return x;

@@ -12,7 +12,8 @@
 namespace topos::models {
 
 struct SCACMPSOptions {
-  SCACMPSOptions(std::vector<std::int64_t> in_channels_all, int complex_dim) : in_channels_all_(std::move(in_channels_all)), complex_dim_(complex_dim) {}
+  SCACMPSOptions(std::vector<std::int64_t> in_channels_all, int complex_dim)
+      : in_channels_all_(std::move(in_channels_all)), complex_dim_(complex_dim) {}
   TORCH_ARG(std::vector<std::int64_t>, in_channels_all);
   TORCH_ARG(int, complex_dim);
   TORCH_ARG(int, n_layers) = 2;
@@ -24,12 +25,14 @@ class SCACMPSImpl : public torch::nn::Module {
   explicit SCACMPSImpl(const SCACMPSOptions& o) : options(o) {
     const auto& ch = o.in_channels_all();
     if (o.complex_dim() < 2 || static_cast<int>(ch.size()) < o.complex_dim())
-      throw std::invalid_argument("SCACMPS: complex_dim must be >= 2 and in_channels_all needs complex_dim entries");
+      throw std::invalid_argument(
+          "SCACMPS: complex_dim must be >= 2 and in_channels_all needs complex_dim entries");
     if (o.n_layers() < 1) throw std::invalid_argument("SCACMPS: n_layers must be >= 1");
     auto list = register_module("layers", torch::nn::ModuleList());
     for (int l = 0; l < o.n_layers(); ++l) {
       auto m = std::make_shared<torch::nn::Module>();
-      auto lap = m->register_module("lap_layers", torch::nn::ModuleList()), inc = m->register_module("inc_layers", torch::nn::ModuleList());
+      auto lap = m->register_module("lap_layers", torch::nn::ModuleList()),
+           inc = m->register_module("inc_layers", torch::nn::ModuleList());
       Layer layer;
       for (int i = 1; i < o.complex_dim(); ++i) {
         const auto c = ch[static_cast<std::size_t>(i)], below = ch[static_cast<std::size_t>(i) - 1];
@@ -42,11 +45,16 @@ class SCACMPSImpl : public torch::nn::Module {
       list->push_back(m);
     }
   }
-  /// x[r] for r = 0..complex_dim-1; down_laplacians[r-1] = L_r↓ and incidences_t[r-1] = B_rᵀ for r ≥ 1.
-  std::vector<torch::Tensor> forward(std::vector<torch::Tensor> x, const std::vector<nn::SparseOperator>& down_laplacians, const std::vector<nn::SparseOperator>& incidences_t) {
+  /// x[r] for r = 0..complex_dim-1; down_laplacians[r-1] = L_r↓ and incidences_t[r-1] = B_rᵀ for r
+  /// ≥ 1.
+  std::vector<torch::Tensor> forward(std::vector<torch::Tensor> x,
+                                     const std::vector<nn::SparseOperator>& down_laplacians,
+                                     const std::vector<nn::SparseOperator>& incidences_t) {
     const auto D = static_cast<std::size_t>(options.complex_dim());
     if (x.size() < D || down_laplacians.size() < D - 1 || incidences_t.size() < D - 1)
-      throw std::invalid_argument("SCACMPS: expected " + std::to_string(D) + " feature matrices and " + std::to_string(D - 1) + " lower Laplacians and transposed incidences");
+      throw std::invalid_argument("SCACMPS: expected " + std::to_string(D) +
+                                  " feature matrices and " + std::to_string(D - 1) +
+                                  " lower Laplacians and transposed incidences");
     for (auto& l : layers_)
       for (std::size_t i = 1; i < D; ++i) {
         const auto x_lap = intra_aggregate(l.lap[i - 1]->forward(x[i], down_laplacians[i - 1]));

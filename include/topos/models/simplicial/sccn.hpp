@@ -25,19 +25,25 @@ class SCCNImpl : public torch::nn::Module {
     if (o.max_rank() < 1) throw std::invalid_argument("SCCN: max_rank must be >= 1");
     if (o.n_layers() < 1) throw std::invalid_argument("SCCN: n_layers must be >= 1");
     const auto u = o.update_func();
-    if (u != nn::Update::none && u != nn::Update::relu && u != nn::Update::sigmoid && u != nn::Update::tanh)
+    if (u != nn::Update::none && u != nn::Update::relu && u != nn::Update::sigmoid &&
+        u != nn::Update::tanh)
       throw std::invalid_argument("SCCN: update_func must be relu, sigmoid, tanh or none");
     const auto c = o.channels();
     auto list = register_module("layers", torch::nn::ModuleList());
     for (int l = 0; l < o.n_layers(); ++l) {
       auto m = std::make_shared<torch::nn::Module>();
-      auto same = nn::submodule_group(*m, "convs_same_rank"), up = nn::submodule_group(*m, "convs_low_to_high"), down = nn::submodule_group(*m, "convs_high_to_low");
+      auto same = nn::submodule_group(*m, "convs_same_rank"),
+           up = nn::submodule_group(*m, "convs_low_to_high"),
+           down = nn::submodule_group(*m, "convs_high_to_low");
       Layer layer;
       for (int r = 0; r <= o.max_rank(); ++r) {
         const auto key = "rank_" + std::to_string(r);
         layer.same.push_back(same->register_module(key, nn::Conv(nn::ConvOptions(c, c))));
-        layer.low_to_high.push_back(r >= 1 ? up->register_module(key, nn::Conv(nn::ConvOptions(c, c))) : nn::Conv(nullptr));
-        layer.high_to_low.push_back(r < o.max_rank() ? down->register_module(key, nn::Conv(nn::ConvOptions(c, c))) : nn::Conv(nullptr));
+        layer.low_to_high.push_back(
+            r >= 1 ? up->register_module(key, nn::Conv(nn::ConvOptions(c, c))) : nn::Conv(nullptr));
+        layer.high_to_low.push_back(
+            r < o.max_rank() ? down->register_module(key, nn::Conv(nn::ConvOptions(c, c)))
+                             : nn::Conv(nullptr));
       }
       layers_.push_back(std::move(layer));
       list->push_back(m);
@@ -45,10 +51,14 @@ class SCCNImpl : public torch::nn::Module {
   }
   /// x[r] for r = 0..max_rank; incidences[r - 1] = B_r (rank r-1 × rank r) for r = 1..max_rank;
   /// adjacencies[r] the same-rank neighbourhood of rank r.
-  std::vector<torch::Tensor> forward(std::vector<torch::Tensor> x, const std::vector<nn::SparseOperator>& incidences, const std::vector<nn::SparseOperator>& adjacencies) {
+  std::vector<torch::Tensor> forward(std::vector<torch::Tensor> x,
+                                     const std::vector<nn::SparseOperator>& incidences,
+                                     const std::vector<nn::SparseOperator>& adjacencies) {
     const auto R = static_cast<std::size_t>(options.max_rank());
     if (x.size() != R + 1 || incidences.size() != R || adjacencies.size() != R + 1)
-      throw std::invalid_argument("SCCN: expected features and adjacencies of ranks 0.." + std::to_string(R) + " and incidences of ranks 1.." + std::to_string(R));
+      throw std::invalid_argument("SCCN: expected features and adjacencies of ranks 0.." +
+                                  std::to_string(R) + " and incidences of ranks 1.." +
+                                  std::to_string(R));
     std::vector<nn::SparseOperator> transposed;
     for (const auto& b : incidences) transposed.push_back(b.t());
     for (auto& l : layers_) {

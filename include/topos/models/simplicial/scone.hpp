@@ -12,7 +12,8 @@
 namespace topos::models {
 
 struct SCoNeOptions {
-  SCoNeOptions(std::int64_t in, std::int64_t hidden, int n_layers) : in_channels_(in), hidden_channels_(hidden), n_layers_(n_layers) {}
+  SCoNeOptions(std::int64_t in, std::int64_t hidden, int n_layers)
+      : in_channels_(in), hidden_channels_(hidden), n_layers_(n_layers) {}
   TORCH_ARG(std::int64_t, in_channels);
   TORCH_ARG(std::int64_t, hidden_channels);
   TORCH_ARG(int, n_layers);
@@ -29,7 +30,8 @@ class SCoNeImpl : public torch::nn::Module {
       const auto in = l == 0 ? o.in_channels() : o.hidden_channels();
       std::array<torch::Tensor, 3> w;
       for (std::size_t k = 0; k < 3; ++k) {
-        w[k] = m->register_parameter("weight_" + std::to_string(k), torch::empty({in, o.hidden_channels()}));
+        w[k] = m->register_parameter("weight_" + std::to_string(k),
+                                     torch::empty({in, o.hidden_channels()}));
         nn::xavier_uniform(w[k], 1.0);
       }
       weights_.push_back(w);
@@ -37,7 +39,8 @@ class SCoNeImpl : public torch::nn::Module {
     }
   }
   /// Edge features, the node × edge incidence B_1 and the edge × triangle incidence B_2.
-  torch::Tensor forward(torch::Tensor x, const nn::SparseOperator& incidence_1, const nn::SparseOperator& incidence_2) {
+  torch::Tensor forward(torch::Tensor x, const nn::SparseOperator& incidence_1,
+                        const nn::SparseOperator& incidence_2) {
     const auto b1t = incidence_1.t(), b2t = incidence_2.t();
     for (auto& w : weights_) {
       const auto z1 = nn::spmm(incidence_2, nn::spmm(b2t, x)).matmul(w[2]);
