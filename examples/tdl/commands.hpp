@@ -24,6 +24,9 @@ void register_forward(CLI::App& app, Run& run);
 void register_grad(CLI::App& app, Run& run);
 /// tdl train --out OUTDIR: node classification on Zachary's karate club (SCN2, SCCNN, UniGCNII).
 void register_train(CLI::App& app, Run& run);
+/// tdl classify --out OUTDIR: point clouds classified by their holes, batched complexes through a
+/// schedule.
+void register_classify(CLI::App& app, Run& run);
 #endif
 
 }  // namespace tdl_cli

@@ -79,33 +79,4 @@ inline Graph read_labelled_graph(const std::string& path) {
   return g;
 }
 
-/// The clique complex up to dimension 2: every node, edge and triangle of the graph.
-inline topos::SimplicialComplex clique_complex_2(const Graph& g) {
-  std::vector<std::set<std::int64_t>> adj(static_cast<std::size_t>(g.num_nodes));
-  for (const auto& e : g.edges)
-    adj[static_cast<std::size_t>(e[0])].insert(e[1]),
-        adj[static_cast<std::size_t>(e[1])].insert(e[0]);
-  std::vector<std::vector<std::int64_t>> simplices;
-  for (std::int64_t v = 0; v < g.num_nodes; ++v) simplices.push_back({v});
-  for (const auto& e : g.edges) {
-    simplices.push_back({e[0], e[1]});
-    for (auto w : adj[static_cast<std::size_t>(e[1])])  // w > v > u: each triangle once
-      if (w > e[1] && adj[static_cast<std::size_t>(e[0])].count(w))
-        simplices.push_back({e[0], e[1], w});
-  }
-  return topos::SimplicialComplex::from_simplices(simplices, g.num_nodes);
-}
-
-/// One hyperedge per node: the node and its neighbours.
-inline topos::Hypergraph neighbourhood_hypergraph(const Graph& g) {
-  std::vector<std::vector<std::int64_t>> nb(static_cast<std::size_t>(g.num_nodes));
-  for (std::int64_t v = 0; v < g.num_nodes; ++v) nb[static_cast<std::size_t>(v)].push_back(v);
-  for (const auto& e : g.edges)
-    nb[static_cast<std::size_t>(e[0])].push_back(e[1]),
-        nb[static_cast<std::size_t>(e[1])].push_back(e[0]);
-  topos::Hypergraph h(g.num_nodes);
-  for (auto& e : nb) h.add_hyperedge(e);
-  return h;
-}
-
 }  // namespace tdl_cli

@@ -1,8 +1,9 @@
 // examples/tdl/main.cpp
 // tdl: topological deep learning on TDL cases (the tdl-golden format): computing a case's
 // operators with topos and (built with LibTorch) running TopoModelX models: forward, grad, and
-// training on the karate club: train. Each subcommand registers itself here, one line each;
-// errors are one line on stderr and exit status 1.
+// training on the karate club (train) and on batched point-cloud complexes (classify). Each
+// subcommand registers itself here, one line each; errors are one line on stderr and exit
+// status 1.
 #include "commands.hpp"
 
 #include <cstdio>
@@ -17,6 +18,7 @@ int main(int argc, char** argv) {
   tdl_cli::register_forward(app, run);
   tdl_cli::register_grad(app, run);
   tdl_cli::register_train(app, run);
+  tdl_cli::register_classify(app, run);
 #endif
   try {
     app.parse(argc, argv);

@@ -4,9 +4,11 @@
 // features (edges and triangles get a constant feature), a stratified train/test split, Adam on
 // the cross-entropy of the training nodes; accuracy per epoch to OUT/accuracy.csv and
 // OUT/accuracy.svg, the final figures to OUT/summary.json.
+#include "filters.hpp"
 #include "karate.hpp"
 #include "zoo_commands.hpp"
 
+#include "topos/core/domain_lifting.hpp"
 #include "topos/io/atomic_file.hpp"
 #include "topos/models/hypergraph/unigcnii.hpp"
 #include "topos/models/simplicial/sccnn.hpp"
@@ -55,7 +57,7 @@ Classifier make_classifier(const std::string& name, const Graph& g, const TrainO
   const auto x0 = one_hot_nodes(n);
   const std::int64_t classes = *std::max_element(g.label.begin(), g.label.end()) + 1;
   if (name == "scn2" || name == "sccnn") {
-    const auto sc = clique_complex_2(g);
+    const auto sc = clique_complex(n, g.edges, 2);
     if (sc.dim() < 2)
       throw std::invalid_argument("tdl train: the graph has no triangles, " + name +
                                   " needs ranks 0..2");
@@ -65,26 +67,28 @@ Classifier make_classifier(const std::string& name, const Graph& g, const TrainO
       // SCN2 keeps each rank's width: the one-hot features go through, then a linear head.
       auto model = root->register_module("model", models::SCN2(models::SCN2Options(n, 1, 1)));
       auto head = root->register_module("head", torch::nn::Linear(n, classes));
-      const std::array<nn::SparseOperator, 3> L{op(sc.normalized_laplacian_matrix(0)),
-                                                op(sc.normalized_laplacian_matrix(1)),
-                                                op(sc.normalized_laplacian_matrix(2))};
+      const std::array<nn::SparseOperator, 3> L{op(low_pass_filter(sc.hodge_laplacian_matrix(0))),
+                                                op(low_pass_filter(sc.hodge_laplacian_matrix(1))),
+                                                op(low_pass_filter(sc.hodge_laplacian_matrix(2)))};
       c.logits = [=]() mutable { return head->forward(model->forward({x0, x1, x2}, L)[0]); };
     } else {
       auto model = root->register_module(
           "model",
+          // No aggr_norm: the filters are normalised already, and dividing by row sums would
+          // blow up the signed edge filters' rows that sum to nearly zero.
           models::SCCNN(models::SCCNNOptions({n, 1, 1}, {o.hidden, o.hidden, o.hidden}, 1, 2)
-                            .aggr_norm(true)
                             .update_func(nn::Update::relu)));
       auto head = root->register_module("head", torch::nn::Linear(o.hidden, classes));
-      const std::vector<nn::SparseOperator> L{
-          op(sc.hodge_laplacian_matrix(0)), op(sc.down_laplacian_matrix(1)),
-          op(sc.up_laplacian_matrix(1)), op(sc.hodge_laplacian_matrix(2))};
+      const std::vector<nn::SparseOperator> L{op(low_pass_filter(sc.hodge_laplacian_matrix(0))),
+                                              op(low_pass_filter(sc.down_laplacian_matrix(1))),
+                                              op(low_pass_filter(sc.up_laplacian_matrix(1))),
+                                              op(low_pass_filter(sc.hodge_laplacian_matrix(2)))};
       const std::vector<nn::SparseOperator> B{op(sc.incidence_matrix(1)),
                                               op(sc.incidence_matrix(2))};
       c.logits = [=]() mutable { return head->forward(model->forward({x0, x1, x2}, L, B)[0]); };
     }
   } else if (name == "unigcnii") {
-    const auto h = neighbourhood_hypergraph(g);
+    const auto h = neighborhood_hypergraph(n, g.edges);
     auto model = root->register_module(
         "model", models::UniGCNII(models::UniGCNIIOptions(n, o.hidden).n_layers(2)));
     auto head = root->register_module("head", torch::nn::Linear(o.hidden, classes));

@@ -181,7 +181,10 @@ inline std::vector<ReferenceContactEntry> reference_contacts(
         double d0 = std::numeric_limits<double>::infinity(), d1 = d0;
         std::int64_t f0 = -1, f1 = -1;
         std::vector<double> all_d;
-        Eigen::Vector3d c0, c1;
+        // Per best face, its normal against the unit direction from the closest point to x: the
+        // tie-break. Kept instead of the points (GCC 12 misreads Eigen 3-vectors copied in a loop
+        // as maybe-uninitialized).
+        double dot0 = 0, dot1 = 0;
         for (Eigen::Index f = 0; f < Fi.rows(); ++f) {
           const CGAL::Bbox_3& b = fbox[i][static_cast<std::size_t>(f)];
           if (x.x() < b.xmin() - margin || x.x() > b.xmax() + margin || x.y() < b.ymin() - margin ||
@@ -196,27 +199,26 @@ inline std::vector<ReferenceContactEntry> reference_contacts(
           const Eigen::Vector3d c(on.x, on.y, on.z);
           const double d = (x - c).squaredNorm();
           if (ties) all_d.push_back(d);
+          if (!(d < d1)) continue;  // neither of the two best (NaN included)
+          const double dot =
+              d > 0 ? normals[i][static_cast<std::size_t>(f)].dot((x - c) / std::sqrt(d)) : 0.0;
           if (d < d0) {
             d1 = d0;
             f1 = f0;
-            c1 = c0;
+            dot1 = dot0;
             d0 = d;
             f0 = f;
-            c0 = c;
-          } else if (d < d1) {
+            dot0 = dot;
+          } else {
             d1 = d;
             f1 = f;
-            c1 = c;
+            dot1 = dot;
           }
         }
         if (f0 < 0) continue;
         std::int64_t best = f0;
         double best_d = d0;
         if (f1 >= 0 && std::abs(d0 - d1) < 1e-8 && std::abs(d0) > 1e-8 && std::abs(d1) > 1e-8) {
-          const double dot0 =
-              normals[i][static_cast<std::size_t>(f0)].dot((x - c0) / std::sqrt(d0));
-          const double dot1 =
-              normals[i][static_cast<std::size_t>(f1)].dot((x - c1) / std::sqrt(d1));
           if (dot1 > dot0) {
             best = f1;
             best_d = d1;
