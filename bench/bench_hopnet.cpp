@@ -104,13 +104,15 @@ BENCHMARK(BM_rollout_102)
     ->MinTime(2.0);
 
 // One optimizer step on the whole trajectory (t = 2..478: 477 timesteps), forward, backward and
-// Adam (train_step, as `hopnet train`), with BLAS threads on every core and one intra-op thread.
-// Argument chunk: timesteps per forward/backward (0: the whole trajectory in one batch).
+// Adam (train_step, as `hopnet train`). Arguments: chunk, timesteps per forward/backward (0: the
+// whole trajectory in one batch); workers, chunks run at once on their own threads (1: one after
+// the other, with BLAS threads on every core and one intra-op thread; more: one BLAS thread each).
 // Reference mode trains on collisions.json's contacts, as the reference does.
 // Issue bar: 0.8 s on 2 cores (goal 0.5 s); the Python reference takes 7 s (plus preprocessing).
 void BM_train_step(benchmark::State& state) {
   auto [mode, net, g] = make_case(state);
-  nn::set_cpu_threads(1, 0);
+  const int workers = static_cast<int>(state.range(2));
+  nn::set_cpu_threads(1, workers > 1 ? 1 : 0);
   nn::keep_freed_memory();
   const auto& S = setup();
   const auto contacts = read_collisions_json(S.ref + "/data/movi-a/8/collisions.json");
@@ -121,11 +123,11 @@ void BM_train_step(benchmark::State& state) {
   torch::optim::Adam opt(net->parameters(), torch::optim::AdamOptions(1e-4));
   // The first step also grows the heap to its working size (~1 s more); measure the steady state.
   const auto t0 = std::chrono::steady_clock::now();
-  train_step(*net, opt, chunks, S.norm);
+  train_step(*net, opt, chunks, S.norm, nullptr, workers);
   state.counters["first_step_s"] =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   reset_peak_rss();
-  for (auto _ : state) train_step(*net, opt, chunks, S.norm);
+  for (auto _ : state) train_step(*net, opt, chunks, S.norm, nullptr, workers);
   nn::set_cpu_threads(1, 1);
   state.counters["peak_rss_mb"] = peak_rss_mb();
   state.counters["timesteps"] = static_cast<double>(tf.frames.size());
@@ -133,10 +135,13 @@ void BM_train_step(benchmark::State& state) {
       static_cast<double>(tf.frames.size()), benchmark::Counter::kIsIterationInvariantRate);
 }
 BENCHMARK(BM_train_step)
-    ->Args({0, 0})
-    ->Args({1, 0})
-    ->Args({0, 120})
-    ->ArgNames({"native", "chunk"})
+    ->Args({0, 0, 1})
+    ->Args({1, 0, 1})
+    ->Args({0, 120, 1})
+    ->Args({0, 60, 2})
+    ->Args({1, 60, 2})
+    ->Args({0, 30, 2})
+    ->ArgNames({"native", "chunk", "workers"})
     ->Unit(benchmark::kMillisecond)
     ->MinTime(5.0)
     ->UseRealTime();

@@ -22,7 +22,7 @@ struct TrainArgs {
   std::int64_t max_steps = -1, hidden = 0, chunk = 0;  // hidden 0: the configuration's (--config)
   double memory_budget_mb = kDefaultMemoryBudgetMb;
   int epochs = 40, mlp_layers = 0, num_layers = 0, max_frames = 0;
-  int nproc = 1, trajectories_per_step = 1;
+  int nproc = 1, trajectories_per_step = 1, workers = 1;
   double dist_timeout = 1800;
   VariantArgs variant;
   double lr = 1e-4, lr_decay = 0.0, min_z_collision_velocity = 0.0;
@@ -88,6 +88,9 @@ int run_train(const TrainArgs& a) {
   if (env.local_world_size > 1 && device.is_cpu())
     nn::set_blas_threads(
         std::max(1, static_cast<int>(std::thread::hardware_concurrency()) / env.local_world_size));
+  // --workers: chunks at once on their own threads, each with one BLAS thread (CPU only).
+  const int workers = device.is_cpu() ? a.workers : 1;
+  if (workers > 1) nn::set_blas_threads(1);
   // Only rank 0 talks (and writes); the others' progress goes nowhere.
   std::unique_ptr<std::FILE, int (*)(std::FILE*)> devnull(
       main_rank ? nullptr : std::fopen("/dev/null", "w"), &std::fclose);
@@ -187,7 +190,7 @@ int run_train(const TrainArgs& a) {
                                       -1, s.contacts ? &*s.contacts : nullptr);
     auto chunks = make_training_chunks(
         s.geometry, tf, norm,
-        a.chunk > 0 ? a.chunk : auto_chunk(s.geometry, tf, options.hidden(), budget));
+        a.chunk > 0 ? a.chunk : auto_chunk(s.geometry, tf, options.hidden(), budget / workers));
     for (auto& c : chunks) c = c.to(device);
     return chunks;
   };
@@ -272,7 +275,7 @@ int run_train(const TrainArgs& a) {
         if (++taken < mine.size())
           next = std::async(std::launch::async, make_chunks,
                             std::cref(train[static_cast<std::size_t>(mine[taken])]));
-        const double loss = backward_trajectory(*model, chunks, norm);
+        const double loss = backward_trajectory(*model, chunks, norm, nullptr, workers);
         loss_sum += loss / static_cast<double>(timesteps(chunks));
         T += static_cast<double>(timesteps(chunks));
         n_chunks += chunks.size();
@@ -376,7 +379,13 @@ Command add_train(CLI::App& app) {
                  "timesteps per forward/backward (0: as many as fit --memory-budget-mb)")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
-  ct->add_option("--memory-budget-mb", tr.memory_budget_mb, "activation memory for one chunk")
+  ct->add_option("--memory-budget-mb", tr.memory_budget_mb,
+                 "activation memory for the chunks in flight (one per worker)")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  ct->add_option("--workers", tr.workers,
+                 "chunks of a trajectory run at once, each on its own thread with one BLAS "
+                 "thread (CPU; 1: one after the other, BLAS on every core)")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
   ct->add_option("--max-steps", tr.max_steps, "stop after this many optimizer steps");

@@ -193,6 +193,35 @@ TEST_CASE("a neighbourhood with one pair per target, in order, aggregates as a g
       ComplexBatch::collate({ComplexView{{4, 2}, {{"n", n}}}}, 1).neighborhood("n").one_per_target);
 }
 
+TEST_CASE("a batch whose first complex has no pairs keeps the others' values and roles",
+          "[nn][batch]") {
+  // A trajectory chunk starting at a timestep without contacts: its B23/B32 have no pairs, so no
+  // values and roles; the next timestep's must still reach the batch.
+  Neighborhood none, two;
+  none.source_rank = two.source_rank = 1;
+  none.target_rank = two.target_rank = 0;
+  none.num_source = none.num_target = 0;
+  two.num_source = 2;
+  two.num_target = 1;
+  two.source = {0, 1};
+  two.target = {0, 0};
+  two.values = {2.0, -3.0};
+  two.backward_values = {4.0, 5.0};
+  two.roles = {-1, 1};
+  const auto b = ComplexBatch::collate(
+      {ComplexView{{0, 0}, {{"n", none}}}, ComplexView{{1, 2}, {{"n", two}}}}, 1);
+  const auto& t = b.neighborhood("n");
+  REQUIRE(t.values.defined());
+  REQUIRE(t.backward_values.defined());
+  REQUIRE(t.roles.defined());
+  REQUIRE(t.values.allclose(torch::tensor({2.0f, -3.0f})));
+  REQUIRE(t.backward_values.allclose(torch::tensor({4.0f, 5.0f})));
+  REQUIRE(t.roles.to(torch::kLong).equal(torch::tensor({-1, 1}, torch::kLong)));
+  const auto x = torch::tensor({{1.0f}, {10.0f}});
+  REQUIRE(aggregate(x, t, AggregateOptions().with_weighted(true)).item<float>() == -28.0f);
+  REQUIRE(aggregate(x, t, AggregateOptions().with_role(1)).item<float>() == 10.0f);
+}
+
 TEST_CASE("Mlp follows the reference layout and parameter count", "[nn][mlp]") {
   Mlp m(MlpOptions(16, 128, 128));
   std::int64_t count = 0;

@@ -84,8 +84,16 @@ class ComplexBatch {
       std::vector<std::int64_t> src, tgt;
       std::vector<float> vals, bvals;
       std::vector<std::int8_t> roles;
-      const bool has_vals = !first.values.empty(), has_bvals = !first.backward_values.empty(),
-                 has_roles = !first.roles.empty();
+      // Values and roles come from any complex that has them: the first may have no pairs (a
+      // timestep without contacts) and so no values, while later ones do.
+      bool has_vals = false, has_bvals = false, has_roles = false;
+      for (const auto& v : complexes) {
+        const auto it = v.neighborhoods.find(name);
+        if (it == v.neighborhoods.end()) continue;
+        has_vals = has_vals || !it->second.values.empty();
+        has_bvals = has_bvals || !it->second.backward_values.empty();
+        has_roles = has_roles || !it->second.roles.empty();
+      }
       for (std::size_t c = 0; c < complexes.size(); ++c) {
         auto it = complexes[c].neighborhoods.find(name);
         if (it == complexes[c].neighborhoods.end())

@@ -249,7 +249,9 @@ TEST_CASE("the 102-step reference rollout of MOVi-A scene 8 lands within 2% of t
 
 namespace {
 // A built-in scene (no reference data): a cube resting on the floor, a sphere falling onto it.
-Scene builtin_scene(std::int64_t frames = 12) {
+// With `cube_drop` > 0 the cube starts that much higher and falls onto the floor, so the first
+// timesteps have no contact.
+Scene builtin_scene(std::int64_t frames = 12, double cube_drop = 0.0) {
   data::KubricScene k;
   k.num_frames = frames;
   k.source = "builtin";
@@ -264,9 +266,10 @@ Scene builtin_scene(std::int64_t frames = 12) {
     in.positions.resize(frames, 3);
     in.quaternions.resize(frames, 4);
     for (std::int64_t t = 0; t < frames; ++t) {
-      const double z = i == 0 ? 0.53
-                              : 2.9 - 0.5 * 1.7e-4 * static_cast<double>(t * t) *
-                                          40;  // cube (±0.5) 3 cm above the floor
+      const double z = i == 0
+                           ? std::max(0.53, 0.53 + cube_drop - 0.0025 * static_cast<double>(t * t))
+                           : 2.9 - 0.5 * 1.7e-4 * static_cast<double>(t * t) *
+                                       40;  // cube (±0.5) 3 cm above the floor
       in.positions.row(t) << 0.1 * i, 0.05 * i, z;
       const double a = 0.01 * static_cast<double>(t) * i;
       in.quaternions.row(t) << std::cos(a), 0, std::sin(a), 0;
@@ -531,14 +534,20 @@ TEST_CASE("one batched backward over a trajectory equals the sum of per-timestep
 
 TEST_CASE("chunked training steps give the unchunked gradient", "[hopnet][training]") {
   torch::manual_seed(5);
-  const Scene scene = builtin_scene(12);
+  // The cube falls onto the floor: the chunk of timesteps 4..7 starts without contacts and has
+  // some later (its batch must keep the contact neighbourhoods' values and roles).
+  const Scene scene = builtin_scene(16, 0.2);
   const Normalizer norm(unit_stats());
   for (const auto mode : {FeatureMode::native, FeatureMode::reference}) {
     INFO(to_string(mode));
     Hopnet net(HopnetOptions().hidden(16).mode(mode));
     const auto g = make_geometry(scene, mode);
     const auto tf = trajectory_frames(scene, g, 0.1, 0.0);
-    const auto grads = [&](std::int64_t chunk) {
+    REQUIRE(tf.frames.size() == 13);
+    REQUIRE(tf.frames[0].num_contacts() == 0);
+    REQUIRE(tf.frames[4].num_contacts() == 0);
+    REQUIRE(tf.frames[7].num_contacts() > 0);
+    const auto grads = [&](std::int64_t chunk, int workers) {
       const auto chunks = make_training_chunks(g, tf, norm, chunk);
       REQUIRE(chunks.size() == (chunk <= 0
                                     ? 1
@@ -546,7 +555,7 @@ TEST_CASE("chunked training steps give the unchunked gradient", "[hopnet][traini
                                           static_cast<std::size_t>(chunk)));
       net->zero_grad();
       std::vector<double> per_timestep;
-      const double loss = backward_trajectory(*net, chunks, norm, &per_timestep);
+      const double loss = backward_trajectory(*net, chunks, norm, &per_timestep, workers);
       REQUIRE(per_timestep.size() == tf.frames.size());
       REQUIRE(std::accumulate(per_timestep.begin(), per_timestep.end(), 0.0) ==
               Approx(loss).epsilon(1e-6));
@@ -554,9 +563,12 @@ TEST_CASE("chunked training steps give the unchunked gradient", "[hopnet][traini
       for (const auto& p : net->named_parameters()) out[p.key()] = p.value().grad().clone();
       return std::make_pair(loss, out);
     };
-    const auto [whole_loss, whole] = grads(0);
-    for (std::int64_t chunk : {1, 4}) {
-      const auto [loss, got] = grads(chunk);
+    const auto [whole_loss, whole] = grads(0, 1);
+    // Chunks one after the other, and run at once on 2 or 3 worker threads.
+    for (const auto& [chunk, workers] :
+         std::vector<std::pair<std::int64_t, int>>{{1, 1}, {4, 1}, {4, 2}, {1, 3}}) {
+      INFO("chunks of " << chunk << ", " << workers << " workers");
+      const auto [loss, got] = grads(chunk, workers);
       REQUIRE(loss == Approx(whole_loss).epsilon(1e-6));
       // The chunks' gradients are the same sum in another float32 order: 1e-6 relative over the
       // whole gradient, and no tensor off by more than float32 summation explains (1e-5 of its

@@ -14,6 +14,9 @@
 
 #include "topos/models/hopnet/rollout.hpp"
 
+#include <exception>
+#include <thread>
+
 namespace topos::hopnet {
 
 /// Raw (double) features and targets of every training timestep of one scene.
@@ -195,26 +198,83 @@ inline torch::Tensor trajectory_loss(HopnetImpl& model, const TrainingItem& it,
   return out.a4.defined() ? nodes + ((out.a4 - it.t4).pow(2) * it.object_weight).sum() : nodes;
 }
 
+namespace detail {
+/// The summed loss of one chunk (and its per-timestep losses when asked).
+inline torch::Tensor chunk_loss(HopnetImpl& model, const TrainingItem& c, const Normalizer& norm,
+                                std::vector<double>* per_timestep) {
+  if (!per_timestep) return trajectory_loss(model, c, norm);
+  const auto l = timestep_losses(model.forward(c.batch, norm), c);
+  const auto d = l.detach().to(torch::kCPU, torch::kDouble).contiguous();
+  per_timestep->insert(per_timestep->end(), d.data_ptr<double>(), d.data_ptr<double>() + d.numel());
+  return l.sum();
+}
+}  // namespace detail
+
 /// Forward and backward of a trajectory given as chunks: the gradient of the summed loss is
 /// accumulated into the parameters' gradients (zero them first). Returns the summed loss and,
 /// when `per_timestep` is given, the per-timestep losses (all chunks, in order).
+///
+/// `workers` > 1 runs that many chunks at once, each on its own thread (chunk i on worker
+/// i mod workers): a chunk's forward and backward are independent of the others', so the cores
+/// share the whole step, elementwise and gather/scatter work included, without the per-matmul
+/// synchronisation of multithreaded BLAS (give BLAS one thread then: nn::set_cpu_threads(1, 1)).
+/// Each worker sums its chunks' gradients (torch::autograd::grad) and the workers' sums are added
+/// in worker order, so the result does not depend on thread timing. Memory: `workers` chunks'
+/// activations at once.
 inline double backward_trajectory(HopnetImpl& model, const std::vector<TrainingItem>& chunks,
                                   const Normalizer& norm,
-                                  std::vector<double>* per_timestep = nullptr) {
-  double total = 0;
-  for (const auto& c : chunks) {
-    torch::Tensor loss;
-    if (per_timestep) {
-      const auto l = timestep_losses(model.forward(c.batch, norm), c);
-      loss = l.sum();
-      const auto d = l.detach().to(torch::kCPU, torch::kDouble).contiguous();
-      per_timestep->insert(per_timestep->end(), d.data_ptr<double>(),
-                           d.data_ptr<double>() + d.numel());
-    } else {
-      loss = trajectory_loss(model, c, norm);
+                                  std::vector<double>* per_timestep = nullptr, int workers = 1) {
+  const std::size_t W = std::min(chunks.size(), static_cast<std::size_t>(std::max(1, workers)));
+  if (W <= 1) {
+    double total = 0;
+    for (const auto& c : chunks) {
+      const auto loss = detail::chunk_loss(model, c, norm, per_timestep);
+      loss.backward();
+      total += loss.item<double>();
     }
-    loss.backward();
-    total += loss.item<double>();
+    return total;
+  }
+  const auto params = model.parameters();
+  std::vector<std::vector<torch::Tensor>> sums(W, std::vector<torch::Tensor>(params.size()));
+  std::vector<double> loss(chunks.size(), 0.0);
+  std::vector<std::vector<double>> steps(chunks.size());
+  std::vector<std::exception_ptr> errors(W);
+  const auto work = [&](std::size_t w) {
+    try {
+      for (std::size_t i = w; i < chunks.size(); i += W) {
+        const auto l =
+            detail::chunk_loss(model, chunks[i], norm, per_timestep ? &steps[i] : nullptr);
+        loss[i] = l.item<double>();
+        const auto g = torch::autograd::grad({l}, params, {}, false, false, /*allow_unused=*/true);
+        for (std::size_t k = 0; k < params.size(); ++k)
+          if (g[k].defined()) sums[w][k] = sums[w][k].defined() ? sums[w][k].add_(g[k]) : g[k];
+      }
+    } catch (...) {
+      errors[w] = std::current_exception();
+    }
+  };
+  std::vector<std::thread> threads;
+  for (std::size_t w = 1; w < W; ++w) threads.emplace_back(work, w);
+  work(0);
+  for (auto& t : threads) t.join();
+  for (const auto& e : errors)
+    if (e) std::rethrow_exception(e);
+  torch::NoGradGuard no_grad;
+  for (std::size_t k = 0; k < params.size(); ++k) {
+    torch::Tensor g;
+    for (std::size_t w = 0; w < W; ++w)
+      if (sums[w][k].defined()) g = g.defined() ? g.add_(sums[w][k]) : sums[w][k];
+    if (!g.defined()) continue;
+    auto& grad = params[k].mutable_grad();
+    if (grad.defined())
+      grad.add_(g);
+    else
+      grad = g;
+  }
+  double total = 0;
+  for (std::size_t i = 0; i < chunks.size(); ++i) {
+    total += loss[i];
+    if (per_timestep) per_timestep->insert(per_timestep->end(), steps[i].begin(), steps[i].end());
   }
   return total;
 }
@@ -223,11 +283,12 @@ inline double backward_trajectory(HopnetImpl& model, const std::vector<TrainingI
 /// PyTorch >= 2.0's zero_grad, so a parameter the trajectory does not reach is skipped by Adam
 /// rather than moved by its momentum), forward and backward by chunks, then `opt.step()`.
 /// Returns the summed loss (and the per-timestep losses when asked).
+/// `workers`: chunks run at once (backward_trajectory).
 inline double train_step(HopnetImpl& model, torch::optim::Optimizer& opt,
                          const std::vector<TrainingItem>& chunks, const Normalizer& norm,
-                         std::vector<double>* per_timestep = nullptr) {
+                         std::vector<double>* per_timestep = nullptr, int workers = 1) {
   for (auto& p : model.parameters()) p.mutable_grad() = torch::Tensor();
-  const double loss = backward_trajectory(model, chunks, norm, per_timestep);
+  const double loss = backward_trajectory(model, chunks, norm, per_timestep, workers);
   opt.step();
   return loss;
 }
