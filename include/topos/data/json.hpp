@@ -39,15 +39,20 @@ inline nlohmann::json read_json_file(const std::filesystem::path& path) {
   return parse_json(read_text_file(path), path.string());
 }
 
-/// As read_json_file, keeping objects' keys in file order (where the order means something,
-/// e.g. operators listed in creation order).
-inline nlohmann::ordered_json read_ordered_json_file(const std::filesystem::path& path) {
-  const std::string text = read_text_file(path);
+/// As parse_json, keeping objects' keys in text order (where the order means something, e.g.
+/// operators listed in creation order).
+inline nlohmann::ordered_json parse_ordered_json(const std::string& text,
+                                                 const std::string& source) {
   try {
     return nlohmann::ordered_json::parse(text);
   } catch (const nlohmann::json::exception& e) {
-    throw DataError(path.string() + ": malformed JSON: " + e.what());
+    throw DataError(source + ": malformed JSON: " + e.what());
   }
+}
+
+/// As read_json_file, keeping objects' keys in file order.
+inline nlohmann::ordered_json read_ordered_json_file(const std::filesystem::path& path) {
+  return parse_ordered_json(read_text_file(path), path.string());
 }
 
 }  // namespace topos::data

@@ -144,14 +144,12 @@ inline std::vector<const json*> ranked_cells(const json& cells, const std::strin
 
 }  // namespace detail
 
-/// The domain of a complex.json (`domain` names the kind; `fallback_domain` is used when the
-/// file lacks it, e.g. from case.json). Cells keep the file's order; nodes are numbered by their
-/// position in the node list (rank-0 cells).
-inline Domain read_domain(const std::filesystem::path& complex_json,
-                          const std::string& fallback_domain = {}) {
+/// The domain of a parsed complex.json `j` (`domain` names the kind; `fallback_domain` is used
+/// when it lacks one, e.g. from case.json); errors are DataErrors naming `src`. Cells keep the
+/// file's order; nodes are numbered by their position in the node list (rank-0 cells).
+inline Domain parse_domain(const nlohmann::ordered_json& j, const std::string& src,
+                           const std::string& fallback_domain = {}) {
   using detail::json;
-  const std::string src = complex_json.string();
-  const json j = data::read_ordered_json_file(complex_json);
   std::string kind = fallback_domain;
   if (j.is_object() && j.contains("domain")) {
     if (!j["domain"].is_string()) throw data::DataError(src + ": \"domain\" must be a string");
@@ -222,6 +220,20 @@ inline Domain read_domain(const std::filesystem::path& complex_json,
   }
   throw data::DataError(src + ": unknown domain \"" + kind +
                         "\" (expected simplicial, cell, combinatorial or hypergraph)");
+}
+
+/// The domain of the complex.json file at `complex_json` (see parse_domain).
+inline Domain read_domain(const std::filesystem::path& complex_json,
+                          const std::string& fallback_domain = {}) {
+  return parse_domain(data::read_ordered_json_file(complex_json), complex_json.string(),
+                      fallback_domain);
+}
+
+/// The domain case.json names (its "domain" string), or "" when it names none.
+inline std::string case_domain(const nlohmann::json& case_json) {
+  if (case_json.is_object() && case_json.contains("domain") && case_json["domain"].is_string())
+    return case_json["domain"].get<std::string>();
+  return {};
 }
 
 namespace detail {
@@ -437,8 +449,12 @@ inline Operators compute_operators(const nlohmann::ordered_json& ops, const Doma
     const auto& args = spec.contains("args") ? spec["args"] : no_args;
     if (out.by_name.count(name))
       throw data::DataError(source + ": operator '" + name + "' is defined twice");
-    out.by_name.emplace(name,
-                        evaluate_operator(name, spec["op"].get<std::string>(), args, domain, out));
+    try {
+      out.by_name.emplace(
+          name, evaluate_operator(name, spec["op"].get<std::string>(), args, domain, out));
+    } catch (const data::DataError& e) {
+      throw data::DataError(source + ": " + e.what());  // the file, then the operator
+    }
     out.order.push_back(name);
   }
   return out;
@@ -449,11 +465,8 @@ inline Operators compute_operators(const nlohmann::ordered_json& ops, const Doma
 /// operator and the op.
 inline Operators compute_operators(const std::filesystem::path& case_dir) {
   std::string fallback;
-  if (std::filesystem::exists(case_dir / "case.json")) {
-    const auto cj = data::read_json_file(case_dir / "case.json");
-    if (cj.is_object() && cj.contains("domain") && cj["domain"].is_string())
-      fallback = cj["domain"].get<std::string>();
-  }
+  if (std::filesystem::exists(case_dir / "case.json"))
+    fallback = case_domain(data::read_json_file(case_dir / "case.json"));
   const Domain domain = read_domain(case_dir / "complex.json", fallback);
   return compute_operators(data::read_ordered_json_file(case_dir / "operators.json"), domain,
                            (case_dir / "operators.json").string());
