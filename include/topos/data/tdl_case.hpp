@@ -11,7 +11,8 @@
 //                       compute_bunch_normalized_matrices
 //   algebra             transpose, abs, sum, scale, identity, pinv (an argument that is a string
 //                       names an earlier operator of the same case)
-// An unknown op, a missing argument, an operator a domain lacks: a DataError naming the operator.
+// An unknown op, a missing argument, an operator a domain lacks, an operator with a non-finite
+// entry, pinv of more than kMaxPinvEntries: a DataError naming the file and the operator.
 // Core + nlohmann-json (no LibTorch), so small programs can use it.
 #pragma once
 
@@ -25,8 +26,10 @@
 
 #include <nlohmann/json.hpp>
 
+#include <cmath>
 #include <cstdint>
 #include <filesystem>
+#include <limits>
 #include <map>
 #include <string>
 #include <unordered_map>
@@ -56,11 +59,20 @@ namespace detail {
 
 using json = nlohmann::ordered_json;
 
+// A JSON integer that fits an int64 (nlohmann keeps integers above INT64_MAX as unsigned, and
+// get<int64_t> would wrap them to negative numbers).
+inline bool is_int64(const json& v) {
+  return v.is_number_integer() &&
+         (!v.is_number_unsigned() ||
+          v.get<std::uint64_t>() <=
+              static_cast<std::uint64_t>(std::numeric_limits<std::int64_t>::max()));
+}
+
 struct NodeMap {
   std::unordered_map<std::int64_t, std::int64_t> id;
   std::string source;
   std::int64_t operator()(const json& label, const std::string& where) const {
-    if (!label.is_number_integer())
+    if (!is_int64(label))
       throw data::DataError(source + ": " + where + ": node " + label.dump() +
                             " is not an integer");
     auto it = id.find(label.get<std::int64_t>());
@@ -88,7 +100,7 @@ inline NodeMap map_nodes(const json& labels, const std::string& source, bool inc
   std::int64_t previous = 0;
   for (std::size_t i = 0; i < labels.size(); ++i) {
     const json& l = labels[i].is_array() && labels[i].size() == 1 ? labels[i][0] : labels[i];
-    if (!l.is_number_integer())
+    if (!is_int64(l))
       throw data::DataError(source + ": node " + labels[i].dump() +
                             " is not an integer (or a one-node cell)");
     const auto v = l.get<std::int64_t>();
@@ -257,9 +269,10 @@ struct OpCall {
   }
   int integer(const char* k) const {
     const json& v = arg(k);
-    if (!v.is_number_integer())
+    if (!is_int64(v) || v.get<std::int64_t>() < std::numeric_limits<int>::min() ||
+        v.get<std::int64_t>() > std::numeric_limits<int>::max())
       fail(std::string("argument '") + k + "' must be an integer, got " + v.dump());
-    return v.get<int>();
+    return static_cast<int>(v.get<std::int64_t>());
   }
   double number(const char* k) const {
     const json& v = arg(k);
@@ -333,6 +346,10 @@ inline bool is_complex_op(const std::string& op) {
 
 }  // namespace detail
 
+/// The largest operator (rows x cols) pinv accepts: it is computed dense (32 MB, a 2048 x 2048
+/// SVD).
+inline constexpr std::int64_t kMaxPinvEntries = std::int64_t{1} << 22;
+
 /// The ops this evaluator knows (for messages and documentation).
 inline std::vector<std::string> known_ops() {
   return {"incidence_matrix",
@@ -402,7 +419,16 @@ inline SparseOp evaluate_operator(const std::string& name, const std::string& op
     if (op == "transpose") return sparse::transpose(c.ref("of"));
     if (op == "abs") return sparse::abs(c.ref("of"));
     if (op == "scale") return sparse::pruned(SparseOp(c.ref("of") * c.number("factor")));
-    if (op == "pinv") return sparse::from_dense(pinv(Eigen::MatrixXd(c.ref("of"))));
+    if (op == "pinv") {
+      // Dense SVD: bounded, so that a case cannot ask for gigabytes and hours.
+      const SparseOp& of = c.ref("of");
+      if (static_cast<double>(of.rows()) * static_cast<double>(of.cols()) > kMaxPinvEntries) {
+        c.fail("'" + c.args["of"].get<std::string>() + "' is " + std::to_string(of.rows()) + "x" +
+               std::to_string(of.cols()) + "; pinv is dense and limited to " +
+               std::to_string(kMaxPinvEntries) + " entries");
+      }
+      return sparse::from_dense(pinv(Eigen::MatrixXd(of)));
+    }
     if (op == "sum") {
       const auto& of = c.arg("of");
       if (!of.is_array() || of.empty())
@@ -449,12 +475,25 @@ inline Operators compute_operators(const nlohmann::ordered_json& ops, const Doma
     const auto& args = spec.contains("args") ? spec["args"] : no_args;
     if (out.by_name.count(name))
       throw data::DataError(source + ": operator '" + name + "' is defined twice");
+    const std::string& op = spec["op"].get<std::string>();
+    SparseOp m;
     try {
-      out.by_name.emplace(
-          name, evaluate_operator(name, spec["op"].get<std::string>(), args, domain, out));
+      m = evaluate_operator(name, op, args, domain, out);
     } catch (const data::DataError& e) {
       throw data::DataError(source + ": " + e.what());  // the file, then the operator
     }
+    // Overflow (a huge scale factor or identity multiplier) or a negative degree under a square
+    // root: an error, not NaN or inf handed to a model.
+    for (Eigen::Index i = 0; i < m.outerSize(); ++i) {
+      for (SparseOp::InnerIterator it(m, i); it; ++it) {
+        if (!std::isfinite(it.value())) {
+          throw data::DataError(source + ": operator '" + name + "' (op " + op + ") has entry (" +
+                                std::to_string(it.row()) + ", " + std::to_string(it.col()) +
+                                ") = " + std::to_string(it.value()) + ", not a finite number");
+        }
+      }
+    }
+    out.by_name.emplace(name, std::move(m));
     out.order.push_back(name);
   }
   return out;
