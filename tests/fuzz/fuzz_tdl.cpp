@@ -50,9 +50,9 @@ TOPOS_FUZZ_TARGET(tdl) {
     const t::Operators ops = t::compute_operators(spec, domain, file("operators.json"));
     check(ops.order.size() == ops.by_name.size() && ops.order.size() == spec.size(),
           "every listed operator is computed once");
-    // 1: the augmentation row of a rank-0 incidence (TopoNetX's 1 x n_0 row of ones).
+    // A rank-0 incidence is TopoNetX's 1 x n_0 row of ones (simplicial) or 0 x n_0 (cell).
     const auto is_count = [&](Eigen::Index n) {
-      if (n == 1) return true;
+      if (n == 0 || n == 1) return true;
       for (auto s : shape)
         if (s == n) return true;
       return false;
@@ -61,7 +61,7 @@ TOPOS_FUZZ_TARGET(tdl) {
       check(ops.by_name.count(name) == 1, "each name in order has its matrix");
       const t::SparseOp& m = ops.by_name.at(name);
       check(is_count(m.rows()) && is_count(m.cols()),
-            "an operator's rows and columns are the cells of some rank (or 1)");
+            "an operator's rows and columns are the cells of some rank (or 0, 1)");
       check(m.isCompressed(), "operators are compressed");
       for (Eigen::Index i = 0; i < m.outerSize(); ++i)
         for (t::SparseOp::InnerIterator it(m, i); it; ++it) {

@@ -59,20 +59,11 @@ namespace detail {
 
 using json = nlohmann::ordered_json;
 
-// A JSON integer that fits an int64 (nlohmann keeps integers above INT64_MAX as unsigned, and
-// get<int64_t> would wrap them to negative numbers).
-inline bool is_int64(const json& v) {
-  return v.is_number_integer() &&
-         (!v.is_number_unsigned() ||
-          v.get<std::uint64_t>() <=
-              static_cast<std::uint64_t>(std::numeric_limits<std::int64_t>::max()));
-}
-
 struct NodeMap {
   std::unordered_map<std::int64_t, std::int64_t> id;
   std::string source;
   std::int64_t operator()(const json& label, const std::string& where) const {
-    if (!is_int64(label))
+    if (!data::is_int64(label))
       throw data::DataError(source + ": " + where + ": node " + label.dump() +
                             " is not an integer");
     auto it = id.find(label.get<std::int64_t>());
@@ -100,7 +91,7 @@ inline NodeMap map_nodes(const json& labels, const std::string& source, bool inc
   std::int64_t previous = 0;
   for (std::size_t i = 0; i < labels.size(); ++i) {
     const json& l = labels[i].is_array() && labels[i].size() == 1 ? labels[i][0] : labels[i];
-    if (!is_int64(l))
+    if (!data::is_int64(l))
       throw data::DataError(source + ": node " + labels[i].dump() +
                             " is not an integer (or a one-node cell)");
     const auto v = l.get<std::int64_t>();
@@ -269,7 +260,7 @@ struct OpCall {
   }
   int integer(const char* k) const {
     const json& v = arg(k);
-    if (!is_int64(v) || v.get<std::int64_t>() < std::numeric_limits<int>::min() ||
+    if (!data::is_int64(v) || v.get<std::int64_t>() < std::numeric_limits<int>::min() ||
         v.get<std::int64_t>() > std::numeric_limits<int>::max())
       fail(std::string("argument '") + k + "' must be an integer, got " + v.dump());
     return static_cast<int>(v.get<std::int64_t>());
