@@ -167,7 +167,10 @@ inline Split parse_split_json(const std::string& text, const std::string& source
     for (auto& [key, part] : std::vector<std::pair<const char*, std::vector<std::int64_t>*>>{
              {"train", &s.train}, {"val", &s.val}, {"test", &s.test}}) {
       if (!j.contains(key)) continue;
-      *part = j.at(key).get<std::vector<std::int64_t>>();
+      const auto& list = j.at(key);
+      if (!list.is_array()) throw DataError(source + ": '" + key + "' must be a list of seeds");
+      part->clear();
+      for (const auto& v : list) part->push_back(get_integer(v, source + ": a seed of " + key));
       for (auto id : *part)
         if (!seen.insert(id).second)
           throw DataError(source + ": seed " + std::to_string(id) + " is listed twice");
