@@ -359,7 +359,17 @@ inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::
   std::vector<std::uint32_t> class_memo;  // memo entries holding the OrderedDict class
   std::vector<std::size_t> starts;        // per stack item: its first byte in `out`
   std::vector<std::pair<std::size_t, std::size_t>> marks;  // (stack depth, position in `out`)
+  // check_pickle accepted the input, but this walk rewrites it: its stacks are checked again
+  // rather than trusted (a fuzzed pickle once popped a mark this walk had not set).
+  const auto broken = [&]() -> void {
+    throw std::runtime_error(source + ": not a readable torch file: malformed pickle stack");
+  };
+  const auto pop_items = [&](std::size_t k) {
+    if (starts.size() < k || (!marks.empty() && starts.size() - k < marks.back().first)) broken();
+    starts.resize(starts.size() - k);
+  };
   const auto pop_to_mark = [&]() {
+    if (marks.empty() || starts.size() < marks.back().first) broken();
     const auto m = marks.back();
     marks.pop_back();
     starts.resize(m.first);
@@ -391,12 +401,14 @@ inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::
     }
     if (op == 'b' && q < n &&
         d[q] == '.') {  // BUILD just before STOP: drop its state (the _metadata)
+      if (starts.empty()) broken();
       out.resize(starts.back());
       starts.pop_back();
       p = q;
       continue;
     }
     if (op == 's') {  // SETITEM: MARK before the key, SETITEMS
+      if (starts.size() < 2) broken();
       out.insert(starts[starts.size() - 2], 1, '(');
       out += 'u';
       starts.resize(starts.size() - 2);
@@ -410,7 +422,7 @@ inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::
         marks.emplace_back(starts.size(), at);
         break;
       case '0':
-        starts.pop_back();
+        pop_items(1);
         break;
       case '1':
         pop_to_mark();
@@ -421,16 +433,17 @@ inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::
         starts.push_back(pop_to_mark());
         break;
       case 0x85:
+        if (starts.empty()) broken();
         break;  // TUPLE1: same start
       case 0x86:
-        starts.pop_back();
+        pop_items(1);
         break;  // TUPLE2
       case 0x87:
-        starts.resize(starts.size() - 2);
+        pop_items(2);
         break;  // TUPLE3
       case 'a':
       case 'b':
-        starts.pop_back();
+        pop_items(1);
         break;  // APPEND, BUILD
       case 'e':
       case 'u':
@@ -438,7 +451,7 @@ inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::
         break;  // APPENDS, SETITEMS
       case 'R':
       case 0x81:
-        starts.pop_back();
+        pop_items(1);
         break;  // REDUCE, NEWOBJ
       case 'Q':
       case 0x80:
