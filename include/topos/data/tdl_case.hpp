@@ -120,10 +120,11 @@ inline std::vector<const json*> ranked_cells(const json& cells, const std::strin
     throw data::DataError(source + ": \"cells\" must be an object {rank: [cells...]}");
   std::map<int, const json*> by_rank;
   for (auto it = cells.begin(); it != cells.end(); ++it) {
-    // Digits only: std::stoi would take " 2" or "+2" for rank 2.
+    // Digits only, no leading zero: std::stoi would take " 2", "+2" or "02" for rank 2.
     int r = -1;
     const std::string& key = it.key();
-    if (!key.empty() && key.size() <= 9 && key.find_first_not_of("0123456789") == std::string::npos)
+    if (!key.empty() && key.size() <= 9 && (key == "0" || key[0] != '0') &&
+        key.find_first_not_of("0123456789") == std::string::npos)
       r = std::stoi(key);
     if (r < 0)
       throw data::DataError(source + ": cell rank \"" + it.key() +

@@ -308,7 +308,8 @@ inline void check_pickle(const char* d, std::size_t n, const std::string& source
   }
 }
 
-/// The bytes of the opcode at `p` with its argument (a pickle check_pickle accepted).
+/// The bytes of the opcode at `p` with its argument (a pickle check_pickle accepted); the
+/// caller checks the result against the bytes left (0: a GLOBAL without its two lines).
 inline std::size_t pickle_opcode_length(const char* d, std::size_t n, std::size_t p) {
   switch (static_cast<unsigned char>(d[p])) {
     case 0x80:
@@ -335,8 +336,10 @@ inline std::size_t pickle_opcode_length(const char* d, std::size_t n, std::size_
       return 5 + le32(d + p + 1);
     case 'c': {
       const auto* a = static_cast<const char*>(std::memchr(d + p + 1, '\n', n - p - 1));
+      if (!a) return 0;
       const auto* b = static_cast<const char*>(
           std::memchr(a + 1, '\n', static_cast<std::size_t>(d + n - a - 1)));
+      if (!b) return 0;
       return static_cast<std::size_t>(b - (d + p)) + 1;
     }
     default:
@@ -379,6 +382,9 @@ inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::
   while (p < n) {
     const unsigned char op = static_cast<unsigned char>(d[p]);
     const std::size_t len = pickle_opcode_length(d, n, p), at = out.size();
+    // This walk may fall out of step with check_pickle's (the rewrites below skip opcodes): a
+    // length past the end is an error, not a read past the buffer (a fuzzed file asked for 4 GB).
+    if (len == 0 || len > n - p) broken();
     std::size_t q = p + len;
     bool ordered_dict = op == 'c' && std::string(d + p + 1, len - 1) == kOrderedDict;
     if (op == 'h' || op == 'j') {
@@ -387,6 +393,7 @@ inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::
     }
     if (ordered_dict) {
       if (q < n && (d[q] == 'q' || d[q] == 'r')) {  // the class memoized: later BINGETs of it
+        if (pickle_opcode_length(d, n, q) > n - q) broken();
         class_memo.push_back(d[q] == 'q' ? static_cast<unsigned char>(d[q + 1]) : le32(d + q + 1));
         q += pickle_opcode_length(d, n, q);
       }
