@@ -4,8 +4,10 @@
 Reads ../shared/reference (never copied into the repository; this runs at fuzz time) and cuts
 its files down to seeds small enough to mutate quickly: the KuBasic OBJ meshes, the MOVi-A
 scene's metadata.json and collisions.json cut to their first frames, the normalisation
-statistics, small golden .npy arrays, and, when Python's torch is installed, state dicts saved
-by torch.save (a few tensors of a published checkpoint, and a small module's state_dict).
+statistics, small golden .npy arrays, the tdl golden cases' complex.json + operators.json (op
+and args only; the `call` and the operators' matrices are dropped) + case.json's domain, and,
+when Python's torch is installed, state dicts saved by torch.save (a few tensors of a published
+checkpoint, and a small module's state_dict).
 """
 import json
 import os
@@ -65,6 +67,33 @@ for base in ("golden", "train-golden"):
             if n.endswith(".npy") and os.path.getsize(p) < 4096 and count < 40:
                 put("npy", "%s-%d.npy" % (base, count), open(p, "rb").read())
                 count += 1
+
+# tdl cases: complex.json NUL operators.json NUL case.json (tests/fuzz/fuzz_tdl.cpp), identical
+# inputs once; each also without complex.json's "domain", so case.json's fallback is taken.
+cases = os.path.join(ref, "tdl-golden", "cases")
+if os.path.isdir(cases):
+    seen = set()
+    for name in sorted(os.listdir(cases)):
+        c = os.path.join(cases, name)
+        try:
+            with open(os.path.join(c, "complex.json")) as f:
+                cx = json.load(f)
+            with open(os.path.join(c, "operators.json")) as f:
+                ops = {k: {"op": v.get("op"), "args": v.get("args", {})}
+                       for k, v in json.load(f).items()}
+            with open(os.path.join(c, "case.json")) as f:
+                domain = json.load(f).get("domain")
+        except (OSError, ValueError, AttributeError):
+            continue
+        for keep_domain in (True, False):
+            x = dict(cx)
+            if not keep_domain:
+                x.pop("domain", None)
+            b = "\0".join([json.dumps(x), json.dumps(ops), json.dumps({"domain": domain})])
+            b = b.encode()
+            if b not in seen and len(b) < 16384:
+                seen.add(b)
+                put("tdl", "%s%s.json" % (name, "" if keep_domain else "-case-domain"), b)
 
 try:
     import torch

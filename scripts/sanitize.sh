@@ -8,9 +8,13 @@ set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$root"
 bash scripts/setup.sh
-if [ -z "${TOPOS_REFERENCE_DIR:-}" ] && [ -d "$root/../shared/reference" ]; then
-  export TOPOS_REFERENCE_DIR="$root/../shared/reference"
-fi
+# The reference beside the checkout, or beside the folder of worktrees (/work/wt/<name>).
+for ref in "$root/../shared/reference" "$root/../../shared/reference"; do
+  if [ -z "${TOPOS_REFERENCE_DIR:-}" ] && [ -d "$ref" ]; then
+    TOPOS_REFERENCE_DIR="$(cd "$ref" && pwd)"
+    export TOPOS_REFERENCE_DIR
+  fi
+done
 build="${TOPOS_SANITIZE_BUILD_DIR:-$root/build-sanitize}"
 jobs="${TOPOS_JOBS:-2}"
 start=$(date +%s)

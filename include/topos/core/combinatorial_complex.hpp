@@ -378,6 +378,8 @@ class CombinatorialComplex {
       throw ComplexError("incidence_matrix: ranks must differ (got " + std::to_string(r) +
                          " twice)");
     const int lo = std::min(r, s), hi = std::max(r, s);
+    require_rank(lo, "incidence_matrix");  // before ranks_[hi] is read below
+    require_rank(hi, "incidence_matrix");
     // The visit order (upper cells in order, lower ids ascending) is the CSR of the hi × lo
     // matrix: fill it directly; the lo × hi one is its transpose (Eigen's counting sort).
     // Filled in place (no intermediate arrays to copy: at 50k nodes the copies and their page

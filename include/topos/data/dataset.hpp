@@ -167,7 +167,10 @@ inline Split parse_split_json(const std::string& text, const std::string& source
     for (auto& [key, part] : std::vector<std::pair<const char*, std::vector<std::int64_t>*>>{
              {"train", &s.train}, {"val", &s.val}, {"test", &s.test}}) {
       if (!j.contains(key)) continue;
-      *part = j.at(key).get<std::vector<std::int64_t>>();
+      const auto& list = j.at(key);
+      if (!list.is_array()) throw DataError(source + ": '" + key + "' must be a list of seeds");
+      part->clear();
+      for (const auto& v : list) part->push_back(get_integer(v, source + ": a seed of " + key));
       for (auto id : *part)
         if (!seen.insert(id).second)
           throw DataError(source + ": seed " + std::to_string(id) + " is listed twice");
@@ -281,10 +284,10 @@ class Dataset {
     try {
       if (j.at("format").get<std::string>() != "topos-movi")
         throw DataError(index_path + ": format is not 'topos-movi'");
-      if (j.at("version").get<int>() != 1)
+      if (get_integer(j.at("version"), index_path + ": version") != 1)
         throw DataError(index_path + ": unsupported version " + j.at("version").dump());
-      const std::int64_t frames = j.at("num_frames").get<std::int64_t>(),
-                         total = j.at("num_objects").get<std::int64_t>();
+      const std::int64_t frames = get_integer(j.at("num_frames"), index_path + ": num_frames"),
+                         total = get_integer(j.at("num_objects"), index_path + ": num_objects");
       if (frames <= 0 || total <= 0)
         throw DataError(index_path + ": num_frames and num_objects must be positive");
       const auto check = [&](const NpyArray& a, const char* name, std::int64_t cols) {
@@ -300,10 +303,10 @@ class Dataset {
       std::int64_t next = 0;
       for (const auto& js : j.at("scenes")) {
         KubricScene s;
-        s.seed = js.at("seed").get<std::int64_t>();
+        s.seed = get_integer(js.at("seed"), index_path + ": a scene's seed");
         s.num_frames = frames;
         s.source = index_path + " (seed " + std::to_string(s.seed) + ")";
-        if (js.at("offset").get<std::int64_t>() != next)
+        if (get_integer(js.at("offset"), s.source + ": offset") != next)
           throw DataError(s.source + ": offset " + js.at("offset").dump() + ", expected " +
                           std::to_string(next));
         for (const auto& ji : js.at("instances")) {

@@ -1,16 +1,19 @@
 // topos/data/json.hpp
 // DataError, the error of every malformed or missing data file, and reading JSON files with
-// errors that name the file: one place for "cannot open file" and "malformed JSON". std +
-// nlohmann-json.
+// errors that name the file: one place for "cannot open file", "malformed JSON" and "not an
+// integer". std + nlohmann-json.
 #pragma once
 
 #include <nlohmann/json.hpp>
 
+#include <cstdint>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <limits>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 
 namespace topos::data {
 
@@ -18,6 +21,32 @@ class DataError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
 };
+
+/// Whether `v` is a JSON integer that fits an int64 (nlohmann keeps integers above INT64_MAX as
+/// unsigned; get<std::int64_t> would wrap them).
+template <class Json>
+bool is_int64(const Json& v) {
+  return v.is_number_integer() &&
+         (!v.is_number_unsigned() ||
+          v.template get<std::uint64_t>() <=
+              static_cast<std::uint64_t>(std::numeric_limits<std::int64_t>::max()));
+}
+
+/// The JSON integer `v` as T. Anything else (a string, 1.5, 1e30, a value outside T's range) is a
+/// DataError naming `what`: nlohmann's get<T> converts numbers unchecked (a float out of range is
+/// undefined behaviour, a large integer wraps).
+template <class T = std::int64_t, class Json>
+T get_integer(const Json& v, const std::string& what) {
+  static_assert(std::is_integral_v<T> && std::is_signed_v<T>, "a signed integer type");
+  if (is_int64(v)) {
+    const auto x = v.template get<std::int64_t>();
+    if (x >= std::numeric_limits<T>::min() && x <= std::numeric_limits<T>::max())
+      return static_cast<T>(x);
+  }
+  throw DataError(what + ": expected an integer in [" +
+                  std::to_string(std::numeric_limits<T>::min()) + ", " +
+                  std::to_string(std::numeric_limits<T>::max()) + "], got " + v.dump());
+}
 
 /// The whole file as text; a file that cannot be opened is a DataError naming it.
 inline std::string read_text_file(const std::filesystem::path& path) {
@@ -39,15 +68,20 @@ inline nlohmann::json read_json_file(const std::filesystem::path& path) {
   return parse_json(read_text_file(path), path.string());
 }
 
-/// As read_json_file, keeping objects' keys in file order (where the order means something,
-/// e.g. operators listed in creation order).
-inline nlohmann::ordered_json read_ordered_json_file(const std::filesystem::path& path) {
-  const std::string text = read_text_file(path);
+/// As parse_json, keeping objects' keys in text order (where the order means something, e.g.
+/// operators listed in creation order).
+inline nlohmann::ordered_json parse_ordered_json(const std::string& text,
+                                                 const std::string& source) {
   try {
     return nlohmann::ordered_json::parse(text);
   } catch (const nlohmann::json::exception& e) {
-    throw DataError(path.string() + ": malformed JSON: " + e.what());
+    throw DataError(source + ": malformed JSON: " + e.what());
   }
+}
+
+/// As read_json_file, keeping objects' keys in file order.
+inline nlohmann::ordered_json read_ordered_json_file(const std::filesystem::path& path) {
+  return parse_ordered_json(read_text_file(path), path.string());
 }
 
 }  // namespace topos::data

@@ -73,9 +73,11 @@ inline KubricScene parse_kubric_metadata(const std::string& text, const std::str
   s.source = source;
   const auto& meta = field(j, "metadata", "");
   try {
-    s.num_frames = field(meta, "num_frames", "metadata.").get<std::int64_t>();
-    const auto n = field(meta, "num_instances", "metadata.").get<std::int64_t>();
-    if (meta.contains("seed")) s.seed = meta["seed"].get<std::int64_t>();
+    s.num_frames =
+        get_integer(field(meta, "num_frames", "metadata."), source + ": metadata.num_frames");
+    const auto n =
+        get_integer(field(meta, "num_instances", "metadata."), source + ": metadata.num_instances");
+    if (meta.contains("seed")) s.seed = get_integer(meta["seed"], source + ": metadata.seed");
     const auto& inst = field(j, "instances", "");
     if (!inst.is_array()) throw DataError(source + ": 'instances' is not an array");
     if (s.num_frames <= 0) throw DataError(source + ": metadata.num_frames must be positive");

@@ -11,7 +11,8 @@
 //                       compute_bunch_normalized_matrices
 //   algebra             transpose, abs, sum, scale, identity, pinv (an argument that is a string
 //                       names an earlier operator of the same case)
-// An unknown op, a missing argument, an operator a domain lacks: a DataError naming the operator.
+// An unknown op, a missing argument, an operator a domain lacks, an operator with a non-finite
+// entry, pinv of more than kMaxPinvEntries: a DataError naming the file and the operator.
 // Core + nlohmann-json (no LibTorch), so small programs can use it.
 #pragma once
 
@@ -25,8 +26,10 @@
 
 #include <nlohmann/json.hpp>
 
+#include <cmath>
 #include <cstdint>
 #include <filesystem>
+#include <limits>
 #include <map>
 #include <string>
 #include <unordered_map>
@@ -60,7 +63,7 @@ struct NodeMap {
   std::unordered_map<std::int64_t, std::int64_t> id;
   std::string source;
   std::int64_t operator()(const json& label, const std::string& where) const {
-    if (!label.is_number_integer())
+    if (!data::is_int64(label))
       throw data::DataError(source + ": " + where + ": node " + label.dump() +
                             " is not an integer");
     auto it = id.find(label.get<std::int64_t>());
@@ -88,7 +91,7 @@ inline NodeMap map_nodes(const json& labels, const std::string& source, bool inc
   std::int64_t previous = 0;
   for (std::size_t i = 0; i < labels.size(); ++i) {
     const json& l = labels[i].is_array() && labels[i].size() == 1 ? labels[i][0] : labels[i];
-    if (!l.is_number_integer())
+    if (!data::is_int64(l))
       throw data::DataError(source + ": node " + labels[i].dump() +
                             " is not an integer (or a one-node cell)");
     const auto v = l.get<std::int64_t>();
@@ -117,13 +120,12 @@ inline std::vector<const json*> ranked_cells(const json& cells, const std::strin
     throw data::DataError(source + ": \"cells\" must be an object {rank: [cells...]}");
   std::map<int, const json*> by_rank;
   for (auto it = cells.begin(); it != cells.end(); ++it) {
+    // Digits only, no leading zero: std::stoi would take " 2", "+2" or "02" for rank 2.
     int r = -1;
-    try {
-      std::size_t used = 0;
-      r = std::stoi(it.key(), &used);
-      if (used != it.key().size()) r = -1;
-    } catch (const std::exception&) {
-    }
+    const std::string& key = it.key();
+    if (!key.empty() && key.size() <= 9 && (key == "0" || key[0] != '0') &&
+        key.find_first_not_of("0123456789") == std::string::npos)
+      r = std::stoi(key);
     if (r < 0)
       throw data::DataError(source + ": cell rank \"" + it.key() +
                             "\" is not a non-negative integer");
@@ -144,14 +146,12 @@ inline std::vector<const json*> ranked_cells(const json& cells, const std::strin
 
 }  // namespace detail
 
-/// The domain of a complex.json (`domain` names the kind; `fallback_domain` is used when the
-/// file lacks it, e.g. from case.json). Cells keep the file's order; nodes are numbered by their
-/// position in the node list (rank-0 cells).
-inline Domain read_domain(const std::filesystem::path& complex_json,
-                          const std::string& fallback_domain = {}) {
+/// The domain of a parsed complex.json `j` (`domain` names the kind; `fallback_domain` is used
+/// when it lacks one, e.g. from case.json); errors are DataErrors naming `src`. Cells keep the
+/// file's order; nodes are numbered by their position in the node list (rank-0 cells).
+inline Domain parse_domain(const nlohmann::ordered_json& j, const std::string& src,
+                           const std::string& fallback_domain = {}) {
   using detail::json;
-  const std::string src = complex_json.string();
-  const json j = data::read_ordered_json_file(complex_json);
   std::string kind = fallback_domain;
   if (j.is_object() && j.contains("domain")) {
     if (!j["domain"].is_string()) throw data::DataError(src + ": \"domain\" must be a string");
@@ -224,6 +224,20 @@ inline Domain read_domain(const std::filesystem::path& complex_json,
                         "\" (expected simplicial, cell, combinatorial or hypergraph)");
 }
 
+/// The domain of the complex.json file at `complex_json` (see parse_domain).
+inline Domain read_domain(const std::filesystem::path& complex_json,
+                          const std::string& fallback_domain = {}) {
+  return parse_domain(data::read_ordered_json_file(complex_json), complex_json.string(),
+                      fallback_domain);
+}
+
+/// The domain case.json names (its "domain" string), or "" when it names none.
+inline std::string case_domain(const nlohmann::json& case_json) {
+  if (case_json.is_object() && case_json.contains("domain") && case_json["domain"].is_string())
+    return case_json["domain"].get<std::string>();
+  return {};
+}
+
 namespace detail {
 
 // One operator's evaluation context: its name and op for error messages, typed argument access.
@@ -245,9 +259,10 @@ struct OpCall {
   }
   int integer(const char* k) const {
     const json& v = arg(k);
-    if (!v.is_number_integer())
+    if (!data::is_int64(v) || v.get<std::int64_t>() < std::numeric_limits<int>::min() ||
+        v.get<std::int64_t>() > std::numeric_limits<int>::max())
       fail(std::string("argument '") + k + "' must be an integer, got " + v.dump());
-    return v.get<int>();
+    return static_cast<int>(v.get<std::int64_t>());
   }
   double number(const char* k) const {
     const json& v = arg(k);
@@ -321,6 +336,10 @@ inline bool is_complex_op(const std::string& op) {
 
 }  // namespace detail
 
+/// The largest operator (rows x cols) pinv accepts: it is computed dense (32 MB, a 2048 x 2048
+/// SVD).
+inline constexpr std::int64_t kMaxPinvEntries = std::int64_t{1} << 22;
+
 /// The ops this evaluator knows (for messages and documentation).
 inline std::vector<std::string> known_ops() {
   return {"incidence_matrix",
@@ -390,7 +409,16 @@ inline SparseOp evaluate_operator(const std::string& name, const std::string& op
     if (op == "transpose") return sparse::transpose(c.ref("of"));
     if (op == "abs") return sparse::abs(c.ref("of"));
     if (op == "scale") return sparse::pruned(SparseOp(c.ref("of") * c.number("factor")));
-    if (op == "pinv") return sparse::from_dense(pinv(Eigen::MatrixXd(c.ref("of"))));
+    if (op == "pinv") {
+      // Dense SVD: bounded, so that a case cannot ask for gigabytes and hours.
+      const SparseOp& of = c.ref("of");
+      if (static_cast<double>(of.rows()) * static_cast<double>(of.cols()) > kMaxPinvEntries) {
+        c.fail("'" + c.args["of"].get<std::string>() + "' is " + std::to_string(of.rows()) + "x" +
+               std::to_string(of.cols()) + "; pinv is dense and limited to " +
+               std::to_string(kMaxPinvEntries) + " entries");
+      }
+      return sparse::from_dense(pinv(Eigen::MatrixXd(of)));
+    }
     if (op == "sum") {
       const auto& of = c.arg("of");
       if (!of.is_array() || of.empty())
@@ -437,8 +465,25 @@ inline Operators compute_operators(const nlohmann::ordered_json& ops, const Doma
     const auto& args = spec.contains("args") ? spec["args"] : no_args;
     if (out.by_name.count(name))
       throw data::DataError(source + ": operator '" + name + "' is defined twice");
-    out.by_name.emplace(name,
-                        evaluate_operator(name, spec["op"].get<std::string>(), args, domain, out));
+    const std::string& op = spec["op"].get<std::string>();
+    SparseOp m;
+    try {
+      m = evaluate_operator(name, op, args, domain, out);
+    } catch (const data::DataError& e) {
+      throw data::DataError(source + ": " + e.what());  // the file, then the operator
+    }
+    // Overflow (a huge scale factor or identity multiplier) or a negative degree under a square
+    // root: an error, not NaN or inf handed to a model.
+    for (Eigen::Index i = 0; i < m.outerSize(); ++i) {
+      for (SparseOp::InnerIterator it(m, i); it; ++it) {
+        if (!std::isfinite(it.value())) {
+          throw data::DataError(source + ": operator '" + name + "' (op " + op + ") has entry (" +
+                                std::to_string(it.row()) + ", " + std::to_string(it.col()) +
+                                ") = " + std::to_string(it.value()) + ", not a finite number");
+        }
+      }
+    }
+    out.by_name.emplace(name, std::move(m));
     out.order.push_back(name);
   }
   return out;
@@ -449,11 +494,8 @@ inline Operators compute_operators(const nlohmann::ordered_json& ops, const Doma
 /// operator and the op.
 inline Operators compute_operators(const std::filesystem::path& case_dir) {
   std::string fallback;
-  if (std::filesystem::exists(case_dir / "case.json")) {
-    const auto cj = data::read_json_file(case_dir / "case.json");
-    if (cj.is_object() && cj.contains("domain") && cj["domain"].is_string())
-      fallback = cj["domain"].get<std::string>();
-  }
+  if (std::filesystem::exists(case_dir / "case.json"))
+    fallback = case_domain(data::read_json_file(case_dir / "case.json"));
   const Domain domain = read_domain(case_dir / "complex.json", fallback);
   return compute_operators(data::read_ordered_json_file(case_dir / "operators.json"), domain,
                            (case_dir / "operators.json").string());

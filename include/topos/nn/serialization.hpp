@@ -308,7 +308,8 @@ inline void check_pickle(const char* d, std::size_t n, const std::string& source
   }
 }
 
-/// The bytes of the opcode at `p` with its argument (a pickle check_pickle accepted).
+/// The bytes of the opcode at `p` with its argument (a pickle check_pickle accepted); the
+/// caller checks the result against the bytes left (0: a GLOBAL without its two lines).
 inline std::size_t pickle_opcode_length(const char* d, std::size_t n, std::size_t p) {
   switch (static_cast<unsigned char>(d[p])) {
     case 0x80:
@@ -335,8 +336,10 @@ inline std::size_t pickle_opcode_length(const char* d, std::size_t n, std::size_
       return 5 + le32(d + p + 1);
     case 'c': {
       const auto* a = static_cast<const char*>(std::memchr(d + p + 1, '\n', n - p - 1));
+      if (!a) return 0;
       const auto* b = static_cast<const char*>(
           std::memchr(a + 1, '\n', static_cast<std::size_t>(d + n - a - 1)));
+      if (!b) return 0;
       return static_cast<std::size_t>(b - (d + p)) + 1;
     }
     default:
@@ -359,7 +362,17 @@ inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::
   std::vector<std::uint32_t> class_memo;  // memo entries holding the OrderedDict class
   std::vector<std::size_t> starts;        // per stack item: its first byte in `out`
   std::vector<std::pair<std::size_t, std::size_t>> marks;  // (stack depth, position in `out`)
+  // check_pickle accepted the input, but this walk rewrites it: its stacks are checked again
+  // rather than trusted (a fuzzed pickle once popped a mark this walk had not set).
+  const auto broken = [&]() -> void {
+    throw std::runtime_error(source + ": not a readable torch file: malformed pickle stack");
+  };
+  const auto pop_items = [&](std::size_t k) {
+    if (starts.size() < k || (!marks.empty() && starts.size() - k < marks.back().first)) broken();
+    starts.resize(starts.size() - k);
+  };
   const auto pop_to_mark = [&]() {
+    if (marks.empty() || starts.size() < marks.back().first) broken();
     const auto m = marks.back();
     marks.pop_back();
     starts.resize(m.first);
@@ -369,6 +382,9 @@ inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::
   while (p < n) {
     const unsigned char op = static_cast<unsigned char>(d[p]);
     const std::size_t len = pickle_opcode_length(d, n, p), at = out.size();
+    // This walk may fall out of step with check_pickle's (the rewrites below skip opcodes): a
+    // length past the end is an error, not a read past the buffer (a fuzzed file asked for 4 GB).
+    if (len == 0 || len > n - p) broken();
     std::size_t q = p + len;
     bool ordered_dict = op == 'c' && std::string(d + p + 1, len - 1) == kOrderedDict;
     if (op == 'h' || op == 'j') {
@@ -377,6 +393,7 @@ inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::
     }
     if (ordered_dict) {
       if (q < n && (d[q] == 'q' || d[q] == 'r')) {  // the class memoized: later BINGETs of it
+        if (pickle_opcode_length(d, n, q) > n - q) broken();
         class_memo.push_back(d[q] == 'q' ? static_cast<unsigned char>(d[q + 1]) : le32(d + q + 1));
         q += pickle_opcode_length(d, n, q);
       }
@@ -391,12 +408,14 @@ inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::
     }
     if (op == 'b' && q < n &&
         d[q] == '.') {  // BUILD just before STOP: drop its state (the _metadata)
+      if (starts.empty()) broken();
       out.resize(starts.back());
       starts.pop_back();
       p = q;
       continue;
     }
     if (op == 's') {  // SETITEM: MARK before the key, SETITEMS
+      if (starts.size() < 2) broken();
       out.insert(starts[starts.size() - 2], 1, '(');
       out += 'u';
       starts.resize(starts.size() - 2);
@@ -410,7 +429,7 @@ inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::
         marks.emplace_back(starts.size(), at);
         break;
       case '0':
-        starts.pop_back();
+        pop_items(1);
         break;
       case '1':
         pop_to_mark();
@@ -421,16 +440,17 @@ inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::
         starts.push_back(pop_to_mark());
         break;
       case 0x85:
+        if (starts.empty()) broken();
         break;  // TUPLE1: same start
       case 0x86:
-        starts.pop_back();
+        pop_items(1);
         break;  // TUPLE2
       case 0x87:
-        starts.resize(starts.size() - 2);
+        pop_items(2);
         break;  // TUPLE3
       case 'a':
       case 'b':
-        starts.pop_back();
+        pop_items(1);
         break;  // APPEND, BUILD
       case 'e':
       case 'u':
@@ -438,7 +458,7 @@ inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::
         break;  // APPENDS, SETITEMS
       case 'R':
       case 0x81:
-        starts.pop_back();
+        pop_items(1);
         break;  // REDUCE, NEWOBJ
       case 'Q':
       case 0x80:

@@ -265,8 +265,10 @@ inline std::map<std::int64_t, std::vector<ContactCandidate>> parse_collisions_js
       auto& v = out[std::stoll(frame)];
       for (const auto& e : entries)
         for (const auto& p : e.at("pairs"))
-          v.push_back({e.at("obj0").get<std::int64_t>(), p.at(0).get<std::int64_t>(),
-                       e.at("obj1").get<std::int64_t>(), p.at(1).get<std::int64_t>()});
+          v.push_back({data::get_integer(e.at("obj0"), path + ": obj0"),
+                       data::get_integer(p.at(0), path + ": a pair's face"),
+                       data::get_integer(e.at("obj1"), path + ": obj1"),
+                       data::get_integer(p.at(1), path + ": a pair's face")});
     }
   } catch (const std::exception& e) {
     throw data::DataError(path + ": unexpected layout: " + e.what());

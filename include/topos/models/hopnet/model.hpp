@@ -65,9 +65,18 @@ struct HopnetOptions {
       if (j.value("model", "hopnet") != "hopnet")
         throw std::invalid_argument("not a HOPNet configuration: model '" + j.value("model", "") +
                                     "'");
-      o.hidden(j.value("hidden", 128))
-          .mlp_layers(j.value("mlp_layers", 2))
-          .num_layers(j.value("num_layers", 1));
+      // Checked integers: j.value<int> converts 1e30 unchecked (undefined) and wraps 2^32 + 128.
+      const auto integer = [&](const char* key, int dflt) -> int {
+        if (!j.contains(key)) return dflt;
+        try {
+          return data::get_integer<int>(j[key], std::string("HOPNet configuration: ") + key);
+        } catch (const data::DataError& e) {
+          throw std::invalid_argument(e.what());
+        }
+      };
+      o.hidden(integer("hidden", 128))
+          .mlp_layers(integer("mlp_layers", 2))
+          .num_layers(integer("num_layers", 1));
       o.activation(nn::activation_from_string(j.value("activation", "relu")));
       o.mode(feature_mode_from_string(j.value("mode", "reference")));
       o.architecture(architecture_from_string(j.value("architecture", "hopnet")));
