@@ -66,8 +66,8 @@ struct Sample {
 };
 
 /// One point cloud of class k, lifted: node features (distance to the centroid), edge lengths,
-/// triangle areas, all invariant to the cloud's rotation and scale; the low-pass filters of the Hodge Laplacians and the incidences
-/// (both directions) as named neighbourhoods.
+/// triangle areas, all invariant to the cloud's rotation and scale; the low-pass filters of the
+/// Hodge Laplacians and the incidences (both directions) as named neighbourhoods.
 Sample make_sample(int k, const ClassifyOptions& o, std::mt19937_64& rng) {
   using namespace topos;
   std::uniform_real_distribution<double> angle(0, 2 * M_PI), scale(0.8, 1.2);
