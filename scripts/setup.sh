@@ -13,6 +13,7 @@ packages=(
   nlohmann-json3-dev libcli11-dev catch2 libbenchmark-dev
   python3  # scripts/check_torch_file.py: the tests' torch.load compatibility check
   python3-torch  # tests/nn/test_python_interop.cpp: torch.load / torch.save where users are
+  clang-format  # ctest code_style (scripts/check_style.sh): the tree stays as .clang-format says
 )
 # Headless Chromium is only needed for the viewer screenshot test: scripts/test.sh asks for it
 # (TOPOS_WITH_CHROMIUM=1); the demo does not.
