@@ -7,7 +7,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1
-cmake -S . -B build -DCMAKE_BUILD_TYPE=Release >/dev/null
+cmake -S . -B build -DCMAKE_BUILD_TYPE=Release -DTOPOS_WERROR="${TOPOS_WERROR:-ON}" >/dev/null  # as scripts/test.sh: one build serves both
 cmake --build build -j2 --target hopnet
 H=build/examples/hopnet
 OUT=build/demo

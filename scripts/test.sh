@@ -16,7 +16,8 @@ jobs="${TOPOS_JOBS:-2}"
 export CCACHE_SLOPPINESS="${CCACHE_SLOPPINESS:-pch_defines,time_macros,include_file_mtime,include_file_ctime}"
 export CCACHE_BASEDIR="${CCACHE_BASEDIR:-$root}"
 start=$(date +%s)
-cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=Release >/dev/null
+# Warnings are errors here (CI): the tree builds without one under -Wall -Wextra -Wpedantic.
+cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=Release -DTOPOS_WERROR="${TOPOS_WERROR:-ON}" >/dev/null
 cmake --build "$build" -j "$jobs"
 built=$(date +%s)
 # Keep BLAS/OpenMP from oversubscribing the two cores while ctest runs tests in parallel.
