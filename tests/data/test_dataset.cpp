@@ -104,7 +104,10 @@ TEST_CASE("custom splits are read, checked against the dataset, and round-trip",
   REQUIRE_THROWS_WITH(parse_split_json(R"({"train": [1,)", "s.json"),
                       Catch::Contains("malformed split"));
   REQUIRE_THROWS_WITH(parse_split_json(R"({"train": ["a"]})", "s.json"),
-                      Catch::Contains("malformed split"));
+                      Catch::Contains("s.json: a seed of train: expected an integer") &&
+                          Catch::Contains("got \"a\""));
+  REQUIRE_THROWS_WITH(parse_split_json(R"({"train": [3.5e97]})", "s.json"),
+                      Catch::Contains("s.json: a seed of train: expected an integer"));
   const auto back =
       parse_split_json(split_json(reference_split(parse_seed_range("1-10"))).dump(), "x");
   REQUIRE(back.test == std::vector<std::int64_t>{6});
