@@ -9,6 +9,10 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <string>
+#include <tuple>
+#include <utility>
+#include <vector>
 
 namespace {
 void replay(const std::string& harness) {
@@ -33,6 +37,116 @@ void replay(const std::string& harness) {
 
 TEST_CASE("fuzz regressions replay: checkpoint") {
   replay("checkpoint");
+}
+
+namespace {
+using namespace std::string_literals;
+
+struct ZipMember {
+  ZipMember(std::string n, std::string b, std::string d = {})
+      : name(std::move(n)), bytes(std::move(b)), deflated(std::move(d)) {}
+  std::string name, bytes;
+  std::string
+      deflated;  ///< non-empty: stored instead of `bytes`, as their deflate stream (method 8)
+};
+
+std::uint32_t crc32(const std::string& s) {
+  std::uint32_t c = 0xFFFFFFFFu;
+  for (unsigned char b : s) {
+    c ^= b;
+    for (int k = 0; k < 8; ++k) c = (c >> 1) ^ (0xEDB88320u & (0u - (c & 1u)));
+  }
+  return ~c;
+}
+
+/// A zip archive of `members` (local headers, central directory, end record), as torch.save
+/// lays one out.
+std::string zip_archive(const std::vector<ZipMember>& members) {
+  std::string out, central;
+  const auto u16 = [](std::string& s, std::size_t v) {
+    s.push_back(static_cast<char>(v & 0xFF));
+    s.push_back(static_cast<char>((v >> 8) & 0xFF));
+  };
+  const auto u32 = [&](std::string& s, std::size_t v) { u16(s, v & 0xFFFF), u16(s, v >> 16); };
+  for (const auto& m : members) {
+    const std::string& data = m.deflated.empty() ? m.bytes : m.deflated;
+    const std::size_t offset = out.size();
+    const auto header = [&](std::string& s) {
+      u16(s, 0), u16(s, m.deflated.empty() ? 0 : 8), u16(s, 0),
+          u16(s, 0);  // flags, method, time, date
+      u32(s, crc32(m.bytes)), u32(s, data.size()), u32(s, m.bytes.size());
+      u16(s, m.name.size()), u16(s, 0);  // name and extra field lengths
+    };
+    u32(out, 0x04034b50u), u16(out, 20), header(out);
+    out += m.name + data;
+    u32(central, 0x02014b50u), u16(central, 20), u16(central, 20), header(central);
+    u16(central, 0), u16(central, 0), u16(central, 0), u32(central, 0), u32(central, offset);
+    central += m.name;
+  }
+  const std::size_t cd_offset = out.size();
+  out += central;
+  u32(out, 0x06054b50u), u16(out, 0), u16(out, 0), u16(out, members.size());
+  u16(out, members.size()), u32(out, central.size()), u32(out, cd_offset), u16(out, 0);
+  return out;
+}
+
+/// A torch.save-style file holding one tensor 't' over a storage of two floats; `layout` is the
+/// pickle from the storage's device to the sizes and strides, whose memo indices end at
+/// `next_memo` - 1.
+std::string tensor_file(const std::string& layout, char next_memo) {
+  const std::string pickle =
+      "\x80\x02}q\x00X\x01\x00\x00\x00tq\x01"
+      "ctorch._utils\n_rebuild_tensor_v2\nq\x02((X\x07\x00\x00\x00storageq\x03"
+      "ctorch\nFloatStorage\nq\x04X\x01\x00\x00\x00"
+      "0q\x05X\x03\x00\x00\x00"
+      "cpuq\x06"s +
+      layout +
+      "\x89"
+      "ccollections\nOrderedDict\nq" +
+      next_memo + ")Rq" + static_cast<char>(next_memo + 1) + "tq" +
+      static_cast<char>(next_memo + 2) + "Rq" + static_cast<char>(next_memo + 3) + "s.";
+  return zip_archive({{"archive/data.pkl", pickle},
+                      {"archive/data/0", "\x00\x00\x80?\x00\x00\x00@"s},
+                      {"archive/version", "3\n"}});
+}
+}  // namespace
+
+// The torch files fuzz_checkpoint once crashed on or over-allocated for, written here rather
+// than kept as .pt files: each must be a clear error naming the file, and pass the harness.
+TEST_CASE("fuzz regressions replay: checkpoint files written in code") {
+  const std::vector<std::tuple<std::string, std::string, std::string>> cases = {
+      {"compressed_member",
+       zip_archive({{"archive/data.pkl", "\x80\x02}q\x00."s, "k`\xaa-d\xd0\x03\x00"s}}),
+       "is compressed"},
+      {"stack_underflow", zip_archive({{"archive/data.pkl", "\x80\x02R."}}), "pickle pops"},
+      {"mark_underflow", zip_archive({{"archive/data.pkl", "\x80\x02(0t."}}), "pickle pops"},
+      {"memo_index", zip_archive({{"archive/data.pkl", "\x80\x02}r\xff\xff\xff\x7f."}}),
+       "out of sequence"},
+      {"string_length", zip_archive({{"archive/data.pkl", "\x80\x02X\xff\xff\xff\x7f"}}),
+       "pickle truncated"},
+      // sizes (2^40), strides (1): 2^40 elements of a two-float storage, the sizes as 6-byte
+      // LONG1 integers, which LibTorch's unpickler refuses before any tensor is made
+      {"elements_2pow40",
+       tensor_file("\x8a\x06\x00\x00\x00\x00\x00\x01tq\x07QK\x00"
+                   "\x8a\x06\x00\x00\x00\x00\x00\x01\x85q\x08K\x01\x85q\x09"s,
+                   10),
+       "not a readable torch file: Expected length to be 8, got 6"},
+      // storage offset 5, one element
+      {"offset_past_storage", tensor_file("K\x02tq\x07QK\x05K\x01\x85q\x08h\x08"s, 9),
+       "extends past its storage"},
+      // sizes (2, 2), strides (1, 3) on two elements
+      {"stride_past_storage",
+       tensor_file("K\x02tq\x07QK\x00K\x02K\x02\x86q\x08K\x01K\x03\x86q\x09"s, 10),
+       "extends past its storage"},
+  };
+  const auto entry = topos_fuzz::registry().at("checkpoint");
+  for (const auto& [name, bytes, why] : cases) {
+    INFO(name);
+    const std::string source = name + ".pt";
+    REQUIRE_THROWS_WITH(topos::nn::parse_tensor_dict(bytes.data(), bytes.size(), source),
+                        Catch::Contains(source) && Catch::Contains(why));
+    entry(reinterpret_cast<const std::uint8_t*>(bytes.data()), bytes.size());
+  }
 }
 TEST_CASE("fuzz regressions replay: config") {
   replay("config");
