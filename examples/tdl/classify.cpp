@@ -7,14 +7,12 @@
 // class. Accuracy per epoch to OUT/accuracy.csv and OUT/accuracy.svg, the figures to
 // OUT/summary.json.
 #include "commands.hpp"
-#include "filters.hpp"
+#include "tasks.hpp"
 
 #include "topos/core/domain_lifting.hpp"
 #include "topos/core/neighborhood.hpp"
-#include "topos/io/atomic_file.hpp"
 #include "topos/nn/schedule.hpp"
 #include "topos/util/progress.hpp"
-#include "topos/util/svg_plot.hpp"
 
 #include <torch/torch.h>
 
@@ -279,19 +277,8 @@ int run_classify(const ClassifyOptions& o) {
           << ",\n  \"loss\": " << loss_sum / static_cast<double>(train.size())
           << ",\n  \"train_accuracy\": " << train_acc
           << ",\n  \"test_accuracy\": " << test_curve.back() << "\n}\n";
-  std::filesystem::create_directories(o.out);
-  const std::filesystem::path out(o.out);
-  topos::write_file_atomic((out / "accuracy.csv").string(), csv.str());
-  topos::SvgPlotOptions plot;
-  plot.xlabel = "epoch";
-  plot.ylabel = "accuracy";
-  plot.ymax = 1;
-  plot.x0 = 1;
-  topos::write_file_atomic(
-      (out / "accuracy.svg").string(),
-      topos::svg_line_plot({{"train", train_curve}, {"test", test_curve}}, plot));
-  topos::write_file_atomic((out / "summary.json").string(), summary.str());
-  std::cout << summary.str() << "wrote " << o.out << "/accuracy.csv, accuracy.svg, summary.json\n";
+  write_task_results(o.out, csv.str(), {{"train", train_curve}, {"test", test_curve}}, "accuracy",
+                     summary.str());
   return 0;
 }
 

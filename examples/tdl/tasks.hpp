@@ -1,10 +1,18 @@
-// examples/tdl/filters.hpp
-// The operators tdl's training tasks filter with: low-pass versions of the Hodge Laplacians.
-// Shared by `tdl train` (karate club) and `tdl classify` (batched point-cloud complexes).
+// examples/tdl/tasks.hpp
+// What tdl's training tasks, `tdl train` (karate club) and `tdl classify` (batched point-cloud
+// complexes), share: the low-pass filters they propagate with and how they write their results.
 #pragma once
 
 #include "topos/core/operators.hpp"
 #include "topos/core/sparse.hpp"
+#include "topos/io/atomic_file.hpp"
+#include "topos/util/svg_plot.hpp"
+
+#include <filesystem>
+#include <iostream>
+#include <string>
+#include <utility>
+#include <vector>
 
 namespace tdl_cli {
 
@@ -18,6 +26,25 @@ inline topos::SparseMatrix low_pass_filter(const topos::SparseMatrix& laplacian)
   return topos::sparse::add(
       topos::sparse::identity(laplacian.rows()),
       topos::sparse::scale(topos::normalized_laplacian(laplacian), minus, {}));
+}
+
+/// OUT/accuracy.csv (`csv`), OUT/accuracy.svg (the accuracy `curves` per epoch, `ylabel` on the
+/// y axis) and OUT/summary.json (`summary`, also printed), each written atomically.
+inline void write_task_results(
+    const std::string& out, const std::string& csv,
+    const std::vector<std::pair<std::string, std::vector<double>>>& curves,
+    const std::string& ylabel, const std::string& summary) {
+  std::filesystem::create_directories(out);
+  const std::filesystem::path dir(out);
+  topos::write_file_atomic((dir / "accuracy.csv").string(), csv);
+  topos::SvgPlotOptions plot;
+  plot.xlabel = "epoch";
+  plot.ylabel = ylabel;
+  plot.ymax = 1;
+  plot.x0 = 1;
+  topos::write_file_atomic((dir / "accuracy.svg").string(), topos::svg_line_plot(curves, plot));
+  topos::write_file_atomic((dir / "summary.json").string(), summary);
+  std::cout << summary << "wrote " << out << "/accuracy.csv, accuracy.svg, summary.json\n";
 }
 
 }  // namespace tdl_cli

@@ -4,17 +4,15 @@
 // features (edges and triangles get a constant feature), a stratified train/test split, Adam on
 // the cross-entropy of the training nodes; accuracy per epoch to OUT/accuracy.csv and
 // OUT/accuracy.svg, the final figures to OUT/summary.json.
-#include "filters.hpp"
+#include "tasks.hpp"
 #include "karate.hpp"
 #include "zoo_commands.hpp"
 
 #include "topos/core/domain_lifting.hpp"
-#include "topos/io/atomic_file.hpp"
 #include "topos/models/hypergraph/unigcnii.hpp"
 #include "topos/models/simplicial/sccnn.hpp"
 #include "topos/models/simplicial/scn2.hpp"
 #include "topos/util/progress.hpp"
-#include "topos/util/svg_plot.hpp"
 
 #include <iomanip>
 #include <iostream>
@@ -179,18 +177,7 @@ int run_train(const TrainOptions& o) {
     test_curves.push_back({c.name, test_acc});
   }
   summary << "\n  }\n}\n";
-  std::filesystem::create_directories(o.out);
-  const std::filesystem::path out(o.out);
-  topos::write_file_atomic((out / "accuracy.csv").string(), csv.str());
-  topos::SvgPlotOptions plot;
-  plot.xlabel = "epoch";
-  plot.ylabel = "test accuracy";
-  plot.ymax = 1;
-  plot.x0 = 1;
-  topos::write_file_atomic((out / "accuracy.svg").string(),
-                           topos::svg_line_plot(test_curves, plot));
-  topos::write_file_atomic((out / "summary.json").string(), summary.str());
-  std::cout << summary.str() << "wrote " << o.out << "/accuracy.csv, accuracy.svg, summary.json\n";
+  write_task_results(o.out, csv.str(), test_curves, "test accuracy", summary.str());
   return 0;
 }
 

@@ -18,6 +18,22 @@ function(expect_failure name message)
   message(STATUS "ok: ${name}")
 endfunction()
 
+# Runs `tdl <task> --out WORK/<task> ARGN`, requires it to succeed and to write its accuracy
+# curve, plot and summary; the summary's JSON goes to `summary_var`.
+function(run_training_task task summary_var)
+  execute_process(COMMAND ${TDL} ${task} --out ${WORK}/${task} ${ARGN} RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+  if(NOT rc EQUAL 0)
+    message(FATAL_ERROR "tdl ${task} failed:\n${out}${err}")
+  endif()
+  foreach(f accuracy.csv accuracy.svg summary.json)
+    if(NOT EXISTS ${WORK}/${task}/${f})
+      message(FATAL_ERROR "tdl ${task} did not write ${f}")
+    endif()
+  endforeach()
+  file(READ ${WORK}/${task}/summary.json summary)
+  set(${summary_var} "${summary}" PARENT_SCOPE)
+endfunction()
+
 expect_failure("no case folder" "not a folder" forward --case ${WORK}/nowhere --out ${WORK}/o)
 expect_failure("--case is required" "--case is required" forward --out ${WORK}/o)
 
@@ -34,16 +50,7 @@ expect_failure("grad without grads/" "no grads/ folder" grad --case ${WORK}/bad 
 
 # tdl train: the karate club (shipped data) with every model; each must beat chance (0.5) by far
 # on the held-out members. A damaged data file is an error naming the line.
-execute_process(COMMAND ${TDL} train --out ${WORK}/train --epochs 100 RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
-if(NOT rc EQUAL 0)
-  message(FATAL_ERROR "tdl train failed:\n${out}${err}")
-endif()
-foreach(f accuracy.csv accuracy.svg summary.json)
-  if(NOT EXISTS ${WORK}/train/${f})
-    message(FATAL_ERROR "tdl train did not write ${f}")
-  endif()
-endforeach()
-file(READ ${WORK}/train/summary.json summary)
+run_training_task(train summary --epochs 100)
 foreach(model scn2 sccnn unigcnii)
   string(JSON acc GET "${summary}" models ${model} test_accuracy)
   string(JSON train_acc GET "${summary}" models ${model} train_accuracy)
@@ -63,16 +70,7 @@ expect_failure("train an unknown model" "unknown model 'gcn'" train --models gcn
 
 # tdl classify: point clouds told apart by their holes (three classes, chance 1/3), many clique
 # complexes per optimizer step through ComplexBatch and a schedule.
-execute_process(COMMAND ${TDL} classify --out ${WORK}/classify RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
-if(NOT rc EQUAL 0)
-  message(FATAL_ERROR "tdl classify failed:\n${out}${err}")
-endif()
-foreach(f accuracy.csv accuracy.svg summary.json)
-  if(NOT EXISTS ${WORK}/classify/${f})
-    message(FATAL_ERROR "tdl classify did not write ${f}")
-  endif()
-endforeach()
-file(READ ${WORK}/classify/summary.json summary)
+run_training_task(classify summary)
 string(JSON acc GET "${summary}" test_accuracy)
 if(acc LESS 0.6)
   message(FATAL_ERROR "tdl classify reaches only ${acc} test accuracy (chance is 1/3)\n${summary}")
