@@ -83,6 +83,11 @@ Sample make_sample(int k, const ClassifyOptions& o, std::mt19937_64& rng) {
       if ((p[static_cast<std::size_t>(i)] - p[static_cast<std::size_t>(j)]).norm() < r)
         edges.push_back({i, j});
   const auto sc = clique_complex(o.points, edges, 2);
+  if (sc.dim() < 2)
+    throw std::invalid_argument(
+        "tdl classify: a point cloud of class '" + std::string(kClasses[k]) +
+        "' has no triangles at --radius " + std::to_string(o.radius) + " with --points " +
+        std::to_string(o.points) + "; the network needs ranks 0..2 (raise either)");
   Sample smp;
   smp.label = k;
   smp.view.sizes = {sc.num_cells(0), sc.num_cells(1), sc.num_cells(2)};

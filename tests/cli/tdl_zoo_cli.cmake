@@ -77,6 +77,7 @@ if(acc LESS 0.6)
 endif()
 message(STATUS "tdl classify: test accuracy ${acc}")
 expect_failure("classify with too few clouds" "--samples" classify --samples 3 --out ${WORK}/o)
+expect_failure("classify without triangles" "has no triangles at --radius" classify --radius 0.001 --samples 6 --out ${WORK}/o)
 
 set(REFERENCE "$ENV{TOPOS_REFERENCE_DIR}")
 if(REFERENCE STREQUAL "")
