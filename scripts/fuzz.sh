@@ -60,6 +60,9 @@ run_one() {
     -artifact_prefix="$findings/" >"$build/fuzz-$h.log" 2>&1 || true
 }
 
+# Findings of earlier runs stay in findings/ (to minimise and keep); the table counts this run's.
+stamp="$build/.fuzz-run-start"
+touch "$stamp"
 pids=()
 for h in "${harnesses[@]}"; do
   run_one "$h" &
@@ -77,7 +80,7 @@ for h in "${harnesses[@]}"; do
   log="$build/fuzz-$h.log"
   execs=$(sed -n 's/^stat::number_of_executed_units: *//p' "$log" | tail -1)
   rate=$(sed -n 's/^stat::average_exec_per_sec: *//p' "$log" | tail -1)
-  crashes=$(find "$build/findings/$h" -maxdepth 1 -type f \( -name 'crash-*' -o -name 'leak-*' -o -name 'timeout-*' -o -name 'oom-*' \) | wc -l)
+  crashes=$(find "$build/findings/$h" -maxdepth 1 -type f -newer "$stamp" \( -name 'crash-*' -o -name 'leak-*' -o -name 'timeout-*' -o -name 'oom-*' \) | wc -l)
   printf '%-12s %14s %10s %8s\n' "$h" "${execs:-?}" "${rate:-?}" "$crashes"
   [ "$crashes" -eq 0 ] || status=1
 done

@@ -135,6 +135,109 @@ inline std::map<std::string, ZipRecord> torch_zip_records(const char* data, std:
   return out;
 }
 
+/// One opcode of the protocol-2 subset torch files use, decoded: its length with its argument
+/// and its effect on the unpickler's stack (pop to the top mark first when `to_mark`, then pop
+/// `pops` items, then push `pushes`).
+struct PickleOp {
+  unsigned char code = 0;
+  std::size_t length = 0;
+  bool to_mark = false;
+  std::size_t pops = 0, pushes = 0;
+};
+
+/// Decodes the opcode at `p` (< n) of the pickle `d` of `n` bytes from the one opcode table
+/// behind both walks below. `fail` (which throws) gets why when the argument runs past the
+/// end, a GLOBAL line is unterminated within 256 bytes, an integer is wider than 64 bits or the
+/// opcode is outside the subset.
+template <class Fail>
+PickleOp decode_pickle_op(const char* d, std::size_t n, std::size_t p, const Fail& fail) {
+  // arg: the argument's bytes, or how it is sized: kLen1/kLen4 a 1- or 4-byte length prefix
+  // (LONG1's at most 8), kLines GLOBAL's two lines.
+  enum : int { kLen1 = -1, kLen4 = -4, kLines = -2 };
+  struct Row {
+    unsigned char code;
+    int arg;
+    bool to_mark;
+    unsigned char pops, pushes;
+  };
+  static constexpr Row kTable[] = {
+      {0x80, 1, false, 0, 0},      // PROTO
+      {0x95, 8, false, 0, 0},      // FRAME
+      {'.', 0, false, 0, 0},       // STOP
+      {'(', 0, false, 0, 0},       // MARK
+      {'q', 1, false, 0, 0},       // BINPUT
+      {'r', 4, false, 0, 0},       // LONG_BINPUT
+      {0x94, 0, false, 0, 0},      // MEMOIZE
+      {'0', 0, false, 1, 0},       // POP
+      {'1', 0, true, 0, 0},        // POP_MARK
+      {'N', 0, false, 0, 1},       // NONE
+      {0x88, 0, false, 0, 1},      // NEWTRUE
+      {0x89, 0, false, 0, 1},      // NEWFALSE
+      {')', 0, false, 0, 1},       // EMPTY_TUPLE
+      {']', 0, false, 0, 1},       // EMPTY_LIST
+      {'}', 0, false, 0, 1},       // EMPTY_DICT
+      {'K', 1, false, 0, 1},       // BININT1
+      {'M', 2, false, 0, 1},       // BININT2
+      {'J', 4, false, 0, 1},       // BININT
+      {'G', 8, false, 0, 1},       // BINFLOAT
+      {0x8a, kLen1, false, 0, 1},  // LONG1
+      {0x8c, kLen1, false, 0, 1},  // SHORT_BINUNICODE
+      {'U', kLen1, false, 0, 1},   // SHORT_BINSTRING
+      {'C', kLen1, false, 0, 1},   // SHORT_BINBYTES
+      {'X', kLen4, false, 0, 1},   // BINUNICODE
+      {'B', kLen4, false, 0, 1},   // BINBYTES
+      {'c', kLines, false, 0, 1},  // GLOBAL
+      {'h', 1, false, 0, 1},       // BINGET
+      {'j', 4, false, 0, 1},       // LONG_BINGET
+      {'t', 0, true, 0, 1},        // TUPLE
+      {'l', 0, true, 0, 1},        // LIST
+      {'d', 0, true, 0, 1},        // DICT
+      {'e', 0, true, 1, 1},        // APPENDS
+      {'u', 0, true, 1, 1},        // SETITEMS
+      {0x85, 0, false, 1, 1},      // TUPLE1
+      {0x86, 0, false, 2, 1},      // TUPLE2
+      {0x87, 0, false, 3, 1},      // TUPLE3
+      {'a', 0, false, 2, 1},       // APPEND
+      {'s', 0, false, 3, 1},       // SETITEM
+      {'R', 0, false, 2, 1},       // REDUCE
+      {0x81, 0, false, 2, 1},      // NEWOBJ
+      {'b', 0, false, 2, 1},       // BUILD
+      {'Q', 0, false, 1, 1},       // BINPERSID
+  };
+  const unsigned char code = static_cast<unsigned char>(d[p]);
+  const Row* row = std::find_if(std::begin(kTable), std::end(kTable),
+                                [&](const Row& r) { return r.code == code; });
+  if (row == std::end(kTable)) {
+    char hex[8];
+    std::snprintf(hex, sizeof hex, "0x%02x", code);
+    fail(std::string("unsupported pickle opcode ") + hex);
+  }
+  const std::size_t left = n - p - 1;  // bytes after the opcode
+  const auto need = [&](std::size_t k) {
+    if (left < k) fail("pickle truncated");
+  };
+  std::size_t arg = 0;
+  if (row->arg >= 0) {
+    arg = static_cast<std::size_t>(row->arg);
+  } else if (row->arg == kLen1) {
+    need(1);
+    arg = 1 + static_cast<unsigned char>(d[p + 1]);
+    if (code == 0x8a && arg > 9) fail("pickle integer wider than 64 bits");
+  } else if (row->arg == kLen4) {
+    need(4);
+    arg = std::size_t{4} + le32(d + p + 1);
+  } else {  // GLOBAL: module and name, each on its own line
+    for (int line = 0; line < 2; ++line) {
+      const auto* nl = static_cast<const char*>(
+          std::memchr(d + p + 1 + arg, '\n', std::min<std::size_t>(left - arg, 256)));
+      if (!nl) fail("pickle GLOBAL name unterminated or too long");
+      arg = static_cast<std::size_t>(nl - (d + p));
+    }
+  }
+  need(arg);
+  return PickleOp{code, 1 + arg, row->to_mark, row->pops, row->pushes};
+}
+
 /// Walks a pickle before LibTorch's unpickler sees it, refusing what that unpickler trusts:
 /// opcodes outside the protocol-2 subset torch files use, lengths past the end, memo indices
 /// no pickle writer produces (the unpickler reserves memory by them), and stack or mark
@@ -145,205 +248,40 @@ inline void check_pickle(const char* d, std::size_t n, const std::string& source
   };
   std::size_t p = 0, depth = 0, memo = 0;
   std::vector<std::size_t> marks;
-  const auto need = [&](std::size_t k) {
-    if (n - p < k) fail("pickle truncated");
-  };
-  const auto pop = [&](std::size_t k) {  // k items off the stack, never below the top mark
-    if (depth < k || (!marks.empty() && depth - k < marks.back()))
-      fail("pickle pops more than its stack holds");
-    depth -= k;
-  };
-  const auto pop_mark = [&]() -> std::size_t {
-    if (marks.empty()) fail("pickle pops to a mark it has not set");
-    const std::size_t items = depth - marks.back();
-    depth = marks.back();
-    marks.pop_back();
-    return items;
-  };
-  const auto put = [&](std::size_t index) {
-    if (depth == 0) fail("pickle memoizes an empty stack");
-    if (index > memo) fail("pickle memo index " + std::to_string(index) + " out of sequence");
-    if (index == memo) ++memo;
-  };
-  const auto get = [&](std::size_t index) {
-    if (index >= memo)
-      fail("pickle reads memo entry " + std::to_string(index) + ", which it has not set");
-    ++depth;
-  };
   while (true) {
-    need(1);
-    const unsigned char op = static_cast<unsigned char>(d[p++]);
-    switch (op) {
-      case 0x80:
-        need(1), ++p;
-        break;  // PROTO
-      case '.':
-        if (depth != 1 || !marks.empty()) fail("pickle stops with a malformed stack");
-        return;  // STOP
-      case '(':
-        marks.push_back(depth);
-        break;  // MARK
-      case '0':
-        pop(1);
-        break;  // POP
-      case '1':
-        pop_mark();
-        break;  // POP_MARK
-      case 'N':
-      case 0x88:
-      case 0x89:
-      case ')':
-      case ']':
-      case '}':
-        ++depth;
-        break;  // NONE, NEWTRUE, NEWFALSE, EMPTY_*
-      case 'K':
-        need(1), p += 1, ++depth;
-        break;  // BININT1
-      case 'M':
-        need(2), p += 2, ++depth;
-        break;  // BININT2
-      case 'J':
-        need(4), p += 4, ++depth;
-        break;  // BININT
-      case 'G':
-        need(8), p += 8, ++depth;
-        break;      // BINFLOAT
-      case 0x8a: {  // LONG1
-        need(1);
-        const std::size_t k = static_cast<unsigned char>(d[p++]);
-        if (k > 8) fail("pickle integer wider than 64 bits");
-        need(k), p += k, ++depth;
-        break;
-      }
-      case 'X':
-      case 'B': {  // BINUNICODE, BINBYTES
-        need(4);
-        const std::size_t k = le32(d + p);
-        p += 4, need(k), p += k, ++depth;
-        break;
-      }
-      case 0x8c:
-      case 'U':
-      case 'C': {  // SHORT_BINUNICODE, SHORT_BINSTRING, SHORT_BINBYTES
-        need(1);
-        const std::size_t k = static_cast<unsigned char>(d[p++]);
-        need(k), p += k, ++depth;
-        break;
-      }
-      case 'c': {  // GLOBAL: two lines
-        for (int line = 0; line < 2; ++line) {
-          const auto* nl =
-              static_cast<const char*>(std::memchr(d + p, '\n', std::min<std::size_t>(n - p, 256)));
-          if (!nl) fail("pickle GLOBAL name unterminated or too long");
-          p = static_cast<std::size_t>(nl - d) + 1;
-        }
-        ++depth;
-        break;
-      }
-      case 'q':
-        need(1), put(static_cast<unsigned char>(d[p])), p += 1;
-        break;  // BINPUT
-      case 'r':
-        need(4), put(le32(d + p)), p += 4;
-        break;  // LONG_BINPUT
-      case 0x94:
-        put(memo);
-        break;  // MEMOIZE
-      case 'h':
-        need(1), get(static_cast<unsigned char>(d[p])), p += 1;
-        break;  // BINGET
-      case 'j':
-        need(4), get(le32(d + p)), p += 4;
-        break;  // LONG_BINGET
-      case 't':
-      case 'l':
-        pop_mark(), ++depth;
-        break;   // TUPLE, LIST
-      case 'd':  // DICT
-        if (pop_mark() % 2) fail("pickle dict with an odd number of items");
-        ++depth;
-        break;
-      case 0x85:
-        pop(1), ++depth;
-        break;  // TUPLE1
-      case 0x86:
-        pop(2), ++depth;
-        break;  // TUPLE2
-      case 0x87:
-        pop(3), ++depth;
-        break;  // TUPLE3
-      case 'a':
-        pop(2), ++depth;
-        break;  // APPEND
-      case 'e':
-        pop_mark(), pop(1), ++depth;
-        break;  // APPENDS
-      case 's':
-        pop(3), ++depth;
-        break;   // SETITEM
-      case 'u':  // SETITEMS
-        if (pop_mark() % 2) fail("pickle SETITEMS with an odd number of items");
-        pop(1), ++depth;
-        break;
-      case 'R':
-      case 0x81:
-        pop(2), ++depth;
-        break;  // REDUCE, NEWOBJ
-      case 'b':
-        pop(2), ++depth;
-        break;  // BUILD
-      case 'Q':
-        pop(1), ++depth;
-        break;  // BINPERSID
-      case 0x95:
-        need(8), p += 8;
-        break;  // FRAME
-      default: {
-        char hex[8];
-        std::snprintf(hex, sizeof hex, "0x%02x", op);
-        fail(std::string("unsupported pickle opcode ") + hex);
-      }
+    if (p >= n) fail("pickle truncated");
+    const PickleOp op = decode_pickle_op(d, n, p, fail);
+    const char* arg = d + p + 1;
+    p += op.length;
+    if (op.code == '.') {
+      if (depth != 1 || !marks.empty()) fail("pickle stops with a malformed stack");
+      return;
     }
-  }
-}
-
-/// The bytes of the opcode at `p` with its argument (a pickle check_pickle accepted); the
-/// caller checks the result against the bytes left (0: a GLOBAL without its two lines).
-inline std::size_t pickle_opcode_length(const char* d, std::size_t n, std::size_t p) {
-  switch (static_cast<unsigned char>(d[p])) {
-    case 0x80:
-    case 'K':
-    case 'q':
-    case 'h':
-      return 2;
-    case 'M':
-      return 3;
-    case 'J':
-    case 'r':
-    case 'j':
-      return 5;
-    case 'G':
-    case 0x95:
-      return 9;
-    case 0x8a:
-    case 0x8c:
-    case 'U':
-    case 'C':
-      return 2 + static_cast<unsigned char>(d[p + 1]);
-    case 'X':
-    case 'B':
-      return 5 + le32(d + p + 1);
-    case 'c': {
-      const auto* a = static_cast<const char*>(std::memchr(d + p + 1, '\n', n - p - 1));
-      if (!a) return 0;
-      const auto* b = static_cast<const char*>(
-          std::memchr(a + 1, '\n', static_cast<std::size_t>(d + n - a - 1)));
-      if (!b) return 0;
-      return static_cast<std::size_t>(b - (d + p)) + 1;
+    if (op.code == '(') marks.push_back(depth);
+    if (op.code == 'q' || op.code == 'r' || op.code == 0x94) {  // a memo entry for the top item
+      const std::size_t index = op.code == 'q'   ? static_cast<unsigned char>(arg[0])
+                                : op.code == 'r' ? le32(arg)
+                                                 : memo;
+      if (depth == 0) fail("pickle memoizes an empty stack");
+      if (index > memo) fail("pickle memo index " + std::to_string(index) + " out of sequence");
+      if (index == memo) ++memo;
     }
-    default:
-      return 1;
+    if (op.code == 'h' || op.code == 'j') {
+      const std::size_t index = op.code == 'h' ? static_cast<unsigned char>(arg[0]) : le32(arg);
+      if (index >= memo)
+        fail("pickle reads memo entry " + std::to_string(index) + ", which it has not set");
+    }
+    if (op.to_mark) {
+      if (marks.empty()) fail("pickle pops to a mark it has not set");
+      const std::size_t items = depth - marks.back();
+      depth = marks.back();
+      marks.pop_back();
+      if (op.code == 'd' && items % 2) fail("pickle dict with an odd number of items");
+      if (op.code == 'u' && items % 2) fail("pickle SETITEMS with an odd number of items");
+    }
+    if (depth < op.pops || (!marks.empty() && depth - op.pops < marks.back()))
+      fail("pickle pops more than its stack holds");
+    depth = depth - op.pops + op.pushes;
   }
 }
 
@@ -364,9 +302,10 @@ inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::
   std::vector<std::pair<std::size_t, std::size_t>> marks;  // (stack depth, position in `out`)
   // check_pickle accepted the input, but this walk rewrites it: its stacks are checked again
   // rather than trusted (a fuzzed pickle once popped a mark this walk had not set).
-  const auto broken = [&]() -> void {
-    throw std::runtime_error(source + ": not a readable torch file: malformed pickle stack");
+  const auto fail = [&](const std::string& why) -> void {
+    throw std::runtime_error(source + ": not a readable torch file: " + why);
   };
+  const auto broken = [&]() { fail("malformed pickle stack"); };
   const auto pop_items = [&](std::size_t k) {
     if (starts.size() < k || (!marks.empty() && starts.size() - k < marks.back().first)) broken();
     starts.resize(starts.size() - k);
@@ -380,41 +319,36 @@ inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::
   };
   std::size_t p = 0;
   while (p < n) {
-    const unsigned char op = static_cast<unsigned char>(d[p]);
-    const std::size_t len = pickle_opcode_length(d, n, p), at = out.size();
-    // This walk may fall out of step with check_pickle's (the rewrites below skip opcodes): a
-    // length past the end is an error, not a read past the buffer (a fuzzed file asked for 4 GB).
-    if (len == 0 || len > n - p) broken();
-    std::size_t q = p + len;
-    bool ordered_dict = op == 'c' && std::string(d + p + 1, len - 1) == kOrderedDict;
-    if (op == 'h' || op == 'j') {
-      const std::uint32_t i = op == 'h' ? static_cast<unsigned char>(d[p + 1]) : le32(d + p + 1);
+    const PickleOp op = decode_pickle_op(d, n, p, fail);
+    const std::size_t at = out.size();
+    std::size_t q = p + op.length;
+    bool ordered_dict = op.code == 'c' && std::string(d + p + 1, op.length - 1) == kOrderedDict;
+    if (op.code == 'h' || op.code == 'j') {
+      const std::uint32_t i =
+          op.code == 'h' ? static_cast<unsigned char>(d[p + 1]) : le32(d + p + 1);
       ordered_dict = std::find(class_memo.begin(), class_memo.end(), i) != class_memo.end();
     }
     if (ordered_dict) {
       if (q < n && (d[q] == 'q' || d[q] == 'r')) {  // the class memoized: later BINGETs of it
-        if (pickle_opcode_length(d, n, q) > n - q) broken();
+        const std::size_t length = decode_pickle_op(d, n, q, fail).length;
         class_memo.push_back(d[q] == 'q' ? static_cast<unsigned char>(d[q + 1]) : le32(d + q + 1));
-        q += pickle_opcode_length(d, n, q);
+        q += length;
       }
       if (q + 1 >= n || d[q] != ')' || d[q + 1] != 'R')
-        throw std::runtime_error(
-            source +
-            ": not a readable torch file: an OrderedDict made other than from an empty tuple");
+        fail("an OrderedDict made other than from an empty tuple");
       out += '}';
       starts.push_back(at);
       p = q + 2;
       continue;
     }
-    if (op == 'b' && q < n &&
-        d[q] == '.') {  // BUILD just before STOP: drop its state (the _metadata)
+    if (op.code == 'b' && q < n && d[q] == '.') {  // BUILD just before STOP: drop its state
       if (starts.empty()) broken();
       out.resize(starts.back());
       starts.pop_back();
       p = q;
       continue;
     }
-    if (op == 's') {  // SETITEM: MARK before the key, SETITEMS
+    if (op.code == 's') {  // SETITEM: MARK before the key, SETITEMS
       if (starts.size() < 2) broken();
       out.insert(starts[starts.size() - 2], 1, '(');
       out += 'u';
@@ -422,56 +356,20 @@ inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::
       p = q;
       continue;
     }
-    out.append(d + p, len);
+    out.append(d + p, op.length);
     p = q;
-    switch (op) {
-      case '(':
-        marks.emplace_back(starts.size(), at);
-        break;
-      case '0':
-        pop_items(1);
-        break;
-      case '1':
-        pop_to_mark();
-        break;
-      case 't':
-      case 'l':
-      case 'd':
-        starts.push_back(pop_to_mark());
-        break;
-      case 0x85:
-        if (starts.empty()) broken();
-        break;  // TUPLE1: same start
-      case 0x86:
-        pop_items(1);
-        break;  // TUPLE2
-      case 0x87:
-        pop_items(2);
-        break;  // TUPLE3
-      case 'a':
-      case 'b':
-        pop_items(1);
-        break;  // APPEND, BUILD
-      case 'e':
-      case 'u':
-        pop_to_mark();
-        break;  // APPENDS, SETITEMS
-      case 'R':
-      case 0x81:
-        pop_items(1);
-        break;  // REDUCE, NEWOBJ
-      case 'Q':
-      case 0x80:
-      case 0x95:
-      case 'q':
-      case 'r':
-      case 0x94:
-      case '.':
-        break;
-      default:
-        starts.push_back(at);
-        break;  // every other opcode pushes one item
+    if (op.code == '.') break;
+    if (op.code == '(') marks.emplace_back(starts.size(), at);
+    // The item an opcode pushes begins where the earliest thing it consumed began: the deepest
+    // item it pops, else its mark, else the opcode itself.
+    std::size_t first = at;
+    if (op.to_mark) first = pop_to_mark();
+    if (op.pops) {
+      if (starts.size() < op.pops) broken();
+      first = starts[starts.size() - op.pops];
+      pop_items(op.pops);
     }
+    if (op.pushes) starts.push_back(first);
   }
   return out;
 }
