@@ -3,7 +3,8 @@
 # folder with TOPOS_SANITIZE (default address,undefined), builds the tests and the hopnet program,
 # runs ctest, and prints the build and test times. Any sanitizer report fails its test.
 # Usage: scripts/sanitize.sh [ctest arguments...]; TOPOS_SANITIZE_CMAKE_ARGS adds configure
-# arguments (e.g. -DTOPOS_WITH_NN=OFF for the suite without LibTorch, much quicker to build).
+# arguments (e.g. -DTOPOS_WITH_NN=OFF for the suite without LibTorch, much quicker to build);
+# TOPOS_SANITIZE_TARGETS builds only some targets (e.g. topos_nn_tests, with `-L topos_nn_tests`).
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$root"
@@ -20,7 +21,8 @@ jobs="${TOPOS_JOBS:-2}"
 start=$(date +%s)
 cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTOPOS_SANITIZE="${TOPOS_SANITIZE:-address,undefined}" \
   -DTOPOS_BUILD_BENCHMARKS=OFF ${TOPOS_SANITIZE_CMAKE_ARGS:-} >/dev/null
-cmake --build "$build" -j "$jobs"
+# TOPOS_SANITIZE_TARGETS: build only these (e.g. topos_nn_tests, then run with -L topos_nn_tests).
+cmake --build "$build" -j "$jobs" ${TOPOS_SANITIZE_TARGETS:+--target $TOPOS_SANITIZE_TARGETS}
 built=$(date +%s)
 export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" OPENBLAS_NUM_THREADS="${OPENBLAS_NUM_THREADS:-1}"
 # Reports abort the process (a failed test); LibTorch's and OpenBLAS's own allocations held to
