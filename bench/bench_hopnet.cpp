@@ -107,13 +107,16 @@ BENCHMARK(BM_rollout_102)
 // Adam (train_step, as `hopnet train`). Arguments: chunk, timesteps per forward/backward (0: the
 // whole trajectory in one batch); workers, chunks run at once on their own threads (1: one after
 // the other, with BLAS threads on every core and one intra-op thread; more: one BLAS thread each).
-// Reference mode trains on collisions.json's contacts, as the reference does.
+// bf16: 1 multiplies in bfloat16 (nn::MatmulPrecision::medium, `hopnet train --matmul-precision
+// medium`). Reference mode trains on collisions.json's contacts, as the reference does.
 // Issue bar: 0.8 s on 2 cores (goal 0.5 s); the Python reference takes 7 s (plus preprocessing).
 void BM_train_step(benchmark::State& state) {
   auto [mode, net, g] = make_case(state);
   const int workers = static_cast<int>(state.range(2));
   nn::set_cpu_threads(1, workers > 1 ? 1 : 0);
   nn::keep_freed_memory();
+  nn::set_float32_matmul_precision(state.range(3) ? nn::MatmulPrecision::medium
+                                                  : nn::MatmulPrecision::highest);
   const auto& S = setup();
   const auto contacts = read_collisions_json(S.ref + "/data/movi-a/8/collisions.json");
   const auto tf = trajectory_frames(S.scene, g, 0.1, 0.0, 2, -1,
@@ -129,19 +132,23 @@ void BM_train_step(benchmark::State& state) {
   reset_peak_rss();
   for (auto _ : state) train_step(*net, opt, chunks, S.norm, nullptr, workers);
   nn::set_cpu_threads(1, 1);
+  nn::set_float32_matmul_precision(nn::MatmulPrecision::highest);
   state.counters["peak_rss_mb"] = peak_rss_mb();
   state.counters["timesteps"] = static_cast<double>(tf.frames.size());
   state.counters["timesteps_per_s"] = benchmark::Counter(
       static_cast<double>(tf.frames.size()), benchmark::Counter::kIsIterationInvariantRate);
 }
 BENCHMARK(BM_train_step)
-    ->Args({0, 0, 1})
-    ->Args({1, 0, 1})
-    ->Args({0, 120, 1})
-    ->Args({0, 60, 2})
-    ->Args({1, 60, 2})
-    ->Args({0, 30, 2})
-    ->ArgNames({"native", "chunk", "workers"})
+    ->Args({0, 0, 1, 0})
+    ->Args({1, 0, 1, 0})
+    ->Args({0, 120, 1, 0})
+    ->Args({0, 60, 2, 0})
+    ->Args({1, 60, 2, 0})
+    ->Args({0, 30, 2, 0})
+    ->Args({0, 60, 2, 1})
+    ->Args({1, 60, 2, 1})
+    ->Args({0, 30, 2, 1})
+    ->ArgNames({"native", "chunk", "workers", "bf16"})
     ->Unit(benchmark::kMillisecond)
     ->MinTime(5.0)
     ->UseRealTime();

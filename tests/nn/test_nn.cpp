@@ -241,6 +241,49 @@ TEST_CASE("Mlp follows the reference layout and parameter count", "[nn][mlp]") {
   REQUIRE_THROWS_AS(activation_from_string("tanh"), std::invalid_argument);
 }
 
+TEST_CASE("medium matmul precision: bfloat16 products, float32 out, close to highest",
+          "[nn][mlp]") {
+  torch::manual_seed(3);
+  Mlp m(MlpOptions(24, 64, 32).layers(3));
+  const auto x = torch::randn({500, 24});
+  const auto run = [&](MatmulPrecision p) {
+    struct Restore {  // the setting is process-wide: back to highest even if this throws
+      ~Restore() { set_float32_matmul_precision(MatmulPrecision::highest); }
+    } restore;
+    set_float32_matmul_precision(p);
+    m->zero_grad();
+    auto y = m->forward(x);
+    (y * torch::linspace(-1, 1, 32)).sum().backward();
+    return std::make_pair(y.detach(), m->named_parameters()["2.weight"].grad().clone());
+  };
+  // The highest path is torch::linear's, bit for bit.
+  const auto [y_hi, g_hi] = run(MatmulPrecision::highest);
+  auto plain = x;
+  for (const auto& c : m->children()) {
+    if (const auto* l = c->as<torch::nn::LinearImpl>())
+      plain = torch::linear(plain, l->weight, l->bias);
+    else if (c->as<torch::nn::ReLUImpl>())
+      plain = torch::relu(plain);
+    else
+      plain = c->as<torch::nn::LayerNormImpl>()->forward(plain);
+  }
+  REQUIRE(torch::equal(y_hi, plain.detach()));
+  const auto [y_md, g_md] = run(MatmulPrecision::medium);
+  REQUIRE(y_md.scalar_type() == torch::kFloat);
+  REQUIRE(g_md.scalar_type() == torch::kFloat);
+  REQUIRE_FALSE(torch::equal(y_md, y_hi));  // it did multiply in bfloat16
+  // bfloat16 keeps 8 significant bits: about 0.4 % per rounding, a few roundings deep.
+  const auto rel = [](const torch::Tensor& a, const torch::Tensor& b) {
+    return ((a - b).norm() / b.norm()).item<double>();
+  };
+  CHECK(rel(y_md, y_hi) < 2e-2);
+  CHECK(rel(g_md, g_hi) < 3e-2);
+  REQUIRE(get_float32_matmul_precision() == MatmulPrecision::highest);
+  REQUIRE(matmul_precision_from_string("medium") == MatmulPrecision::medium);
+  REQUIRE_THROWS_WITH(matmul_precision_from_string("high"),
+                      Catch::Contains("unknown matmul precision 'high'"));
+}
+
 TEST_CASE("a batch of complexes gives the per-complex results", "[nn][batch][schedule]") {
   const std::vector<ComplexView> views{make_view(0, true), make_view(1, false), make_view(2, true)};
   const auto batch = ComplexBatch::collate(views, 4);
@@ -309,6 +352,41 @@ TEST_CASE("the fast paths give the plain schedule's outputs and gradients", "[nn
     REQUIRE(torch::allclose(fast[i], plain[i], 1e-10, 1e-12));
   }
   REQUIRE(fast[0].abs().sum().item<double>() > 0);
+}
+
+TEST_CASE("a schedule at medium matmul precision stays float32 and close to highest",
+          "[nn][schedule][mlp]") {
+  // The fast paths include the update's first layer split by column blocks (nn::linear on the
+  // concatenation, the object message through its block before the spread).
+  const auto batch = ComplexBatch::collate({make_view(0, true), make_view(1, false)}, 4);
+  torch::manual_seed(5);
+  ScheduleNetwork net(test_schedule(), test_modules(32),
+                      signature({{"x0", 3}, {"x1", 2}, {"x2", 2}, {"x3", 3}, {"x4", 2}}));
+  const auto inputs = random_inputs(batch, torch::kFloat, 11);
+  const auto run = [&](MatmulPrecision p) {
+    struct Restore {
+      ~Restore() { set_float32_matmul_precision(MatmulPrecision::highest); }
+    } restore;
+    set_float32_matmul_precision(p);
+    net->zero_grad();
+    auto out = net->forward(inputs, batch);
+    (out.at("a0").pow(2).sum() + out.at("a2").sin().sum()).backward();
+    std::vector<torch::Tensor> r{out.at("a0").detach(), out.at("a2").detach()};
+    for (const auto& q : net->parameters())
+      r.push_back(q.grad().defined() ? q.grad().clone() : torch::zeros_like(q));
+    return r;
+  };
+  const auto hi = run(MatmulPrecision::highest), md = run(MatmulPrecision::medium);
+  double worst = 0;
+  for (std::size_t i = 0; i < hi.size(); ++i) {
+    INFO("tensor " << i);
+    REQUIRE(md[i].scalar_type() == torch::kFloat);
+    REQUIRE(torch::isfinite(md[i]).all().item<bool>());
+    if (hi[i].norm().item<double>() > 0)
+      worst = std::max(worst, ((md[i] - hi[i]).norm() / hi[i].norm()).item<double>());
+  }
+  CHECK(worst > 0);     // the products did run in bfloat16
+  CHECK(worst < 5e-2);  // 8-bit mantissas, a few products deep
 }
 
 TEST_CASE("schedule gradients match finite differences in double precision",

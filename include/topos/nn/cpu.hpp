@@ -9,6 +9,7 @@
 
 #include <dlfcn.h>
 #include <malloc.h>
+#include <sched.h>
 
 #include <thread>
 
@@ -24,9 +25,18 @@ inline bool set_blas_threads(int n) {
   return true;
 }
 
-/// LibTorch's intra-op threads and BLAS threads; 0 means one per hardware thread.
+/// The cores this process may run on: its CPU affinity (taskset, a container's cpuset), not every
+/// core of the host as std::thread::hardware_concurrency counts them.
+inline int available_cores() {
+  cpu_set_t set;
+  CPU_ZERO(&set);
+  if (sched_getaffinity(0, sizeof set, &set) == 0) return std::max(1, CPU_COUNT(&set));
+  return static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+}
+
+/// LibTorch's intra-op threads and BLAS threads; 0 means one per available core.
 inline void set_cpu_threads(int intra_op, int blas) {
-  const int hw = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  const int hw = available_cores();
   torch::set_num_threads(intra_op > 0 ? intra_op : hw);
   set_blas_threads(blas > 0 ? blas : hw);
 }

@@ -7,10 +7,76 @@
 
 #include <torch/torch.h>
 
+#include <dlfcn.h>
+
+#include <atomic>
 #include <stdexcept>
 #include <string>
 
 namespace topos::nn {
+
+/// How float32 products are multiplied, named after PyTorch's torch.set_float32_matmul_precision:
+/// `highest` in float32; `medium` with bfloat16 inputs and float32 accumulation (oneDNN's
+/// AVX-512 BF16 kernels on CPUs that have them, about 3x a float32 product here; tensor cores on
+/// GPUs; CPUs without BF16 instructions run it slower than float32). Like torch.autocast's
+/// bfloat16, the product's output is rounded to bfloat16 too before it returns as float32, so
+/// values and gradients through it carry about 8 significant bits. Process-wide, set before
+/// training starts; parity with the reference needs `highest`, the default.
+enum class MatmulPrecision { highest, medium };
+namespace detail {
+inline std::atomic<MatmulPrecision> float32_matmul_precision{MatmulPrecision::highest};
+
+/// Rows of a bfloat16 product rounded up so that its shapes repeat (at most 8 row counts per
+/// octave, under 12.5 % padding). oneDNN compiles a kernel per shape and caches 1,024; HOPNet's
+/// chunks give every MLP a new row count, so each step compiled hundreds of kernels, and once the
+/// cache evicted under two worker threads oneDNN 2.6 failed inside brgemm_kernel_create
+/// (std::bad_array_new_length, `hopnet train` on the demo's data at step 38).
+inline std::int64_t padded_rows(std::int64_t m) {
+  if (m <= 64) return m <= 0 ? m : 64;
+  int octave = 0;
+  while ((m >> (octave + 1)) != 0) ++octave;  // floor(log2 m) >= 6
+  const std::int64_t step = std::int64_t{1} << (octave - 3);
+  return (m + step - 1) / step * step;
+}
+
+/// A cache that holds every padded shape a run meets (a few thousand), so nothing is evicted.
+inline void grow_onednn_cache() {
+  using Setter = int (*)(int);
+  if (auto set = reinterpret_cast<Setter>(dlsym(RTLD_DEFAULT, "dnnl_set_primitive_cache_capacity")))
+    set(16384);
+}
+}  // namespace detail
+inline void set_float32_matmul_precision(MatmulPrecision p) {
+  if (p == MatmulPrecision::medium) detail::grow_onednn_cache();
+  detail::float32_matmul_precision.store(p);
+}
+inline MatmulPrecision get_float32_matmul_precision() {
+  return detail::float32_matmul_precision.load();
+}
+inline MatmulPrecision matmul_precision_from_string(const std::string& s) {
+  if (s == "highest") return MatmulPrecision::highest;
+  if (s == "medium") return MatmulPrecision::medium;
+  throw std::invalid_argument("unknown matmul precision '" + s + "' (highest, medium)");
+}
+inline const char* to_string(MatmulPrecision p) {
+  return p == MatmulPrecision::highest ? "highest" : "medium";
+}
+
+/// x·Wᵀ + b (b may be undefined) at `precision`: float32 in and out either way, so everything
+/// around the product (activations, LayerNorm, gathers, the loss) stays float32.
+inline torch::Tensor linear(const torch::Tensor& x, const torch::Tensor& weight,
+                            const torch::Tensor& bias = {},
+                            MatmulPrecision precision = get_float32_matmul_precision()) {
+  if (weight.scalar_type() != torch::kFloat || precision == MatmulPrecision::highest)
+    return torch::linear(x, weight, bias);
+  auto xb = x.to(torch::kBFloat16);
+  const std::int64_t m = x.dim() == 2 ? x.size(0) : 0, rows = detail::padded_rows(m);
+  if (rows != m) xb = torch::constant_pad_nd(xb, {0, 0, 0, rows - m});
+  auto y = torch::linear(xb, weight.to(torch::kBFloat16),
+                         bias.defined() ? bias.to(torch::kBFloat16) : bias);
+  if (rows != m) y = y.narrow(0, 0, m);
+  return y.to(torch::kFloat);
+}
 
 enum class Activation { relu, gelu, elu, selu };
 
@@ -89,20 +155,45 @@ class MlpImpl : public torch::nn::Module {
         add(torch::nn::LayerNorm(torch::nn::LayerNormOptions({o.out()}).eps(1e-5)));
     }
   }
-  torch::Tensor forward(torch::Tensor x) {
-    for (auto& m : layers_) x = m.forward(x);
-    return x;
-  }
+  torch::Tensor forward(torch::Tensor x) { return forward_from(0, std::move(x)); }
   /// The first Linear layer, and the rest of the MLP applied to its output. A caller that knows
   /// its input is a concatenation can apply the weight's column blocks separately.
   torch::nn::Linear first_linear() const { return layers_.front().get<torch::nn::Linear>(); }
-  torch::Tensor forward_after_first(torch::Tensor z) {
-    for (std::size_t i = 1; i < layers_.size(); ++i) z = layers_[i].forward(z);
-    return z;
-  }
+  torch::Tensor forward_after_first(torch::Tensor z) { return forward_from(1, std::move(z)); }
   MlpOptions options;
 
  private:
+  torch::Tensor forward_from(std::size_t first, torch::Tensor x) {
+    // At medium precision the hidden activations stay bfloat16 from one Linear to the next (the
+    // next product would round them to bfloat16 anyway) and only the last Linear's output
+    // returns to float32: two casts per MLP instead of two per Linear. Activations other than
+    // ReLU get float32 inputs. The precision is read once, so a change from another thread
+    // cannot split an MLP between the two.
+    const MatmulPrecision precision = get_float32_matmul_precision();
+    const bool bf16 = x.scalar_type() == torch::kFloat && precision == MatmulPrecision::medium &&
+                      options.activation() == Activation::relu;
+    const std::int64_t rows = x.dim() == 2 ? x.size(0) : -1;
+    const std::int64_t padded = bf16 ? detail::padded_rows(rows) : rows;
+    std::size_t last_linear = 0;
+    for (std::size_t i = 0; i < layers_.size(); ++i)
+      if (layers_[i].ptr()->as<torch::nn::LinearImpl>()) last_linear = i;
+    for (std::size_t i = first; i < layers_.size(); ++i) {
+      const auto* l = layers_[i].ptr()->as<torch::nn::LinearImpl>();
+      if (l && bf16 && i < last_linear) {
+        // Padded once to a repeating row count (detail::padded_rows); the rows go at the end.
+        auto xb = x.to(torch::kBFloat16);
+        if (x.dim() == 2 && x.size(0) == rows && padded != rows)
+          xb = torch::constant_pad_nd(xb, {0, 0, 0, padded - rows});
+        x = torch::linear(xb, l->weight.to(torch::kBFloat16), l->bias.to(torch::kBFloat16));
+      } else if (l) {
+        x = nn::linear(x, l->weight, l->bias, precision);
+        if (x.dim() == 2 && x.size(0) != rows) x = x.narrow(0, 0, rows);
+      } else {
+        x = layers_[i].forward(x);
+      }
+    }
+    return x;
+  }
   std::vector<torch::nn::AnyModule> layers_;
 };
 TORCH_MODULE(Mlp);

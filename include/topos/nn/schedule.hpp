@@ -413,7 +413,7 @@ class ScheduleNetworkImpl : public torch::nn::Module {
       const bool scaled_backward = m.agg.weighted && n.backward_values.defined();
       if (fast_ && cat && !m.accumulate && !next_adds && m.by_role.empty() &&
           m.agg.reduce != Reduce::max && x.size(0) < n.num_target && !scaled_backward) {
-        const auto block = aggregate(x.matmul(W.narrow(1, col, x.size(1)).t()), n, m.agg);
+        const auto block = aggregate(nn::linear(x, W.narrow(1, col, x.size(1))), n, m.agg);
         early = early.defined() ? early + block : block;
         col += x.size(1);
         continue;
@@ -450,8 +450,7 @@ class ScheduleNetworkImpl : public torch::nn::Module {
               ? W
               : W.index_select(1, torch::tensor(part_cols, torch::kLong).to(W.device()));
       const auto dense = parts.size() == 1 ? parts[0] : torch::cat(parts, 1);
-      auto z =
-          first->bias.defined() ? torch::addmm(first->bias, dense, Wd.t()) : dense.matmul(Wd.t());
+      auto z = nn::linear(dense, Wd, first->bias);
       z.add_(early);
       updated = update->forward_after_first(z);
     }
