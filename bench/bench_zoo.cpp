@@ -3,6 +3,8 @@
 // 2-skeleton of the clique complex of rgg2000_edges.txt, and the triangulated 101 x 101 grid),
 // with the operator sets its README lists; each benchmark reports its speed-up over the
 // TopoModelX time the README gives for the same work (counter "x_topomodelx").
+// Counter "peak_rss_MB" is the process's peak resident memory after the benchmark: run one
+// benchmark per process (bench/zoo_memory.sh does) to read a model's own peak.
 // Needs TOPOS_REFERENCE_DIR for rgg2000 (grid101 is generated). Run with
 //   OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 ./build/bench/bench_zoo --benchmark_repetitions=5
 #include "topos/models/zoo.hpp"
@@ -11,6 +13,8 @@
 #include <benchmark/benchmark.h>
 
 #include <Eigen/SparseCore>
+
+#include <sys/resource.h>
 
 #include <algorithm>
 #include <chrono>
@@ -242,6 +246,9 @@ void run(benchmark::State& state, const std::string& model, const std::string& c
   if (it != kTopoModelX.end() && state.iterations() > 0)
     state.counters["x_topomodelx"] =
         it->second[backward ? 1 : 0] / (total / static_cast<double>(state.iterations()));
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  state.counters["peak_rss_MB"] = static_cast<double>(usage.ru_maxrss) / 1024.0;  // KiB on Linux
 }
 
 // The sparse-dense product alone, side by side with torch's COO kernel (what TopoModelX calls) on
@@ -260,6 +267,10 @@ void spmm_pair(benchmark::State& state, const SparseOperator* A, bool torch_coo)
 int main(int argc, char** argv) {
   nn::set_cpu_threads(1, 1);
   torch::set_num_interop_threads(1);
+  // Freed tensors stay in the heap instead of going back to the kernel: without it every
+  // grid101-sized temporary is a fresh mmap whose pages fault in again (SCN2's grid101
+  // forward+backward took twice as long). What the hopnet trainer does too.
+  nn::keep_freed_memory();
   benchmark::Initialize(&argc, argv);
   std::map<std::string, Complex> complexes;
   try {

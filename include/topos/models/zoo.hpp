@@ -16,6 +16,7 @@
 #include "topos/models/hypergraph/hypersage.hpp"
 #include "topos/models/hypergraph/unigcn.hpp"
 #include "topos/models/hypergraph/unigcnii.hpp"
+#include "topos/models/hypergraph/unigin.hpp"
 #include "topos/models/hypergraph/unisage.hpp"
 #include "topos/models/simplicial/dist2cycle.hpp"
 #include "topos/models/simplicial/hsn.hpp"

@@ -89,6 +89,13 @@ inline torch::Tensor pattern_aggregate(const SparseOperator& A, const torch::Ten
   return y;
 }
 
+/// Each row divided by its L2 norm, the norm a constant for autograd; rows of norm 0 stay 0
+/// (UniGNN's use_norm).
+inline torch::Tensor unit_rows(const torch::Tensor& x) {
+  auto scale = x.detach().norm(2, 1, true).reciprocal();
+  return x * torch::where(torch::isinf(scale), torch::zeros_like(scale), scale);
+}
+
 /// Polynomial filter terms A x, A² x, ..., A^K x. With `row_norm`, each term is divided by A's
 /// row sums (from power `norm_from` on: SCCNN normalises every power, SCNN skips the first).
 inline std::vector<torch::Tensor> powers(const SparseOperator& A, torch::Tensor x, int K,

@@ -12,6 +12,7 @@
 #include <torch/torch.h>
 
 #include <algorithm>
+#include <cstring>
 #include <cstdint>
 #include <limits>
 #include <numeric>
@@ -250,20 +251,70 @@ struct SparseOperator {
 
 namespace detail {
 
-// The row kernels are compiled twice on x86-64 GCC, for Haswell (AVX2 + FMA: 8 floats per
-// instruction) and for the baseline, and the loader picks one for the machine it runs on.
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
-#define TOPOS_SIMD_CLONES __attribute__((target_clones("arch=haswell", "default")))
+// The row kernels are compiled for x86-64-v4 (AVX-512), x86-64-v3 (AVX2 + FMA) and the baseline,
+// and the loader picks one for the machine it runs on. The levels are dispatched by instruction
+// set; an "arch=haswell" clone is dispatched by CPU model and never ran on this AMD EPYC.
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && __GNUC__ >= 12
+#define TOPOS_SIMD_CLONES \
+  __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
+#elif defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
+#define TOPOS_SIMD_CLONES __attribute__((target_clones("avx2", "default")))
 #else
 #define TOPOS_SIMD_CLONES
 #endif
+// The kernels below are inlined into each clone so that they are compiled for its instruction set.
+#if defined(__GNUC__)
+#define TOPOS_INLINE_KERNEL inline __attribute__((always_inline))
+#else
+#define TOPOS_INLINE_KERNEL inline
+#endif
 
 // Y[i] = Σ_k v[perm k] X[col k] over the entries k of rows [begin, end); C channels, contiguous
-// rows.
+// rows. For a compile-time width the row's sums stay in registers as 32-byte vectors (GCC's
+// vector extension, so each clone compiles them for its instruction set; plain arrays let -O3
+// spill them): 2.8x faster than the loop below at 32 channels.
+#if defined(__GNUC__)
+template <class T, int C>
+static TOPOS_INLINE_KERNEL void csr_rows_fixed(const std::int64_t* crow, const std::int64_t* col,
+                                               const T* val, const std::int64_t* perm, const T* X,
+                                               T* Y, std::int64_t begin, std::int64_t end) {
+  typedef T vec __attribute__((vector_size(32)));
+  constexpr int L = static_cast<int>(32 / sizeof(T)), V = C / L;
+  static_assert(C % L == 0, "the width must be a whole number of vectors");
+  for (std::int64_t i = begin; i < end; ++i) {
+    vec acc[V] = {};
+    for (std::int64_t k = crow[i]; k < crow[i + 1]; ++k) {
+      const T v = val[perm ? perm[k] : k];
+      const T* x = X + col[k] * C;
+      for (int j = 0; j < V; ++j) {
+        vec xv;
+        std::memcpy(&xv, x + j * L, sizeof(vec));
+        acc[j] += v * xv;
+      }
+    }
+    for (int j = 0; j < V; ++j) std::memcpy(Y + i * C + j * L, &acc[j], sizeof(vec));
+  }
+}
+#endif
+
 template <class T>
-static inline void csr_rows(const std::int64_t* crow, const std::int64_t* col, const T* val,
-                            const std::int64_t* perm, const T* X, T* Y, std::int64_t begin,
-                            std::int64_t end, std::int64_t C) {
+static TOPOS_INLINE_KERNEL void csr_rows(const std::int64_t* crow, const std::int64_t* col,
+                                         const T* val, const std::int64_t* perm, const T* X, T* Y,
+                                         std::int64_t begin, std::int64_t end, std::int64_t C) {
+#if defined(__GNUC__)
+  switch (C) {
+    case 8:
+      return csr_rows_fixed<T, 8>(crow, col, val, perm, X, Y, begin, end);
+    case 16:
+      return csr_rows_fixed<T, 16>(crow, col, val, perm, X, Y, begin, end);
+    case 32:
+      return csr_rows_fixed<T, 32>(crow, col, val, perm, X, Y, begin, end);
+    case 64:
+      return csr_rows_fixed<T, 64>(crow, col, val, perm, X, Y, begin, end);
+    default:
+      break;
+  }
+#endif
   for (std::int64_t i = begin; i < end; ++i) {
     T* __restrict y = Y + i * C;
     std::fill(y, y + C, T(0));
@@ -280,6 +331,12 @@ TOPOS_SIMD_CLONES static void csr_rows_float(const std::int64_t* crow, const std
                                              std::int64_t end, std::int64_t C) {
   csr_rows<float>(crow, col, val, perm, X, Y, begin, end, C);
 }
+TOPOS_SIMD_CLONES static void csr_rows_double(const std::int64_t* crow, const std::int64_t* col,
+                                              const double* val, const std::int64_t* perm,
+                                              const double* X, double* Y, std::int64_t begin,
+                                              std::int64_t end, std::int64_t C) {
+  csr_rows<double>(crow, col, val, perm, X, Y, begin, end, C);
+}
 
 template <class T>
 void csr_mm(const std::int64_t* crow, const std::int64_t* col, const T* val,
@@ -287,6 +344,8 @@ void csr_mm(const std::int64_t* crow, const std::int64_t* col, const T* val,
   at::parallel_for(0, rows, 256, [&](std::int64_t begin, std::int64_t end) {
     if constexpr (std::is_same_v<T, float>)
       csr_rows_float(crow, col, val, perm, X, Y, begin, end, C);
+    else if constexpr (std::is_same_v<T, double>)
+      csr_rows_double(crow, col, val, perm, X, Y, begin, end, C);
     else
       csr_rows<T>(crow, col, val, perm, X, Y, begin, end, C);
   });

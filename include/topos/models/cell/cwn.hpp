@@ -1,10 +1,11 @@
 // topos/models/cell/cwn.hpp
 // CWN (Bodnar et al., "Weisfeiler and Lehman go cellular: CW networks", 2021; TopoModelX CWN):
 // features projected to a common width (elu), then per layer only the edges are updated:
-// x_1 <- elu(U(elu(A_1 x_1 W_11) + elu(B_2 x_2 W_21) + elu(B_1ᵀ x_0 W_01))).
+// x_1 <- elu(U(elu(A_1 x_1 W_11) + elu(B_2 x_2 W_21) + elu(B_1ᵀ x_0 W_01))). Written as an
+// operator schedule (cwn_schedule).
 #pragma once
 
-#include "topos/nn/conv.hpp"
+#include "topos/nn/operator_schedule.hpp"
 
 namespace topos::models {
 
@@ -22,50 +23,55 @@ struct CWNOptions {
   TORCH_ARG(int, n_layers);
 };
 
-class CWNImpl : public torch::nn::Module {
- public:
-  explicit CWNImpl(const CWNOptions& o) : options(o) {
-    const auto h = o.hid_channels();
-    proj_ = {register_module("proj_0", torch::nn::Linear(o.in_channels_0(), h)),
-             register_module("proj_1", torch::nn::Linear(o.in_channels_1(), h)),
-             register_module("proj_2", torch::nn::Linear(o.in_channels_2(), h))};
-    auto list = register_module("layers", torch::nn::ModuleList());
-    for (int l = 0; l < o.n_layers(); ++l) {
-      auto layer = std::make_shared<torch::nn::Module>();
-      auto first = nn::submodule_group(*layer, "conv_1_to_1");
-      auto second = nn::submodule_group(*layer, "conv_0_to_1");
-      auto update = nn::submodule_group(*layer, "update_fn");
-      layers_.push_back({first->register_module("conv_1_to_1", nn::Conv(nn::ConvOptions(h, h))),
-                         first->register_module("conv_2_to_1", nn::Conv(nn::ConvOptions(h, h))),
-                         second->register_module("conv_0_to_1", nn::Conv(nn::ConvOptions(h, h))),
-                         update->register_module("transform", torch::nn::Linear(h, h))});
-      list->push_back(layer);
-    }
+/// The schedule: the projections, then per layer one step into the edges.
+inline nn::OperatorSchedule cwn_schedule(const CWNOptions& o) {
+  using namespace nn::ops;
+  using nn::Update;
+  const auto h = o.hid_channels();
+  const std::array<std::int64_t, 3> c{o.in_channels_0(), o.in_channels_1(), o.in_channels_2()};
+  nn::OperatorSchedule s;
+  s.operator_input("adjacency_1", 1, 1)
+      .operator_input("incidence_2", 2, 1)
+      .operator_input("incidence_1_t", 0, 1);
+  for (int r = 0; r < 3; ++r) {
+    const auto R = std::to_string(r);
+    s.input("x_" + R, r, c[r]).output("x_" + R, r);
   }
+  s.parallel({into(0).sum(from(0).linear("proj_0", h)).act(Update::elu),
+              into(1).sum(from(1).linear("proj_1", h)).act(Update::elu),
+              into(2).sum(from(2).linear("proj_2", h)).act(Update::elu)});
+  for (int l = 0; l < o.n_layers(); ++l) {
+    const auto p = "layers." + std::to_string(l) + ".";
+    s.step(
+        into(1)
+            .sum(from(1).conv(p + "conv_1_to_1.conv_1_to_1", h).via("adjacency_1").act(Update::elu),
+                 from(2).conv(p + "conv_1_to_1.conv_2_to_1", h).via("incidence_2").act(Update::elu),
+                 from(0)
+                     .conv(p + "conv_0_to_1.conv_0_to_1", h)
+                     .via("incidence_1_t")
+                     .act(Update::elu))
+            .linear(p + "update_fn.transform", h)
+            .act(Update::elu));
+  }
+  return s;
+}
+
+class CWNImpl : public nn::OperatorNetworkImpl {
+ public:
+  explicit CWNImpl(const CWNOptions& o) : OperatorNetworkImpl(cwn_schedule(o)), options(o) {}
   /// (x_0, x_1, x_2), the edge adjacency, the incidence of 2-cells B_2 (edges × cells), B_1ᵀ.
   std::vector<torch::Tensor> forward(const std::vector<torch::Tensor>& x,
                                      const nn::SparseOperator& adjacency_1,
                                      const nn::SparseOperator& incidence_2,
                                      const nn::SparseOperator& incidence_1_t) {
-    auto x0 = torch::elu(proj_[0]->forward(x[0])), x1 = torch::elu(proj_[1]->forward(x[1])),
-         x2 = torch::elu(proj_[2]->forward(x[2]));
-    for (auto& l : layers_) {
-      const auto m = torch::elu(l.c11->forward(x1, adjacency_1)) +
-                     torch::elu(l.c21->forward(x2, incidence_2)) +
-                     torch::elu(l.c01->forward(x0, incidence_1_t));
-      x1 = torch::elu(l.transform->forward(m));
-    }
-    return {x0, x1, x2};
+    if (x.size() != 3) throw std::invalid_argument("CWN: expected features of ranks 0, 1, 2");
+    return run({{"x_0", x[0]}, {"x_1", x[1]}, {"x_2", x[2]}},
+               {{"adjacency_1", adjacency_1},
+                {"incidence_2", incidence_2},
+                {"incidence_1_t", incidence_1_t}},
+               {"x_0", "x_1", "x_2"});
   }
   CWNOptions options;
-
- private:
-  struct Layer {
-    nn::Conv c11, c21, c01;
-    torch::nn::Linear transform;
-  };
-  std::array<torch::nn::Linear, 3> proj_{nullptr, nullptr, nullptr};
-  std::vector<Layer> layers_;
 };
 TORCH_MODULE(CWN);
 

@@ -6,9 +6,10 @@
 // that layer has no conv_level1_0_to_1.weight); the default keeps it.
 // Parameters layers.<i>.conv_level1_0_to_1.weight, layers.<i>.conv_level2_1_to_0.weight,
 // layers.<i>.bn.*.
+// Written as an operator schedule (unigcn_schedule).
 #pragma once
 
-#include "topos/nn/conv.hpp"
+#include "topos/nn/operator_schedule.hpp"
 
 namespace topos::models {
 
@@ -23,49 +24,43 @@ struct UniGCNOptions {
   TORCH_ARG(bool, topomodelx_compatible) = false;
 };
 
-class UniGCNImpl : public torch::nn::Module {
- public:
-  explicit UniGCNImpl(const UniGCNOptions& o) : options(o) {
-    auto list = register_module("layers", torch::nn::ModuleList());
-    for (int l = 0; l < o.n_layers(); ++l) {
-      const auto in = l == 0 ? o.in_channels() : o.hidden_channels(), h = o.hidden_channels();
-      auto layer = std::make_shared<torch::nn::Module>();
-      Layer L;
-      L.level1 = layer->register_module(
-          "conv_level1_0_to_1",
-          nn::Conv(nn::ConvOptions(in, h)
-                       .aggr_norm(o.aggr_norm())
-                       .with_linear_transform(!o.topomodelx_compatible() || in != h)));
-      L.level2 = layer->register_module("conv_level2_1_to_0",
-                                        nn::Conv(nn::ConvOptions(h, h).aggr_norm(o.aggr_norm())));
-      if (o.use_bn()) L.bn = layer->register_module("bn", torch::nn::BatchNorm1d(h));
-      list->push_back(layer);
-      layers_.push_back(L);
-    }
+/// The schedule: per layer node → hyperedge (optionally batch-normalised) → node.
+inline nn::OperatorSchedule unigcn_schedule(const UniGCNOptions& o) {
+  using namespace nn::ops;
+  if (o.n_layers() < 1) throw std::invalid_argument("UniGCN: n_layers must be >= 1");
+  const auto h = o.hidden_channels();
+  const bool norm = o.aggr_norm();
+  nn::OperatorSchedule s;
+  s.input("x_0", 0, o.in_channels()).operator_input("incidence_1", 1, 0);
+  for (int l = 0; l < o.n_layers(); ++l) {
+    const auto p = "layers." + std::to_string(l) + ".";
+    const auto in = l == 0 ? o.in_channels() : h;
+    auto to_edges = from(0);
+    // TopoModelX's layer has no first linear map when in_channels == hidden_channels.
+    if (!o.topomodelx_compatible() || in != h) to_edges.conv(p + "conv_level1_0_to_1", h);
+    auto edges = into(1).sum(std::move(to_edges.via_t("incidence_1", norm)));
+    if (o.use_bn()) edges.batch_norm(p + "bn");
+    s.step(std::move(edges));
+    s.step(into(0).sum(from(1).conv(p + "conv_level2_1_to_0", h).via("incidence_1", norm)));
   }
+  s.output("x_0", 0).output("x_1", 1);
+  return s;
+}
+
+class UniGCNImpl : public nn::OperatorNetworkImpl {
+ public:
+  explicit UniGCNImpl(const UniGCNOptions& o)
+      : OperatorNetworkImpl(unigcn_schedule(o)), options(o) {}
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
-  std::vector<torch::Tensor> forward(torch::Tensor x0, const nn::SparseOperator& incidence_1) {
+  std::vector<torch::Tensor> forward(const torch::Tensor& x0,
+                                     const nn::SparseOperator& incidence_1) {
     if (x0.size(0) != incidence_1.rows)
       throw std::invalid_argument("UniGCN: " + std::to_string(x0.size(0)) +
                                   " node features for an incidence of " +
                                   std::to_string(incidence_1.rows) + " nodes");
-    const auto Bt = incidence_1.t();
-    torch::Tensor x1;
-    for (auto& L : layers_) {
-      x1 = L.level1->forward(x0, Bt);
-      if (!L.bn.is_empty()) x1 = L.bn->forward(x1);
-      x0 = L.level2->forward(x1, incidence_1);
-    }
-    return {x0, x1};
+    return run({{"x_0", x0}}, {{"incidence_1", incidence_1}}, {"x_0", "x_1"});
   }
   UniGCNOptions options;
-
- private:
-  struct Layer {
-    nn::Conv level1{nullptr}, level2{nullptr};
-    torch::nn::BatchNorm1d bn{nullptr};
-  };
-  std::vector<Layer> layers_;
 };
 TORCH_MODULE(UniGCN);
 

@@ -4,10 +4,11 @@
 // of a hyperedge's nodes), GCNII's initial residual and identity mapping, relu. Degrees are
 // vectors and the products sparse (TopoModelX uses dense diagonal matrices).
 // TopoModelX ignores `beta` (β_l = log(α/(l+1) + 1)); the default here is GCNII's
-// β_l = log(β/(l+1) + 1); topomodelx_compatible(true) gives TopoModelX's numbers.
+// β_l = log(β/(l+1) + 1); topomodelx_compatible(true) gives TopoModelX's numbers. Written as an
+// operator schedule (unigcnii_schedule).
 #pragma once
 
-#include "topos/nn/conv.hpp"
+#include "topos/nn/operator_schedule.hpp"
 
 #include <cmath>
 
@@ -27,52 +28,52 @@ struct UniGCNIIOptions {
   TORCH_ARG(bool, topomodelx_compatible) = false;
 };
 
-class UniGCNIIImpl : public torch::nn::Module {
- public:
-  explicit UniGCNIIImpl(const UniGCNIIOptions& o) : options(o) {
-    initial_ = register_module("initial_linear_layer",
-                               torch::nn::Linear(o.in_channels(), o.hidden_channels()));
-    auto list = register_module("layers", torch::nn::ModuleList());
-    for (int l = 0; l < o.n_layers(); ++l) {
-      auto layer = std::make_shared<torch::nn::Module>();
-      linear_.push_back(layer->register_module(
-          "linear",
-          torch::nn::Linear(
-              torch::nn::LinearOptions(o.hidden_channels(), o.hidden_channels()).bias(false))));
-      list->push_back(layer);
-      beta_.push_back(std::log((o.topomodelx_compatible() ? o.alpha() : o.beta()) / (l + 1) + 1));
-    }
+/// The schedule: a linear map, then per layer the two-stage message and GCNII's update.
+inline nn::OperatorSchedule unigcnii_schedule(const UniGCNIIOptions& o) {
+  using namespace nn::ops;
+  using nn::Update;
+  const auto h = o.hidden_channels();
+  nn::OperatorSchedule s;
+  s.input("x_0", 0, o.in_channels())
+      .operator_input("incidence_1", 1, 0)        // B: nodes × hyperedges
+      .operator_input("incidence_1_norm", 1, 0);  // D_v^-1/2 B D_e^-1/2
+  s.step(into(0)
+             .sum(from(0).dropout(o.input_drop()).linear("initial_linear_layer", h))
+             .act(Update::relu));
+  s.step(into(0, "initial").sum(from(0)));
+  for (int l = 0; l < o.n_layers(); ++l) {
+    const double beta = std::log((o.topomodelx_compatible() ? o.alpha() : o.beta()) / (l + 1) + 1);
+    s.step(into(1).sum(from(0).via_t("incidence_1")));
+    auto update = into(0).sum(from(1).via("incidence_1_norm"));
+    update.initial_residual({0, "initial"}, o.alpha(), beta,
+                            "layers." + std::to_string(l) + ".linear");
+    if (o.use_norm()) update.unit_rows();
+    s.step(std::move(update.dropout(o.layer_drop()).act(Update::relu)));
   }
+  if (o.n_layers() == 0) s.step(into(1).sum(from(0).via_t("incidence_1")));
+  s.output("x_0", 0).output("x_1", 1);
+  return s;
+}
+
+class UniGCNIIImpl : public nn::OperatorNetworkImpl {
+ public:
+  explicit UniGCNIIImpl(const UniGCNIIOptions& o)
+      : OperatorNetworkImpl(unigcnii_schedule(o)), options(o) {}
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1 of the last layer).
-  std::vector<torch::Tensor> forward(torch::Tensor x0, const nn::SparseOperator& incidence_1) {
+  std::vector<torch::Tensor> forward(const torch::Tensor& x0,
+                                     const nn::SparseOperator& incidence_1) {
     const auto dv = incidence_1.row_sums();
     if ((dv <= 0).any().item<bool>())
       throw std::invalid_argument("UniGCNII: every node must be in a hyperedge (add self-loops)");
     const auto de = incidence_1.scaled(dv).col_sums() / incidence_1.col_sums();
     if (!(de > 0).all().item<bool>())
       throw std::invalid_argument("UniGCNII: every hyperedge must contain a node");
-    const auto Bt = incidence_1.t();
-    const auto B = incidence_1.scaled(dv.rsqrt(), de.rsqrt());  // D_v^-1/2 B D_e^-1/2
-    x0 = torch::relu(initial_->forward(torch::dropout(x0, options.input_drop(), is_training())));
-    const auto skip = x0;
-    torch::Tensor x1;
-    for (std::size_t l = 0; l < linear_.size(); ++l) {
-      x1 = nn::spmm(Bt, x0);
-      x0 = nn::initial_residual(nn::spmm(B, x1), skip, options.alpha(), beta_[l], linear_[l]);
-      if (options.use_norm()) {
-        auto scale = x0.detach().norm(2, 1, true).reciprocal();
-        x0 = x0 * torch::where(torch::isinf(scale), torch::zeros_like(scale), scale);
-      }
-      x0 = torch::relu(torch::dropout(x0, options.layer_drop(), is_training()));
-    }
-    return {x0, x1};
+    return run({{"x_0", x0}},
+               {{"incidence_1", incidence_1},
+                {"incidence_1_norm", incidence_1.scaled(dv.rsqrt(), de.rsqrt())}},
+               {"x_0", "x_1"});
   }
   UniGCNIIOptions options;
-
- private:
-  torch::nn::Linear initial_{nullptr};
-  std::vector<torch::nn::Linear> linear_;
-  std::vector<double> beta_;
 };
 TORCH_MODULE(UniGCNII);
 

@@ -25,13 +25,6 @@ struct UniGINOptions {
   TORCH_ARG(bool, topomodelx_compatible) = false;
 };
 
-/// Each row divided by its norm (a constant for autograd), rows of norm 0 left at 0: UniGNN's
-/// use_norm.
-inline torch::Tensor unit_rows(const torch::Tensor& x) {
-  auto scale = x.detach().norm(2, 1, true).reciprocal();
-  return x * torch::where(torch::isinf(scale), torch::zeros_like(scale), scale);
-}
-
 class UniGINImpl : public torch::nn::Module {
  public:
   explicit UniGINImpl(const UniGINOptions& o) : options(o) {
@@ -62,7 +55,7 @@ class UniGINImpl : public torch::nn::Module {
     for (std::size_t l = 0; l < linear_.size(); ++l) {
       x1 = nn::spmm(Bt, x0);
       x0 = linear_[l]->forward((1 + eps_[l]) * x0 + nn::spmm(incidence_1, x1));
-      if (options.use_norm()) x0 = unit_rows(x0);
+      if (options.use_norm()) x0 = nn::unit_rows(x0);
       x0 = torch::relu(torch::dropout(x0, options.layer_drop(), is_training()));
     }
     return {x0, x1};

@@ -3,9 +3,10 @@
 // x_0 = Linear(x_0), x_1 = AGG_e(Bᵀ x_0), x_0 = x_0 + AGG_v(B x_1) (sum, or mean: divided by the
 // incidence's row sums), optionally unit rows, dropout, relu.
 // Parameters layers.<i>.linear.*.
+// Written as an operator schedule (unisage_schedule).
 #pragma once
 
-#include "topos/models/hypergraph/unigin.hpp"
+#include "topos/nn/operator_schedule.hpp"
 
 namespace topos::models {
 
@@ -22,49 +23,41 @@ struct UniSAGEOptions {
   TORCH_ARG(bool, use_norm) = false;
 };
 
-class UniSAGEImpl : public torch::nn::Module {
- public:
-  explicit UniSAGEImpl(const UniSAGEOptions& o) : options(o) {
-    auto list = register_module("layers", torch::nn::ModuleList());
-    const auto h = o.hidden_channels();
-    for (int l = 0; l < o.n_layers(); ++l) {
-      auto layer = std::make_shared<torch::nn::Module>();
-      linear_.push_back(
-          layer->register_module("linear", torch::nn::Linear(l == 0 ? o.in_channels() : h, h)));
-      v2e_.push_back(layer->register_module("vertex2edge",
-                                            nn::Conv(nn::ConvOptions(h, h)
-                                                         .aggr_norm(o.e_aggr() == nn::Aggr::mean)
-                                                         .with_linear_transform(false))));
-      e2v_.push_back(layer->register_module("edge2vertex",
-                                            nn::Conv(nn::ConvOptions(h, h)
-                                                         .aggr_norm(o.v_aggr() == nn::Aggr::mean)
-                                                         .with_linear_transform(false))));
-      list->push_back(layer);
-    }
+/// The schedule: input dropout, then per layer a linear map, node → hyperedge, and the nodes
+/// updated by their own features plus their hyperedges'.
+inline nn::OperatorSchedule unisage_schedule(const UniSAGEOptions& o) {
+  using namespace nn::ops;
+  if (o.n_layers() < 1) throw std::invalid_argument("UniSAGE: n_layers must be >= 1");
+  const auto h = o.hidden_channels();
+  nn::OperatorSchedule s;
+  s.input("x_0", 0, o.in_channels()).operator_input("incidence_1", 1, 0);
+  s.step(into(0).sum(from(0).dropout(o.input_drop())));
+  for (int l = 0; l < o.n_layers(); ++l) {
+    const auto p = "layers." + std::to_string(l) + ".";
+    s.step(into(0).sum(from(0).linear(p + "linear", h)));
+    s.step(into(1).sum(from(0).via_t("incidence_1", o.e_aggr() == nn::Aggr::mean)));
+    auto nodes = into(0).sum(from(0), from(1).via("incidence_1", o.v_aggr() == nn::Aggr::mean));
+    if (o.use_norm()) nodes.unit_rows();
+    s.step(std::move(nodes.dropout(o.layer_drop()).act(nn::Update::relu)));
   }
+  s.output("x_0", 0).output("x_1", 1);
+  return s;
+}
+
+class UniSAGEImpl : public nn::OperatorNetworkImpl {
+ public:
+  explicit UniSAGEImpl(const UniSAGEOptions& o)
+      : OperatorNetworkImpl(unisage_schedule(o)), options(o) {}
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
-  std::vector<torch::Tensor> forward(torch::Tensor x0, const nn::SparseOperator& incidence_1) {
+  std::vector<torch::Tensor> forward(const torch::Tensor& x0,
+                                     const nn::SparseOperator& incidence_1) {
     if (x0.size(0) != incidence_1.rows)
       throw std::invalid_argument("UniSAGE: " + std::to_string(x0.size(0)) +
                                   " node features for an incidence of " +
                                   std::to_string(incidence_1.rows) + " nodes");
-    const auto Bt = incidence_1.t();
-    x0 = torch::dropout(x0, options.input_drop(), is_training());
-    torch::Tensor x1;
-    for (std::size_t l = 0; l < linear_.size(); ++l) {
-      x0 = linear_[l]->forward(x0);
-      x1 = v2e_[l]->forward(x0, Bt);
-      x0 = x0 + e2v_[l]->forward(x1, incidence_1);
-      if (options.use_norm()) x0 = unit_rows(x0);
-      x0 = torch::relu(torch::dropout(x0, options.layer_drop(), is_training()));
-    }
-    return {x0, x1};
+    return run({{"x_0", x0}}, {{"incidence_1", incidence_1}}, {"x_0", "x_1"});
   }
   UniSAGEOptions options;
-
- private:
-  std::vector<torch::nn::Linear> linear_;
-  std::vector<nn::Conv> v2e_, e2v_;
 };
 TORCH_MODULE(UniSAGE);
 

@@ -4,9 +4,10 @@
 // own features and to the features projected from the ranks below and above (B xᵣ₊₁, Bᵀ xᵣ₋₁),
 // all terms combined by one weight tensor weight_r (in × out × terms). The identity terms and
 // the degree normalisation are sparse (TopoModelX builds dense n × n matrices for them).
+// Written as an operator schedule (sccnn_schedule).
 #pragma once
 
-#include "topos/nn/conv.hpp"
+#include "topos/nn/operator_schedule.hpp"
 
 namespace topos::models {
 
@@ -27,87 +28,91 @@ struct SCCNNOptions {
   TORCH_ARG(int, n_layers) = 2;
 };
 
-class SCCNNImpl : public torch::nn::Module {
+/// The schedule: per rank a linear map, then per layer one parallel group whose step for rank r
+/// mixes the filter terms of its own features and of those projected from ranks r ± 1.
+inline nn::OperatorSchedule sccnn_schedule(const SCCNNOptions& o) {
+  using namespace nn::ops;
+  const auto& in = o.in_channels_all();
+  const auto& h = o.hidden_channels_all();
+  if (in.size() != 3 || h.size() != 3)
+    throw std::invalid_argument(
+        "SCCNN: in_channels_all and hidden_channels_all need 3 entries (ranks 0, 1, 2)");
+  if (h[0] != h[1] || h[1] != h[2])
+    throw std::invalid_argument(
+        "SCCNN: the hidden channels must be equal on every rank (the incidences mix ranks)");
+  if (o.conv_order() < 1 || o.sc_order() < 2)
+    throw std::invalid_argument("SCCNN: conv_order must be >= 1 and sc_order >= 2");
+  const auto u = o.update_func();
+  if (u != nn::Update::none && u != nn::Update::relu && u != nn::Update::sigmoid)
+    throw std::invalid_argument("SCCNN: update_func must be relu, sigmoid or none");
+  const bool norm = o.aggr_norm();
+  const int K = o.conv_order();
+  // With sc_order 2 the faces have one Laplacian, passed as both laplacian_down_2 and _up_2.
+  const std::string up2 = o.sc_order() > 2 ? "laplacian_up_2" : "laplacian_down_2";
+  nn::OperatorSchedule s;
+  s.operator_input("laplacian_0", 0, 0)
+      .operator_input("laplacian_down_1", 1, 1)
+      .operator_input("laplacian_up_1", 1, 1)
+      .operator_input("laplacian_down_2", 2, 2)
+      .operator_input(up2, 2, 2)
+      .operator_input("incidence_1", 1, 0)
+      .operator_input("incidence_2", 2, 1);
+  std::vector<nn::OperatorStep> encode;
+  for (int r = 0; r < 3; ++r) {
+    const auto R = std::to_string(r);
+    s.input("x_" + R, r, in[static_cast<std::size_t>(r)]).output("x_" + R, r);
+    encode.push_back(into(r).sum(from(r).linear("in_linear_" + R, h[0])));
+  }
+  s.parallel(std::move(encode));
+  auto f = [&](const std::string& op) { return std::make_pair(op, K); };
+  for (int l = 0; l < o.n_layers(); ++l) {
+    const auto p = "layers." + std::to_string(l) + ".weight_";
+    std::vector<Term> faces{from(2).powers({f("laplacian_down_2")}, norm)};
+    if (o.sc_order() > 2) faces[0] = from(2).powers({f("laplacian_down_2"), f(up2)}, norm);
+    faces.push_back(from(1).via_t("incidence_2").powers({f("laplacian_down_2")}, norm));
+    s.parallel({into(0)
+                    .filter(p + "0", h[0], from(0).powers({f("laplacian_0")}, norm),
+                            from(1).via("incidence_1").powers({f("laplacian_0")}, norm))
+                    .act(u),
+                into(1)
+                    .filter(p + "1", h[0],
+                            from(0).via_t("incidence_1").powers({f("laplacian_down_1")}, norm),
+                            from(1).powers({f("laplacian_down_1"), f("laplacian_up_1")}, norm),
+                            from(2).via("incidence_2").powers({f("laplacian_up_1")}, norm))
+                    .act(u),
+                into(2).filter(p + "2", h[0], std::move(faces)).act(u)});
+  }
+  return s;
+}
+
+class SCCNNImpl : public nn::OperatorNetworkImpl {
  public:
-  explicit SCCNNImpl(const SCCNNOptions& o) : options(o) {
-    const auto& in = o.in_channels_all();
-    const auto& h = o.hidden_channels_all();
-    if (in.size() != 3 || h.size() != 3)
-      throw std::invalid_argument(
-          "SCCNN: in_channels_all and hidden_channels_all need 3 entries (ranks 0, 1, 2)");
-    if (h[0] != h[1] || h[1] != h[2])
-      throw std::invalid_argument(
-          "SCCNN: the hidden channels must be equal on every rank (the incidences mix ranks)");
-    if (o.conv_order() < 1 || o.sc_order() < 2)
-      throw std::invalid_argument("SCCNN: conv_order must be >= 1 and sc_order >= 2");
-    if (o.update_func() != nn::Update::none && o.update_func() != nn::Update::relu &&
-        o.update_func() != nn::Update::sigmoid)
-      throw std::invalid_argument("SCCNN: update_func must be relu, sigmoid or none");
-    const std::int64_t K = o.conv_order();
-    for (int r = 0; r < 3; ++r)
-      lin_.push_back(register_module(
-          "in_linear_" + std::to_string(r),
-          torch::nn::Linear(in[static_cast<std::size_t>(r)], h[static_cast<std::size_t>(r)])));
-    auto list = register_module("layers", torch::nn::ModuleList());
-    const std::array<std::int64_t, 3> terms{2 + 2 * K, 3 + 4 * K,
-                                            o.sc_order() > 2 ? 2 + 3 * K : 2 + 2 * K};
-    for (int l = 0; l < o.n_layers(); ++l) {
-      auto layer = std::make_shared<torch::nn::Module>();
-      std::array<torch::Tensor, 3> w;
-      for (std::size_t r = 0; r < 3; ++r) {
-        w[r] = layer->register_parameter("weight_" + std::to_string(r),
-                                         torch::empty({h[r], h[r], terms[r]}));
-        torch::NoGradGuard g;
-        torch::nn::init::xavier_normal_(w[r], 1.414);
-      }
-      list->push_back(layer);
-      weights_.push_back(w);
-    }
+  explicit SCCNNImpl(const SCCNNOptions& o) : OperatorNetworkImpl(sccnn_schedule(o)), options(o) {
+    // TopoModelX's initialisation of the filter weights.
+    torch::NoGradGuard g;
+    for (int l = 0; l < o.n_layers(); ++l)
+      for (int r = 0; r < 3; ++r)
+        torch::nn::init::xavier_normal_(
+            parameter("layers." + std::to_string(l) + ".weight_" + std::to_string(r)), 1.414);
   }
 
   /// x = (x_0, x_1, x_2); laplacians = (L_0, L_down_1, L_up_1, L_2) for sc_order 2, else
   /// (L_0, L_down_1, L_up_1, L_down_2, L_up_2); incidences = (B_1, B_2).
-  std::vector<torch::Tensor> forward(const std::vector<torch::Tensor>& x_in,
+  std::vector<torch::Tensor> forward(const std::vector<torch::Tensor>& x,
                                      const std::vector<nn::SparseOperator>& L,
                                      const std::vector<nn::SparseOperator>& B) {
     const bool two = options.sc_order() == 2;
+    if (x.size() != 3) throw std::invalid_argument("SCCNN: expected features of ranks 0, 1, 2");
     if (L.size() != (two ? 4u : 5u) || B.size() != 2)
       throw std::invalid_argument(std::string("SCCNN: expected ") + (two ? "4" : "5") +
                                   " Laplacians and 2 incidences");
-    std::vector<torch::Tensor> x(3);
-    for (std::size_t r = 0; r < 3; ++r) x[r] = lin_[r]->forward(x_in[r]);
-    const int K = options.conv_order();
-    const bool norm = options.aggr_norm();
-    // [y, A y, ..., A^K y] for each operator in turn (the identity term once, first).
-    auto filt = [&](const torch::Tensor& y, std::initializer_list<const nn::SparseOperator*> ops) {
-      std::vector<torch::Tensor> t{y};
-      for (const auto* A : ops)
-        for (auto& p : nn::powers(*A, y, K, norm)) t.push_back(p);
-      return t;
-    };
-    auto cat = [](std::vector<torch::Tensor> a, const std::vector<torch::Tensor>& b) {
-      a.insert(a.end(), b.begin(), b.end());
-      return a;
-    };
-    const auto &L0 = L[0], &Ld1 = L[1], &Lu1 = L[2];
-    const auto &Ld2 = two ? L[3] : L[3], &Lu2 = two ? L[3] : L[4];
-    const auto B1t = B[0].t(), B2t = B[1].t();
-    for (auto& w : weights_) {
-      auto t0 = cat(filt(x[0], {&L0}), filt(nn::spmm(B[0], x[1]), {&L0}));
-      auto t1 = cat(cat(filt(nn::spmm(B1t, x[0]), {&Ld1}), filt(x[1], {&Ld1, &Lu1})),
-                    filt(nn::spmm(B[1], x[2]), {&Lu1}));
-      auto t2 = two ? cat(filt(x[2], {&Ld2}), filt(nn::spmm(B2t, x[1]), {&Ld2}))
-                    : cat(filt(x[2], {&Ld2, &Lu2}), filt(nn::spmm(B2t, x[1]), {&Ld2}));
-      x = {nn::combine_terms(t0, w[0]), nn::combine_terms(t1, w[1]), nn::combine_terms(t2, w[2])};
-      for (auto& y : x) y = nn::apply_update(y, options.update_func());
-    }
-    return x;
+    std::map<std::string, nn::SparseOperator> ops{
+        {"laplacian_0", L[0]},      {"laplacian_down_1", L[1]}, {"laplacian_up_1", L[2]},
+        {"laplacian_down_2", L[3]}, {"incidence_1", B[0]},      {"incidence_2", B[1]}};
+    if (!two) ops["laplacian_up_2"] = L[4];
+    return run({{"x_0", x[0]}, {"x_1", x[1]}, {"x_2", x[2]}}, ops, {"x_0", "x_1", "x_2"});
   }
   SCCNNOptions options;
-
- private:
-  std::vector<torch::nn::Linear> lin_;
-  std::vector<std::array<torch::Tensor, 3>> weights_;
 };
 TORCH_MODULE(SCCNN);
 

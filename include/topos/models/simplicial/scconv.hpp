@@ -6,9 +6,10 @@
 // then sigmoid. Parameters layers.<i>.conv_<s>_to_<t>.weight. The operators are passed in
 // TopoModelX's order and orientation: the incidences as (co)incidences B_1ᵀ, B_2ᵀ (edges ×
 // nodes, triangles × edges) and their normalised forms, which the layer transposes.
+// Written as an operator schedule (scconv_schedule).
 #pragma once
 
-#include "topos/nn/conv.hpp"
+#include "topos/nn/operator_schedule.hpp"
 
 namespace topos::models {
 
@@ -27,49 +28,62 @@ struct SCConvOperators {
       adjacency_down_2_norm;
 };
 
-class SCConvImpl : public torch::nn::Module {
- public:
-  explicit SCConvImpl(const SCConvOptions& o) : options(o) {
-    if (o.n_layers() < 1) throw std::invalid_argument("SCConv: n_layers must be >= 1");
-    const auto c0 = o.node_channels(), c1 = o.edge_channels() > 0 ? o.edge_channels() : c0,
-               c2 = o.face_channels() > 0 ? o.face_channels() : c0;
-    auto list = register_module("layers", torch::nn::ModuleList());
-    for (int l = 0; l < o.n_layers(); ++l) {
-      auto m = std::make_shared<torch::nn::Module>();
-      auto conv = [&](const char* name, std::int64_t in, std::int64_t out) {
-        return m->register_module(name, nn::Conv(nn::ConvOptions(in, out)));
-      };
-      layers_.push_back({conv("conv_0_to_0", c0, c0), conv("conv_0_to_1", c0, c1),
-                         conv("conv_1_to_1", c1, c1), conv("conv_1_to_0", c1, c0),
-                         conv("conv_1_to_2", c1, c2), conv("conv_2_to_1", c2, c1),
-                         conv("conv_2_to_2", c2, c2)});
-      list->push_back(m);
-    }
+/// The schedule: per layer one parallel group over the three ranks. TopoModelX passes the
+/// incidences transposed (rank r × rank r-1), so B_r itself is via_t.
+inline nn::OperatorSchedule scconv_schedule(const SCConvOptions& o) {
+  using namespace nn::ops;
+  using nn::Update;
+  if (o.n_layers() < 1) throw std::invalid_argument("SCConv: n_layers must be >= 1");
+  const auto c0 = o.node_channels(), c1 = o.edge_channels() > 0 ? o.edge_channels() : c0,
+             c2 = o.face_channels() > 0 ? o.face_channels() : c0;
+  nn::OperatorSchedule s;
+  s.input("x_0", 0, c0).input("x_1", 1, c1).input("x_2", 2, c2);
+  s.output("x_0", 0).output("x_1", 1).output("x_2", 2);
+  s.operator_input("incidence_1", 0, 1)          // B_1ᵀ: edges × nodes
+      .operator_input("incidence_1_norm", 1, 0)  // nodes × edges
+      .operator_input("incidence_2", 1, 2)       // B_2ᵀ: faces × edges
+      .operator_input("incidence_2_norm", 2, 1)  // edges × faces
+      .operator_input("adjacency_up_0_norm", 0, 0)
+      .operator_input("adjacency_1_norm", 1, 1)  // down + up
+      .operator_input("adjacency_down_2_norm", 2, 2);
+  for (int l = 0; l < o.n_layers(); ++l) {
+    const auto p = "layers." + std::to_string(l) + ".conv_";
+    s.parallel({into(0)
+                    .sum(from(0).conv(p + "0_to_0", c0).via("adjacency_up_0_norm"),
+                         from(1).conv(p + "1_to_0", c0).via_t("incidence_1"))
+                    .act(Update::sigmoid),
+                into(1)
+                    .sum(from(0).conv(p + "0_to_1", c1).via_t("incidence_1_norm"),
+                         from(1).conv(p + "1_to_1", c1).via("adjacency_1_norm"),
+                         from(2).conv(p + "2_to_1", c1).via_t("incidence_2"))
+                    .act(Update::sigmoid),
+                into(2)
+                    .sum(from(1).conv(p + "1_to_2", c2).via_t("incidence_2_norm"),
+                         from(2).conv(p + "2_to_2", c2).via("adjacency_down_2_norm"))
+                    .act(Update::sigmoid)});
   }
-  std::vector<torch::Tensor> forward(std::vector<torch::Tensor> x, const SCConvOperators& op) {
+  return s;
+}
+
+class SCConvImpl : public nn::OperatorNetworkImpl {
+ public:
+  explicit SCConvImpl(const SCConvOptions& o)
+      : OperatorNetworkImpl(scconv_schedule(o)), options(o) {}
+  std::vector<torch::Tensor> forward(const std::vector<torch::Tensor>& x,
+                                     const SCConvOperators& op) {
     if (x.size() != 3) throw std::invalid_argument("SCConv: expected features of ranks 0, 1, 2");
-    const auto b1 = op.incidence_1.t(), b1n_t = op.incidence_1_norm.t(), b2 = op.incidence_2.t(),
-               b2n_t = op.incidence_2_norm.t();
-    const auto adj_1 = nn::SparseOperator::sum(op.adjacency_down_1_norm, op.adjacency_up_1_norm);
-    for (auto& l : layers_) {
-      auto agg = [](std::vector<torch::Tensor> m) {
-        return nn::aggregate_messages(m, nn::Aggr::sum, nn::Update::sigmoid);
-      };
-      auto y0 = agg({l.c00->forward(x[0], op.adjacency_up_0_norm), l.c10->forward(x[1], b1)});
-      auto y1 =
-          agg({l.c01->forward(x[0], b1n_t), l.c11->forward(x[1], adj_1), l.c21->forward(x[2], b2)});
-      auto y2 = agg({l.c12->forward(x[1], b2n_t), l.c22->forward(x[2], op.adjacency_down_2_norm)});
-      x = {y0, y1, y2};
-    }
-    return x;
+    return run({{"x_0", x[0]}, {"x_1", x[1]}, {"x_2", x[2]}},
+               {{"incidence_1", op.incidence_1},
+                {"incidence_1_norm", op.incidence_1_norm},
+                {"incidence_2", op.incidence_2},
+                {"incidence_2_norm", op.incidence_2_norm},
+                {"adjacency_up_0_norm", op.adjacency_up_0_norm},
+                {"adjacency_1_norm",
+                 nn::SparseOperator::sum(op.adjacency_down_1_norm, op.adjacency_up_1_norm)},
+                {"adjacency_down_2_norm", op.adjacency_down_2_norm}},
+               {"x_0", "x_1", "x_2"});
   }
   SCConvOptions options;
-
- private:
-  struct Layer {
-    nn::Conv c00, c01, c11, c10, c12, c21, c22;
-  };
-  std::vector<Layer> layers_;
 };
 TORCH_MODULE(SCConv);
 

@@ -5,9 +5,10 @@
 // (1 + conv_order_down + conv_order_up)). aggr_norm divides the powers k ≥ 2 by the Laplacian's
 // row sums (TopoModelX skips the first power). TopoModelX gives the first layer neither aggr_norm
 // nor update_func (the compatible mode does the same; the default gives them to every layer).
+// Written as an operator schedule (scnn_schedule).
 #pragma once
 
-#include "topos/nn/conv.hpp"
+#include "topos/nn/operator_schedule.hpp"
 
 namespace topos::models {
 
@@ -28,47 +29,45 @@ struct SCNNOptions {
             topomodelx_compatible) = false;  ///< first layer without aggr_norm and update_func
 };
 
-class SCNNImpl : public torch::nn::Module {
- public:
-  explicit SCNNImpl(const SCNNOptions& o) : options(o) {
-    if (o.conv_order_down() < 0 || o.conv_order_up() < 0 ||
-        o.conv_order_down() + o.conv_order_up() == 0)
-      throw std::invalid_argument(
-          "SCNN: conv_order_down and conv_order_up must be >= 0, not both 0");
-    if (o.update_func() != nn::Update::none && o.update_func() != nn::Update::relu &&
-        o.update_func() != nn::Update::sigmoid)
-      throw std::invalid_argument("SCNN: update_func must be relu, sigmoid or none");
-    if (o.n_layers() < 1) throw std::invalid_argument("SCNN: n_layers must be >= 1");
-    auto list = register_module("layers", torch::nn::ModuleList());
-    const std::int64_t terms = 1 + o.conv_order_down() + o.conv_order_up();
-    for (int l = 0; l < o.n_layers(); ++l) {
-      auto layer = std::make_shared<torch::nn::Module>();
-      weights_.push_back(layer->register_parameter(
-          "weight", torch::empty({l == 0 ? o.in_channels() : o.hidden_channels(),
-                                  o.hidden_channels(), terms})));
-      nn::xavier_uniform(weights_.back());
-      list->push_back(layer);
-    }
+/// The schedule: per layer one filter over [x, L_down x, ..., L_up x, ...] on one rank.
+inline nn::OperatorSchedule scnn_schedule(const SCNNOptions& o) {
+  using namespace nn::ops;
+  if (o.conv_order_down() < 0 || o.conv_order_up() < 0 ||
+      o.conv_order_down() + o.conv_order_up() == 0)
+    throw std::invalid_argument("SCNN: conv_order_down and conv_order_up must be >= 0, not both 0");
+  if (o.update_func() != nn::Update::none && o.update_func() != nn::Update::relu &&
+      o.update_func() != nn::Update::sigmoid)
+    throw std::invalid_argument("SCNN: update_func must be relu, sigmoid or none");
+  if (o.n_layers() < 1) throw std::invalid_argument("SCNN: n_layers must be >= 1");
+  nn::OperatorSchedule s;
+  s.input("x", 1, o.in_channels())
+      .operator_input("laplacian_down", 1, 1)
+      .operator_input("laplacian_up", 1, 1)
+      .output("x", 1);
+  for (int l = 0; l < o.n_layers(); ++l) {
+    // TopoModelX's first layer gets neither aggr_norm nor update_func.
+    const bool plain = l == 0 && o.topomodelx_compatible();
+    const bool norm = o.aggr_norm() && !plain;
+    s.step(into(1)
+               .filter("layers." + std::to_string(l) + ".weight", o.hidden_channels(),
+                       from(1).powers({{"laplacian_down", o.conv_order_down()},
+                                       {"laplacian_up", o.conv_order_up()}},
+                                      norm, 2))
+               .act(plain ? nn::Update::none : o.update_func()));
   }
+  return s;
+}
+
+class SCNNImpl : public nn::OperatorNetworkImpl {
+ public:
+  explicit SCNNImpl(const SCNNOptions& o) : OperatorNetworkImpl(scnn_schedule(o)), options(o) {}
   /// Features of one rank, its lower and upper Laplacians.
-  torch::Tensor forward(torch::Tensor x, const nn::SparseOperator& laplacian_down,
+  torch::Tensor forward(const torch::Tensor& x, const nn::SparseOperator& laplacian_down,
                         const nn::SparseOperator& laplacian_up) {
-    for (std::size_t l = 0; l < weights_.size(); ++l) {
-      const bool plain = l == 0 && options.topomodelx_compatible();
-      const bool norm = options.aggr_norm() && !plain;
-      std::vector<torch::Tensor> t{x};
-      for (auto& p : nn::powers(laplacian_down, x, options.conv_order_down(), norm, 2))
-        t.push_back(p);
-      for (auto& p : nn::powers(laplacian_up, x, options.conv_order_up(), norm, 2)) t.push_back(p);
-      x = nn::combine_terms(t, weights_[l]);
-      if (!plain) x = nn::apply_update(x, options.update_func());
-    }
-    return x;
+    return run({{"x", x}}, {{"laplacian_down", laplacian_down}, {"laplacian_up", laplacian_up}},
+               {"x"})[0];
   }
   SCNNOptions options;
-
- private:
-  std::vector<torch::Tensor> weights_;
 };
 TORCH_MODULE(SCNN);
 

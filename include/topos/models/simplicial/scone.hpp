@@ -5,9 +5,10 @@
 // products of the incidences (never formed). Parameters layers.<i>.weight_0/1/2 (in × out).
 // TopoModelX's layer always uses tanh (its update_func is not reachable from SCoNe); so does
 // this one unless update_func is set.
+// Written as an operator schedule (scone_schedule).
 #pragma once
 
-#include "topos/nn/conv.hpp"
+#include "topos/nn/operator_schedule.hpp"
 
 namespace topos::models {
 
@@ -20,40 +21,36 @@ struct SCoNeOptions {
   TORCH_ARG(nn::Update, update_func) = nn::Update::tanh;
 };
 
-class SCoNeImpl : public torch::nn::Module {
- public:
-  explicit SCoNeImpl(const SCoNeOptions& o) : options(o) {
-    if (o.n_layers() < 1) throw std::invalid_argument("SCoNe: n_layers must be >= 1");
-    auto list = register_module("layers", torch::nn::ModuleList());
-    for (int l = 0; l < o.n_layers(); ++l) {
-      auto m = std::make_shared<torch::nn::Module>();
-      const auto in = l == 0 ? o.in_channels() : o.hidden_channels();
-      std::array<torch::Tensor, 3> w;
-      for (std::size_t k = 0; k < 3; ++k) {
-        w[k] = m->register_parameter("weight_" + std::to_string(k),
-                                     torch::empty({in, o.hidden_channels()}));
-        nn::xavier_uniform(w[k], 1.0);
-      }
-      weights_.push_back(w);
-      list->push_back(m);
-    }
+/// The schedule: per layer one step on the edges summing the three terms.
+inline nn::OperatorSchedule scone_schedule(const SCoNeOptions& o) {
+  using namespace nn::ops;
+  if (o.n_layers() < 1) throw std::invalid_argument("SCoNe: n_layers must be >= 1");
+  const auto h = o.hidden_channels();
+  nn::OperatorSchedule s;
+  s.input("x", 1, o.in_channels())
+      .operator_input("incidence_1", 1, 0)
+      .operator_input("incidence_2", 2, 1)
+      .output("x", 1);
+  for (int l = 0; l < o.n_layers(); ++l) {
+    const auto p = "layers." + std::to_string(l) + ".weight_";
+    s.step(into(1)
+               .sum(from(1).via_t("incidence_2").via("incidence_2").weight(p + "2", h, 1.0),
+                    from(1).weight(p + "1", h, 1.0),
+                    from(1).via("incidence_1").via_t("incidence_1").weight(p + "0", h, 1.0))
+               .act(o.update_func()));
   }
+  return s;
+}
+
+class SCoNeImpl : public nn::OperatorNetworkImpl {
+ public:
+  explicit SCoNeImpl(const SCoNeOptions& o) : OperatorNetworkImpl(scone_schedule(o)), options(o) {}
   /// Edge features, the node × edge incidence B_1 and the edge × triangle incidence B_2.
-  torch::Tensor forward(torch::Tensor x, const nn::SparseOperator& incidence_1,
+  torch::Tensor forward(const torch::Tensor& x, const nn::SparseOperator& incidence_1,
                         const nn::SparseOperator& incidence_2) {
-    const auto b1t = incidence_1.t(), b2t = incidence_2.t();
-    for (auto& w : weights_) {
-      const auto z1 = nn::spmm(incidence_2, nn::spmm(b2t, x)).matmul(w[2]);
-      const auto z2 = x.matmul(w[1]);
-      const auto z3 = nn::spmm(b1t, nn::spmm(incidence_1, x)).matmul(w[0]);
-      x = nn::aggregate_messages({z1, z2, z3}, nn::Aggr::sum, options.update_func());
-    }
-    return x;
+    return run({{"x", x}}, {{"incidence_1", incidence_1}, {"incidence_2", incidence_2}}, {"x"})[0];
   }
   SCoNeOptions options;
-
- private:
-  std::vector<std::array<torch::Tensor, 3>> weights_;
 };
 TORCH_MODULE(SCoNe);
 

@@ -1,0 +1,16 @@
+#!/usr/bin/env bash
+# Peak resident memory of each zoo benchmark (bench_zoo's "peak_rss_MB"), one process per
+# benchmark so that each peak is its own (it includes LibTorch and both complexes, built at start).
+# Usage: bench/zoo_memory.sh [BUILD_DIR] [FILTER_REGEX]   (default build, all BM_zoo/ benchmarks)
+set -euo pipefail
+build="${1:-build}"
+filter="${2:-^BM_zoo/}"
+bin="$build/bench/bench_zoo"
+export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1
+printf '%-45s %12s\n' benchmark peak_rss_MB
+for name in $("$bin" --benchmark_list_tests=true 2>/dev/null | grep -E "$filter"); do
+  mb=$("$bin" --benchmark_filter="^${name}\$" --benchmark_min_time=0.01 \
+    --benchmark_format=json 2>/dev/null |
+    python3 -c 'import json,sys; b=json.load(sys.stdin)["benchmarks"]; print("%.0f" % b[0]["peak_rss_MB"])')
+  printf '%-45s %12s\n' "$name" "$mb"
+done

@@ -1,0 +1,788 @@
+// topos/nn/operator_schedule.hpp
+// The operator schedule: a message-passing network over named sparse operators (incidences,
+// adjacencies, Laplacians with their values) written as data, the way TopoModelX's models are
+// written as layers of convolutions. The zoo's models are schedules of this kind.
+//
+//   using namespace topos::nn::ops;
+//   OperatorSchedule s;
+//   s.input("x_0", 0, 8).input("x_1", 1, 4)                  // cochains fed by name
+//    .operator_input("adjacency_1", 1, 1)                     // source rank -> target rank
+//    .operator_input("incidence_1", 1, 0);                    // B_1: nodes × edges, 1 -> 0
+//   s.step(into(1).sum(from(1).conv("conv_1_to_1", 16).via("adjacency_1").act(Update::elu),
+//                      from(0).conv("conv_0_to_1", 16).via_t("incidence_1"))
+//                 .linear("update", 16).act(Update::relu));   // after the messages are mixed
+//   s.step(into(1).filter("weight", 16,                       // Σ_k T_k W[:, :, k] over the terms
+//                         from(1).powers({{"laplacian_down_1", 2}, {"laplacian_up_1", 2}})));
+//   s.output("x_1", 1);
+//   OperatorNetwork net(s);                                   // validated here
+//   auto out = net->forward({{"x_0", x0}, {"x_1", x1}}, {{"adjacency_1", A1}, ...});
+//
+// A term starts at a cochain (rank, state) and applies its operations in order: operators
+// (`via`, `via_t` for the transpose, `pattern` for the sparsity pattern alone), learned maps
+// (`conv`/`weight`: x·W with W in × out, TopoModelX's Conv layout; `linear`: torch.nn.Linear),
+// activations, dropout, and last, optionally, a polynomial filter (`powers`) that fans the term
+// out into [y, A y, ..., A^K y]. A step mixes its terms (sum, mean, or a filter weight over all
+// of them), applies its own operations, and writes the target cochain. Steps run in sequence; a
+// parallel group reads one snapshot (a layer that updates every rank at once).
+//
+// Parameters are created at the dotted paths the schedule names ("layers.0.conv_0_to_0.weight"),
+// with their shapes inferred from the channels, so a TopoModelX state_dict loads by its own
+// names; a path used twice is one shared parameter. Building the network checks every step:
+// unknown cochains, inputs or operators, operators applied to the wrong rank, terms of mismatched
+// channels or ranks, a parameter path reused with another shape; each error names the step.
+#pragma once
+
+#include "topos/nn/cochains.hpp"
+#include "topos/nn/conv.hpp"
+#include "topos/nn/schedule.hpp"  // ScheduleError
+
+#include <torch/torch.h>
+
+#include <cmath>
+#include <map>
+#include <set>
+#include <sstream>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace topos::nn {
+
+/// One operation of a term or of a step's tail.
+struct TermOp {
+  enum class Kind {
+    via,               ///< A · x
+    via_transposed,    ///< Aᵀ · x
+    pattern,           ///< pattern(A) · x, summed or averaged (A's values ignored)
+    weight,            ///< x · W, W (in × out) at `name`
+    linear,            ///< torch.nn.Linear at `name` (weight out × in, optional bias)
+    act,               ///< an update function
+    dropout,           ///< training only
+    unit_rows,         ///< each row divided by its (undifferentiated) L2 norm; zero rows stay 0
+    batch_norm,        ///< torch.nn.BatchNorm1d at `name`
+    layer_norm,        ///< torch.nn.LayerNorm at `name`
+    attend,            ///< A · x with A's values times attention weights (`param`: the vector)
+    initial_residual,  ///< GCNII: x̃ = (1-α) x + α skip, then (1-β) x̃ + β Linear(x̃)
+    powers  ///< [y, A₁y..A₁^K₁y, A₂y..A₂^K₂y, ...]: fans the term out, last only
+  };
+  explicit TermOp(Kind k, std::string n = {}) : kind(k), name(std::move(n)) {}
+  Kind kind;
+  std::string name;       ///< operator or parameter path
+  bool row_norm = false;  ///< via: divide by the operator's row sums; powers: from `norm_from`
+  Aggr aggr = Aggr::sum;
+  std::int64_t out = 0;
+  bool bias = true;
+  double gain = 1.414;
+  Update update = Update::none;
+  double slope = 0.01;
+  double p = 0;  ///< dropout rate, or α of the initial residual
+  double beta = 0;
+  CochainKey skip;
+  std::vector<std::pair<std::string, int>> filters;  ///< powers: (operator, order)
+  std::string param;                                 ///< attend: the attention vector's path
+  AttentionNorm attention_norm = AttentionNorm::none;
+  int norm_from = 1;
+};
+
+namespace ops {
+
+/// The fluent operations shared by terms (which start at a cochain) and steps (whose operations
+/// act on the mixed terms).
+template <class Derived>
+class Chain {
+ public:
+  /// A · x, optionally divided by A's row sums (TopoModelX Conv's aggr_norm).
+  Derived& via(std::string op, bool row_norm = false) {
+    return add(TermOp(TermOp::Kind::via, std::move(op))).row_norm_last(row_norm);
+  }
+  /// Aᵀ · x (the transpose is made once per forward), optionally divided by Aᵀ's row sums.
+  Derived& via_t(std::string op, bool row_norm = false) {
+    return add(TermOp(TermOp::Kind::via_transposed, std::move(op))).row_norm_last(row_norm);
+  }
+  /// Sum (or mean) over A's sparsity pattern, its values ignored (torch_scatter's messages).
+  Derived& pattern(std::string op, Aggr aggr = Aggr::sum) {
+    TermOp t(TermOp::Kind::pattern, std::move(op));
+    t.aggr = aggr;
+    return add(std::move(t));
+  }
+  /// x · W with W (in × out) at `path` (Glorot-initialised with `gain`).
+  Derived& weight(std::string path, std::int64_t out, double gain = 1.414) {
+    TermOp t(TermOp::Kind::weight, std::move(path));
+    t.out = out;
+    t.gain = gain;
+    return add(std::move(t));
+  }
+  /// TopoModelX's Conv weight: weight(path + ".weight", out).
+  Derived& conv(const std::string& path, std::int64_t out) { return weight(path + ".weight", out); }
+  /// torch.nn.Linear at `path`: parameters path.weight (out × in) and path.bias.
+  Derived& linear(std::string path, std::int64_t out, bool bias = true) {
+    TermOp t(TermOp::Kind::linear, std::move(path));
+    t.out = out;
+    t.bias = bias;
+    return add(std::move(t));
+  }
+  Derived& act(Update u, double negative_slope = 0.01) {
+    TermOp t(TermOp::Kind::act);
+    t.update = u;
+    t.slope = negative_slope;
+    return add(std::move(t));
+  }
+  Derived& dropout(double p) {
+    TermOp t(TermOp::Kind::dropout);
+    t.p = p;
+    return add(std::move(t));
+  }
+  Derived& unit_rows() { return add(TermOp(TermOp::Kind::unit_rows)); }
+  /// torch.nn.BatchNorm1d over the channels at `path` (weight, bias, running statistics).
+  Derived& batch_norm(std::string path) {
+    return add(TermOp(TermOp::Kind::batch_norm, std::move(path)));
+  }
+  /// torch.nn.LayerNorm over the channels at `path`.
+  Derived& layer_norm(std::string path) {
+    return add(TermOp(TermOp::Kind::layer_norm, std::move(path)));
+  }
+  /// GCNII's initial residual and identity mapping, the bias-free Linear at `path`.
+  Derived& initial_residual(CochainKey skip, double alpha, double beta, std::string path) {
+    TermOp t(TermOp::Kind::initial_residual, std::move(path));
+    t.skip = std::move(skip);
+    t.p = alpha;
+    t.beta = beta;
+    return add(std::move(t));
+  }
+  const std::vector<TermOp>& operations() const { return ops_; }
+
+ protected:
+  Derived& add(TermOp t) {
+    ops_.push_back(std::move(t));
+    return static_cast<Derived&>(*this);
+  }
+  Derived& row_norm_last(bool on) {
+    ops_.back().row_norm = on;
+    return static_cast<Derived&>(*this);
+  }
+  std::vector<TermOp> ops_;
+};
+
+/// A term: a cochain and what is done to it.
+class Term : public Chain<Term> {
+ public:
+  explicit Term(CochainKey source) : source(std::move(source)) {}
+  /// Messages over A weighted by attention: entry (i, j) scores a_s·x_j + a_t·t_i, with x the
+  /// term's features here and t the step's target cochain (its features before the step), then
+  /// `activation` and `norm` (a per-target softmax, division by the row sums, or none); A's values
+  /// are multiplied by the weights and applied to x. `path` holds a (2·C): the source half, then
+  /// the target half (TopoModelX's Conv.att_weight). Followed by conv(), this is TopoModelX's
+  /// Conv with att=True (A (x W) = (A x) W: the weights depend on x alone).
+  Term& attend(std::string op, std::string path, Update activation = Update::elu,
+               AttentionNorm norm = AttentionNorm::none, double negative_slope = 0.2) {
+    TermOp t(TermOp::Kind::attend, std::move(op));
+    t.param = std::move(path);
+    t.update = activation;
+    t.attention_norm = norm;
+    t.slope = negative_slope;
+    return add(std::move(t));
+  }
+  /// Polynomial filter terms [y, A₁y, ..., A₁^K₁y, A₂y, ...] (identity once); with row_norm each
+  /// power from `norm_from` on is divided by its operator's row sums (0 where they are 0).
+  Term& powers(std::vector<std::pair<std::string, int>> filters, bool row_norm = false,
+               int norm_from = 1) {
+    TermOp t(TermOp::Kind::powers);
+    t.filters = std::move(filters);
+    t.row_norm = row_norm;
+    t.norm_from = norm_from;
+    return add(std::move(t));
+  }
+  CochainKey source;
+};
+
+inline Term from(int rank, std::string state = "") {
+  return Term({rank, std::move(state)});
+}
+
+}  // namespace ops
+
+/// A step: its terms, how they are mixed, the operations after the mix, the cochain written.
+class OperatorStep : public ops::Chain<OperatorStep> {
+ public:
+  enum class Mix { sum, mean, filter };
+  explicit OperatorStep(CochainKey target) : target(std::move(target)) {}
+
+  template <class... T>
+  OperatorStep& sum(T&&... t) {
+    mix = Mix::sum;
+    (terms.push_back(std::forward<T>(t)), ...);
+    return *this;
+  }
+  /// Terms built in a loop.
+  OperatorStep& sum(std::vector<ops::Term> t) {
+    mix = Mix::sum;
+    terms.insert(terms.end(), t.begin(), t.end());
+    return *this;
+  }
+  template <class... T>
+  OperatorStep& mean(T&&... t) {
+    sum(std::forward<T>(t)...);
+    mix = Mix::mean;
+    return *this;
+  }
+  /// y = Σ_k T_k · W[:, :, k] over every term (powers fanned out), W (in × out × terms) at
+  /// `path`: SCCNN's and SCNN's einsum over stacked filter terms.
+  template <class... T>
+  OperatorStep& filter(std::string path, std::int64_t out, T&&... t) {
+    sum(std::forward<T>(t)...);
+    mix = Mix::filter;
+    filter_path = std::move(path);
+    filter_out = out;
+    return *this;
+  }
+  OperatorStep& named(std::string n) {
+    name = std::move(n);
+    return *this;
+  }
+
+  CochainKey target;
+  std::vector<ops::Term> terms;
+  Mix mix = Mix::sum;
+  std::string filter_path;
+  std::int64_t filter_out = 0;
+  double filter_gain = 1.414;
+  std::string name;
+};
+
+namespace ops {
+inline OperatorStep into(int rank, std::string state = "") {
+  return OperatorStep({rank, std::move(state)});
+}
+}  // namespace ops
+
+class OperatorSchedule {
+ public:
+  /// Cochain (rank, state) is given as input `name` with `channels` columns.
+  OperatorSchedule& input(std::string name, int rank, std::int64_t channels,
+                          std::string state = "") {
+    inputs_.push_back({std::move(name), {rank, std::move(state)}, channels});
+    return *this;
+  }
+  /// Operator `name` maps rank `source_rank` cochains to rank `target_rank` (target × source).
+  OperatorSchedule& operator_input(std::string name, int source_rank, int target_rank) {
+    operators_[std::move(name)] = {source_rank, target_rank};
+    return *this;
+  }
+  OperatorSchedule& step(OperatorStep s) {
+    name_step(s);
+    groups_.push_back({std::move(s)});
+    return *this;
+  }
+  /// Steps that read one snapshot of the cochains.
+  OperatorSchedule& parallel(std::vector<OperatorStep> steps) {
+    for (auto& s : steps) name_step(s);
+    groups_.push_back(std::move(steps));
+    return *this;
+  }
+  OperatorSchedule& output(std::string name, int rank, std::string state = "") {
+    outputs_.push_back({std::move(name), {rank, std::move(state)}, 0});
+    return *this;
+  }
+
+  struct Port {
+    std::string name;
+    CochainKey key;
+    std::int64_t channels;
+  };
+  const std::vector<Port>& inputs() const { return inputs_; }
+  const std::vector<Port>& outputs() const { return outputs_; }
+  const std::map<std::string, std::pair<int, int>>& operators() const { return operators_; }
+  const std::vector<std::vector<OperatorStep>>& groups() const { return groups_; }
+
+  /// One line per step, e.g. "layer 0 rank 1: (1) = elu(linear(Σ[conv(1)·A1, ...]))".
+  std::string str() const {
+    std::ostringstream o;
+    for (const auto& in : inputs_) o << "input " << in.name << " -> " << in.key.str() << "\n";
+    for (const auto& g : groups_) {
+      if (g.size() > 1) o << "parallel {\n";
+      for (const auto& s : g) o << (g.size() > 1 ? "  " : "") << step_str(s) << "\n";
+      if (g.size() > 1) o << "}\n";
+    }
+    for (const auto& out : outputs_) o << "output " << out.key.str() << " -> " << out.name << "\n";
+    return o.str();
+  }
+
+ private:
+  void name_step(OperatorStep& s) {
+    if (s.name.empty()) s.name = "step " + std::to_string(num_steps_);
+    ++num_steps_;
+  }
+  static std::string ops_str(std::string x, const std::vector<TermOp>& ops) {
+    for (const auto& t : ops) {
+      switch (t.kind) {
+        case TermOp::Kind::via:
+          x = t.name + (t.row_norm ? "~" : "") + "·" + x;
+          break;
+        case TermOp::Kind::via_transposed:
+          x = t.name + "ᵀ" + (t.row_norm ? "~" : "") + "·" + x;
+          break;
+        case TermOp::Kind::pattern:
+          x = std::string(t.aggr == Aggr::mean ? "mean" : "sum") + "|" + t.name + "|·" + x;
+          break;
+        case TermOp::Kind::weight:
+          x = x + "·" + t.name;
+          break;
+        case TermOp::Kind::linear:
+          x = t.name + "(" + x + ")";
+          break;
+        case TermOp::Kind::act:
+          x = "act" + std::to_string(static_cast<int>(t.update)) + "(" + x + ")";
+          break;
+        case TermOp::Kind::dropout:
+          x = "dropout(" + x + ")";
+          break;
+        case TermOp::Kind::unit_rows:
+          x = "unit_rows(" + x + ")";
+          break;
+        case TermOp::Kind::attend:
+          x = "att[" + t.param + "]" + t.name + "·" + x;
+          break;
+        case TermOp::Kind::batch_norm:
+        case TermOp::Kind::layer_norm:
+          x = t.name + "(" + x + ")";
+          break;
+        case TermOp::Kind::initial_residual:
+          x = "residual(" + x + ", " + t.skip.str() + ", " + t.name + ")";
+          break;
+        case TermOp::Kind::powers: {
+          std::string f;
+          for (const auto& [op, k] : t.filters) f += " " + op + "^1.." + std::to_string(k);
+          x = "powers[" + x + ";" + f + "]";
+          break;
+        }
+      }
+    }
+    return x;
+  }
+  static std::string step_str(const OperatorStep& s) {
+    std::string mixed = s.mix == OperatorStep::Mix::filter ? "filter " + s.filter_path + "["
+                        : s.mix == OperatorStep::Mix::mean ? "mean["
+                                                           : "sum[";
+    for (std::size_t i = 0; i < s.terms.size(); ++i)
+      mixed += (i ? ", " : "") + ops_str(s.terms[i].source.str(), s.terms[i].operations());
+    mixed += "]";
+    return s.name + ": " + s.target.str() + " = " + ops_str(mixed, s.operations());
+  }
+
+  std::vector<Port> inputs_, outputs_;
+  std::map<std::string, std::pair<int, int>> operators_;
+  std::vector<std::vector<OperatorStep>> groups_;
+  int num_steps_ = 0;
+};
+
+/// Runs an OperatorSchedule; its parameters sit at the schedule's dotted paths.
+class OperatorNetworkImpl : public torch::nn::Module {
+ public:
+  explicit OperatorNetworkImpl(OperatorSchedule schedule) : schedule_(std::move(schedule)) {
+    validate_and_create();
+  }
+
+  /// Inputs and operators by name -> outputs by name. An operator whose shape does not fit the
+  /// cochains it is applied to is an error naming the step.
+  std::map<std::string, torch::Tensor> forward(
+      const std::map<std::string, torch::Tensor>& inputs,
+      const std::map<std::string, SparseOperator>& operators) {
+    Cochains h;
+    for (const auto& in : schedule_.inputs()) {
+      auto it = inputs.find(in.name);
+      if (it == inputs.end()) throw ScheduleError("input '" + in.name + "' was not given");
+      const auto& x = it->second;
+      if (x.dim() != 2 || x.size(1) != in.channels)
+        throw ScheduleError("input '" + in.name + "' must be (cells × " +
+                            std::to_string(in.channels) + "), got " + shape_str(x));
+      h.set(in.key.rank, in.key.state, x);
+    }
+    Operators ops{&operators, {}};
+    for (const auto& group : schedule_.groups()) {
+      const Cochains snapshot = h;
+      std::vector<std::pair<CochainKey, torch::Tensor>> updates;
+      for (const auto& s : group) updates.emplace_back(s.target, run_step(s, snapshot, ops));
+      for (auto& [k, v] : updates) h.set(k.rank, k.state, std::move(v));
+    }
+    std::map<std::string, torch::Tensor> out;
+    for (const auto& o : schedule_.outputs()) out[o.name] = h.at(o.key.rank, o.key.state);
+    return out;
+  }
+
+  /// The outputs in the order given (a model's positional return value).
+  std::vector<torch::Tensor> run(const std::map<std::string, torch::Tensor>& inputs,
+                                 const std::map<std::string, SparseOperator>& operators,
+                                 const std::vector<std::string>& names) {
+    auto out = forward(inputs, operators);
+    std::vector<torch::Tensor> v;
+    for (const auto& n : names) v.push_back(out.at(n));
+    return v;
+  }
+
+  const OperatorSchedule& schedule() const { return schedule_; }
+  /// The parameter at a schedule path.
+  const torch::Tensor& parameter(const std::string& path) const {
+    auto it = params_.find(path);
+    if (it == params_.end()) throw ScheduleError("no parameter '" + path + "'");
+    return it->second;
+  }
+
+ private:
+  OperatorSchedule schedule_;
+  std::map<std::string, torch::Tensor> params_;
+  std::map<std::string, torch::nn::BatchNorm1d> batch_norms_;
+  std::map<std::string, torch::nn::LayerNorm> layer_norms_;
+
+  struct Operators {
+    const std::map<std::string, SparseOperator>* given;
+    std::map<std::string, SparseOperator> transposed;
+    const SparseOperator& at(const std::string& where, const std::string& name) const {
+      auto it = given->find(name);
+      if (it == given->end())
+        throw ScheduleError(where + ": operator '" + name + "' was not given");
+      return it->second;
+    }
+    const SparseOperator& t(const std::string& where, const std::string& name) {
+      auto it = transposed.find(name);
+      if (it == transposed.end()) it = transposed.emplace(name, at(where, name).t()).first;
+      return it->second;
+    }
+  };
+
+  static std::string shape_str(const torch::Tensor& x) {
+    std::ostringstream o;
+    o << x.sizes();
+    return o.str();
+  }
+
+  static torch::Tensor multiply(const std::string& where, const std::string& name,
+                                const SparseOperator& A, const torch::Tensor& x) {
+    if (A.cols != x.size(0))
+      throw ScheduleError(where + ": operator '" + name + "' has " + std::to_string(A.cols) +
+                          " columns but the cochain it is applied to has " +
+                          std::to_string(x.size(0)) + " rows");
+    return spmm(A, x);
+  }
+
+  torch::Tensor apply(const std::string& where, const CochainKey& target, const TermOp& t,
+                      torch::Tensor x, Operators& ops, const Cochains& h) {
+    switch (t.kind) {
+      case TermOp::Kind::via: {
+        const auto& A = ops.at(where, t.name);
+        auto y = multiply(where, t.name, A, x);
+        return t.row_norm ? y / A.row_sums().to(y.scalar_type()).unsqueeze(1) : y;
+      }
+      case TermOp::Kind::via_transposed: {
+        const auto& A = ops.t(where, t.name);
+        auto y = multiply(where, t.name + "ᵀ", A, x);
+        return t.row_norm ? y / A.row_sums().to(y.scalar_type()).unsqueeze(1) : y;
+      }
+      case TermOp::Kind::attend: {
+        const auto& A = ops.at(where, t.name);
+        if (A.cols != x.size(0)) multiply(where, t.name, A, x);  // throws, naming it
+        const auto& y = h.at(target.rank, target.state);
+        if (A.rows != y.size(0))
+          throw ScheduleError(where + ": operator '" + t.name + "' has " + std::to_string(A.rows) +
+                              " rows but the target cochain has " + std::to_string(y.size(0)));
+        const auto& a = params_.at(t.param);
+        const auto C = x.size(1);
+        const auto raw = pair_scores(A, x, a.narrow(0, 0, C), y, a.narrow(0, C, C));
+        const auto w = attention_weights(A, raw, t.update, t.slope, t.attention_norm);
+        return spmm(A.with_values(w * A.values.to(w.scalar_type())), x);
+      }
+      case TermOp::Kind::batch_norm:
+        return batch_norms_.at(t.name)->forward(x);
+      case TermOp::Kind::layer_norm:
+        return layer_norms_.at(t.name)->forward(x);
+      case TermOp::Kind::pattern: {
+        const auto& A = ops.at(where, t.name);
+        if (A.cols != x.size(0)) multiply(where, t.name, A, x);  // throws, naming it
+        return pattern_aggregate(A, x, t.aggr);
+      }
+      case TermOp::Kind::weight:
+        return x.matmul(params_.at(t.name));
+      case TermOp::Kind::linear: {
+        const auto& b = t.bias ? params_.at(t.name + ".bias") : torch::Tensor();
+        return torch::linear(x, params_.at(t.name + ".weight"), b);
+      }
+      case TermOp::Kind::act:
+        return apply_update(x, t.update, t.slope);
+      case TermOp::Kind::dropout:
+        return torch::dropout(x, t.p, is_training());
+      case TermOp::Kind::unit_rows:
+        return unit_rows(x);
+      case TermOp::Kind::initial_residual: {
+        const auto mixed = (1 - t.p) * x + t.p * h.at(t.skip.rank, t.skip.state);
+        return (1 - t.beta) * mixed + t.beta * torch::linear(mixed, params_.at(t.name + ".weight"));
+      }
+      case TermOp::Kind::powers:
+        break;  // handled by the caller (it fans out)
+    }
+    return x;
+  }
+
+  torch::Tensor run_step(const OperatorStep& s, const Cochains& h, Operators& ops) {
+    const std::string where = s.name + " (into " + s.target.str() + ")";
+    std::vector<torch::Tensor> terms;
+    for (const auto& term : s.terms) {
+      torch::Tensor x = h.at(term.source.rank, term.source.state);
+      for (const auto& t : term.operations()) {
+        if (t.kind != TermOp::Kind::powers) {
+          x = apply(where, s.target, t, x, ops, h);
+          continue;
+        }
+        terms.push_back(x);
+        for (const auto& [name, order] : t.filters) {
+          const auto& A = ops.at(where, name);
+          if (A.cols != x.size(0)) multiply(where, name, A, x);  // throws, naming it
+          for (auto& p : powers(A, x, order, t.row_norm, t.norm_from)) terms.push_back(p);
+        }
+        x = torch::Tensor();
+      }
+      if (x.defined()) terms.push_back(x);
+    }
+    torch::Tensor y;
+    if (s.mix == OperatorStep::Mix::filter) {
+      y = combine_terms(terms, params_.at(s.filter_path));
+    } else {
+      y = terms[0];
+      for (std::size_t i = 1; i < terms.size(); ++i) y = y + terms[i];
+      if (s.mix == OperatorStep::Mix::mean) y = y / static_cast<double>(terms.size());
+    }
+    for (const auto& t : s.operations()) y = apply(where, s.target, t, y, ops, h);
+    return y;
+  }
+
+  // --- construction: channel and rank inference, parameters created at their paths -----------
+
+  /// The module at a dotted path (created empty where missing) and the last name.
+  std::pair<torch::nn::Module*, std::string> owner_of(const std::string& path) {
+    torch::nn::Module* m = this;
+    std::size_t start = 0;
+    for (auto dot = path.find('.'); dot != std::string::npos; dot = path.find('.', start)) {
+      const auto part = path.substr(start, dot - start);
+      auto children = m->named_children();
+      auto* child = children.find(part);
+      m = child != nullptr ? child->get()
+                           : m->register_module(part, std::make_shared<torch::nn::Module>()).get();
+      start = dot + 1;
+    }
+    return {m, path.substr(start)};
+  }
+
+  enum class Init { glorot, linear_weight, linear_bias };
+
+  void make_parameter(const std::string& where, const std::string& path,
+                      std::vector<std::int64_t> shape, Init init, double gain_or_fan_in) {
+    if (path.empty() || path.front() == '.' || path.back() == '.' ||
+        path.find("..") != std::string::npos)
+      throw ScheduleError(where + ": parameter path '" + path + "' is not a dotted name");
+    auto it = params_.find(path);
+    if (it != params_.end()) {
+      if (it->second.sizes() != torch::IntArrayRef(shape))
+        throw ScheduleError(where + ": parameter '" + path + "' is used with shape " +
+                            shape_str(torch::empty(shape)) + " but was made " +
+                            shape_str(it->second));
+      return;
+    }
+    for (auto d : shape)
+      if (d <= 0)
+        throw ScheduleError(where + ": parameter '" + path + "' would have shape " +
+                            shape_str(torch::empty(shape)));
+    auto [owner, leaf] = owner_of(path);
+    auto p = owner->register_parameter(leaf, torch::empty(shape));
+    torch::NoGradGuard g;
+    if (init == Init::glorot) {
+      xavier_uniform(p, gain_or_fan_in);
+    } else if (init == Init::linear_weight) {
+      torch::nn::init::kaiming_uniform_(p, std::sqrt(5.0));
+    } else {
+      const double bound = 1 / std::sqrt(gain_or_fan_in);
+      torch::nn::init::uniform_(p, -bound, bound);
+    }
+    params_.emplace(path, p);
+  }
+
+  /// A normalisation module at t.name (shared by name, like parameters).
+  void make_norm(const std::string& where, const TermOp& t, std::int64_t channels) {
+    const bool batch = t.kind == TermOp::Kind::batch_norm;
+    auto same_width = [&](std::int64_t c) {
+      if (c != channels)
+        throw ScheduleError(where + ": normalisation '" + t.name + "' of " + std::to_string(c) +
+                            " channels applied to " + std::to_string(channels));
+    };
+    if (batch && batch_norms_.count(t.name))
+      return same_width(batch_norms_.at(t.name)->options.num_features());
+    if (!batch && layer_norms_.count(t.name))
+      return same_width(layer_norms_.at(t.name)->options.normalized_shape()[0]);
+    if (params_.count(t.name + ".weight") || batch_norms_.count(t.name) ||
+        layer_norms_.count(t.name))
+      throw ScheduleError(where + ": '" + t.name + "' is already another kind of module");
+    auto [owner, leaf] = owner_of(t.name);
+    if (batch)
+      batch_norms_.emplace(t.name, owner->register_module(leaf, torch::nn::BatchNorm1d(channels)));
+    else
+      layer_norms_.emplace(
+          t.name, owner->register_module(
+                      leaf, torch::nn::LayerNorm(torch::nn::LayerNormOptions({channels}))));
+  }
+
+  struct Shape {
+    int rank;
+    std::int64_t channels;
+  };
+
+  /// Applies an operation to a term's (rank, channels); creates its parameters.
+  Shape infer(const std::string& where, const CochainKey& target, const TermOp& t, Shape x,
+              const std::map<CochainKey, std::int64_t>& width) {
+    const auto& sig = schedule_.operators();
+    auto op = [&](const std::string& name) {
+      auto it = sig.find(name);
+      if (it == sig.end()) throw ScheduleError(where + ": unknown operator '" + name + "'");
+      return it->second;
+    };
+    auto rank_error = [&](const std::string& name, int expected) {
+      return ScheduleError(where + ": operator '" + name + "' applies to rank " +
+                           std::to_string(expected) + " cochains, not rank " +
+                           std::to_string(x.rank));
+    };
+    switch (t.kind) {
+      case TermOp::Kind::via:
+      case TermOp::Kind::pattern: {
+        const auto [src, dst] = op(t.name);
+        if (src != x.rank) throw rank_error(t.name, src);
+        return {dst, x.channels};
+      }
+      case TermOp::Kind::attend: {
+        const auto [src, dst] = op(t.name);
+        if (src != x.rank) throw rank_error(t.name, src);
+        auto w = width.find(target);
+        if (dst != target.rank || w == width.end() || w->second != x.channels)
+          throw ScheduleError(where + ": attention over '" + t.name +
+                              "' scores against the target " + target.str() +
+                              ", which needs a cochain of " + std::to_string(x.channels) +
+                              " channels before the step");
+        make_parameter(where, t.param, {2 * x.channels}, Init::glorot, 1.414);
+        return {dst, x.channels};
+      }
+      case TermOp::Kind::via_transposed: {
+        const auto [src, dst] = op(t.name);
+        if (dst != x.rank) throw rank_error(t.name + "ᵀ", dst);
+        return {src, x.channels};
+      }
+      case TermOp::Kind::weight:
+        make_parameter(where, t.name, {x.channels, t.out}, Init::glorot, t.gain);
+        return {x.rank, t.out};
+      case TermOp::Kind::linear:
+        make_parameter(where, t.name + ".weight", {t.out, x.channels}, Init::linear_weight, 0);
+        if (t.bias)
+          make_parameter(where, t.name + ".bias", {t.out}, Init::linear_bias,
+                         static_cast<double>(x.channels));
+        return {x.rank, t.out};
+      case TermOp::Kind::initial_residual: {
+        auto w = width.find(t.skip);
+        if (w == width.end())
+          throw ScheduleError(where + ": residual cochain " + t.skip.str() + " has no cochain");
+        if (t.skip.rank != x.rank || w->second != x.channels)
+          throw ScheduleError(where + ": residual cochain " + t.skip.str() + " of rank " +
+                              std::to_string(t.skip.rank) + " and " + std::to_string(w->second) +
+                              " channels added to rank " + std::to_string(x.rank) + " and " +
+                              std::to_string(x.channels));
+        make_parameter(where, t.name + ".weight", {x.channels, x.channels}, Init::linear_weight, 0);
+        return x;
+      }
+      case TermOp::Kind::powers:
+        for (const auto& [name, order] : t.filters) {
+          const auto [src, dst] = op(name);
+          if (src != x.rank || dst != x.rank)
+            throw ScheduleError(where + ": filter operator '" + name + "' must map rank " +
+                                std::to_string(x.rank) + " to itself");
+          if (order < 0)
+            throw ScheduleError(where + ": filter order of '" + name + "' is negative");
+        }
+        return x;
+      case TermOp::Kind::batch_norm:
+      case TermOp::Kind::layer_norm:
+        make_norm(where, t, x.channels);
+        return x;
+      case TermOp::Kind::act:
+      case TermOp::Kind::dropout:
+      case TermOp::Kind::unit_rows:
+        return x;
+    }
+    return x;
+  }
+
+  void validate_and_create() {
+    std::map<CochainKey, std::int64_t> width;
+    std::set<std::string> names;
+    for (const auto& in : schedule_.inputs()) {
+      if (!names.insert(in.name).second)
+        throw ScheduleError("input '" + in.name + "' is declared twice");
+      if (in.channels <= 0)
+        throw ScheduleError("input '" + in.name + "' needs a positive number of channels");
+      width[in.key] = in.channels;
+    }
+    for (const auto& group : schedule_.groups()) {
+      auto next = width;
+      std::set<CochainKey> written;
+      for (const auto& s : group) {
+        const std::string where = s.name + " (into " + s.target.str() + ")";
+        if (!written.insert(s.target).second)
+          throw ScheduleError(where + ": another step of the same parallel group writes " +
+                              s.target.str());
+        if (s.terms.empty()) throw ScheduleError(where + ": a step needs at least one term");
+        std::int64_t channels = -1, count = 0;
+        for (const auto& term : s.terms) {
+          auto w = width.find(term.source);
+          if (w == width.end())
+            throw ScheduleError(where + ": source " + term.source.str() +
+                                " has no cochain (no input or earlier step produces it)");
+          Shape x{term.source.rank, w->second};
+          std::int64_t fanned = 1;
+          const auto& list = term.operations();
+          for (std::size_t i = 0; i < list.size(); ++i) {
+            if (list[i].kind == TermOp::Kind::powers) {
+              if (i + 1 != list.size())
+                throw ScheduleError(where + ": powers must be a term's last operation");
+              fanned = 1;
+              for (const auto& f : list[i].filters) fanned += f.second;
+            }
+            x = infer(where, s.target, list[i], x, width);
+          }
+          if (x.rank != s.target.rank)
+            throw ScheduleError(where + ": the term from " + term.source.str() + " ends on rank " +
+                                std::to_string(x.rank) + ", the target is rank " +
+                                std::to_string(s.target.rank));
+          if (channels >= 0 && x.channels != channels)
+            throw ScheduleError(where + ": the term from " + term.source.str() + " has " +
+                                std::to_string(x.channels) + " channels, the one before has " +
+                                std::to_string(channels));
+          channels = x.channels;
+          count += fanned;
+        }
+        Shape y{s.target.rank, channels};
+        if (s.mix == OperatorStep::Mix::filter) {
+          make_parameter(where, s.filter_path, {channels, s.filter_out, count}, Init::glorot,
+                         s.filter_gain);
+          y.channels = s.filter_out;
+        } else if (count != static_cast<std::int64_t>(s.terms.size())) {
+          throw ScheduleError(where + ": polynomial filter terms need a filter weight to mix them");
+        }
+        for (const auto& t : s.operations()) {
+          if (t.kind == TermOp::Kind::powers)
+            throw ScheduleError(where + ": powers apply to terms, not to a step");
+          y = infer(where, s.target, t, y, width);
+        }
+        next[s.target] = y.channels;
+      }
+      width = std::move(next);
+    }
+    for (const auto& o : schedule_.outputs())
+      if (!width.count(o.key))
+        throw ScheduleError("output '" + o.name + "': no cochain " + o.key.str());
+  }
+};
+TORCH_MODULE(OperatorNetwork);
+
+}  // namespace topos::nn
