@@ -217,10 +217,16 @@ const std::map<std::string, std::array<double, 2>> kTopoModelX = {
 
 void run(benchmark::State& state, const std::string& model, const std::string& cname,
          const Complex* complex, bool backward) {
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  const auto rss_before = static_cast<double>(usage.ru_maxrss) / 1024.0;  // KiB on Linux
   std::vector<ZooArg> args;
   auto z = build(model, *complex, args);
   std::vector<torch::Tensor> R;
-  for (const auto& y : z.forward(args)) R.push_back(torch::randn_like(y));
+  {
+    torch::NoGradGuard g;  // the shapes only: a forward with autograd would raise the peak
+    for (const auto& y : z.forward(args)) R.push_back(torch::randn_like(y));
+  }
   auto once = [&] {
     if (!backward) {
       torch::NoGradGuard g;
@@ -246,9 +252,11 @@ void run(benchmark::State& state, const std::string& model, const std::string& c
   if (it != kTopoModelX.end() && state.iterations() > 0)
     state.counters["x_topomodelx"] =
         it->second[backward ? 1 : 0] / (total / static_cast<double>(state.iterations()));
-  rusage usage{};
   getrusage(RUSAGE_SELF, &usage);
-  state.counters["peak_rss_MB"] = static_cast<double>(usage.ru_maxrss) / 1024.0;  // KiB on Linux
+  state.counters["peak_rss_MB"] = static_cast<double>(usage.ru_maxrss) / 1024.0;
+  // The peak before this benchmark built its model: LibTorch and the complexes (one benchmark
+  // per process, bench/zoo_memory.sh, so that it is not an earlier benchmark's peak).
+  state.counters["rss_before_MB"] = rss_before;
 }
 
 // The sparse-dense product alone, side by side with torch's COO kernel (what TopoModelX calls) on

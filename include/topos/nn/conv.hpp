@@ -75,6 +75,16 @@ inline torch::Tensor divide_by_row_sums(const SparseOperator& A, const torch::Te
   return x * inv.unsqueeze(1);
 }
 
+/// A hypergraph model's node features against its node × hyperedge incidence: a clear error
+/// naming the model when the counts differ.
+inline void check_node_features(const char* model, const torch::Tensor& x0,
+                                const SparseOperator& incidence) {
+  if (x0.dim() != 2 || x0.size(0) != incidence.rows)
+    throw std::invalid_argument(
+        std::string(model) + ": " + std::to_string(x0.dim() == 2 ? x0.size(0) : -1) +
+        " node features for an incidence of " + std::to_string(incidence.rows) + " nodes");
+}
+
 /// Messages along A's pattern only (its values ignored, as torch_scatter over a matrix's indices):
 /// each target row gets the sum, or the mean, of its sources' rows; a target without sources gets
 /// zeros (the count is clamped at 1, as scatter_mean does). A two-stage hypergraph message is
@@ -109,6 +119,13 @@ inline std::vector<torch::Tensor> powers(const SparseOperator& A, torch::Tensor 
   return out;
 }
 
+/// Per-entry scores from per-cell ones: s_col[col k] + s_row[row k] (a source's and a target's).
+inline torch::Tensor entry_scores(const SparseOperator& A, const torch::Tensor& s_col,
+                                  const torch::Tensor& s_row) {
+  return s_col.index_select(0, A.col.to(s_col.device())) +
+         s_row.index_select(0, A.row.to(s_row.device()));
+}
+
 /// Per-entry attention scores of A's pattern: score_k = <x_col[col k], a_col> + <x_row[row k],
 /// a_row>
 /// (a target's row and a source's column; GAT's a·[W h_j || W h_i] split in two halves),
@@ -121,9 +138,7 @@ inline torch::Tensor pair_scores(const SparseOperator& A, const torch::Tensor& x
                                 std::to_string(a_col.numel() + a_row.numel()) +
                                 " entries for features of " + std::to_string(x_col.size(1)) +
                                 " + " + std::to_string(x_row.size(1)) + " channels");
-  const auto sc = x_col.matmul(a_col.reshape({-1}));
-  const auto sr = x_row.matmul(a_row.reshape({-1}));
-  return sc.index_select(0, A.col.to(sc.device())) + sr.index_select(0, A.row.to(sr.device()));
+  return entry_scores(A, x_col.matmul(a_col.reshape({-1})), x_row.matmul(a_row.reshape({-1})));
 }
 
 /// How per-entry scores become weights: a per-target softmax, division by the row sum, or as is.
@@ -193,7 +208,7 @@ class ConvImpl : public torch::nn::Module {
     }
     const auto m = weight.defined() ? x_source.matmul(weight) : x_source;
     auto y = spmm(N, m);
-    if (options.aggr_norm()) y = y / N.row_sums().to(y.scalar_type()).unsqueeze(1);
+    if (options.aggr_norm()) y = divide_by_row_sums(N, y);
     return apply_update(y, options.update_func());
   }
   ConvOptions options;
@@ -222,12 +237,53 @@ inline torch::Tensor initial_residual(const torch::Tensor& x, const torch::Tenso
   return (1 - beta) * mixed + beta * W->forward(mixed);
 }
 
+namespace detail {
+// (a I + b A)^k is linear in x and A is a constant here, so its backward is (a I + b Aᵀ)^k applied
+// to the gradient: nothing of the k intermediate products is kept for it.
+struct AffinePowerFunction : public torch::autograd::Function<AffinePowerFunction> {
+  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& x,
+                               const SparseOperator& A, std::int64_t k, double a, double b) {
+    ctx->saved_data["k"] = k, ctx->saved_data["a"] = a, ctx->saved_data["b"] = b;
+    ctx->saved_data["t_crow"] = A.t_crow, ctx->saved_data["t_col"] = A.t_col;
+    ctx->saved_data["t_perm"] = A.t_perm, ctx->saved_data["values"] = A.values;
+    return run(x, A.crow, A.col, A.values, torch::Tensor(), A.rows, k, a, b);
+  }
+  static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx,
+                                               torch::autograd::tensor_list grads) {
+    auto& d = ctx->saved_data;
+    const auto dx = run(grads[0], d["t_crow"].toTensor(), d["t_col"].toTensor(),
+                        d["values"].toTensor(), d["t_perm"].toTensor(), grads[0].size(0),
+                        d["k"].toInt(), d["a"].toDouble(), d["b"].toDouble());
+    return {dx, torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor()};
+  }
+  static torch::Tensor run(torch::Tensor x, const torch::Tensor& crow, const torch::Tensor& col,
+                           const torch::Tensor& values, const torch::Tensor& perm,
+                           std::int64_t rows, std::int64_t k, double a, double b) {
+    torch::NoGradGuard g;
+    const auto v = values.to(x.scalar_type());
+    for (std::int64_t i = 0; i < k; ++i)
+      x = csr_apply(crow, col, v, perm, x, rows).mul_(b).add_(x, a);
+    return x;
+  }
+};
+}  // namespace detail
+
 /// (a I + b A)^k x by k sparse products, never forming the matrix power: SAN's harmonic
-/// projection (I - εL)^k without the dense n × n power.
-inline torch::Tensor apply_affine_power(const SparseOperator& A, torch::Tensor x, int k, double a,
-                                        double b) {
-  for (int i = 0; i < k; ++i) x = a * x + b * spmm(A, x);
-  return x;
+/// projection (I - εL)^k without the dense n × n power. A must be square and constant (its
+/// values are not differentiated); the backward keeps no intermediate product.
+inline torch::Tensor apply_affine_power(const SparseOperator& A, const torch::Tensor& x, int k,
+                                        double a, double b) {
+  if (A.rows != A.cols || x.dim() != 2 || x.size(0) != A.cols)
+    throw std::invalid_argument("apply_affine_power: needs a square operator of " +
+                                std::to_string(x.size(0)) + " rows, got " + std::to_string(A.rows) +
+                                " x " + std::to_string(A.cols));
+  if (k == 0) return x;
+  if (!x.device().is_cpu() || A.values.requires_grad()) {
+    auto y = x;
+    for (int i = 0; i < k; ++i) y = a * y + b * spmm(A, y);
+    return y;
+  }
+  return detail::AffinePowerFunction::apply(x, A, static_cast<std::int64_t>(k), a, b);
 }
 
 /// A named group of submodules with no parameters of its own, to reproduce a parameter path

@@ -245,7 +245,6 @@ class OperatorStep : public ops::Chain<OperatorStep> {
   Mix mix = Mix::sum;
   std::string filter_path;
   std::int64_t filter_out = 0;
-  double filter_gain = 1.414;
   std::string name;
 };
 
@@ -455,31 +454,35 @@ class OperatorNetworkImpl : public torch::nn::Module {
     return o.str();
   }
 
-  static torch::Tensor multiply(const std::string& where, const std::string& name,
-                                const SparseOperator& A, const torch::Tensor& x) {
+  /// A clear error naming the step and the operator when A cannot be applied to x.
+  static void check_fits(const std::string& where, const std::string& name, const SparseOperator& A,
+                         const torch::Tensor& x) {
     if (A.cols != x.size(0))
       throw ScheduleError(where + ": operator '" + name + "' has " + std::to_string(A.cols) +
                           " columns but the cochain it is applied to has " +
                           std::to_string(x.size(0)) + " rows");
-    return spmm(A, x);
+  }
+
+  /// A · x, divided by A's row sums with `row_norm` (0 where a row sums to 0).
+  static torch::Tensor multiply(const std::string& where, const std::string& name,
+                                const SparseOperator& A, const torch::Tensor& x, bool row_norm) {
+    check_fits(where, name, A, x);
+    const auto y = spmm(A, x);
+    return row_norm ? divide_by_row_sums(A, y) : y;
   }
 
   torch::Tensor apply(const std::string& where, const CochainKey& target, const TermOp& t,
                       torch::Tensor x, Operators& ops, const Cochains& h) {
     switch (t.kind) {
       case TermOp::Kind::via: {
-        const auto& A = ops.at(where, t.name);
-        auto y = multiply(where, t.name, A, x);
-        return t.row_norm ? y / A.row_sums().to(y.scalar_type()).unsqueeze(1) : y;
+        return multiply(where, t.name, ops.at(where, t.name), x, t.row_norm);
       }
       case TermOp::Kind::via_transposed: {
-        const auto& A = ops.t(where, t.name);
-        auto y = multiply(where, t.name + "ᵀ", A, x);
-        return t.row_norm ? y / A.row_sums().to(y.scalar_type()).unsqueeze(1) : y;
+        return multiply(where, t.name + "ᵀ", ops.t(where, t.name), x, t.row_norm);
       }
       case TermOp::Kind::attend: {
         const auto& A = ops.at(where, t.name);
-        if (A.cols != x.size(0)) multiply(where, t.name, A, x);  // throws, naming it
+        check_fits(where, t.name, A, x);
         const auto& y = h.at(target.rank, target.state);
         if (A.rows != y.size(0))
           throw ScheduleError(where + ": operator '" + t.name + "' has " + std::to_string(A.rows) +
@@ -496,7 +499,7 @@ class OperatorNetworkImpl : public torch::nn::Module {
         return layer_norms_.at(t.name)->forward(x);
       case TermOp::Kind::pattern: {
         const auto& A = ops.at(where, t.name);
-        if (A.cols != x.size(0)) multiply(where, t.name, A, x);  // throws, naming it
+        check_fits(where, t.name, A, x);
         return pattern_aggregate(A, x, t.aggr);
       }
       case TermOp::Kind::weight:
@@ -534,7 +537,7 @@ class OperatorNetworkImpl : public torch::nn::Module {
         terms.push_back(x);
         for (const auto& [name, order] : t.filters) {
           const auto& A = ops.at(where, name);
-          if (A.cols != x.size(0)) multiply(where, name, A, x);  // throws, naming it
+          check_fits(where, name, A, x);
           for (auto& p : powers(A, x, order, t.row_norm, t.norm_from)) terms.push_back(p);
         }
         x = torch::Tensor();
@@ -764,7 +767,7 @@ class OperatorNetworkImpl : public torch::nn::Module {
         Shape y{s.target.rank, channels};
         if (s.mix == OperatorStep::Mix::filter) {
           make_parameter(where, s.filter_path, {channels, s.filter_out, count}, Init::glorot,
-                         s.filter_gain);
+                         1.414);
           y.channels = s.filter_out;
         } else if (count != static_cast<std::int64_t>(s.terms.size())) {
           throw ScheduleError(where + ": polynomial filter terms need a filter weight to mix them");

@@ -229,7 +229,8 @@ struct SparseOperator {
     }
     return from_triplets(a.rows, a.cols, r, c, v, a.values.scalar_type());
   }
-  /// A + B (same shape): the union of both patterns.
+  /// A + B (same shape): the union of both patterns (entries that sum to zero dropped), by a
+  /// merge of the sorted rows, O(nnz). Operator algebra, not differentiable.
   static SparseOperator sum(const SparseOperator& a, const SparseOperator& b) {
     if (a.rows != b.rows || a.cols != b.cols)
       throw std::invalid_argument("SparseOperator::sum: shapes differ");
@@ -238,14 +239,36 @@ struct SparseOperator {
       return std::vector<std::int64_t>(c.data_ptr<std::int64_t>(),
                                        c.data_ptr<std::int64_t>() + c.numel());
     };
-    auto r = vec(a.row), c = vec(a.col);
-    auto rb = vec(b.row), cb = vec(b.col);
-    r.insert(r.end(), rb.begin(), rb.end());
-    c.insert(c.end(), cb.begin(), cb.end());
-    const auto vals =
-        torch::cat({a.values.detach(), b.values.detach()}).to(torch::kDouble).contiguous();
-    std::vector<double> v(vals.data_ptr<double>(), vals.data_ptr<double>() + vals.numel());
-    return from_triplets(a.rows, a.cols, r, c, v, a.values.scalar_type());
+    auto dvec = [](const torch::Tensor& t) {
+      const auto c = t.detach().to(torch::kCPU, torch::kDouble).contiguous();
+      return std::vector<double>(c.data_ptr<double>(), c.data_ptr<double>() + c.numel());
+    };
+    const auto ca = vec(a.crow), cola = vec(a.col), cb = vec(b.crow), colb = vec(b.col);
+    const auto va = dvec(a.values), vb = dvec(b.values);
+    const bool single = a.values.scalar_type() == torch::kFloat;
+    std::vector<std::int64_t> r, c;
+    std::vector<double> v;
+    r.reserve(cola.size() + colb.size()), c.reserve(r.capacity()), v.reserve(r.capacity());
+    auto emit = [&](std::int64_t i, std::int64_t j, double x) {
+      if (single ? static_cast<float>(x) != 0.0f : x != 0.0)
+        r.push_back(i), c.push_back(j), v.push_back(x);
+    };
+    for (std::int64_t i = 0; i < a.rows; ++i) {
+      auto p = ca[static_cast<std::size_t>(i)], q = cb[static_cast<std::size_t>(i)];
+      const auto pe = ca[static_cast<std::size_t>(i) + 1], qe = cb[static_cast<std::size_t>(i) + 1];
+      while (p < pe || q < qe) {
+        const auto jp = p < pe ? cola[static_cast<std::size_t>(p)] : a.cols;
+        const auto jq = q < qe ? colb[static_cast<std::size_t>(q)] : b.cols;
+        if (jp < jq)
+          emit(i, jp, va[static_cast<std::size_t>(p++)]);
+        else if (jq < jp)
+          emit(i, jq, vb[static_cast<std::size_t>(q++)]);
+        else
+          emit(i, jp, va[static_cast<std::size_t>(p++)] + vb[static_cast<std::size_t>(q++)]);
+      }
+    }
+    return from_sorted(a.rows, a.cols, r, c,
+                       torch::tensor(v, torch::kDouble).to(a.values.scalar_type()));
   }
 };
 

@@ -105,10 +105,7 @@ class AllSetTransformerImpl : public torch::nn::Module {
   }
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
   std::vector<torch::Tensor> forward(torch::Tensor x0, const nn::SparseOperator& incidence_1) {
-    if (x0.size(0) != incidence_1.rows)
-      throw std::invalid_argument("AllSetTransformer: " + std::to_string(x0.size(0)) +
-                                  " node features for an incidence of " +
-                                  std::to_string(incidence_1.rows) + " nodes");
+    nn::check_node_features("AllSetTransformer", x0, incidence_1);
     const auto B = incidence_1.pattern(), Bt = B.t();
     torch::Tensor x1;
     for (std::size_t l = 0; l < v2e_.size(); ++l) {

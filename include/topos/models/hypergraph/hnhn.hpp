@@ -62,10 +62,7 @@ class HNHNImpl : public torch::nn::Module {
   }
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
   std::vector<torch::Tensor> forward(torch::Tensor x0, const nn::SparseOperator& incidence_1) {
-    if (x0.size(0) != incidence_1.rows)
-      throw std::invalid_argument("HNHN: " + std::to_string(x0.size(0)) +
-                                  " node features for an incidence of " +
-                                  std::to_string(incidence_1.rows) + " nodes");
+    nn::check_node_features("HNHN", x0, incidence_1);
     nn::SparseOperator B = incidence_1, Bt = incidence_1.t();
     if (options.use_normalized_incidence())
       std::tie(B, Bt) = hnhn_normalized_incidences(incidence_1, options.alpha(), options.beta());

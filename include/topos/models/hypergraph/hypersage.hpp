@@ -55,10 +55,7 @@ class HyperSAGEImpl : public torch::nn::Module {
   }
   /// x_0 (nodes) and the node × hyperedge incidence (its pattern); returns {x_0}.
   std::vector<torch::Tensor> forward(torch::Tensor x, const nn::SparseOperator& incidence_1) {
-    if (x.size(0) != incidence_1.rows)
-      throw std::invalid_argument("HyperSAGE: " + std::to_string(x.size(0)) +
-                                  " node features for an incidence of " +
-                                  std::to_string(incidence_1.rows) + " nodes");
+    nn::check_node_features("HyperSAGE", x, incidence_1);
     const auto P = incidence_1.pattern().to(x.scalar_type());
     const double p = options.power();
     for (auto& w : weights_) {

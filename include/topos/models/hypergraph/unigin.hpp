@@ -43,10 +43,7 @@ class UniGINImpl : public torch::nn::Module {
   }
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
   std::vector<torch::Tensor> forward(torch::Tensor x0, const nn::SparseOperator& incidence_1) {
-    if (x0.size(0) != incidence_1.rows)
-      throw std::invalid_argument("UniGIN: " + std::to_string(x0.size(0)) +
-                                  " node features for an incidence of " +
-                                  std::to_string(incidence_1.rows) + " nodes");
+    nn::check_node_features("UniGIN", x0, incidence_1);
     const auto Bt = incidence_1.t();
     if (!options.topomodelx_compatible())
       x0 = torch::dropout(x0, options.input_drop(), is_training());

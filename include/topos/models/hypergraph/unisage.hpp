@@ -51,10 +51,7 @@ class UniSAGEImpl : public nn::OperatorNetworkImpl {
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
   std::vector<torch::Tensor> forward(const torch::Tensor& x0,
                                      const nn::SparseOperator& incidence_1) {
-    if (x0.size(0) != incidence_1.rows)
-      throw std::invalid_argument("UniSAGE: " + std::to_string(x0.size(0)) +
-                                  " node features for an incidence of " +
-                                  std::to_string(incidence_1.rows) + " nodes");
+    nn::check_node_features("UniSAGE", x0, incidence_1);
     return run({{"x_0", x0}}, {{"incidence_1", incidence_1}}, {"x_0", "x_1"});
   }
   UniSAGEOptions options;

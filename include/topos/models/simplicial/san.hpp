@@ -32,16 +32,22 @@ class SANConvImpl : public torch::nn::Module {
     nn::xavier_uniform(att_weight);
   }
   torch::Tensor forward(const torch::Tensor& x, const nn::SparseOperator& L) {
-    const auto m = torch::matmul(x, weight);  // filters × n × out
-    const auto flat = m.permute({1, 0, 2}).reshape({x.size(0), out_ * filters_});
-    const auto C = out_ * filters_;
-    const auto raw =
-        nn::pair_scores(L, flat, att_weight.narrow(0, 0, C), flat, att_weight.narrow(0, C, C));
-    const auto A = L.with_values(
-        nn::attention_weights(L, raw, nn::Update::elu, 0, nn::AttentionNorm::softmax));
+    // TopoModelX scores the filters' outputs side by side, [x W_0 || x W_1 || ...] · a; the same
+    // sum is taken filter by filter, without the concatenated copy.
+    std::vector<torch::Tensor> m;
+    const auto a = att_weight.view({2, filters_, out_});
+    torch::Tensor s_col, s_row;
+    for (int p = 0; p < filters_; ++p) {
+      m.push_back(x.mm(weight[p]));
+      const auto sc = m[p].mv(a[0][p]), sr = m[p].mv(a[1][p]);
+      s_col = s_col.defined() ? s_col + sc : sc;
+      s_row = s_row.defined() ? s_row + sr : sr;
+    }
+    const auto A = L.with_values(nn::attention_weights(
+        L, nn::entry_scores(L, s_col, s_row), nn::Update::elu, 0, nn::AttentionNorm::softmax));
     torch::Tensor y;
     for (int p = 0; p < filters_; ++p) {  // A^(p+1) m_p
-      auto z = m[p];
+      auto z = m[static_cast<std::size_t>(p)];
       for (int q = 0; q <= p; ++q) z = nn::spmm(A, z);
       y = y.defined() ? y + z : z;
     }
