@@ -278,7 +278,8 @@ int main(int argc, char** argv) {
   // Freed tensors stay in the heap instead of going back to the kernel: without it every
   // grid101-sized temporary is a fresh mmap whose pages fault in again (SCN2's grid101
   // forward+backward took twice as long). What the hopnet trainer does too.
-  nn::keep_freed_memory();
+  // TOPOS_BENCH_SYSTEM_MALLOC=1 leaves glibc's defaults (to compare peak memory with them).
+  if (std::getenv("TOPOS_BENCH_SYSTEM_MALLOC") == nullptr) nn::keep_freed_memory();
   benchmark::Initialize(&argc, argv);
   std::map<std::string, Complex> complexes;
   try {

@@ -135,6 +135,16 @@ TEST_CASE("operator algebra: entrywise product, self loops, mirrored rows", "[nn
   REQUIRE(H.nnz() == (A.to_dense().ne(0) & B.to_dense().ne(0)).sum().item<std::int64_t>());
   REQUIRE_THROWS_WITH(SparseOperator::hadamard(A, random_operator(9, 8, 0.5, torch::kDouble, 1)),
                       Catch::Contains("shapes differ"));
+  // Sum: the union of both patterns, entries that cancel dropped, the transpose kept consistent.
+  const auto S = SparseOperator::sum(A, B);
+  REQUIRE(torch::allclose(S.to_dense(), A.to_dense() + B.to_dense()));
+  REQUIRE(S.nnz() == (A.to_dense() + B.to_dense()).ne(0).sum().item<std::int64_t>());
+  REQUIRE(torch::allclose(S.t().to_dense(), (A.to_dense() + B.to_dense()).t()));
+  const auto Z = SparseOperator::sum(A, A.with_values(-A.values));
+  REQUIRE(Z.nnz() == 0);
+  REQUIRE(torch::equal(Z.crow, torch::zeros({10}, torch::kLong)));
+  REQUIRE_THROWS_WITH(SparseOperator::sum(A, random_operator(9, 8, 0.5, torch::kDouble, 1)),
+                      Catch::Contains("shapes differ"));
   // Self loops: the pattern with the diagonal, values one, even where a diagonal entry was
   // negative.
   auto d = A.to_dense();
@@ -206,8 +216,20 @@ TEST_CASE("polynomial filters and the affine power equal dense matrix powers", "
   REQUIRE(p.size() == 3);
   REQUIRE(torch::allclose(p[2], torch::linalg_matrix_power(D, 3).matmul(x)));
   const auto I = torch::eye(12, torch::kDouble);
-  REQUIRE(torch::allclose(apply_affine_power(A, x, 5, 1.0, -0.1),
-                          torch::linalg_matrix_power(I - 0.1 * D, 5).matmul(x)));
+  const auto M = torch::linalg_matrix_power(I - 0.1 * D, 5);
+  REQUIRE(torch::allclose(apply_affine_power(A, x, 5, 1.0, -0.1), M.matmul(x)));
+  // Its own backward, (I - 0.1 Dᵀ)^5 on the gradient, against autograd through the dense power.
+  const auto xg = x.clone().requires_grad_(true);
+  const auto R = torch::randn({12, 3}, torch::kDouble);
+  (apply_affine_power(A, xg, 5, 1.0, -0.1) * R).sum().backward();
+  const auto xd = x.clone().requires_grad_(true);
+  (M.matmul(xd) * R).sum().backward();
+  REQUIRE(torch::allclose(xg.grad(), xd.grad(), 1e-12, 1e-12));
+  REQUIRE(torch::allclose(xg.grad(), M.t().matmul(R), 1e-12, 1e-12));
+  REQUIRE(apply_affine_power(A, x, 0, 1.0, -0.1).equal(x));
+  REQUIRE_THROWS_WITH(
+      apply_affine_power(random_operator(12, 5, 0.3, torch::kDouble, 1), x, 2, 1, 1),
+      Catch::Contains("square operator"));
   // Row-normalised powers: 0 where a row sums to 0.
   auto inv = D.sum(1).reciprocal();
   inv = torch::where(torch::isfinite(inv), inv, torch::zeros_like(inv));
