@@ -29,6 +29,13 @@ std::set<std::string> parameter_names(const torch::nn::Module& m) {
   return out;
 }
 
+// Softmax over each row's entries where D != 0, empty rows zeros (row_softmax, densely).
+torch::Tensor masked_softmax(const torch::Tensor& scores, const torch::Tensor& D) {
+  const auto w =
+      torch::softmax(torch::where(D != 0, scores, torch::full_like(scores, -INFINITY)), 1);
+  return torch::where(torch::isnan(w), torch::zeros_like(w), w);
+}
+
 // The error message of building `s`, or "" when it builds.
 std::string build_error(const OperatorSchedule& s) {
   try {
@@ -136,6 +143,159 @@ TEST_CASE("attention in a schedule: TopoModelX's Conv with att, and a per-target
   CHECK(torch::allclose(out.at("soft"), (weights * D).mm(x1), 1e-10, 1e-12));
 }
 
+TEST_CASE("multi-head attention: per-head GAT scores, concatenated or averaged heads, dropout",
+          "[nn][schedule][attention]") {
+  const auto A = dense_operator(6, 6, 21);
+  torch::manual_seed(22);
+  const auto x = torch::randn({6, 4}, torch::kDouble);
+  auto gat = [](bool concat) {
+    return AttendOptions("att.src")
+        .target_param("att.dst")
+        .shape({1, 2, 2})
+        .target_shape({1, 2, 2})
+        .gain(1.0)
+        .heads(2)
+        .concat(concat)
+        .queries(CochainKey{0, ""})
+        .activation(Update::leaky_relu)
+        .negative_slope(0.2)
+        .norm(AttentionNorm::softmax);
+  };
+  OperatorSchedule s;
+  s.input("x", 0, 4).operator_input("A", 0, 0);
+  s.parallel({into(0, "cat").sum(from(0).attend("A", gat(true))),
+              into(0, "mean").sum(from(0).attend("A", gat(false))),
+              into(0, "drop").sum(from(0).attend("A", gat(true).dropout(1.0)))});
+  s.output("cat", 0, "cat").output("mean", 0, "mean").output("drop", 0, "drop");
+  OperatorNetwork net(s);
+  net->to(torch::kDouble);
+  CHECK(parameter_names(*net) == std::set<std::string>{"att.src", "att.dst"});
+  CHECK(net->parameter("att.dst").sizes() == torch::IntArrayRef({1, 2, 2}));
+  net->eval();
+  const auto out = net->forward({{"x", x}}, {{"A", A}});
+  // Head h: softmax over i's entries of leaky_relu(a_s,h·x_h[j] + a_t,h·x_h[i]), messages x_h.
+  const auto D = A.to_dense();
+  std::vector<torch::Tensor> heads;
+  for (int h = 0; h < 2; ++h) {
+    const auto xh = x.narrow(1, 2 * h, 2);
+    const auto a_s = net->parameter("att.src")[0][h], a_t = net->parameter("att.dst")[0][h];
+    const auto scores =
+        torch::leaky_relu(xh.matmul(a_s).unsqueeze(0) + xh.matmul(a_t).unsqueeze(1), 0.2);
+    heads.push_back((masked_softmax(scores, D) * D).mm(xh));
+  }
+  CHECK(torch::allclose(out.at("cat"), torch::cat(heads, 1), 1e-10, 1e-12));
+  CHECK(torch::allclose(out.at("mean"), (heads[0] + heads[1]) / 2, 1e-10, 1e-12));
+  CHECK(torch::equal(out.at("drop"), out.at("cat")));  // dropout on the weights: training only
+  net->train();
+  CHECK(torch::equal(net->forward({{"x", x}}, {{"A", A}}).at("drop"),
+                     torch::zeros({6, 4}, torch::kDouble)));
+}
+
+TEST_CASE("GATv2 attention: one vector after the activation of keys plus queries",
+          "[nn][schedule][attention]") {
+  const auto A = dense_operator(5, 5, 23);
+  torch::manual_seed(24);
+  const auto x = torch::randn({5, 4}, torch::kDouble), d = torch::randn({5, 4}, torch::kDouble);
+  OperatorSchedule s;
+  s.input("x", 0, 4).input("d", 0, 4, "dst").operator_input("A", 0, 0);
+  s.step(into(0, "y").sum(from(0).attend("A", AttendOptions("att")
+                                                  .shape({1, 2, 2})
+                                                  .v2(true)
+                                                  .heads(2)
+                                                  .queries(CochainKey{0, "dst"})
+                                                  .activation(Update::leaky_relu)
+                                                  .negative_slope(0.2)
+                                                  .norm(AttentionNorm::softmax))));
+  s.output("y", 0, "y");
+  OperatorNetwork net(s);
+  net->to(torch::kDouble);
+  const auto out = net->forward({{"x", x}, {"d", d}}, {{"A", A}}).at("y");
+  // Entry (i, j) of head h: a_h · leaky_relu(x_j + d_i) over the head's channels.
+  const auto D = A.to_dense();
+  const auto a = net->parameter("att").reshape({2, 2});
+  const auto e = torch::leaky_relu(x.unsqueeze(0) + d.unsqueeze(1), 0.2);  // [i][j] = x_j + d_i
+  std::vector<torch::Tensor> heads;
+  for (int h = 0; h < 2; ++h) {
+    const auto scores = e.narrow(2, 2 * h, 2).matmul(a[h]);
+    heads.push_back((masked_softmax(scores, D) * D).mm(x.narrow(1, 2 * h, 2)));
+  }
+  CHECK(torch::allclose(out, torch::cat(heads, 1), 1e-10, 1e-12));
+}
+
+TEST_CASE(
+    "attention with keys and queries from other cochains, source-only scores, feature "
+    "activation and a transposed operator",
+    "[nn][schedule][attention]") {
+  const auto B = dense_operator(5, 7, 25);  // edges (7) -> nodes (5)
+  torch::manual_seed(26);
+  const auto x0 = torch::randn({5, 4}, torch::kDouble), x1 = torch::randn({7, 4}, torch::kDouble);
+  const auto keys = torch::randn({7, 3}, torch::kDouble),
+             queries = torch::randn({5, 2}, torch::kDouble);
+  OperatorSchedule s;
+  s.input("x_0", 0, 4).input("x_1", 1, 4).input("k", 1, 3, "keys").input("q", 0, 2, "queries");
+  s.operator_input("B", 1, 0);
+  s.step(into(1, "src").sum(from(0).attend("B", AttendOptions("a1")
+                                                    .transposed(true)
+                                                    .source_only(true)
+                                                    .feature_activation(Update::leaky_relu)
+                                                    .activation(Update::none)
+                                                    .norm(AttentionNorm::softmax))));
+  s.step(into(0, "kq").sum(from(1).attend("B", AttendOptions("a2")
+                                                   .shape({5, 1})
+                                                   .keys(CochainKey{1, "keys"})
+                                                   .queries(CochainKey{0, "queries"}))));
+  s.output("src", 1, "src").output("kq", 0, "kq");
+  OperatorNetwork net(s);
+  net->to(torch::kDouble);
+  CHECK(net->parameter("a1").sizes() == torch::IntArrayRef({4}));
+  CHECK(net->parameter("a2").sizes() == torch::IntArrayRef({5, 1}));
+  const auto out =
+      net->forward({{"x_0", x0}, {"x_1", x1}, {"k", keys}, {"q", queries}}, {{"B", B}});
+  const auto D = B.to_dense(), Dt = D.t();
+  // Each edge: softmax over its nodes j of a1·leaky_relu_0.01(x0_j), messages x0_j (over Bᵀ).
+  const auto s1 = torch::leaky_relu(x0, 0.01).matmul(net->parameter("a1"));
+  const auto scores1 = s1.unsqueeze(0).expand({7, 5});
+  CHECK(torch::allclose(out.at("src"), (masked_softmax(scores1, Dt) * Dt).mm(x0), 1e-10, 1e-12));
+  // Each node i, edge j: elu(a2[:3]·keys_j + a2[3:]·queries_i) times B's value, messages x1_j.
+  const auto a2 = net->parameter("a2").reshape({-1});
+  const auto scores2 = torch::elu(keys.matmul(a2.narrow(0, 0, 3)).unsqueeze(0) +
+                                  queries.matmul(a2.narrow(0, 3, 2)).unsqueeze(1));
+  CHECK(torch::allclose(out.at("kq"), (scores2 * D).mm(x1), 1e-10, 1e-12));
+}
+
+TEST_CASE("head weights, a bias, a constant scale, concatenated terms, declared parameters",
+          "[nn][schedule]") {
+  torch::manual_seed(27);
+  const auto x = torch::randn({4, 3}, torch::kDouble);
+  OperatorSchedule s;
+  s.input("x", 0, 3);
+  s.step(into(0, "h").sum(from(0).head_weights("hw", 2, 5)).bias("b", {2, 1, 5}).scale(0.5));
+  s.step(into(0, "c").concat(from(0), from(0, "h")));
+  s.parameter("unused.w", {3, 1}, 1.0);
+  s.output("h", 0, "h").output("c", 0, "c");
+  OperatorNetwork net(s);
+  net->to(torch::kDouble);
+  CHECK(parameter_names(*net) == std::set<std::string>{"hw", "b", "unused.w"});
+  CHECK(net->parameter("hw").sizes() == torch::IntArrayRef({2, 3, 5}));
+  CHECK(net->parameter("unused.w").sizes() == torch::IntArrayRef({3, 1}));
+  const auto& b = net->parameter("b");
+  CHECK(torch::equal(b, torch::zeros({2, 1, 5}, torch::kDouble)));  // a new bias is zero
+  {
+    torch::NoGradGuard g;
+    b.copy_(torch::randn({2, 1, 5}, torch::kDouble));
+  }
+  const auto out = net->forward({{"x", x}}, {});
+  const auto& W = net->parameter("hw");
+  const auto h = 0.5 * (torch::cat({x.mm(W[0]), x.mm(W[1])}, 1) + b.reshape({1, -1}));
+  CHECK(torch::allclose(out.at("h"), h, 1e-12, 1e-12));
+  CHECK(torch::allclose(out.at("c"), torch::cat({x, h}, 1), 1e-12, 1e-12));
+  CHECK_THAT(s.str(), Contains("cat[") && Contains("parameter unused.w"));
+  // A selection operator gathers rows: S x = x[index].
+  const auto index = torch::tensor({2, 0, 2}, torch::kLong);
+  const auto S = SparseOperator::selection(index, 4);
+  CHECK(torch::equal(spmm(S, x), x.index_select(0, index)));
+}
+
 TEST_CASE("a bad operator schedule is an error naming its step", "[nn][schedule]") {
   auto base = [] {
     OperatorSchedule s;
@@ -203,6 +363,30 @@ TEST_CASE("a bad operator schedule is an error naming its step", "[nn][schedule]
     s.output("y", 2);
     CHECK_THAT(build_error(s), Contains("output 'y': no cochain (2)"));
   }
+  // The attention options and the other operations.
+  auto error = [&](OperatorStep step) {
+    auto s = base();
+    s.step(std::move(step.named("bad")));
+    return build_error(s);
+  };
+  CHECK_THAT(error(into(0).sum(from(1).attend("B", AttendOptions("att").heads(3)))),
+             Contains("bad") && Contains("with 3 heads"));
+  CHECK_THAT(error(into(0).sum(from(1).attend("B", AttendOptions("att").v2(true)))),
+             Contains("bad") && Contains("(GATv2) needs queries as wide as its keys, got 3 and 2"));
+  CHECK_THAT(error(into(0).sum(
+                 from(1).attend("B", AttendOptions("att").source_only(true).target_param("t")))),
+             Contains("bad") && Contains("has no target part for 't'"));
+  CHECK_THAT(
+      error(into(0).sum(from(1).attend("B", AttendOptions("att").keys(CochainKey{1, "nope"})))),
+      Contains("bad") && Contains("takes its keys from (1, \"nope\")"));
+  CHECK_THAT(error(into(0).sum(from(1).attend("B", AttendOptions("att").shape({3, 1})))),
+             Contains("bad") && Contains("needs 5 entries in 'att', its shape [3, 1] has 3"));
+  CHECK_THAT(error(into(0).sum(from(1).attend("B", AttendOptions("att").dropout(1.5)))),
+             Contains("bad") && Contains("needs a dropout rate in [0, 1]"));
+  CHECK_THAT(error(into(0).sum(from(0)).bias("b", {2})),
+             Contains("bad") && Contains("bias 'b' of shape [2] added to 3 channels"));
+  CHECK_THAT(error(into(0).sum(from(0).head_weights("w", 0, 2))),
+             Contains("bad") && Contains("head weights 'w' need at least one head"));
   // At run time: a missing input or operator, an operator of the wrong size.
   auto s = base();
   s.step(into(0).sum(from(1).via("B")).named("gather"));
@@ -244,4 +428,24 @@ TEST_CASE("the zoo's schedules create TopoModelX's parameter names and shapes",
   CHECK(sccnn->parameter("layers.0.weight_1").sizes() == torch::IntArrayRef({6, 6, 11}));
   CHECK(sccnn->parameter("layers.0.weight_2").sizes() == torch::IntArrayRef({6, 6, 8}));
   CHECK_THAT(sccnn->schedule().str(), Contains("parallel {"));
+
+  // HyperGAT's compatible mode keeps the attention vectors it does not use.
+  models::HyperGAT hypergat(models::HyperGATOptions(3, 4).n_layers(1).topomodelx_compatible(true));
+  CHECK(parameter_names(*hypergat) == std::set<std::string>{"layers.0.weight1", "layers.0.weight2",
+                                                            "layers.0.att_weight1",
+                                                            "layers.0.att_weight2"});
+  CHECK(hypergat->parameter("layers.0.att_weight2").sizes() == torch::IntArrayRef({8, 1}));
+  // CAN v2 with shared weights: lin_dst is lin_src, under both names (TopoModelX's state_dict).
+  models::CAN can(models::CANOptions(2, 3, 4).n_layers(1).version("v2").share_weights(true));
+  auto named = can->named_parameters();
+  REQUIRE(named.contains("layers.0.upper_att.lin_dst.weight"));
+  CHECK(named["layers.0.upper_att.lin_dst.weight"].is_same(
+      named["layers.0.upper_att.lin_src.weight"]));
+  CHECK(named["layers.0.upper_att.att_weight"].sizes() == torch::IntArrayRef({1, 2, 2}));
+  // AllSetTransformer: TopoModelX's multi-head layout.
+  models::AllSetTransformer allset(models::AllSetTransformerOptions(3, 8).heads(2));
+  CHECK(allset->parameter("layers.0.vertex2edge.multihead_att.K_weight").sizes() ==
+        torch::IntArrayRef({2, 3, 4}));
+  CHECK(allset->parameter("layers.0.edge2vertex.multihead_att.Q_weight").sizes() ==
+        torch::IntArrayRef({2, 1, 4}));
 }

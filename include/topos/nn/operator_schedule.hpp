@@ -19,11 +19,13 @@
 //
 // A term starts at a cochain (rank, state) and applies its operations in order: operators
 // (`via`, `via_t` for the transpose, `pattern` for the sparsity pattern alone), learned maps
-// (`conv`/`weight`: x·W with W in × out, TopoModelX's Conv layout; `linear`: torch.nn.Linear),
-// activations, dropout, and last, optionally, a polynomial filter (`powers`) that fans the term
-// out into [y, A y, ..., A^K y]. A step mixes its terms (sum, mean, or a filter weight over all
-// of them), applies its own operations, and writes the target cochain. Steps run in sequence; a
-// parallel group reads one snapshot (a layer that updates every rank at once).
+// (`conv`/`weight`: x·W with W in × out, TopoModelX's Conv layout; `linear`: torch.nn.Linear;
+// `head_weights`, `bias`), activations, dropout, attention (`attend`: GAT or GATv2 scores, one or
+// several heads, keys and queries from other cochains), and last, optionally, a polynomial filter
+// (`powers`) that fans the term out into [y, A y, ..., A^K y]. A step mixes its terms (sum, mean,
+// concatenation, or a filter weight over all of them), applies its own operations, and writes
+// the target cochain. Steps run in sequence; a parallel group reads one snapshot (a layer that
+// updates every rank at once).
 //
 // Parameters are created at the dotted paths the schedule names ("layers.0.conv_0_to_0.weight"),
 // with their shapes inferred from the channels, so a TopoModelX state_dict loads by its own
@@ -38,8 +40,10 @@
 
 #include <torch/torch.h>
 
+#include <algorithm>
 #include <cmath>
 #include <map>
+#include <optional>
 #include <set>
 #include <sstream>
 #include <string>
@@ -47,6 +51,36 @@
 #include <vector>
 
 namespace topos::nn {
+
+/// How `attend` scores and weighs a term's messages; the defaults are TopoModelX Conv's attention
+/// (one head, one (2·C) vector). Per head, scores from keys k (the term's features, or a cochain
+/// of the source rank) and queries q (the step's target before the step, or a cochain of the
+/// target rank): GAT's act(a_s·k_j + a_t·q_i), GATv2's a·act(k_j + q_i) (`v2`), or act(a_s·k_j)
+/// (`source_only`); then the per-target norm, dropout (training only), times A's values. Head h's
+/// messages are its slice of the term's features; the heads are concatenated or averaged.
+struct AttendOptions {
+  explicit AttendOptions(std::string param) : param_(std::move(param)) {}
+  /// The source part a_s then the target part a_t, in one parameter unless `target_param`.
+  TORCH_ARG(std::string, param);
+  TORCH_ARG(std::string, target_param);  ///< a_t as a parameter of its own (CAN's att_weight_dst)
+  /// Parameter shapes (default: vectors); only their element counts are fixed (heads-major).
+  TORCH_ARG(std::vector<std::int64_t>, shape);
+  TORCH_ARG(std::vector<std::int64_t>, target_shape);
+  TORCH_ARG(double, gain) = 1.414;  ///< Glorot gain of the parameters
+  TORCH_ARG(Update, activation) = Update::elu;
+  TORCH_ARG(double, negative_slope) = 0.2;
+  TORCH_ARG(AttentionNorm, norm) = AttentionNorm::none;
+  TORCH_ARG(std::optional<CochainKey>, keys);            ///< default: the term's features
+  TORCH_ARG(std::optional<CochainKey>, queries);         ///< default: the step's target
+  TORCH_ARG(bool, source_only) = false;                  ///< no queries and no a_t
+  TORCH_ARG(Update, feature_activation) = Update::none;  ///< on keys and queries before scoring
+  TORCH_ARG(double, feature_slope) = 0.01;
+  TORCH_ARG(bool, v2) = false;  ///< GATv2: one vector a, after the activation
+  TORCH_ARG(std::int64_t, heads) = 1;
+  TORCH_ARG(bool, concat) = true;       ///< the heads side by side, or their mean
+  TORCH_ARG(double, dropout) = 0;       ///< on the weights
+  TORCH_ARG(bool, transposed) = false;  ///< attend over Aᵀ
+};
 
 /// One operation of a term or of a step's tail.
 struct TermOp {
@@ -63,7 +97,10 @@ struct TermOp {
     layer_norm,        ///< torch.nn.LayerNorm at `name`
     attend,            ///< A · x with A's values times attention weights (`param`: the vector)
     initial_residual,  ///< GCNII: x̃ = (1-α) x + α skip, then (1-β) x̃ + β Linear(x̃)
-    powers  ///< [y, A₁y..A₁^K₁y, A₂y..A₂^K₂y, ...]: fans the term out, last only
+    powers,        ///< [y, A₁y..A₁^K₁y, A₂y..A₂^K₂y, ...]: fans the term out, last only
+    scale,         ///< x · p, a constant
+    head_weights,  ///< [x W_1 | ... | x W_H], W (heads × in × out) at `name`
+    bias           ///< x + b on every row, b at `name` (any shape of as many entries as channels)
   };
   explicit TermOp(Kind k, std::string n = {}) : kind(k), name(std::move(n)) {}
   Kind kind;
@@ -82,6 +119,9 @@ struct TermOp {
   std::string param;                                 ///< attend: the attention vector's path
   AttentionNorm attention_norm = AttentionNorm::none;
   int norm_from = 1;
+  AttendOptions attention{""};      ///< attend: its options (param, update, slope repeat some)
+  std::int64_t heads = 1;           ///< head_weights
+  std::vector<std::int64_t> shape;  ///< bias: the parameter's shape
 };
 
 namespace ops {
@@ -149,6 +189,28 @@ class Chain {
     t.beta = beta;
     return add(std::move(t));
   }
+  /// x · factor (CAN's skip connection scales its linear map by 1 + 1e-6).
+  Derived& scale(double factor) {
+    TermOp t(TermOp::Kind::scale);
+    t.p = factor;
+    return add(std::move(t));
+  }
+  /// One map per head, side by side: [x W_1 | ... | x W_H] with W (heads × in × out) at `path`,
+  /// TopoModelX's multi-head layout (AllSetTransformer's K and V).
+  Derived& head_weights(std::string path, std::int64_t heads, std::int64_t out,
+                        double gain = 1.414) {
+    TermOp t(TermOp::Kind::head_weights, std::move(path));
+    t.heads = heads;
+    t.out = out;
+    t.gain = gain;
+    return add(std::move(t));
+  }
+  /// x + b on every row, b at `path` of `shape` (default: a vector), flattened; zeros when new.
+  Derived& bias(std::string path, std::vector<std::int64_t> shape = {}) {
+    TermOp t(TermOp::Kind::bias, std::move(path));
+    t.shape = std::move(shape);
+    return add(std::move(t));
+  }
   const std::vector<TermOp>& operations() const { return ops_; }
 
  protected:
@@ -175,11 +237,20 @@ class Term : public Chain<Term> {
   /// Conv with att=True (A (x W) = (A x) W: the weights depend on x alone).
   Term& attend(std::string op, std::string path, Update activation = Update::elu,
                AttentionNorm norm = AttentionNorm::none, double negative_slope = 0.2) {
+    return attend(std::move(op), AttendOptions(std::move(path))
+                                     .activation(activation)
+                                     .norm(norm)
+                                     .negative_slope(negative_slope));
+  }
+  /// Attention with its options: heads, keys and queries from other cochains, GATv2 or
+  /// source-only scores, a separate target part, dropout (AttendOptions).
+  Term& attend(std::string op, AttendOptions o) {
     TermOp t(TermOp::Kind::attend, std::move(op));
-    t.param = std::move(path);
-    t.update = activation;
-    t.attention_norm = norm;
-    t.slope = negative_slope;
+    t.param = o.param();
+    t.update = o.activation();
+    t.attention_norm = o.norm();
+    t.slope = o.negative_slope();
+    t.attention = std::move(o);
     return add(std::move(t));
   }
   /// Polynomial filter terms [y, A₁y, ..., A₁^K₁y, A₂y, ...] (identity once); with row_norm each
@@ -204,7 +275,7 @@ inline Term from(int rank, std::string state = "") {
 /// A step: its terms, how they are mixed, the operations after the mix, the cochain written.
 class OperatorStep : public ops::Chain<OperatorStep> {
  public:
-  enum class Mix { sum, mean, filter };
+  enum class Mix { sum, mean, filter, concat };
   explicit OperatorStep(CochainKey target) : target(std::move(target)) {}
 
   template <class... T>
@@ -233,6 +304,13 @@ class OperatorStep : public ops::Chain<OperatorStep> {
     mix = Mix::filter;
     filter_path = std::move(path);
     filter_out = out;
+    return *this;
+  }
+  /// The terms side by side (channels concatenated in order).
+  template <class... T>
+  OperatorStep& concat(T&&... t) {
+    sum(std::forward<T>(t)...);
+    mix = Mix::concat;
     return *this;
   }
   OperatorStep& named(std::string n) {
@@ -282,6 +360,13 @@ class OperatorSchedule {
     outputs_.push_back({std::move(name), {rank, std::move(state)}, 0});
     return *this;
   }
+  /// A Glorot-initialised parameter that no step need use: a state_dict name kept where a mode
+  /// ignores it (HyperGAT's TopoModelX-compatible attention vectors).
+  OperatorSchedule& parameter(std::string path, std::vector<std::int64_t> shape,
+                              double gain = 1.414) {
+    parameters_.push_back({std::move(path), std::move(shape), gain});
+    return *this;
+  }
 
   struct Port {
     std::string name;
@@ -292,6 +377,12 @@ class OperatorSchedule {
   const std::vector<Port>& outputs() const { return outputs_; }
   const std::map<std::string, std::pair<int, int>>& operators() const { return operators_; }
   const std::vector<std::vector<OperatorStep>>& groups() const { return groups_; }
+  struct Parameter {
+    std::string path;
+    std::vector<std::int64_t> shape;
+    double gain;
+  };
+  const std::vector<Parameter>& parameters() const { return parameters_; }
 
   /// One line per step, e.g. "layer 0 rank 1: (1) = elu(linear(Σ[conv(1)·A1, ...]))".
   std::string str() const {
@@ -303,6 +394,7 @@ class OperatorSchedule {
       if (g.size() > 1) o << "}\n";
     }
     for (const auto& out : outputs_) o << "output " << out.key.str() << " -> " << out.name << "\n";
+    for (const auto& p : parameters_) o << "parameter " << p.path << "\n";
     return o.str();
   }
 
@@ -338,9 +430,12 @@ class OperatorSchedule {
         case TermOp::Kind::unit_rows:
           x = "unit_rows(" + x + ")";
           break;
-        case TermOp::Kind::attend:
-          x = "att[" + t.param + "]" + t.name + "·" + x;
+        case TermOp::Kind::attend: {
+          const auto& a = t.attention;
+          x = "att[" + t.param + (a.heads() > 1 ? " ×" + std::to_string(a.heads()) : "") + "]" +
+              t.name + (a.transposed() ? "ᵀ" : "") + "·" + x;
           break;
+        }
         case TermOp::Kind::batch_norm:
         case TermOp::Kind::layer_norm:
           x = t.name + "(" + x + ")";
@@ -354,14 +449,24 @@ class OperatorSchedule {
           x = "powers[" + x + ";" + f + "]";
           break;
         }
+        case TermOp::Kind::scale:
+          x = std::to_string(t.p) + "·" + x;
+          break;
+        case TermOp::Kind::head_weights:
+          x = x + "·" + t.name + "[×" + std::to_string(t.heads) + "]";
+          break;
+        case TermOp::Kind::bias:
+          x = x + " + " + t.name;
+          break;
       }
     }
     return x;
   }
   static std::string step_str(const OperatorStep& s) {
-    std::string mixed = s.mix == OperatorStep::Mix::filter ? "filter " + s.filter_path + "["
-                        : s.mix == OperatorStep::Mix::mean ? "mean["
-                                                           : "sum[";
+    std::string mixed = s.mix == OperatorStep::Mix::filter   ? "filter " + s.filter_path + "["
+                        : s.mix == OperatorStep::Mix::mean   ? "mean["
+                        : s.mix == OperatorStep::Mix::concat ? "cat["
+                                                             : "sum[";
     for (std::size_t i = 0; i < s.terms.size(); ++i)
       mixed += (i ? ", " : "") + ops_str(s.terms[i].source.str(), s.terms[i].operations());
     mixed += "]";
@@ -372,6 +477,7 @@ class OperatorSchedule {
   std::map<std::string, std::pair<int, int>> operators_;
   std::vector<std::vector<OperatorStep>> groups_;
   int num_steps_ = 0;
+  std::vector<Parameter> parameters_;
 };
 
 /// Runs an OperatorSchedule; its parameters sit at the schedule's dotted paths.
@@ -480,19 +586,8 @@ class OperatorNetworkImpl : public torch::nn::Module {
       case TermOp::Kind::via_transposed: {
         return multiply(where, t.name + "ᵀ", ops.t(where, t.name), x, t.row_norm);
       }
-      case TermOp::Kind::attend: {
-        const auto& A = ops.at(where, t.name);
-        check_fits(where, t.name, A, x);
-        const auto& y = h.at(target.rank, target.state);
-        if (A.rows != y.size(0))
-          throw ScheduleError(where + ": operator '" + t.name + "' has " + std::to_string(A.rows) +
-                              " rows but the target cochain has " + std::to_string(y.size(0)));
-        const auto& a = params_.at(t.param);
-        const auto C = x.size(1);
-        const auto raw = pair_scores(A, x, a.narrow(0, 0, C), y, a.narrow(0, C, C));
-        const auto w = attention_weights(A, raw, t.update, t.slope, t.attention_norm);
-        return spmm(A.with_values(w * A.values.to(w.scalar_type())), x);
-      }
+      case TermOp::Kind::attend:
+        return attend(where, target, t, x, ops, h);
       case TermOp::Kind::batch_norm:
         return batch_norms_.at(t.name)->forward(x);
       case TermOp::Kind::layer_norm:
@@ -520,8 +615,79 @@ class OperatorNetworkImpl : public torch::nn::Module {
       }
       case TermOp::Kind::powers:
         break;  // handled by the caller (it fans out)
+      case TermOp::Kind::scale:
+        return x * t.p;
+      case TermOp::Kind::head_weights:  // heads × n × out -> n × (heads·out), head-major
+        return torch::matmul(x, params_.at(t.name)).permute({1, 0, 2}).reshape({x.size(0), -1});
+      case TermOp::Kind::bias:
+        return x + params_.at(t.name).reshape({-1});
     }
     return x;
+  }
+
+  /// attend (AttendOptions): per-head scores, weights and messages over the operator.
+  torch::Tensor attend(const std::string& where, const CochainKey& target, const TermOp& t,
+                       const torch::Tensor& x, Operators& ops, const Cochains& h) {
+    const auto& o = t.attention;
+    const auto& A = o.transposed() ? ops.t(where, t.name) : ops.at(where, t.name);
+    const auto name = t.name + (o.transposed() ? "ᵀ" : "");
+    check_fits(where, name, A, x);
+    auto k = x;
+    if (o.keys()) {
+      k = h.at(o.keys()->rank, o.keys()->state);
+      check_fits(where, name, A, k);
+    }
+    torch::Tensor q;
+    if (!o.source_only()) {
+      const auto& key = o.queries() ? *o.queries() : target;
+      q = h.at(key.rank, key.state);
+      if (A.rows != q.size(0))
+        throw ScheduleError(where + ": operator '" + name + "' has " + std::to_string(A.rows) +
+                            " rows but the " +
+                            (o.queries() ? "query cochain " + key.str() : "target cochain") +
+                            " has " + std::to_string(q.size(0)));
+    }
+    if (o.feature_activation() != Update::none) {
+      k = apply_update(k, o.feature_activation(), o.feature_slope());
+      if (q.defined()) q = apply_update(q, o.feature_activation(), o.feature_slope());
+    }
+    const auto H = o.heads();
+    // The parameter parts: a_s (and a_t) as vectors, heads-major.
+    auto a = params_.at(o.param()).reshape({-1});
+    torch::Tensor a_s = a, a_t;
+    if (!o.target_param().empty()) {
+      a_t = params_.at(o.target_param()).reshape({-1});
+    } else if (q.defined() && !o.v2()) {
+      a_s = a.narrow(0, 0, k.size(1));
+      a_t = a.narrow(0, k.size(1), a.size(0) - k.size(1));
+    }
+    // Per cell and head <f_h, a_h> (one head: a matrix-vector product, as pair_scores).
+    auto dots = [H](const torch::Tensor& f, const torch::Tensor& v) {
+      if (H == 1) return f.matmul(v).unsqueeze(1);
+      return (f.reshape({f.size(0), H, -1}) * v.reshape({1, H, -1})).sum(-1);
+    };
+    const auto col = A.col.to(x.device()), row = A.row.to(x.device());
+    torch::Tensor raw;  // nnz × heads
+    if (o.v2()) {
+      const auto e = apply_update(k.index_select(0, col) + q.index_select(0, row), o.activation(),
+                                  o.negative_slope());
+      raw = (e.reshape({e.size(0), H, -1}) * a_s.reshape({1, H, -1})).sum(-1);
+    } else {
+      raw = dots(k, a_s).index_select(0, col);
+      if (q.defined()) raw = raw + dots(q, a_t).index_select(0, row);
+    }
+    const auto act = o.v2() ? Update::none : o.activation();
+    const auto c = x.size(1) / H;
+    std::vector<torch::Tensor> heads;
+    for (std::int64_t i = 0; i < H; ++i) {
+      auto w =
+          attention_weights(A, raw.select(1, i).contiguous(), act, o.negative_slope(), o.norm());
+      if (o.dropout() > 0) w = torch::dropout(w, o.dropout(), is_training());
+      const auto xi = H == 1 ? x : x.narrow(1, i * c, c).contiguous();
+      heads.push_back(spmm(A.with_values(w * A.values.to(w.scalar_type())), xi));
+    }
+    if (H == 1) return heads[0];
+    return o.concat() ? torch::cat(heads, 1) : torch::stack(heads, 0).mean(0);
   }
 
   torch::Tensor run_step(const OperatorStep& s, const Cochains& h, Operators& ops) {
@@ -547,6 +713,8 @@ class OperatorNetworkImpl : public torch::nn::Module {
     torch::Tensor y;
     if (s.mix == OperatorStep::Mix::filter) {
       y = combine_terms(terms, params_.at(s.filter_path));
+    } else if (s.mix == OperatorStep::Mix::concat) {
+      y = torch::cat(terms, 1);
     } else {
       y = terms[0];
       for (std::size_t i = 1; i < terms.size(); ++i) y = y + terms[i];
@@ -573,7 +741,7 @@ class OperatorNetworkImpl : public torch::nn::Module {
     return {m, path.substr(start)};
   }
 
-  enum class Init { glorot, linear_weight, linear_bias };
+  enum class Init { glorot, linear_weight, linear_bias, zeros };
 
   void make_parameter(const std::string& where, const std::string& path,
                       std::vector<std::int64_t> shape, Init init, double gain_or_fan_in) {
@@ -599,6 +767,8 @@ class OperatorNetworkImpl : public torch::nn::Module {
       xavier_uniform(p, gain_or_fan_in);
     } else if (init == Init::linear_weight) {
       torch::nn::init::kaiming_uniform_(p, std::sqrt(5.0));
+    } else if (init == Init::zeros) {
+      p.zero_();
     } else {
       const double bound = 1 / std::sqrt(gain_or_fan_in);
       torch::nn::init::uniform_(p, -bound, bound);
@@ -656,18 +826,8 @@ class OperatorNetworkImpl : public torch::nn::Module {
         if (src != x.rank) throw rank_error(t.name, src);
         return {dst, x.channels};
       }
-      case TermOp::Kind::attend: {
-        const auto [src, dst] = op(t.name);
-        if (src != x.rank) throw rank_error(t.name, src);
-        auto w = width.find(target);
-        if (dst != target.rank || w == width.end() || w->second != x.channels)
-          throw ScheduleError(where + ": attention over '" + t.name +
-                              "' scores against the target " + target.str() +
-                              ", which needs a cochain of " + std::to_string(x.channels) +
-                              " channels before the step");
-        make_parameter(where, t.param, {2 * x.channels}, Init::glorot, 1.414);
-        return {dst, x.channels};
-      }
+      case TermOp::Kind::attend:
+        return infer_attend(where, target, t, x, width);
       case TermOp::Kind::via_transposed: {
         const auto [src, dst] = op(t.name);
         if (dst != x.rank) throw rank_error(t.name + "ᵀ", dst);
@@ -712,8 +872,83 @@ class OperatorNetworkImpl : public torch::nn::Module {
       case TermOp::Kind::dropout:
       case TermOp::Kind::unit_rows:
         return x;
+      case TermOp::Kind::scale:
+        return x;
+      case TermOp::Kind::head_weights:
+        if (t.heads < 1)
+          throw ScheduleError(where + ": head weights '" + t.name + "' need at least one head");
+        make_parameter(where, t.name, {t.heads, x.channels, t.out}, Init::glorot, t.gain);
+        return {x.rank, t.heads * t.out};
+      case TermOp::Kind::bias: {
+        const auto shape = t.shape.empty() ? std::vector<std::int64_t>{x.channels} : t.shape;
+        if (torch::empty(shape).numel() != x.channels)
+          throw ScheduleError(where + ": bias '" + t.name + "' of shape " +
+                              shape_str(torch::empty(shape)) + " added to " +
+                              std::to_string(x.channels) + " channels");
+        make_parameter(where, t.name, shape, Init::zeros, 0);
+        return x;
+      }
     }
     return x;
+  }
+
+  /// attend's shapes: the keys', queries' and messages' widths against the heads and the
+  /// parameters (created here); the result has the operator's target rank.
+  Shape infer_attend(const std::string& where, const CochainKey& target, const TermOp& t, Shape x,
+                     const std::map<CochainKey, std::int64_t>& width) {
+    const auto& o = t.attention;
+    auto it = schedule_.operators().find(t.name);
+    if (it == schedule_.operators().end())
+      throw ScheduleError(where + ": unknown operator '" + t.name + "'");
+    auto [src, dst] = it->second;
+    if (o.transposed()) std::swap(src, dst);
+    const auto name = t.name + (o.transposed() ? "ᵀ" : "");
+    const auto fail = [&](const std::string& why) {
+      return ScheduleError(where + ": attention over '" + name + "' " + why);
+    };
+    if (src != x.rank)
+      throw ScheduleError(where + ": operator '" + name + "' applies to rank " +
+                          std::to_string(src) + " cochains, not rank " + std::to_string(x.rank));
+    std::int64_t ck = x.channels, cq = 0;
+    if (o.keys()) {
+      auto w = width.find(*o.keys());
+      if (o.keys()->rank != src || w == width.end())
+        throw fail("takes its keys from " + o.keys()->str() + ", which needs a cochain of rank " +
+                   std::to_string(src) + " before the step");
+      ck = w->second;
+    }
+    if (!o.source_only()) {
+      const auto key = o.queries() ? *o.queries() : target;
+      auto w = width.find(key);
+      if (key.rank != dst || w == width.end())
+        throw fail("scores against " + std::string(o.queries() ? "" : "the target ") + key.str() +
+                   ", which needs a cochain of rank " + std::to_string(dst) + " before the step");
+      cq = w->second;
+    }
+    const auto H = o.heads();
+    if (H < 1 || x.channels % H || ck % H || cq % H)
+      throw fail("with " + std::to_string(H) + " heads: the messages (" +
+                 std::to_string(x.channels) + "), keys (" + std::to_string(ck) + ") and queries (" +
+                 std::to_string(cq) + ") need channels divisible by the heads");
+    if (o.v2() && cq != ck)
+      throw fail("(GATv2) needs queries as wide as its keys, got " + std::to_string(cq) + " and " +
+                 std::to_string(ck));
+    const bool split = !o.target_param().empty();
+    if (split && (o.v2() || o.source_only()))
+      throw fail("has no target part for '" + o.target_param() + "'");
+    if (o.dropout() < 0 || o.dropout() > 1) throw fail("needs a dropout rate in [0, 1]");
+    const auto n = o.source_only() || o.v2() || split ? ck : ck + cq;
+    auto make = [&](const std::string& path, std::vector<std::int64_t> shape, std::int64_t count) {
+      if (shape.empty()) shape = {count};
+      if (torch::empty(shape).numel() != count)
+        throw fail("needs " + std::to_string(count) + " entries in '" + path + "', its shape " +
+                   shape_str(torch::empty(shape)) + " has " +
+                   std::to_string(torch::empty(shape).numel()));
+      make_parameter(where, path, shape, Init::glorot, o.gain());
+    };
+    make(o.param(), o.shape(), n);
+    if (split) make(o.target_param(), o.target_shape(), cq);
+    return {dst, o.concat() ? x.channels : x.channels / H};
   }
 
   void validate_and_create() {
@@ -757,11 +992,15 @@ class OperatorNetworkImpl : public torch::nn::Module {
             throw ScheduleError(where + ": the term from " + term.source.str() + " ends on rank " +
                                 std::to_string(x.rank) + ", the target is rank " +
                                 std::to_string(s.target.rank));
-          if (channels >= 0 && x.channels != channels)
-            throw ScheduleError(where + ": the term from " + term.source.str() + " has " +
-                                std::to_string(x.channels) + " channels, the one before has " +
-                                std::to_string(channels));
-          channels = x.channels;
+          if (s.mix == OperatorStep::Mix::concat) {  // widths add up
+            channels = std::max<std::int64_t>(channels, 0) + x.channels;
+          } else {
+            if (channels >= 0 && x.channels != channels)
+              throw ScheduleError(where + ": the term from " + term.source.str() + " has " +
+                                  std::to_string(x.channels) + " channels, the one before has " +
+                                  std::to_string(channels));
+            channels = x.channels;
+          }
           count += fanned;
         }
         Shape y{s.target.rank, channels};
@@ -784,6 +1023,8 @@ class OperatorNetworkImpl : public torch::nn::Module {
     for (const auto& o : schedule_.outputs())
       if (!width.count(o.key))
         throw ScheduleError("output '" + o.name + "': no cochain " + o.key.str());
+    for (const auto& p : schedule_.parameters())
+      make_parameter("parameter '" + p.path + "'", p.path, p.shape, Init::glorot, p.gain);
   }
 };
 TORCH_MODULE(OperatorNetwork);

@@ -188,6 +188,20 @@ struct SparseOperator {
     std::iota(i.begin(), i.end(), std::int64_t{0});
     return from_sorted(n, n, i, i, torch::ones({n}, dtype));
   }
+  /// The rows × cols operator whose row k picks cell index[k] (value one): S · x = x[index], a
+  /// gather written as an operator (index: int64, one entry per row).
+  static SparseOperator selection(const torch::Tensor& index, std::int64_t cols,
+                                  torch::Dtype dtype = torch::kFloat) {
+    const auto i = index.to(torch::kCPU, torch::kLong).contiguous();
+    std::vector<std::int64_t> c(i.data_ptr<std::int64_t>(), i.data_ptr<std::int64_t>() + i.numel());
+    std::vector<std::int64_t> r(c.size());
+    std::iota(r.begin(), r.end(), std::int64_t{0});
+    for (auto j : c)
+      if (j < 0 || j >= cols)
+        throw std::invalid_argument("SparseOperator::selection: index " + std::to_string(j) +
+                                    " outside " + std::to_string(cols) + " cells");
+    return from_sorted(i.numel(), cols, r, c, torch::ones({i.numel()}, dtype));
+  }
   /// A square operator's pattern with every diagonal entry added (values one): GAT's self loops.
   SparseOperator pattern_with_self_loops() const {
     if (rows != cols)

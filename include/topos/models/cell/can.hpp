@@ -14,10 +14,12 @@
 // layer has no attention dropout (the compatible mode; the default gives every layer `dropout`);
 // the lift makes one row per stored entry of the adjacency it gets, which must be as many as
 // the edges (an adjacency holding each edge once). Pooling (TopoModelX's PoolLayer) is not
-// implemented.
+// implemented. Written as an operator schedule (can_schedule).
 #pragma once
 
-#include "topos/nn/conv.hpp"
+#include "topos/nn/operator_schedule.hpp"
+
+#include <cmath>
 
 namespace topos::models {
 
@@ -41,153 +43,117 @@ struct CANOptions {
   TORCH_ARG(bool, topomodelx_compatible) = false;  ///< first layer without attention dropout
 };
 
-/// Multi-head attention over a neighbourhood's pattern (TopoModelX's MultiHeadCellAttention
-/// and MultiHeadCellAttention_v2).
-class CellAttentionImpl : public torch::nn::Module {
- public:
-  CellAttentionImpl(std::int64_t in, std::int64_t out, std::int64_t heads, bool concat,
-                    double dropout, const CANOptions& o)
-      : out_(out),
-        heads_(heads),
-        concat_(concat),
-        v2_(o.version() == "v2"),
-        self_loops_(o.add_self_loops()),
-        dropout_(dropout),
-        act_(o.att_activation()),
-        slope_(o.att_negative_slope()) {
-    const auto c = out / heads;
-    if (v2_) {
-      lin_src = register_module("lin_src",
-                                torch::nn::Linear(torch::nn::LinearOptions(in, out).bias(false)));
-      lin_dst = o.share_weights()
-                    ? lin_src
-                    : torch::nn::Linear(torch::nn::LinearOptions(in, out).bias(false));
-      register_module("lin_dst", lin_dst);
-      att_weight = register_parameter("att_weight", torch::empty({1, heads, c}));
-      torch::nn::init::xavier_uniform_(att_weight);
-    } else {
-      lin_src =
-          register_module("lin", torch::nn::Linear(torch::nn::LinearOptions(in, out).bias(false)));
-      att_src = register_parameter("att_weight_src", torch::empty({1, heads, c}));
-      att_dst = register_parameter("att_weight_dst", torch::empty({1, heads, c}));
-      torch::nn::init::xavier_uniform_(att_src);
-      torch::nn::init::xavier_uniform_(att_dst);
-    }
+/// The schedule: the lift (the node features of each adjacency entry's two ends side by side,
+/// "lift_source"/"lift_target" selecting them), then per layer the attention's linear maps of
+/// x_1 (states "lower", "upper" and, for v2, their "_dst" maps) and one step summing the
+/// multi-head attention over "lower" and "upper" (the neighbourhoods' patterns) and the skip.
+inline nn::OperatorSchedule can_schedule(const CANOptions& o) {
+  using namespace nn::ops;
+  using nn::Update;
+  if (o.heads() < 1 || o.out_channels() % o.heads() != 0)
+    throw std::invalid_argument("CAN: out_channels must be a multiple of heads (>= 1)");
+  if (o.version() != "v1" && o.version() != "v2")
+    throw std::invalid_argument("CAN: version must be v1 or v2");
+  if (o.share_weights() && o.version() != "v2")
+    throw std::invalid_argument("CAN: share_weights needs version v2");
+  if (o.n_layers() < 1) throw std::invalid_argument("CAN: n_layers must be >= 1");
+  if (o.dropout() < 0 || o.dropout() > 1)
+    throw std::invalid_argument("CAN: dropout must be in [0, 1]");
+  const bool v2 = o.version() == "v2";
+  const auto H = o.heads(), out = o.out_channels(), c = out / H;
+  nn::OperatorSchedule s;
+  s.input("x_1", 1, o.in_channels_1())
+      .operator_input("lower", 1, 1)
+      .operator_input("upper", 1, 1)
+      .output("x_1", 1);
+  if (o.att_lift()) {
+    const auto c0 = o.in_channels_0();
+    s.input("x_0", 0, c0).operator_input("lift_source", 0, 1).operator_input("lift_target", 0, 1);
+    s.step(into(1, "lift")
+               .concat(from(0).via("lift_source"), from(0).via("lift_target"))
+               .weight("lift_layer.lifts.att_parameter", c0, std::sqrt(2.0))
+               .act(Update::relu)
+               .dropout(0.5));
+    s.step(into(1).concat(from(1, "lift"), from(1)));
   }
-  torch::Tensor forward(const torch::Tensor& x, const nn::SparseOperator& L) {
-    const auto n = x.size(0), c = out_ / heads_;
-    if (L.nnz() == 0 || !L.values.ne(0).any().item<bool>())
-      return torch::zeros({n, concat_ ? out_ : c}, x.options());  // no neighbours at all
-    const auto P = self_loops_ ? L.pattern_with_self_loops() : L.pattern();
-    const auto row = P.row.to(x.device()), col = P.col.to(x.device());
-    const auto xs = lin_src->forward(x).view({n, heads_, c});
-    torch::Tensor score;  // nnz × heads
-    if (v2_) {
-      const auto xd = lin_dst->forward(x).view({n, heads_, c});
-      const auto e =
-          nn::apply_update(xs.index_select(0, col) + xd.index_select(0, row), act_, slope_);
-      score = (e * att_weight).sum(-1);
-    } else {
-      const auto a_s = (xs * att_src).sum(-1), a_d = (xs * att_dst).sum(-1);  // n × heads
-      score = nn::apply_update(a_s.index_select(0, col) + a_d.index_select(0, row), act_, slope_);
+  for (int l = 0; l < o.n_layers(); ++l) {
+    const auto p = "layers." + std::to_string(l) + ".";
+    std::vector<nn::OperatorStep> maps;
+    std::vector<Term> terms;
+    for (const std::string side : {"lower", "upper"}) {
+      const auto q = p + side + "_att.";
+      auto att = nn::AttendOptions(q + (v2 ? "att_weight" : "att_weight_src"))
+                     .shape({1, H, c})
+                     .gain(1.0)
+                     .activation(o.att_activation())
+                     .negative_slope(o.att_negative_slope())
+                     .norm(nn::AttentionNorm::softmax)
+                     .heads(H)
+                     .concat(o.concat())
+                     .dropout(l == 0 && o.topomodelx_compatible() ? 0.0 : o.dropout());
+      if (v2) {
+        maps.push_back(into(1, side).sum(from(1).linear(q + "lin_src", out, false)));
+        if (!o.share_weights())
+          maps.push_back(into(1, side + "_dst").sum(from(1).linear(q + "lin_dst", out, false)));
+        att.v2(true).queries(nn::CochainKey{1, o.share_weights() ? side : side + "_dst"});
+      } else {
+        maps.push_back(into(1, side).sum(from(1).linear(q + "lin", out, false)));
+        att.target_param(q + "att_weight_dst")
+            .target_shape({1, H, c})
+            .queries(nn::CochainKey{1, side});
+      }
+      terms.push_back(std::move(from(1, side).attend(side, std::move(att))));
     }
-    std::vector<torch::Tensor> per_head;
-    for (std::int64_t h = 0; h < heads_; ++h) {
-      auto alpha = torch::dropout(nn::row_softmax(P, score.select(1, h).contiguous()), dropout_,
-                                  is_training());
-      per_head.push_back(nn::spmm(P.with_values(alpha), xs.select(1, h).contiguous()));
-    }
-    return concat_ ? torch::cat(per_head, 1) : torch::stack(per_head, 0).mean(0);
+    if (o.skip_connection())
+      terms.push_back(
+          std::move(from(1).linear(p + "lin", o.concat() ? out : c, false).scale(1 + 1e-6)));
+    s.parallel(std::move(maps));
+    s.step(into(1).sum(std::move(terms)).act(Update::relu).dropout(0.5));
   }
-  torch::nn::Linear lin_src{nullptr}, lin_dst{nullptr};
-  torch::Tensor att_src, att_dst, att_weight;
+  return s;
+}
 
- private:
-  std::int64_t out_, heads_;
-  bool concat_, v2_, self_loops_;
-  double dropout_;
-  nn::Update act_;
-  double slope_;
-};
-TORCH_MODULE(CellAttention);
-
-class CANImpl : public torch::nn::Module {
+class CANImpl : public nn::OperatorNetworkImpl {
  public:
-  explicit CANImpl(const CANOptions& o) : options(o) {
-    if (o.heads() < 1 || o.out_channels() % o.heads() != 0)
-      throw std::invalid_argument("CAN: out_channels must be a multiple of heads (>= 1)");
-    if (o.version() != "v1" && o.version() != "v2")
-      throw std::invalid_argument("CAN: version must be v1 or v2");
-    if (o.share_weights() && o.version() != "v2")
-      throw std::invalid_argument("CAN: share_weights needs version v2");
-    if (o.n_layers() < 1) throw std::invalid_argument("CAN: n_layers must be >= 1");
-    if (o.dropout() < 0 || o.dropout() > 1)
-      throw std::invalid_argument("CAN: dropout must be in [0, 1]");
-    std::int64_t in = o.in_channels_1();
-    if (o.att_lift()) {
-      auto lift = nn::submodule_group(*this, "lift_layer");
-      auto lifts = nn::submodule_group(*lift, "lifts");
-      lift_ = lifts->register_parameter("att_parameter",
-                                        torch::empty({2 * o.in_channels_0(), o.in_channels_0()}));
-      nn::xavier_uniform(lift_, std::sqrt(2.0));
-      in += o.in_channels_0();
-    }
-    auto list = register_module("layers", torch::nn::ModuleList());
-    for (int l = 0; l < o.n_layers(); ++l) {
-      const auto layer_in = l == 0 ? in : o.out_channels();
-      const double drop = l == 0 && o.topomodelx_compatible() ? 0.0 : o.dropout();
-      auto m = std::make_shared<torch::nn::Module>();
-      Layer layer{m->register_module("lower_att", CellAttention(layer_in, o.out_channels(),
-                                                                o.heads(), o.concat(), drop, o)),
-                  m->register_module("upper_att", CellAttention(layer_in, o.out_channels(),
-                                                                o.heads(), o.concat(), drop, o)),
-                  nullptr};
-      if (o.skip_connection())
-        layer.skip = m->register_module(
-            "lin", torch::nn::Linear(
-                       torch::nn::LinearOptions(
-                           layer_in, o.concat() ? o.out_channels() : o.out_channels() / o.heads())
-                           .bias(false)));
-      layers_.push_back(layer);
-      list->push_back(m);
-    }
+  explicit CANImpl(const CANOptions& o) : OperatorNetworkImpl(can_schedule(o)), options(o) {
+    // TopoModelX's shared weights: lin_dst is lin_src, so its state_dict names both.
+    if (o.share_weights())
+      for (int l = 0; l < o.n_layers(); ++l)
+        for (const char* side : {"lower", "upper"}) {
+          auto att = named_modules("", false)["layers." + std::to_string(l) + "." + side + "_att"];
+          att->register_module("lin_dst", att->named_children()["lin_src"]);
+        }
   }
   /// Node and edge features, the node adjacency (for the lift), L_1↓ and L_1↑. Returns the edge
   /// features.
-  torch::Tensor forward(const torch::Tensor& x_0, torch::Tensor x_1,
+  torch::Tensor forward(const torch::Tensor& x_0, const torch::Tensor& x_1,
                         const nn::SparseOperator& adjacency_0,
                         const nn::SparseOperator& down_laplacian_1,
                         const nn::SparseOperator& up_laplacian_1) {
-    if (lift_.defined()) {
+    std::map<std::string, nn::SparseOperator> ops{{"lower", neighbourhood(down_laplacian_1)},
+                                                  {"upper", neighbourhood(up_laplacian_1)}};
+    if (options.att_lift()) {
       if (adjacency_0.nnz() != x_1.size(0))
         throw std::invalid_argument("CAN: att_lift makes one edge row per entry of adjacency_0 (" +
                                     std::to_string(adjacency_0.nnz()) + "), but x_1 has " +
                                     std::to_string(x_1.size(0)) +
                                     " rows (pass an adjacency that holds each edge once)");
-      const auto u = adjacency_0.row.to(x_0.device()), v = adjacency_0.col.to(x_0.device());
-      auto lifted = torch::relu(
-          torch::cat({x_0.index_select(0, u), x_0.index_select(0, v)}, 1).matmul(lift_));
-      lifted = torch::dropout(lifted, 0.5, is_training());
-      x_1 = torch::cat({lifted, x_1}, 1);
+      ops["lift_source"] = nn::SparseOperator::selection(adjacency_0.row, x_0.size(0));
+      ops["lift_target"] = nn::SparseOperator::selection(adjacency_0.col, x_0.size(0));
     }
-    for (auto& l : layers_) {
-      std::vector<torch::Tensor> m{l.lower->forward(x_1, down_laplacian_1),
-                                   l.upper->forward(x_1, up_laplacian_1)};
-      if (l.skip) m.push_back(l.skip->forward(x_1) * (1 + 1e-6));
-      x_1 = torch::dropout(nn::aggregate_messages(m, nn::Aggr::sum, nn::Update::relu), 0.5,
-                           is_training());
-    }
-    return x_1;
+    return run({{"x_0", x_0}, {"x_1", x_1}}, ops, {"x_1"})[0];
   }
   CANOptions options;
 
  private:
-  struct Layer {
-    CellAttention lower, upper;
-    torch::nn::Linear skip;
-  };
-  torch::Tensor lift_;
-  std::vector<Layer> layers_;
+  /// The attention's pattern: L's with self loops (or without); with no nonzero entry at all,
+  /// none (no neighbours: the messages are zeros, self loops or not).
+  nn::SparseOperator neighbourhood(const nn::SparseOperator& L) const {
+    if (L.nnz() == 0 || !L.values.ne(0).any().item<bool>())
+      return nn::SparseOperator::from_sorted(L.rows, L.cols, {}, {},
+                                             torch::empty({0}, L.values.options()));
+    return options.add_self_loops() ? L.pattern_with_self_loops() : L.pattern();
+  }
 };
 TORCH_MODULE(CAN);
 

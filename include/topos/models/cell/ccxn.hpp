@@ -8,9 +8,10 @@
 // With attention, TopoModelX scores a 2-cell's incoming edges with the features of the edge
 // whose index is the 2-cell's (x_target = None): the compatible mode. The default scores them
 // with the sum of the 2-cell's boundary edges' features (|B_2|ᵀ x_1, the same width).
+// Written as an operator schedule (ccxn_schedule).
 #pragma once
 
-#include "topos/nn/conv.hpp"
+#include "topos/nn/operator_schedule.hpp"
 
 namespace topos::models {
 
@@ -26,53 +27,72 @@ struct CCXNOptions {
       false;  ///< attention targets as TopoModelX indexes them (above)
 };
 
-class CCXNImpl : public torch::nn::Module {
- public:
-  explicit CCXNImpl(const CCXNOptions& o) : options(o) {
-    if (o.n_layers() < 1) throw std::invalid_argument("CCXN: n_layers must be >= 1");
-    auto list = register_module("layers", torch::nn::ModuleList());
-    for (int l = 0; l < o.n_layers(); ++l) {
-      auto m = std::make_shared<torch::nn::Module>();
-      layers_.push_back(
-          {m->register_module(
-               "conv_0_to_0",
-               nn::Conv(nn::ConvOptions(o.in_channels_0(), o.in_channels_0()).att(o.att()))),
-           m->register_module(
-               "conv_1_to_2",
-               nn::Conv(nn::ConvOptions(o.in_channels_1(), o.in_channels_2()).att(o.att())))});
-      list->push_back(m);
-    }
+/// The schedule: per layer relu(x_0), its message over the adjacency, relu(x_1), and x_2 from
+/// x_1 over B_2ᵀ. With attention, a step first writes the features the 2-cells are scored with
+/// into x_2 ("incidence_2_t_target": |B_2ᵀ|, or in the compatible mode the selection of the edges
+/// whose indices are the 2-cells'), and each Conv's attention takes its keys from the relu'd
+/// features while its messages are x W (Conv's A (x W)).
+inline nn::OperatorSchedule ccxn_schedule(const CCXNOptions& o) {
+  using namespace nn::ops;
+  using nn::Update;
+  if (o.n_layers() < 1) throw std::invalid_argument("CCXN: n_layers must be >= 1");
+  nn::OperatorSchedule s;
+  s.input("x_0", 0, o.in_channels_0())
+      .input("x_1", 1, o.in_channels_1())
+      .operator_input("adjacency_0", 0, 0)
+      .operator_input("incidence_2_t", 1, 2);
+  if (o.att()) s.operator_input("incidence_2_t_target", 1, 2);
+  // Conv(att=True): weights from the source cochain `keys` and the step's target (both before
+  // the step), applied to x W.
+  auto conv = [&](Term t, const std::string& path, std::int64_t out, const std::string& op,
+                  int keys) -> Term {
+    t.conv(path, out);
+    if (o.att())
+      t.attend(op, nn::AttendOptions(path + ".att_weight").keys(nn::CochainKey{keys, ""}));
+    else
+      t.via(op);
+    return t;
+  };
+  for (int l = 0; l < o.n_layers(); ++l) {
+    const auto p = "layers." + std::to_string(l) + ".";
+    s.step(into(0).sum(from(0)).act(Update::relu));
+    s.step(into(0)
+               .sum(conv(from(0), p + "conv_0_to_0", o.in_channels_0(), "adjacency_0", 0))
+               .act(Update::relu));
+    s.step(into(1).sum(from(1)).act(Update::relu));
+    if (o.att()) s.step(into(2).sum(from(1).via("incidence_2_t_target")));
+    s.step(into(2)
+               .sum(conv(from(1), p + "conv_1_to_2", o.in_channels_2(), "incidence_2_t", 1))
+               .act(Update::relu));
   }
+  s.output("x_0", 0).output("x_1", 1).output("x_2", 2);
+  return s;
+}
+
+class CCXNImpl : public nn::OperatorNetworkImpl {
+ public:
+  explicit CCXNImpl(const CCXNOptions& o) : OperatorNetworkImpl(ccxn_schedule(o)), options(o) {}
   /// Node and edge features, the node adjacency and B_2ᵀ (2-cells × edges). Returns (x_0, x_1,
   /// x_2).
-  std::vector<torch::Tensor> forward(torch::Tensor x_0, torch::Tensor x_1,
+  std::vector<torch::Tensor> forward(const torch::Tensor& x_0, const torch::Tensor& x_1,
                                      const nn::SparseOperator& adjacency_0,
                                      const nn::SparseOperator& incidence_2_t) {
-    torch::Tensor x_2;
-    for (auto& l : layers_) {
-      x_0 = torch::relu(l.c00->forward(torch::relu(x_0), adjacency_0));
-      x_1 = torch::relu(x_1);
-      torch::Tensor target;
-      if (options.att()) {
-        if (options.topomodelx_compatible()) {
-          if (incidence_2_t.rows > x_1.size(0))
-            throw std::invalid_argument(
-                "CCXN: TopoModelX-compatible attention needs no more 2-cells than edges");
-        } else {
-          target = nn::spmm(incidence_2_t.abs(), x_1);
-        }
+    std::map<std::string, nn::SparseOperator> ops{{"adjacency_0", adjacency_0},
+                                                  {"incidence_2_t", incidence_2_t}};
+    if (options.att()) {
+      if (!options.topomodelx_compatible()) {
+        ops["incidence_2_t_target"] = incidence_2_t.abs();
+      } else {
+        if (incidence_2_t.rows > x_1.size(0))
+          throw std::invalid_argument(
+              "CCXN: TopoModelX-compatible attention needs no more 2-cells than edges");
+        ops["incidence_2_t_target"] = nn::SparseOperator::selection(
+            torch::arange(incidence_2_t.rows), x_1.size(0), incidence_2_t.values.scalar_type());
       }
-      x_2 = torch::relu(l.c12->forward(x_1, incidence_2_t, target));
     }
-    return {x_0, x_1, x_2};
+    return run({{"x_0", x_0}, {"x_1", x_1}}, ops, {"x_0", "x_1", "x_2"});
   }
   CCXNOptions options;
-
- private:
-  struct Layer {
-    nn::Conv c00, c12;
-  };
-  std::vector<Layer> layers_;
 };
 TORCH_MODULE(CCXN);
 

@@ -5,10 +5,11 @@
 // x_j V_h, plus q_h; heads concatenated, LayerNorm, then LayerNorm(y + relu(MLP(y))). Nodes ->
 // hyperedges, relu, then hyperedges -> nodes, relu. Only the incidence's pattern is used.
 // Parameters layers.<i>.{vertex2edge,edge2vertex}.{multihead_att.{K,Q,V}_weight, mlp.<k>.weight,
-// ln0, ln1}, as in TopoModelX.
+// ln0, ln1}, as in TopoModelX. Written as an operator schedule (allset_transformer_schedule).
 #pragma once
 
-#include "topos/models/hypergraph/allset.hpp"
+#include "topos/models/hypergraph/allset.hpp"  // MlpNorm
+#include "topos/nn/operator_schedule.hpp"
 
 namespace topos::models {
 
@@ -27,97 +28,95 @@ struct AllSetTransformerOptions {
   TORCH_ARG(MlpNorm, mlp_norm) = MlpNorm::none;
 };
 
-/// Multi-head attention of targets over their sources with learned queries (TopoModelX
-/// MultiHeadAttention): returns targets × heads·(hidden/heads), head-major, queries added.
-class SetAttentionImpl : public torch::nn::Module {
- public:
-  SetAttentionImpl(std::int64_t in, std::int64_t per_head, int heads) {
-    K_weight = register_parameter("K_weight", torch::empty({heads, in, per_head}));
-    Q_weight = register_parameter("Q_weight", torch::empty({heads, 1, per_head}));
-    V_weight = register_parameter("V_weight", torch::empty({heads, in, per_head}));
-    for (auto* w : {&K_weight, &Q_weight, &V_weight}) nn::xavier_uniform(*w);
-  }
-  torch::Tensor forward(const torch::Tensor& x_source, const nn::SparseOperator& A) {
-    const auto xK = torch::matmul(x_source, K_weight);  // heads × sources × c
-    const auto xV = torch::matmul(x_source, V_weight);
-    const auto score = torch::leaky_relu((xK * Q_weight).sum(-1), 0.2);  // heads × sources
-    std::vector<torch::Tensor> out;
-    for (std::int64_t h = 0; h < K_weight.size(0); ++h) {
-      const auto w = nn::row_softmax(A, score[h].index_select(0, A.col.to(score.device())));
-      out.push_back(nn::spmm(A.with_values(w), xV[h]) + Q_weight[h]);  // skip connection: the query
+/// The schedule: per layer two set functions (TopoModelX AllSetTransformerBlock), nodes ->
+/// hyperedges over Bᵀ, then hyperedges -> nodes over B. Each: the keys x K_h as the state "keys"
+/// of the source rank, the attention (source-only scores of the keys against the query q_h,
+/// messages x V_h) plus q_h and ln0 into the target, then ln1(y + relu(MLP(y))), relu, dropout.
+inline nn::OperatorSchedule allset_transformer_schedule(const AllSetTransformerOptions& o) {
+  using namespace nn::ops;
+  using nn::Update;
+  if (o.heads() <= 0)
+    throw std::invalid_argument("AllSetTransformer: heads (" + std::to_string(o.heads()) +
+                                ") must be positive");
+  if (o.hidden_channels() % o.heads() != 0)
+    throw std::invalid_argument("AllSetTransformer: hidden_channels (" +
+                                std::to_string(o.hidden_channels()) +
+                                ") must be divisible by heads (" + std::to_string(o.heads()) + ")");
+  // TopoModelX broadcasts the keys against the queries, which only works for one query.
+  if (o.number_queries() != 1)
+    throw std::invalid_argument(
+        "AllSetTransformer: number_queries must be 1 (TopoModelX's attention supports one query "
+        "per head)");
+  if (o.mlp_norm() == MlpNorm::batch_norm)
+    throw std::invalid_argument(
+        "AllSetTransformer: mlp_norm BatchNorm1d is not supported (the MLP sees targets x "
+        "queries x channels)");
+  if (o.n_layers() < 1) throw std::invalid_argument("AllSetTransformer: n_layers must be >= 1");
+  const int layers = o.mlp_num_layers();
+  if (layers < 1)
+    throw std::invalid_argument("MLP: mlp_num_layers (" + std::to_string(layers) +
+                                ") must be positive");
+  // The block's MLP is built as TopoModelX-compatible (allset.hpp's TopoMLP).
+  if (layers > 1 && !o.mlp_activation())
+    throw std::invalid_argument("MLP: mlp_activation None with " + std::to_string(layers) +
+                                " MLP layers fails in TopoModelX (name an activation)");
+  const std::int64_t h = o.hidden_channels(), H = o.heads(), c = h / H;
+  nn::OperatorSchedule s;
+  s.input("x_0", 0, o.in_channels()).operator_input("incidence_1", 1, 0);  // B's pattern
+  auto block = [&](const std::string& p, int src, int dst) {
+    const auto q = p + "multihead_att.Q_weight";
+    s.step(into(src, "keys").sum(from(src).head_weights(p + "multihead_att.K_weight", H, c)));
+    s.step(into(dst)
+               .sum(from(src)
+                        .head_weights(p + "multihead_att.V_weight", H, c)
+                        .attend("incidence_1", nn::AttendOptions(q)
+                                                   .shape({H, 1, c})
+                                                   .keys(nn::CochainKey{src, "keys"})
+                                                   .source_only(true)
+                                                   .activation(Update::leaky_relu)
+                                                   .negative_slope(0.2)
+                                                   .norm(nn::AttentionNorm::softmax)
+                                                   .heads(H)
+                                                   .transposed(dst == 1)))
+               .bias(q, {H, 1, c})  // PMA's skip connection: the query
+               .layer_norm(p + "ln0"));
+    // TopoModelX's MLP: [Linear, norm?, act, Dropout] but the last, Linear, then Dropout;
+    // numbered like its torch.nn.Sequential.
+    auto mlp = from(dst);
+    for (int l = 0, idx = 0; l < layers; ++l) {
+      mlp.linear(p + "mlp." + std::to_string(idx++), h, false);
+      if (l + 1 == layers) break;
+      if (o.mlp_norm() == MlpNorm::layer_norm) mlp.layer_norm(p + "mlp." + std::to_string(idx++));
+      mlp.act(o.mlp_activation().value_or(Update::none)).dropout(o.mlp_dropout());
+      idx += 2;  // the activation and Dropout modules
     }
-    return torch::cat(out, 1);
+    mlp.dropout(o.mlp_dropout()).act(Update::relu);
+    s.step(into(dst)
+               .sum(from(dst), std::move(mlp))
+               .layer_norm(p + "ln1")
+               .act(Update::relu)
+               .dropout(o.dropout()));
+  };
+  for (int l = 0; l < o.n_layers(); ++l) {
+    const auto p = "layers." + std::to_string(l) + ".";
+    block(p + "vertex2edge.", 0, 1);
+    block(p + "edge2vertex.", 1, 0);
   }
-  torch::Tensor K_weight, Q_weight, V_weight;
-};
-TORCH_MODULE(SetAttention);
+  s.output("x_0", 0).output("x_1", 1);
+  return s;
+}
 
-/// One set function (TopoModelX AllSetTransformerBlock): Y = LN0(MH + Q), LN1(Y + relu(MLP(Y))).
-class AllSetTransformerBlockImpl : public torch::nn::Module {
+class AllSetTransformerImpl : public nn::OperatorNetworkImpl {
  public:
-  AllSetTransformerBlockImpl(std::int64_t in, const AllSetTransformerOptions& o) {
-    const auto h = o.hidden_channels();
-    multihead_att = register_module("multihead_att", SetAttention(in, h / o.heads(), o.heads()));
-    mlp = register_module("mlp", TopoMLP(h, h, o.mlp_num_layers(), o.mlp_activation(), o.mlp_norm(),
-                                         o.mlp_dropout(), true));
-    ln0 = register_module("ln0", torch::nn::LayerNorm(torch::nn::LayerNormOptions({h})));
-    ln1 = register_module("ln1", torch::nn::LayerNorm(torch::nn::LayerNormOptions({h})));
-  }
-  torch::Tensor forward(const torch::Tensor& x_source, const nn::SparseOperator& A) {
-    const auto y = ln0->forward(multihead_att->forward(x_source, A));
-    return ln1->forward(y + torch::relu(mlp->forward(y)));
-  }
-  SetAttention multihead_att{nullptr};
-  TopoMLP mlp{nullptr};
-  torch::nn::LayerNorm ln0{nullptr}, ln1{nullptr};
-};
-TORCH_MODULE(AllSetTransformerBlock);
-
-class AllSetTransformerImpl : public torch::nn::Module {
- public:
-  explicit AllSetTransformerImpl(const AllSetTransformerOptions& o) : options(o) {
-    if (o.heads() <= 0)
-      throw std::invalid_argument("AllSetTransformer: heads (" + std::to_string(o.heads()) +
-                                  ") must be positive");
-    if (o.hidden_channels() % o.heads() != 0)
-      throw std::invalid_argument(
-          "AllSetTransformer: hidden_channels (" + std::to_string(o.hidden_channels()) +
-          ") must be divisible by heads (" + std::to_string(o.heads()) + ")");
-    // TopoModelX broadcasts the keys against the queries, which only works for one query.
-    if (o.number_queries() != 1)
-      throw std::invalid_argument(
-          "AllSetTransformer: number_queries must be 1 (TopoModelX's attention supports one query "
-          "per head)");
-    if (o.mlp_norm() == MlpNorm::batch_norm)
-      throw std::invalid_argument(
-          "AllSetTransformer: mlp_norm BatchNorm1d is not supported (the MLP sees targets x "
-          "queries x channels)");
-    auto list = register_module("layers", torch::nn::ModuleList());
-    for (int l = 0; l < o.n_layers(); ++l) {
-      auto layer = std::make_shared<torch::nn::Module>();
-      v2e_.push_back(layer->register_module(
-          "vertex2edge",
-          AllSetTransformerBlock(l == 0 ? o.in_channels() : o.hidden_channels(), o)));
-      e2v_.push_back(
-          layer->register_module("edge2vertex", AllSetTransformerBlock(o.hidden_channels(), o)));
-      list->push_back(layer);
-    }
-  }
+  explicit AllSetTransformerImpl(const AllSetTransformerOptions& o)
+      : OperatorNetworkImpl(allset_transformer_schedule(o)), options(o) {}
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
-  std::vector<torch::Tensor> forward(torch::Tensor x0, const nn::SparseOperator& incidence_1) {
+  std::vector<torch::Tensor> forward(const torch::Tensor& x0,
+                                     const nn::SparseOperator& incidence_1) {
     nn::check_node_features("AllSetTransformer", x0, incidence_1);
-    const auto B = incidence_1.pattern(), Bt = B.t();
-    torch::Tensor x1;
-    for (std::size_t l = 0; l < v2e_.size(); ++l) {
-      x1 = torch::dropout(torch::relu(v2e_[l]->forward(x0, Bt)), options.dropout(), is_training());
-      x0 = torch::dropout(torch::relu(e2v_[l]->forward(x1, B)), options.dropout(), is_training());
-    }
-    return {x0, x1};
+    return run({{"x_0", x0}}, {{"incidence_1", incidence_1.pattern()}}, {"x_0", "x_1"});
   }
   AllSetTransformerOptions options;
-
- private:
-  std::vector<AllSetTransformerBlock> v2e_, e2v_;
 };
 TORCH_MODULE(AllSetTransformer);
 

@@ -8,9 +8,10 @@
 // vectors get zero gradients (it also indexes hyperedge rows with node indices): with
 // topomodelx_compatible the weights are 1, x_1 = σ(Bᵀ x_0 W_1), x_0 = σ(B x_1 W_2).
 // Parameters layers.<i>.{weight1, weight2, att_weight1 (hidden × 1), att_weight2 (2·hidden × 1)}.
+// Written as an operator schedule (hypergat_schedule).
 #pragma once
 
-#include "topos/nn/conv.hpp"
+#include "topos/nn/operator_schedule.hpp"
 
 namespace topos::models {
 
@@ -26,62 +27,67 @@ struct HyperGATOptions {
   TORCH_ARG(bool, topomodelx_compatible) = false;
 };
 
-class HyperGATImpl : public torch::nn::Module {
- public:
-  explicit HyperGATImpl(const HyperGATOptions& o) : options(o) {
-    auto list = register_module("layers", torch::nn::ModuleList());
-    const auto h = o.hidden_channels();
-    for (int l = 0; l < o.n_layers(); ++l) {
-      auto layer = std::make_shared<torch::nn::Module>();
-      Layer L;
-      L.weight1 =
-          layer->register_parameter("weight1", torch::empty({l == 0 ? o.in_channels() : h, h}));
-      L.weight2 = layer->register_parameter("weight2", torch::empty({h, h}));
-      L.att_weight1 = layer->register_parameter("att_weight1", torch::empty({h, 1}));
-      L.att_weight2 = layer->register_parameter("att_weight2", torch::empty({2 * h, 1}));
-      for (auto* w : {&L.weight1, &L.weight2, &L.att_weight1, &L.att_weight2})
-        nn::xavier_uniform(*w, o.initialization_gain());
-      list->push_back(layer);
-      layers_.push_back(L);
+/// The schedule: per layer m_0 = x_0 W_1 (the state "m"), the node-level step into the
+/// hyperedges (source-only scores over Bᵀ), the edge-level step into the nodes (scored against
+/// m_0), then dropout. The compatible mode's unit weights are plain products with B; its attention
+/// vectors are declared parameters that no step uses.
+inline nn::OperatorSchedule hypergat_schedule(const HyperGATOptions& o) {
+  using namespace nn::ops;
+  using nn::AttentionNorm;
+  using nn::Update;
+  const auto h = o.hidden_channels();
+  const auto g = o.initialization_gain();
+  const auto u = o.update_func();
+  nn::OperatorSchedule s;
+  s.input("x_0", 0, o.in_channels()).operator_input("incidence_1", 1, 0);  // nodes × hyperedges
+  // a·lrelu(features) per entry, softmax per target: HyperGAT's scores.
+  auto scores = [&](const std::string& path, std::int64_t entries) {
+    return nn::AttendOptions(path)
+        .shape({entries, 1})
+        .gain(g)
+        .feature_activation(Update::leaky_relu)
+        .activation(Update::none)
+        .norm(AttentionNorm::softmax);
+  };
+  for (int l = 0; l < o.n_layers(); ++l) {
+    const auto p = "layers." + std::to_string(l) + ".";
+    if (o.topomodelx_compatible()) {
+      s.step(into(1).sum(from(0).weight(p + "weight1", h, g).via_t("incidence_1")).act(u));
+      s.step(into(0)
+                 .sum(from(1).weight(p + "weight2", h, g).via("incidence_1"))
+                 .act(u)
+                 .dropout(o.layer_drop()));
+      s.parameter(p + "att_weight1", {h, 1}, g).parameter(p + "att_weight2", {2 * h, 1}, g);
+      continue;
     }
+    s.step(into(0, "m").sum(from(0).weight(p + "weight1", h, g)));
+    s.step(into(1)
+               .sum(from(0, "m").attend(
+                   "incidence_1", scores(p + "att_weight1", h).transposed(true).source_only(true)))
+               .act(u));
+    s.step(into(0)
+               .sum(from(1)
+                        .weight(p + "weight2", h, g)
+                        .attend("incidence_1",
+                                scores(p + "att_weight2", 2 * h).queries(nn::CochainKey{0, "m"})))
+               .act(u)
+               .dropout(o.layer_drop()));
   }
+  s.output("x_0", 0).output("x_1", 1);
+  return s;
+}
+
+class HyperGATImpl : public nn::OperatorNetworkImpl {
+ public:
+  explicit HyperGATImpl(const HyperGATOptions& o)
+      : OperatorNetworkImpl(hypergat_schedule(o)), options(o) {}
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
-  std::vector<torch::Tensor> forward(torch::Tensor x0, const nn::SparseOperator& incidence_1) {
+  std::vector<torch::Tensor> forward(const torch::Tensor& x0,
+                                     const nn::SparseOperator& incidence_1) {
     nn::check_node_features("HyperGAT", x0, incidence_1);
-    const auto& B = incidence_1;
-    const auto Bt = B.t();
-    const auto h = options.hidden_channels();
-    torch::Tensor x1;
-    for (auto& L : layers_) {
-      const auto m0 = x0.matmul(L.weight1);
-      if (options.topomodelx_compatible()) {
-        x1 = nn::apply_update(nn::spmm(Bt, m0), options.update_func());
-        x0 = nn::apply_update(nn::spmm(B, x1.matmul(L.weight2)), options.update_func());
-      } else {
-        // Node level: each hyperedge (row of Bᵀ) attends over its nodes.
-        const auto s1 =
-            torch::leaky_relu(m0).matmul(L.att_weight1).squeeze(1).index_select(0, Bt.col);
-        x1 = nn::apply_update(nn::spmm(Bt.with_values(nn::row_softmax(Bt, s1) * Bt.values), m0),
-                              options.update_func());
-        // Edge level: each node (row of B) attends over its hyperedges.
-        const auto m1 = x1.matmul(L.weight2);
-        const auto a = L.att_weight2.squeeze(1);
-        const auto s2 = nn::pair_scores(B, torch::leaky_relu(m1), a.narrow(0, 0, h),
-                                        torch::leaky_relu(m0), a.narrow(0, h, h));
-        x0 = nn::apply_update(nn::spmm(B.with_values(nn::row_softmax(B, s2) * B.values), m1),
-                              options.update_func());
-      }
-      x0 = torch::dropout(x0, options.layer_drop(), is_training());
-    }
-    return {x0, x1};
+    return run({{"x_0", x0}}, {{"incidence_1", incidence_1}}, {"x_0", "x_1"});
   }
   HyperGATOptions options;
-
- private:
-  struct Layer {
-    torch::Tensor weight1, weight2, att_weight1, att_weight2;
-  };
-  std::vector<Layer> layers_;
 };
 TORCH_MODULE(HyperGAT);
 
