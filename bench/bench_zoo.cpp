@@ -215,11 +215,23 @@ const std::map<std::string, std::array<double, 2>> kTopoModelX = {
     {"san/rgg2000", {68.2, 147.1}},      {"unigcnii/rgg2000", {18.1, 18.1}},
     {"unigcnii/grid101", {519.0, 522.0}}};
 
+// The process's resident anonymous memory (RssAnon), MB: the heap and tensors without the
+// mapped library code. With keep_freed_memory() the heap is never given back, so its value after
+// a benchmark is the most anonymous memory the benchmark held at once.
+double rss_anon_mb() {
+  std::ifstream in("/proc/self/status");
+  std::string line;
+  while (std::getline(in, line))
+    if (line.rfind("RssAnon:", 0) == 0) return std::stod(line.substr(8)) / 1024.0;  // kB
+  return 0;
+}
+
 void run(benchmark::State& state, const std::string& model, const std::string& cname,
          const Complex* complex, bool backward) {
   rusage usage{};
   getrusage(RUSAGE_SELF, &usage);
   const auto rss_before = static_cast<double>(usage.ru_maxrss) / 1024.0;  // KiB on Linux
+  const auto anon_before = rss_anon_mb();
   std::vector<ZooArg> args;
   auto z = build(model, *complex, args);
   std::vector<torch::Tensor> R;
@@ -257,6 +269,7 @@ void run(benchmark::State& state, const std::string& model, const std::string& c
   // The peak before this benchmark built its model: LibTorch and the complexes (one benchmark
   // per process, bench/zoo_memory.sh, so that it is not an earlier benchmark's peak).
   state.counters["rss_before_MB"] = rss_before;
+  state.counters["anon_above_MB"] = rss_anon_mb() - anon_before;
 }
 
 // The sparse-dense product alone, side by side with torch's COO kernel (what TopoModelX calls) on

@@ -523,9 +523,6 @@ inline std::map<std::string, Maker> more_simplicial_and_cell_makers() {
        }},
       {"CAN",
        [](Config& c, bool compatible) {
-         if (c.get("pooling", false))
-           throw ZooError("CAN: pooling (TopoModelX's PoolLayer) is not implemented");
-         c.get("k_pool", 0.5);
          const auto act =
              torch_activation(c, "att_activation",
                               std::nullopt);  // None: LeakyReLU(0.2); a named class: its defaults
@@ -543,6 +540,8 @@ inline std::map<std::string, Maker> more_simplicial_and_cell_makers() {
                      .version(c.get<std::string>("version", "v1"))
                      .share_weights(c.get("share_weights", false))
                      .add_self_loops(c.get("add_self_loops", true))
+                     .pooling(c.get("pooling", false))
+                     .k_pool(c.get("k_pool", 0.5))
                      .topomodelx_compatible(compatible));
          return wrap<CAN>(
              "CAN", net,

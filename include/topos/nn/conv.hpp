@@ -238,52 +238,81 @@ inline torch::Tensor initial_residual(const torch::Tensor& x, const torch::Tenso
 }
 
 namespace detail {
-// (a I + b A)^k is linear in x and A is a constant here, so its backward is (a I + b Aᵀ)^k applied
-// to the gradient: nothing of the k intermediate products is kept for it.
+// (a I + b Σ_i A_i)^k is linear in x and the A_i are constants here, so its backward is
+// (a I + b Σ_i A_iᵀ)^k applied to the gradient: nothing of the k intermediate products is kept.
 struct AffinePowerFunction : public torch::autograd::Function<AffinePowerFunction> {
   static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& x,
-                               const SparseOperator& A, std::int64_t k, double a, double b) {
+                               const std::vector<SparseOperator>& terms, std::int64_t k, double a,
+                               double b) {
+    std::vector<torch::Tensor> crow, col, values, t_crow, t_col, t_perm;
+    for (const auto& A : terms) {
+      crow.push_back(A.crow), col.push_back(A.col), values.push_back(A.values.to(x.scalar_type()));
+      t_crow.push_back(A.t_crow), t_col.push_back(A.t_col), t_perm.push_back(A.t_perm);
+    }
     ctx->saved_data["k"] = k, ctx->saved_data["a"] = a, ctx->saved_data["b"] = b;
-    ctx->saved_data["t_crow"] = A.t_crow, ctx->saved_data["t_col"] = A.t_col;
-    ctx->saved_data["t_perm"] = A.t_perm, ctx->saved_data["values"] = A.values;
-    return run(x, A.crow, A.col, A.values, torch::Tensor(), A.rows, k, a, b);
+    ctx->saved_data["t_crow"] = t_crow, ctx->saved_data["t_col"] = t_col;
+    ctx->saved_data["t_perm"] = t_perm, ctx->saved_data["values"] = values;
+    return run(x, crow, col, values, {}, k, a, b);
   }
   static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx,
                                                torch::autograd::tensor_list grads) {
     auto& d = ctx->saved_data;
-    const auto dx = run(grads[0], d["t_crow"].toTensor(), d["t_col"].toTensor(),
-                        d["values"].toTensor(), d["t_perm"].toTensor(), grads[0].size(0),
-                        d["k"].toInt(), d["a"].toDouble(), d["b"].toDouble());
+    const auto dx = run(grads[0], d["t_crow"].toTensorVector(), d["t_col"].toTensorVector(),
+                        d["values"].toTensorVector(), d["t_perm"].toTensorVector(), d["k"].toInt(),
+                        d["a"].toDouble(), d["b"].toDouble());
     return {dx, torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor()};
   }
-  static torch::Tensor run(torch::Tensor x, const torch::Tensor& crow, const torch::Tensor& col,
-                           const torch::Tensor& values, const torch::Tensor& perm,
-                           std::int64_t rows, std::int64_t k, double a, double b) {
+  static torch::Tensor run(torch::Tensor x, const std::vector<torch::Tensor>& crow,
+                           const std::vector<torch::Tensor>& col,
+                           const std::vector<torch::Tensor>& values,
+                           const std::vector<torch::Tensor>& perm, std::int64_t k, double a,
+                           double b) {
     torch::NoGradGuard g;
-    const auto v = values.to(x.scalar_type());
-    for (std::int64_t i = 0; i < k; ++i)
-      x = csr_apply(crow, col, v, perm, x, rows).mul_(b).add_(x, a);
+    const auto rows = x.size(0);
+    for (std::int64_t i = 0; i < k; ++i) {
+      torch::Tensor y;
+      for (std::size_t t = 0; t < crow.size(); ++t) {
+        const auto p = perm.empty() ? torch::Tensor() : perm[t];
+        const auto z = csr_apply(crow[t], col[t], values[t], p, x, rows);
+        y = y.defined() ? y.add_(z) : z;
+      }
+      x = y.mul_(b).add_(x, a);
+    }
     return x;
   }
 };
 }  // namespace detail
 
-/// (a I + b A)^k x by k sparse products, never forming the matrix power: SAN's harmonic
-/// projection (I - εL)^k without the dense n × n power. A must be square and constant (its
-/// values are not differentiated); the backward keeps no intermediate product.
-inline torch::Tensor apply_affine_power(const SparseOperator& A, const torch::Tensor& x, int k,
-                                        double a, double b) {
-  if (A.rows != A.cols || x.dim() != 2 || x.size(0) != A.cols)
-    throw std::invalid_argument("apply_affine_power: needs a square operator of " +
-                                std::to_string(x.size(0)) + " rows, got " + std::to_string(A.rows) +
-                                " x " + std::to_string(A.cols));
+/// (a I + b Σ_i A_i)^k x by k rounds of sparse products, never forming the sum or its power:
+/// SAN's harmonic projection (I - ε(L↑ + L↓))^k without the dense n × n power. The A_i must be
+/// square and constant (their values are not differentiated); the backward keeps no
+/// intermediate product.
+inline torch::Tensor apply_affine_power(const std::vector<SparseOperator>& terms,
+                                        const torch::Tensor& x, int k, double a, double b) {
+  if (terms.empty()) throw std::invalid_argument("apply_affine_power: no operator");
+  for (const auto& A : terms)
+    if (A.rows != A.cols || x.dim() != 2 || x.size(0) != A.cols)
+      throw std::invalid_argument("apply_affine_power: needs square operators of " +
+                                  std::to_string(x.size(0)) + " rows, got " +
+                                  std::to_string(A.rows) + " x " + std::to_string(A.cols));
   if (k == 0) return x;
-  if (!x.device().is_cpu() || A.values.requires_grad()) {
+  bool plain = !x.device().is_cpu();
+  for (const auto& A : terms) plain = plain || A.values.requires_grad();
+  if (plain) {
     auto y = x;
-    for (int i = 0; i < k; ++i) y = a * y + b * spmm(A, y);
+    for (int i = 0; i < k; ++i) {
+      torch::Tensor s;
+      for (const auto& A : terms) s = s.defined() ? s + spmm(A, y) : spmm(A, y);
+      y = a * y + b * s;
+    }
     return y;
   }
-  return detail::AffinePowerFunction::apply(x, A, static_cast<std::int64_t>(k), a, b);
+  return detail::AffinePowerFunction::apply(x, terms, static_cast<std::int64_t>(k), a, b);
+}
+
+inline torch::Tensor apply_affine_power(const SparseOperator& A, const torch::Tensor& x, int k,
+                                        double a, double b) {
+  return apply_affine_power(std::vector<SparseOperator>{A}, x, k, a, b);
 }
 
 /// A named group of submodules with no parameters of its own, to reproduce a parameter path

@@ -492,6 +492,13 @@ class OperatorNetworkImpl : public torch::nn::Module {
   std::map<std::string, torch::Tensor> forward(
       const std::map<std::string, torch::Tensor>& inputs,
       const std::map<std::string, SparseOperator>& operators) {
+    auto h = input_cochains(inputs);
+    run_groups(h, operators, 0, schedule_.groups().size());
+    return output_cochains(h);
+  }
+
+  /// The cochains the inputs give, checked against the schedule's inputs.
+  Cochains input_cochains(const std::map<std::string, torch::Tensor>& inputs) const {
     Cochains h;
     for (const auto& in : schedule_.inputs()) {
       auto it = inputs.find(in.name);
@@ -502,13 +509,24 @@ class OperatorNetworkImpl : public torch::nn::Module {
                             std::to_string(in.channels) + "), got " + shape_str(x));
       h.set(in.key.rank, in.key.state, x);
     }
+    return h;
+  }
+
+  /// Runs the step groups [begin, end) on h. A model whose complex changes between layers (CAN's
+  /// pooling keeps some cells and restricts the operators to them) runs its schedule in pieces.
+  void run_groups(Cochains& h, const std::map<std::string, SparseOperator>& operators,
+                  std::size_t begin, std::size_t end) {
     Operators ops{&operators, {}};
-    for (const auto& group : schedule_.groups()) {
+    const auto& groups = schedule_.groups();
+    for (std::size_t g = begin; g < end && g < groups.size(); ++g) {
       const Cochains snapshot = h;
       std::vector<std::pair<CochainKey, torch::Tensor>> updates;
-      for (const auto& s : group) updates.emplace_back(s.target, run_step(s, snapshot, ops));
+      for (const auto& s : groups[g]) updates.emplace_back(s.target, run_step(s, snapshot, ops));
       for (auto& [k, v] : updates) h.set(k.rank, k.state, std::move(v));
     }
+  }
+
+  std::map<std::string, torch::Tensor> output_cochains(const Cochains& h) const {
     std::map<std::string, torch::Tensor> out;
     for (const auto& o : schedule_.outputs()) out[o.name] = h.at(o.key.rank, o.key.state);
     return out;

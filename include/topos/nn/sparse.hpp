@@ -243,6 +243,34 @@ struct SparseOperator {
     }
     return from_triplets(a.rows, a.cols, r, c, v, a.values.scalar_type());
   }
+  /// The rows and columns `keep` of a square operator (each index at most once), renumbered in
+  /// the order given: entry (i, j) is A[keep[i], keep[j]] (index_select on both dimensions, as
+  /// CAN's pooling restricts its Laplacians to the cells it keeps). Not differentiable.
+  SparseOperator principal_submatrix(const torch::Tensor& keep) const {
+    if (rows != cols)
+      throw std::invalid_argument(
+          "SparseOperator::principal_submatrix: the operator is not square");
+    const auto k = keep.to(torch::kCPU, torch::kLong).contiguous();
+    const auto* kp = k.data_ptr<std::int64_t>();
+    std::vector<std::int64_t> at(static_cast<std::size_t>(rows), -1);
+    for (std::int64_t i = 0; i < k.numel(); ++i) {
+      if (kp[i] < 0 || kp[i] >= rows || at[static_cast<std::size_t>(kp[i])] >= 0)
+        throw std::invalid_argument("SparseOperator::principal_submatrix: index " +
+                                    std::to_string(kp[i]) + " is outside 0.." +
+                                    std::to_string(rows - 1) + " or repeated");
+      at[static_cast<std::size_t>(kp[i])] = i;
+    }
+    const auto r = row.to(torch::kCPU).contiguous(), c = col.to(torch::kCPU).contiguous();
+    const auto v = values.detach().to(torch::kCPU, torch::kDouble).contiguous();
+    std::vector<std::int64_t> rr, cc;
+    std::vector<double> vv;
+    for (std::int64_t e = 0; e < nnz(); ++e) {
+      const auto i = at[static_cast<std::size_t>(r.data_ptr<std::int64_t>()[e])];
+      const auto j = at[static_cast<std::size_t>(c.data_ptr<std::int64_t>()[e])];
+      if (i >= 0 && j >= 0) rr.push_back(i), cc.push_back(j), vv.push_back(v.data_ptr<double>()[e]);
+    }
+    return from_triplets(k.numel(), k.numel(), rr, cc, vv, values.scalar_type());
+  }
   /// A + B (same shape): the union of both patterns (entries that sum to zero dropped), by a
   /// merge of the sorted rows, O(nnz). Operator algebra, not differentiable.
   static SparseOperator sum(const SparseOperator& a, const SparseOperator& b) {

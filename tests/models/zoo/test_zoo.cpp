@@ -163,6 +163,61 @@ TEST_CASE("operator algebra: entrywise product, self loops, mirrored rows", "[nn
   }
 }
 
+TEST_CASE("CAN's pooling keeps the edges of highest score and restricts the Laplacians",
+          "[models][zoo]") {
+  torch::manual_seed(21);
+  const auto symmetric = [](double density) {
+    auto d = torch::randn({12, 12}) * (torch::rand({12, 12}) < density).to(torch::kFloat);
+    return SparseOperator::from_dense(d + d.t());
+  };
+  const auto Ld = symmetric(0.3), Lu = symmetric(0.2);
+  const auto x0 = torch::zeros({1, 3}), x1 = torch::randn({12, 4});
+  CAN pooled(CANOptions(3, 4, 4).heads(2).att_lift(false).n_layers(3).pooling(true).k_pool(0.5));
+  pooled->eval();
+  const auto params = pooled->named_parameters();
+  REQUIRE(params.contains("layers.2.att_pool"));
+  REQUIRE(params.contains("layers.4.att_pool"));
+  REQUIRE(params.contains("layers.3.lower_att.lin.weight"));
+  REQUIRE_FALSE(params.contains("layers.2.lower_att.lin.weight"));
+  // The same computation by hand: one-layer CANs holding each layer's weights, the pooling
+  // written out with dense Laplacians.
+  const auto layer = [&](int index) {
+    CAN one(CANOptions(3, 4, 4).heads(2).att_lift(false).n_layers(1));
+    one->eval();
+    torch::NoGradGuard g;
+    const auto prefix = "layers." + std::to_string(index) + ".";
+    for (auto& p : one->named_parameters()) {
+      REQUIRE(p.key().rfind("layers.0.", 0) == 0);
+      p.value().copy_(params[prefix + p.key().substr(9)]);  // after "layers.0."
+    }
+    return one;
+  };
+  const auto pool = [&](torch::Tensor& y, torch::Tensor& dd, torch::Tensor& du, int index) {
+    const auto s = y.matmul(params["layers." + std::to_string(index) + ".att_pool"]).view({-1});
+    const auto top = std::get<1>(torch::topk(s, y.size(0) / 2));
+    y = y.index_select(0, top) * torch::sigmoid(s).index_select(0, top).unsqueeze(1);
+    dd = dd.index_select(0, top).index_select(1, top);
+    du = du.index_select(0, top).index_select(1, top);
+  };
+  torch::NoGradGuard g;
+  auto dd = Ld.to_dense(), du = Lu.to_dense();
+  auto y = layer(0)->forward(x0, x1, Ld, Ld, Lu);
+  y = layer(1)->forward(x0, y, Ld, Ld, Lu);
+  pool(y, dd, du, 2);
+  y = layer(3)->forward(x0, y, Ld, SparseOperator::from_dense(dd), SparseOperator::from_dense(du));
+  pool(y, dd, du, 4);
+  const auto out = pooled->forward(x0, x1, Ld, Ld, Lu);
+  REQUIRE(out.size(0) == 3);
+  REQUIRE(torch::allclose(out, y, 1e-5, 1e-6));
+  // The restriction itself, and its errors.
+  const auto keep = torch::tensor({5, 0, 7}, torch::kLong);
+  REQUIRE(torch::equal(Ld.principal_submatrix(keep).to_dense(),
+                       Ld.to_dense().index_select(0, keep).index_select(1, keep)));
+  REQUIRE_THROWS_WITH(Ld.principal_submatrix(torch::tensor({1, 1}, torch::kLong)),
+                      Catch::Contains("repeated"));
+  REQUIRE_THROWS_WITH(CAN(CANOptions(3, 4, 4).pooling(true).k_pool(0)), Catch::Contains("k_pool"));
+}
+
 TEST_CASE("compatible and intended modes: where they agree and where they differ",
           "[models][zoo]") {
   torch::manual_seed(11);
@@ -227,6 +282,14 @@ TEST_CASE("polynomial filters and the affine power equal dense matrix powers", "
   REQUIRE(torch::allclose(xg.grad(), xd.grad(), 1e-12, 1e-12));
   REQUIRE(torch::allclose(xg.grad(), M.t().matmul(R), 1e-12, 1e-12));
   REQUIRE(apply_affine_power(A, x, 0, 1.0, -0.1).equal(x));
+  // A sum of operators, never summed: (I - 0.1 (D + E))^3, forward and backward.
+  const auto E = random_operator(12, 12, 0.2, torch::kDouble, 6);
+  const auto M2 = torch::linalg_matrix_power(I - 0.1 * (D + E.to_dense()), 3);
+  const auto x2 = x.clone().requires_grad_(true);
+  const auto y2 = apply_affine_power({A, E}, x2, 3, 1.0, -0.1);
+  REQUIRE(torch::allclose(y2, M2.matmul(x), 1e-12, 1e-12));
+  (y2 * R).sum().backward();
+  REQUIRE(torch::allclose(x2.grad(), M2.t().matmul(R), 1e-12, 1e-12));
   REQUIRE_THROWS_WITH(
       apply_affine_power(random_operator(12, 5, 0.3, torch::kDouble, 1), x, 2, 1, 1),
       Catch::Contains("square operator"));

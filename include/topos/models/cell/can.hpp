@@ -13,8 +13,9 @@
 // As in TopoModelX: the attention activation is LeakyReLU(0.2) unless one is named; the first
 // layer has no attention dropout (the compatible mode; the default gives every layer `dropout`);
 // the lift makes one row per stored entry of the adjacency it gets, which must be as many as
-// the edges (an adjacency holding each edge once). Pooling (TopoModelX's PoolLayer) is not
-// implemented. Written as an operator schedule (can_schedule).
+// the edges (an adjacency holding each edge once). With `pooling`, TopoModelX's PoolLayer follows
+// every layer but the first (the edges of highest score kept, the Laplacians restricted to them),
+// and the schedule runs layer by layer. Written as an operator schedule (can_schedule).
 #pragma once
 
 #include "topos/nn/operator_schedule.hpp"
@@ -41,7 +42,17 @@ struct CANOptions {
   TORCH_ARG(bool, share_weights) = false;
   TORCH_ARG(bool, add_self_loops) = true;
   TORCH_ARG(bool, topomodelx_compatible) = false;  ///< first layer without attention dropout
+  /// TopoModelX's PoolLayer after every layer but the first: keep the int(k_pool · n) edges of
+  /// highest score x·a, scaled by sigmoid(score), and restrict L_1↓, L_1↑ to them.
+  TORCH_ARG(bool, pooling) = false;
+  TORCH_ARG(double, k_pool) = 0.5;
 };
+
+/// Where layer l sits in TopoModelX's "layers" list: with pooling each layer after the first is
+/// followed by its PoolLayer (layers.0 CAN, layers.1 CAN, layers.2 pool, layers.3 CAN, ...).
+inline int can_layer_index(const CANOptions& o, int l) {
+  return o.pooling() && l > 0 ? 2 * l - 1 : l;
+}
 
 /// The schedule: the lift (the node features of each adjacency entry's two ends side by side,
 /// "lift_source"/"lift_target" selecting them), then per layer the attention's linear maps of
@@ -59,6 +70,8 @@ inline nn::OperatorSchedule can_schedule(const CANOptions& o) {
   if (o.n_layers() < 1) throw std::invalid_argument("CAN: n_layers must be >= 1");
   if (o.dropout() < 0 || o.dropout() > 1)
     throw std::invalid_argument("CAN: dropout must be in [0, 1]");
+  if (o.pooling() && !(o.k_pool() > 0 && o.k_pool() <= 1))
+    throw std::invalid_argument("CAN: k_pool must be in (0, 1]");
   const bool v2 = o.version() == "v2";
   const auto H = o.heads(), out = o.out_channels(), c = out / H;
   nn::OperatorSchedule s;
@@ -77,7 +90,7 @@ inline nn::OperatorSchedule can_schedule(const CANOptions& o) {
     s.step(into(1).concat(from(1, "lift"), from(1)));
   }
   for (int l = 0; l < o.n_layers(); ++l) {
-    const auto p = "layers." + std::to_string(l) + ".";
+    const auto p = "layers." + std::to_string(can_layer_index(o, l)) + ".";
     std::vector<nn::OperatorStep> maps;
     std::vector<Term> terms;
     for (const std::string side : {"lower", "upper"}) {
@@ -108,7 +121,10 @@ inline nn::OperatorSchedule can_schedule(const CANOptions& o) {
       terms.push_back(
           std::move(from(1).linear(p + "lin", o.concat() ? out : c, false).scale(1 + 1e-6)));
     s.parallel(std::move(maps));
-    s.step(into(1).sum(std::move(terms)).act(Update::relu).dropout(0.5));
+    s.step(into(1).sum(std::move(terms)).act(Update::relu).dropout(0.5).named(p + "update"));
+    if (o.pooling() && l > 0)
+      s.parameter("layers." + std::to_string(2 * l) + ".att_pool", {o.concat() ? out : c, 1},
+                  std::sqrt(2.0));
   }
   return s;
 }
@@ -120,7 +136,8 @@ class CANImpl : public nn::OperatorNetworkImpl {
     if (o.share_weights())
       for (int l = 0; l < o.n_layers(); ++l)
         for (const char* side : {"lower", "upper"}) {
-          auto att = named_modules("", false)["layers." + std::to_string(l) + "." + side + "_att"];
+          auto att = named_modules(
+              "", false)["layers." + std::to_string(can_layer_index(o, l)) + "." + side + "_att"];
           att->register_module("lin_dst", att->named_children()["lin_src"]);
         }
   }
@@ -141,7 +158,32 @@ class CANImpl : public nn::OperatorNetworkImpl {
       ops["lift_source"] = nn::SparseOperator::selection(adjacency_0.row, x_0.size(0));
       ops["lift_target"] = nn::SparseOperator::selection(adjacency_0.col, x_0.size(0));
     }
-    return run({{"x_0", x_0}, {"x_1", x_1}}, ops, {"x_1"})[0];
+    if (!options.pooling()) return run({{"x_0", x_0}, {"x_1", x_1}}, ops, {"x_1"})[0];
+    // With pooling the schedule runs layer by layer: after each layer but the first, the edges of
+    // highest score are kept and the Laplacians restricted to them.
+    auto h = input_cochains({{"x_0", x_0}, {"x_1", x_1}});
+    auto L_down = down_laplacian_1, L_up = up_laplacian_1;
+    const auto& groups = schedule().groups();
+    std::size_t begin = 0;
+    int l = 0;
+    for (std::size_t g = 0; g < groups.size(); ++g) {
+      if (groups[g].size() != 1 || groups[g][0].name.compare(0, 7, "layers.") != 0) continue;
+      run_groups(h, ops, begin, g + 1);  // through layer l's update step
+      begin = g + 1;
+      if (l++ == 0) continue;
+      const auto& x = h.at(1);
+      const auto score = x.matmul(parameter("layers." + std::to_string(2 * (l - 1)) + ".att_pool"));
+      const auto keep =
+          static_cast<std::int64_t>(options.k_pool() * static_cast<double>(x.size(0)));
+      if (keep < 1)
+        throw std::invalid_argument("CAN: pooling keeps int(" + std::to_string(options.k_pool()) +
+                                    " * " + std::to_string(x.size(0)) + ") = 0 edges");
+      const auto top = std::get<1>(torch::topk(score.view({-1}), keep));
+      h.set(1, "", x.index_select(0, top) * torch::sigmoid(score).index_select(0, top));
+      L_down = L_down.principal_submatrix(top), L_up = L_up.principal_submatrix(top);
+      ops["lower"] = neighbourhood(L_down), ops["upper"] = neighbourhood(L_up);
+    }
+    return h.at(1);
   }
   CANOptions options;
 

@@ -79,11 +79,10 @@ class SANImpl : public torch::nn::Module {
   }
   torch::Tensor forward(torch::Tensor x, const nn::SparseOperator& laplacian_up,
                         const nn::SparseOperator& laplacian_down) {
-    const auto L = nn::SparseOperator::sum(laplacian_up, laplacian_down);
     for (auto& l : layers_) {
-      const auto harmonic =
-          nn::apply_affine_power(L, x.matmul(l.harmonic->weight), options.order_harmonic(), 1.0,
-                                 -options.epsilon_harmonic());
+      const auto harmonic =  // (I - ε(L↑ + L↓))^k x W, the Laplacian never summed
+          nn::apply_affine_power({laplacian_up, laplacian_down}, x.matmul(l.harmonic->weight),
+                                 options.order_harmonic(), 1.0, -options.epsilon_harmonic());
       x = l.down->forward(x, laplacian_down) + l.up->forward(x, laplacian_up) + harmonic;
     }
     return x;
