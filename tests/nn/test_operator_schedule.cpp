@@ -449,3 +449,117 @@ TEST_CASE("the zoo's schedules create TopoModelX's parameter names and shapes",
   CHECK(allset->parameter("layers.0.edge2vertex.multihead_att.Q_weight").sizes() ==
         torch::IntArrayRef({2, 1, 4}));
 }
+
+TEST_CASE("scale and bias: a learned or buffered scalar, a learned row", "[nn][schedule]") {
+  const auto A = dense_operator(4, 4, 9);
+  torch::manual_seed(10);
+  const auto x = torch::randn({4, 3}, torch::kDouble);
+  OperatorSchedule s;
+  s.input("x", 0, 3).operator_input("A", 0, 0);
+  s.step(into(0)
+             .sum(from(0).scale("layer.eps", 0.25, /*trainable=*/false, /*offset=*/1),
+                  from(0).via("A").scale("layer.gain", -0.5))
+             .bias("layer.bias", {1, 3}, 1.0));
+  s.output("y", 0);
+  OperatorNetwork net(s);
+  net->to(torch::kDouble);
+  // The untrained scalar is a buffer, saved at its path like a parameter.
+  CHECK(parameter_names(*net) == std::set<std::string>{"layer.gain", "layer.bias"});
+  CHECK(net->named_buffers().size() == 1);
+  CHECK(net->named_buffers().contains("layer.eps"));
+  CHECK(net->parameter("layer.eps").sizes() == torch::IntArrayRef({1}));
+  CHECK(net->parameter("layer.eps").item<double>() == 0.25);
+  CHECK(net->parameter("layer.gain").item<double>() == -0.5);
+  const auto b = net->parameter("layer.bias");
+  CHECK(b.sizes() == torch::IntArrayRef({1, 3}));
+  CHECK(b.abs().max().item<double>() <= std::sqrt(6.0 / (1 + 3)));  // Glorot, gain 1
+  const auto y = net->forward({{"x", x}}, {{"A", A}}).at("y");
+  const auto expect = 1.25 * x - 0.5 * A.to_dense().mm(x) + b.expand({4, 3});
+  CHECK(torch::allclose(y, expect, 1e-12, 1e-12));
+  y.sum().backward();
+  CHECK(torch::allclose(net->parameter("layer.gain").grad(), (A.to_dense().mm(x)).sum().view({1}),
+                        1e-12, 1e-12));
+  CHECK(torch::allclose(b.grad(), torch::full({1, 3}, 4.0, torch::kDouble)));
+  CHECK_THAT(s.str(), Contains("(1+layer.eps)·(0)") && Contains(" + layer.bias)"));
+}
+
+TEST_CASE("pow and normalize: generalised means, differentiated L2 normalisation",
+          "[nn][schedule]") {
+  const auto A = dense_operator(5, 6, 11);  // edges (6) -> nodes (5)
+  torch::manual_seed(12);
+  const auto x = torch::rand({6, 3}, torch::kDouble) + 0.1;
+  const auto z = torch::randn({5, 3}, torch::kDouble).requires_grad_(true);
+  OperatorSchedule s;
+  s.input("x", 1, 3).input("z", 0, 3, "z").operator_input("A", 1, 0);
+  s.step(into(0).sum(from(1).pow(3).pattern("A", Aggr::mean).pow(1.0 / 3)));
+  s.parallel({into(0, "rows").sum(from(0, "z")).normalize(),
+              into(0, "whole").sum(from(0, "z")).normalize(/*per_row=*/false)});
+  s.output("mean", 0).output("rows", 0, "rows").output("whole", 0, "whole");
+  OperatorNetwork net(s);
+  const auto out = net->forward({{"x", x}, {"z", z}}, {{"A", A}});
+  // (mean over each node's edges of x³)^(1/3), nodes without edges 0.
+  const auto P = (A.to_dense() != 0).to(torch::kDouble);
+  const auto mean = (P.mm(x.pow(3)) / P.sum(1, true).clamp_min(1)).pow(1.0 / 3);
+  CHECK(torch::allclose(out.at("mean"), mean, 1e-12, 1e-12));
+  CHECK(torch::allclose(out.at("rows"), z / z.norm(2, 1, true), 1e-12, 1e-12));
+  CHECK(torch::allclose(out.at("whole"), z / z.norm(), 1e-12, 1e-12));
+  // The norm is differentiated: moving along its own direction changes nothing, so the gradient
+  // of <normalize(z), normalize(z) held constant> vanishes (unit_rows' would not).
+  const auto rows = out.at("rows");
+  (rows * rows.detach()).sum().backward();
+  CHECK(z.grad().abs().max().item<double>() < 1e-12);
+  CHECK_THAT(s.str(), Contains("(mean|A|·((1))^3)^0.333333") && Contains("normalize_rows(") &&
+                          Contains("normalize(sum["));
+  // A zero row stays zero.
+  const auto zero = torch::zeros({5, 3}, torch::kDouble);
+  CHECK(torch::equal(net->forward({{"x", x}, {"z", zero}}, {{"A", A}}).at("rows"), zero));
+}
+
+TEST_CASE("the hypergraph schedules keep TopoModelX's parameter and buffer names",
+          "[nn][schedule][models]") {
+  auto buffer_names = [](const torch::nn::Module& m) {
+    std::set<std::string> out;
+    for (const auto& b : m.named_buffers()) out.insert(b.key());
+    return out;
+  };
+  models::UniGIN unigin(models::UniGINOptions(3, 4).n_layers(2));
+  CHECK(parameter_names(*unigin) ==
+        std::set<std::string>{"initial_linear_layer.weight", "initial_linear_layer.bias",
+                              "layers.0.linear.weight", "layers.0.linear.bias",
+                              "layers.1.linear.weight", "layers.1.linear.bias"});
+  CHECK(buffer_names(*unigin) == std::set<std::string>{"layers.0.eps", "layers.1.eps"});
+  models::UniGIN trained(models::UniGINOptions(3, 4).n_layers(1).eps(0.5).train_eps(true));
+  CHECK(parameter_names(*trained).count("layers.0.eps") == 1);
+  CHECK(buffer_names(*trained).empty());
+  CHECK(trained->parameter("layers.0.eps").item<double>() == 0.5);
+
+  models::HNHN hnhn(models::HNHNOptions(3, 4).n_layers(1));
+  CHECK(parameter_names(*hnhn) ==
+        std::set<std::string>{"layers.0.conv_0_to_1.weight", "layers.0.conv_1_to_0.weight",
+                              "layers.0.bias_0_to_1", "layers.0.bias_1_to_0"});
+  CHECK(hnhn->parameter("layers.0.conv_0_to_1.weight").sizes() == torch::IntArrayRef({3, 4}));
+  CHECK(hnhn->parameter("layers.0.bias_1_to_0").sizes() == torch::IntArrayRef({1, 4}));
+  models::HNHN unbiased(models::HNHNOptions(3, 4).n_layers(1).use_bias(false));
+  CHECK(parameter_names(*unbiased).size() == 2);
+
+  // [Linear, BatchNorm1d, activation, Dropout, Linear], numbered as torch.nn.Sequential.
+  models::AllSet allset(
+      models::AllSetOptions(3, 4).n_layers(1).mlp_norm(models::MlpNorm::batch_norm));
+  std::set<std::string> expected;
+  for (const std::string block : {"vertex2edge", "edge2vertex"}) {
+    expected.insert("layers.0." + block + ".conv.weight");
+    for (const std::string mlp : {".encoder", ".decoder"})
+      for (const std::string name : {".0.weight", ".1.weight", ".1.bias", ".4.weight"})
+        expected.insert("layers.0." + block + mlp + name);
+  }
+  CHECK(parameter_names(*allset) == expected);
+  CHECK(buffer_names(*allset).count("layers.0.edge2vertex.decoder.1.running_mean") == 1);
+  CHECK(allset->parameter("layers.0.vertex2edge.encoder.0.weight").sizes() ==
+        torch::IntArrayRef({4, 3}));
+
+  // HyperSAGE's "uniform" initialisation: U(-1/sqrt(out), 1/sqrt(out)).
+  models::HyperSAGE sage(models::HyperSAGEOptions(3, 4));
+  CHECK(parameter_names(*sage) == std::set<std::string>{"layers.0.weight", "layers.1.weight"});
+  CHECK(sage->parameter("layers.0.weight").sizes() == torch::IntArrayRef({3, 4}));
+  CHECK(sage->parameter("layers.1.weight").abs().max().item<double>() <= 0.5);
+}

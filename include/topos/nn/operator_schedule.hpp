@@ -20,12 +20,13 @@
 // A term starts at a cochain (rank, state) and applies its operations in order: operators
 // (`via`, `via_t` for the transpose, `pattern` for the sparsity pattern alone), learned maps
 // (`conv`/`weight`: x·W with W in × out, TopoModelX's Conv layout; `linear`: torch.nn.Linear;
-// `head_weights`, `bias`), activations, dropout, attention (`attend`: GAT or GATv2 scores, one or
-// several heads, keys and queries from other cochains), and last, optionally, a polynomial filter
-// (`powers`) that fans the term out into [y, A y, ..., A^K y]. A step mixes its terms (sum, mean,
-// concatenation, or a filter weight over all of them), applies its own operations, and writes
-// the target cochain. Steps run in sequence; a parallel group reads one snapshot (a layer that
-// updates every rank at once).
+// `head_weights`, `bias`, `scale` by a learned or buffered scalar), activations, dropout,
+// attention (`attend`: GAT or GATv2 scores, one or several heads, keys and queries from other
+// cochains), `pow`, `normalize`, and last, optionally, a polynomial filter (`powers`) that fans
+// the term out into [y, A y, ..., A^K y]. A step mixes its terms (sum, mean, concatenation, or a
+// filter weight over all of them), applies its own operations, and writes the target cochain.
+// Steps run in sequence; a parallel group reads one snapshot (a layer that updates every rank at
+// once). A buffer (a scale that is not trained) is saved at its path like a parameter.
 //
 // Parameters are created at the dotted paths the schedule names ("layers.0.conv_0_to_0.weight"),
 // with their shapes inferred from the channels, so a TopoModelX state_dict loads by its own
@@ -100,7 +101,10 @@ struct TermOp {
     powers,        ///< [y, A₁y..A₁^K₁y, A₂y..A₂^K₂y, ...]: fans the term out, last only
     scale,         ///< x · p, a constant
     head_weights,  ///< [x W_1 | ... | x W_H], W (heads × in × out) at `name`
-    bias           ///< x + b on every row, b at `name` (any shape of as many entries as channels)
+    bias,          ///< x + b on every row, b at `name` (any shape of as many entries as channels)
+    learned_scale,  ///< (offset + s) · x, s a learned or buffered scalar at `name`
+    pow,            ///< x^value elementwise
+    normalize       ///< x / ‖x‖₂ (differentiated), per row or over the whole matrix
   };
   explicit TermOp(Kind k, std::string n = {}) : kind(k), name(std::move(n)) {}
   Kind kind;
@@ -122,6 +126,10 @@ struct TermOp {
   AttendOptions attention{""};      ///< attend: its options (param, update, slope repeat some)
   std::int64_t heads = 1;           ///< head_weights
   std::vector<std::int64_t> shape;  ///< bias: the parameter's shape
+  double value = 0;                 ///< scale: the scalar's initial value; pow: the exponent
+  double offset = 0;                ///< scale: added to the scalar
+  bool trainable = true;            ///< scale: a parameter, else a buffer
+  bool per_row = true;              ///< normalize: each row, else the whole matrix
 };
 
 namespace ops {
@@ -205,10 +213,34 @@ class Chain {
     t.gain = gain;
     return add(std::move(t));
   }
-  /// x + b on every row, b at `path` of `shape` (default: a vector), flattened; zeros when new.
-  Derived& bias(std::string path, std::vector<std::int64_t> shape = {}) {
+  /// x + b on every row, b at `path` of `shape` (default: a vector), flattened; zeros when new,
+  /// or with a `gain` Glorot-initialised (HNHN's biases, 1 × channels).
+  Derived& bias(std::string path, std::vector<std::int64_t> shape = {}, double gain = 0) {
     TermOp t(TermOp::Kind::bias, std::move(path));
     t.shape = std::move(shape);
+    t.gain = gain;
+    return add(std::move(t));
+  }
+  /// (offset + s) · x, s a scalar (shape {1}) at `path` starting at `value`: a parameter when
+  /// `trainable`, else a buffer (GIN's (1 + ε) x).
+  Derived& scale(std::string path, double value, bool trainable = true, double offset = 0) {
+    TermOp t(TermOp::Kind::learned_scale, std::move(path));
+    t.value = value;
+    t.trainable = trainable;
+    t.offset = offset;
+    return add(std::move(t));
+  }
+  /// x^exponent elementwise (a generalised mean: pow(p), a mean, pow(1 / p)).
+  Derived& pow(double exponent) {
+    TermOp t(TermOp::Kind::pow);
+    t.value = exponent;
+    return add(std::move(t));
+  }
+  /// x divided by its L2 norm, differentiated (unlike unit_rows), the norm clamped at 1e-12: each
+  /// row's (torch's F.normalize), or with per_row false the whole matrix's.
+  Derived& normalize(bool per_row = true) {
+    TermOp t(TermOp::Kind::normalize);
+    t.per_row = per_row;
     return add(std::move(t));
   }
   const std::vector<TermOp>& operations() const { return ops_; }
@@ -458,9 +490,23 @@ class OperatorSchedule {
         case TermOp::Kind::bias:
           x = x + " + " + t.name;
           break;
+        case TermOp::Kind::learned_scale:
+          x = "(" + num(t.offset) + "+" + t.name + ")·" + x;
+          break;
+        case TermOp::Kind::pow:
+          x = "(" + x + ")^" + num(t.value);
+          break;
+        case TermOp::Kind::normalize:
+          x = (t.per_row ? "normalize_rows(" : "normalize(") + x + ")";
+          break;
       }
     }
     return x;
+  }
+  static std::string num(double v) {
+    std::ostringstream o;
+    o << v;
+    return o.str();
   }
   static std::string step_str(const OperatorStep& s) {
     std::string mixed = s.mix == OperatorStep::Mix::filter   ? "filter " + s.filter_path + "["
@@ -543,7 +589,7 @@ class OperatorNetworkImpl : public torch::nn::Module {
   }
 
   const OperatorSchedule& schedule() const { return schedule_; }
-  /// The parameter at a schedule path.
+  /// The parameter (or buffer) at a schedule path.
   const torch::Tensor& parameter(const std::string& path) const {
     auto it = params_.find(path);
     if (it == params_.end()) throw ScheduleError("no parameter '" + path + "'");
@@ -552,7 +598,8 @@ class OperatorNetworkImpl : public torch::nn::Module {
 
  private:
   OperatorSchedule schedule_;
-  std::map<std::string, torch::Tensor> params_;
+  std::map<std::string, torch::Tensor> params_;  // parameters and buffers by path
+  std::set<std::string> buffers_;                // the paths of params_ that are buffers
   std::map<std::string, torch::nn::BatchNorm1d> batch_norms_;
   std::map<std::string, torch::nn::LayerNorm> layer_norms_;
 
@@ -639,6 +686,12 @@ class OperatorNetworkImpl : public torch::nn::Module {
         return torch::matmul(x, params_.at(t.name)).permute({1, 0, 2}).reshape({x.size(0), -1});
       case TermOp::Kind::bias:
         return x + params_.at(t.name).reshape({-1});
+      case TermOp::Kind::learned_scale:
+        return (t.offset + params_.at(t.name)) * x;
+      case TermOp::Kind::pow:
+        return x.pow(t.value);
+      case TermOp::Kind::normalize:
+        return x / (t.per_row ? x.norm(2, 1, true) : x.norm()).clamp_min(1e-12);
     }
     return x;
   }
@@ -759,10 +812,13 @@ class OperatorNetworkImpl : public torch::nn::Module {
     return {m, path.substr(start)};
   }
 
-  enum class Init { glorot, linear_weight, linear_bias, zeros };
+  enum class Init { glorot, linear_weight, linear_bias, zeros, constant };
 
+  /// A parameter at `path`, or when not `trainable` a buffer; Init::constant (the only one a
+  /// buffer takes) fills it with gain_or_fan_in.
   void make_parameter(const std::string& where, const std::string& path,
-                      std::vector<std::int64_t> shape, Init init, double gain_or_fan_in) {
+                      std::vector<std::int64_t> shape, Init init, double gain_or_fan_in,
+                      bool trainable = true) {
     if (path.empty() || path.front() == '.' || path.back() == '.' ||
         path.find("..") != std::string::npos)
       throw ScheduleError(where + ": parameter path '" + path + "' is not a dotted name");
@@ -772,6 +828,10 @@ class OperatorNetworkImpl : public torch::nn::Module {
         throw ScheduleError(where + ": parameter '" + path + "' is used with shape " +
                             shape_str(torch::empty(shape)) + " but was made " +
                             shape_str(it->second));
+      if (buffers_.count(path) == static_cast<std::size_t>(trainable))
+        throw ScheduleError(where + ": '" + path + "' is used as a " +
+                            (trainable ? "parameter" : "buffer") + " but was made a " +
+                            (trainable ? "buffer" : "parameter"));
       return;
     }
     for (auto d : shape)
@@ -779,6 +839,11 @@ class OperatorNetworkImpl : public torch::nn::Module {
         throw ScheduleError(where + ": parameter '" + path + "' would have shape " +
                             shape_str(torch::empty(shape)));
     auto [owner, leaf] = owner_of(path);
+    if (!trainable) {  // non-trainable state, saved in the state_dict at its path
+      params_.emplace(path, owner->register_buffer(leaf, torch::full(shape, gain_or_fan_in)));
+      buffers_.insert(path);
+      return;
+    }
     auto p = owner->register_parameter(leaf, torch::empty(shape));
     torch::NoGradGuard g;
     if (init == Init::glorot) {
@@ -787,6 +852,8 @@ class OperatorNetworkImpl : public torch::nn::Module {
       torch::nn::init::kaiming_uniform_(p, std::sqrt(5.0));
     } else if (init == Init::zeros) {
       p.zero_();
+    } else if (init == Init::constant) {
+      p.fill_(gain_or_fan_in);
     } else {
       const double bound = 1 / std::sqrt(gain_or_fan_in);
       torch::nn::init::uniform_(p, -bound, bound);
@@ -903,9 +970,15 @@ class OperatorNetworkImpl : public torch::nn::Module {
           throw ScheduleError(where + ": bias '" + t.name + "' of shape " +
                               shape_str(torch::empty(shape)) + " added to " +
                               std::to_string(x.channels) + " channels");
-        make_parameter(where, t.name, shape, Init::zeros, 0);
+        make_parameter(where, t.name, shape, t.gain > 0 ? Init::glorot : Init::zeros, t.gain);
         return x;
       }
+      case TermOp::Kind::learned_scale:
+        make_parameter(where, t.name, {1}, Init::constant, t.value, t.trainable);
+        return x;
+      case TermOp::Kind::pow:
+      case TermOp::Kind::normalize:
+        return x;
     }
     return x;
   }

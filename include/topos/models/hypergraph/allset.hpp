@@ -1,13 +1,15 @@
 // topos/models/hypergraph/allset.hpp
 // AllSet (Chien et al., "You are AllSet", ICLR 2022; TopoModelX AllSet): per layer two set
-// functions, nodes -> hyperedges then hyperedges -> nodes, each relu(decoder(mean over the
-// set of relu(encoder(x)) W))), the encoder and decoder TopoModelX's bias-free MLPs. Parameters
+// functions, nodes -> hyperedges then hyperedges -> nodes, each relu(decoder(relu(mean over the
+// set of relu(encoder(x)) W))), the encoder and decoder TopoModelX's bias-free MLPs, with dropout
+// after the encoder and after each set function. Parameters
 // layers.<i>.{vertex2edge,edge2vertex}.{encoder,decoder}.<k>.weight and .conv.weight.
 // TopoModelX's AllSet passes mlp_activation=None, which breaks MLPs of two or more layers; with
-// topomodelx_compatible that is an error, otherwise None is the identity.
+// topomodelx_compatible that is an error, otherwise None is the identity. Written as an operator
+// schedule (allset_schedule); TopoMLP, the same MLP as a module, serves AllSetTransformer.
 #pragma once
 
-#include "topos/nn/conv.hpp"
+#include "topos/nn/operator_schedule.hpp"
 
 #include <functional>
 #include <optional>
@@ -80,61 +82,75 @@ struct AllSetOptions {
   TORCH_ARG(bool, topomodelx_compatible) = false;
 };
 
-/// One set function (TopoModelX AllSetBlock): relu(decoder(Conv(relu(encoder(x)), A))) with the
-/// mean over each target's sources (Conv with aggr_norm and a relu update).
-class AllSetBlockImpl : public torch::nn::Module {
- public:
-  AllSetBlockImpl(std::int64_t in, const AllSetOptions& o) : dropout_(o.layer_dropout()) {
-    const auto h = o.hidden_channels();
-    encoder = register_module("encoder",
-                              TopoMLP(in, h, o.mlp_num_layers(), o.mlp_activation(), o.mlp_norm(),
-                                      o.mlp_dropout(), o.topomodelx_compatible()));
-    decoder = register_module("decoder",
-                              TopoMLP(h, h, o.mlp_num_layers(), o.mlp_activation(), o.mlp_norm(),
-                                      o.mlp_dropout(), o.topomodelx_compatible()));
-    conv = register_module(
-        "conv", nn::Conv(nn::ConvOptions(h, h).aggr_norm(true).update_func(nn::Update::relu)));
+/// TopoModelX's hypergraph MLP (as TopoMLP) appended to a term or step: [Linear(no bias), norm?,
+/// act, Dropout] per width but the last, then Linear(no bias), Dropout, at path.<k> numbered like
+/// torch.nn.Sequential (the activation and Dropout take numbers too).
+template <class C>
+void append_topo_mlp(C& c, const std::string& path, std::int64_t width, const AllSetOptions& o) {
+  const int layers = o.mlp_num_layers();
+  int idx = 0;
+  for (int l = 0; l < layers; ++l) {
+    c.linear(path + "." + std::to_string(idx++), width, /*bias=*/false);
+    if (l + 1 == layers) break;
+    if (o.mlp_norm() == MlpNorm::layer_norm) c.layer_norm(path + "." + std::to_string(idx++));
+    if (o.mlp_norm() == MlpNorm::batch_norm) c.batch_norm(path + "." + std::to_string(idx++));
+    if (o.mlp_activation()) c.act(*o.mlp_activation());  // None: the identity
+    c.dropout(o.mlp_dropout());
+    idx += 2;  // the activation and Dropout modules
   }
-  torch::Tensor forward(const torch::Tensor& x_source, const nn::SparseOperator& A) {
-    auto x = torch::dropout(torch::relu(encoder->forward(x_source)), dropout_, is_training());
-    return torch::relu(decoder->forward(conv->forward(x, A)));
-  }
-  TopoMLP encoder{nullptr}, decoder{nullptr};
-  nn::Conv conv{nullptr};
+  c.dropout(o.mlp_dropout());
+}
 
- private:
-  double dropout_;
-};
-TORCH_MODULE(AllSetBlock);
-
-class AllSetImpl : public torch::nn::Module {
- public:
-  explicit AllSetImpl(const AllSetOptions& o) : options(o) {
-    auto list = register_module("layers", torch::nn::ModuleList());
-    for (int l = 0; l < o.n_layers(); ++l) {
-      auto layer = std::make_shared<torch::nn::Module>();
-      v2e_.push_back(layer->register_module(
-          "vertex2edge", AllSetBlock(l == 0 ? o.in_channels() : o.hidden_channels(), o)));
-      e2v_.push_back(layer->register_module("edge2vertex", AllSetBlock(o.hidden_channels(), o)));
-      list->push_back(layer);
-    }
+/// The schedule: per layer two set functions (TopoModelX AllSetBlock), nodes → hyperedges then
+/// hyperedges → nodes, each relu(decoder(relu(mean over the set of relu(encoder(x)) W))) with
+/// dropout after the encoder and after the block; the mean is Conv's aggr_norm (row sums).
+inline nn::OperatorSchedule allset_schedule(const AllSetOptions& o) {
+  using namespace nn::ops;
+  using nn::Update;
+  if (o.n_layers() < 1) throw std::invalid_argument("AllSet: n_layers must be >= 1");
+  if (o.mlp_num_layers() < 1)
+    throw std::invalid_argument("MLP: mlp_num_layers (" + std::to_string(o.mlp_num_layers()) +
+                                ") must be positive");
+  if (o.mlp_num_layers() > 1 && !o.mlp_activation() && o.topomodelx_compatible())
+    throw std::invalid_argument("MLP: mlp_activation None with " +
+                                std::to_string(o.mlp_num_layers()) +
+                                " MLP layers fails in TopoModelX (name an activation)");
+  const auto h = o.hidden_channels();
+  const double drop = o.layer_dropout();
+  nn::OperatorSchedule s;
+  s.input("x_0", 0, o.in_channels()).operator_input("incidence_1", 1, 0);
+  auto block = [&](const std::string& path, int source, int target) {
+    auto message = from(source);
+    append_topo_mlp(message, path + ".encoder", h, o);
+    message.act(Update::relu).dropout(drop).conv(path + ".conv", h);
+    if (target == 1)
+      message.via_t("incidence_1", /*row_norm=*/true);
+    else
+      message.via("incidence_1", /*row_norm=*/true);
+    auto step = into(target).sum(std::move(message.act(Update::relu)));
+    append_topo_mlp(step, path + ".decoder", h, o);
+    return std::move(step.act(Update::relu).dropout(drop));
+  };
+  for (int l = 0; l < o.n_layers(); ++l) {
+    const auto p = "layers." + std::to_string(l) + ".";
+    s.step(block(p + "vertex2edge", 0, 1));
+    s.step(block(p + "edge2vertex", 1, 0));
   }
+  s.output("x_0", 0).output("x_1", 1);
+  return s;
+}
+
+class AllSetImpl : public nn::OperatorNetworkImpl {
+ public:
+  explicit AllSetImpl(const AllSetOptions& o)
+      : OperatorNetworkImpl(allset_schedule(o)), options(o) {}
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
-  std::vector<torch::Tensor> forward(torch::Tensor x0, const nn::SparseOperator& incidence_1) {
+  std::vector<torch::Tensor> forward(const torch::Tensor& x0,
+                                     const nn::SparseOperator& incidence_1) {
     nn::check_node_features("AllSet", x0, incidence_1);
-    const auto Bt = incidence_1.t();
-    torch::Tensor x1;
-    for (std::size_t l = 0; l < v2e_.size(); ++l) {
-      x1 = torch::dropout(v2e_[l]->forward(x0, Bt), options.layer_dropout(), is_training());
-      x0 =
-          torch::dropout(e2v_[l]->forward(x1, incidence_1), options.layer_dropout(), is_training());
-    }
-    return {x0, x1};
+    return run({{"x_0", x0}}, {{"incidence_1", incidence_1}}, {"x_0", "x_1"});
   }
   AllSetOptions options;
-
- private:
-  std::vector<AllSetBlock> v2e_, e2v_;
 };
 TORCH_MODULE(AllSet);
 

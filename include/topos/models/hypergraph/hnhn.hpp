@@ -4,10 +4,10 @@
 // (hyperedges -> nodes), returning relu(x_1) beside it, with HNHN's normalised incidences
 // B̃[v, e] = |e|^α / Σ_{e'∋v} |e'|^α and B̃ᵀ[e, v] = d_v^β / Σ_{u∈e} d_u^β (as TopoModelX: x_1
 // reaches the nodes before its relu). Parameters layers.<i>.conv_{0_to_1,1_to_0}.weight and
-// layers.<i>.bias_{0_to_1,1_to_0} (1 × hidden).
+// layers.<i>.bias_{0_to_1,1_to_0} (1 × hidden). Written as an operator schedule (hnhn_schedule).
 #pragma once
 
-#include "topos/nn/conv.hpp"
+#include "topos/nn/operator_schedule.hpp"
 
 namespace topos::models {
 
@@ -36,55 +36,47 @@ inline std::pair<nn::SparseOperator, nn::SparseOperator> hnhn_normalized_inciden
   return {B.scaled(left0, edge_card), B.t().scaled(left1, node_card)};
 }
 
-class HNHNImpl : public torch::nn::Module {
- public:
-  explicit HNHNImpl(const HNHNOptions& o) : options(o) {
-    auto list = register_module("layers", torch::nn::ModuleList());
-    for (int l = 0; l < o.n_layers(); ++l) {
-      auto layer = std::make_shared<torch::nn::Module>();
-      Layer L;
-      if (o.use_bias()) {
-        L.bias_1_to_0 =
-            layer->register_parameter("bias_1_to_0", torch::empty({1, o.hidden_channels()}));
-        L.bias_0_to_1 =
-            layer->register_parameter("bias_0_to_1", torch::empty({1, o.hidden_channels()}));
-        nn::xavier_uniform(L.bias_0_to_1, o.bias_gain());
-        nn::xavier_uniform(L.bias_1_to_0, o.bias_gain());
-      }
-      L.conv_0_to_1 = layer->register_module(
-          "conv_0_to_1", nn::Conv(nn::ConvOptions(l == 0 ? o.in_channels() : o.hidden_channels(),
-                                                  o.hidden_channels())));
-      L.conv_1_to_0 = layer->register_module(
-          "conv_1_to_0", nn::Conv(nn::ConvOptions(o.hidden_channels(), o.hidden_channels())));
-      list->push_back(layer);
-      layers_.push_back(L);
+/// The schedule: per layer nodes → hyperedges and hyperedges → nodes through the (normalised)
+/// incidences, each a Conv weight and a bias; x_1's relu is a parallel step beside x_0's update.
+inline nn::OperatorSchedule hnhn_schedule(const HNHNOptions& o) {
+  using namespace nn::ops;
+  using nn::Update;
+  if (o.n_layers() < 1) throw std::invalid_argument("HNHN: n_layers must be >= 1");
+  const auto h = o.hidden_channels();
+  nn::OperatorSchedule s;
+  s.input("x_0", 0, o.in_channels())
+      .operator_input("incidence_1", 1, 0)     // B̃: nodes × hyperedges
+      .operator_input("incidence_1_t", 0, 1);  // B̃ᵀ: hyperedges × nodes (its own normalisation)
+  for (int l = 0; l < o.n_layers(); ++l) {
+    const auto p = "layers." + std::to_string(l) + ".";
+    auto edges = into(1).sum(from(0).conv(p + "conv_0_to_1", h).via("incidence_1_t"));
+    auto nodes = into(0).sum(from(1).conv(p + "conv_1_to_0", h).via("incidence_1"));
+    if (o.use_bias()) {
+      edges.bias(p + "bias_0_to_1", {1, h}, o.bias_gain());
+      nodes.bias(p + "bias_1_to_0", {1, h}, o.bias_gain());
     }
+    s.step(std::move(edges));
+    // The nodes hear x_1 before its relu.
+    s.parallel({std::move(nodes.act(Update::relu).dropout(o.layer_drop())),
+                into(1).sum(from(1)).act(Update::relu)});
   }
+  s.output("x_0", 0).output("x_1", 1);
+  return s;
+}
+
+class HNHNImpl : public nn::OperatorNetworkImpl {
+ public:
+  explicit HNHNImpl(const HNHNOptions& o) : OperatorNetworkImpl(hnhn_schedule(o)), options(o) {}
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
-  std::vector<torch::Tensor> forward(torch::Tensor x0, const nn::SparseOperator& incidence_1) {
+  std::vector<torch::Tensor> forward(const torch::Tensor& x0,
+                                     const nn::SparseOperator& incidence_1) {
     nn::check_node_features("HNHN", x0, incidence_1);
     nn::SparseOperator B = incidence_1, Bt = incidence_1.t();
     if (options.use_normalized_incidence())
       std::tie(B, Bt) = hnhn_normalized_incidences(incidence_1, options.alpha(), options.beta());
-    torch::Tensor x1;
-    for (auto& L : layers_) {
-      x1 = L.conv_0_to_1->forward(x0, Bt);
-      if (L.bias_0_to_1.defined()) x1 = x1 + L.bias_0_to_1;
-      x0 = L.conv_1_to_0->forward(x1, B);
-      if (L.bias_1_to_0.defined()) x0 = x0 + L.bias_1_to_0;
-      x0 = torch::dropout(torch::relu(x0), options.layer_drop(), is_training());
-      x1 = torch::relu(x1);
-    }
-    return {x0, x1};
+    return run({{"x_0", x0}}, {{"incidence_1", B}, {"incidence_1_t", Bt}}, {"x_0", "x_1"});
   }
   HNHNOptions options;
-
- private:
-  struct Layer {
-    nn::Conv conv_0_to_1{nullptr}, conv_1_to_0{nullptr};
-    torch::Tensor bias_0_to_1, bias_1_to_0;
-  };
-  std::vector<Layer> layers_;
 };
 TORCH_MODULE(HNHN);
 

@@ -6,10 +6,12 @@
 // σ(normalise(x + m) W). `alpha` > 0 samples at most alpha nodes per hyperedge (at random, on
 // every call, as TopoModelX). TopoModelX normalises by the norm of the whole matrix; the
 // default here is the paper's per-node normalisation (topomodelx_compatible for TopoModelX's).
-// Parameters layers.<i>.weight (in × out).
+// Parameters layers.<i>.weight (in × out). Written as an operator schedule (hypersage_schedule);
+// the forward computes the sampled incidences and the inter-edge weights as its operators (the
+// mean over a node's hyperedges folded into the weights).
 #pragma once
 
-#include "topos/nn/conv.hpp"
+#include "topos/nn/operator_schedule.hpp"
 
 #include <cmath>
 
@@ -29,51 +31,69 @@ struct HyperSAGEOptions {
   TORCH_ARG(bool, topomodelx_compatible) = false;
 };
 
-class HyperSAGEImpl : public torch::nn::Module {
+/// The schedule: per layer the intra-edge means into the hyperedges, then the nodes from their
+/// own features plus the inter-edge means, normalised, a weight and the update. Layer l reads the
+/// operators sampled_t_<l> (the sampled incidence's transpose: hyperedges × nodes, its pattern
+/// averaged) and inter_<l> (node × hyperedge: (|e| / Σ_{e'∋v} |e'|)^p / d_v).
+inline nn::OperatorSchedule hypersage_schedule(const HyperSAGEOptions& o) {
+  using namespace nn::ops;
+  if (o.alpha() == 0 || o.alpha() < -1)
+    throw std::invalid_argument(
+        "HyperSAGE: alpha must be -1 (every node of a hyperedge) or positive, got " +
+        std::to_string(o.alpha()));
+  if (o.update_func() != nn::Update::relu && o.update_func() != nn::Update::sigmoid)
+    throw std::invalid_argument("HyperSAGE: update_func must be relu or sigmoid");
+  const double p = o.power();
+  nn::OperatorSchedule s;
+  s.input("x_0", 0, o.in_channels());
+  for (int l = 0; l < o.n_layers(); ++l) {
+    const auto L = std::to_string(l);
+    s.operator_input("sampled_t_" + L, 0, 1).operator_input("inter_" + L, 1, 0);
+    s.step(into(1).sum(from(0).pow(p).pattern("sampled_t_" + L, nn::Aggr::mean).pow(1 / p)));
+    s.step(into(0)
+               .sum(from(0), from(1).pow(p).via("inter_" + L).pow(1 / p))
+               .normalize(/*per_row=*/!o.topomodelx_compatible())
+               .weight("layers." + L + ".weight", o.hidden_channels())
+               .act(o.update_func()));
+  }
+  s.output("x_0", 0);
+  return s;
+}
+
+class HyperSAGEImpl : public nn::OperatorNetworkImpl {
  public:
-  explicit HyperSAGEImpl(const HyperSAGEOptions& o) : options(o) {
-    if (o.alpha() == 0 || o.alpha() < -1)
-      throw std::invalid_argument(
-          "HyperSAGE: alpha must be -1 (every node of a hyperedge) or positive, got " +
-          std::to_string(o.alpha()));
-    if (o.update_func() != nn::Update::relu && o.update_func() != nn::Update::sigmoid)
-      throw std::invalid_argument("HyperSAGE: update_func must be relu or sigmoid");
-    auto list = register_module("layers", torch::nn::ModuleList());
+  explicit HyperSAGEImpl(const HyperSAGEOptions& o)
+      : OperatorNetworkImpl(hypersage_schedule(o)), options(o) {
+    if (!o.uniform_initialization()) return;  // the schedule's xavier_uniform (gain 1.414)
+    torch::NoGradGuard g;
     for (int l = 0; l < o.n_layers(); ++l) {
-      auto layer = std::make_shared<torch::nn::Module>();
-      auto w = layer->register_parameter(
-          "weight",
-          torch::empty({l == 0 ? o.in_channels() : o.hidden_channels(), o.hidden_channels()}));
-      torch::NoGradGuard g;
-      if (o.uniform_initialization())
-        w.uniform_(-1 / std::sqrt(double(w.size(1))), 1 / std::sqrt(double(w.size(1))));
-      else
-        nn::xavier_uniform(w);
-      list->push_back(layer);
-      weights_.push_back(w);
+      const auto& w = parameter("layers." + std::to_string(l) + ".weight");
+      w.uniform_(-1 / std::sqrt(double(w.size(1))), 1 / std::sqrt(double(w.size(1))));
     }
   }
   /// x_0 (nodes) and the node × hyperedge incidence (its pattern); returns {x_0}.
-  std::vector<torch::Tensor> forward(torch::Tensor x, const nn::SparseOperator& incidence_1) {
+  std::vector<torch::Tensor> forward(const torch::Tensor& x,
+                                     const nn::SparseOperator& incidence_1) {
     nn::check_node_features("HyperSAGE", x, incidence_1);
     const auto P = incidence_1.pattern().to(x.scalar_type());
-    const double p = options.power();
-    for (auto& w : weights_) {
+    const auto degree = P.row_sums();
+    std::map<std::string, nn::SparseOperator> ops;
+    for (int l = 0; l < options.n_layers(); ++l) {
+      const auto L = std::to_string(l);
+      if (l > 0 && options.alpha() < 0) {  // nothing sampled: every layer's operators are equal
+        ops["sampled_t_" + L] = ops.at("sampled_t_0");
+        ops["inter_" + L] = ops.at("inter_0");
+        continue;
+      }
       const auto S = sampled(P);       // the nodes each hyperedge hears
       const auto size = S.col_sums();  // |e| as sampled
-      const auto intra =
-          (nn::spmm(S.t(), x.pow(p)) / size.unsqueeze(1)).pow(1 / p);  // hyperedges × C
-      const auto share = nn::spmm(P, size.unsqueeze(1)).squeeze(1);    // Σ_{e∋v} |e|
-      const auto weights = P.scaled(share.reciprocal(), size);         // |e| / Σ_{e'∋v} |e'|
-      const auto degree = P.row_sums().unsqueeze(1);
-      const auto inter =
-          (nn::spmm(weights.with_values(weights.values.pow(p)), intra.pow(p)) / degree).pow(1 / p);
-      const auto m = x + inter;
-      const auto normalised =
-          options.topomodelx_compatible() ? m / m.norm() : m / m.norm(2, 1, true).clamp_min(1e-12);
-      x = nn::apply_update(normalised.matmul(w), options.update_func());
+      const auto share = nn::spmm(P, size.unsqueeze(1)).squeeze(1);  // Σ_{e∋v} |e|
+      const auto w = P.scaled(share.reciprocal(), size);             // |e| / Σ_{e'∋v} |e'|
+      ops["sampled_t_" + L] = S.t();
+      ops["inter_" + L] =
+          w.with_values(w.values.pow(options.power()) / degree.index_select(0, w.row));
     }
-    return {x};
+    return run({{"x_0", x}}, ops, {"x_0"});
   }
   HyperSAGEOptions options;
 
@@ -95,7 +115,6 @@ class HyperSAGEImpl : public torch::nn::Module {
     }
     return nn::SparseOperator::from_triplets(P.rows, P.cols, r, c, v, P.values.scalar_type());
   }
-  std::vector<torch::Tensor> weights_;
 };
 TORCH_MODULE(HyperSAGE);
 

@@ -5,9 +5,10 @@
 // train_eps, else a buffer. TopoModelX never applies its input dropout (topomodelx_compatible:
 // neither do we; it only matters in training).
 // Parameters initial_linear_layer.*, layers.<i>.eps, layers.<i>.linear.*.
+// Written as an operator schedule (unigin_schedule).
 #pragma once
 
-#include "topos/nn/conv.hpp"
+#include "topos/nn/operator_schedule.hpp"
 
 namespace topos::models {
 
@@ -25,44 +26,41 @@ struct UniGINOptions {
   TORCH_ARG(bool, topomodelx_compatible) = false;
 };
 
-class UniGINImpl : public torch::nn::Module {
- public:
-  explicit UniGINImpl(const UniGINOptions& o) : options(o) {
-    initial_ = register_module("initial_linear_layer",
-                               torch::nn::Linear(o.in_channels(), o.hidden_channels()));
-    auto list = register_module("layers", torch::nn::ModuleList());
-    for (int l = 0; l < o.n_layers(); ++l) {
-      auto layer = std::make_shared<torch::nn::Module>();
-      const auto e = torch::full({1}, o.eps());
-      eps_.push_back(o.train_eps() ? layer->register_parameter("eps", e)
-                                   : layer->register_buffer("eps", e));
-      linear_.push_back(layer->register_module(
-          "linear", torch::nn::Linear(o.hidden_channels(), o.hidden_channels())));
-      list->push_back(layer);
-    }
+/// The schedule: (input dropout and) a linear map, then per layer node → hyperedge and the nodes
+/// updated from (1 + ε) times their own features plus their hyperedges'.
+inline nn::OperatorSchedule unigin_schedule(const UniGINOptions& o) {
+  using namespace nn::ops;
+  if (o.n_layers() < 1) throw std::invalid_argument("UniGIN: n_layers must be >= 1");
+  const auto h = o.hidden_channels();
+  nn::OperatorSchedule s;
+  s.input("x_0", 0, o.in_channels()).operator_input("incidence_1", 1, 0);
+  auto initial = from(0);
+  if (!o.topomodelx_compatible()) initial.dropout(o.input_drop());
+  s.step(into(0).sum(std::move(initial.linear("initial_linear_layer", h))));
+  for (int l = 0; l < o.n_layers(); ++l) {
+    const auto p = "layers." + std::to_string(l) + ".";
+    s.step(into(1).sum(from(0).via_t("incidence_1")));
+    auto nodes = into(0).sum(from(0).scale(p + "eps", o.eps(), o.train_eps(), /*offset=*/1),
+                             from(1).via("incidence_1"));
+    nodes.linear(p + "linear", h);
+    if (o.use_norm()) nodes.unit_rows();
+    s.step(std::move(nodes.dropout(o.layer_drop()).act(nn::Update::relu)));
   }
+  s.output("x_0", 0).output("x_1", 1);
+  return s;
+}
+
+class UniGINImpl : public nn::OperatorNetworkImpl {
+ public:
+  explicit UniGINImpl(const UniGINOptions& o)
+      : OperatorNetworkImpl(unigin_schedule(o)), options(o) {}
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
-  std::vector<torch::Tensor> forward(torch::Tensor x0, const nn::SparseOperator& incidence_1) {
+  std::vector<torch::Tensor> forward(const torch::Tensor& x0,
+                                     const nn::SparseOperator& incidence_1) {
     nn::check_node_features("UniGIN", x0, incidence_1);
-    const auto Bt = incidence_1.t();
-    if (!options.topomodelx_compatible())
-      x0 = torch::dropout(x0, options.input_drop(), is_training());
-    x0 = initial_->forward(x0);
-    torch::Tensor x1;
-    for (std::size_t l = 0; l < linear_.size(); ++l) {
-      x1 = nn::spmm(Bt, x0);
-      x0 = linear_[l]->forward((1 + eps_[l]) * x0 + nn::spmm(incidence_1, x1));
-      if (options.use_norm()) x0 = nn::unit_rows(x0);
-      x0 = torch::relu(torch::dropout(x0, options.layer_drop(), is_training()));
-    }
-    return {x0, x1};
+    return run({{"x_0", x0}}, {{"incidence_1", incidence_1}}, {"x_0", "x_1"});
   }
   UniGINOptions options;
-
- private:
-  torch::nn::Linear initial_{nullptr};
-  std::vector<torch::Tensor> eps_;
-  std::vector<torch::nn::Linear> linear_;
 };
 TORCH_MODULE(UniGIN);
 
