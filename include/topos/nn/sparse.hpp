@@ -23,6 +23,17 @@
 
 namespace topos::nn {
 
+/// A 1-d tensor's entries as a vector on the CPU: int64 indices, or values as double (detached).
+inline std::vector<std::int64_t> index_vector(const torch::Tensor& t) {
+  const auto c = t.to(torch::kCPU, torch::kLong).contiguous();
+  return std::vector<std::int64_t>(c.data_ptr<std::int64_t>(),
+                                   c.data_ptr<std::int64_t>() + c.numel());
+}
+inline std::vector<double> value_vector(const torch::Tensor& t) {
+  const auto c = t.detach().to(torch::kCPU, torch::kDouble).contiguous();
+  return std::vector<double>(c.data_ptr<double>(), c.data_ptr<double>() + c.numel());
+}
+
 /// A rows × cols sparse matrix: CSR (crow, col) with `row` (the row of every entry) and values
 /// in row-major order (rows, then columns ascending: the order of a coalesced COO tensor);
 /// `t_crow`, `t_col` the CSR of the transpose and `t_perm[k]` the entry of A that is the k-th
@@ -93,12 +104,8 @@ struct SparseOperator {
       throw std::invalid_argument("SparseOperator: a dense operator must be 2-d");
     const auto d = dense.detach().to(torch::kCPU).contiguous();
     const auto nz = d.nonzero();
-    const auto r = nz.select(1, 0).contiguous(), c = nz.select(1, 1).contiguous();
-    std::vector<std::int64_t> rv(r.data_ptr<std::int64_t>(),
-                                 r.data_ptr<std::int64_t>() + r.numel());
-    std::vector<std::int64_t> cv(c.data_ptr<std::int64_t>(),
-                                 c.data_ptr<std::int64_t>() + c.numel());
-    return from_sorted(d.size(0), d.size(1), rv, cv, d.index({r, c}));
+    const auto r = nz.select(1, 0), c = nz.select(1, 1);
+    return from_sorted(d.size(0), d.size(1), index_vector(r), index_vector(c), d.index({r, c}));
   }
 
   /// Entries already in row-major order without duplicates.
@@ -192,15 +199,15 @@ struct SparseOperator {
   /// gather written as an operator (index: int64, one entry per row).
   static SparseOperator selection(const torch::Tensor& index, std::int64_t cols,
                                   torch::Dtype dtype = torch::kFloat) {
-    const auto i = index.to(torch::kCPU, torch::kLong).contiguous();
-    std::vector<std::int64_t> c(i.data_ptr<std::int64_t>(), i.data_ptr<std::int64_t>() + i.numel());
+    const auto c = index_vector(index);
     std::vector<std::int64_t> r(c.size());
     std::iota(r.begin(), r.end(), std::int64_t{0});
     for (auto j : c)
       if (j < 0 || j >= cols)
         throw std::invalid_argument("SparseOperator::selection: index " + std::to_string(j) +
                                     " outside " + std::to_string(cols) + " cells");
-    return from_sorted(i.numel(), cols, r, c, torch::ones({i.numel()}, dtype));
+    const auto n = static_cast<std::int64_t>(c.size());
+    return from_sorted(n, cols, r, c, torch::ones({n}, dtype));
   }
   /// A square operator's pattern with every diagonal entry added (values one): GAT's self loops.
   SparseOperator pattern_with_self_loops() const {
@@ -214,17 +221,9 @@ struct SparseOperator {
   static SparseOperator hadamard(const SparseOperator& a, const SparseOperator& b) {
     if (a.rows != b.rows || a.cols != b.cols)
       throw std::invalid_argument("SparseOperator::hadamard: shapes differ");
-    auto vec = [](const torch::Tensor& t) {
-      const auto c = t.to(torch::kCPU).contiguous();
-      return std::vector<std::int64_t>(c.data_ptr<std::int64_t>(),
-                                       c.data_ptr<std::int64_t>() + c.numel());
-    };
-    auto dvec = [](const torch::Tensor& t) {
-      const auto c = t.detach().to(torch::kCPU, torch::kDouble).contiguous();
-      return std::vector<double>(c.data_ptr<double>(), c.data_ptr<double>() + c.numel());
-    };
-    const auto ca = vec(a.crow), cola = vec(a.col), cb = vec(b.crow), colb = vec(b.col);
-    const auto va = dvec(a.values), vb = dvec(b.values);
+    const auto ca = index_vector(a.crow), cola = index_vector(a.col), cb = index_vector(b.crow),
+               colb = index_vector(b.col);
+    const auto va = value_vector(a.values), vb = value_vector(b.values);
     std::vector<std::int64_t> r, c;
     std::vector<double> v;
     for (std::int64_t i = 0; i < a.rows; ++i) {  // both rows are sorted by column: a merge
@@ -250,43 +249,34 @@ struct SparseOperator {
     if (rows != cols)
       throw std::invalid_argument(
           "SparseOperator::principal_submatrix: the operator is not square");
-    const auto k = keep.to(torch::kCPU, torch::kLong).contiguous();
-    const auto* kp = k.data_ptr<std::int64_t>();
+    const auto k = index_vector(keep);
     std::vector<std::int64_t> at(static_cast<std::size_t>(rows), -1);
-    for (std::int64_t i = 0; i < k.numel(); ++i) {
-      if (kp[i] < 0 || kp[i] >= rows || at[static_cast<std::size_t>(kp[i])] >= 0)
+    for (std::size_t i = 0; i < k.size(); ++i) {
+      if (k[i] < 0 || k[i] >= rows || at[static_cast<std::size_t>(k[i])] >= 0)
         throw std::invalid_argument("SparseOperator::principal_submatrix: index " +
-                                    std::to_string(kp[i]) + " is outside 0.." +
+                                    std::to_string(k[i]) + " is outside 0.." +
                                     std::to_string(rows - 1) + " or repeated");
-      at[static_cast<std::size_t>(kp[i])] = i;
+      at[static_cast<std::size_t>(k[i])] = static_cast<std::int64_t>(i);
     }
-    const auto r = row.to(torch::kCPU).contiguous(), c = col.to(torch::kCPU).contiguous();
-    const auto v = values.detach().to(torch::kCPU, torch::kDouble).contiguous();
+    const auto r = index_vector(row), c = index_vector(col);
+    const auto v = value_vector(values);
     std::vector<std::int64_t> rr, cc;
     std::vector<double> vv;
-    for (std::int64_t e = 0; e < nnz(); ++e) {
-      const auto i = at[static_cast<std::size_t>(r.data_ptr<std::int64_t>()[e])];
-      const auto j = at[static_cast<std::size_t>(c.data_ptr<std::int64_t>()[e])];
-      if (i >= 0 && j >= 0) rr.push_back(i), cc.push_back(j), vv.push_back(v.data_ptr<double>()[e]);
+    for (std::size_t e = 0; e < r.size(); ++e) {
+      const auto i = at[static_cast<std::size_t>(r[e])], j = at[static_cast<std::size_t>(c[e])];
+      if (i >= 0 && j >= 0) rr.push_back(i), cc.push_back(j), vv.push_back(v[e]);
     }
-    return from_triplets(k.numel(), k.numel(), rr, cc, vv, values.scalar_type());
+    const auto n = static_cast<std::int64_t>(k.size());
+    return from_triplets(n, n, rr, cc, vv, values.scalar_type());
   }
   /// A + B (same shape): the union of both patterns (entries that sum to zero dropped), by a
   /// merge of the sorted rows, O(nnz). Operator algebra, not differentiable.
   static SparseOperator sum(const SparseOperator& a, const SparseOperator& b) {
     if (a.rows != b.rows || a.cols != b.cols)
       throw std::invalid_argument("SparseOperator::sum: shapes differ");
-    auto vec = [](const torch::Tensor& t) {
-      const auto c = t.to(torch::kCPU).contiguous();
-      return std::vector<std::int64_t>(c.data_ptr<std::int64_t>(),
-                                       c.data_ptr<std::int64_t>() + c.numel());
-    };
-    auto dvec = [](const torch::Tensor& t) {
-      const auto c = t.detach().to(torch::kCPU, torch::kDouble).contiguous();
-      return std::vector<double>(c.data_ptr<double>(), c.data_ptr<double>() + c.numel());
-    };
-    const auto ca = vec(a.crow), cola = vec(a.col), cb = vec(b.crow), colb = vec(b.col);
-    const auto va = dvec(a.values), vb = dvec(b.values);
+    const auto ca = index_vector(a.crow), cola = index_vector(a.col), cb = index_vector(b.crow),
+               colb = index_vector(b.col);
+    const auto va = value_vector(a.values), vb = value_vector(b.values);
     const bool single = a.values.scalar_type() == torch::kFloat;
     std::vector<std::int64_t> r, c;
     std::vector<double> v;

@@ -216,6 +216,9 @@ TEST_CASE("CAN's pooling keeps the edges of highest score and restricts the Lapl
   REQUIRE_THROWS_WITH(Ld.principal_submatrix(torch::tensor({1, 1}, torch::kLong)),
                       Catch::Contains("repeated"));
   REQUIRE_THROWS_WITH(CAN(CANOptions(3, 4, 4).pooling(true).k_pool(0)), Catch::Contains("k_pool"));
+  // A pooling ratio that keeps no edge of this complex: named, not an empty complex downstream.
+  CAN tiny(CANOptions(3, 4, 4).heads(2).att_lift(false).n_layers(2).pooling(true).k_pool(0.05));
+  REQUIRE_THROWS_WITH(tiny->forward(x0, x1, Ld, Ld, Lu), Catch::Contains("= 0 edges"));
 }
 
 TEST_CASE("compatible and intended modes: where they agree and where they differ",
@@ -282,6 +285,8 @@ TEST_CASE("polynomial filters and the affine power equal dense matrix powers", "
   REQUIRE(torch::allclose(xg.grad(), xd.grad(), 1e-12, 1e-12));
   REQUIRE(torch::allclose(xg.grad(), M.t().matmul(R), 1e-12, 1e-12));
   REQUIRE(apply_affine_power(A, x, 0, 1.0, -0.1).equal(x));
+  REQUIRE_THROWS_WITH(apply_affine_power(std::vector<SparseOperator>{}, x, 2, 1, 1),
+                      Catch::Contains("no operator"));
   // A sum of operators, never summed: (I - 0.1 (D + E))^3, forward and backward.
   const auto E = random_operator(12, 12, 0.2, torch::kDouble, 6);
   const auto M2 = torch::linalg_matrix_power(I - 0.1 * (D + E.to_dense()), 3);

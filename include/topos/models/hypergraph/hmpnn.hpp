@@ -80,15 +80,9 @@ class HMPNNImpl : public torch::nn::Module {
       return B;
     const auto keep =
         (torch::rand({B.nnz()}) >= options.adjacency_dropout_rate()).nonzero().squeeze(1);
-    const auto r = B.row.index_select(0, keep).contiguous(),
-               c = B.col.index_select(0, keep).contiguous();
     return nn::SparseOperator::from_sorted(
-        B.rows, B.cols,
-        std::vector<std::int64_t>(r.data_ptr<std::int64_t>(),
-                                  r.data_ptr<std::int64_t>() + r.numel()),
-        std::vector<std::int64_t>(c.data_ptr<std::int64_t>(),
-                                  c.data_ptr<std::int64_t>() + c.numel()),
-        B.values.index_select(0, keep));
+        B.rows, B.cols, nn::index_vector(B.row.index_select(0, keep)),
+        nn::index_vector(B.col.index_select(0, keep)), B.values.index_select(0, keep));
   }
   torch::Tensor feature_dropout(const torch::Tensor& x) const {
     if (!is_training()) return x;
