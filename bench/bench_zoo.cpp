@@ -216,7 +216,7 @@ const std::map<std::string, std::array<double, 2>> kTopoModelX = {
     {"unigcnii/grid101", {519.0, 522.0}}};
 
 // The process's resident anonymous memory (RssAnon), MB: the heap and tensors without the
-// mapped library code. With keep_freed_memory() the heap is never given back, so its value after
+// mapped library code. With the cache or the kept heap nothing is given back, so its value after
 // a benchmark is the most anonymous memory the benchmark held at once.
 double rss_anon_mb() {
   std::ifstream in("/proc/self/status");
@@ -288,11 +288,26 @@ void spmm_pair(benchmark::State& state, const SparseOperator* A, bool torch_coo)
 int main(int argc, char** argv) {
   nn::set_cpu_threads(1, 1);
   torch::set_num_interop_threads(1);
-  // Freed tensors stay in the heap instead of going back to the kernel: without it every
+  // Freed tensors are kept for reuse instead of going back to the kernel: without it every
   // grid101-sized temporary is a fresh mmap whose pages fault in again (SCN2's grid101
-  // forward+backward took twice as long). What the hopnet trainer does too.
-  // TOPOS_BENCH_SYSTEM_MALLOC=1 leaves glibc's defaults (to compare peak memory with them).
-  if (std::getenv("TOPOS_BENCH_SYSTEM_MALLOC") == nullptr) nn::keep_freed_memory();
+  // forward+backward took twice as long). TOPOS_BENCH_ALLOCATOR picks how: "cache" (default,
+  // nn::use_caching_cpu_allocator: freed blocks by size class), "heap" (nn::keep_freed_memory:
+  // the heap is never trimmed, as the hopnet trainer does; it fragments) or "system" (glibc's
+  // defaults, as TOPOS_BENCH_SYSTEM_MALLOC=1 did).
+  const char* env = std::getenv("TOPOS_BENCH_ALLOCATOR");
+  const std::string allocator = env                                        ? env
+                                : std::getenv("TOPOS_BENCH_SYSTEM_MALLOC") ? "system"
+                                                                           : "cache";
+  if (allocator == "cache") {
+    nn::use_caching_cpu_allocator();
+  } else if (allocator == "heap") {
+    nn::keep_freed_memory();
+  } else if (allocator != "system") {
+    std::cerr << "TOPOS_BENCH_ALLOCATOR: expected cache, heap or system, not '" << allocator
+              << "'\n";
+    return 2;
+  }
+  benchmark::AddCustomContext("allocator", allocator);
   benchmark::Initialize(&argc, argv);
   std::map<std::string, Complex> complexes;
   try {

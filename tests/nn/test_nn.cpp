@@ -5,6 +5,7 @@
 
 #include "topos/core/lifting.hpp"
 #include "topos/mesh/primitives.hpp"
+#include "topos/nn/cpu.hpp"
 #include "topos/nn/device.hpp"
 #include "topos/nn/distributed.hpp"
 #include "topos/nn/schedule.hpp"
@@ -759,4 +760,57 @@ TEST_CASE(
             "ccollections\nOrderedDict\nq\x00K\x01R."s),
       Catch::Contains(
           "t.pt: not a readable torch file: an OrderedDict made other than from an empty tuple"));
+}
+
+TEST_CASE("the caching CPU allocator reuses freed blocks by size class, within its limit",
+          "[nn][cpu]") {
+  using topos::nn::detail::CachingCPUAllocator;
+  // Size classes: below 1 MB as asked; above, rounded up to an eighth of the power of two.
+  REQUIRE(CachingCPUAllocator::size_class(1000) == 1000);
+  REQUIRE(CachingCPUAllocator::size_class(1 << 20) == 1 << 20);
+  REQUIRE(CachingCPUAllocator::size_class((1 << 20) + 1) == (1 << 20) + (1 << 17));
+  REQUIRE(CachingCPUAllocator::size_class(3'865'600) == 15 << 18);  // 30200 × 32 floats
+  for (std::size_t n : {std::size_t(1) << 20, std::size_t(3'000'001), std::size_t(50) << 20}) {
+    const auto c = CachingCPUAllocator::size_class(n);
+    REQUIRE(c >= n);
+    REQUIRE(c <= n + n / 8 + 1);
+  }
+
+  c10::Allocator* previous = c10::GetAllocator(c10::DeviceType::CPU);
+  release_cached_cpu_memory();
+  use_caching_cpu_allocator(std::size_t(8) << 20);
+  REQUIRE(c10::GetAllocator(c10::DeviceType::CPU) == &CachingCPUAllocator::instance());
+  const void* first = nullptr;
+  {
+    auto a = torch::full({1000, 500}, 2.0f);  // 2 MB: cached when freed
+    REQUIRE(a.sum().item<double>() == 1e6);
+    REQUIRE(reinterpret_cast<std::uintptr_t>(a.data_ptr()) % 64 == 0);
+    first = a.data_ptr();
+  }
+  REQUIRE(cached_cpu_bytes() == CachingCPUAllocator::size_class(2'000'000));
+  {
+    auto b = torch::empty({500, 1001});  // the same class: the same block, nothing cached
+    REQUIRE(b.data_ptr() == first);
+    REQUIRE(cached_cpu_bytes() == 0);
+    auto small = torch::arange(10);  // below the threshold: malloc's, freed at once
+    REQUIRE(small.sum().item<std::int64_t>() == 45);
+    auto none = torch::empty({0});
+    REQUIRE(none.numel() == 0);
+  }
+  REQUIRE(cached_cpu_bytes() == CachingCPUAllocator::size_class(2'000'000));
+  {
+    // Over the 8 MB limit: a 12 MB block is freed, not cached.
+    auto big = torch::zeros({3, 1 << 20});
+    REQUIRE(big.abs().sum().item<double>() == 0);
+  }
+  REQUIRE(cached_cpu_bytes() == CachingCPUAllocator::size_class(2'000'000));
+  // Autograd through tensors of the cache gives the same numbers as before.
+  torch::manual_seed(3);
+  auto x = torch::randn({2000, 300}, torch::requires_grad());
+  (x.tanh() * x).sum().backward();
+  REQUIRE(torch::allclose(x.grad(), x.detach().tanh() + x.detach() / x.detach().cosh().pow(2)));
+  release_cached_cpu_memory();
+  REQUIRE(cached_cpu_bytes() == 0);
+  c10::SetAllocator(c10::DeviceType::CPU, previous, /*priority=*/1);
+  REQUIRE(c10::GetAllocator(c10::DeviceType::CPU) == previous);
 }

@@ -563,3 +563,29 @@ TEST_CASE("the hypergraph schedules keep TopoModelX's parameter and buffer names
   CHECK(sage->parameter("layers.0.weight").sizes() == torch::IntArrayRef({3, 4}));
   CHECK(sage->parameter("layers.1.weight").abs().max().item<double>() <= 0.5);
 }
+
+TEST_CASE("intra_aggregate weights each cell by its agreement with the whole cochain",
+          "[nn][schedule]") {
+  const auto A = dense_operator(5, 6, 21);  // edges (6) -> nodes (5)
+  torch::manual_seed(22);
+  const auto x = torch::randn({6, 3}, torch::kDouble).requires_grad_(true);
+  OperatorSchedule s;
+  s.input("x", 1, 3).operator_input("A", 1, 0);
+  s.step(into(0).mean(from(1).via("A").intra_aggregate(), from(1).via("A")).act(Update::relu));
+  s.output("y", 0);
+  OperatorNetwork net(s);
+  const auto y = net->forward({{"x", x}}, {{"A", A}}).at("y");
+  // By hand: m = A x; row i of m times σ(Σ_c relu(Σ_j m_jc) m_ic); the mean with m, then relu.
+  const auto m = A.to_dense().mm(x);
+  const auto g = torch::sigmoid((m * torch::relu(m.sum(0, true))).sum(1, true));
+  const auto expect = torch::relu((m * g + m) / 2);
+  CHECK(torch::allclose(y, expect, 1e-12, 1e-12));
+  auto xr = x.detach().clone().requires_grad_(true);
+  const auto mr = A.to_dense().mm(xr);
+  const auto gr = torch::sigmoid((mr * torch::relu(mr.sum(0, true))).sum(1, true));
+  const auto R = torch::randn({5, 3}, torch::kDouble);
+  (y * R).sum().backward();
+  (torch::relu((mr * gr + mr) / 2) * R).sum().backward();
+  CHECK(torch::allclose(x.grad(), xr.grad(), 1e-12, 1e-12));
+  CHECK_THAT(s.str(), Contains("intra(A·(1))"));
+}

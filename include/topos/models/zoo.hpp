@@ -511,11 +511,12 @@ inline std::map<std::string, Maker> more_simplicial_and_cell_makers() {
              3, 3);
        }},
       {"SCACMPS",
-       [](Config& c, bool) {
+       [](Config& c, bool compatible) {
          SCACMPS net(SCACMPSOptions(c.need<std::vector<std::int64_t>>("in_channels_all"),
                                     c.need<int>("complex_dim"))
                          .n_layers(c.get("n_layers", 2))
-                         .att(c.get("att", false)));
+                         .att(c.get("att", false))
+                         .topomodelx_compatible(compatible));
          return wrap<SCACMPS>(
              "SCACMPS", net,
              [](SCACMPS& n, const Args& a) { return n->forward(a.tensors(0), a.ops(1), a.ops(2)); },

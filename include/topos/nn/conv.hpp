@@ -50,6 +50,14 @@ inline torch::Tensor apply_update(const torch::Tensor& x, Update u, double negat
   }
 }
 
+/// The activations the product kernels apply in their row loop (spmm, linear_act), or none.
+inline bool fusable(Update u) {
+  return u == Update::none || u == Update::relu || u == Update::elu;
+}
+inline Epilogue epilogue_of(Update u) {
+  return u == Update::relu ? Epilogue::relu : u == Update::elu ? Epilogue::elu : Epilogue::none;
+}
+
 enum class Aggr { sum, mean };
 
 /// TopoModelX's Aggregation: messages from several neighbourhoods (same shape) summed or

@@ -102,9 +102,10 @@ struct TermOp {
     scale,         ///< x · p, a constant
     head_weights,  ///< [x W_1 | ... | x W_H], W (heads × in × out) at `name`
     bias,          ///< x + b on every row, b at `name` (any shape of as many entries as channels)
-    learned_scale,  ///< (offset + s) · x, s a learned or buffered scalar at `name`
-    pow,            ///< x^value elementwise
-    normalize       ///< x / ‖x‖₂ (differentiated), per row or over the whole matrix
+    learned_scale,   ///< (offset + s) · x, s a learned or buffered scalar at `name`
+    pow,             ///< x^value elementwise
+    normalize,       ///< x / ‖x‖₂ (differentiated), per row or over the whole matrix
+    intra_aggregate  ///< x_i · σ(<relu(Σ_j x_j), x_i>): each cell weighted against the whole
   };
   explicit TermOp(Kind k, std::string n = {}) : kind(k), name(std::move(n)) {}
   Kind kind;
@@ -243,6 +244,9 @@ class Chain {
     t.per_row = per_row;
     return add(std::move(t));
   }
+  /// Intra-neighbourhood aggregation (Hajij et al.'s CMPS, TopoModelX SCACMPS's intra_aggr): each
+  /// row scaled by σ(<relu(Σ_j x_j), x_i>), its agreement with the whole cochain.
+  Derived& intra_aggregate() { return add(TermOp(TermOp::Kind::intra_aggregate)); }
   const std::vector<TermOp>& operations() const { return ops_; }
 
  protected:
@@ -499,6 +503,9 @@ class OperatorSchedule {
         case TermOp::Kind::normalize:
           x = (t.per_row ? "normalize_rows(" : "normalize(") + x + ")";
           break;
+        case TermOp::Kind::intra_aggregate:
+          x = "intra(" + x + ")";
+          break;
       }
     }
     return x;
@@ -642,6 +649,34 @@ class OperatorNetworkImpl : public torch::nn::Module {
     return row_norm ? divide_by_row_sums(A, y) : y;
   }
 
+  /// list[i] on x, and list[i + 1] with it when that is an activation the product kernels apply
+  /// in their row loop (a via without row normalisation or a linear, then relu or elu): one pass
+  /// over the output, and a backward that needs no exponential. Returns the last index used.
+  std::size_t apply_fused(const std::string& where, const CochainKey& target,
+                          const std::vector<TermOp>& list, std::size_t i, torch::Tensor& x,
+                          Operators& ops, const Cochains& h) {
+    const auto& t = list[i];
+    const bool product =
+        ((t.kind == TermOp::Kind::via || t.kind == TermOp::Kind::via_transposed) && !t.row_norm) ||
+        t.kind == TermOp::Kind::linear;
+    if (!product || i + 1 >= list.size() || list[i + 1].kind != TermOp::Kind::act ||
+        !fusable(list[i + 1].update)) {
+      x = apply(where, target, t, x, ops, h);
+      return i;
+    }
+    const auto act = epilogue_of(list[i + 1].update);
+    if (t.kind == TermOp::Kind::linear) {
+      x = linear_act(x, params_.at(t.name + ".weight"),
+                     t.bias ? params_.at(t.name + ".bias") : torch::Tensor(), act);
+    } else {
+      const bool transposed = t.kind == TermOp::Kind::via_transposed;
+      const auto& A = transposed ? ops.t(where, t.name) : ops.at(where, t.name);
+      check_fits(where, transposed ? t.name + "ᵀ" : t.name, A, x);
+      x = spmm(A, x, act);
+    }
+    return i + 1;
+  }
+
   torch::Tensor apply(const std::string& where, const CochainKey& target, const TermOp& t,
                       torch::Tensor x, Operators& ops, const Cochains& h) {
     switch (t.kind) {
@@ -662,8 +697,10 @@ class OperatorNetworkImpl : public torch::nn::Module {
         check_fits(where, t.name, A, x);
         return pattern_aggregate(A, x, t.aggr);
       }
-      case TermOp::Kind::weight:
-        return x.matmul(params_.at(t.name));
+      case TermOp::Kind::weight: {
+        const auto& W = params_.at(t.name);
+        return x.dim() == 2 && W.dim() == 2 ? linear_act(x, W.t(), {}) : x.matmul(W);
+      }
       case TermOp::Kind::linear: {
         const auto& b = t.bias ? params_.at(t.name + ".bias") : torch::Tensor();
         return torch::linear(x, params_.at(t.name + ".weight"), b);
@@ -692,6 +729,8 @@ class OperatorNetworkImpl : public torch::nn::Module {
         return x.pow(t.value);
       case TermOp::Kind::normalize:
         return x / (t.per_row ? x.norm(2, 1, true) : x.norm()).clamp_min(1e-12);
+      case TermOp::Kind::intra_aggregate:
+        return x * torch::sigmoid(x.matmul(torch::relu(x.sum(0)))).unsqueeze(1);
     }
     return x;
   }
@@ -763,12 +802,27 @@ class OperatorNetworkImpl : public torch::nn::Module {
 
   torch::Tensor run_step(const OperatorStep& s, const Cochains& h, Operators& ops) {
     const std::string where = s.name + " (into " + s.target.str() + ")";
+    const bool single = s.terms.size() == 1 &&
+                        (s.mix == OperatorStep::Mix::sum || s.mix == OperatorStep::Mix::mean);
+    if (single && std::none_of(s.terms[0].operations().begin(), s.terms[0].operations().end(),
+                               [](const TermOp& t) { return t.kind == TermOp::Kind::powers; })) {
+      // One term: its operations and the step's as one list, so that a product ending the term
+      // fuses with the step's activation.
+      auto list = s.terms[0].operations();
+      list.insert(list.end(), s.operations().begin(), s.operations().end());
+      torch::Tensor x = h.at(s.terms[0].source.rank, s.terms[0].source.state);
+      for (std::size_t i = 0; i < list.size(); ++i)
+        i = apply_fused(where, s.target, list, i, x, ops, h);
+      return x;
+    }
     std::vector<torch::Tensor> terms;
     for (const auto& term : s.terms) {
       torch::Tensor x = h.at(term.source.rank, term.source.state);
-      for (const auto& t : term.operations()) {
+      const auto& list = term.operations();
+      for (std::size_t i = 0; i < list.size(); ++i) {
+        const auto& t = list[i];
         if (t.kind != TermOp::Kind::powers) {
-          x = apply(where, s.target, t, x, ops, h);
+          i = apply_fused(where, s.target, list, i, x, ops, h);
           continue;
         }
         terms.push_back(x);
@@ -791,7 +845,9 @@ class OperatorNetworkImpl : public torch::nn::Module {
       for (std::size_t i = 1; i < terms.size(); ++i) y = y + terms[i];
       if (s.mix == OperatorStep::Mix::mean) y = y / static_cast<double>(terms.size());
     }
-    for (const auto& t : s.operations()) y = apply(where, s.target, t, y, ops, h);
+    const auto& list = s.operations();
+    for (std::size_t i = 0; i < list.size(); ++i)
+      i = apply_fused(where, s.target, list, i, y, ops, h);
     return y;
   }
 
@@ -978,6 +1034,7 @@ class OperatorNetworkImpl : public torch::nn::Module {
         return x;
       case TermOp::Kind::pow:
       case TermOp::Kind::normalize:
+      case TermOp::Kind::intra_aggregate:
         return x;
     }
     return x;

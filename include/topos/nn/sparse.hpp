@@ -1,17 +1,20 @@
 // topos/nn/sparse.hpp
 // Weighted sparse operators for message passing: SparseOperator holds a matrix (an incidence,
 // a normalised Laplacian, an attention pattern) in row-major CSR together with its transpose,
-// and spmm(A, X) is A·X with its own backward (dX = Aᵀ·dY, d values[k] = <dY[row k], X[col k]>)
-// so attention weights that require grad use the same kernel. The kernel walks each target
-// row once and runs the channel loop contiguously (vectorised by the compiler), which is
+// and spmm(A, X, act) is act(A·X) with its own backward (dX = Aᵀ·dZ, d values[k] = <dZ[row k],
+// X[col k]>, dZ = dY ⊙ act'(Y)) so attention weights that require grad use the same kernel. The
+// kernel (kernels.hpp) walks each target row once with the channel loop in vector registers,
 // several times faster on one core than torch 1.13's COO kernel. Row-wise softmax over the
 // pattern (attention) and row sums complete the set.
 #pragma once
+
+#include "topos/nn/kernels.hpp"
 
 #include <ATen/Parallel.h>
 #include <torch/torch.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <cstdint>
 #include <limits>
@@ -305,125 +308,10 @@ struct SparseOperator {
 };
 
 namespace detail {
-
-// The row kernels are compiled for x86-64-v4 (AVX-512), x86-64-v3 (AVX2 + FMA) and the baseline,
-// and the loader picks one for the machine it runs on. The levels are dispatched by instruction
-// set; an "arch=haswell" clone is dispatched by CPU model and never ran on this AMD EPYC.
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && __GNUC__ >= 12
-#define TOPOS_SIMD_CLONES \
-  __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
-#elif defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
-#define TOPOS_SIMD_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define TOPOS_SIMD_CLONES
-#endif
-// The kernels below are inlined into each clone so that they are compiled for its instruction set.
-#if defined(__GNUC__)
-#define TOPOS_INLINE_KERNEL inline __attribute__((always_inline))
-#else
-#define TOPOS_INLINE_KERNEL inline
-#endif
-
-// Y[i] = Σ_k v[perm k] X[col k] over the entries k of rows [begin, end); C channels, contiguous
-// rows. For a compile-time width the row's sums stay in registers as 32-byte vectors (GCC's
-// vector extension, so each clone compiles them for its instruction set; plain arrays let -O3
-// spill them): 2.8x faster than the loop below at 32 channels.
-#if defined(__GNUC__)
-template <class T, int C>
-static TOPOS_INLINE_KERNEL void csr_rows_fixed(const std::int64_t* crow, const std::int64_t* col,
-                                               const T* val, const std::int64_t* perm, const T* X,
-                                               T* Y, std::int64_t begin, std::int64_t end) {
-  typedef T vec __attribute__((vector_size(32)));
-  constexpr int L = static_cast<int>(32 / sizeof(T)), V = C / L;
-  static_assert(C % L == 0, "the width must be a whole number of vectors");
-  for (std::int64_t i = begin; i < end; ++i) {
-    vec acc[V] = {};
-    for (std::int64_t k = crow[i]; k < crow[i + 1]; ++k) {
-      const T v = val[perm ? perm[k] : k];
-      const T* x = X + col[k] * C;
-      for (int j = 0; j < V; ++j) {
-        vec xv;
-        std::memcpy(&xv, x + j * L, sizeof(vec));
-        acc[j] += v * xv;
-      }
-    }
-    for (int j = 0; j < V; ++j) std::memcpy(Y + i * C + j * L, &acc[j], sizeof(vec));
-  }
-}
-#endif
-
-template <class T>
-static TOPOS_INLINE_KERNEL void csr_rows(const std::int64_t* crow, const std::int64_t* col,
-                                         const T* val, const std::int64_t* perm, const T* X, T* Y,
-                                         std::int64_t begin, std::int64_t end, std::int64_t C) {
-#if defined(__GNUC__)
-  switch (C) {
-    case 8:
-      return csr_rows_fixed<T, 8>(crow, col, val, perm, X, Y, begin, end);
-    case 16:
-      return csr_rows_fixed<T, 16>(crow, col, val, perm, X, Y, begin, end);
-    case 32:
-      return csr_rows_fixed<T, 32>(crow, col, val, perm, X, Y, begin, end);
-    case 64:
-      return csr_rows_fixed<T, 64>(crow, col, val, perm, X, Y, begin, end);
-    default:
-      break;
-  }
-#endif
-  for (std::int64_t i = begin; i < end; ++i) {
-    T* __restrict y = Y + i * C;
-    std::fill(y, y + C, T(0));
-    for (std::int64_t k = crow[i]; k < crow[i + 1]; ++k) {
-      const T v = val[perm ? perm[k] : k];
-      const T* __restrict x = X + col[k] * C;
-      for (std::int64_t c = 0; c < C; ++c) y[c] += v * x[c];
-    }
-  }
-}
-TOPOS_SIMD_CLONES static void csr_rows_float(const std::int64_t* crow, const std::int64_t* col,
-                                             const float* val, const std::int64_t* perm,
-                                             const float* X, float* Y, std::int64_t begin,
-                                             std::int64_t end, std::int64_t C) {
-  csr_rows<float>(crow, col, val, perm, X, Y, begin, end, C);
-}
-TOPOS_SIMD_CLONES static void csr_rows_double(const std::int64_t* crow, const std::int64_t* col,
-                                              const double* val, const std::int64_t* perm,
-                                              const double* X, double* Y, std::int64_t begin,
-                                              std::int64_t end, std::int64_t C) {
-  csr_rows<double>(crow, col, val, perm, X, Y, begin, end, C);
-}
-
-template <class T>
-void csr_mm(const std::int64_t* crow, const std::int64_t* col, const T* val,
-            const std::int64_t* perm, const T* X, T* Y, std::int64_t rows, std::int64_t C) {
-  at::parallel_for(0, rows, 256, [&](std::int64_t begin, std::int64_t end) {
-    if constexpr (std::is_same_v<T, float>)
-      csr_rows_float(crow, col, val, perm, X, Y, begin, end, C);
-    else if constexpr (std::is_same_v<T, double>)
-      csr_rows_double(crow, col, val, perm, X, Y, begin, end, C);
-    else
-      csr_rows<T>(crow, col, val, perm, X, Y, begin, end, C);
-  });
-}
-
-// g[k] = <dY[row k], X[col k]>.
-template <class T>
-void csr_value_grad(const std::int64_t* row, const std::int64_t* col, const T* dY, const T* X, T* g,
-                    std::int64_t nnz, std::int64_t C) {
-  at::parallel_for(0, nnz, 2048, [&](std::int64_t begin, std::int64_t end) {
-    for (std::int64_t k = begin; k < end; ++k) {
-      const T* __restrict a = dY + row[k] * C;
-      const T* __restrict b = X + col[k] * C;
-      T s = 0;
-      for (std::int64_t c = 0; c < C; ++c) s += a[c] * b[c];
-      g[k] = s;
-    }
-  });
-}
-
 inline torch::Tensor csr_apply(const torch::Tensor& crow, const torch::Tensor& col,
                                const torch::Tensor& values, const torch::Tensor& perm,
-                               const torch::Tensor& X, std::int64_t rows) {
+                               const torch::Tensor& X, std::int64_t rows,
+                               Epilogue e = Epilogue::none) {
   const auto x = X.contiguous();
   const auto v = values.contiguous();
   auto y = torch::empty({rows, x.size(1)}, x.options());
@@ -431,26 +319,33 @@ inline torch::Tensor csr_apply(const torch::Tensor& crow, const torch::Tensor& c
     csr_mm<scalar_t>(crow.data_ptr<std::int64_t>(), col.data_ptr<std::int64_t>(),
                      v.data_ptr<scalar_t>(),
                      perm.defined() ? perm.data_ptr<std::int64_t>() : nullptr,
-                     x.data_ptr<scalar_t>(), y.data_ptr<scalar_t>(), rows, x.size(1));
+                     x.data_ptr<scalar_t>(), y.data_ptr<scalar_t>(), rows, x.size(1), e);
   });
   return y;
 }
 
+// act(A·X) as one node: with an activation it keeps its output, and the backward first turns dY
+// into dZ = dY ⊙ act'(Y) (no exp recomputed, as torch's elu backward does from its input).
 struct SpmmFunction : public torch::autograd::Function<SpmmFunction> {
   static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& values,
                                const torch::Tensor& X, const torch::Tensor& crow,
                                const torch::Tensor& col, const torch::Tensor& row,
                                const torch::Tensor& t_crow, const torch::Tensor& t_col,
-                               const torch::Tensor& t_perm, std::int64_t rows) {
-    ctx->save_for_backward({values, X, col, row, t_crow, t_col, t_perm});
-    return csr_apply(crow, col, values, torch::Tensor(), X, rows);
+                               const torch::Tensor& t_perm, std::int64_t rows, std::int64_t act) {
+    const auto e = static_cast<Epilogue>(act);
+    auto y = csr_apply(crow, col, values, torch::Tensor(), X, rows, e);
+    ctx->save_for_backward(
+        {values, X, col, row, t_crow, t_col, t_perm, e == Epilogue::none ? torch::Tensor() : y});
+    ctx->saved_data["act"] = act;
+    return y;
   }
   static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx,
                                                torch::autograd::tensor_list grads) {
     const auto saved = ctx->get_saved_variables();
     const auto &values = saved[0], &X = saved[1], &col = saved[2], &row = saved[3],
-               &t_crow = saved[4], &t_col = saved[5], &t_perm = saved[6];
-    const auto dY = grads[0].contiguous();
+               &t_crow = saved[4], &t_col = saved[5], &t_perm = saved[6], &Y = saved[7];
+    const auto e = static_cast<Epilogue>(ctx->saved_data["act"].toInt());
+    const auto dY = apply_epilogue(Y, grads[0].contiguous(), e);
     torch::Tensor dvalues, dX;
     if (ctx->needs_input_grad(1)) dX = csr_apply(t_crow, t_col, values, t_perm, dY, X.size(0));
     if (ctx->needs_input_grad(0)) {
@@ -462,15 +357,17 @@ struct SpmmFunction : public torch::autograd::Function<SpmmFunction> {
                                  dvalues.data_ptr<scalar_t>(), values.size(0), x.size(1));
       });
     }
-    return {dvalues, dX, {}, {}, {}, {}, {}, {}, {}};
+    return {dvalues, dX, {}, {}, {}, {}, {}, {}, {}, {}};
   }
 };
 
 }  // namespace detail
 
-/// A · X for X of A.cols rows (any number of channels); differentiable in X and in A's values.
-/// CPU tensors use the CSR kernel; other devices fall back to torch's sparse product.
-inline torch::Tensor spmm(const SparseOperator& A, const torch::Tensor& X) {
+/// act(A · X) for X of A.cols rows (any number of channels); differentiable in X and in A's
+/// values. CPU tensors use the CSR kernel, with the activation applied in its row loop; other
+/// devices fall back to torch's sparse product.
+inline torch::Tensor spmm(const SparseOperator& A, const torch::Tensor& X,
+                          Epilogue act = Epilogue::none) {
   if (X.dim() != 2 || X.size(0) != A.cols)
     throw std::invalid_argument("spmm: operator is " + std::to_string(A.rows) + " x " +
                                 std::to_string(A.cols) + " but the features have " +
@@ -479,12 +376,13 @@ inline torch::Tensor spmm(const SparseOperator& A, const torch::Tensor& X) {
   auto values = A.values.scalar_type() == X.scalar_type() ? A.values : A.values.to(X.scalar_type());
   if (!X.device().is_cpu()) {
     const auto idx = torch::stack({A.row, A.col}).to(X.device());
-    return torch::sparse_coo_tensor(idx, values.to(X.device()), {A.rows, A.cols})
-        ._coalesced_(true)
-        .mm(X);
+    const auto y = torch::sparse_coo_tensor(idx, values.to(X.device()), {A.rows, A.cols})
+                       ._coalesced_(true)
+                       .mm(X);
+    return act == Epilogue::relu ? torch::relu(y) : act == Epilogue::elu ? torch::elu(y) : y;
   }
   return detail::SpmmFunction::apply(values, X, A.crow, A.col, A.row, A.t_crow, A.t_col, A.t_perm,
-                                     A.rows);
+                                     A.rows, static_cast<std::int64_t>(act));
 }
 
 namespace detail {

@@ -4,10 +4,15 @@
 // Laplacian and from the rank below (already updated) over B_rᵀ; each message x is reweighted
 // per cell by σ(<relu(Σ_cells x), x_i>) (intra-neighbourhood aggregation), the two averaged,
 // then relu. Rank 0 passes through. Parameters layers.<i>.lap_layers.<r-1>.weight (and
-// att_weight with att) and layers.<i>.inc_layers.<r-1>.*.
+// att_weight with att) and layers.<i>.inc_layers.<r-1>.*. Written as an operator schedule
+// (sca_cmps_schedule): one step per rank, in order, so each sees the rank below updated.
+// With attention TopoModelX scores B_rᵀ's entries against the source rank's features on both
+// sides (its Conv's x_target defaults to x_source, which indexes rank r-1's rows by rank r's
+// cells, out of range as soon as rank r has more cells); the default scores the target rank's
+// own features, the compatible mode TopoModelX's.
 #pragma once
 
-#include "topos/nn/conv.hpp"
+#include "topos/nn/operator_schedule.hpp"
 
 namespace topos::models {
 
@@ -18,35 +23,57 @@ struct SCACMPSOptions {
   TORCH_ARG(int, complex_dim);
   TORCH_ARG(int, n_layers) = 2;
   TORCH_ARG(bool, att) = false;
+  TORCH_ARG(bool, topomodelx_compatible) = false;  ///< attention of B_rᵀ queried at rank r-1
 };
 
-class SCACMPSImpl : public torch::nn::Module {
- public:
-  explicit SCACMPSImpl(const SCACMPSOptions& o) : options(o) {
-    const auto& ch = o.in_channels_all();
-    if (o.complex_dim() < 2 || static_cast<int>(ch.size()) < o.complex_dim())
-      throw std::invalid_argument(
-          "SCACMPS: complex_dim must be >= 2 and in_channels_all needs complex_dim entries");
-    if (o.n_layers() < 1) throw std::invalid_argument("SCACMPS: n_layers must be >= 1");
-    auto list = register_module("layers", torch::nn::ModuleList());
-    for (int l = 0; l < o.n_layers(); ++l) {
-      auto m = std::make_shared<torch::nn::Module>();
-      auto lap = m->register_module("lap_layers", torch::nn::ModuleList()),
-           inc = m->register_module("inc_layers", torch::nn::ModuleList());
-      Layer layer;
-      for (int i = 1; i < o.complex_dim(); ++i) {
-        const auto c = ch[static_cast<std::size_t>(i)], below = ch[static_cast<std::size_t>(i) - 1];
-        layer.lap.push_back(nn::Conv(nn::ConvOptions(c, c).att(o.att())));
-        layer.inc.push_back(nn::Conv(nn::ConvOptions(below, c).att(o.att())));
-        lap->push_back(layer.lap.back());
-        inc->push_back(layer.inc.back());
-      }
-      layers_.push_back(std::move(layer));
-      list->push_back(m);
+/// The schedule: per layer, ranks 1 .. complex_dim-1 in turn, the mean of two intra-aggregated
+/// Conv messages, then relu.
+inline nn::OperatorSchedule sca_cmps_schedule(const SCACMPSOptions& o) {
+  using namespace nn::ops;
+  const auto& ch = o.in_channels_all();
+  if (o.complex_dim() < 2 || static_cast<int>(ch.size()) < o.complex_dim())
+    throw std::invalid_argument(
+        "SCACMPS: complex_dim must be >= 2 and in_channels_all needs complex_dim entries");
+  if (o.n_layers() < 1) throw std::invalid_argument("SCACMPS: n_layers must be >= 1");
+  nn::OperatorSchedule s;
+  for (int r = 0; r < o.complex_dim(); ++r) {
+    const auto R = std::to_string(r);
+    s.input("x_" + R, r, ch[static_cast<std::size_t>(r)]).output("x_" + R, r);
+    if (r > 0)
+      s.operator_input("down_laplacian_" + R, r, r)
+          .operator_input("incidence_" + R + "_t", r - 1, r);  // rank r-1 -> rank r
+  }
+  // TopoModelX's Conv: with att, weights elu(a·[x_source_j, x_target_i]) times A's values on the
+  // features before the map, applied to x W.
+  auto conv = [&](int source, int target, const std::string& path, const std::string& op) {
+    auto t = from(source);
+    t.conv(path, ch[static_cast<std::size_t>(target)]);
+    if (!o.att()) return std::move(t.via(op));
+    auto a = nn::AttendOptions(path + ".att_weight").keys(nn::CochainKey{source, ""});
+    if (o.topomodelx_compatible()) a.queries(nn::CochainKey{source, ""});
+    return std::move(t.attend(op, a));
+  };
+  for (int l = 0; l < o.n_layers(); ++l) {
+    const auto p = "layers." + std::to_string(l) + ".";
+    for (int r = 1; r < o.complex_dim(); ++r) {
+      const auto R = std::to_string(r), i = std::to_string(r - 1);
+      s.step(
+          into(r)
+              .mean(
+                  conv(r, r, p + "lap_layers." + i, "down_laplacian_" + R).intra_aggregate(),
+                  conv(r - 1, r, p + "inc_layers." + i, "incidence_" + R + "_t").intra_aggregate())
+              .act(nn::Update::relu));
     }
   }
+  return s;
+}
+
+class SCACMPSImpl : public nn::OperatorNetworkImpl {
+ public:
+  explicit SCACMPSImpl(const SCACMPSOptions& o)
+      : OperatorNetworkImpl(sca_cmps_schedule(o)), options(o) {}
   /// x[r] for r = 0..complex_dim-1; down_laplacians[r-1] = L_r↓ and incidences_t[r-1] = B_rᵀ for r
-  /// ≥ 1.
+  /// ≥ 1. Returns every rank's features (rank 0 as given).
   std::vector<torch::Tensor> forward(std::vector<torch::Tensor> x,
                                      const std::vector<nn::SparseOperator>& down_laplacians,
                                      const std::vector<nn::SparseOperator>& incidences_t) {
@@ -55,26 +82,23 @@ class SCACMPSImpl : public torch::nn::Module {
       throw std::invalid_argument("SCACMPS: expected " + std::to_string(D) +
                                   " feature matrices and " + std::to_string(D - 1) +
                                   " lower Laplacians and transposed incidences");
-    for (auto& l : layers_)
-      for (std::size_t i = 1; i < D; ++i) {
-        const auto x_lap = intra_aggregate(l.lap[i - 1]->forward(x[i], down_laplacians[i - 1]));
-        const auto x_inc = intra_aggregate(l.inc[i - 1]->forward(x[i - 1], incidences_t[i - 1]));
-        x[i] = nn::aggregate_messages({x_lap, x_inc}, nn::Aggr::mean, nn::Update::relu);
+    std::map<std::string, torch::Tensor> in;
+    std::map<std::string, nn::SparseOperator> ops;
+    std::vector<std::string> out;
+    for (std::size_t r = 0; r < D; ++r) {
+      const auto R = std::to_string(r);
+      in["x_" + R] = x[r];
+      out.push_back("x_" + R);
+      if (r > 0) {
+        ops["down_laplacian_" + R] = down_laplacians[r - 1];
+        ops["incidence_" + R + "_t"] = incidences_t[r - 1];
       }
+    }
+    auto y = run(in, ops, out);
+    for (std::size_t r = 0; r < D; ++r) x[r] = y[r];
     return x;
   }
   SCACMPSOptions options;
-
- private:
-  /// Row i scaled by σ(<relu(Σ_j x_j), x_i>).
-  static torch::Tensor intra_aggregate(const torch::Tensor& x) {
-    const auto w = torch::sigmoid(x.matmul(torch::relu(x.sum(0))));
-    return x * w.unsqueeze(1);
-  }
-  struct Layer {
-    std::vector<nn::Conv> lap, inc;
-  };
-  std::vector<Layer> layers_;
 };
 TORCH_MODULE(SCACMPS);
 
