@@ -3,9 +3,10 @@
 // register-blocked dense product for narrow maps (n × K by K × N, N up to 64) and the fused
 // backward of act(x Wᵀ + b), each with an activation (relu, elu) applied before the row is
 // stored, so that an activated product is one pass over its output and its backward needs the
-// output alone. Compiled per instruction set (AVX-512, AVX2, baseline) with GCC's target clones
-// and vector extension; linear_act is the autograd node over the dense ones, spmm (sparse.hpp)
-// the one over the CSR ones.
+// output alone. Written with GCC's vector extension and compiled per instruction set: AVX2 and
+// the baseline as target clones on 32-byte vectors, AVX-512 on 64-byte ones (dispatched at run
+// time); linear_act is the autograd node over the dense ones, spmm (sparse.hpp) the one over the
+// CSR ones.
 #pragma once
 
 #include <ATen/Parallel.h>
@@ -23,12 +24,15 @@ namespace topos::nn {
 
 namespace detail {
 
-// The row kernels are compiled for x86-64-v4 (AVX-512), x86-64-v3 (AVX2 + FMA) and the baseline,
-// and the loader picks one for the machine it runs on. The levels are dispatched by instruction
-// set; an "arch=haswell" clone is dispatched by CPU model and never ran on this AMD EPYC.
+// The row kernels are compiled for x86-64-v3 (AVX2 + FMA) and the baseline as target clones, on
+// 32-byte vectors, and once more for x86-64-v4 (AVX-512) on 64-byte vectors (the `_v4` entry
+// points, taken when the CPU has AVX-512: on Zen 5, whose FMA units are 512 bits wide, the dense
+// kernel runs 1.9x faster on zmm registers than on ymm). The levels are dispatched by
+// instruction set; an "arch=haswell" clone is dispatched by CPU model and never ran on this EPYC.
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && __GNUC__ >= 12
-#define TOPOS_SIMD_CLONES \
-  __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
+#define TOPOS_SIMD_CLONES __attribute__((target_clones("arch=x86-64-v3", "default")))
+#define TOPOS_V4 __attribute__((target("arch=x86-64-v4")))
+#define TOPOS_HAVE_V4 1
 #elif defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
 #define TOPOS_SIMD_CLONES __attribute__((target_clones("avx2", "default")))
 #else
@@ -39,6 +43,15 @@ namespace detail {
 #define TOPOS_INLINE_KERNEL inline __attribute__((always_inline))
 #else
 #define TOPOS_INLINE_KERNEL inline
+#endif
+
+#if defined(TOPOS_HAVE_V4)
+inline bool cpu_has_v4() {
+  static const bool v4 = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
+                         __builtin_cpu_supports("avx512dq") && __builtin_cpu_supports("avx512vl") &&
+                         __builtin_cpu_supports("avx512cd");
+  return v4;
+}
 #endif
 
 // The activation applied to a product's rows before they are stored (a fused epilogue), so an
@@ -53,28 +66,27 @@ static TOPOS_INLINE_KERNEL T epilogue_scalar(T x, Epilogue e) {
 }
 
 #if defined(__GNUC__)
-typedef float float_vec __attribute__((vector_size(32)));
-typedef double double_vec __attribute__((vector_size(32)));
-typedef std::int32_t int_vec __attribute__((vector_size(32)));
-
-// elu on 8 floats: x where x > 0, else expm1(x) = 2^n (1 + p(r)) - 1 with r = x - n ln2 (two-part
-// ln2), |r| <= ln2/2 and p(r) = r + r²(1/2 + ... + r⁵/7!) (truncation < 1e-8), written as
-// (2^n - 1) + 2^n p(r) so that nothing cancels near 0: within 1e-7 of expm1, relative, everywhere.
-// torch 1.13's elu calls libm's scalar expf (19 % of CWN's forward); this is a few vector FMAs.
-static TOPOS_INLINE_KERNEL void elu_vec(float_vec& x) {      // in place: no vector in the ABI
-  const float_vec c = x < -87.0f ? float_vec{} - 87.0f : x;  // 2^n stays a normal float
-  const float_vec k = (c * 1.44269504088896341f + 12582912.0f) - 12582912.0f;  // round(c/ln2)
-  float_vec r = c - k * 0.693359375f;
+// elu on a vector of floats (any width): x where x > 0, else expm1(x) = 2^n (1 + p(r)) - 1 with
+// r = x - n ln2 (two-part ln2), |r| <= ln2/2 and p(r) = r + r²(1/2 + ... + r⁵/7!) (truncation
+// < 1e-8), written as (2^n - 1) + 2^n p(r) so that nothing cancels near 0: within 1e-7 of expm1,
+// relative, everywhere. torch 1.13's elu calls libm's scalar expf (19 % of CWN's forward); this is
+// a few vector FMAs. In place: no vector type in a function's ABI.
+template <class V>
+static TOPOS_INLINE_KERNEL void elu_vec(V& x) {
+  typedef std::int32_t ivec __attribute__((vector_size(sizeof(V))));
+  const V c = x < -87.0f ? V{} - 87.0f : x;                            // 2^n stays a normal float
+  const V k = (c * 1.44269504088896341f + 12582912.0f) - 12582912.0f;  // round(c / ln2)
+  V r = c - k * 0.693359375f;
   r = r - k * -2.12194440e-4f;
-  const float_vec p =
+  const V p =
       r + r * r *
               (0.5f + r * (1.66666672e-1f +
                            r * (4.16666679e-2f +
                                 r * (8.33333377e-3f + r * (1.38888892e-3f + r * 1.98412701e-4f)))));
-  const int_vec bits = (__builtin_convertvector(k, int_vec) + 127) << 23;
-  float_vec s;
+  const ivec bits = (__builtin_convertvector(k, ivec) + 127) << 23;
+  V s;
   std::memcpy(&s, &bits, sizeof s);
-  const float_vec e = (s - 1.0f) + s * p;
+  const V e = (s - 1.0f) + s * p;
   x = x > 0.0f ? x : e;
 }
 
@@ -98,12 +110,14 @@ static TOPOS_INLINE_KERNEL void epilogue_vec(V& v) {
 // (GCC's vector extension, so each clone compiles them for its instruction set; plain arrays let
 // -O3 spill them): 2.8x faster than the loop below at 32 channels.
 #if defined(__GNUC__)
-template <class T, int C, Epilogue E>
+template <class T, int C, Epilogue E, int VB>
 static TOPOS_INLINE_KERNEL void csr_rows_fixed(const std::int64_t* crow, const std::int64_t* col,
                                                const T* val, const std::int64_t* perm, const T* X,
                                                T* Y, std::int64_t begin, std::int64_t end) {
-  typedef T vec __attribute__((vector_size(32)));
-  constexpr int L = static_cast<int>(32 / sizeof(T)), V = C / L;
+  // A width narrower than the vector (8 floats on 64 bytes) takes vectors of its own size.
+  constexpr int VBe = C * static_cast<int>(sizeof(T)) < VB ? C * static_cast<int>(sizeof(T)) : VB;
+  typedef T vec __attribute__((vector_size(VBe)));
+  constexpr int L = static_cast<int>(VBe / sizeof(T)), V = C / L;
   static_assert(C % L == 0, "the width must be a whole number of vectors");
   for (std::int64_t i = begin; i < end; ++i) {
     vec acc[V] = {};
@@ -123,37 +137,37 @@ static TOPOS_INLINE_KERNEL void csr_rows_fixed(const std::int64_t* crow, const s
   }
 }
 
-template <class T, Epilogue E>
+template <class T, Epilogue E, int VB>
 static TOPOS_INLINE_KERNEL bool csr_rows_width(const std::int64_t* crow, const std::int64_t* col,
                                                const T* val, const std::int64_t* perm, const T* X,
                                                T* Y, std::int64_t begin, std::int64_t end,
                                                std::int64_t C) {
   switch (C) {
     case 8:
-      return csr_rows_fixed<T, 8, E>(crow, col, val, perm, X, Y, begin, end), true;
+      return csr_rows_fixed<T, 8, E, VB>(crow, col, val, perm, X, Y, begin, end), true;
     case 16:
-      return csr_rows_fixed<T, 16, E>(crow, col, val, perm, X, Y, begin, end), true;
+      return csr_rows_fixed<T, 16, E, VB>(crow, col, val, perm, X, Y, begin, end), true;
     case 32:
-      return csr_rows_fixed<T, 32, E>(crow, col, val, perm, X, Y, begin, end), true;
+      return csr_rows_fixed<T, 32, E, VB>(crow, col, val, perm, X, Y, begin, end), true;
     case 64:
-      return csr_rows_fixed<T, 64, E>(crow, col, val, perm, X, Y, begin, end), true;
+      return csr_rows_fixed<T, 64, E, VB>(crow, col, val, perm, X, Y, begin, end), true;
     default:
       return false;
   }
 }
 #endif
 
-template <class T>
+template <class T, int VB = 32>
 static TOPOS_INLINE_KERNEL void csr_rows(const std::int64_t* crow, const std::int64_t* col,
                                          const T* val, const std::int64_t* perm, const T* X, T* Y,
                                          std::int64_t begin, std::int64_t end, std::int64_t C,
                                          Epilogue e) {
 #if defined(__GNUC__)
   if (e == Epilogue::none
-          ? csr_rows_width<T, Epilogue::none>(crow, col, val, perm, X, Y, begin, end, C)
+          ? csr_rows_width<T, Epilogue::none, VB>(crow, col, val, perm, X, Y, begin, end, C)
       : e == Epilogue::relu
-          ? csr_rows_width<T, Epilogue::relu>(crow, col, val, perm, X, Y, begin, end, C)
-          : csr_rows_width<T, Epilogue::elu>(crow, col, val, perm, X, Y, begin, end, C))
+          ? csr_rows_width<T, Epilogue::relu, VB>(crow, col, val, perm, X, Y, begin, end, C)
+          : csr_rows_width<T, Epilogue::elu, VB>(crow, col, val, perm, X, Y, begin, end, C))
     return;
 #endif
   for (std::int64_t i = begin; i < end; ++i) {
@@ -168,29 +182,41 @@ static TOPOS_INLINE_KERNEL void csr_rows(const std::int64_t* crow, const std::in
       for (std::int64_t c = 0; c < C; ++c) y[c] = epilogue_scalar(y[c], e);
   }
 }
-TOPOS_SIMD_CLONES static void csr_rows_float(const std::int64_t* crow, const std::int64_t* col,
-                                             const float* val, const std::int64_t* perm,
-                                             const float* X, float* Y, std::int64_t begin,
-                                             std::int64_t end, std::int64_t C, Epilogue e) {
+[[maybe_unused]] TOPOS_SIMD_CLONES static void csr_rows_float(
+    const std::int64_t* crow, const std::int64_t* col, const float* val, const std::int64_t* perm,
+    const float* X, float* Y, std::int64_t begin, std::int64_t end, std::int64_t C, Epilogue e) {
   csr_rows<float>(crow, col, val, perm, X, Y, begin, end, C, e);
 }
-TOPOS_SIMD_CLONES static void csr_rows_double(const std::int64_t* crow, const std::int64_t* col,
-                                              const double* val, const std::int64_t* perm,
-                                              const double* X, double* Y, std::int64_t begin,
-                                              std::int64_t end, std::int64_t C, Epilogue e) {
+#if defined(TOPOS_HAVE_V4)
+[[maybe_unused]] TOPOS_V4 static void csr_rows_float_v4(
+    const std::int64_t* crow, const std::int64_t* col, const float* val, const std::int64_t* perm,
+    const float* X, float* Y, std::int64_t begin, std::int64_t end, std::int64_t C, Epilogue e) {
+  csr_rows<float, 64>(crow, col, val, perm, X, Y, begin, end, C, e);
+}
+#endif
+[[maybe_unused]] TOPOS_SIMD_CLONES static void csr_rows_double(
+    const std::int64_t* crow, const std::int64_t* col, const double* val, const std::int64_t* perm,
+    const double* X, double* Y, std::int64_t begin, std::int64_t end, std::int64_t C, Epilogue e) {
   csr_rows<double>(crow, col, val, perm, X, Y, begin, end, C, e);
 }
+#if defined(TOPOS_HAVE_V4)
+[[maybe_unused]] TOPOS_V4 static void csr_rows_double_v4(
+    const std::int64_t* crow, const std::int64_t* col, const double* val, const std::int64_t* perm,
+    const double* X, double* Y, std::int64_t begin, std::int64_t end, std::int64_t C, Epilogue e) {
+  csr_rows<double, 64>(crow, col, val, perm, X, Y, begin, end, C, e);
+}
+#endif
 
 // The epilogue on its own, in place (after a dense product), and its backward from the output:
 // g ⊙ act'(y), where relu' = [y > 0] and elu' = 1 for y > 0, y + 1 below (as torch's elu_backward
 // with is_result).
-template <class T>
+template <class T, int VB = 32>
 static TOPOS_INLINE_KERNEL void epilogue_rows(T* y, const T* g, T* out, std::int64_t n,
                                               Epilogue e) {
   std::int64_t i = 0;
 #if defined(__GNUC__)
-  typedef T vec __attribute__((vector_size(32)));
-  constexpr int L = static_cast<int>(32 / sizeof(T));
+  typedef T vec __attribute__((vector_size(VB)));
+  constexpr int L = static_cast<int>(VB / sizeof(T));
   for (; i + L <= n; i += L) {
     vec v;
     std::memcpy(&v, y + i, sizeof v);
@@ -213,14 +239,29 @@ static TOPOS_INLINE_KERNEL void epilogue_rows(T* y, const T* g, T* out, std::int
       out[i] = y[i] > T(0) ? g[i] : e == Epilogue::relu ? T(0) : g[i] * (y[i] + T(1));
   }
 }
-TOPOS_SIMD_CLONES static void epilogue_rows_float(float* y, const float* g, float* out,
-                                                  std::int64_t n, Epilogue e) {
+[[maybe_unused]] TOPOS_SIMD_CLONES static void epilogue_rows_float(float* y, const float* g,
+                                                                   float* out, std::int64_t n,
+                                                                   Epilogue e) {
   epilogue_rows<float>(y, g, out, n, e);
 }
-TOPOS_SIMD_CLONES static void epilogue_rows_double(double* y, const double* g, double* out,
-                                                   std::int64_t n, Epilogue e) {
+#if defined(TOPOS_HAVE_V4)
+[[maybe_unused]] TOPOS_V4 static void epilogue_rows_float_v4(float* y, const float* g, float* out,
+                                                             std::int64_t n, Epilogue e) {
+  epilogue_rows<float, 64>(y, g, out, n, e);
+}
+#endif
+[[maybe_unused]] TOPOS_SIMD_CLONES static void epilogue_rows_double(double* y, const double* g,
+                                                                    double* out, std::int64_t n,
+                                                                    Epilogue e) {
   epilogue_rows<double>(y, g, out, n, e);
 }
+#if defined(TOPOS_HAVE_V4)
+[[maybe_unused]] TOPOS_V4 static void epilogue_rows_double_v4(double* y, const double* g,
+                                                              double* out, std::int64_t n,
+                                                              Epilogue e) {
+  epilogue_rows<double, 64>(y, g, out, n, e);
+}
+#endif
 
 // Y[i] = act(b + X[i] · M) for rows [begin, end): X n × K, M K × N (both contiguous), N a
 // compile-time width. Four rows at a time keep 4·N/8 accumulators in registers and read each row
@@ -228,12 +269,18 @@ TOPOS_SIMD_CLONES static void epilogue_rows_double(double* y, const double* g, d
 // of message passing (n large, K and N at most 64) this beats OpenBLAS, which packs X and
 // zeroes Y before its kernel, and it applies the bias and the activation before the store.
 #if defined(__GNUC__)
-template <class T, int N, Epilogue E>
+template <class T, int N, Epilogue E, int VB>
 static TOPOS_INLINE_KERNEL void dense_rows_fixed(const T* X, const T* M, const T* b, T* Y,
                                                  std::int64_t begin, std::int64_t end,
                                                  std::int64_t K) {
-  typedef T vec __attribute__((vector_size(32)));
-  constexpr int L = static_cast<int>(32 / sizeof(T)), V = N / L, R = V > 4 ? 2 : 4;
+  // A width narrower than the vector (8 floats on 64 bytes) takes vectors of its own size.
+  constexpr int VBe = N * static_cast<int>(sizeof(T)) < VB ? N * static_cast<int>(sizeof(T)) : VB;
+  typedef T vec __attribute__((vector_size(VBe)));
+  // Rows per block: as many accumulators as registers allow (16 ymm or 32 zmm).
+  constexpr int L = static_cast<int>(VBe / sizeof(T)), V = N / L,
+                R = V > 4                ? 2
+                    : V == 4 || VBe < 64 ? 4
+                                         : 8;
   static_assert(N % L == 0, "the width must be a whole number of vectors");
   vec bias[V] = {};
   if (b)
@@ -275,45 +322,67 @@ static TOPOS_INLINE_KERNEL void dense_rows_fixed(const T* X, const T* M, const T
   }
 }
 
-template <class T, Epilogue E>
+template <class T, Epilogue E, int VB>
 static TOPOS_INLINE_KERNEL void dense_rows_width(const T* X, const T* M, const T* b, T* Y,
                                                  std::int64_t begin, std::int64_t end,
                                                  std::int64_t K, std::int64_t N) {
   switch (N) {
     case 8:
-      return dense_rows_fixed<T, 8, E>(X, M, b, Y, begin, end, K);
+      return dense_rows_fixed<T, 8, E, VB>(X, M, b, Y, begin, end, K);
     case 16:
-      return dense_rows_fixed<T, 16, E>(X, M, b, Y, begin, end, K);
+      return dense_rows_fixed<T, 16, E, VB>(X, M, b, Y, begin, end, K);
     case 32:
-      return dense_rows_fixed<T, 32, E>(X, M, b, Y, begin, end, K);
+      return dense_rows_fixed<T, 32, E, VB>(X, M, b, Y, begin, end, K);
     case 64:
-      return dense_rows_fixed<T, 64, E>(X, M, b, Y, begin, end, K);
+      return dense_rows_fixed<T, 64, E, VB>(X, M, b, Y, begin, end, K);
     default:
       break;
   }
 }
 
-template <class T>
+template <class T, int VB = 32>
 static TOPOS_INLINE_KERNEL void dense_rows(const T* X, const T* M, const T* b, T* Y,
                                            std::int64_t begin, std::int64_t end, std::int64_t K,
                                            std::int64_t N, Epilogue e) {
   if (e == Epilogue::none)
-    dense_rows_width<T, Epilogue::none>(X, M, b, Y, begin, end, K, N);
+    dense_rows_width<T, Epilogue::none, VB>(X, M, b, Y, begin, end, K, N);
   else if (e == Epilogue::relu)
-    dense_rows_width<T, Epilogue::relu>(X, M, b, Y, begin, end, K, N);
+    dense_rows_width<T, Epilogue::relu, VB>(X, M, b, Y, begin, end, K, N);
   else
-    dense_rows_width<T, Epilogue::elu>(X, M, b, Y, begin, end, K, N);
+    dense_rows_width<T, Epilogue::elu, VB>(X, M, b, Y, begin, end, K, N);
 }
-TOPOS_SIMD_CLONES static void dense_rows_float(const float* X, const float* M, const float* b,
-                                               float* Y, std::int64_t begin, std::int64_t end,
-                                               std::int64_t K, std::int64_t N, Epilogue e) {
+[[maybe_unused]] TOPOS_SIMD_CLONES static void dense_rows_float(const float* X, const float* M,
+                                                                const float* b, float* Y,
+                                                                std::int64_t begin,
+                                                                std::int64_t end, std::int64_t K,
+                                                                std::int64_t N, Epilogue e) {
   dense_rows<float>(X, M, b, Y, begin, end, K, N, e);
 }
-TOPOS_SIMD_CLONES static void dense_rows_double(const double* X, const double* M, const double* b,
-                                                double* Y, std::int64_t begin, std::int64_t end,
-                                                std::int64_t K, std::int64_t N, Epilogue e) {
+#if defined(TOPOS_HAVE_V4)
+[[maybe_unused]] TOPOS_V4 static void dense_rows_float_v4(const float* X, const float* M,
+                                                          const float* b, float* Y,
+                                                          std::int64_t begin, std::int64_t end,
+                                                          std::int64_t K, std::int64_t N,
+                                                          Epilogue e) {
+  dense_rows<float, 64>(X, M, b, Y, begin, end, K, N, e);
+}
+#endif
+[[maybe_unused]] TOPOS_SIMD_CLONES static void dense_rows_double(const double* X, const double* M,
+                                                                 const double* b, double* Y,
+                                                                 std::int64_t begin,
+                                                                 std::int64_t end, std::int64_t K,
+                                                                 std::int64_t N, Epilogue e) {
   dense_rows<double>(X, M, b, Y, begin, end, K, N, e);
 }
+#if defined(TOPOS_HAVE_V4)
+[[maybe_unused]] TOPOS_V4 static void dense_rows_double_v4(const double* X, const double* M,
+                                                           const double* b, double* Y,
+                                                           std::int64_t begin, std::int64_t end,
+                                                           std::int64_t K, std::int64_t N,
+                                                           Epilogue e) {
+  dense_rows<double, 64>(X, M, b, Y, begin, end, K, N, e);
+}
+#endif
 
 #endif
 
@@ -322,6 +391,12 @@ void csr_mm(const std::int64_t* crow, const std::int64_t* col, const T* val,
             const std::int64_t* perm, const T* X, T* Y, std::int64_t rows, std::int64_t C,
             Epilogue e = Epilogue::none) {
   at::parallel_for(0, rows, 256, [&](std::int64_t begin, std::int64_t end) {
+#if defined(TOPOS_HAVE_V4)
+    if constexpr (std::is_same_v<T, float>)
+      if (cpu_has_v4()) return csr_rows_float_v4(crow, col, val, perm, X, Y, begin, end, C, e);
+    if constexpr (std::is_same_v<T, double>)
+      if (cpu_has_v4()) return csr_rows_double_v4(crow, col, val, perm, X, Y, begin, end, C, e);
+#endif
     if constexpr (std::is_same_v<T, float>)
       csr_rows_float(crow, col, val, perm, X, Y, begin, end, C, e);
     else if constexpr (std::is_same_v<T, double>)
@@ -336,6 +411,12 @@ void epilogue_range(T* y, const T* g, T* out, std::int64_t n, Epilogue e) {
   at::parallel_for(0, n, 1 << 15, [&](std::int64_t begin, std::int64_t end) {
     T* o = out + begin;
     const T* gb = g ? g + begin : nullptr;
+#if defined(TOPOS_HAVE_V4)
+    if constexpr (std::is_same_v<T, float>)
+      if (cpu_has_v4()) return epilogue_rows_float_v4(y + begin, gb, o, end - begin, e);
+    if constexpr (std::is_same_v<T, double>)
+      if (cpu_has_v4()) return epilogue_rows_double_v4(y + begin, gb, o, end - begin, e);
+#endif
     if constexpr (std::is_same_v<T, float>)
       epilogue_rows_float(y + begin, gb, o, end - begin, e);
     else if constexpr (std::is_same_v<T, double>)
@@ -363,11 +444,16 @@ inline torch::Tensor apply_epilogue(const torch::Tensor& y, const torch::Tensor&
 // width, dZ with leading dimension N): four rows of x stay in registers while every row of dW
 // takes their four contributions, one load and one store of dW per four rows.
 #if defined(__GNUC__)
-template <class T, int K>
+template <class T, int K, int VB>
 static TOPOS_INLINE_KERNEL void outer_rows_fixed(const T* dZ, const T* x, T* dW, std::int64_t begin,
                                                  std::int64_t end, std::int64_t N) {
-  typedef T vec __attribute__((vector_size(32)));
-  constexpr int L = static_cast<int>(32 / sizeof(T)), V = K / L, R = V > 4 ? 2 : 4;
+  // A width narrower than the vector (8 floats on 64 bytes) takes vectors of its own size.
+  constexpr int VBe = K * static_cast<int>(sizeof(T)) < VB ? K * static_cast<int>(sizeof(T)) : VB;
+  typedef T vec __attribute__((vector_size(VBe)));
+  constexpr int L = static_cast<int>(VBe / sizeof(T)), V = K / L,
+                R = V > 4                ? 2
+                    : V == 4 || VBe < 64 ? 4
+                                         : 8;
   std::int64_t i = begin;
   for (; i + R <= end; i += R) {
     vec xr[R][V];
@@ -399,7 +485,7 @@ static TOPOS_INLINE_KERNEL void outer_rows_fixed(const T* dZ, const T* x, T* dW,
 // The backward of act(x Wᵀ + b) (x n × K, W N × K) over rows [begin, end), a block of rows at a
 // time so that dZ = g ⊙ act'(y) never leaves L1: dx = dZ W, and dW, db accumulate into the
 // caller's buffers. Each of the three is skipped where its pointer is null.
-template <class T, Epilogue E>
+template <class T, Epilogue E, int VB>
 static TOPOS_INLINE_KERNEL void linear_backward_rows(const T* x, const T* W, const T* y, const T* g,
                                                      T* dx, T* dW, T* db, std::int64_t begin,
                                                      std::int64_t end, std::int64_t K,
@@ -410,38 +496,38 @@ static TOPOS_INLINE_KERNEL void linear_backward_rows(const T* x, const T* W, con
     const std::int64_t rows = std::min(B, end - i0);
     const T* z = g + i0 * N;
     if (E != Epilogue::none) {
-      epilogue_rows<T>(const_cast<T*>(y + i0 * N), g + i0 * N, dZ, rows * N, E);
+      epilogue_rows<T, VB>(const_cast<T*>(y + i0 * N), g + i0 * N, dZ, rows * N, E);
       z = dZ;
     }
     if (dx) {
       switch (K) {
         case 8:
-          dense_rows_fixed<T, 8, Epilogue::none>(z, W, nullptr, dx + i0 * K, 0, rows, N);
+          dense_rows_fixed<T, 8, Epilogue::none, VB>(z, W, nullptr, dx + i0 * K, 0, rows, N);
           break;
         case 16:
-          dense_rows_fixed<T, 16, Epilogue::none>(z, W, nullptr, dx + i0 * K, 0, rows, N);
+          dense_rows_fixed<T, 16, Epilogue::none, VB>(z, W, nullptr, dx + i0 * K, 0, rows, N);
           break;
         case 32:
-          dense_rows_fixed<T, 32, Epilogue::none>(z, W, nullptr, dx + i0 * K, 0, rows, N);
+          dense_rows_fixed<T, 32, Epilogue::none, VB>(z, W, nullptr, dx + i0 * K, 0, rows, N);
           break;
         default:
-          dense_rows_fixed<T, 64, Epilogue::none>(z, W, nullptr, dx + i0 * K, 0, rows, N);
+          dense_rows_fixed<T, 64, Epilogue::none, VB>(z, W, nullptr, dx + i0 * K, 0, rows, N);
           break;
       }
     }
     if (dW) {
       switch (K) {
         case 8:
-          outer_rows_fixed<T, 8>(z, x + i0 * K, dW, 0, rows, N);
+          outer_rows_fixed<T, 8, VB>(z, x + i0 * K, dW, 0, rows, N);
           break;
         case 16:
-          outer_rows_fixed<T, 16>(z, x + i0 * K, dW, 0, rows, N);
+          outer_rows_fixed<T, 16, VB>(z, x + i0 * K, dW, 0, rows, N);
           break;
         case 32:
-          outer_rows_fixed<T, 32>(z, x + i0 * K, dW, 0, rows, N);
+          outer_rows_fixed<T, 32, VB>(z, x + i0 * K, dW, 0, rows, N);
           break;
         default:
-          outer_rows_fixed<T, 64>(z, x + i0 * K, dW, 0, rows, N);
+          outer_rows_fixed<T, 64, VB>(z, x + i0 * K, dW, 0, rows, N);
           break;
       }
     }
@@ -450,40 +536,57 @@ static TOPOS_INLINE_KERNEL void linear_backward_rows(const T* x, const T* W, con
         for (std::int64_t n = 0; n < N; ++n) db[n] += z[r * N + n];
   }
 }
-template <class T>
+template <class T, int VB = 32>
 static TOPOS_INLINE_KERNEL void linear_backward_any(const T* x, const T* W, const T* y, const T* g,
                                                     T* dx, T* dW, T* db, std::int64_t begin,
                                                     std::int64_t end, std::int64_t K,
                                                     std::int64_t N, Epilogue e) {
   if (e == Epilogue::none)
-    linear_backward_rows<T, Epilogue::none>(x, W, y, g, dx, dW, db, begin, end, K, N);
+    linear_backward_rows<T, Epilogue::none, VB>(x, W, y, g, dx, dW, db, begin, end, K, N);
   else if (e == Epilogue::relu)
-    linear_backward_rows<T, Epilogue::relu>(x, W, y, g, dx, dW, db, begin, end, K, N);
+    linear_backward_rows<T, Epilogue::relu, VB>(x, W, y, g, dx, dW, db, begin, end, K, N);
   else
-    linear_backward_rows<T, Epilogue::elu>(x, W, y, g, dx, dW, db, begin, end, K, N);
+    linear_backward_rows<T, Epilogue::elu, VB>(x, W, y, g, dx, dW, db, begin, end, K, N);
 }
-TOPOS_SIMD_CLONES static void linear_backward_float(const float* x, const float* W, const float* y,
-                                                    const float* g, float* dx, float* dW, float* db,
-                                                    std::int64_t begin, std::int64_t end,
-                                                    std::int64_t K, std::int64_t N, Epilogue e) {
+[[maybe_unused]] TOPOS_SIMD_CLONES static void linear_backward_float(
+    const float* x, const float* W, const float* y, const float* g, float* dx, float* dW, float* db,
+    std::int64_t begin, std::int64_t end, std::int64_t K, std::int64_t N, Epilogue e) {
   linear_backward_any<float>(x, W, y, g, dx, dW, db, begin, end, K, N, e);
 }
-TOPOS_SIMD_CLONES static void linear_backward_double(const double* x, const double* W,
-                                                     const double* y, const double* g, double* dx,
-                                                     double* dW, double* db, std::int64_t begin,
-                                                     std::int64_t end, std::int64_t K,
-                                                     std::int64_t N, Epilogue e) {
+#if defined(TOPOS_HAVE_V4)
+[[maybe_unused]] TOPOS_V4 static void linear_backward_float_v4(
+    const float* x, const float* W, const float* y, const float* g, float* dx, float* dW, float* db,
+    std::int64_t begin, std::int64_t end, std::int64_t K, std::int64_t N, Epilogue e) {
+  linear_backward_any<float, 64>(x, W, y, g, dx, dW, db, begin, end, K, N, e);
+}
+#endif
+[[maybe_unused]] TOPOS_SIMD_CLONES static void linear_backward_double(
+    const double* x, const double* W, const double* y, const double* g, double* dx, double* dW,
+    double* db, std::int64_t begin, std::int64_t end, std::int64_t K, std::int64_t N, Epilogue e) {
   linear_backward_any<double>(x, W, y, g, dx, dW, db, begin, end, K, N, e);
 }
+#if defined(TOPOS_HAVE_V4)
+[[maybe_unused]] TOPOS_V4 static void linear_backward_double_v4(
+    const double* x, const double* W, const double* y, const double* g, double* dx, double* dW,
+    double* db, std::int64_t begin, std::int64_t end, std::int64_t K, std::int64_t N, Epilogue e) {
+  linear_backward_any<double, 64>(x, W, y, g, dx, dW, db, begin, end, K, N, e);
+}
+#endif
 inline void linear_backward_clone(const float* x, const float* W, const float* y, const float* g,
                                   float* dx, float* dW, float* db, std::int64_t begin,
                                   std::int64_t end, std::int64_t K, std::int64_t N, Epilogue e) {
+#if defined(TOPOS_HAVE_V4)
+  if (cpu_has_v4()) return linear_backward_float_v4(x, W, y, g, dx, dW, db, begin, end, K, N, e);
+#endif
   linear_backward_float(x, W, y, g, dx, dW, db, begin, end, K, N, e);
 }
 inline void linear_backward_clone(const double* x, const double* W, const double* y,
                                   const double* g, double* dx, double* dW, double* db,
                                   std::int64_t begin, std::int64_t end, std::int64_t K,
                                   std::int64_t N, Epilogue e) {
+#if defined(TOPOS_HAVE_V4)
+  if (cpu_has_v4()) return linear_backward_double_v4(x, W, y, g, dx, dW, db, begin, end, K, N, e);
+#endif
   linear_backward_double(x, W, y, g, dx, dW, db, begin, end, K, N, e);
 }
 #endif
@@ -492,11 +595,17 @@ inline void linear_backward_clone(const double* x, const double* W, const double
 inline void dense_rows_clone(const float* X, const float* M, const float* b, float* Y,
                              std::int64_t begin, std::int64_t end, std::int64_t K, std::int64_t N,
                              Epilogue e) {
+#if defined(TOPOS_HAVE_V4)
+  if (cpu_has_v4()) return dense_rows_float_v4(X, M, b, Y, begin, end, K, N, e);
+#endif
   dense_rows_float(X, M, b, Y, begin, end, K, N, e);
 }
 inline void dense_rows_clone(const double* X, const double* M, const double* b, double* Y,
                              std::int64_t begin, std::int64_t end, std::int64_t K, std::int64_t N,
                              Epilogue e) {
+#if defined(TOPOS_HAVE_V4)
+  if (cpu_has_v4()) return dense_rows_double_v4(X, M, b, Y, begin, end, K, N, e);
+#endif
   dense_rows_double(X, M, b, Y, begin, end, K, N, e);
 }
 #endif
