@@ -589,3 +589,172 @@ TEST_CASE("intra_aggregate weights each cell by its agreement with the whole coc
   CHECK(torch::allclose(x.grad(), xr.grad(), 1e-12, 1e-12));
   CHECK_THAT(s.str(), Contains("intra(A·(1))"));
 }
+
+TEST_CASE("attention offsets read the vector cyclically; mirrored rows swap a row's weights",
+          "[nn][schedule][attention]") {
+  const auto A = dense_operator(5, 7, 31);  // cells of rank 1 (7) -> rank 0 (5)
+  torch::manual_seed(32);
+  const auto k = torch::randn({7, 3}, torch::kDouble), q = torch::randn({5, 2}, torch::kDouble);
+  auto base = [](const std::string& path) {
+    return AttendOptions(path)
+        .activation(Update::leaky_relu)
+        .negative_slope(0.2)
+        .norm(AttentionNorm::softmax)
+        .shape({5, 1});
+  };
+  OperatorSchedule s;
+  s.input("k", 1, 3).input("q", 0, 2).operator_input("A", 1, 0);
+  // Forward: a_s from entry 4 (wrapping to 0, 1), a_t from entry 2. Reverse: keys q (rank 0)
+  // over Aᵀ, queries k, a_s from entry 3, a_t from entry 0; mirrored rows.
+  s.parallel({into(0, "fwd").sum(from(1).attend(
+                  "A", base("a").queries(CochainKey{0, ""}).source_offset(4).target_offset(2))),
+              into(1, "rev").sum(from(0).attend("A", base("a")
+                                                         .transposed(true)
+                                                         .queries(CochainKey{1, ""})
+                                                         .source_offset(3)
+                                                         .target_offset(0)
+                                                         .mirrored_rows(true)))});
+  s.output("fwd", 0, "fwd").output("rev", 1, "rev");
+  OperatorNetwork net(s);
+  net->to(torch::kDouble);
+  const auto a = net->parameter("a").reshape({-1});
+  const auto out = net->forward({{"k", k}, {"q", q}}, {{"A", A}});
+  const auto at = [&](std::vector<std::int64_t> i) { return a.index_select(0, torch::tensor(i)); };
+  const auto D = A.to_dense();
+  // Forward by hand: softmax per node of leaky_relu(k_j·a[4,0,1] + q_i·a[2,3]).
+  const auto sf = torch::leaky_relu(
+      k.matmul(at({4, 0, 1})).unsqueeze(0) + q.matmul(at({2, 3})).unsqueeze(1), 0.2);
+  CHECK(torch::allclose(out.at("fwd"), (masked_softmax(sf, D) * D).mm(k), 1e-10, 1e-12));
+  // Reverse: per edge j over its nodes i, leaky_relu(q_i·a[3,4] + k_j·a[0,1,2]), then each row's
+  // weights mirrored (its first entry takes its last's weight, ...).
+  const auto Dt = D.t().contiguous();
+  const auto sr = torch::leaky_relu(
+      q.matmul(at({3, 4})).unsqueeze(0) + k.matmul(at({0, 1, 2})).unsqueeze(1), 0.2);
+  auto w = masked_softmax(sr, Dt);
+  for (std::int64_t j = 0; j < 7; ++j) {
+    const auto cols = (Dt[j] != 0).nonzero().squeeze(1);
+    w[j].index_put_({cols}, w[j].index_select(0, cols).flip(0));
+  }
+  CHECK(torch::allclose(out.at("rev"), (w * Dt).mm(q), 1e-10, 1e-12));
+  CHECK_FALSE(torch::allclose(out.at("rev"), (masked_softmax(sr, Dt) * Dt).mm(q), 1e-6, 1e-6));
+
+  // Offsets need a vector with both parts, inside it.
+  OperatorSchedule bad;
+  bad.input("k", 1, 3).input("q", 0, 2).operator_input("A", 1, 0).output("y", 0);
+  auto too_far = bad;
+  too_far.step(
+      into(0).sum(from(1).attend("A", base("a").queries(CochainKey{0, ""}).target_offset(5))));
+  CHECK_THAT(build_error(too_far), Contains("offsets in [0, 5), got 5"));
+  auto one_part = bad;
+  one_part.step(
+      into(0).sum(from(1).attend("A", base("a").shape({}).source_only(true).source_offset(1))));
+  CHECK_THAT(build_error(one_part), Contains("has offsets but no target part"));
+}
+
+TEST_CASE("dropped operators, patterns over the transpose and HMPNN's rescaled dropout",
+          "[nn][schedule]") {
+  // A node × hyperedge pattern of 12 × 8 with about half the entries.
+  torch::manual_seed(41);
+  const auto B =
+      SparseOperator::from_dense((torch::rand({12, 8}, torch::kDouble) < 0.5).to(torch::kDouble));
+  OperatorSchedule s;
+  s.input("nodes", 0, 12).input("edges", 1, 8).operator_input("B", 1, 0);
+  s.dropped_operator("B_dropped", "B", 0.5);
+  // One-hot features: what reaches each cell names the entries kept.
+  s.parallel({into(1, "from_nodes").sum(from(0).pattern_t("B_dropped")),
+              into(0, "from_edges").sum(from(1).pattern("B_dropped")),
+              into(1, "mean").sum(from(0).pattern_t("B", Aggr::mean))});
+  s.output("from_nodes", 1, "from_nodes").output("from_edges", 0, "from_edges");
+  s.output("mean", 1, "mean");
+  OperatorNetwork net(s);
+  const std::map<std::string, torch::Tensor> in{{"nodes", torch::eye(12, torch::kDouble)},
+                                                {"edges", torch::eye(8, torch::kDouble)}};
+  const auto D = B.to_dense();
+  CHECK_THAT(s.str(), Contains("sum|B_droppedᵀ|"));
+  net->eval();  // every entry
+  auto out = net->forward(in, {{"B", B}});
+  CHECK(torch::equal(out.at("from_nodes"), D.t()));
+  CHECK(torch::equal(out.at("from_edges"), D));
+  CHECK(torch::allclose(out.at("mean"), D.t() / D.sum(0).clamp_min(1).unsqueeze(1)));
+  net->train();  // one draw, both directions
+  out = net->forward(in, {{"B", B}});
+  const auto kept = out.at("from_edges");
+  CHECK(torch::equal(out.at("from_nodes"), kept.t()));
+  CHECK(torch::equal(kept * D, kept));  // a subset of B's entries
+  const auto n = kept.sum().item<double>(), nnz = static_cast<double>(B.nnz());
+  CHECK(n > 0.2 * nnz);
+  CHECK(n < 0.8 * nnz);
+  CHECK_FALSE(torch::equal(net->forward(in, {{"B", B}}).at("from_edges"), kept));  // a new draw
+
+  // TopoModelX HMPNN's dropout: entries kept with probability p, row i times (2n - kept_i) / n.
+  OperatorSchedule d;
+  d.input("x", 0, 4).output("y", 0);
+  d.step(into(0).sum(from(0).rescaled_dropout(0.3)));
+  OperatorNetwork drop(d);
+  const auto ones = torch::ones({10, 4}, torch::kDouble);
+  torch::manual_seed(43);
+  const auto y = drop->forward({{"x", ones}}, {}).at("y");  // 10 rows: factors (20 - kept) / 10 > 0
+  const auto kept_per_row = (y != 0).sum(1, true).to(torch::kDouble);
+  CHECK(torch::allclose(y, (y != 0).to(torch::kDouble) * (20 - kept_per_row) / 10));
+  CHECK(kept_per_row.sum().item<double>() > 0);
+  CHECK(kept_per_row.sum().item<double>() < 0.6 * 40);
+  drop->eval();
+  CHECK(torch::equal(drop->forward({{"x", ones}}, {}).at("y"), ones));
+
+  // Errors name the dropped operator or the step.
+  OperatorSchedule unknown = s;
+  unknown.dropped_operator("C", "nowhere", 0.1);
+  CHECK_THAT(build_error(unknown), Contains("dropped operator 'C': unknown operator 'nowhere'"));
+  OperatorSchedule rate = s;
+  rate.dropped_operator("C", "B", 1.5);
+  CHECK_THAT(build_error(rate), Contains("the rate must be in [0, 1]"));
+  OperatorSchedule taken = s;
+  taken.dropped_operator("B", "B", 0.1);
+  CHECK_THAT(build_error(taken), Contains("already an operator input"));
+  OperatorSchedule bad_dropout;
+  bad_dropout.input("x", 0, 2).output("y", 0);
+  bad_dropout.step(into(0).sum(from(0).dropout(2)).named("dropping"));
+  CHECK_THAT(build_error(bad_dropout), Contains("dropping (into (0)): a dropout rate"));
+  OperatorSchedule wrong_rank;
+  wrong_rank.input("x", 1, 2).operator_input("B", 1, 0).output("y", 1);
+  wrong_rank.step(into(1).sum(from(1).pattern_t("B")));
+  CHECK_THAT(build_error(wrong_rank), Contains("operator 'Bᵀ' applies to rank 0 cochains"));
+}
+
+TEST_CASE("HMC and HMPNN as schedules keep TopoModelX's parameter names and shapes",
+          "[nn][schedule][models]") {
+  models::HMCChannels c(1);
+  c[0] = {{{2, 3, 4}, {5, 6, 7}, {8, 9, 10}}};  // in, intermediate, out of ranks 0, 1, 2
+  models::HMC hmc{models::HMCOptions(c)};
+  const auto names = parameter_names(*hmc);
+  CHECK(names.size() == 20);  // 4 HBS (weight, attention) and 4 HBNS (w_s, w_t, attention)
+  CHECK(hmc->parameter("layers.0.hbs_0_level1.weight.0").sizes() == torch::IntArrayRef({2, 5}));
+  CHECK(hmc->parameter("layers.0.hbs_0_level1.att_weight.0").sizes() ==
+        torch::IntArrayRef({10, 1}));
+  CHECK(hmc->parameter("layers.0.hbs_2_level2.weight.0").sizes() == torch::IntArrayRef({7, 10}));
+  // HBNS(source rank 2, target rank 1): w_s source in × target out, w_t target in × source out.
+  CHECK(hmc->parameter("layers.0.hbns_1_2_level1.w_s").sizes() == torch::IntArrayRef({4, 6}));
+  CHECK(hmc->parameter("layers.0.hbns_1_2_level1.w_t").sizes() == torch::IntArrayRef({3, 7}));
+  CHECK(hmc->parameter("layers.0.hbns_0_1_level2.att_weight").sizes() ==
+        torch::IntArrayRef({17, 1}));
+  CHECK(names.count("layers.0.hbs_1_level1.weight.0") == 0);  // level 1: rank 0's HBS only
+  c.push_back({{{8, 9, 1}, {1, 1, 1}, {1, 1, 1}}});
+  CHECK_THROWS_WITH(models::HMC(models::HMCOptions(c)),
+                    Contains("layer 0's output channels differ from layer 1's"));
+
+  models::HMPNN hmpnn(models::HMPNNOptions(3, 4).n_layers(1));
+  CHECK(parameter_names(*hmpnn) ==
+        std::set<std::string>{
+            "linear_node.weight", "linear_node.bias", "linear_edge.weight", "linear_edge.bias",
+            "layers.0.node_to_hyperedge_messenger.messaging_func.0.weight",
+            "layers.0.node_to_hyperedge_messenger.messaging_func.0.bias",
+            "layers.0.hyperedge_to_node_messenger.messaging_func.linear.weight",
+            "layers.0.hyperedge_to_node_messenger.messaging_func.linear.bias",
+            "layers.0.node_batchnorm.weight", "layers.0.node_batchnorm.bias",
+            "layers.0.hyperedge_batchnorm.weight", "layers.0.hyperedge_batchnorm.bias"});
+  CHECK(hmpnn->parameter("layers.0.hyperedge_to_node_messenger.messaging_func.linear.weight")
+            .sizes() == torch::IntArrayRef({4, 8}));
+  CHECK_THAT(hmpnn->schedule().str(), Contains("incidence_1.layer_0"));
+  models::HMPNN compatible(models::HMPNNOptions(3, 4).n_layers(1).topomodelx_compatible(true));
+  CHECK_THAT(compatible->schedule().str(), !Contains("incidence_1.layer_0"));
+}

@@ -81,6 +81,18 @@ struct AttendOptions {
   TORCH_ARG(bool, concat) = true;       ///< the heads side by side, or their mean
   TORCH_ARG(double, dropout) = 0;       ///< on the weights
   TORCH_ARG(bool, transposed) = false;  ///< attend over Aᵀ
+  /// Where a_s and a_t start in the one parameter (default: 0 and a_s's length), read cyclically:
+  /// TopoModelX's HMC takes [a_t | a_s] for same-rank attention and a rotated vector for the
+  /// reverse direction of an incidence.
+  TORCH_ARG(std::optional<std::int64_t>, source_offset);
+  TORCH_ARG(std::optional<std::int64_t>, target_offset);
+  /// Entry k of a row takes the weight of the row's mirrored entry (the (n-1-k)-th): TopoModelX's
+  /// HBS pairs softmax weights in ascending column order with a product's descending indices.
+  TORCH_ARG(bool, mirrored_rows) = false;
+  /// A filter bank (SAN): the messages are `filters` slices of equal width, slice p (from 0)
+  /// propagated p + 1 times by the one attention-weighted operator, the results summed (one
+  /// head; the keys and queries are all the slices side by side).
+  TORCH_ARG(std::int64_t, filters) = 1;
 };
 
 /// One operation of a term or of a step's tail.
@@ -102,10 +114,11 @@ struct TermOp {
     scale,         ///< x · p, a constant
     head_weights,  ///< [x W_1 | ... | x W_H], W (heads × in × out) at `name`
     bias,          ///< x + b on every row, b at `name` (any shape of as many entries as channels)
-    learned_scale,   ///< (offset + s) · x, s a learned or buffered scalar at `name`
-    pow,             ///< x^value elementwise
-    normalize,       ///< x / ‖x‖₂ (differentiated), per row or over the whole matrix
-    intra_aggregate  ///< x_i · σ(<relu(Σ_j x_j), x_i>): each cell weighted against the whole
+    learned_scale,    ///< (offset + s) · x, s a learned or buffered scalar at `name`
+    pow,              ///< x^value elementwise
+    normalize,        ///< x / ‖x‖₂ (differentiated), per row or over the whole matrix
+    intra_aggregate,  ///< x_i · σ(<relu(Σ_j x_j), x_i>): each cell weighted against the whole
+    affine_power      ///< (a I + b Σ_i A_i)^k x: `filters` the (A_i, k), `value` a, `offset` b
   };
   explicit TermOp(Kind k, std::string n = {}) : kind(k), name(std::move(n)) {}
   Kind kind;
@@ -131,6 +144,8 @@ struct TermOp {
   double offset = 0;                ///< scale: added to the scalar
   bool trainable = true;            ///< scale: a parameter, else a buffer
   bool per_row = true;              ///< normalize: each row, else the whole matrix
+  bool transposed = false;          ///< pattern: over Aᵀ
+  bool rescale_rows = false;        ///< dropout: TopoModelX HMPNN's (rescaled_dropout)
 };
 
 namespace ops {
@@ -153,6 +168,12 @@ class Chain {
     TermOp t(TermOp::Kind::pattern, std::move(op));
     t.aggr = aggr;
     return add(std::move(t));
+  }
+  /// The same over Aᵀ (a hypergraph's nodes to its hyperedges over B).
+  Derived& pattern_t(std::string op, Aggr aggr = Aggr::sum) {
+    pattern(std::move(op), aggr);
+    ops_.back().transposed = true;
+    return static_cast<Derived&>(*this);
   }
   /// x · W with W (in × out) at `path` (Glorot-initialised with `gain`).
   Derived& weight(std::string path, std::int64_t out, double gain = 1.414) {
@@ -180,6 +201,13 @@ class Chain {
     TermOp t(TermOp::Kind::dropout);
     t.p = p;
     return add(std::move(t));
+  }
+  /// TopoModelX HMPNN's feature dropout (training only): each entry kept with probability
+  /// `keep`, then row i multiplied by (2n - kept_i) / n, n the number of rows.
+  Derived& rescaled_dropout(double keep) {
+    dropout(keep);
+    ops_.back().rescale_rows = true;
+    return static_cast<Derived&>(*this);
   }
   Derived& unit_rows() { return add(TermOp(TermOp::Kind::unit_rows)); }
   /// torch.nn.BatchNorm1d over the channels at `path` (weight, bias, running statistics).
@@ -247,6 +275,15 @@ class Chain {
   /// Intra-neighbourhood aggregation (Hajij et al.'s CMPS, TopoModelX SCACMPS's intra_aggr): each
   /// row scaled by σ(<relu(Σ_j x_j), x_i>), its agreement with the whole cochain.
   Derived& intra_aggregate() { return add(TermOp(TermOp::Kind::intra_aggregate)); }
+  /// (a I + b Σ_i A_i)^k x by k rounds of sparse products, the sum and its power never formed
+  /// (SAN's harmonic filter (I - ε(L↑ + L↓))^k); the A_i square, their values not trained.
+  Derived& affine_power(const std::vector<std::string>& ops, int k, double a, double b) {
+    TermOp t(TermOp::Kind::affine_power);
+    for (const auto& op : ops) t.filters.emplace_back(op, k);
+    t.value = a;
+    t.offset = b;
+    return add(std::move(t));
+  }
   const std::vector<TermOp>& operations() const { return ops_; }
 
  protected:
@@ -381,6 +418,13 @@ class OperatorSchedule {
     operators_[std::move(name)] = {source_rank, target_rank};
     return *this;
   }
+  /// Operator `name`: `source`'s entries, each kept with probability 1 - rate in training (all
+  /// of them in evaluation), drawn once per forward and shared by every step that names it (both
+  /// directions of an incidence). Ranks as `source`'s.
+  OperatorSchedule& dropped_operator(std::string name, std::string source, double rate) {
+    dropped_.push_back({std::move(name), std::move(source), rate});
+    return *this;
+  }
   OperatorSchedule& step(OperatorStep s) {
     name_step(s);
     groups_.push_back({std::move(s)});
@@ -419,6 +463,11 @@ class OperatorSchedule {
     double gain;
   };
   const std::vector<Parameter>& parameters() const { return parameters_; }
+  struct DroppedOperator {
+    std::string name, source;
+    double rate;
+  };
+  const std::vector<DroppedOperator>& dropped_operators() const { return dropped_; }
 
   /// One line per step, e.g. "layer 0 rank 1: (1) = elu(linear(Σ[conv(1)·A1, ...]))".
   std::string str() const {
@@ -449,7 +498,8 @@ class OperatorSchedule {
           x = t.name + "ᵀ" + (t.row_norm ? "~" : "") + "·" + x;
           break;
         case TermOp::Kind::pattern:
-          x = std::string(t.aggr == Aggr::mean ? "mean" : "sum") + "|" + t.name + "|·" + x;
+          x = std::string(t.aggr == Aggr::mean ? "mean" : "sum") + "|" + t.name +
+              (t.transposed ? "ᵀ" : "") + "|·" + x;
           break;
         case TermOp::Kind::weight:
           x = x + "·" + t.name;
@@ -506,6 +556,13 @@ class OperatorSchedule {
         case TermOp::Kind::intra_aggregate:
           x = "intra(" + x + ")";
           break;
+        case TermOp::Kind::affine_power: {
+          std::string sum;
+          for (const auto& f : t.filters) sum += (sum.empty() ? "" : " + ") + f.first;
+          x = "(" + num(t.value) + " I + " + num(t.offset) + " (" + sum + "))^" +
+              std::to_string(t.filters.empty() ? 0 : t.filters[0].second) + "·" + x;
+          break;
+        }
       }
     }
     return x;
@@ -531,6 +588,7 @@ class OperatorSchedule {
   std::vector<std::vector<OperatorStep>> groups_;
   int num_steps_ = 0;
   std::vector<Parameter> parameters_;
+  std::vector<DroppedOperator> dropped_;
 };
 
 /// Runs an OperatorSchedule; its parameters sit at the schedule's dotted paths.
@@ -569,7 +627,11 @@ class OperatorNetworkImpl : public torch::nn::Module {
   /// pooling keeps some cells and restricts the operators to them) runs its schedule in pieces.
   void run_groups(Cochains& h, const std::map<std::string, SparseOperator>& operators,
                   std::size_t begin, std::size_t end) {
-    Operators ops{&operators, {}};
+    Operators ops{&operators, {}, {}};
+    for (const auto& d : schedule_.dropped_operators()) {
+      const auto& A = ops.at("dropped operator '" + d.name + "'", d.source);
+      ops.derived.emplace(d.name, is_training() && d.rate > 0 ? drop_entries(A, d.rate) : A);
+    }
     const auto& groups = schedule_.groups();
     for (std::size_t g = begin; g < end && g < groups.size(); ++g) {
       const Cochains snapshot = h;
@@ -613,7 +675,9 @@ class OperatorNetworkImpl : public torch::nn::Module {
   struct Operators {
     const std::map<std::string, SparseOperator>* given;
     std::map<std::string, SparseOperator> transposed;
+    std::map<std::string, SparseOperator> derived;  // the dropped operators of this forward
     const SparseOperator& at(const std::string& where, const std::string& name) const {
+      if (auto d = derived.find(name); d != derived.end()) return d->second;
       auto it = given->find(name);
       if (it == given->end())
         throw ScheduleError(where + ": operator '" + name + "' was not given");
@@ -630,6 +694,14 @@ class OperatorNetworkImpl : public torch::nn::Module {
     std::ostringstream o;
     o << x.sizes();
     return o.str();
+  }
+
+  /// A's entries, each kept with probability 1 - rate.
+  static SparseOperator drop_entries(const SparseOperator& A, double rate) {
+    const auto keep = (torch::rand({A.nnz()}) >= rate).nonzero().squeeze(1).to(A.row.device());
+    return SparseOperator::from_sorted(A.rows, A.cols, index_vector(A.row.index_select(0, keep)),
+                                       index_vector(A.col.index_select(0, keep)),
+                                       A.values.index_select(0, keep));
   }
 
   /// A clear error naming the step and the operator when A cannot be applied to x.
@@ -693,8 +765,8 @@ class OperatorNetworkImpl : public torch::nn::Module {
       case TermOp::Kind::layer_norm:
         return layer_norms_.at(t.name)->forward(x);
       case TermOp::Kind::pattern: {
-        const auto& A = ops.at(where, t.name);
-        check_fits(where, t.name, A, x);
+        const auto& A = t.transposed ? ops.t(where, t.name) : ops.at(where, t.name);
+        check_fits(where, t.name + (t.transposed ? "ᵀ" : ""), A, x);
         return pattern_aggregate(A, x, t.aggr);
       }
       case TermOp::Kind::weight: {
@@ -707,8 +779,12 @@ class OperatorNetworkImpl : public torch::nn::Module {
       }
       case TermOp::Kind::act:
         return apply_update(x, t.update, t.slope);
-      case TermOp::Kind::dropout:
-        return torch::dropout(x, t.p, is_training());
+      case TermOp::Kind::dropout: {
+        if (!t.rescale_rows || !is_training()) return torch::dropout(x, t.p, is_training());
+        const auto mask = torch::bernoulli(torch::full_like(x, t.p));
+        const double n = static_cast<double>(x.size(0));
+        return x * mask * ((2 * n - mask.sum(1, true)) / n);
+      }
       case TermOp::Kind::unit_rows:
         return unit_rows(x);
       case TermOp::Kind::initial_residual: {
@@ -731,6 +807,14 @@ class OperatorNetworkImpl : public torch::nn::Module {
         return x / (t.per_row ? x.norm(2, 1, true) : x.norm()).clamp_min(1e-12);
       case TermOp::Kind::intra_aggregate:
         return x * torch::sigmoid(x.matmul(torch::relu(x.sum(0)))).unsqueeze(1);
+      case TermOp::Kind::affine_power: {
+        std::vector<SparseOperator> terms;
+        for (const auto& f : t.filters) {
+          terms.push_back(ops.at(where, f.first));
+          check_fits(where, f.first, terms.back(), x);
+        }
+        return apply_affine_power(terms, x, t.filters[0].second, t.value, t.offset);
+      }
     }
     return x;
   }
@@ -768,8 +852,12 @@ class OperatorNetworkImpl : public torch::nn::Module {
     if (!o.target_param().empty()) {
       a_t = params_.at(o.target_param()).reshape({-1});
     } else if (q.defined() && !o.v2()) {
-      a_s = a.narrow(0, 0, k.size(1));
-      a_t = a.narrow(0, k.size(1), a.size(0) - k.size(1));
+      // a's entries from `offset` on, wrapping around.
+      const auto part = [&a](std::int64_t offset, std::int64_t n) {
+        return offset == 0 ? a.narrow(0, 0, n) : a.roll({-offset}).narrow(0, 0, n);
+      };
+      a_s = part(o.source_offset().value_or(0), k.size(1));
+      a_t = part(o.target_offset().value_or(k.size(1)), a.size(0) - k.size(1));
     }
     // Per cell and head <f_h, a_h> (one head: a matrix-vector product, as pair_scores).
     auto dots = [H](const torch::Tensor& f, const torch::Tensor& v) {
@@ -787,15 +875,25 @@ class OperatorNetworkImpl : public torch::nn::Module {
       if (q.defined()) raw = raw + dots(q, a_t).index_select(0, row);
     }
     const auto act = o.v2() ? Update::none : o.activation();
-    const auto c = x.size(1) / H;
-    std::vector<torch::Tensor> heads;
-    for (std::int64_t i = 0; i < H; ++i) {
+    // Head i's weights on A's entries, times A's values.
+    const auto weighted = [&](std::int64_t i) {
       auto w =
           attention_weights(A, raw.select(1, i).contiguous(), act, o.negative_slope(), o.norm());
+      if (o.mirrored_rows()) w = w.index_select(0, A.row_mirror());
       if (o.dropout() > 0) w = torch::dropout(w, o.dropout(), is_training());
-      const auto xi = H == 1 ? x : x.narrow(1, i * c, c).contiguous();
-      heads.push_back(spmm(A.with_values(w * A.values.to(w.scalar_type())), xi));
+      return A.with_values(w * A.values.to(w.scalar_type()));
+    };
+    if (o.filters() > 1) {  // Σ_p W^(p+1) x_p = W(x_0 + W(x_1 + ... W x_(P-1))): P products
+      const auto W = weighted(0);
+      const auto P = o.filters(), c = x.size(1) / P;
+      auto z = x.narrow(1, (P - 1) * c, c).contiguous();
+      for (auto p = P - 2; p >= 0; --p) z = x.narrow(1, p * c, c) + spmm(W, z);
+      return spmm(W, z);
     }
+    const auto c = x.size(1) / H;
+    std::vector<torch::Tensor> heads;
+    for (std::int64_t i = 0; i < H; ++i)
+      heads.push_back(spmm(weighted(i), H == 1 ? x : x.narrow(1, i * c, c).contiguous()));
     if (H == 1) return heads[0];
     return o.concat() ? torch::cat(heads, 1) : torch::stack(heads, 0).mean(0);
   }
@@ -963,8 +1061,9 @@ class OperatorNetworkImpl : public torch::nn::Module {
     switch (t.kind) {
       case TermOp::Kind::via:
       case TermOp::Kind::pattern: {
-        const auto [src, dst] = op(t.name);
-        if (src != x.rank) throw rank_error(t.name, src);
+        auto [src, dst] = op(t.name);
+        if (t.transposed) std::swap(src, dst);
+        if (src != x.rank) throw rank_error(t.name + (t.transposed ? "ᵀ" : ""), src);
         return {dst, x.channels};
       }
       case TermOp::Kind::attend:
@@ -1009,8 +1108,12 @@ class OperatorNetworkImpl : public torch::nn::Module {
       case TermOp::Kind::layer_norm:
         make_norm(where, t, x.channels);
         return x;
-      case TermOp::Kind::act:
       case TermOp::Kind::dropout:
+        if (!(t.p >= 0 && t.p <= 1))
+          throw ScheduleError(where + ": a dropout rate must be in [0, 1], got " +
+                              std::to_string(t.p));
+        return x;
+      case TermOp::Kind::act:
       case TermOp::Kind::unit_rows:
         return x;
       case TermOp::Kind::scale:
@@ -1035,6 +1138,18 @@ class OperatorNetworkImpl : public torch::nn::Module {
       case TermOp::Kind::pow:
       case TermOp::Kind::normalize:
       case TermOp::Kind::intra_aggregate:
+        return x;
+      case TermOp::Kind::affine_power:
+        if (t.filters.empty()) throw ScheduleError(where + ": an affine power needs an operator");
+        if (t.filters[0].second < 0)
+          throw ScheduleError(where + ": an affine power's exponent is negative");
+        for (const auto& f : t.filters) {
+          const auto [src, dst] = op(f.first);
+          if (src != x.rank || dst != x.rank)
+            throw ScheduleError(where + ": the affine power needs operators from rank " +
+                                std::to_string(x.rank) + " to itself, '" + f.first + "' maps " +
+                                std::to_string(src) + " -> " + std::to_string(dst));
+        }
         return x;
     }
     return x;
@@ -1085,7 +1200,16 @@ class OperatorNetworkImpl : public torch::nn::Module {
     if (split && (o.v2() || o.source_only()))
       throw fail("has no target part for '" + o.target_param() + "'");
     if (o.dropout() < 0 || o.dropout() > 1) throw fail("needs a dropout rate in [0, 1]");
+    const auto P = o.filters();
+    if (P < 1 || (P > 1 && (H != 1 || x.channels % P)))
+      throw fail("with " + std::to_string(P) + " filters needs one head and messages (" +
+                 std::to_string(x.channels) + " channels) of whole filters");
     const auto n = o.source_only() || o.v2() || split ? ck : ck + cq;
+    for (const auto& offset : {o.source_offset(), o.target_offset()})
+      if (offset && (n == ck || *offset < 0 || *offset >= n))
+        throw fail(n == ck ? "has offsets but no target part in its parameter"
+                           : "needs offsets in [0, " + std::to_string(n) + "), got " +
+                                 std::to_string(*offset));
     auto make = [&](const std::string& path, std::vector<std::int64_t> shape, std::int64_t count) {
       if (shape.empty()) shape = {count};
       if (torch::empty(shape).numel() != count)
@@ -1096,10 +1220,20 @@ class OperatorNetworkImpl : public torch::nn::Module {
     };
     make(o.param(), o.shape(), n);
     if (split) make(o.target_param(), o.target_shape(), cq);
-    return {dst, o.concat() ? x.channels : x.channels / H};
+    return {dst, o.concat() && P == 1 ? x.channels : x.channels / (H * P)};
   }
 
   void validate_and_create() {
+    for (const auto& d : schedule_.dropped_operators()) {
+      const auto where = "dropped operator '" + d.name + "'";
+      auto& sig = schedule_.operators();
+      auto it = sig.find(d.source);
+      if (it == sig.end()) throw ScheduleError(where + ": unknown operator '" + d.source + "'");
+      if (sig.count(d.name)) throw ScheduleError(where + ": the name is already an operator input");
+      if (!(d.rate >= 0 && d.rate <= 1))
+        throw ScheduleError(where + ": the rate must be in [0, 1], got " + std::to_string(d.rate));
+      schedule_.operator_input(d.name, it->second.first, it->second.second);
+    }
     std::map<CochainKey, std::int64_t> width;
     std::set<std::string> names;
     for (const auto& in : schedule_.inputs()) {

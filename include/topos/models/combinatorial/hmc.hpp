@@ -1,9 +1,17 @@
 // topos/models/combinatorial/hmc.hpp
 // HMC (Hajij et al., "Topological deep learning: going beyond graph data", 2023; TopoModelX
 // HMC): two levels of attention message passing on ranks 0-2 of a combinatorial complex.
-// HBS: same-rank messages over an adjacency, weighted by a per-target softmax of
-// leaky_relu(a·[m_i || m_j]); HBNS: both directions of an incidence, each with its own
-// attention; sums of the messages reaching a rank, then relu.
+// HBS: same-rank messages m = x W over an adjacency, weighted by a per-target softmax of
+// leaky_relu(a·[m_i || m_j]); HBNS: both directions of an incidence, s = x_source W_s and
+// t = x_target W_t, each direction scored on [s || t] with its own part of one vector; each
+// message through update_func_attention, the messages reaching a rank summed, then
+// update_func_aggregation. Level 1 updates every rank from the layer's input; level 2 updates
+// them from level 1's (rank 0 by its adjacency alone, HBNS's messages on the source ranks).
+// Written as an operator schedule (hmc_schedule): per level one parallel group of maps (states
+// "m<r>", "s<ab>", "t<ab>") and one of messages. TopoModelX's parameter names are kept
+// (layers.<i>.hbs_0_level1.weight.0 / .att_weight.0, layers.<i>.hbns_0_1_level1.w_s / .w_t /
+// .att_weight); its HBS takes a as [a_t | a_s] and its reverse HBNS direction the vector rotated
+// by the source's width (AttendOptions' offsets).
 // TopoModelX's HBS builds its neighbourhood as I·A with torch.sparse.mm, whose result lists each
 // row's entries in descending column order while the softmax returns them ascending; pairing the
 // two lists by position gives entry (i, j) the attention of the entry mirrored within row i. The
@@ -11,87 +19,11 @@
 // entry with its own weight.
 #pragma once
 
-#include "topos/nn/conv.hpp"
+#include "topos/nn/operator_schedule.hpp"
+
+#include <array>
 
 namespace topos::models {
-
-/// Same-rank attention (m_hop = 1): "weight.0" (in × out), "att_weight.0" (2·out × 1).
-class HBSImpl : public torch::nn::Module {
- public:
-  HBSImpl(std::int64_t in, std::int64_t out, double slope, bool softmax, nn::Update update,
-          bool mirrored_rows = false)
-      : slope_(slope), softmax_(softmax), mirrored_rows_(mirrored_rows), update_(update) {
-    auto w = nn::submodule_group(*this, "weight"), a = nn::submodule_group(*this, "att_weight");
-    weight = w->register_parameter("0", torch::empty({in, out}));
-    att_weight = a->register_parameter("0", torch::empty({2 * out, 1}));
-    nn::xavier_uniform(weight);
-    nn::xavier_uniform(att_weight);
-  }
-  torch::Tensor forward(const torch::Tensor& x, const nn::SparseOperator& N) {
-    const auto m = x.matmul(weight);
-    const auto C = m.size(1);
-    const auto raw = nn::pair_scores(N, m, att_weight.narrow(0, C, C), m,
-                                     att_weight.narrow(0, 0, C));  // [m_i || m_j]: target first
-    auto att =
-        nn::attention_weights(N, raw, nn::Update::leaky_relu, slope_,
-                              softmax_ ? nn::AttentionNorm::softmax : nn::AttentionNorm::row_sum);
-    if (mirrored_rows_) att = att.index_select(0, N.row_mirror());
-    return nn::apply_update(nn::spmm(N.with_values(att * N.values.to(att.scalar_type())), m),
-                            update_);
-  }
-  torch::Tensor weight, att_weight;
-
- private:
-  double slope_;
-  bool softmax_, mirrored_rows_;
-  nn::Update update_;
-};
-TORCH_MODULE(HBS);
-
-/// Attention both ways along an incidence N (target × source): "w_s" (source in × target out),
-/// "w_t" (target in × source out), "att_weight" ((target out + source out) × 1). Returns
-/// (message on the source cells, message on the target cells).
-class HBNSImpl : public torch::nn::Module {
- public:
-  HBNSImpl(std::int64_t s_in, std::int64_t s_out, std::int64_t t_in, std::int64_t t_out,
-           double slope, bool softmax, nn::Update update)
-      : s_out_(s_out), t_out_(t_out), slope_(slope), softmax_(softmax), update_(update) {
-    w_s = register_parameter("w_s", torch::empty({s_in, t_out}));
-    w_t = register_parameter("w_t", torch::empty({t_in, s_out}));
-    att_weight = register_parameter("att_weight", torch::empty({t_out + s_out, 1}));
-    nn::xavier_uniform(w_s);
-    nn::xavier_uniform(w_t);
-    nn::xavier_uniform(att_weight);
-  }
-  std::pair<torch::Tensor, torch::Tensor> forward(const torch::Tensor& x_source,
-                                                  const torch::Tensor& x_target,
-                                                  const nn::SparseOperator& N) {
-    const auto s = x_source.matmul(w_s), t = x_target.matmul(w_t);
-    const auto Nt = N.t();
-    const auto norm = softmax_ ? nn::AttentionNorm::softmax : nn::AttentionNorm::row_sum;
-    // source -> target: a·[s_j || t_i]; target -> source: TopoModelX swaps the halves of a at
-    // s_out (the same split as the first only when s_out == t_out).
-    const auto a = att_weight.reshape({-1});
-    const auto e = nn::attention_weights(
-        N, nn::pair_scores(N, s, a.narrow(0, 0, t_out_), t, a.narrow(0, t_out_, s_out_)),
-        nn::Update::leaky_relu, slope_, norm);
-    const auto b = torch::cat({a.narrow(0, s_out_, t_out_), a.narrow(0, 0, s_out_)});
-    const auto f = nn::attention_weights(
-        Nt, nn::pair_scores(Nt, t, b.narrow(0, 0, s_out_), s, b.narrow(0, s_out_, t_out_)),
-        nn::Update::leaky_relu, slope_, norm);
-    auto on_source = nn::spmm(Nt.with_values(f * Nt.values.to(f.scalar_type())), t);
-    auto on_target = nn::spmm(N.with_values(e * N.values.to(e.scalar_type())), s);
-    return {nn::apply_update(on_source, update_), nn::apply_update(on_target, update_)};
-  }
-  torch::Tensor w_s, w_t, att_weight;
-
- private:
-  std::int64_t s_out_, t_out_;
-  double slope_;
-  bool softmax_;
-  nn::Update update_;
-};
-TORCH_MODULE(HBNS);
 
 /// Per layer: (in, intermediate, out) channels of ranks 0, 1, 2.
 using HMCChannels = std::vector<std::array<std::array<std::int64_t, 3>, 3>>;
@@ -106,70 +38,142 @@ struct HMCOptions {
             topomodelx_compatible) = false;  ///< HBS attention paired with mirrored entries (above)
 };
 
-class HMCImpl : public torch::nn::Module {
- public:
-  explicit HMCImpl(const HMCOptions& o) : options(o) {
-    const auto& c = o.channels_per_layer();
-    if (c.empty()) throw std::invalid_argument("HMC: channels_per_layer is empty");
-    for (std::size_t i = 0; i + 1 < c.size(); ++i)
-      if (c[i][2] != c[i + 1][0])
-        throw std::invalid_argument("HMC: layer " + std::to_string(i) +
-                                    "'s output channels differ from layer " +
-                                    std::to_string(i + 1) + "'s input channels");
-    auto list = register_module("layers", torch::nn::ModuleList());
-    const double s = o.negative_slope();
-    const auto u = o.update_func_attention();
-    const bool mir = o.topomodelx_compatible();
-    for (const auto& [in, mid, out] : c) {
-      auto m = std::make_shared<torch::nn::Module>();
-      layers_.push_back(
-          {m->register_module("hbs_0_level1", HBS(in[0], mid[0], s, true, u, mir)),
-           m->register_module("hbns_0_1_level1", HBNS(in[1], mid[1], in[0], mid[0], s, true, u)),
-           m->register_module("hbns_1_2_level1", HBNS(in[2], mid[2], in[1], mid[1], s, true, u)),
-           m->register_module("hbs_0_level2", HBS(mid[0], out[0], s, true, u, mir)),
-           m->register_module("hbns_0_1_level2", HBNS(mid[1], out[1], mid[0], out[0], s, true, u)),
-           m->register_module("hbs_1_level2", HBS(mid[1], out[1], s, true, u, mir)),
-           m->register_module("hbns_1_2_level2", HBNS(mid[2], out[2], mid[1], out[1], s, true, u)),
-           m->register_module("hbs_2_level2", HBS(mid[2], out[2], s, true, u, mir))});
-      list->push_back(m);
+inline nn::OperatorSchedule hmc_schedule(const HMCOptions& o) {
+  using namespace nn::ops;
+  using nn::CochainKey;
+  const auto& c = o.channels_per_layer();
+  if (c.empty()) throw std::invalid_argument("HMC: channels_per_layer is empty");
+  for (std::size_t i = 0; i < c.size(); ++i)
+    for (const auto& ranks : c[i])
+      for (const auto w : ranks)
+        if (w <= 0)
+          throw std::invalid_argument("HMC: layer " + std::to_string(i) +
+                                      " needs positive channels");
+  for (std::size_t i = 0; i + 1 < c.size(); ++i)
+    if (c[i][2] != c[i + 1][0])
+      throw std::invalid_argument("HMC: layer " + std::to_string(i) +
+                                  "'s output channels differ from layer " + std::to_string(i + 1) +
+                                  "'s input channels");
+  nn::OperatorSchedule s;
+  for (int r = 0; r < 3; ++r)
+    s.input("x_" + std::to_string(r), r, c[0][0][static_cast<std::size_t>(r)])
+        .output("x_" + std::to_string(r), r);
+  s.operator_input("adjacency_0", 0, 0)
+      .operator_input("adjacency_1", 1, 1)
+      .operator_input("coadjacency_2", 2, 2)
+      .operator_input("incidence_1", 1, 0)   // B_01: n0 × n1
+      .operator_input("incidence_2", 2, 1);  // B_12: n1 × n2
+  const auto u = o.update_func_attention();
+  auto attention = [&](const std::string& path) {
+    return nn::AttendOptions(path)
+        .activation(nn::Update::leaky_relu)
+        .negative_slope(o.negative_slope())
+        .norm(nn::AttentionNorm::softmax);
+  };
+  // HBS on rank r over `op`, from the map m<r>: a = [a_t | a_s].
+  auto hbs = [&](const std::string& path, int r, std::int64_t out, const std::string& op) {
+    const CochainKey m{r, "m" + std::to_string(r)};
+    return std::move(from(r, m.state)
+                         .attend(op, attention(path + ".att_weight.0")
+                                         .shape({2 * out, 1})
+                                         .queries(m)
+                                         .source_offset(out)
+                                         .target_offset(0)
+                                         .mirrored_rows(o.topomodelx_compatible()))
+                         .act(u));
+  };
+  // HBNS between ranks a < b over incidence B (n_a × n_b), from the maps s<ab> (rank b, a's
+  // out channels) and t<ab> (rank a, b's out channels); a_s then a_t for the message on a, the
+  // vector rotated by b's out channels for the message on b.
+  auto hbns_on_target = [&](const std::string& path, int a, std::int64_t out_a, std::int64_t out_b,
+                            const std::string& op) {
+    const auto ab = std::to_string(a) + std::to_string(a + 1);
+    return std::move(from(a + 1, "s" + ab)
+                         .attend(op, attention(path + ".att_weight")
+                                         .shape({out_a + out_b, 1})
+                                         .queries(CochainKey{a, "t" + ab}))
+                         .act(u));
+  };
+  auto hbns_on_source = [&](const std::string& path, int a, std::int64_t out_a, std::int64_t out_b,
+                            const std::string& op) {
+    const auto ab = std::to_string(a) + std::to_string(a + 1);
+    return std::move(from(a, "t" + ab)
+                         .attend(op, attention(path + ".att_weight")
+                                         .shape({out_a + out_b, 1})
+                                         .transposed(true)
+                                         .queries(CochainKey{a + 1, "s" + ab})
+                                         .source_offset(out_b)
+                                         .target_offset(2 * out_b % (out_a + out_b)))
+                         .act(u));
+  };
+  // The maps of one level: m<r> for the HBS of the ranks in `hbs_ranks`, s01, t01, s12, t12.
+  auto maps = [&](const std::string& p, const std::string& level,
+                  const std::array<std::int64_t, 3>& w, std::initializer_list<int> hbs_ranks) {
+    std::vector<nn::OperatorStep> steps;
+    for (int r : hbs_ranks) {
+      const auto R = std::to_string(r);
+      steps.push_back(into(r, "m" + R)
+                          .sum(from(r).weight(p + "hbs_" + R + "_" + level + ".weight.0",
+                                              w[static_cast<std::size_t>(r)])));
     }
+    for (int a : {0, 1}) {
+      const auto ab = std::to_string(a) + std::to_string(a + 1);
+      const auto q = p + "hbns_" + std::to_string(a) + "_" + std::to_string(a + 1) + "_" + level;
+      steps.push_back(into(a + 1, "s" + ab).sum(from(a + 1).weight(q + ".w_s", w[a])));
+      steps.push_back(into(a, "t" + ab).sum(from(a).weight(q + ".w_t", w[a + 1])));
+    }
+    return steps;
+  };
+  const auto g = o.update_func_aggregation();
+  for (std::size_t l = 0; l < c.size(); ++l) {
+    const auto p = "layers." + std::to_string(l) + ".";
+    const auto &mid = c[l][1], &out = c[l][2];
+    const auto h01 = p + "hbns_0_1_level1", h12 = p + "hbns_1_2_level1";
+    s.parallel(maps(p, "level1", mid, {0}));
+    s.parallel({into(0)
+                    .sum(hbs(p + "hbs_0_level1", 0, mid[0], "adjacency_0"),
+                         hbns_on_target(h01, 0, mid[0], mid[1], "incidence_1"))
+                    .act(g),
+                into(1)
+                    .sum(hbns_on_source(h01, 0, mid[0], mid[1], "incidence_1"),
+                         hbns_on_target(h12, 1, mid[1], mid[2], "incidence_2"))
+                    .act(g),
+                into(2).sum(hbns_on_source(h12, 1, mid[1], mid[2], "incidence_2")).act(g)});
+    const auto k01 = p + "hbns_0_1_level2", k12 = p + "hbns_1_2_level2";
+    s.parallel(maps(p, "level2", out, {0, 1, 2}));
+    s.parallel({into(0).sum(hbs(p + "hbs_0_level2", 0, out[0], "adjacency_0")).act(g),
+                into(1)
+                    .sum(hbns_on_source(k01, 0, out[0], out[1], "incidence_1"),
+                         hbs(p + "hbs_1_level2", 1, out[1], "adjacency_1"))
+                    .act(g),
+                into(2)
+                    .sum(hbns_on_source(k12, 1, out[1], out[2], "incidence_2"),
+                         hbs(p + "hbs_2_level2", 2, out[2], "coadjacency_2"))
+                    .act(g)});
   }
+  return s;
+}
+
+class HMCImpl : public nn::OperatorNetworkImpl {
+ public:
+  explicit HMCImpl(const HMCOptions& o) : OperatorNetworkImpl(hmc_schedule(o)), options(o) {}
   /// (x_0, x_1, x_2); adjacency_0, adjacency_1, coadjacency_2; incidences B_01 (n0 × n1), B_12.
-  std::vector<torch::Tensor> forward(std::vector<torch::Tensor> x,
+  std::vector<torch::Tensor> forward(const std::vector<torch::Tensor>& x,
                                      const nn::SparseOperator& adjacency_0,
                                      const nn::SparseOperator& adjacency_1,
                                      const nn::SparseOperator& coadjacency_2,
                                      const nn::SparseOperator& incidence_1,
                                      const nn::SparseOperator& incidence_2) {
-    auto agg = [&](std::vector<torch::Tensor> m) {
-      return nn::aggregate_messages(m, nn::Aggr::sum, options.update_func_aggregation());
-    };
-    for (auto& l : layers_) {
-      const auto x00 = l.hbs_0_1->forward(x[0], adjacency_0);
-      const auto [x01, x10] = l.hbns_01_1->forward(x[1], x[0], incidence_1);
-      const auto [x12, x21] = l.hbns_12_1->forward(x[2], x[1], incidence_2);
-      const auto y0 = agg({x00, x10}), y1 = agg({x01, x21}), y2 = agg({x12});
-      const auto z01 = l.hbns_01_2->forward(y1, y0, incidence_1).first;
-      const auto z12 = l.hbns_12_2->forward(y2, y1, incidence_2).first;
-      x = {agg({l.hbs_0_2->forward(y0, adjacency_0)}),
-           agg({z01, l.hbs_1_2->forward(y1, adjacency_1)}),
-           agg({z12, l.hbs_2_2->forward(y2, coadjacency_2)})};
-    }
-    return x;
+    if (x.size() != 3) throw std::invalid_argument("HMC: expected x_0, x_1 and x_2");
+    return run({{"x_0", x[0]}, {"x_1", x[1]}, {"x_2", x[2]}},
+               {{"adjacency_0", adjacency_0},
+                {"adjacency_1", adjacency_1},
+                {"coadjacency_2", coadjacency_2},
+                {"incidence_1", incidence_1},
+                {"incidence_2", incidence_2}},
+               {"x_0", "x_1", "x_2"});
   }
   HMCOptions options;
-
- private:
-  struct Layer {
-    HBS hbs_0_1;
-    HBNS hbns_01_1, hbns_12_1;
-    HBS hbs_0_2;
-    HBNS hbns_01_2;
-    HBS hbs_1_2;
-    HBNS hbns_12_2;
-    HBS hbs_2_2;
-  };
-  std::vector<Layer> layers_;
 };
 TORCH_MODULE(HMC);
 

@@ -1,12 +1,17 @@
 // topos/models/simplicial/san.hpp
 // SAN (Giusti et al., "Simplicial attention neural networks", 2022; TopoModelX SAN) on edge
 // features: per layer, attention-weighted filters over the lower and upper Laplacians' patterns
-// (Σ_p A^p x W_p with A the per-target softmax of elu(a·[x W_j || x W_i])) plus a harmonic filter
-// (I - εL)^k x W with L = L_up + L_down. Everything is sparse products: TopoModelX forms the
-// attention matrix densely and the harmonic projection as a dense n × n matrix power.
+// (Σ_p A^(p+1) x W_p with A the per-target softmax of elu(a·[x W_j || x W_i]), the filters'
+// outputs side by side in the score) plus a harmonic filter (I - εL)^k x W with
+// L = L_up + L_down. Written as an operator schedule (san_schedule): the filter banks as head
+// weights, attention with `filters`, the harmonic filter as an affine power. Everything is sparse
+// products, the filter bank's powers in Horner form (P products for P filters): TopoModelX forms
+// the attention matrix densely and the harmonic projection as a dense n × n matrix power.
+// Parameters as TopoModelX's (layers.<i>.conv_down.weight (filters × in × out), .att_weight
+// (2·out·filters), layers.<i>.conv_harmonic.weight).
 #pragma once
 
-#include "topos/nn/conv.hpp"
+#include "topos/nn/operator_schedule.hpp"
 
 namespace topos::models {
 
@@ -21,80 +26,61 @@ struct SANOptions {
   TORCH_ARG(int, n_layers) = 2;
 };
 
-/// One attention filter bank: parameters "weight" (filters × in × out), "att_weight"
-/// (2·out·filters).
-class SANConvImpl : public torch::nn::Module {
- public:
-  SANConvImpl(std::int64_t in, std::int64_t out, int filters) : out_(out), filters_(filters) {
-    weight = register_parameter("weight", torch::empty({filters, in, out}));
-    att_weight = register_parameter("att_weight", torch::empty({2 * out * filters}));
-    nn::xavier_uniform(weight);
-    nn::xavier_uniform(att_weight);
+/// The schedule: per layer the two filter banks' maps (states "down", "up"), then one step
+/// summing the attention over "lower" and "upper" (the Laplacians' patterns) and the harmonic
+/// filter over "laplacian_up" and "laplacian_down".
+inline nn::OperatorSchedule san_schedule(const SANOptions& o) {
+  using namespace nn::ops;
+  if (o.in_channels() <= 0 || o.hidden_channels() <= 0 || o.out_channels() < 0)
+    throw std::invalid_argument("SAN: the channels must be positive");
+  if (o.n_filters() < 1 || o.order_harmonic() < 0 || o.n_layers() < 1)
+    throw std::invalid_argument("SAN: n_filters and n_layers must be >= 1, order_harmonic >= 0");
+  const auto out = o.out_channels() > 0 ? o.out_channels() : o.hidden_channels();
+  const int P = o.n_filters();
+  nn::OperatorSchedule s;
+  s.input("x_1", 1, o.in_channels())
+      .operator_input("lower", 1, 1)
+      .operator_input("upper", 1, 1)
+      .operator_input("laplacian_down", 1, 1)
+      .operator_input("laplacian_up", 1, 1)
+      .output("x_1", 1);
+  for (int l = 0; l < o.n_layers(); ++l) {
+    const auto p = "layers." + std::to_string(l) + ".";
+    const auto c = l + 1 == o.n_layers() ? out : o.hidden_channels();
+    auto bank = [&](const std::string& side, const std::string& op) {
+      const auto path = p + "conv_" + side;
+      return std::move(from(1, side).attend(op, nn::AttendOptions(path + ".att_weight")
+                                                    .activation(nn::Update::elu)
+                                                    .norm(nn::AttentionNorm::softmax)
+                                                    .queries(nn::CochainKey{1, side})
+                                                    .filters(P)));
+    };
+    s.parallel({into(1, "down").sum(from(1).head_weights(p + "conv_down.weight", P, c)),
+                into(1, "up").sum(from(1).head_weights(p + "conv_up.weight", P, c))});
+    s.step(into(1)
+               .sum(bank("down", "lower"), bank("up", "upper"),
+                    from(1)
+                        .conv(p + "conv_harmonic", c)
+                        .affine_power({"laplacian_up", "laplacian_down"}, o.order_harmonic(), 1.0,
+                                      -o.epsilon_harmonic()))
+               .named(p + "filters"));
   }
-  torch::Tensor forward(const torch::Tensor& x, const nn::SparseOperator& L) {
-    // TopoModelX scores the filters' outputs side by side, [x W_0 || x W_1 || ...] · a; the same
-    // sum is taken filter by filter, without the concatenated copy.
-    std::vector<torch::Tensor> m;
-    const auto a = att_weight.view({2, filters_, out_});
-    torch::Tensor s_col, s_row;
-    for (int p = 0; p < filters_; ++p) {
-      m.push_back(x.mm(weight[p]));
-      const auto sc = m[p].mv(a[0][p]), sr = m[p].mv(a[1][p]);
-      s_col = s_col.defined() ? s_col + sc : sc;
-      s_row = s_row.defined() ? s_row + sr : sr;
-    }
-    const auto A = L.with_values(nn::attention_weights(
-        L, nn::entry_scores(L, s_col, s_row), nn::Update::elu, 0, nn::AttentionNorm::softmax));
-    torch::Tensor y;
-    for (int p = 0; p < filters_; ++p) {  // A^(p+1) m_p
-      auto z = m[static_cast<std::size_t>(p)];
-      for (int q = 0; q <= p; ++q) z = nn::spmm(A, z);
-      y = y.defined() ? y + z : z;
-    }
-    return y;
-  }
-  torch::Tensor weight, att_weight;
+  return s;
+}
 
- private:
-  std::int64_t out_;
-  int filters_;
-};
-TORCH_MODULE(SANConv);
-
-class SANImpl : public torch::nn::Module {
+class SANImpl : public nn::OperatorNetworkImpl {
  public:
-  explicit SANImpl(const SANOptions& o) : options(o) {
-    const auto out = o.out_channels() > 0 ? o.out_channels() : o.hidden_channels();
-    auto list = register_module("layers", torch::nn::ModuleList());
-    for (int l = 0; l < o.n_layers(); ++l) {
-      const auto in = l == 0 ? o.in_channels() : o.hidden_channels();
-      const auto c = l + 1 == o.n_layers() ? out : o.hidden_channels();
-      auto layer = std::make_shared<torch::nn::Module>();
-      Layer L{layer->register_module("conv_down", SANConv(in, c, o.n_filters())),
-              layer->register_module("conv_up", SANConv(in, c, o.n_filters())),
-              layer->register_module("conv_harmonic", nn::Conv(nn::ConvOptions(in, c)))};
-      list->push_back(layer);
-      layers_.push_back(L);
-    }
-  }
-  torch::Tensor forward(torch::Tensor x, const nn::SparseOperator& laplacian_up,
+  explicit SANImpl(const SANOptions& o) : OperatorNetworkImpl(san_schedule(o)), options(o) {}
+  torch::Tensor forward(const torch::Tensor& x, const nn::SparseOperator& laplacian_up,
                         const nn::SparseOperator& laplacian_down) {
-    for (auto& l : layers_) {
-      const auto harmonic =  // (I - ε(L↑ + L↓))^k x W, the Laplacian never summed
-          nn::apply_affine_power({laplacian_up, laplacian_down}, x.matmul(l.harmonic->weight),
-                                 options.order_harmonic(), 1.0, -options.epsilon_harmonic());
-      x = l.down->forward(x, laplacian_down) + l.up->forward(x, laplacian_up) + harmonic;
-    }
-    return x;
+    return run({{"x_1", x}},
+               {{"lower", laplacian_down.pattern()},
+                {"upper", laplacian_up.pattern()},
+                {"laplacian_down", laplacian_down},
+                {"laplacian_up", laplacian_up}},
+               {"x_1"})[0];
   }
   SANOptions options;
-
- private:
-  struct Layer {
-    SANConv down, up;
-    nn::Conv harmonic;
-  };
-  std::vector<Layer> layers_;
 };
 TORCH_MODULE(SAN);
 
