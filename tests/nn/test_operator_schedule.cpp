@@ -758,3 +758,55 @@ TEST_CASE("HMC and HMPNN as schedules keep TopoModelX's parameter names and shap
   models::HMPNN compatible(models::HMPNNOptions(3, 4).n_layers(1).topomodelx_compatible(true));
   CHECK_THAT(compatible->schedule().str(), !Contains("incidence_1.layer_0"));
 }
+
+TEST_CASE("a filter bank's attention and an affine power against dense products (SAN)",
+          "[nn][schedule][attention]") {
+  const auto L = dense_operator(9, 9, 51);
+  const auto M = dense_operator(9, 9, 52);
+  torch::manual_seed(53);
+  const auto x = torch::randn({9, 4}, torch::kDouble);
+  OperatorSchedule s;
+  s.input("x", 1, 4).operator_input("L", 1, 1).operator_input("M", 1, 1).output("y", 1);
+  s.step(into(1, "bank").sum(from(1).head_weights("W", 3, 2)));  // [x W_0 | x W_1 | x W_2]
+  s.step(into(1).sum(from(1, "bank").attend("L", AttendOptions("a")
+                                                     .activation(Update::elu)
+                                                     .norm(AttentionNorm::softmax)
+                                                     .queries(CochainKey{1, "bank"})
+                                                     .filters(3)),
+                     from(1).weight("H", 2).affine_power({"L", "M"}, 3, 1.0, -0.1)));
+  OperatorNetwork net(s);
+  net->to(torch::kDouble);
+  const auto y = net->forward({{"x", x}}, {{"L", L}, {"M", M}}).at("y");
+  // By hand: m_p = x W_p; one softmax over L's pattern of elu(a_s·[m]_j + a_t·[m]_i), times L's
+  // values; Σ_p A^(p+1) m_p; plus (I - 0.1 (L + M))^3 x H.
+  const auto W = net->parameter("W"), a = net->parameter("a"), H = net->parameter("H");
+  const auto m = torch::cat({x.mm(W[0]), x.mm(W[1]), x.mm(W[2])}, 1);
+  const auto D = L.to_dense();
+  const auto scores =
+      torch::elu(m.mv(a.narrow(0, 0, 6)).unsqueeze(0) + m.mv(a.narrow(0, 6, 6)).unsqueeze(1));
+  const auto A = masked_softmax(scores, D) * D;
+  auto expect = A.mm(x.mm(W[0])) + A.mm(A.mm(x.mm(W[1]))) + A.mm(A.mm(A.mm(x.mm(W[2]))));
+  const auto T = torch::eye(9, torch::kDouble) - 0.1 * (D + M.to_dense());
+  expect = expect + T.mm(T.mm(T.mm(x.mm(H))));
+  CHECK(torch::allclose(y, expect, 1e-10, 1e-12));
+  CHECK_THAT(s.str(), Contains("(1 I + -0.1 (L + M))^3"));
+
+  OperatorSchedule bad;
+  bad.input("x", 1, 4).input("x0", 0, 4).operator_input("L", 1, 1).output("y", 1);
+  bad.operator_input("B", 0, 1);
+  auto two_heads = bad;
+  two_heads.step(into(1).sum(from(1).attend("L", AttendOptions("a").heads(2).filters(2))));
+  CHECK_THAT(build_error(two_heads), Contains("with 2 filters needs one head"));
+  auto uneven = bad;
+  uneven.step(into(1).sum(from(1).attend("L", AttendOptions("a").filters(3))));
+  CHECK_THAT(build_error(uneven), Contains("messages (4 channels) of whole filters"));
+  auto not_square = bad;
+  not_square.step(into(1).sum(from(1).affine_power({"L", "B"}, 2, 1.0, -0.1)).named("harmonic"));
+  CHECK_THAT(
+      build_error(not_square),
+      Contains("harmonic (into (1)): the affine power needs operators from rank 1 to itself, "
+               "'B' maps 0 -> 1"));
+  auto negative = bad;
+  negative.step(into(1).sum(from(1).affine_power({"L"}, -1, 1.0, -0.1)));
+  CHECK_THAT(build_error(negative), Contains("exponent is negative"));
+}
