@@ -886,17 +886,20 @@ class OperatorNetworkImpl : public torch::nn::Module {
       if (o.dropout() > 0) w = torch::dropout(w, o.dropout(), is_training());
       return A.with_values(w * A.values.to(w.scalar_type()));
     };
+    // The slices by one split: its backward writes every slice's gradient into one matrix, where
+    // a narrow per slice allocates a zero-filled one each.
     if (o.filters() > 1) {  // Σ_p W^(p+1) x_p = W(x_0 + W(x_1 + ... W x_(P-1))): P products
       const auto W = weighted(0);
-      const auto P = o.filters(), c = x.size(1) / P;
-      auto z = x.narrow(1, (P - 1) * c, c).contiguous();
-      for (auto p = P - 2; p >= 0; --p) z = x.narrow(1, p * c, c) + spmm(W, z);
+      const auto P = o.filters();
+      const auto x_p = x.split(x.size(1) / P, 1);
+      auto z = x_p[static_cast<std::size_t>(P - 1)].contiguous();
+      for (auto p = P - 2; p >= 0; --p) z = x_p[static_cast<std::size_t>(p)] + spmm(W, z);
       return spmm(W, z);
     }
-    const auto c = x.size(1) / H;
     std::vector<torch::Tensor> heads;
+    const auto x_h = H == 1 ? std::vector<torch::Tensor>{x} : x.split(x.size(1) / H, 1);
     for (std::int64_t i = 0; i < H; ++i)
-      heads.push_back(spmm(weighted(i), H == 1 ? x : x.narrow(1, i * c, c).contiguous()));
+      heads.push_back(spmm(weighted(i), x_h[static_cast<std::size_t>(i)].contiguous()));
     if (H == 1) return heads[0];
     return o.concat() ? torch::cat(heads, 1) : torch::stack(heads, 0).mean(0);
   }
