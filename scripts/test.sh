@@ -9,6 +9,10 @@ TOPOS_WITH_CHROMIUM="${TOPOS_WITH_CHROMIUM:-1}" bash scripts/setup.sh
 if [ -z "${TOPOS_REFERENCE_DIR:-}" ] && [ -d "$root/../shared/reference" ]; then
   export TOPOS_REFERENCE_DIR="$root/../shared/reference"
 fi
+# The raw benchmark datasets (TU, DGCNN, Planetoid; the TopoBench tests), likewise.
+if [ -z "${TOPOS_DATASETS_DIR:-}" ] && [ -d "$root/../shared/datasets" ]; then
+  export TOPOS_DATASETS_DIR="$root/../shared/datasets"
+fi
 build="${TOPOS_BUILD_DIR:-$root/build}"
 jobs="${TOPOS_JOBS:-2}"
 # ccache: the precompiled headers are cacheable only with this sloppiness; relative paths let
