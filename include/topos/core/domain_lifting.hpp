@@ -14,6 +14,17 @@
 //                                        neighbours, one per node in node order
 //   to_cell_complex(sc)                  nodes, edges and triangles (as 2-cells) of a simplicial
 //                                        complex, in its order, edges oriented low -> high
+// TopoBench's graph liftings (topobench/transforms/liftings/graph2*), on the graph TopoBench
+// builds from a PyG edge_index (nodes 0..n-1 in order, coalesced symmetric edges, so every
+// networkx adjacency iterates in ascending node order):
+//   clique_lifting(n, edges, complex_dim) SimplicialCliqueLifting: every clique of up to
+//                                        complex_dim + 1 nodes (= clique_complex), lexicographic
+//   cycle_basis(n, edges)                networkx >= 3.2's nx.cycle_basis(G), cycles as it
+//                                        lists them
+//   cycle_lifting(n, edges, max_len)     CellCycleLifting: the graph plus one 2-cell per basis
+//                                        cycle of at most max_len nodes, in basis order
+//   khop_lifting(n, edges, k)            HypergraphKHopLifting: hyperedge v = the nodes within
+//                                        k hops of v (v included), one per node in node order
 #pragma once
 
 #include "topos/core/cell_complex.hpp"
@@ -25,6 +36,8 @@
 #include <algorithm>
 #include <array>
 #include <cstdint>
+#include <stdexcept>
+#include <string>
 #include <vector>
 
 namespace topos {
@@ -190,6 +203,142 @@ inline Hypergraph neighborhood_hypergraph(std::int64_t num_nodes,
                                 g.neighbors.begin() + g.offsets[static_cast<std::size_t>(v) + 1]);
     e.push_back(v);
     h.add_hyperedge(e);
+  }
+  return h;
+}
+
+// ----- TopoBench's graph liftings -------------------------------------------------------------
+
+/// TopoBench's SimplicialCliqueLifting: the graph's nodes and edges (TopoNetX's
+/// SimplicialComplex(graph)) plus every subset of 3..complex_dim + 1 nodes of every maximal
+/// clique (nx.find_cliques). A subset of a clique is a clique and every clique lies in a maximal
+/// one, so this is the clique complex truncated at rank max(complex_dim, 1): complex_dim 3
+/// (TopoBench's default) gives triangles and tetrahedra. Isolated nodes are nodes of the
+/// complex; the order is lexicographic, TopoNetX's skeleton order.
+inline SimplicialComplex clique_lifting(std::int64_t num_nodes,
+                                        const std::vector<std::array<std::int64_t, 2>>& edges,
+                                        int complex_dim = 3) {
+  if (complex_dim < 0)
+    throw ComplexError("clique_lifting: complex_dim " + std::to_string(complex_dim) +
+                       " must be >= 0");
+  return clique_complex(num_nodes, edges, std::max(complex_dim, 1));
+}
+
+namespace detail {
+// networkx >= 3.2's cycle_basis (networkx/algorithms/cycles.py) on a graph whose adjacency lists
+// are ascending (g: graph_csr(..., false)). networkx keeps, per discovered node x, a set used[x]
+// = {the node that discovered x} + {every node z that closed a cycle through the edge z-x}; here
+// used[x] is one flag per adjacency slot of x, so "y in used[x]" is a binary search in x's list.
+inline std::vector<std::vector<std::int64_t>> cycle_basis(std::int64_t n, const GraphCsr& g) {
+  const auto slot = [&](std::int64_t x, std::int64_t y) -> std::int64_t {
+    const auto b = g.neighbors.begin() + g.offsets[static_cast<std::size_t>(x)],
+               e = g.neighbors.begin() + g.offsets[static_cast<std::size_t>(x) + 1];
+    const auto it = std::lower_bound(b, e, y);
+    return it != e && *it == y ? it - g.neighbors.begin() : -1;
+  };
+  std::vector<char> used(g.neighbors.size(), 0), discovered(static_cast<std::size_t>(n), 0);
+  std::vector<std::int64_t> pred(static_cast<std::size_t>(n), -1), stack;
+  std::vector<std::vector<std::int64_t>> cycles;
+  // Roots: gnodes = dict.fromkeys(G); root = gnodes.popitem()[0] takes the last node still in
+  // the dict, i.e. the highest unvisited id (networkx 3.0 and 3.1 popped a set instead).
+  for (std::int64_t root = n - 1; root >= 0; --root) {
+    if (discovered[static_cast<std::size_t>(root)]) continue;
+    discovered[static_cast<std::size_t>(root)] = 1;
+    pred[static_cast<std::size_t>(root)] = root;
+    stack.assign(1, root);
+    while (!stack.empty()) {
+      const std::int64_t z = stack.back();  // last in, first out
+      stack.pop_back();
+      for (std::int64_t k = g.offsets[static_cast<std::size_t>(z)];
+           k < g.offsets[static_cast<std::size_t>(z) + 1]; ++k) {
+        const std::int64_t nbr = g.neighbors[static_cast<std::size_t>(k)];
+        if (!discovered[static_cast<std::size_t>(nbr)]) {  // new node: used[nbr] = {z}
+          discovered[static_cast<std::size_t>(nbr)] = 1;
+          pred[static_cast<std::size_t>(nbr)] = z;
+          stack.push_back(nbr);
+          used[static_cast<std::size_t>(slot(nbr, z))] = 1;
+        } else if (!used[static_cast<std::size_t>(k)]) {  // nbr not in used[z]: a cycle
+          std::vector<std::int64_t> cycle{nbr, z};
+          std::int64_t p = pred[static_cast<std::size_t>(z)];
+          for (;;) {  // up the tree from z until a node in used[nbr]
+            const std::int64_t s = slot(nbr, p);
+            if (s >= 0 && used[static_cast<std::size_t>(s)]) break;
+            cycle.push_back(p);
+            if (p == pred[static_cast<std::size_t>(p)])  // the root, yet not in used[nbr]
+              throw std::logic_error("cycle_basis: the tree walk from node " + std::to_string(z) +
+                                     " missed node " + std::to_string(nbr));
+            p = pred[static_cast<std::size_t>(p)];
+          }
+          cycle.push_back(p);
+          cycles.push_back(std::move(cycle));
+          used[static_cast<std::size_t>(slot(nbr, z))] = 1;
+        }
+      }
+    }
+  }
+  return cycles;
+}
+}  // namespace detail
+
+/// networkx's cycle_basis(G) (Paton's algorithm, networkx >= 3.2) for the graph TopoBench builds:
+/// nodes 0..n-1 inserted in order, adjacency in ascending node order (PyG's coalesced, symmetric
+/// edge_index). Roots are taken from the highest unvisited node down; each cycle is listed as
+/// networkx does, [nbr, z, pred(z), ..., p], closed by p -> nbr. Edges may come in any order and
+/// orientation, repeats count once; self-loops are rejected (PyG's TU loader removes them).
+inline std::vector<std::vector<std::int64_t>> cycle_basis(
+    std::int64_t num_nodes, const std::vector<std::array<std::int64_t, 2>>& edges) {
+  return detail::cycle_basis(num_nodes, detail::graph_csr(num_nodes, edges, false));
+}
+
+/// TopoBench's CellCycleLifting: nodes and edges of the graph plus, as 2-cells, the cycles of
+/// cycle_basis with at most max_cell_length nodes (a negative value keeps every cycle:
+/// TopoBench's None), in basis order, each oriented as networkx lists it. Cell order is
+/// TopoNetX's (edges sorted low -> high), as TopoBench's CellComplex(G) indexes them.
+inline CellComplex cycle_lifting(std::int64_t num_nodes,
+                                 const std::vector<std::array<std::int64_t, 2>>& edges,
+                                 int max_cell_length = 10) {
+  const detail::GraphCsr g = detail::graph_csr(num_nodes, edges, false);
+  CellComplex cx(num_nodes);
+  for (std::int64_t u = 0; u < num_nodes; ++u)
+    for (std::int64_t k = g.offsets[static_cast<std::size_t>(u)];
+         k < g.offsets[static_cast<std::size_t>(u) + 1]; ++k)
+      if (g.neighbors[static_cast<std::size_t>(k)] > u)
+        cx.add_edge(u, g.neighbors[static_cast<std::size_t>(k)]);
+  for (const auto& c : detail::cycle_basis(num_nodes, g))
+    if (max_cell_length < 0 || c.size() <= static_cast<std::size_t>(max_cell_length))
+      cx.add_cell(c);
+  return cx;
+}
+
+/// TopoBench's HypergraphKHopLifting: hyperedge v (v = 0..n-1, one per node, repeats kept) holds
+/// v and every node within k hops of it (torch_geometric's k_hop_subgraph on the symmetrised
+/// edge_index); an isolated node's hyperedge is {v}. k = 1 is neighborhood_hypergraph.
+inline Hypergraph khop_lifting(std::int64_t num_nodes,
+                               const std::vector<std::array<std::int64_t, 2>>& edges, int k = 1) {
+  if (k < 0) throw ComplexError("khop_lifting: k " + std::to_string(k) + " must be >= 0");
+  const detail::GraphCsr g = detail::graph_csr(num_nodes, edges, false);
+  Hypergraph h(num_nodes);
+  std::vector<std::int64_t> mark(static_cast<std::size_t>(num_nodes), -1), ball;
+  for (std::int64_t v = 0; v < num_nodes; ++v) {
+    ball.assign(1, v);
+    mark[static_cast<std::size_t>(v)] = v;
+    std::size_t frontier = 0;  // ball[frontier..] were reached at the last hop
+    for (int hop = 0; hop < k && frontier < ball.size(); ++hop) {
+      const std::size_t end = ball.size();
+      for (std::size_t i = frontier; i < end; ++i) {
+        const std::int64_t u = ball[i];
+        for (std::int64_t s = g.offsets[static_cast<std::size_t>(u)];
+             s < g.offsets[static_cast<std::size_t>(u) + 1]; ++s) {
+          const std::int64_t w = g.neighbors[static_cast<std::size_t>(s)];
+          if (mark[static_cast<std::size_t>(w)] != v) {
+            mark[static_cast<std::size_t>(w)] = v;
+            ball.push_back(w);
+          }
+        }
+      }
+      frontier = end;
+    }
+    h.add_hyperedge(ball);
   }
   return h;
 }
