@@ -11,6 +11,7 @@ packages=(
   libgloo-dev  # headers of the Gloo LibTorch links: c10d's ProcessGroupGloo (data-parallel training)
   libbullet-dev libbullet-extras-dev
   nlohmann-json3-dev libcli11-dev catch2 libbenchmark-dev
+  libzip-dev  # topos::data: TU and DGCNN datasets read from the zips they are published as
   python3  # scripts/check_torch_file.py: the tests' torch.load compatibility check
   python3-torch  # tests/nn/test_python_interop.cpp: torch.load / torch.save where users are
   clang-format  # ctest code_style (scripts/check_style.sh): the tree stays as .clang-format says
