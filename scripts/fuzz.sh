@@ -14,7 +14,7 @@ root="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$root"
 secs="${1:-60}"
 shift || true
-all=(obj kubric collisions npy checkpoint stats split dataset config tdl)
+all=(obj kubric collisions npy checkpoint stats split dataset config tdl tu dgcnn planetoid)
 harnesses=("$@")
 [ ${#harnesses[@]} -eq 0 ] && harnesses=("${all[@]}")
 TOPOS_WITH_FUZZ=1 bash scripts/setup.sh

@@ -489,12 +489,10 @@ inline GraphClassificationDataset parse_tu_dataset(const TuFiles& f, const std::
     if (f.node_labels)
       gr.node_labels.assign(node_label.begin() + start[g], node_label.begin() + start[g + 1]);
   }
+  std::size_t first = 0;  // the first copy (by line) of the current edge
   for (std::size_t i = 0; i < recs.size(); ++i) {
     const auto& r = recs[i];
     if (i > 0 && recs[i - 1].u == r.u && recs[i - 1].v == r.v) {
-      // A copy of the edge kept just before (the first copy, by line order).
-      std::size_t first = i - 1;
-      while (first > 0 && recs[first - 1].u == r.u && recs[first - 1].v == r.v) --first;
       if (f.edge_labels && edge_label[r.line] != edge_label[recs[first].line])
         fail(f.edge_labels->name, r.line + 1,
              "edge (" + std::to_string(r.u + 1) + ", " + std::to_string(r.v + 1) + ") has label " +
@@ -503,6 +501,7 @@ inline GraphClassificationDataset parse_tu_dataset(const TuFiles& f, const std::
                  std::to_string(recs[first].line + 1));
       continue;
     }
+    first = i;
     const auto g = node_graph[r.u];
     auto& gr = ds.graphs[static_cast<std::size_t>(g)];
     gr.edges.push_back({r.u - start[g], r.v - start[g]});
