@@ -16,6 +16,9 @@ using Run = std::function<int()>;
 /// tdl operators --case DIR --out OUTDIR: every operator of DIR/operators.json as
 /// OUTDIR/<name>.npy.
 void register_operators(CLI::App& app, Run& run);
+/// tdl lift --data-dir DIR --dataset NAME --lifting clique|cycle|khop: TopoBench's lifting of
+/// every graph of a dataset; the total cells per rank and the time as one JSON object.
+void register_lift(CLI::App& app, Run& run);
 
 #ifdef TOPOS_TDL_WITH_NN
 /// tdl forward --case DIR --out OUTDIR: the case's model on its inputs, OUTDIR/<output>.npy.

@@ -14,6 +14,7 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   tdl_cli::Run run;
   tdl_cli::register_operators(app, run);
+  tdl_cli::register_lift(app, run);
 #ifdef TOPOS_TDL_WITH_NN
   tdl_cli::register_forward(app, run);
   tdl_cli::register_grad(app, run);
