@@ -565,6 +565,20 @@ TEST_CASE("Planetoid reader: bad input names the file", "[graph_datasets]") {
         [&] { read_planetoid_dataset(s.write_to("planetoid_bad", "citeseer"), "citeseer"); },
         {"ind.citeseer.tx", "2 rows", "lists 3 test nodes"});
   }
+  SECTION("Citeseer: test indices spanning too many rows") {
+    PlanetoidSet s;
+    s.test_index = "3\n100000000\n";
+    expect_error(
+        [&] { read_planetoid_dataset(s.write_to("planetoid_bad", "citeseer"), "citeseer"); },
+        {"ind.citeseer.test.index:2:", "test indices span 99999998 rows, too many"});
+  }
+  SECTION("a matrix over the entry limit") {
+    expect_error(
+        [&] {
+          read_planetoid_pickle(csr_pickle({{1, 2, 3}, {4, 5, 6}}, 3), "m.pkl", 5);
+        },
+        {"m.pkl", "a 2 x 3 matrix is over the limit of 5 entries"});
+  }
   SECTION("a graph entry outside the nodes") {
     PlanetoidSet s;
     s.graph.push_back({7, {2}});

@@ -1140,7 +1140,9 @@ inline PlanetoidPickle read_planetoid_pickle(std::string_view bytes, const std::
   };
   PlanetoidPickle out;
   const auto check_size = [&](std::int64_t rows, std::int64_t cols) {
-    if (rows < 0 || cols < 0 || (rows > 0 && cols > max_elements / rows))
+    // Each side on its own too: a 2^40 x 0 matrix holds nothing but would size the dataset.
+    if (rows < 0 || cols < 0 || rows > max_elements || cols > max_elements ||
+        (rows > 0 && cols > max_elements / rows))
       fail("a " + std::to_string(rows) + " x " + std::to_string(cols) +
            " matrix is over the limit of " + std::to_string(max_elements) + " entries");
     out.rows = rows;
@@ -1314,7 +1316,8 @@ inline NodeClassificationDataset read_planetoid_dataset(const std::filesystem::p
                                index_path + " lists " + std::to_string(num_test) + " test nodes");
     const auto lo = sorted_index.front(), hi = sorted_index.back();
     block = hi - lo + 1;
-    if (block > (std::int64_t{1} << 30) / std::max<std::int64_t>(width, 1))
+    if (block > (std::int64_t{1} << 24) ||
+        block > (std::int64_t{1} << 30) / std::max<std::int64_t>(width, 1))
       graph_io::fail(index_path, test_line[order.back()],
                      "test indices span " + std::to_string(block) + " rows, too many");
     for (std::size_t k = 0; k < sorted_index.size(); ++k) block_row[k] = sorted_index[k] - lo;
