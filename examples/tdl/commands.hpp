@@ -30,6 +30,8 @@ void register_train(CLI::App& app, Run& run);
 /// tdl classify --out OUTDIR: point clouds classified by their holes, batched complexes through a
 /// schedule.
 void register_classify(CLI::App& app, Run& run);
+/// tdl topobench --data-dir DIR --models ... --datasets ... --out OUT: TopoBench's table.
+void register_topobench(CLI::App& app, Run& run);
 #endif
 
 }  // namespace tdl_cli

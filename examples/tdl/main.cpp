@@ -20,6 +20,7 @@ int main(int argc, char** argv) {
   tdl_cli::register_grad(app, run);
   tdl_cli::register_train(app, run);
   tdl_cli::register_classify(app, run);
+  tdl_cli::register_topobench(app, run);
 #endif
   try {
     app.parse(argc, argv);

@@ -6,17 +6,7 @@
 file(REMOVE_RECURSE ${WORK})
 file(MAKE_DIRECTORY ${WORK})
 
-function(expect_failure name message)
-  execute_process(COMMAND ${TDL} ${ARGN} RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
-  if(rc EQUAL 0)
-    message(FATAL_ERROR "${name}: expected a failure, got exit 0\n${out}${err}")
-  endif()
-  string(FIND "${out}${err}" "${message}" pos)
-  if(pos EQUAL -1)
-    message(FATAL_ERROR "${name}: expected the message '${message}', got:\n${out}${err}")
-  endif()
-  message(STATUS "ok: ${name}")
-endfunction()
+include(${CMAKE_CURRENT_LIST_DIR}/tdl_run.cmake)
 
 # Runs `tdl <task> --out WORK/<task> ARGN`, requires it to succeed and to write its accuracy
 # curve, plot and summary; the summary's JSON goes to `summary_var`.

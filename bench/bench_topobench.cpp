@@ -1,0 +1,201 @@
+// TopoBench's training epoch on topos, beside TopoModelX's (shared/reference/tdl-bench's
+// bench_topomodelx_epoch.py): the train half of MUTAG and PROTEINS (data seed 0), in TopoBench's
+// batches, each batch one disjoint union lifted beforehand (clique complex to rank 2 for SCN,
+// the cycle basis up to length 10 for CWN, closed 1-hop neighbourhoods for UniGNN2), with
+// TopoBench's width and layer count, one thread.
+//   BM_backbone_epoch  forward + backward of the backbone alone over every batch, the work the
+//                      Python script times (counter x_topomodelx: the speed-up over its figure)
+//   BM_epoch           topos's whole epoch: shuffle, collate, encoder, backbone, readout, loss,
+//                      Adam step
+//   BM_lift            lifting a whole dataset (features and operators included)
+// Needs TOPOS_DATASETS_DIR. Run with
+//   OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 ./build/bench/bench_topobench
+#include "topos/data/graph_datasets.hpp"
+#include "topos/models/topobench/model.hpp"
+#include "topos/nn/cpu.hpp"
+
+#include <benchmark/benchmark.h>
+
+#include <cstdlib>
+#include <map>
+#include <memory>
+#include <random>
+
+using namespace topos;
+using namespace topos::models::topobench;
+
+namespace {
+
+std::string datasets_dir() {
+  const char* d = std::getenv("TOPOS_DATASETS_DIR");
+  return d ? d : "";
+}
+
+const data::GraphClassificationDataset& dataset(const std::string& name) {
+  static std::map<std::string, data::GraphClassificationDataset> cache;
+  auto it = cache.find(name);
+  if (it == cache.end())
+    it = cache.emplace(name, data::load_topobench_graph_dataset(datasets_dir(), name)).first;
+  return it->second;
+}
+
+std::vector<LiftedGraph> lift(const data::GraphClassificationDataset& ds, Domain d, int rank) {
+  LiftingOptions o;
+  o.complex_dim = rank;  // the Python script lifts cliques to rank 2
+  std::vector<LiftedGraph> out;
+  for (const auto& g : ds.graphs) {
+    out.push_back(lift_graph(g.num_nodes, g.edges, g.x, ds.num_node_features, {}, d, o));
+    out.back().label = g.label;
+  }
+  return out;
+}
+
+struct Setting {
+  const char* model;
+  const char* dataset;
+  std::int64_t hidden;
+  int layers;
+  std::size_t batch;
+  double topomodelx_ms;  ///< tdl-bench README, the lowest figure
+};
+// TopoBench's (hidden, layers, batch size) as the Python script has them, and its times.
+const Setting kSettings[] = {
+    {"SCN", "MUTAG", 32, 3, 64, 2.7},      {"SCN", "PROTEINS", 32, 2, 128, 80},
+    {"CWN", "MUTAG", 128, 2, 32, 20},      {"CWN", "PROTEINS", 64, 3, 256, 277},
+    {"UniGNN2", "MUTAG", 128, 3, 64, 370}, {"UniGNN2", "PROTEINS", 64, 3, 128, 78500}};
+
+struct Prepared {
+  std::vector<LiftedGraph> graphs;
+  std::vector<std::size_t> train;
+  std::vector<Batch> batches;
+};
+
+const Prepared& prepared(const Setting& s) {
+  static std::map<std::string, std::unique_ptr<Prepared>> cache;
+  const std::string key = std::string(s.model) + s.dataset;
+  auto& p = cache[key];
+  if (!p) {
+    p = std::make_unique<Prepared>();
+    const auto& ds = dataset(s.dataset);
+    p->graphs = lift(ds, model_spec(s.model).domain, 2);
+    p->train = random_split(static_cast<std::int64_t>(ds.graphs.size()), 0).train;
+    for (std::size_t at = 0; at < p->train.size(); at += s.batch)
+      p->batches.push_back(collate(
+          p->graphs,
+          std::vector<std::size_t>(p->train.begin() + static_cast<std::ptrdiff_t>(at),
+                                   p->train.begin() + static_cast<std::ptrdiff_t>(std::min(
+                                                          p->train.size(), at + s.batch)))));
+  }
+  return *p;
+}
+
+bool skip_without_data(benchmark::State& state) {
+  if (!datasets_dir().empty()) return false;
+  state.SkipWithError("set TOPOS_DATASETS_DIR to ../shared/datasets");
+  return true;
+}
+
+void BM_backbone_epoch(benchmark::State& state, Setting s) {
+  if (skip_without_data(state)) return;
+  nn::set_cpu_threads(1, 1);
+  const auto& p = prepared(s);
+  torch::manual_seed(0);
+  TopoBenchModel model(
+      TopoBenchModelOptions(s.model, p.graphs[0].widths, s.hidden, 2).n_layers(s.layers));
+  auto& backbone = model->backbone;
+  // Hidden-width features per rank and a each output summed for the backward.
+  std::vector<std::map<std::string, torch::Tensor>> inputs;
+  for (const auto& b : p.batches) {
+    std::map<std::string, torch::Tensor> in;
+    for (const auto& port : backbone->schedule().inputs())
+      in[port.name] =
+          torch::randn({b.x.at(static_cast<std::size_t>(port.key.rank)).size(0), s.hidden});
+    inputs.push_back(in);
+  }
+  for (auto _ : state) {
+    for (std::size_t i = 0; i < p.batches.size(); ++i) {
+      backbone->zero_grad();
+      const auto out = backbone->forward(inputs[i], model->backbone_operators(p.batches[i]));
+      torch::Tensor loss = torch::zeros({});
+      for (const auto& [name, y] : out) loss = loss + y.sum();
+      loss.backward();
+    }
+  }
+  state.counters["batches"] = static_cast<double>(p.batches.size());
+  // TopoModelX's epoch over topos's: a rate of (its seconds per iteration) per second spent.
+  state.counters["x_topomodelx"] = benchmark::Counter(
+      s.topomodelx_ms / 1e3 * static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
+}
+
+void BM_epoch(benchmark::State& state, Setting s) {
+  if (skip_without_data(state)) return;
+  nn::set_cpu_threads(1, 1);
+  const auto& p = prepared(s);
+  const auto& ds = dataset(s.dataset);
+  torch::manual_seed(0);
+  TopoBenchModel model(TopoBenchModelOptions(s.model, p.graphs[0].widths, s.hidden, ds.num_classes)
+                           .n_layers(s.layers)
+                           .dropout(0.25)
+                           .propagate_signal_down(model_spec(s.model).cell_dimensions > 1));
+  torch::optim::Adam opt(model->parameters(), torch::optim::AdamOptions(1e-3));
+  std::mt19937_64 rng(0);
+  auto order = p.train;
+  model->train();
+  for (auto _ : state) {
+    std::shuffle(order.begin(), order.end(), rng);
+    for (std::size_t at = 0; at < order.size(); at += s.batch) {
+      const auto b = collate(
+          p.graphs, std::vector<std::size_t>(order.begin() + static_cast<std::ptrdiff_t>(at),
+                                             order.begin() + static_cast<std::ptrdiff_t>(std::min(
+                                                                 order.size(), at + s.batch))));
+      const auto loss = torch::nn::functional::cross_entropy(model->forward(b), b.labels);
+      opt.zero_grad();
+      loss.backward();
+      opt.step();
+    }
+  }
+}
+
+void BM_lift(benchmark::State& state, const char* name, Domain d) {
+  if (skip_without_data(state)) return;
+  const auto& ds = dataset(name);
+  std::int64_t cells = 0;
+  for (auto _ : state) {
+    LiftingOptions o;  // TopoBench's: cliques up to 4 nodes, cycles up to 10
+    cells = 0;
+    for (const auto& g : ds.graphs) {
+      const auto l = lift_graph(g.num_nodes, g.edges, g.x, ds.num_node_features, {}, d, o);
+      for (auto n : l.sizes) cells += n;
+    }
+  }
+  state.counters["cells"] = static_cast<double>(cells);
+  state.counters["graphs"] = static_cast<double>(ds.graphs.size());
+}
+
+const int registered = [] {
+  for (const auto& s : kSettings) {
+    const std::string tag = std::string(s.model) + "/" + s.dataset;
+    benchmark::RegisterBenchmark(("BM_backbone_epoch/" + tag).c_str(), BM_backbone_epoch, s)
+        ->Unit(benchmark::kMillisecond)
+        ->MinTime(1.0);
+    benchmark::RegisterBenchmark(("BM_epoch/" + tag).c_str(), BM_epoch, s)
+        ->Unit(benchmark::kMillisecond)
+        ->MinTime(1.0);
+  }
+  benchmark::RegisterBenchmark("BM_lift/clique/REDDIT-BINARY", BM_lift, "REDDIT-BINARY",
+                               Domain::simplicial)
+      ->Unit(benchmark::kMillisecond)
+      ->Iterations(1);
+  benchmark::RegisterBenchmark("BM_lift/clique/IMDB-BINARY", BM_lift, "IMDB-BINARY",
+                               Domain::simplicial)
+      ->Unit(benchmark::kMillisecond)
+      ->Iterations(1);
+  benchmark::RegisterBenchmark("BM_lift/cycle/NCI1", BM_lift, "NCI1", Domain::cell)
+      ->Unit(benchmark::kMillisecond)
+      ->Iterations(1);
+  return 0;
+}();
+
+}  // namespace
+
+BENCHMARK_MAIN();

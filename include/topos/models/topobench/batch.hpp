@@ -1,0 +1,82 @@
+// topos/models/topobench/batch.hpp
+// Many lifted graphs (topobench/lifting.hpp) as one disjoint union, as TopoBench's collate does:
+// features of each rank stacked, every named operator block-diagonal, per rank the graph each
+// cell belongs to, and the graphs' classes. The operators are concatenated from their sorted
+// triplets with shifted indices (still sorted), so building a batch is O(cells + nonzeros).
+#pragma once
+
+#include "topos/models/topobench/lifting.hpp"
+#include "topos/nn/sparse.hpp"
+
+#include <torch/torch.h>
+
+#include <cstring>
+#include <map>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace topos::models::topobench {
+
+struct Batch {
+  std::vector<torch::Tensor> x;      ///< per rank, cells × width
+  std::vector<torch::Tensor> batch;  ///< per rank, the graph of each cell (int64)
+  std::map<std::string, nn::SparseOperator> operators;
+  torch::Tensor labels;  ///< int64, one per graph
+  std::int64_t num_graphs = 0;
+};
+
+/// The block-diagonal union of `graphs[which[i]]`. Every graph must have the same ranks, widths
+/// and operator names (one lifting of one dataset).
+inline Batch collate(const std::vector<LiftedGraph>& graphs,
+                     const std::vector<std::size_t>& which) {
+  if (which.empty()) throw std::invalid_argument("topobench::collate: an empty batch");
+  const LiftedGraph& first = graphs.at(which.front());
+  const std::size_t ranks = first.sizes.size();
+  Batch b;
+  b.num_graphs = static_cast<std::int64_t>(which.size());
+  for (std::size_t r = 0; r < ranks; ++r) {
+    std::int64_t rows = 0;
+    for (auto i : which) rows += graphs[i].sizes.at(r);
+    const std::int64_t width = first.widths[r];
+    auto x = torch::empty({rows, width}, torch::kFloat);
+    auto owner = torch::empty({rows}, torch::kLong);
+    float* xp = x.data_ptr<float>();
+    std::int64_t* op = owner.data_ptr<std::int64_t>();
+    std::int64_t g = 0;
+    for (auto i : which) {
+      const auto& lg = graphs[i];
+      if (lg.widths.size() != ranks || lg.widths[r] != width)
+        throw std::invalid_argument("topobench::collate: graphs lifted with different widths");
+      const auto n = lg.sizes[r];
+      if (n) std::memcpy(xp, lg.x[r].data(), sizeof(float) * static_cast<std::size_t>(n * width));
+      std::fill(op, op + n, g++);
+      xp += n * width, op += n;
+    }
+    b.x.push_back(x), b.batch.push_back(owner);
+  }
+  for (const auto& [name, t0] : first.operators) {
+    std::int64_t nnz = 0;
+    for (auto i : which) nnz += graphs[i].operators.at(name).nnz();
+    std::vector<std::int64_t> r, c;
+    r.reserve(static_cast<std::size_t>(nnz)), c.reserve(static_cast<std::size_t>(nnz));
+    auto values = torch::empty({nnz}, torch::kFloat);
+    float* vp = values.data_ptr<float>();
+    std::int64_t rows = 0, cols = 0;
+    for (auto i : which) {
+      const Triplets& t = graphs[i].operators.at(name);
+      for (std::int64_t k = 0; k < t.nnz(); ++k)
+        r.push_back(t.row[static_cast<std::size_t>(k)] + rows),
+            c.push_back(t.col[static_cast<std::size_t>(k)] + cols);
+      if (t.nnz()) std::memcpy(vp, t.value.data(), sizeof(float) * t.value.size());
+      vp += t.nnz(), rows += t.rows, cols += t.cols;
+    }
+    b.operators.emplace(name, nn::SparseOperator::from_sorted(rows, cols, r, c, values));
+  }
+  std::vector<std::int64_t> labels;
+  for (auto i : which) labels.push_back(graphs[i].label);
+  b.labels = torch::tensor(labels, torch::kLong);
+  return b;
+}
+
+}  // namespace topos::models::topobench

@@ -1,0 +1,89 @@
+# tdl topobench on bad input (a clear message, a non-zero exit, nothing written over) and, with the
+# raw datasets (TOPOS_DATASETS_DIR set), a short MUTAG table: CWN and UniGNN2 on one split with
+# the whole protocol (about 10 s) each beat the majority class on the test split, and a second
+# start resumes (runs nothing, keeps runs.csv).
+# Arguments: -DTDL=<exe> -DWORK=<dir> -DMODE=bad|mutag (two ctest cases).
+file(REMOVE_RECURSE ${WORK})
+file(MAKE_DIRECTORY ${WORK})
+
+include(${CMAKE_CURRENT_LIST_DIR}/tdl_run.cmake)
+macro(expect_failure_topobench name message)
+  expect_failure("${name}" "${message}" topobench ${ARGN})
+endmacro()
+
+if(MODE STREQUAL "bad")
+# A hyperparameter file of our own so that the bad-input cases need no dataset.
+file(WRITE ${WORK}/data/README.md "test data\n")
+file(WRITE ${WORK}/data/topobench/reproduce-hparams.txt
+  "# test\nsimplicial/scn MUTAG lr=0.01 hid=8 L=1 readout=NoReadOut dropout=0.5 bs=32 dataset.split_params.data_seed=0 trainer.max_epochs=5 trainer.min_epochs=1 trainer.check_val_every_n_epoch=1 callbacks.early_stopping.patience=2\n")
+expect_failure_topobench("unknown model" "unknown TopoBench model 'SCNX'"
+  --data-dir ${WORK}/data --models SCNX --datasets MUTAG --out ${WORK}/o)
+expect_failure_topobench("unknown dataset" "unknown TopoBench dataset 'MUTANT'"
+  --data-dir ${WORK}/data --models SCN --datasets MUTANT --out ${WORK}/o)
+expect_failure_topobench("no hyperparameters for the pair" "no hyperparameters for CWN"
+  --data-dir ${WORK}/data --models CWN --datasets MUTAG --out ${WORK}/o)
+expect_failure_topobench("missing hparams file" "nowhere"
+  --data-dir ${WORK}/nowhere --models SCN --datasets MUTAG --out ${WORK}/o)
+expect_failure_topobench("bad split" "--splits"
+  --data-dir ${WORK}/data --models SCN --datasets MUTAG --splits 1,x --out ${WORK}/o)
+file(WRITE ${WORK}/data/topobench/bad-hparams.txt "simplicial/scn MUTAG lr=abc hid=8\n")
+expect_failure_topobench("malformed hparams" "bad-hparams.txt:1: lr=abc is not a number"
+  --data-dir ${WORK}/data --hparams ${WORK}/data/topobench/bad-hparams.txt --models SCN --datasets MUTAG --out ${WORK}/o)
+# A malformed runs.csv is named with its line and left as it was.
+file(MAKE_DIRECTORY ${WORK}/bad_runs)
+set(bad "model,dataset,split_seed,test_accuracy,best_epoch,epochs,seconds\nSCN,MUTAG,0,1.5,1,1,1\n")
+file(WRITE ${WORK}/bad_runs/runs.csv "${bad}")
+expect_failure_topobench("malformed runs.csv" "runs.csv:2: test_accuracy outside [0, 1]"
+  --data-dir ${WORK}/data --models SCN --datasets MUTAG --out ${WORK}/bad_runs)
+file(READ ${WORK}/bad_runs/runs.csv after)
+if(NOT after STREQUAL bad)
+  message(FATAL_ERROR "a failed start changed runs.csv")
+endif()
+return()
+endif()
+
+if(NOT DEFINED ENV{TOPOS_DATASETS_DIR} OR "$ENV{TOPOS_DATASETS_DIR}" STREQUAL "")
+  message(STATUS "SKIPPED: the MUTAG table needs the raw datasets; set TOPOS_DATASETS_DIR to ../shared/datasets")
+  return()
+endif()
+set(data $ENV{TOPOS_DATASETS_DIR})
+execute_process(COMMAND ${TDL} topobench --data-dir ${data} --models CWN,UniGNN2 --datasets MUTAG --splits 0
+  --out ${WORK}/mutag RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+if(NOT rc EQUAL 0)
+  message(FATAL_ERROR "tdl topobench failed:\n${out}${err}")
+endif()
+foreach(f runs.csv summary.csv baselines.csv index.html curves/CWN_MUTAG_0.csv curves/UniGNN2_MUTAG_0.csv)
+  if(NOT EXISTS ${WORK}/mutag/${f})
+    message(FATAL_ERROR "tdl topobench did not write ${f}")
+  endif()
+endforeach()
+file(STRINGS ${WORK}/mutag/baselines.csv base REGEX "^MUTAG,0,")
+string(REPLACE "," ";" base "${base}")
+list(GET base 2 majority)
+file(STRINGS ${WORK}/mutag/runs.csv rows REGEX "^(CWN|UniGNN2),MUTAG,0,")
+list(LENGTH rows n)
+if(NOT n EQUAL 2)
+  message(FATAL_ERROR "expected 2 runs in runs.csv, got ${n}")
+endif()
+foreach(row ${rows})
+  string(REPLACE "," ";" f "${row}")
+  list(GET f 0 model)
+  list(GET f 3 acc)
+  if(NOT acc GREATER majority)
+    message(FATAL_ERROR "${model} on MUTAG split 0: test accuracy ${acc} does not beat the majority class ${majority}")
+  endif()
+  message(STATUS "ok: ${model} on MUTAG split 0: ${acc} > majority ${majority}")
+endforeach()
+# Started again on the same folder: nothing left to run, runs.csv unchanged.
+file(READ ${WORK}/mutag/runs.csv before)
+execute_process(COMMAND ${TDL} topobench --data-dir ${data} --models CWN,UniGNN2 --datasets MUTAG --splits 0
+  --out ${WORK}/mutag RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+string(FIND "${err}" "0 runs to do, 2 already" pos)
+if(NOT rc EQUAL 0 OR pos EQUAL -1)
+  message(FATAL_ERROR "the second start did not resume:\n${out}${err}")
+endif()
+file(READ ${WORK}/mutag/runs.csv after)
+if(NOT after STREQUAL before)
+  message(FATAL_ERROR "resuming changed runs.csv")
+endif()
+message(STATUS "ok: resumed")
