@@ -9,29 +9,22 @@ cmake_minimum_required(VERSION 3.19)  # IN_LIST, string(JSON)
 file(REMOVE_RECURSE ${WORK})
 file(MAKE_DIRECTORY ${WORK})
 
-function(expect_failure name message)
-  execute_process(COMMAND ${TDL} lift ${ARGN} RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
-  if(rc EQUAL 0)
-    message(FATAL_ERROR "${name}: expected a failure, got exit 0\n${out}${err}")
-  endif()
-  string(FIND "${out}${err}" "${message}" pos)
-  if(pos EQUAL -1)
-    message(FATAL_ERROR "${name}: expected the message '${message}', got:\n${out}${err}")
-  endif()
-  message(STATUS "ok: ${name}")
-endfunction()
+include(${CMAKE_CURRENT_LIST_DIR}/tdl_run.cmake)
+macro(expect_failure_lift name message)
+  expect_failure("${name}" "${message}" lift ${ARGN})
+endmacro()
 
 if(MODE STREQUAL "bad")
-  expect_failure("unknown dataset" "unknown dataset 'NO-SUCH-SET'"
+  expect_failure_lift("unknown dataset" "unknown dataset 'NO-SUCH-SET'"
     --data-dir ${WORK} --dataset NO-SUCH-SET --lifting clique)
-  expect_failure("unknown lifting" "--lifting: ring not in {clique,cycle,khop}"
+  expect_failure_lift("unknown lifting" "--lifting: ring not in {clique,cycle,khop}"
     --data-dir ${WORK} --dataset MUTAG --lifting ring)
-  expect_failure("missing data folder" "Directory does not exist: ${WORK}/nowhere"
+  expect_failure_lift("missing data folder" "Directory does not exist: ${WORK}/nowhere"
     --data-dir ${WORK}/nowhere --dataset MUTAG --lifting clique)
-  expect_failure("dataset not in the folder" "MUTAG not found (looked for ${WORK}/tu/MUTAG"
+  expect_failure_lift("dataset not in the folder" "MUTAG not found (looked for ${WORK}/tu/MUTAG"
     --data-dir ${WORK} --dataset MUTAG --lifting cycle)
-  expect_failure("--lifting is required" "--lifting is required" --data-dir ${WORK} --dataset MUTAG)
-  expect_failure("negative k" "--k must be >= 0"
+  expect_failure_lift("--lifting is required" "--lifting is required" --data-dir ${WORK} --dataset MUTAG)
+  expect_failure_lift("negative k" "--k must be >= 0"
     --data-dir ${WORK} --dataset MUTAG --lifting khop --k -1)
   return()
 endif()
