@@ -152,9 +152,12 @@ topobench::RunResult train_run(const LiftedDataset& data, const topobench::Model
     std::vector<std::int64_t> w(v.begin(), v.end());
     return torch::tensor(w, torch::kLong);
   };
-  // Evaluation is per graph (GraphNorm and LayerNorm use no batch statistics), so each phase is
-  // one batch, collated once.
-  tb::Batch whole, val_batch, test_batch;
+  // Validation and test graphs go in batches of the training batch size, in the split's order,
+  // as TopoBench's loaders give them: CCXN's TopoModelX-compatible attention scores 2-cell i of a
+  // batch with edge i of the same batch, so its predictions depend on the batching (the other
+  // models' do not). The batches are collated once.
+  tb::Batch whole;
+  std::vector<tb::Batch> val_batches, test_batches;
   torch::Tensor node_labels, train_idx, val_idx, test_idx;
   if (data.node_level) {
     whole = tb::collate(data.graphs, {0});
@@ -162,8 +165,15 @@ topobench::RunResult train_run(const LiftedDataset& data, const topobench::Model
     train_idx = index_tensor(split.train), val_idx = index_tensor(split.val),
     test_idx = index_tensor(split.test);
   } else {
-    val_batch = tb::collate(data.graphs, split.val);
-    test_batch = tb::collate(data.graphs, split.test);
+    const auto bs = static_cast<std::size_t>(cfg.batch_size);
+    for (auto* part : {&split.val, &split.test})
+      for (std::size_t at = 0; at < part->size(); at += bs)
+        (part == &split.val ? val_batches : test_batches)
+            .push_back(tb::collate(
+                data.graphs,
+                std::vector<std::size_t>(
+                    part->begin() + static_cast<std::ptrdiff_t>(at),
+                    part->begin() + static_cast<std::ptrdiff_t>(std::min(part->size(), at + bs)))));
   }
   const auto evaluate = [&](bool test) {
     torch::NoGradGuard no_grad;
@@ -172,8 +182,12 @@ topobench::RunResult train_run(const LiftedDataset& data, const topobench::Model
       const auto& idx = test ? test_idx : val_idx;
       return accuracy(net->forward(whole).index_select(0, idx), node_labels.index_select(0, idx));
     }
-    const auto& b = test ? test_batch : val_batch;
-    return accuracy(net->forward(b), b.labels);
+    std::int64_t correct = 0, total = 0;
+    for (const auto& b : test ? test_batches : val_batches) {
+      correct += net->forward(b).argmax(1).eq(b.labels).sum().item<std::int64_t>();
+      total += b.num_graphs;
+    }
+    return total ? static_cast<double>(correct) / static_cast<double>(total) : 0.0;
   };
 
   std::mt19937_64 shuffle(static_cast<std::uint64_t>(seed) * 1000003u + 42u);
@@ -250,6 +264,40 @@ std::string html_escape(const std::string& s) {
   for (char c : s)
     o += c == '<' ? "&lt;" : c == '>' ? "&gt;" : c == '&' ? "&amp;" : std::string(1, c);
   return o;
+}
+
+/// OUT/table.md: the table in Markdown (models as rows, datasets as columns, mean ± std and the
+/// number of runs where fewer than five), for docs/topobench.md.
+std::string table_markdown(const std::vector<topobench::RunResult>& runs) {
+  const auto cells = topobench::summarize(runs);
+  std::ostringstream o;
+  o << "| model |";
+  std::vector<std::string> datasets;
+  for (const auto& d : topobench::table_datasets())
+    if (std::any_of(cells.begin(), cells.end(), [&](const auto& c) { return c.dataset == d.name; }))
+      datasets.push_back(d.name), o << " " << d.name << " |";
+  o << "\n|---|";
+  for (std::size_t i = 0; i < datasets.size(); ++i) o << "---|";
+  o << "\n";
+  for (const auto& m : topobench::model_specs()) {
+    if (std::none_of(cells.begin(), cells.end(), [&](const auto& c) { return c.model == m.name; }))
+      continue;
+    o << "| " << m.name << " |";
+    for (const auto& d : datasets) {
+      const auto it = std::find_if(cells.begin(), cells.end(), [&](const auto& c) {
+        return c.model == m.name && c.dataset == d;
+      });
+      if (it == cells.end()) {
+        o << " - |";
+        continue;
+      }
+      o << " " << std::fixed << std::setprecision(2) << it->mean << " ± " << it->std;
+      if (it->runs < 5) o << " (" << it->runs << " runs)";
+      o << " |";
+    }
+    o << "\n";
+  }
+  return o.str();
 }
 
 /// OUT/index.html: the table (mean ± std over the splits, runs, time per cell) and, per cell,
@@ -365,6 +413,9 @@ int run_topobench(const TopoBenchOptions& o) {
   for (auto* d : datasets)
     for (auto* m : models) {
       const auto& cfg = topobench::find_config(configs, *m, *d);
+      if (o.splits.empty() && cfg.data_seeds.empty())
+        throw std::invalid_argument(cfg.source +
+                                    ": no dataset.split_params.data_seed (give --splits)");
       for (auto s : o.splits.empty() ? cfg.data_seeds : o.splits) {
         if (done(m->name, d->name, s))
           ++skipped;
@@ -473,6 +524,7 @@ int run_topobench(const TopoBenchOptions& o) {
         topos::write_file_atomic((out / "summary.csv").string(),
                                  topobench::format_summary(topobench::summarize(runs)));
         topos::write_file_atomic((out / "index.html").string(), report_html(out, runs));
+        topos::write_file_atomic((out / "table.md").string(), table_markdown(runs));
         std::ostringstream status;
         status << r.model << " " << r.dataset << " split " << r.split_seed << ": " << std::fixed
                << std::setprecision(1) << 100 * r.test_accuracy << "% (" << r.epochs << " epochs, "
@@ -496,6 +548,7 @@ int run_topobench(const TopoBenchOptions& o) {
     topos::write_file_atomic((out / "summary.csv").string(),
                              topobench::format_summary(topobench::summarize(runs)));
     topos::write_file_atomic((out / "index.html").string(), report_html(out, runs));
+    topos::write_file_atomic((out / "table.md").string(), table_markdown(runs));
   }
   std::cout << topobench::format_summary(topobench::summarize(runs));
   std::cerr << "wrote " << (out / "runs.csv").string() << ", summary.csv, index.html\n";

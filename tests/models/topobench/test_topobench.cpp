@@ -382,6 +382,12 @@ TEST_CASE("TopoBench's hyperparameter lines are parsed, and bad ones named by li
                     Catch::Matchers::Contains("h.txt:2: lr=x is not a number"));
   CHECK_THROWS_WITH(parse_hparams("cell/cwn MUTAG lr=0.1 hid=4\n", "h.txt"),
                     Catch::Matchers::Contains("h.txt:1: lr, hid, L, bs"));
+  // ZINC's lines name model seeds (`seed=`), not data seeds: no split seeds then.
+  CHECK(parse_hparams("cell/cwn ZINC lr=0.1 hid=4 L=1 bs=2 trainer.max_epochs=5 "
+                      "trainer.check_val_every_n_epoch=1 callbacks.early_stopping.patience=2 "
+                      "seed=42,3\n",
+                      "h.txt")[0]
+            .data_seeds.empty());
   CHECK_THROWS_WITH(parse_hparams("cell/cwn MUTAG L=2.5\n", "h.txt"),
                     Catch::Matchers::Contains("L=2.5 is not an integer"));
 }

@@ -9,10 +9,13 @@
 // W_2 acts on a concatenation per incidence, so it splits into a node half (with W_2's bias,
 // counted once per hyperedge of v: the "node_degree" diagonal) and a hyperedge half over H.
 // Operators "incidence_1" (H, nodes × hyperedges) and "node_degree" (diag of H's row sums).
+// reset_edgnn_parameters draws W_2's halves as the one Linear TopoBench has.
 // Written as an operator schedule (edgnn_schedule).
 #pragma once
 
 #include "topos/nn/operator_schedule.hpp"
+
+#include <cmath>
 
 namespace topos::models {
 
@@ -46,6 +49,15 @@ inline nn::OperatorSchedule edgnn_schedule(const EDGNNOptions& o) {
   }
   s.step(into(0).sum(from(0).dropout(o.dropout())));
   return s;
+}
+
+/// Draws W_2's two halves as the one Linear(2c, c) they are in TopoBench (PyTorch's default,
+/// U(±1/sqrt(2c)) for weight and bias): each half alone would start √2 wider.
+inline void reset_edgnn_parameters(const nn::OperatorNetworkImpl& net, std::int64_t channels) {
+  torch::NoGradGuard no_grad;
+  const double bound = 1.0 / std::sqrt(2.0 * static_cast<double>(channels));
+  for (const char* path : {"conv.W2_node.weight", "conv.W2_node.bias", "conv.W2_edge.weight"})
+    net.parameter(path).uniform_(-bound, bound);
 }
 
 }  // namespace topos::models

@@ -129,6 +129,7 @@ class TopoBenchModelImpl : public torch::nn::Module {
           register_module("encoder_linear_" + R, torch::nn::Linear(f, options.hidden())));
     }
     backbone = register_module("backbone", nn::OperatorNetwork(backbone_schedule(options)));
+    if (options.model() == "EDGNN") reset_edgnn_parameters(*backbone, options.hidden());
     head = register_module("head", nn::OperatorNetwork(head_schedule(options)));
     classifier =
         register_module("classifier", torch::nn::Linear(options.hidden(), options.num_classes()));

@@ -184,19 +184,20 @@ inline std::vector<RunConfig> parse_hparams(const std::string& text, const std::
         c.signed_incidence = v == "True";
       } else if (key == "transforms.graph2cell_lifting.max_cell_length")
         c.max_cell_length = static_cast<int>(integer(key, v));
-      else if (key == "dataset.split_params.data_seed" || key == "seed") {
+      else if (key == "dataset.split_params.data_seed") {
         std::istringstream seeds(v);
         std::string s;
         while (std::getline(seeds, s, ',')) c.data_seeds.push_back(integer(key, s));
       }
-      // Other keys (ZINC's regression settings) concern no table cell; they are kept out.
+      // Other keys (ZINC's regression settings and its model seeds `seed`) concern no table
+      // cell; they are kept out.
     }
     if (c.lr <= 0 || c.hidden <= 0 || c.layers <= 0 || c.batch_size <= 0 || c.max_epochs <= 0 ||
-        c.val_every <= 0 || c.patience <= 0 || c.data_seeds.empty())
+        c.val_every <= 0 || c.patience <= 0)
       throw topos::data::DataError(where +
                                    ": lr, hid, L, bs, trainer.max_epochs, "
-                                   "check_val_every_n_epoch, patience and the seeds must "
-                                   "all be given and positive");
+                                   "check_val_every_n_epoch and patience must all be "
+                                   "given and positive");
     out.push_back(std::move(c));
   }
   return out;
