@@ -58,10 +58,12 @@ struct LiftedDataset {
   double seconds = 0;
 };
 
-LiftedDataset lift_dataset(const fs::path& root, const topobench::DatasetName& d, tb::Domain domain,
-                           const topobench::RunConfig& cfg) {
+LiftedDataset lift_dataset(const fs::path& root, const topobench::DatasetName& d,
+                           const topobench::ModelSpec& model, const topobench::RunConfig& cfg) {
   const auto start = std::chrono::steady_clock::now();
+  const tb::Domain domain = model.domain;
   tb::LiftingOptions lo;
+  lo.operators = model.operators;
   lo.signed_incidence = domain == tb::Domain::simplicial ? cfg.signed_incidence : false;
   if (cfg.max_cell_length > 0) lo.max_cell_length = cfg.max_cell_length;
   LiftedDataset out;
@@ -268,19 +270,25 @@ std::string html_escape(const std::string& s) {
 
 /// OUT/table.md: the table in Markdown (models as rows, datasets as columns, mean ± std and the
 /// number of runs where fewer than five), for docs/topobench.md.
-std::string table_markdown(const std::vector<topobench::RunResult>& runs) {
+using NotRun = std::vector<std::array<std::string, 3>>;  // model, dataset, reason
+
+std::string table_markdown(const std::vector<topobench::RunResult>& runs, const NotRun& not_run) {
   const auto cells = topobench::summarize(runs);
   std::ostringstream o;
   o << "| model |";
   std::vector<std::string> datasets;
   for (const auto& d : topobench::table_datasets())
-    if (std::any_of(cells.begin(), cells.end(), [&](const auto& c) { return c.dataset == d.name; }))
+    if (std::any_of(cells.begin(), cells.end(),
+                    [&](const auto& c) { return c.dataset == d.name; }) ||
+        std::any_of(not_run.begin(), not_run.end(), [&](const auto& n) { return n[1] == d.name; }))
       datasets.push_back(d.name), o << " " << d.name << " |";
   o << "\n|---|";
   for (std::size_t i = 0; i < datasets.size(); ++i) o << "---|";
   o << "\n";
   for (const auto& m : topobench::model_specs()) {
-    if (std::none_of(cells.begin(), cells.end(), [&](const auto& c) { return c.model == m.name; }))
+    if (std::none_of(cells.begin(), cells.end(),
+                     [&](const auto& c) { return c.model == m.name; }) &&
+        std::none_of(not_run.begin(), not_run.end(), [&](const auto& n) { return n[0] == m.name; }))
       continue;
     o << "| " << m.name << " |";
     for (const auto& d : datasets) {
@@ -288,7 +296,10 @@ std::string table_markdown(const std::vector<topobench::RunResult>& runs) {
         return c.model == m.name && c.dataset == d;
       });
       if (it == cells.end()) {
-        o << " - |";
+        const bool skipped = std::any_of(not_run.begin(), not_run.end(), [&](const auto& n) {
+          return n[0] == m.name && n[1] == d;
+        });
+        o << (skipped ? " not run (memory) |" : " - |");
         continue;
       }
       o << " " << std::fixed << std::setprecision(2) << it->mean << " ± " << it->std;
@@ -302,21 +313,19 @@ std::string table_markdown(const std::vector<topobench::RunResult>& runs) {
 
 /// OUT/index.html: the table (mean ± std over the splits, runs, time per cell) and, per cell,
 /// the validation accuracy of every split against the epoch.
-std::string report_html(const fs::path& out, const std::vector<topobench::RunResult>& runs) {
+std::string report_html(const fs::path& out, const std::vector<topobench::RunResult>& runs,
+                        const NotRun& not_run) {
   const auto cells = topobench::summarize(runs);
   std::vector<std::string> models, datasets;
   for (const auto& m : topobench::model_specs())
-    for (const auto& c : cells)
-      if (c.model == m.name) {
-        models.push_back(m.name);
-        break;
-      }
+    if (std::any_of(cells.begin(), cells.end(), [&](const auto& c) { return c.model == m.name; }) ||
+        std::any_of(not_run.begin(), not_run.end(), [&](const auto& n) { return n[0] == m.name; }))
+      models.push_back(m.name);
   for (const auto& d : topobench::table_datasets())
-    for (const auto& c : cells)
-      if (c.dataset == d.name) {
-        datasets.push_back(d.name);
-        break;
-      }
+    if (std::any_of(cells.begin(), cells.end(),
+                    [&](const auto& c) { return c.dataset == d.name; }) ||
+        std::any_of(not_run.begin(), not_run.end(), [&](const auto& n) { return n[1] == d.name; }))
+      datasets.push_back(d.name);
   double total = 0;
   for (const auto& r : runs) total += r.seconds;
   std::ostringstream h;
@@ -336,7 +345,12 @@ std::string report_html(const fs::path& out, const std::vector<topobench::RunRes
       const auto it = std::find_if(cells.begin(), cells.end(),
                                    [&](const auto& c) { return c.model == m && c.dataset == d; });
       if (it == cells.end()) {
-        h << "<td>-</td>";
+        const auto n = std::find_if(not_run.begin(), not_run.end(),
+                                    [&](const auto& x) { return x[0] == m && x[1] == d; });
+        if (n != not_run.end())
+          h << "<td title='" << html_escape((*n)[2]) << "'>not run<br><small>memory</small></td>";
+        else
+          h << "<td>-</td>";
         continue;
       }
       h << "<td><a href='#" << m << "_" << d << "'>" << std::setprecision(2) << it->mean << " ± "
@@ -378,6 +392,37 @@ std::string report_html(const fs::path& out, const std::vector<topobench::RunRes
   return h.str();
 }
 
+std::string operator_names(const topobench::ModelSpec& m) {
+  std::string s;
+  for (const auto& op : m.operators) s += (s.empty() ? "" : ",") + op;
+  return s;
+}
+
+/// Entries of the rank-1 operators that pair edges through a shared node (the down Laplacian,
+/// and the Hodge Laplacian that contains it): Σ_v deg(v)² over every graph of a dataset.
+std::int64_t shared_node_pairs(const fs::path& root, const topobench::DatasetName& d) {
+  std::int64_t total = 0;
+  const auto count = [&](std::int64_t n, const std::vector<std::array<std::int64_t, 2>>& edges) {
+    std::vector<std::int64_t> deg(static_cast<std::size_t>(n), 0);
+    for (const auto& e : edges)
+      ++deg[static_cast<std::size_t>(e[0])], ++deg[static_cast<std::size_t>(e[1])];
+    for (auto k : deg) total += k * k;
+  };
+  if (d.node_level) {
+    const auto ds = topos::data::load_topobench_node_dataset(root, d.name);
+    count(ds.num_nodes, ds.edges);
+  } else {
+    for (const auto& g : topos::data::load_topobench_graph_dataset(root, d.name).graphs)
+      count(g.num_nodes, g.edges);
+  }
+  return total;
+}
+
+/// A model that multiplies by an operator with more entries than this over a dataset is not run
+/// on it: kept for the whole dataset as float32 triplets, 100 million entries take 2 GB per
+/// operator, then as much again for a batch's CSR and its transpose.
+constexpr std::int64_t kMaxOperatorEntries = 100'000'000;
+
 int run_topobench(const TopoBenchOptions& o) {
   const fs::path root(o.data_dir), out(o.out);
   const fs::path hparams_path =
@@ -410,12 +455,32 @@ int run_topobench(const TopoBenchOptions& o) {
   };
   std::vector<Job> jobs;
   std::size_t skipped = 0;
+  // Cells that cannot run here, with the measured reason (not_run.csv; the table shows them).
+  std::vector<std::array<std::string, 3>> not_run;
+  std::map<std::string, std::int64_t> pairs;  // per dataset, computed when a model needs it
   for (auto* d : datasets)
     for (auto* m : models) {
       const auto& cfg = topobench::find_config(configs, *m, *d);
       if (o.splits.empty() && cfg.data_seeds.empty())
         throw std::invalid_argument(cfg.source +
                                     ": no dataset.split_params.data_seed (give --splits)");
+      const bool rank1_pairs =
+          std::any_of(m->operators.begin(), m->operators.end(), [](const std::string& op) {
+            return op == "down_laplacian_1" || op == "down_laplacian_1_gcn" ||
+                   op == "hodge_laplacian_1" || op == "hodge_laplacian_1_norm";
+          });
+      if (rank1_pairs) {
+        if (!pairs.count(d->name)) pairs[d->name] = shared_node_pairs(root, *d);
+        if (pairs[d->name] > kMaxOperatorEntries) {
+          std::ostringstream why;
+          why << "its rank-1 down Laplacian (edges sharing a node) has " << pairs[d->name]
+              << " entries over the dataset (sum of squared degrees), above the "
+              << kMaxOperatorEntries << " this 24 GB machine holds per operator";
+          not_run.push_back({m->name, d->name, why.str()});
+          std::cerr << "not run: " << m->name << " on " << d->name << ": " << why.str() << "\n";
+          continue;
+        }
+      }
       for (auto s : o.splits.empty() ? cfg.data_seeds : o.splits) {
         if (done(m->name, d->name, s))
           ++skipped;
@@ -425,6 +490,12 @@ int run_topobench(const TopoBenchOptions& o) {
     }
   std::cerr << "tdl topobench: " << jobs.size() << " runs to do, " << skipped << " already in "
             << runs_path.string() << "\n";
+  {
+    std::ostringstream csv;
+    csv << "model,dataset,reason\n";
+    for (const auto& [m, d, why] : not_run) csv << m << "," << d << ",\"" << why << "\"\n";
+    topos::write_file_atomic((out / "not_run.csv").string(), csv.str());
+  }
 
   // Threads: one intra-op thread and one BLAS thread per run; `--jobs` runs side by side are the
   // parallelism. TopoBench's batches are small: with two OpenMP threads per run, 83 % of a MUTAG
@@ -465,7 +536,7 @@ int run_topobench(const TopoBenchOptions& o) {
   const auto lifting_key = [](const Job& j) {
     return std::string(j.dataset->name) + "/" + tb::domain_name(j.model->domain) + "/" +
            (j.cfg->signed_incidence ? "signed" : "unsigned") + "/" +
-           std::to_string(j.cfg->max_cell_length);
+           std::to_string(j.cfg->max_cell_length) + "/" + operator_names(*j.model);
   };
   std::map<std::string, std::shared_ptr<const LiftedDataset>> lifted;
   std::map<std::string, std::shared_ptr<std::mutex>> lifting;
@@ -489,8 +560,8 @@ int run_topobench(const TopoBenchOptions& o) {
       std::lock_guard<std::mutex> lock(mutex);
       if (auto it = lifted.find(key); it != lifted.end()) return it->second;
     }
-    auto d = std::make_shared<const LiftedDataset>(
-        lift_dataset(root, *j.dataset, j.model->domain, *j.cfg));
+    auto d =
+        std::make_shared<const LiftedDataset>(lift_dataset(root, *j.dataset, *j.model, *j.cfg));
     std::lock_guard<std::mutex> lock(mutex);
     std::cerr << "lifted " << key << " in " << std::fixed << std::setprecision(2) << d->seconds
               << " s\n";
@@ -523,8 +594,8 @@ int run_topobench(const TopoBenchOptions& o) {
         topos::write_file_atomic(runs_path.string(), topobench::format_runs(runs));
         topos::write_file_atomic((out / "summary.csv").string(),
                                  topobench::format_summary(topobench::summarize(runs)));
-        topos::write_file_atomic((out / "index.html").string(), report_html(out, runs));
-        topos::write_file_atomic((out / "table.md").string(), table_markdown(runs));
+        topos::write_file_atomic((out / "index.html").string(), report_html(out, runs, not_run));
+        topos::write_file_atomic((out / "table.md").string(), table_markdown(runs, not_run));
         std::ostringstream status;
         status << r.model << " " << r.dataset << " split " << r.split_seed << ": " << std::fixed
                << std::setprecision(1) << 100 * r.test_accuracy << "% (" << r.epochs << " epochs, "
@@ -547,8 +618,8 @@ int run_topobench(const TopoBenchOptions& o) {
   if (!runs.empty()) {
     topos::write_file_atomic((out / "summary.csv").string(),
                              topobench::format_summary(topobench::summarize(runs)));
-    topos::write_file_atomic((out / "index.html").string(), report_html(out, runs));
-    topos::write_file_atomic((out / "table.md").string(), table_markdown(runs));
+    topos::write_file_atomic((out / "index.html").string(), report_html(out, runs, not_run));
+    topos::write_file_atomic((out / "table.md").string(), table_markdown(runs, not_run));
   }
   std::cout << topobench::format_summary(topobench::summarize(runs));
   std::cerr << "wrote " << (out / "runs.csv").string() << ", summary.csv, index.html\n";

@@ -29,7 +29,9 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <functional>
 #include <map>
+#include <set>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -60,6 +62,9 @@ struct LiftingOptions {
   bool edge_features = false;    ///< x_1 = the edge labels one-hot (cell and simplicial)
   std::int64_t num_edge_labels = 0;
   int max_rank = 2;  ///< ranks whose features and sizes are kept (cell, simplicial)
+  /// The operators to build (names above); empty: every one of the domain. A model needs few,
+  /// and some are large: REDDIT-BINARY's rank-1 down Laplacian has Σ_v deg(v)² entries.
+  std::set<std::string> operators;
 };
 
 /// A sparse matrix as row-major sorted triplets (no duplicates), float values.
@@ -140,6 +145,10 @@ inline LiftedGraph lift_graph(std::int64_t num_nodes,
   g.x.push_back(x);
   auto& ops = g.operators;
   using namespace topos::sparse;
+  // Adds operator `name` when it is wanted, computing it only then.
+  const auto put = [&](const char* name, const std::function<Triplets()>& make) {
+    if (o.operators.empty() || o.operators.count(name)) ops[name] = make();
+  };
   if (domain == Domain::graph) {
     // Â = D̂^-1/2 (A + I) D̂^-1/2, D̂ the degrees plus one (the self-loop GCNConv adds).
     std::vector<Eigen::Triplet<double, std::int64_t>> t;
@@ -147,7 +156,7 @@ inline LiftedGraph lift_graph(std::int64_t num_nodes,
     for (std::int64_t v = 0; v < num_nodes; ++v) t.emplace_back(v, v, 1.0);
     const SparseMatrix a = from_triplets(num_nodes, num_nodes, t);
     const Eigen::VectorXd d = detail::inverse_sqrt(row_sums(a));
-    ops["gcn_adjacency"] = to_triplets(scale(a, d, d));
+    put("gcn_adjacency", [&] { return to_triplets(scale(a, d, d)); });
     return g;
   }
   if (domain == Domain::hypergraph) {
@@ -159,10 +168,11 @@ inline LiftedGraph lift_graph(std::int64_t num_nodes,
       for (SparseMatrix::InnerIterator it(inc, i); it; ++it)
         de[it.col()] += dv[it.row()] * it.value(), size[it.col()] += it.value();
     for (Eigen::Index e = 0; e < de.size(); ++e) de[e] = size[e] > 0 ? de[e] / size[e] : 0.0;
-    ops["incidence_1"] = to_triplets(inc);
-    ops["incidence_1_norm"] =
-        to_triplets(scale(inc, detail::inverse_sqrt(dv), detail::inverse_sqrt(de)));
-    ops["node_degree"] = to_triplets(scale(identity(num_nodes), dv, {}));
+    put("incidence_1", [&] { return to_triplets(inc); });
+    put("incidence_1_norm", [&] {
+      return to_triplets(scale(inc, detail::inverse_sqrt(dv), detail::inverse_sqrt(de)));
+    });
+    put("node_degree", [&] { return to_triplets(scale(identity(num_nodes), dv, {})); });
     g.sizes.push_back(inc.cols());
     g.widths.push_back(num_features);
     g.x.push_back(detail::project_sum(inc, x, num_features));
@@ -211,43 +221,49 @@ inline LiftedGraph lift_graph(std::int64_t num_nodes,
       g.x.push_back(detail::project_sum(bk, g.x.back(), g.widths.back()));
     }
   }
-  const SparseMatrix &b1 = b[1], &b2 = b[2];
-  const SparseMatrix b1t = transpose(b1), b2t = transpose(b2);
+  const SparseMatrix &b1 = b[1], &b2 = b[2], &b3 = b[3];
+  const SparseMatrix b1t = transpose(b1), b2t = transpose(b2), b3t = transpose(b3);
   if (domain == Domain::cell) {
     const SparseMatrix a1 = abs(b1), a2 = abs(b2), a1t = abs(b1t), a2t = abs(b2t);
-    ops["incidence_1"] = to_triplets(a1), ops["incidence_2"] = to_triplets(a2);
-    ops["incidence_1_t"] = to_triplets(a1t), ops["incidence_2_t"] = to_triplets(a2t);
-    ops["adjacency_0"] = to_triplets(without_diagonal(detail::gram(a1, a1t)));
-    ops["adjacency_1"] = to_triplets(without_diagonal(detail::gram(a2, a2t)));
-    const SparseMatrix down = abs(detail::gram(b1t, b1)), up = abs(detail::gram(b2, b2t));
-    ops["down_laplacian_1"] = to_triplets(down), ops["up_laplacian_1"] = to_triplets(up);
+    put("incidence_1", [&] { return to_triplets(a1); });
+    put("incidence_2", [&] { return to_triplets(a2); });
+    put("incidence_1_t", [&] { return to_triplets(a1t); });
+    put("incidence_2_t", [&] { return to_triplets(a2t); });
+    put("adjacency_0", [&] { return to_triplets(without_diagonal(detail::gram(a1, a1t))); });
+    put("adjacency_1", [&] { return to_triplets(without_diagonal(detail::gram(a2, a2t))); });
+    const auto down = [&] { return abs(detail::gram(b1t, b1)); };
+    const auto up = [&] { return abs(detail::gram(b2, b2t)); };
     const auto gcn = [](const SparseMatrix& m) {
       const Eigen::VectorXd d = detail::inverse_sqrt(row_sums(m));
       return to_triplets(scale(m, d, d));
     };
-    ops["down_laplacian_1_gcn"] = gcn(down), ops["up_laplacian_1_gcn"] = gcn(up);
+    put("down_laplacian_1", [&] { return to_triplets(down()); });
+    put("up_laplacian_1", [&] { return to_triplets(up()); });
+    put("down_laplacian_1_gcn", [&] { return gcn(down()); });
+    put("up_laplacian_1_gcn", [&] { return gcn(up()); });
     return g;
   }
   const auto sign = [&](const SparseMatrix& m) { return o.signed_incidence ? m : abs(m); };
-  const SparseMatrix& b3 = b[3];
-  const SparseMatrix b3t = transpose(b3);
-  const SparseMatrix l0 = detail::gram(b1, b1t), l1d = detail::gram(b1t, b1),
-                     l1u = detail::gram(b2, b2t), l2d = detail::gram(b2t, b2),
-                     l2u = detail::gram(b3, b3t);
-  const SparseMatrix l1 = add(l1d, l1u), l2 = add(l2d, l2u);
-  ops["incidence_1"] = to_triplets(sign(b1)), ops["incidence_2"] = to_triplets(sign(b2));
-  ops["hodge_laplacian_0"] = to_triplets(sign(l0));
-  ops["hodge_laplacian_1"] = to_triplets(sign(l1));
-  ops["hodge_laplacian_2"] = to_triplets(sign(l2));
-  ops["down_laplacian_1"] = to_triplets(sign(l1d)), ops["up_laplacian_1"] = to_triplets(sign(l1u));
-  ops["down_laplacian_2"] = to_triplets(sign(l2d)), ops["up_laplacian_2"] = to_triplets(sign(l2u));
+  // L_0 = B_1 B_1ᵀ; L_r = B_rᵀ B_r + B_{r+1} B_{r+1}ᵀ (zero blocks where a rank is empty).
+  const auto down = [&](int r) { return r == 1 ? detail::gram(b1t, b1) : detail::gram(b2t, b2); };
+  const auto up = [&](int r) {
+    return r == 0 ? detail::gram(b1, b1t) : r == 1 ? detail::gram(b2, b2t) : detail::gram(b3, b3t);
+  };
+  const auto hodge = [&](int r) { return r == 0 ? up(0) : SparseMatrix(add(down(r), up(r))); };
   const auto norm = [&](const SparseMatrix& l) {
     const Eigen::VectorXd d = detail::inverse_sqrt(abs_row_sums(l));
     return to_triplets(scale(sign(l), d, d));
   };
-  ops["hodge_laplacian_0_norm"] = norm(l0);
-  ops["hodge_laplacian_1_norm"] = norm(l1);
-  ops["hodge_laplacian_2_norm"] = norm(l2);
+  put("incidence_1", [&] { return to_triplets(sign(b1)); });
+  put("incidence_2", [&] { return to_triplets(sign(b2)); });
+  for (int r = 0; r <= 2; ++r) {
+    const std::string R = std::to_string(r);
+    put(("hodge_laplacian_" + R).c_str(), [&] { return to_triplets(sign(hodge(r))); });
+    put(("hodge_laplacian_" + R + "_norm").c_str(), [&] { return norm(hodge(r)); });
+    if (r == 0) continue;
+    put(("down_laplacian_" + R).c_str(), [&] { return to_triplets(sign(down(r))); });
+    put(("up_laplacian_" + R).c_str(), [&] { return to_triplets(sign(up(r))); });
+  }
   return g;
 }
 

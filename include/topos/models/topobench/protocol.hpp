@@ -18,6 +18,7 @@
 #include <iomanip>
 #include <map>
 #include <numeric>
+#include <set>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -25,27 +26,72 @@
 namespace topos::models::topobench {
 
 /// The ten rows of TopoBench's table: the table's name, TopoBench's config (domain/name), the
-/// domain it lifts to, the ranks its encoder reads, and how many ranks its wrapper and readout
-/// see (TopoBench's num_cell_dimensions: 3 for cells and simplices, see docs/topobench.md).
+/// domain it lifts to, the ranks its encoder reads, how many ranks its wrapper and readout see
+/// (TopoBench's num_cell_dimensions: 3 for cells and simplices, see docs/topobench.md), and the
+/// operators (topobench/lifting.hpp's names) its backbone and readout use.
 struct ModelSpec {
   const char* name;
   const char* config;
   Domain domain;
   std::vector<int> encoded_ranks;
   int cell_dimensions;
+  std::set<std::string> operators;
 };
 inline const std::vector<ModelSpec>& model_specs() {
   static const std::vector<ModelSpec> specs = {
-      {"GCN", "graph/gcn", Domain::graph, {0}, 1},
-      {"AllSetTransformer", "hypergraph/allsettransformer", Domain::hypergraph, {0}, 1},
-      {"EDGNN", "hypergraph/edgnn", Domain::hypergraph, {0}, 1},
-      {"UniGNN2", "hypergraph/unignn2", Domain::hypergraph, {0}, 1},
-      {"CWN", "cell/cwn", Domain::cell, {0, 1, 2}, 3},
-      {"CCCN", "cell/cccn", Domain::cell, {0, 1}, 2},
-      {"CCXN", "cell/ccxn", Domain::cell, {0, 1, 2}, 3},
-      {"SCN", "simplicial/scn", Domain::simplicial, {0, 1, 2}, 3},
-      {"SCCN", "simplicial/sccn", Domain::simplicial, {0, 1, 2}, 3},
-      {"SCCNN", "simplicial/sccnn_custom", Domain::simplicial, {0, 1, 2}, 3}};
+      {"GCN", "graph/gcn", Domain::graph, {0}, 1, {"gcn_adjacency"}},
+      {"AllSetTransformer",
+       "hypergraph/allsettransformer",
+       Domain::hypergraph,
+       {0},
+       1,
+       {"incidence_1"}},
+      {"EDGNN", "hypergraph/edgnn", Domain::hypergraph, {0}, 1, {"incidence_1", "node_degree"}},
+      {"UniGNN2",
+       "hypergraph/unignn2",
+       Domain::hypergraph,
+       {0},
+       1,
+       {"incidence_1", "incidence_1_norm"}},
+      {"CWN",
+       "cell/cwn",
+       Domain::cell,
+       {0, 1, 2},
+       3,
+       {"adjacency_1", "incidence_1", "incidence_2", "incidence_1_t"}},
+      {"CCCN",
+       "cell/cccn",
+       Domain::cell,
+       {0, 1},
+       2,
+       {"incidence_1", "up_laplacian_1_gcn", "down_laplacian_1_gcn"}},
+      {"CCXN",
+       "cell/ccxn",
+       Domain::cell,
+       {0, 1, 2},
+       3,
+       {"adjacency_0", "incidence_1", "incidence_2", "incidence_2_t"}},
+      {"SCN",
+       "simplicial/scn",
+       Domain::simplicial,
+       {0, 1, 2},
+       3,
+       {"incidence_1", "incidence_2", "hodge_laplacian_0_norm", "hodge_laplacian_1_norm",
+        "hodge_laplacian_2_norm"}},
+      {"SCCN",
+       "simplicial/sccn",
+       Domain::simplicial,
+       {0, 1, 2},
+       3,
+       {"incidence_1", "incidence_2", "hodge_laplacian_0", "hodge_laplacian_1",
+        "hodge_laplacian_2"}},
+      {"SCCNN",
+       "simplicial/sccnn_custom",
+       Domain::simplicial,
+       {0, 1, 2},
+       3,
+       {"incidence_1", "incidence_2", "hodge_laplacian_0", "down_laplacian_1", "up_laplacian_1",
+        "down_laplacian_2", "up_laplacian_2"}}};
   return specs;
 }
 
