@@ -26,6 +26,7 @@
 #include <fstream>
 #include <iomanip>
 #include <iostream>
+#include <memory>
 #include <mutex>
 #include <numeric>
 #include <random>
@@ -132,7 +133,7 @@ double accuracy(const torch::Tensor& logits, const torch::Tensor& labels) {
 topobench::RunResult train_run(const LiftedDataset& data, const topobench::ModelSpec& model,
                                const topobench::DatasetName& dataset,
                                const topobench::RunConfig& cfg, std::int64_t seed,
-                               int max_epochs_cap, std::vector<Check>& curve) {
+                               int max_epochs_cap, std::vector<Check>& curve, bool progress) {
   const auto start = std::chrono::steady_clock::now();
   torch::manual_seed(42);  // TopoBench seeds every run with 42
   const auto& g0 = data.graphs.front();
@@ -198,6 +199,12 @@ topobench::RunResult train_run(const LiftedDataset& data, const topobench::Model
   int best_epoch = 0, wait = 0, epoch = 0;
   bool stop = false;
   std::vector<torch::Tensor> best_state;
+  // A bar per run when runs go one at a time (side by side, the table's bar alone).
+  std::unique_ptr<topos::ProgressBar> bar;
+  if (progress)
+    bar = std::make_unique<topos::ProgressBar>(
+        std::string(model.name) + " " + dataset.name + " split " + std::to_string(seed), max_epochs,
+        "epoch");
   for (epoch = 1; epoch <= max_epochs; ++epoch) {
     // StepLR(step_size 50, gamma 0.5), stepped once per epoch.
     const double lr = cfg.lr * std::pow(0.5, (epoch - 1) / 50);
@@ -240,6 +247,12 @@ topobench::RunResult train_run(const LiftedDataset& data, const topobench::Model
       } else if (++wait >= cfg.patience) {
         stop = true;
       }
+    }
+    if (bar) {
+      std::ostringstream status;
+      status << std::fixed << std::setprecision(3) << "best val " << std::max(best, 0.0) << " at "
+             << best_epoch;
+      bar->update(1, status.str());
     }
     if (stop && epoch >= min_epochs) break;
   }
@@ -580,7 +593,8 @@ int run_topobench(const TopoBenchOptions& o) {
       try {
         const auto data = get_lifted(j);
         std::vector<Check> curve;
-        const auto r = train_run(*data, *j.model, *j.dataset, *j.cfg, j.seed, o.max_epochs, curve);
+        const auto r = train_run(*data, *j.model, *j.dataset, *j.cfg, j.seed, o.max_epochs, curve,
+                                 workers == 1);
         std::ostringstream c;
         c << "epoch,loss,val_accuracy\n";
         for (const auto& ch : curve)
