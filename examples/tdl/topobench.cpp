@@ -309,10 +309,11 @@ std::string table_markdown(const std::vector<topobench::RunResult>& runs, const 
         return c.model == m.name && c.dataset == d;
       });
       if (it == cells.end()) {
-        const bool skipped = std::any_of(not_run.begin(), not_run.end(), [&](const auto& n) {
-          return n[0] == m.name && n[1] == d;
-        });
-        o << (skipped ? " not run (memory) |" : " - |");
+        const auto n = std::find_if(not_run.begin(), not_run.end(),
+                                    [&](const auto& x) { return x[0] == m.name && x[1] == d; });
+        o << (n == not_run.end()                            ? " - |"
+              : (*n)[2].find("failed") != std::string::npos ? " failed |"
+                                                            : " not run (memory) |");
         continue;
       }
       o << " " << std::fixed << std::setprecision(2) << it->mean << " ± " << it->std;
@@ -361,7 +362,9 @@ std::string report_html(const fs::path& out, const std::vector<topobench::RunRes
         const auto n = std::find_if(not_run.begin(), not_run.end(),
                                     [&](const auto& x) { return x[0] == m && x[1] == d; });
         if (n != not_run.end())
-          h << "<td title='" << html_escape((*n)[2]) << "'>not run<br><small>memory</small></td>";
+          h << "<td title='" << html_escape((*n)[2]) << "'>not run<br><small>"
+            << ((*n)[2].find("failed") != std::string::npos ? "failed" : "memory")
+            << "</small></td>";
         else
           h << "<td>-</td>";
         continue;
@@ -503,12 +506,19 @@ int run_topobench(const TopoBenchOptions& o) {
     }
   std::cerr << "tdl topobench: " << jobs.size() << " runs to do, " << skipped << " already in "
             << runs_path.string() << "\n";
-  {
+  const auto not_run_csv = [&] {
     std::ostringstream csv;
     csv << "model,dataset,reason\n";
-    for (const auto& [m, d, why] : not_run) csv << m << "," << d << ",\"" << why << "\"\n";
-    topos::write_file_atomic((out / "not_run.csv").string(), csv.str());
-  }
+    for (const auto& [m, d, why] : not_run) {
+      std::string quoted = why;  // CSV: double the quotes inside
+      for (std::size_t at = 0; (at = quoted.find('"', at)) != std::string::npos; at += 2)
+        quoted.insert(at, 1, '"');
+      csv << m << "," << d << ",\"" << quoted << "\"\n";
+    }
+    return csv.str();
+  };
+  topos::write_file_atomic((out / "not_run.csv").string(), not_run_csv());
+  std::set<std::pair<std::string, std::string>> failed_cells;
 
   // Threads: one intra-op thread and one BLAS thread per run; `--jobs` runs side by side are the
   // parallelism. TopoBench's batches are small: with two OpenMP threads per run, 83 % of a MUTAG
@@ -590,6 +600,13 @@ int run_topobench(const TopoBenchOptions& o) {
       const std::size_t k = next++;
       if (k >= jobs.size()) return;
       const Job& j = jobs[k];
+      {
+        std::lock_guard<std::mutex> lock(mutex);
+        if (failed_cells.count({j.model->name, j.dataset->name})) {  // its cell failed already
+          bar.update(1);
+          continue;
+        }
+      }
       try {
         const auto data = get_lifted(j);
         std::vector<Check> curve;
@@ -615,6 +632,19 @@ int run_topobench(const TopoBenchOptions& o) {
                << std::setprecision(1) << 100 * r.test_accuracy << "% (" << r.epochs << " epochs, "
                << std::setprecision(0) << r.seconds << " s)";
         bar.update(1, status.str());
+      } catch (const std::exception& e) {
+        // A run that fails (e.g. out of memory) marks its cell not run, with the error, and the
+        // table goes on; the runner then exits with status 1, naming the failed cells.
+        std::lock_guard<std::mutex> lock(mutex);
+        failed_cells.insert({j.model->name, j.dataset->name});
+        std::string what = e.what();  // LibTorch's errors carry a backtrace after the first line
+        what = what.substr(0, what.find('\n'));
+        not_run.push_back({j.model->name, j.dataset->name,
+                           "split " + std::to_string(j.seed) + " failed: " + what});
+        topos::write_file_atomic((out / "not_run.csv").string(), not_run_csv());
+        std::cerr << "\nfailed: " << j.model->name << " on " << j.dataset->name << " split "
+                  << j.seed << ": " << what << "\n";
+        bar.update(1);
       } catch (...) {
         std::lock_guard<std::mutex> lock(mutex);
         if (!failure) failure = std::current_exception();
@@ -629,6 +659,11 @@ int run_topobench(const TopoBenchOptions& o) {
   for (auto& t : threads) t.join();
   bar.finish();
   if (failure) std::rethrow_exception(failure);
+  if (!failed_cells.empty()) {
+    std::cerr << "tdl topobench: " << failed_cells.size() << " cell(s) failed; see not_run.csv:";
+    for (const auto& [m, d] : failed_cells) std::cerr << " " << m << "/" << d;
+    std::cerr << "\n";
+  }
   if (!runs.empty()) {
     topos::write_file_atomic((out / "summary.csv").string(),
                              topobench::format_summary(topobench::summarize(runs)));
@@ -637,7 +672,7 @@ int run_topobench(const TopoBenchOptions& o) {
   }
   std::cout << topobench::format_summary(topobench::summarize(runs));
   std::cerr << "wrote " << (out / "runs.csv").string() << ", summary.csv, index.html\n";
-  return 0;
+  return failed_cells.empty() ? 0 : 1;
 }
 
 std::vector<std::string> split_list(const std::string& s) {
