@@ -347,7 +347,7 @@ std::string report_html(const fs::path& out, const std::vector<topobench::RunRes
        "<style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}"
        "td,th{border:1px solid #ccc;padding:4px 8px;text-align:center}small{color:#666}"
        "</style></head><body><h1>TopoBench on topos</h1>\n<p>Test accuracy (%), mean ± std over "
-       "the splits (numpy's std); below each, the runs and the wall time of the cell. "
+       "the splits (numpy's std); below each, the runs and their training time (summed). "
     << runs.size() << " runs, " << std::fixed << std::setprecision(1)
     << (total < 3600 ? total / 60 : total / 3600) << (total < 3600 ? " min" : " h")
     << " of training in all.</p>\n<table><tr><th>model</th>";
@@ -473,6 +473,28 @@ int run_topobench(const TopoBenchOptions& o) {
   std::size_t skipped = 0;
   // Cells that cannot run here, with the measured reason (not_run.csv; the table shows them).
   std::vector<std::array<std::string, 3>> not_run;
+  // Cells an earlier start found not runnable stay listed unless this start evaluates them again.
+  if (const auto path = out / "not_run.csv"; fs::exists(path)) {
+    std::istringstream in(topos::data::read_text_file(path));
+    std::string line;
+    for (int n = 1; std::getline(in, line); ++n) {
+      if (n == 1 || line.empty()) continue;
+      const auto a = line.find(','), b = line.find(',', a == std::string::npos ? a : a + 1);
+      if (a == std::string::npos || b == std::string::npos || line.size() < b + 3 ||
+          line[b + 1] != '"' || line.back() != '"')
+        throw topos::data::DataError(path.string() + ":" + std::to_string(n) +
+                                     ": expected model,dataset,\"reason\"");
+      std::string reason = line.substr(b + 2, line.size() - b - 3);
+      for (std::size_t at = 0; (at = reason.find("\"\"", at)) != std::string::npos; ++at)
+        reason.erase(at, 1);
+      const std::string m = line.substr(0, a), d = line.substr(a + 1, b - a - 1);
+      const bool again =
+          std::any_of(models.begin(), models.end(), [&](const auto* x) { return m == x->name; }) &&
+          std::any_of(datasets.begin(), datasets.end(),
+                      [&](const auto* x) { return d == x->name; });
+      if (!again) not_run.push_back({m, d, reason});
+    }
+  }
   std::map<std::string, std::int64_t> pairs;  // per dataset, computed when a model needs it
   for (auto* d : datasets)
     for (auto* m : models) {
