@@ -79,12 +79,8 @@ const Prepared& prepared(const Setting& s) {
     const auto& ds = dataset(s.dataset);
     p->graphs = lift(ds, model_spec(s.model).domain, 2);
     p->train = random_split(static_cast<std::int64_t>(ds.graphs.size()), 0).train;
-    for (std::size_t at = 0; at < p->train.size(); at += s.batch)
-      p->batches.push_back(collate(
-          p->graphs,
-          std::vector<std::size_t>(p->train.begin() + static_cast<std::ptrdiff_t>(at),
-                                   p->train.begin() + static_cast<std::ptrdiff_t>(std::min(
-                                                          p->train.size(), at + s.batch)))));
+    for (const auto& which : batches_of(p->train, s.batch))
+      p->batches.push_back(collate(p->graphs, which));
   }
   return *p;
 }
@@ -143,11 +139,8 @@ void BM_epoch(benchmark::State& state, Setting s) {
   model->train();
   for (auto _ : state) {
     std::shuffle(order.begin(), order.end(), rng);
-    for (std::size_t at = 0; at < order.size(); at += s.batch) {
-      const auto b = collate(
-          p.graphs, std::vector<std::size_t>(order.begin() + static_cast<std::ptrdiff_t>(at),
-                                             order.begin() + static_cast<std::ptrdiff_t>(std::min(
-                                                                 order.size(), at + s.batch))));
+    for (const auto& which : batches_of(order, s.batch)) {
+      const auto b = collate(p.graphs, which);
       const auto loss = torch::nn::functional::cross_entropy(model->forward(b), b.labels);
       opt.zero_grad();
       loss.backward();

@@ -169,14 +169,10 @@ topobench::RunResult train_run(const LiftedDataset& data, const topobench::Model
     test_idx = index_tensor(split.test);
   } else {
     const auto bs = static_cast<std::size_t>(cfg.batch_size);
-    for (auto* part : {&split.val, &split.test})
-      for (std::size_t at = 0; at < part->size(); at += bs)
-        (part == &split.val ? val_batches : test_batches)
-            .push_back(tb::collate(
-                data.graphs,
-                std::vector<std::size_t>(
-                    part->begin() + static_cast<std::ptrdiff_t>(at),
-                    part->begin() + static_cast<std::ptrdiff_t>(std::min(part->size(), at + bs)))));
+    for (const auto& which : tb::batches_of(split.val, bs))
+      val_batches.push_back(tb::collate(data.graphs, which));
+    for (const auto& which : tb::batches_of(split.test, bs))
+      test_batches.push_back(tb::collate(data.graphs, which));
   }
   const auto evaluate = [&](bool test) {
     torch::NoGradGuard no_grad;
@@ -224,10 +220,7 @@ topobench::RunResult train_run(const LiftedDataset& data, const topobench::Model
     } else {
       std::shuffle(order.begin(), order.end(), shuffle);
       const auto bs = static_cast<std::size_t>(cfg.batch_size);
-      for (std::size_t at = 0; at < order.size(); at += bs) {
-        const std::vector<std::size_t> which(
-            order.begin() + static_cast<std::ptrdiff_t>(at),
-            order.begin() + static_cast<std::ptrdiff_t>(std::min(order.size(), at + bs)));
+      for (const auto& which : tb::batches_of(order, bs)) {
         const auto b = tb::collate(data.graphs, which);
         const auto loss = torch::nn::functional::cross_entropy(net->forward(b), b.labels);
         opt.zero_grad();

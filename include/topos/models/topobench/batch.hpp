@@ -10,6 +10,7 @@
 
 #include <torch/torch.h>
 
+#include <algorithm>
 #include <cstring>
 #include <map>
 #include <stdexcept>
@@ -25,6 +26,18 @@ struct Batch {
   torch::Tensor labels;  ///< int64, one per graph
   std::int64_t num_graphs = 0;
 };
+
+/// `order` cut into consecutive batches of `size` (the last one shorter): a loader's batches.
+inline std::vector<std::vector<std::size_t>> batches_of(const std::vector<std::size_t>& order,
+                                                        std::size_t size) {
+  if (size == 0) throw std::invalid_argument("topobench::batches_of: a batch size of 0");
+  std::vector<std::vector<std::size_t>> out;
+  for (std::size_t at = 0; at < order.size(); at += size)
+    out.emplace_back(
+        order.begin() + static_cast<std::ptrdiff_t>(at),
+        order.begin() + static_cast<std::ptrdiff_t>(std::min(order.size(), at + size)));
+  return out;
+}
 
 /// The block-diagonal union of `graphs[which[i]]`. Every graph must have the same ranks, widths
 /// and operator names (one lifting of one dataset).
