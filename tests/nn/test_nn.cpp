@@ -9,6 +9,9 @@
 #include "topos/nn/device.hpp"
 #include "topos/nn/distributed.hpp"
 #include "topos/nn/schedule.hpp"
+#include "topos/nn/serialization.hpp"
+
+#include <caffe2/serialize/inline_container.h>
 
 #include <cstdio>
 #include <cstdlib>

@@ -33,6 +33,24 @@ inline Update update_from_string(const std::string& s) {
                               "' (relu, sigmoid, tanh, elu, leaky_relu, none)");
 }
 
+/// The name update_from_string reads back ("none" for the identity).
+inline std::string update_name(Update u) {
+  switch (u) {
+    case Update::relu:
+      return "relu";
+    case Update::sigmoid:
+      return "sigmoid";
+    case Update::tanh:
+      return "tanh";
+    case Update::elu:
+      return "elu";
+    case Update::leaky_relu:
+      return "leaky_relu";
+    default:
+      return "none";
+  }
+}
+
 inline torch::Tensor apply_update(const torch::Tensor& x, Update u, double negative_slope = 0.01) {
   switch (u) {
     case Update::relu:

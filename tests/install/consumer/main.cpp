@@ -1,8 +1,11 @@
-// A downstream project: lifts a tetrahedron and runs a tensor through its incidence.
+// A downstream project: lifts a tetrahedron and runs a tensor through its incidence, by hand and
+// through an operator schedule. Built twice: against the compiled topos::nn (the default) and
+// against topos::header_only.
 #include <torch/torch.h>
 
 #include <topos/core/lifting.hpp>
 #include <topos/geometry/graph.hpp>
+#include <topos/nn/operator_schedule.hpp>
 
 #include <iostream>
 
@@ -15,8 +18,22 @@ int main() {
   auto lifted = topos::lift_meshes({tet});
   auto [components, labels] = topos::connected_components(lifted.complex, 0, 1);
   auto x = torch::ones({lifted.complex.size(1), 2});
+  using namespace topos::nn::ops;
+  topos::nn::OperatorSchedule s;
+  s.input("x", 1, 2).operator_input("B", 1, 0).output("y", 0);
+  s.step(into(0).sum(from(1).via("B").linear("lin", 3, /*bias=*/false)));
+  topos::nn::OperatorNetwork net(s);
+  const auto B = topos::nn::SparseOperator::from_dense(torch::ones({4, 6}));
+  const auto y = net->forward({{"x", x}}, {{"B", B}}).at("y");
+  const auto expected = torch::full({4, 2}, 6.0f).matmul(net->parameter("lin.weight").t());
   const bool ok = lifted.complex.shape() == std::vector<std::int64_t>{4, 6, 4, 1} &&
-                  components == 1 && x.sum().item<float>() == 12.0f;
-  std::cout << (ok ? "consumer ok" : "consumer FAILED") << "\n";
+                  components == 1 && x.sum().item<float>() == 12.0f &&
+                  torch::allclose(y, expected, 1e-5, 1e-5);
+#ifdef TOPOS_HEADER_ONLY
+  const char* mode = " (header-only)";
+#else
+  const char* mode = " (compiled topos::nn)";
+#endif
+  std::cout << (ok ? "consumer ok" : "consumer FAILED") << mode << "\n";
   return ok ? 0 : 1;
 }

@@ -79,6 +79,7 @@ inline nn::OperatorSchedule can_schedule(const CANOptions& o) {
       .operator_input("lower", 1, 1)
       .operator_input("upper", 1, 1)
       .output("x_1", 1);
+  s.layer("layer 0");  // the lift, when there is one, runs with the first layer
   if (o.att_lift()) {
     const auto c0 = o.in_channels_0();
     s.input("x_0", 0, c0).operator_input("lift_source", 0, 1).operator_input("lift_target", 0, 1);
@@ -90,6 +91,7 @@ inline nn::OperatorSchedule can_schedule(const CANOptions& o) {
     s.step(into(1).concat(from(1, "lift"), from(1)));
   }
   for (int l = 0; l < o.n_layers(); ++l) {
+    if (l > 0) s.layer("layer " + std::to_string(l));
     const auto p = "layers." + std::to_string(can_layer_index(o, l)) + ".";
     std::vector<nn::OperatorStep> maps;
     std::vector<Term> terms;
@@ -163,16 +165,11 @@ class CANImpl : public nn::OperatorNetworkImpl {
     // highest score are kept and the Laplacians restricted to them.
     auto h = input_cochains({{"x_0", x_0}, {"x_1", x_1}});
     auto L_down = down_laplacian_1, L_up = up_laplacian_1;
-    const auto& groups = schedule().groups();
-    std::size_t begin = 0;
-    int l = 0;
-    for (std::size_t g = 0; g < groups.size(); ++g) {
-      if (groups[g].size() != 1 || groups[g][0].name.compare(0, 7, "layers.") != 0) continue;
-      run_groups(h, ops, begin, g + 1);  // through layer l's update step
-      begin = g + 1;
-      if (l++ == 0) continue;
+    for (int l = 0; l < options.n_layers(); ++l) {
+      run_layer(h, ops, "layer " + std::to_string(l));
+      if (l == 0) continue;
       const auto& x = h.at(1);
-      const auto score = x.matmul(parameter("layers." + std::to_string(2 * (l - 1)) + ".att_pool"));
+      const auto score = x.matmul(parameter("layers." + std::to_string(2 * l) + ".att_pool"));
       const auto keep =
           static_cast<std::int64_t>(options.k_pool() * static_cast<double>(x.size(0)));
       if (keep < 1)

@@ -37,6 +37,7 @@
 #include "topos/models/hopnet/features.hpp"
 #include "topos/models/hopnet/normalization.hpp"
 #include "topos/nn/schedule.hpp"
+#include "topos/nn/serialization.hpp"
 
 #include <torch/torch.h>
 

@@ -1,0 +1,524 @@
+// topos/nn/operator_schedule/build-inl.hpp
+// OperatorNetwork's construction: each step's terms followed operation by operation to infer
+// ranks and widths, the checks that name the step, and the parameters created at their paths.
+// Compiled into topos::nn, or inline with TOPOS_HEADER_ONLY (topos/config.hpp).
+#pragma once
+
+#include "topos/nn/operator_schedule/network.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <optional>
+#include <sstream>
+#include <typeinfo>
+
+namespace topos::nn {
+
+namespace detail {
+
+/// "[2, 3]": a tensor's sizes, for error messages.
+TOPOS_INLINE std::string shape_str(const torch::Tensor& x) {
+  std::ostringstream o;
+  o << x.sizes();
+  return o.str();
+}
+
+/// The build context of one step: operations read the widths of the cochains before the step
+/// (recorded: the network keeps the steps that produce them) and create parameters through it.
+class NetworkBuildContext final : public BuildContext {
+ public:
+  NetworkBuildContext(OperatorNetworkImpl& net, const OperatorStep& step,
+                      const std::map<CochainKey, std::int64_t>& width, std::set<CochainKey>& reads,
+                      const std::set<CochainKey>& step_outputs)
+      : net_(net),
+        step_(step),
+        where_(step.name + " (into " + step.target.str() + ")"),
+        width_(width),
+        reads_(reads),
+        step_outputs_(step_outputs) {}
+  const std::string& where() const override { return where_; }
+  const CochainKey& target() const override { return step_.target; }
+  std::pair<int, int> operator_ranks(const std::string& name) const override {
+    auto it = net_.schedule_.operators().find(name);
+    if (it == net_.schedule_.operators().end()) fail("unknown operator '" + name + "'");
+    return it->second;
+  }
+  std::int64_t cochain_width(const CochainKey& key) override {
+    if (auto w = find_width(key)) return *w;
+    fail("cochain " + key.str() + " is read, but no input or earlier step produces it");
+  }
+  /// The width of `key` before the step, if a cochain is there (and then it counts as read).
+  std::optional<std::int64_t> find_width(const CochainKey& key) {
+    auto it = width_.find(key);
+    if (it == width_.end()) return std::nullopt;
+    reads_.insert(key);
+    return it->second;
+  }
+  /// Does one of the step's terms start at `key`?
+  bool step_reads(const CochainKey& key) const {
+    return std::any_of(step_.terms.begin(), step_.terms.end(),
+                       [&](const ops::Term& t) { return t.source == key; });
+  }
+  /// Was `key` written by an earlier step (rather than given as an input)?
+  bool written_by_a_step(const CochainKey& key) const { return step_outputs_.count(key) > 0; }
+  void parameter(const std::string& path, const std::vector<std::int64_t>& shape,
+                 ParameterInit init) override {
+    net_.make_parameter(where_, path, shape, init, true);
+  }
+  void buffer(const std::string& path, const std::vector<std::int64_t>& shape,
+              double value) override {
+    net_.make_parameter(where_, path, shape, ParameterInit::constant(value), false);
+  }
+  void module(const std::string& path, std::shared_ptr<torch::nn::Module> m) override {
+    net_.make_module(where_, path, std::move(m));
+  }
+
+ private:
+  OperatorNetworkImpl& net_;
+  const OperatorStep& step_;
+  std::string where_;
+  const std::map<CochainKey, std::int64_t>& width_;
+  std::set<CochainKey>& reads_;
+  const std::set<CochainKey>& step_outputs_;
+};
+
+}  // namespace detail
+
+TOPOS_INLINE OperatorNetworkImpl::OperatorNetworkImpl(OperatorSchedule schedule)
+    : schedule_(std::move(schedule)) {
+  validate_and_create();
+}
+
+TOPOS_INLINE const torch::Tensor& OperatorNetworkImpl::parameter(const std::string& path) const {
+  auto it = params_.find(path);
+  if (it == params_.end()) throw ScheduleError("no parameter '" + path + "'");
+  return it->second;
+}
+
+TOPOS_INLINE std::pair<torch::nn::Module*, std::string> OperatorNetworkImpl::owner_of(
+    const std::string& path) {
+  torch::nn::Module* m = this;
+  std::size_t start = 0;
+  for (auto dot = path.find('.'); dot != std::string::npos; dot = path.find('.', start)) {
+    const auto part = path.substr(start, dot - start);
+    auto children = m->named_children();
+    auto* child = children.find(part);
+    m = child != nullptr ? child->get()
+                         : m->register_module(part, std::make_shared<torch::nn::Module>()).get();
+    start = dot + 1;
+  }
+  return {m, path.substr(start)};
+}
+
+TOPOS_INLINE void OperatorNetworkImpl::make_parameter(const std::string& where,
+                                                      const std::string& path,
+                                                      std::vector<std::int64_t> shape,
+                                                      ParameterInit init, bool trainable) {
+  if (path.empty() || path.front() == '.' || path.back() == '.' ||
+      path.find("..") != std::string::npos)
+    throw ScheduleError(where + ": parameter path '" + path + "' is not a dotted name");
+  auto it = params_.find(path);
+  if (it != params_.end()) {
+    if (it->second.sizes() != torch::IntArrayRef(shape))
+      throw ScheduleError(where + ": parameter '" + path + "' is used with shape " +
+                          detail::shape_str(torch::empty(shape)) + " but was made " +
+                          detail::shape_str(it->second));
+    if (buffers_.count(path) == static_cast<std::size_t>(trainable))
+      throw ScheduleError(where + ": '" + path + "' is used as a " +
+                          (trainable ? "parameter" : "buffer") + " but was made a " +
+                          (trainable ? "buffer" : "parameter"));
+    return;
+  }
+  for (auto d : shape)
+    if (d <= 0)
+      throw ScheduleError(where + ": parameter '" + path + "' would have shape " +
+                          detail::shape_str(torch::empty(shape)));
+  auto [owner, leaf] = owner_of(path);
+  if (!trainable) {  // non-trainable state, saved in the state_dict at its path
+    params_.emplace(path, owner->register_buffer(leaf, torch::full(shape, init.value)));
+    buffers_.insert(path);
+    return;
+  }
+  auto p = owner->register_parameter(leaf, torch::empty(shape));
+  torch::NoGradGuard g;
+  switch (init.kind) {
+    case ParameterInit::Kind::glorot:
+      xavier_uniform(p, init.value);
+      break;
+    case ParameterInit::Kind::linear_weight:
+      torch::nn::init::kaiming_uniform_(p, std::sqrt(5.0));
+      break;
+    case ParameterInit::Kind::zeros:
+      p.zero_();
+      break;
+    case ParameterInit::Kind::constant:
+      p.fill_(init.value);
+      break;
+    case ParameterInit::Kind::uniform:
+      torch::nn::init::uniform_(p, -init.value, init.value);
+      break;
+  }
+  params_.emplace(path, p);
+}
+
+TOPOS_INLINE void OperatorNetworkImpl::make_module(const std::string& where,
+                                                   const std::string& path,
+                                                   std::shared_ptr<torch::nn::Module> m) {
+  if (!m) throw ScheduleError(where + ": module '" + path + "' is null");
+  if (path.empty() || path.front() == '.' || path.back() == '.' ||
+      path.find("..") != std::string::npos)
+    throw ScheduleError(where + ": module path '" + path + "' is not a dotted name");
+  if (auto it = modules_.find(path); it != modules_.end()) {
+    const auto& a = *it->second;
+    const auto& b = *m;
+    if (typeid(a) != typeid(b))
+      throw ScheduleError(where + ": module '" + path + "' was made " + a.name() + ", not " +
+                          b.name());
+    return;  // shared by name: the first one stays
+  }
+  if (params_.count(path) || batch_norms_.count(path) || layer_norms_.count(path))
+    throw ScheduleError(where + ": '" + path + "' is already a parameter or a normalisation");
+  auto [owner, leaf] = owner_of(path);
+  modules_.emplace(path, owner->register_module(leaf, std::move(m)));
+}
+
+TOPOS_INLINE void OperatorNetworkImpl::make_norm(const std::string& where, const TermOp& t,
+                                                 std::int64_t channels) {
+  const bool batch = t.kind == TermOp::Kind::batch_norm;
+  auto same_width = [&](std::int64_t c) {
+    if (c != channels)
+      throw ScheduleError(where + ": normalisation '" + t.name + "' of " + std::to_string(c) +
+                          " channels applied to " + std::to_string(channels));
+  };
+  if (batch && batch_norms_.count(t.name))
+    return same_width(batch_norms_.at(t.name)->options.num_features());
+  if (!batch && layer_norms_.count(t.name))
+    return same_width(layer_norms_.at(t.name)->options.normalized_shape()[0]);
+  if (params_.count(t.name + ".weight") || batch_norms_.count(t.name) || layer_norms_.count(t.name))
+    throw ScheduleError(where + ": '" + t.name + "' is already another kind of module");
+  auto [owner, leaf] = owner_of(t.name);
+  if (batch)
+    batch_norms_.emplace(t.name, owner->register_module(leaf, torch::nn::BatchNorm1d(channels)));
+  else
+    layer_norms_.emplace(t.name,
+                         owner->register_module(
+                             leaf, torch::nn::LayerNorm(torch::nn::LayerNormOptions({channels}))));
+}
+
+TOPOS_INLINE TermShape OperatorNetworkImpl::infer(detail::NetworkBuildContext& ctx, const TermOp& t,
+                                                  TermShape x) {
+  const std::string& where = ctx.where();
+  const auto& sig = schedule_.operators();
+  auto op = [&](const std::string& name) {
+    auto it = sig.find(name);
+    if (it == sig.end()) throw ScheduleError(where + ": unknown operator '" + name + "'");
+    return it->second;
+  };
+  auto rank_error = [&](const std::string& name, int expected) {
+    return ScheduleError(where + ": operator '" + name + "' applies to rank " +
+                         std::to_string(expected) + " cochains, not rank " +
+                         std::to_string(x.rank));
+  };
+  switch (t.kind) {
+    case TermOp::Kind::via:
+    case TermOp::Kind::pattern: {
+      auto [src, dst] = op(t.name);
+      if (t.transposed) std::swap(src, dst);
+      if (src != x.rank) throw rank_error(t.name + (t.transposed ? "ᵀ" : ""), src);
+      return {dst, x.channels};
+    }
+    case TermOp::Kind::attend:
+      return infer_attend(ctx, t, x);
+    case TermOp::Kind::via_transposed: {
+      const auto [src, dst] = op(t.name);
+      if (dst != x.rank) throw rank_error(t.name + "ᵀ", dst);
+      return {src, x.channels};
+    }
+    case TermOp::Kind::weight:
+      make_parameter(where, t.name, {x.channels, t.out}, ParameterInit::glorot(t.gain));
+      return {x.rank, t.out};
+    case TermOp::Kind::linear:
+      make_parameter(where, t.name + ".weight", {t.out, x.channels},
+                     ParameterInit::linear_weight());
+      if (t.bias)
+        make_parameter(where, t.name + ".bias", {t.out}, ParameterInit::linear_bias(x.channels));
+      return {x.rank, t.out};
+    case TermOp::Kind::initial_residual: {
+      const auto w = ctx.find_width(t.skip);
+      if (!w) throw ScheduleError(where + ": residual cochain " + t.skip.str() + " has no cochain");
+      if (t.skip.rank != x.rank || *w != x.channels)
+        throw ScheduleError(where + ": residual cochain " + t.skip.str() + " of rank " +
+                            std::to_string(t.skip.rank) + " and " + std::to_string(*w) +
+                            " channels added to rank " + std::to_string(x.rank) + " and " +
+                            std::to_string(x.channels));
+      make_parameter(where, t.name + ".weight", {x.channels, x.channels},
+                     ParameterInit::linear_weight());
+      return x;
+    }
+    case TermOp::Kind::powers:
+      for (const auto& [name, order] : t.filters) {
+        const auto [src, dst] = op(name);
+        if (src != x.rank || dst != x.rank)
+          throw ScheduleError(where + ": filter operator '" + name + "' must map rank " +
+                              std::to_string(x.rank) + " to itself");
+        if (order < 0) throw ScheduleError(where + ": filter order of '" + name + "' is negative");
+      }
+      return x;
+    case TermOp::Kind::batch_norm:
+    case TermOp::Kind::layer_norm:
+      make_norm(where, t, x.channels);
+      return x;
+    case TermOp::Kind::dropout:
+      if (!(t.p >= 0 && t.p <= 1))
+        throw ScheduleError(where + ": a dropout rate must be in [0, 1], got " +
+                            std::to_string(t.p));
+      return x;
+    case TermOp::Kind::act:
+    case TermOp::Kind::unit_rows:
+      return x;
+    case TermOp::Kind::scale:
+      return x;
+    case TermOp::Kind::head_weights:
+      if (t.heads < 1)
+        throw ScheduleError(where + ": head weights '" + t.name + "' need at least one head");
+      make_parameter(where, t.name, {t.heads, x.channels, t.out}, ParameterInit::glorot(t.gain));
+      return {x.rank, t.heads * t.out};
+    case TermOp::Kind::bias: {
+      const auto shape = t.shape.empty() ? std::vector<std::int64_t>{x.channels} : t.shape;
+      if (torch::empty(shape).numel() != x.channels)
+        throw ScheduleError(where + ": bias '" + t.name + "' of shape " +
+                            detail::shape_str(torch::empty(shape)) + " added to " +
+                            std::to_string(x.channels) + " channels");
+      make_parameter(where, t.name, shape,
+                     t.gain > 0 ? ParameterInit::glorot(t.gain) : ParameterInit::zeros());
+      return x;
+    }
+    case TermOp::Kind::learned_scale:
+      make_parameter(where, t.name, {1}, ParameterInit::constant(t.value), t.trainable);
+      return x;
+    case TermOp::Kind::pow:
+    case TermOp::Kind::normalize:
+    case TermOp::Kind::intra_aggregate:
+      return x;
+    case TermOp::Kind::affine_power:
+      if (t.filters.empty()) throw ScheduleError(where + ": an affine power needs an operator");
+      if (t.filters[0].second < 0)
+        throw ScheduleError(where + ": an affine power's exponent is negative");
+      for (const auto& f : t.filters) {
+        const auto [src, dst] = op(f.first);
+        if (src != x.rank || dst != x.rank)
+          throw ScheduleError(where + ": the affine power needs operators from rank " +
+                              std::to_string(x.rank) + " to itself, '" + f.first + "' maps " +
+                              std::to_string(src) + " -> " + std::to_string(dst));
+      }
+      return x;
+    case TermOp::Kind::custom: {
+      if (!t.operation) throw ScheduleError(where + ": a custom operation is null");
+      const auto y = t.operation->infer(ctx, x);
+      if (y.channels <= 0)
+        throw ScheduleError(where + ": operation " + t.operation->str("x") + " gives " +
+                            std::to_string(y.channels) + " channels");
+      return y;
+    }
+  }
+  return x;
+}
+
+TOPOS_INLINE TermShape OperatorNetworkImpl::infer_attend(detail::NetworkBuildContext& ctx,
+                                                         const TermOp& t, TermShape x) {
+  const std::string& where = ctx.where();
+  const CochainKey& target = ctx.target();
+  const auto& o = t.attention;
+  auto it = schedule_.operators().find(t.name);
+  if (it == schedule_.operators().end())
+    throw ScheduleError(where + ": unknown operator '" + t.name + "'");
+  auto [src, dst] = it->second;
+  if (o.transposed()) std::swap(src, dst);
+  const auto name = t.name + (o.transposed() ? "ᵀ" : "");
+  const auto fail = [&](const std::string& why) {
+    return ScheduleError(where + ": attention over '" + name + "' " + why);
+  };
+  if (src != x.rank)
+    throw ScheduleError(where + ": operator '" + name + "' applies to rank " + std::to_string(src) +
+                        " cochains, not rank " + std::to_string(x.rank));
+  std::int64_t ck = x.channels, cq = 0;
+  if (o.keys()) {
+    const auto w = o.keys()->rank == src ? ctx.find_width(*o.keys()) : std::nullopt;
+    if (!w)
+      throw fail("takes its keys from " + o.keys()->str() + ", which needs a cochain of rank " +
+                 std::to_string(src) + " before the step");
+    ck = *w;
+  }
+  if (!o.source_only()) {
+    const auto key = o.queries() ? *o.queries() : target;
+    const auto w = key.rank == dst ? ctx.find_width(key) : std::nullopt;
+    if (!w)
+      throw fail("scores against " + std::string(o.queries() ? "" : "the target ") + key.str() +
+                 ", which needs a cochain of rank " + std::to_string(dst) + " before the step");
+    // The target before the step is the rank's features this step replaces (TopoModelX's
+    // x_target), or an input given for it. A target in a named state that an earlier step wrote
+    // and this step does not read is a scratch cochain: before the step it holds whatever an
+    // earlier layer left there (a wrong model, and no error).
+    if (!o.queries() && !target.state.empty() && ctx.written_by_a_step(target) &&
+        !ctx.step_reads(target))
+      throw fail("scores against the target " + target.str() +
+                 " as it was before the step, but no term of the step reads it: name the "
+                 "queries (AttendOptions::queries)");
+    cq = *w;
+  }
+  const auto H = o.heads();
+  if (H < 1 || x.channels % H || ck % H || cq % H)
+    throw fail("with " + std::to_string(H) + " heads: the messages (" + std::to_string(x.channels) +
+               "), keys (" + std::to_string(ck) + ") and queries (" + std::to_string(cq) +
+               ") need channels divisible by the heads");
+  if (o.v2() && cq != ck)
+    throw fail("(GATv2) needs queries as wide as its keys, got " + std::to_string(cq) + " and " +
+               std::to_string(ck));
+  const bool split = !o.target_param().empty();
+  if (split && (o.v2() || o.source_only()))
+    throw fail("has no target part for '" + o.target_param() + "'");
+  if (o.dropout() < 0 || o.dropout() > 1) throw fail("needs a dropout rate in [0, 1]");
+  const auto P = o.filters();
+  if (P < 1 || (P > 1 && (H != 1 || x.channels % P)))
+    throw fail("with " + std::to_string(P) + " filters needs one head and messages (" +
+               std::to_string(x.channels) + " channels) of whole filters");
+  const auto n = o.source_only() || o.v2() || split ? ck : ck + cq;
+  for (const auto& offset : {o.source_offset(), o.target_offset()})
+    if (offset && (n == ck || *offset < 0 || *offset >= n))
+      throw fail(n == ck ? "has offsets but no target part in its parameter"
+                         : "needs offsets in [0, " + std::to_string(n) + "), got " +
+                               std::to_string(*offset));
+  auto make = [&](const std::string& path, std::vector<std::int64_t> shape, std::int64_t count) {
+    if (shape.empty()) shape = {count};
+    if (torch::empty(shape).numel() != count)
+      throw fail("needs " + std::to_string(count) + " entries in '" + path + "', its shape " +
+                 detail::shape_str(torch::empty(shape)) + " has " +
+                 std::to_string(torch::empty(shape).numel()));
+    make_parameter(where, path, shape, ParameterInit::glorot(o.gain()));
+  };
+  make(o.param(), o.shape(), n);
+  if (split) make(o.target_param(), o.target_shape(), cq);
+  return {dst, o.concat() && P == 1 ? x.channels : x.channels / (H * P)};
+}
+
+TOPOS_INLINE void OperatorNetworkImpl::validate_and_create() {
+  for (const auto& d : schedule_.dropped_operators()) {
+    const auto where = "dropped operator '" + d.name + "'";
+    auto& sig = schedule_.operators();
+    auto it = sig.find(d.source);
+    if (it == sig.end()) throw ScheduleError(where + ": unknown operator '" + d.source + "'");
+    if (sig.count(d.name)) throw ScheduleError(where + ": the name is already an operator input");
+    if (!(d.rate >= 0 && d.rate <= 1))
+      throw ScheduleError(where + ": the rate must be in [0, 1], got " + std::to_string(d.rate));
+    schedule_.operator_input(d.name, it->second.first, it->second.second);
+  }
+  std::map<CochainKey, std::int64_t> width;
+  std::set<std::string> names;
+  for (const auto& in : schedule_.inputs()) {
+    if (!names.insert(in.name).second)
+      throw ScheduleError("input '" + in.name + "' is declared twice");
+    if (in.channels <= 0)
+      throw ScheduleError("input '" + in.name + "' needs a positive number of channels");
+    width[in.key] = in.channels;
+  }
+  std::set<std::string> layer_names;
+  for (const auto& [name, group] : schedule_.layers()) {
+    if (!layer_names.insert(name).second)
+      throw ScheduleError("layer '" + name + "' is declared twice");
+    (void)group;
+  }
+  // What each step reads (its terms' sources, and what its operations read through the build
+  // context) and writes, for the liveness below.
+  std::vector<std::vector<std::set<CochainKey>>> reads;
+  std::set<CochainKey> step_outputs;  // cochains some earlier step wrote
+  for (const auto& group : schedule_.groups()) {
+    auto next = width;
+    std::set<CochainKey> written;
+    reads.emplace_back();
+    for (const auto& s : group) {
+      auto& read = reads.back().emplace_back();
+      detail::NetworkBuildContext ctx(*this, s, width, read, step_outputs);
+      const std::string& where = ctx.where();
+      if (!written.insert(s.target).second)
+        throw ScheduleError(where + ": another step of the same parallel group writes " +
+                            s.target.str());
+      if (s.terms.empty()) throw ScheduleError(where + ": a step needs at least one term");
+      std::int64_t channels = -1, count = 0;
+      for (const auto& term : s.terms) {
+        const auto w = ctx.find_width(term.source);
+        if (!w)
+          throw ScheduleError(where + ": source " + term.source.str() +
+                              " has no cochain (no input or earlier step produces it)");
+        TermShape x{term.source.rank, *w};
+        std::int64_t fanned = 1;
+        const auto& list = term.operations();
+        for (std::size_t i = 0; i < list.size(); ++i) {
+          if (list[i].kind == TermOp::Kind::powers) {
+            if (i + 1 != list.size())
+              throw ScheduleError(where + ": powers must be a term's last operation");
+            fanned = 1;
+            for (const auto& f : list[i].filters) fanned += f.second;
+          }
+          x = infer(ctx, list[i], x);
+        }
+        if (x.rank != s.target.rank)
+          throw ScheduleError(where + ": the term from " + term.source.str() + " ends on rank " +
+                              std::to_string(x.rank) + ", the target is rank " +
+                              std::to_string(s.target.rank));
+        if (s.mix == OperatorStep::Mix::concat) {  // widths add up
+          channels = std::max<std::int64_t>(channels, 0) + x.channels;
+        } else {
+          if (channels >= 0 && x.channels != channels)
+            throw ScheduleError(where + ": the term from " + term.source.str() + " has " +
+                                std::to_string(x.channels) + " channels, the one before has " +
+                                std::to_string(channels));
+          channels = x.channels;
+        }
+        count += fanned;
+      }
+      TermShape y{s.target.rank, channels};
+      if (s.mix == OperatorStep::Mix::filter) {
+        make_parameter(where, s.filter_path, {channels, s.filter_out, count},
+                       ParameterInit::glorot(1.414));
+        y.channels = s.filter_out;
+      } else if (count != static_cast<std::int64_t>(s.terms.size())) {
+        throw ScheduleError(where + ": polynomial filter terms need a filter weight to mix them");
+      }
+      for (const auto& t : s.operations()) {
+        if (t.kind == TermOp::Kind::powers)
+          throw ScheduleError(where + ": powers apply to terms, not to a step");
+        y = infer(ctx, t, y);
+      }
+      if (y.rank != s.target.rank)
+        throw ScheduleError(where + ": the step's operations end on rank " +
+                            std::to_string(y.rank) + ", the target is rank " +
+                            std::to_string(s.target.rank));
+      next[s.target] = y.channels;
+    }
+    width = std::move(next);
+    for (const auto& s : group) step_outputs.insert(s.target);
+  }
+  for (const auto& o : schedule_.outputs())
+    if (!width.count(o.key))
+      throw ScheduleError("output '" + o.name + "': no cochain " + o.key.str());
+  for (const auto& p : schedule_.parameters())
+    make_parameter("parameter '" + p.path + "'", p.path, p.shape, ParameterInit::glorot(p.gain));
+
+  // Liveness, from the outputs back: a step is run by forward() only when a later step or an
+  // output reads what it writes. A group reads one snapshot, so its live steps' targets leave
+  // the needed set before their reads join it.
+  std::set<CochainKey> needed;
+  for (const auto& o : schedule_.outputs()) needed.insert(o.key);
+  const auto& groups = schedule_.groups();
+  live_.assign(groups.size(), {});
+  for (std::size_t g = groups.size(); g-- > 0;) {
+    auto& live = live_[g];
+    for (const auto& s : groups[g]) live.push_back(needed.count(s.target) > 0);
+    for (std::size_t i = 0; i < groups[g].size(); ++i)
+      if (live[i]) needed.erase(groups[g][i].target);
+    for (std::size_t i = 0; i < groups[g].size(); ++i)
+      if (live[i]) needed.insert(reads[g][i].begin(), reads[g][i].end());
+  }
+}
+
+}  // namespace topos::nn

@@ -1,0 +1,487 @@
+// topos/nn/operator_schedule/builder.hpp
+// The operator schedule's vocabulary: a term (`from`) and the operations it chains, a step
+// (`into`) that mixes its terms, and the schedule of steps with its inputs, operators and
+// outputs. Building one checks nothing; OperatorNetwork (network.hpp) checks and runs it.
+#pragma once
+
+#include "topos/config.hpp"
+#include "topos/nn/cochains.hpp"
+#include "topos/nn/conv.hpp"
+#include "topos/nn/operator_schedule/operation.hpp"
+#include "topos/nn/schedule_error.hpp"
+
+#include <torch/torch.h>
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <memory>
+#include <optional>
+#include <set>
+#include <sstream>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace topos::nn {
+
+/// How `attend` scores and weighs a term's messages; the defaults are TopoModelX Conv's attention
+/// (one head, one (2·C) vector). Per head, scores from keys k (the term's features, or a cochain
+/// of the source rank) and queries q (the step's target before the step, or a cochain of the
+/// target rank): GAT's act(a_s·k_j + a_t·q_i), GATv2's a·act(k_j + q_i) (`v2`), or act(a_s·k_j)
+/// (`source_only`); then the per-target norm, dropout (training only), times A's values. Head h's
+/// messages are its slice of the term's features; the heads are concatenated or averaged.
+struct AttendOptions {
+  explicit AttendOptions(std::string param) : param_(std::move(param)) {}
+  /// The source part a_s then the target part a_t, in one parameter unless `target_param`.
+  TORCH_ARG(std::string, param);
+  TORCH_ARG(std::string, target_param);  ///< a_t as a parameter of its own (CAN's att_weight_dst)
+  /// Parameter shapes (default: vectors); only their element counts are fixed (heads-major).
+  TORCH_ARG(std::vector<std::int64_t>, shape);
+  TORCH_ARG(std::vector<std::int64_t>, target_shape);
+  TORCH_ARG(double, gain) = 1.414;  ///< Glorot gain of the parameters
+  TORCH_ARG(Update, activation) = Update::elu;
+  TORCH_ARG(double, negative_slope) = 0.2;
+  TORCH_ARG(AttentionNorm, norm) = AttentionNorm::none;
+  TORCH_ARG(std::optional<CochainKey>, keys);            ///< default: the term's features
+  TORCH_ARG(std::optional<CochainKey>, queries);         ///< default: the step's target
+  TORCH_ARG(bool, source_only) = false;                  ///< no queries and no a_t
+  TORCH_ARG(Update, feature_activation) = Update::none;  ///< on keys and queries before scoring
+  TORCH_ARG(double, feature_slope) = 0.01;
+  TORCH_ARG(bool, v2) = false;  ///< GATv2: one vector a, after the activation
+  TORCH_ARG(std::int64_t, heads) = 1;
+  TORCH_ARG(bool, concat) = true;       ///< the heads side by side, or their mean
+  TORCH_ARG(double, dropout) = 0;       ///< on the weights
+  TORCH_ARG(bool, transposed) = false;  ///< attend over Aᵀ
+  /// Where a_s and a_t start in the one parameter (default: 0 and a_s's length), read cyclically:
+  /// TopoModelX's HMC takes [a_t | a_s] for same-rank attention and a rotated vector for the
+  /// reverse direction of an incidence.
+  TORCH_ARG(std::optional<std::int64_t>, source_offset);
+  TORCH_ARG(std::optional<std::int64_t>, target_offset);
+  /// Entry k of a row takes the weight of the row's mirrored entry (the (n-1-k)-th): TopoModelX's
+  /// HBS pairs softmax weights in ascending column order with a product's descending indices.
+  TORCH_ARG(bool, mirrored_rows) = false;
+  /// A filter bank (SAN): the messages are `filters` slices of equal width, slice p (from 0)
+  /// propagated p + 1 times by the one attention-weighted operator, the results summed (one
+  /// head; the keys and queries are all the slices side by side).
+  TORCH_ARG(std::int64_t, filters) = 1;
+};
+
+/// One operation of a term or of a step's tail.
+struct TermOp {
+  enum class Kind {
+    via,               ///< A · x
+    via_transposed,    ///< Aᵀ · x
+    pattern,           ///< pattern(A) · x, summed or averaged (A's values ignored)
+    weight,            ///< x · W, W (in × out) at `name`
+    linear,            ///< torch.nn.Linear at `name` (weight out × in, optional bias)
+    act,               ///< an update function
+    dropout,           ///< training only
+    unit_rows,         ///< each row divided by its (undifferentiated) L2 norm; zero rows stay 0
+    batch_norm,        ///< torch.nn.BatchNorm1d at `name`
+    layer_norm,        ///< torch.nn.LayerNorm at `name`
+    attend,            ///< A · x with A's values times attention weights (`param`: the vector)
+    initial_residual,  ///< GCNII: x̃ = (1-α) x + α skip, then (1-β) x̃ + β Linear(x̃)
+    powers,        ///< [y, A₁y..A₁^K₁y, A₂y..A₂^K₂y, ...]: fans the term out, last only
+    scale,         ///< x · p, a constant
+    head_weights,  ///< [x W_1 | ... | x W_H], W (heads × in × out) at `name`
+    bias,          ///< x + b on every row, b at `name` (any shape of as many entries as channels)
+    learned_scale,    ///< (offset + s) · x, s a learned or buffered scalar at `name`
+    pow,              ///< x^value elementwise
+    normalize,        ///< x / ‖x‖₂ (differentiated), per row or over the whole matrix
+    intra_aggregate,  ///< x_i · σ(<relu(Σ_j x_j), x_i>): each cell weighted against the whole
+    affine_power,     ///< (a I + b Σ_i A_i)^k x: `filters` the (A_i, k), `value` a, `offset` b
+    custom            ///< an Operation defined outside topos (`operation`)
+  };
+  explicit TermOp(Kind k, std::string n = {}) : kind(k), name(std::move(n)) {}
+  Kind kind;
+  std::string name;       ///< operator or parameter path
+  bool row_norm = false;  ///< via: divide by the operator's row sums; powers: from `norm_from`
+  Aggr aggr = Aggr::sum;
+  std::int64_t out = 0;
+  bool bias = true;
+  double gain = 1.414;
+  Update update = Update::none;
+  double slope = 0.01;
+  double p = 0;  ///< dropout rate, or α of the initial residual
+  double beta = 0;
+  CochainKey skip;
+  std::vector<std::pair<std::string, int>> filters;  ///< powers: (operator, order)
+  std::string param;                                 ///< attend: the attention vector's path
+  AttentionNorm attention_norm = AttentionNorm::none;
+  int norm_from = 1;
+  AttendOptions attention{""};      ///< attend: its options (param, update, slope repeat some)
+  std::int64_t heads = 1;           ///< head_weights
+  std::vector<std::int64_t> shape;  ///< bias: the parameter's shape
+  double value = 0;                 ///< scale: the scalar's initial value; pow: the exponent
+  double offset = 0;                ///< scale: added to the scalar
+  bool trainable = true;            ///< scale: a parameter, else a buffer
+  bool per_row = true;              ///< normalize: each row, else the whole matrix
+  bool transposed = false;          ///< pattern: over Aᵀ
+  bool rescale_rows = false;        ///< dropout: TopoModelX HMPNN's (rescaled_dropout)
+  std::shared_ptr<const Operation> operation;  ///< custom: the user's operation
+};
+
+namespace ops {
+
+/// The fluent operations shared by terms (which start at a cochain) and steps (whose operations
+/// act on the mixed terms).
+template <class Derived>
+class Chain {
+ public:
+  /// A · x, optionally divided by A's row sums (TopoModelX Conv's aggr_norm).
+  Derived& via(std::string op, bool row_norm = false) {
+    return add(TermOp(TermOp::Kind::via, std::move(op))).row_norm_last(row_norm);
+  }
+  /// Aᵀ · x (the transpose is made once per forward), optionally divided by Aᵀ's row sums.
+  Derived& via_t(std::string op, bool row_norm = false) {
+    return add(TermOp(TermOp::Kind::via_transposed, std::move(op))).row_norm_last(row_norm);
+  }
+  /// Sum (or mean) over A's sparsity pattern, its values ignored (torch_scatter's messages).
+  Derived& pattern(std::string op, Aggr aggr = Aggr::sum) {
+    TermOp t(TermOp::Kind::pattern, std::move(op));
+    t.aggr = aggr;
+    return add(std::move(t));
+  }
+  /// The same over Aᵀ (a hypergraph's nodes to its hyperedges over B).
+  Derived& pattern_t(std::string op, Aggr aggr = Aggr::sum) {
+    pattern(std::move(op), aggr);
+    ops_.back().transposed = true;
+    return static_cast<Derived&>(*this);
+  }
+  /// x · W with W (in × out) at `path` (Glorot-initialised with `gain`).
+  Derived& weight(std::string path, std::int64_t out, double gain = 1.414) {
+    TermOp t(TermOp::Kind::weight, std::move(path));
+    t.out = out;
+    t.gain = gain;
+    return add(std::move(t));
+  }
+  /// TopoModelX's Conv weight: weight(path + ".weight", out).
+  Derived& conv(const std::string& path, std::int64_t out) { return weight(path + ".weight", out); }
+  /// torch.nn.Linear at `path`: parameters path.weight (out × in) and path.bias.
+  Derived& linear(std::string path, std::int64_t out, bool bias = true) {
+    TermOp t(TermOp::Kind::linear, std::move(path));
+    t.out = out;
+    t.bias = bias;
+    return add(std::move(t));
+  }
+  Derived& act(Update u, double negative_slope = 0.01) {
+    TermOp t(TermOp::Kind::act);
+    t.update = u;
+    t.slope = negative_slope;
+    return add(std::move(t));
+  }
+  Derived& dropout(double p) {
+    TermOp t(TermOp::Kind::dropout);
+    t.p = p;
+    return add(std::move(t));
+  }
+  /// TopoModelX HMPNN's feature dropout (training only): each entry kept with probability
+  /// `keep`, then row i multiplied by (2n - kept_i) / n, n the number of rows.
+  Derived& rescaled_dropout(double keep) {
+    dropout(keep);
+    ops_.back().rescale_rows = true;
+    return static_cast<Derived&>(*this);
+  }
+  Derived& unit_rows() { return add(TermOp(TermOp::Kind::unit_rows)); }
+  /// torch.nn.BatchNorm1d over the channels at `path` (weight, bias, running statistics).
+  Derived& batch_norm(std::string path) {
+    return add(TermOp(TermOp::Kind::batch_norm, std::move(path)));
+  }
+  /// torch.nn.LayerNorm over the channels at `path`.
+  Derived& layer_norm(std::string path) {
+    return add(TermOp(TermOp::Kind::layer_norm, std::move(path)));
+  }
+  /// GCNII's initial residual and identity mapping, the bias-free Linear at `path`.
+  Derived& initial_residual(CochainKey skip, double alpha, double beta, std::string path) {
+    TermOp t(TermOp::Kind::initial_residual, std::move(path));
+    t.skip = std::move(skip);
+    t.p = alpha;
+    t.beta = beta;
+    return add(std::move(t));
+  }
+  /// x · factor (CAN's skip connection scales its linear map by 1 + 1e-6).
+  Derived& scale(double factor) {
+    TermOp t(TermOp::Kind::scale);
+    t.p = factor;
+    return add(std::move(t));
+  }
+  /// One map per head, side by side: [x W_1 | ... | x W_H] with W (heads × in × out) at `path`,
+  /// TopoModelX's multi-head layout (AllSetTransformer's K and V).
+  Derived& head_weights(std::string path, std::int64_t heads, std::int64_t out,
+                        double gain = 1.414) {
+    TermOp t(TermOp::Kind::head_weights, std::move(path));
+    t.heads = heads;
+    t.out = out;
+    t.gain = gain;
+    return add(std::move(t));
+  }
+  /// x + b on every row, b at `path` of `shape` (default: a vector), flattened; zeros when new,
+  /// or with a `gain` Glorot-initialised (HNHN's biases, 1 × channels).
+  Derived& bias(std::string path, std::vector<std::int64_t> shape = {}, double gain = 0) {
+    TermOp t(TermOp::Kind::bias, std::move(path));
+    t.shape = std::move(shape);
+    t.gain = gain;
+    return add(std::move(t));
+  }
+  /// (offset + s) · x, s a scalar (shape {1}) at `path` starting at `value`: a parameter when
+  /// `trainable`, else a buffer (GIN's (1 + ε) x).
+  Derived& scale(std::string path, double value, bool trainable = true, double offset = 0) {
+    TermOp t(TermOp::Kind::learned_scale, std::move(path));
+    t.value = value;
+    t.trainable = trainable;
+    t.offset = offset;
+    return add(std::move(t));
+  }
+  /// x^exponent elementwise (a generalised mean: pow(p), a mean, pow(1 / p)).
+  Derived& pow(double exponent) {
+    TermOp t(TermOp::Kind::pow);
+    t.value = exponent;
+    return add(std::move(t));
+  }
+  /// x divided by its L2 norm, differentiated (unlike unit_rows), the norm clamped at 1e-12: each
+  /// row's (torch's F.normalize), or with per_row false the whole matrix's.
+  Derived& normalize(bool per_row = true) {
+    TermOp t(TermOp::Kind::normalize);
+    t.per_row = per_row;
+    return add(std::move(t));
+  }
+  /// Intra-neighbourhood aggregation (Hajij et al.'s CMPS, TopoModelX SCACMPS's intra_aggr): each
+  /// row scaled by σ(<relu(Σ_j x_j), x_i>), its agreement with the whole cochain.
+  Derived& intra_aggregate() { return add(TermOp(TermOp::Kind::intra_aggregate)); }
+  /// (a I + b Σ_i A_i)^k x by k rounds of sparse products, the sum and its power never formed
+  /// (SAN's harmonic filter (I - ε(L↑ + L↓))^k); the A_i square, their values not trained.
+  Derived& affine_power(const std::vector<std::string>& ops, int k, double a, double b) {
+    TermOp t(TermOp::Kind::affine_power);
+    for (const auto& op : ops) t.filters.emplace_back(op, k);
+    t.value = a;
+    t.offset = b;
+    return add(std::move(t));
+  }
+  /// A user-defined operation (operation.hpp), applied like the built-in ones.
+  template <class Op, class = std::enable_if_t<std::is_base_of_v<Operation, std::decay_t<Op>>>>
+  Derived& apply(Op&& op) {
+    return apply(
+        std::shared_ptr<const Operation>(std::make_shared<std::decay_t<Op>>(std::forward<Op>(op))));
+  }
+  Derived& apply(std::shared_ptr<const Operation> op) {
+    TermOp t(TermOp::Kind::custom);
+    t.operation = std::move(op);
+    return add(std::move(t));
+  }
+  const std::vector<TermOp>& operations() const { return ops_; }
+
+ protected:
+  Derived& add(TermOp t) {
+    ops_.push_back(std::move(t));
+    return static_cast<Derived&>(*this);
+  }
+  Derived& row_norm_last(bool on) {
+    ops_.back().row_norm = on;
+    return static_cast<Derived&>(*this);
+  }
+  std::vector<TermOp> ops_;
+};
+
+/// A term: a cochain and what is done to it.
+class Term : public Chain<Term> {
+ public:
+  explicit Term(CochainKey source) : source(std::move(source)) {}
+  /// Messages over A weighted by attention: entry (i, j) scores a_s·x_j + a_t·t_i, with x the
+  /// term's features here and t the step's target cochain (its features before the step), then
+  /// `activation` and `norm` (a per-target softmax, division by the row sums, or none); A's values
+  /// are multiplied by the weights and applied to x. `path` holds a (2·C): the source half, then
+  /// the target half (TopoModelX's Conv.att_weight). Followed by conv(), this is TopoModelX's
+  /// Conv with att=True (A (x W) = (A x) W: the weights depend on x alone).
+  Term& attend(std::string op, std::string path, Update activation = Update::elu,
+               AttentionNorm norm = AttentionNorm::none, double negative_slope = 0.2) {
+    return attend(std::move(op), AttendOptions(std::move(path))
+                                     .activation(activation)
+                                     .norm(norm)
+                                     .negative_slope(negative_slope));
+  }
+  /// Attention with its options: heads, keys and queries from other cochains, GATv2 or
+  /// source-only scores, a separate target part, dropout (AttendOptions).
+  Term& attend(std::string op, AttendOptions o) {
+    TermOp t(TermOp::Kind::attend, std::move(op));
+    t.param = o.param();
+    t.update = o.activation();
+    t.attention_norm = o.norm();
+    t.slope = o.negative_slope();
+    t.attention = std::move(o);
+    return add(std::move(t));
+  }
+  /// Polynomial filter terms [y, A₁y, ..., A₁^K₁y, A₂y, ...] (identity once); with row_norm each
+  /// power from `norm_from` on is divided by its operator's row sums (0 where they are 0).
+  Term& powers(std::vector<std::pair<std::string, int>> filters, bool row_norm = false,
+               int norm_from = 1) {
+    TermOp t(TermOp::Kind::powers);
+    t.filters = std::move(filters);
+    t.row_norm = row_norm;
+    t.norm_from = norm_from;
+    return add(std::move(t));
+  }
+  CochainKey source;
+};
+
+inline Term from(int rank, std::string state = "") {
+  return Term({rank, std::move(state)});
+}
+
+}  // namespace ops
+
+/// A step: its terms, how they are mixed, the operations after the mix, the cochain written.
+class OperatorStep : public ops::Chain<OperatorStep> {
+ public:
+  enum class Mix { sum, mean, filter, concat };
+  explicit OperatorStep(CochainKey target) : target(std::move(target)) {}
+
+  template <class... T>
+  OperatorStep& sum(T&&... t) {
+    mix = Mix::sum;
+    (terms.push_back(std::forward<T>(t)), ...);
+    return *this;
+  }
+  /// Terms built in a loop.
+  OperatorStep& sum(std::vector<ops::Term> t) {
+    mix = Mix::sum;
+    terms.insert(terms.end(), t.begin(), t.end());
+    return *this;
+  }
+  template <class... T>
+  OperatorStep& mean(T&&... t) {
+    sum(std::forward<T>(t)...);
+    mix = Mix::mean;
+    return *this;
+  }
+  /// y = Σ_k T_k · W[:, :, k] over every term (powers fanned out), W (in × out × terms) at
+  /// `path`: SCCNN's and SCNN's einsum over stacked filter terms.
+  template <class... T>
+  OperatorStep& filter(std::string path, std::int64_t out, T&&... t) {
+    sum(std::forward<T>(t)...);
+    mix = Mix::filter;
+    filter_path = std::move(path);
+    filter_out = out;
+    return *this;
+  }
+  /// The terms side by side (channels concatenated in order).
+  template <class... T>
+  OperatorStep& concat(T&&... t) {
+    sum(std::forward<T>(t)...);
+    mix = Mix::concat;
+    return *this;
+  }
+  OperatorStep& named(std::string n) {
+    name = std::move(n);
+    return *this;
+  }
+
+  CochainKey target;
+  std::vector<ops::Term> terms;
+  Mix mix = Mix::sum;
+  std::string filter_path;
+  std::int64_t filter_out = 0;
+  std::string name;
+};
+
+namespace ops {
+inline OperatorStep into(int rank, std::string state = "") {
+  return OperatorStep({rank, std::move(state)});
+}
+}  // namespace ops
+
+class OperatorSchedule {
+ public:
+  /// Cochain (rank, state) is given as input `name` with `channels` columns.
+  OperatorSchedule& input(std::string name, int rank, std::int64_t channels,
+                          std::string state = "") {
+    inputs_.push_back({std::move(name), {rank, std::move(state)}, channels});
+    return *this;
+  }
+  /// Operator `name` maps rank `source_rank` cochains to rank `target_rank` (target × source).
+  OperatorSchedule& operator_input(std::string name, int source_rank, int target_rank) {
+    operators_[std::move(name)] = {source_rank, target_rank};
+    return *this;
+  }
+  /// Operator `name`: `source`'s entries, each kept with probability 1 - rate in training (all
+  /// of them in evaluation), drawn once per forward and shared by every step that names it (both
+  /// directions of an incidence). Ranks as `source`'s.
+  OperatorSchedule& dropped_operator(std::string name, std::string source, double rate) {
+    dropped_.push_back({std::move(name), std::move(source), rate});
+    return *this;
+  }
+  OperatorSchedule& step(OperatorStep s) {
+    name_step(s);
+    groups_.push_back({std::move(s)});
+    return *this;
+  }
+  /// Steps that read one snapshot of the cochains.
+  OperatorSchedule& parallel(std::vector<OperatorStep> steps) {
+    for (auto& s : steps) name_step(s);
+    groups_.push_back(std::move(steps));
+    return *this;
+  }
+  /// Starts a named layer: the steps added from here to the next layer() form it, and
+  /// OperatorNetwork::run_layer runs them alone (a model that changes its complex between
+  /// layers, as CAN's pooling does).
+  OperatorSchedule& layer(std::string name) {
+    layers_.emplace_back(std::move(name), groups_.size());
+    return *this;
+  }
+  /// The layers in order: name and first step group.
+  const std::vector<std::pair<std::string, std::size_t>>& layers() const { return layers_; }
+  OperatorSchedule& output(std::string name, int rank, std::string state = "") {
+    outputs_.push_back({std::move(name), {rank, std::move(state)}, 0});
+    return *this;
+  }
+  /// A Glorot-initialised parameter that no step need use: a state_dict name kept where a mode
+  /// ignores it (HyperGAT's TopoModelX-compatible attention vectors).
+  OperatorSchedule& parameter(std::string path, std::vector<std::int64_t> shape,
+                              double gain = 1.414) {
+    parameters_.push_back({std::move(path), std::move(shape), gain});
+    return *this;
+  }
+
+  struct Port {
+    std::string name;
+    CochainKey key;
+    std::int64_t channels;
+  };
+  const std::vector<Port>& inputs() const { return inputs_; }
+  const std::vector<Port>& outputs() const { return outputs_; }
+  const std::map<std::string, std::pair<int, int>>& operators() const { return operators_; }
+  const std::vector<std::vector<OperatorStep>>& groups() const { return groups_; }
+  struct Parameter {
+    std::string path;
+    std::vector<std::int64_t> shape;
+    double gain;
+  };
+  const std::vector<Parameter>& parameters() const { return parameters_; }
+  struct DroppedOperator {
+    std::string name, source;
+    double rate;
+  };
+  const std::vector<DroppedOperator>& dropped_operators() const { return dropped_; }
+
+  /// One line per step, e.g. "layer 0 rank 1: (1) = elu(linear(Σ[conv(1)·A1, ...]))".
+  std::string str() const;
+
+ private:
+  void name_step(OperatorStep& s) {
+    if (s.name.empty()) s.name = "step " + std::to_string(num_steps_);
+    ++num_steps_;
+  }
+  std::vector<Port> inputs_, outputs_;
+  std::map<std::string, std::pair<int, int>> operators_;
+  std::vector<std::vector<OperatorStep>> groups_;
+  int num_steps_ = 0;
+  std::vector<Parameter> parameters_;
+  std::vector<DroppedOperator> dropped_;
+  std::vector<std::pair<std::string, std::size_t>> layers_;
+};
+
+}  // namespace topos::nn
+
+#ifdef TOPOS_HEADER_ONLY
+#include "topos/nn/operator_schedule/printer-inl.hpp"
+#endif

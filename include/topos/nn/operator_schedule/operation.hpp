@@ -1,0 +1,135 @@
+// topos/nn/operator_schedule/operation.hpp
+// The extension point of the operator schedule: an operation defined in user code (its own
+// translation unit, no edit of topos) that a term or a step applies exactly like a built-in one.
+//
+//   struct Gate : topos::nn::Operation {               // x ⊙ σ(x W), W at `path`
+//     std::string path;
+//     explicit Gate(std::string p) : path(std::move(p)) {}
+//     std::string str(const std::string& x) const override { return "gate[" + path + "](" + x + ")"; }
+//     topos::nn::TermShape infer(topos::nn::BuildContext& ctx, topos::nn::TermShape x) const override {
+//       ctx.parameter(path, {x.channels, x.channels});  // Glorot; shared if the path recurs
+//       return x;                                        // same rank, same width
+//     }
+//     torch::Tensor forward(topos::nn::RunContext& ctx, const torch::Tensor& x) const override {
+//       return x * torch::sigmoid(x.matmul(ctx.parameter(path)));
+//     }
+//   };
+//   s.step(into(0).sum(from(0).via("adjacency_0").apply(Gate("gate_0"))));
+//
+// `infer` runs once, when the network is built: it checks what it needs (ctx.fail names the
+// step), creates the parameters, buffers and submodules at their dotted paths, and returns the
+// (rank, channels) the operation produces. `forward` runs at every forward; a hand-written
+// backward is a torch::autograd::Function called from it (docs/schedule-tutorial.md).
+#pragma once
+
+#include "topos/nn/cochains.hpp"
+#include "topos/nn/schedule_error.hpp"
+#include "topos/nn/sparse.hpp"
+
+#include <torch/torch.h>
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace topos::nn {
+
+/// A term's value while the network is built: the rank of its cells and its channels.
+struct TermShape {
+  int rank = 0;
+  std::int64_t channels = 0;
+};
+
+/// How a new parameter is filled.
+struct ParameterInit {
+  enum class Kind { glorot, linear_weight, uniform, zeros, constant };
+  Kind kind = Kind::glorot;
+  double value = 1.414;  ///< glorot: the gain; uniform: the bound; constant: the value
+
+  /// Glorot (Xavier) uniform with this gain: TopoModelX's default.
+  static ParameterInit glorot(double gain = 1.414) { return {Kind::glorot, gain}; }
+  /// torch.nn.Linear's weight: Kaiming uniform with a = √5.
+  static ParameterInit linear_weight() { return {Kind::linear_weight, 0}; }
+  /// torch.nn.Linear's bias: uniform in ±1/√fan_in.
+  static ParameterInit linear_bias(std::int64_t fan_in) {
+    return {Kind::uniform, 1 / std::sqrt(static_cast<double>(fan_in))};
+  }
+  static ParameterInit uniform(double bound) { return {Kind::uniform, bound}; }
+  static ParameterInit zeros() { return {Kind::zeros, 0}; }
+  static ParameterInit constant(double value) { return {Kind::constant, value}; }
+};
+
+/// What an operation sees while the network is built (OperatorNetwork's constructor).
+class BuildContext {
+ public:
+  virtual ~BuildContext() = default;
+  /// The step, as errors name it: "layers.0.update (into (1))".
+  virtual const std::string& where() const = 0;
+  /// Throws ScheduleError("<where>: <why>").
+  [[noreturn]] void fail(const std::string& why) const {
+    throw ScheduleError(where() + ": " + why);
+  }
+  /// The cochain the step writes.
+  virtual const CochainKey& target() const = 0;
+  /// (source rank, target rank) of a declared operator; fails, naming the step, when undeclared.
+  virtual std::pair<int, int> operator_ranks(const std::string& name) const = 0;
+  /// The width of a cochain as the step reads it (before the step); fails when no input or
+  /// earlier step produces it. The network keeps the steps that produce what is read here.
+  virtual std::int64_t cochain_width(const CochainKey& key) = 0;
+  /// A parameter at a dotted path, created with `init`; a path used again must have the same
+  /// shape and is the same parameter (shared weights).
+  virtual void parameter(const std::string& path, const std::vector<std::int64_t>& shape,
+                         ParameterInit init = ParameterInit::glorot()) = 0;
+  /// A buffer at a dotted path: saved in the state_dict, not trained.
+  virtual void buffer(const std::string& path, const std::vector<std::int64_t>& shape,
+                      double value) = 0;
+  /// A submodule at a dotted path (a torch::nn::Linear, an Mlp, ...), registered the first time
+  /// and shared by every operation that names the same path.
+  virtual void module(const std::string& path, std::shared_ptr<torch::nn::Module> m) = 0;
+};
+
+/// What an operation sees while the network runs.
+class RunContext {
+ public:
+  virtual ~RunContext() = default;
+  virtual const std::string& where() const = 0;
+  [[noreturn]] void fail(const std::string& why) const {
+    throw ScheduleError(where() + ": " + why);
+  }
+  /// A given (or dropped) operator by name, and its transpose (computed once per forward).
+  virtual const SparseOperator& op(const std::string& name) = 0;
+  virtual const SparseOperator& op_transposed(const std::string& name) = 0;
+  /// A parameter or buffer made by `BuildContext::parameter` / `buffer`.
+  virtual const torch::Tensor& parameter(const std::string& path) const = 0;
+  /// A submodule made by `BuildContext::module`, as its type (an error if it is another).
+  template <class M>
+  M& module(const std::string& path) const {
+    auto* m = dynamic_cast<M*>(module_at(path).get());
+    if (m == nullptr) fail("module '" + path + "' is not of the type asked for");
+    return *m;
+  }
+  /// A cochain as the step reads it (before the step); it must have been read at build time
+  /// (BuildContext::cochain_width).
+  virtual const torch::Tensor& cochain(const CochainKey& key) const = 0;
+  virtual bool is_training() const = 0;
+
+ protected:
+  virtual std::shared_ptr<torch::nn::Module> module_at(const std::string& path) const = 0;
+};
+
+/// An operation written outside topos. Immutable once in a schedule: it holds options (paths,
+/// widths, operator names), while parameters live in the network at their paths.
+class Operation {
+ public:
+  virtual ~Operation() = default;
+  /// Its printed form applied to `x`, the operand's printed form: "gate[g](x)".
+  virtual std::string str(const std::string& x) const = 0;
+  /// Build time: the checks, the parameters and the (rank, channels) produced from x's.
+  virtual TermShape infer(BuildContext& ctx, TermShape x) const = 0;
+  /// Run time: the operation applied to x (cells × channels).
+  virtual torch::Tensor forward(RunContext& ctx, const torch::Tensor& x) const = 0;
+};
+
+}  // namespace topos::nn

@@ -1,0 +1,133 @@
+// topos/nn/operator_schedule/printer-inl.hpp
+// OperatorSchedule::str(): one line per step, each term written as the operations it applies.
+// Compiled into topos::nn, or inline with TOPOS_HEADER_ONLY (topos/config.hpp).
+#pragma once
+
+#include "topos/nn/operator_schedule/builder.hpp"
+
+#include <sstream>
+
+namespace topos::nn {
+
+namespace detail {
+
+TOPOS_INLINE std::string num(double v) {
+  std::ostringstream o;
+  o << v;
+  return o.str();
+}
+
+TOPOS_INLINE std::string ops_str(std::string x, const std::vector<TermOp>& ops) {
+  for (const auto& t : ops) {
+    switch (t.kind) {
+      case TermOp::Kind::via:
+        x = t.name + (t.row_norm ? "~" : "") + "·" + x;
+        break;
+      case TermOp::Kind::via_transposed:
+        x = t.name + "ᵀ" + (t.row_norm ? "~" : "") + "·" + x;
+        break;
+      case TermOp::Kind::pattern:
+        x = std::string(t.aggr == Aggr::mean ? "mean" : "sum") + "|" + t.name +
+            (t.transposed ? "ᵀ" : "") + "|·" + x;
+        break;
+      case TermOp::Kind::weight:
+        x = x + "·" + t.name;
+        break;
+      case TermOp::Kind::linear:
+        x = t.name + "(" + x + ")";
+        break;
+      case TermOp::Kind::act:
+        x = update_name(t.update) + "(" + x + ")";
+        break;
+      case TermOp::Kind::dropout:
+        x = "dropout(" + x + ")";
+        break;
+      case TermOp::Kind::unit_rows:
+        x = "unit_rows(" + x + ")";
+        break;
+      case TermOp::Kind::attend: {
+        const auto& a = t.attention;
+        x = "att[" + t.param + (a.heads() > 1 ? " ×" + std::to_string(a.heads()) : "") + "]" +
+            t.name + (a.transposed() ? "ᵀ" : "") + "·" + x;
+        break;
+      }
+      case TermOp::Kind::batch_norm:
+      case TermOp::Kind::layer_norm:
+        x = t.name + "(" + x + ")";
+        break;
+      case TermOp::Kind::initial_residual:
+        x = "residual(" + x + ", " + t.skip.str() + ", " + t.name + ")";
+        break;
+      case TermOp::Kind::powers: {
+        std::string f;
+        for (const auto& [op, k] : t.filters) f += " " + op + "^1.." + std::to_string(k);
+        x = "powers[" + x + ";" + f + "]";
+        break;
+      }
+      case TermOp::Kind::scale:
+        x = num(t.p) + "·" + x;
+        break;
+      case TermOp::Kind::head_weights:
+        x = x + "·" + t.name + "[×" + std::to_string(t.heads) + "]";
+        break;
+      case TermOp::Kind::bias:
+        x = x + " + " + t.name;
+        break;
+      case TermOp::Kind::learned_scale:
+        x = "(" + num(t.offset) + "+" + t.name + ")·" + x;
+        break;
+      case TermOp::Kind::pow:
+        x = "(" + x + ")^" + num(t.value);
+        break;
+      case TermOp::Kind::normalize:
+        x = (t.per_row ? "normalize_rows(" : "normalize(") + x + ")";
+        break;
+      case TermOp::Kind::intra_aggregate:
+        x = "intra(" + x + ")";
+        break;
+      case TermOp::Kind::custom:
+        x = t.operation ? t.operation->str(x) : "null(" + x + ")";
+        break;
+      case TermOp::Kind::affine_power: {
+        std::string sum;
+        for (const auto& f : t.filters) sum += (sum.empty() ? "" : " + ") + f.first;
+        x = "(" + num(t.value) + " I + " + num(t.offset) + " (" + sum + "))^" +
+            std::to_string(t.filters.empty() ? 0 : t.filters[0].second) + "·" + x;
+        break;
+      }
+    }
+  }
+  return x;
+}
+
+TOPOS_INLINE std::string step_str(const OperatorStep& s) {
+  std::string mixed = s.mix == OperatorStep::Mix::filter   ? "filter " + s.filter_path + "["
+                      : s.mix == OperatorStep::Mix::mean   ? "mean["
+                      : s.mix == OperatorStep::Mix::concat ? "cat["
+                                                           : "sum[";
+  for (std::size_t i = 0; i < s.terms.size(); ++i)
+    mixed += (i ? ", " : "") + ops_str(s.terms[i].source.str(), s.terms[i].operations());
+  mixed += "]";
+  return s.name + ": " + s.target.str() + " = " + ops_str(mixed, s.operations());
+}
+
+}  // namespace detail
+
+TOPOS_INLINE std::string OperatorSchedule::str() const {
+  std::ostringstream o;
+  for (const auto& in : inputs_) o << "input " << in.name << " -> " << in.key.str() << "\n";
+  auto layer = layers_.begin();
+  for (std::size_t i = 0; i < groups_.size(); ++i) {
+    const auto& g = groups_[i];
+    for (; layer != layers_.end() && layer->second == i; ++layer)
+      o << "layer " << layer->first << ":\n";
+    if (g.size() > 1) o << "parallel {\n";
+    for (const auto& s : g) o << (g.size() > 1 ? "  " : "") << detail::step_str(s) << "\n";
+    if (g.size() > 1) o << "}\n";
+  }
+  for (const auto& out : outputs_) o << "output " << out.key.str() << " -> " << out.name << "\n";
+  for (const auto& p : parameters_) o << "parameter " << p.path << "\n";
+  return o.str();
+}
+
+}  // namespace topos::nn

@@ -1,0 +1,13 @@
+// The compiled part of topos::nn: the schedule languages' shape inference, interpreters and
+// printers, and the checkpoint reader and writer, built once here instead of in every
+// translation unit that includes their headers (topos/config.hpp; TOPOS_HEADER_ONLY inlines
+// them instead).
+#ifdef TOPOS_HEADER_ONLY
+#error "src/nn.cpp is the compiled component; build it without TOPOS_HEADER_ONLY"
+#endif
+
+#include "topos/nn/operator_schedule/build-inl.hpp"
+#include "topos/nn/operator_schedule/interpreter-inl.hpp"
+#include "topos/nn/operator_schedule/printer-inl.hpp"
+#include "topos/nn/schedule-inl.hpp"
+#include "topos/nn/serialization-inl.hpp"
