@@ -3,7 +3,7 @@
 //   StalkLinear     (I ⊗ W₁) X W₂: a d × d map on every node's stalk and an f × f map on the
 //                   channels of each stalk dimension;
 //   SheafLaplacian  Δ_F X = D̃^{-1/2} L_F D̃^{-1/2} X, with a learned restriction map
-//                   F_{v⊴e} = tanh(Φ[x_v ‖ x_u]) (d × d) per incidence of node v in edge e = {u, v}:
+//                   F_{v⊴e} = tanh(Φ[x_v ‖ x_u]) (d × d) per incidence of node v in edge {u, v}:
 //                   a sheaf Laplacian, i.e. an operator whose entries are matrices.
 // A layer is X ← X − elu(Δ_F (I ⊗ W₁) X W₂), the maps recomputed from the layer's input. The
 // program trains it on a Planetoid graph read from the raw files (TopoBench's random 50/25/25

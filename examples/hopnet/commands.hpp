@@ -102,6 +102,40 @@ inline CheckpointOverrides checkpoint_overrides(const VariantArgs& v,
   return ov;
 }
 
+/// A checkpoint opened the one way every subcommand that runs a model opens it (rollout,
+/// evaluate, grad): the state dict read once, the variant's overrides (--activation,
+/// --collision-radius) and the feature mode applied, and, given statistics, the normaliser,
+/// checked against the model first. The model's own options (lifting, collision radius, widths)
+/// are the checkpoint's, never a subcommand's defaults.
+struct OpenedCheckpoint {
+  std::string path;
+  std::map<std::string, torch::Tensor> dict;
+  CheckpointOverrides overrides;
+  HopnetOptions options;
+  Normalizer norm;
+  /// A model with the checkpoint's weights on `device` (evaluate makes one per worker).
+  Hopnet model(torch::Device device = torch::kCPU) const {
+    auto net = load_hopnet(dict, path, overrides);
+    net->to(device);
+    return net;
+  }
+};
+
+inline OpenedCheckpoint open_checkpoint(const std::string& path, const std::string& stats_path,
+                                        const VariantArgs& variant, FeatureMode mode) {
+  OpenedCheckpoint c;
+  c.path = path;
+  c.dict = nn::read_tensor_dict(path);
+  c.overrides = checkpoint_overrides(variant, c.dict, path, mode);
+  c.options = load_hopnet(c.dict, path, c.overrides)->options;  // a bad checkpoint fails here
+  if (!stats_path.empty()) {
+    const auto stats = read_stats_json(stats_path);
+    check_stats_fit(c.options, stats, stats_path);
+    c.norm = Normalizer(stats);
+  }
+  return c;
+}
+
 inline void write_json_atomic(const nlohmann::json& j, const std::string& path) {
   write_file_atomic(path, j.dump() + "\n");
 }

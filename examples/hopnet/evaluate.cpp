@@ -49,14 +49,9 @@ int run_evaluate(const EvaluateArgs& a) {
   namespace fs = std::filesystem;
   const FeatureMode mode = feature_mode_from_string(a.mode);
   const torch::Device device = nn::device_from_string(a.device);
-  const auto checkpoint =
-      nn::read_tensor_dict(a.checkpoint);  // read once; one model per thread below
-  const auto overrides = checkpoint_overrides(a.variant, checkpoint, a.checkpoint, mode);
-  const auto options =
-      load_hopnet(checkpoint, a.checkpoint, overrides)->options;  // fails early on a bad checkpoint
-  const auto stats = read_stats_json(a.stats);
-  check_stats_fit(options, stats, a.stats);
-  const Normalizer norm(stats);
+  const auto opened = open_checkpoint(a.checkpoint, a.stats, a.variant, mode);  // one model per
+  const auto& options = opened.options;                                         // thread below
+  const Normalizer& norm = opened.norm;
   const auto dataset = data::Dataset::open(a.data);
   const auto& ids = dataset.ids();
   const auto chosen = data::split_part(
@@ -85,9 +80,8 @@ int run_evaluate(const EvaluateArgs& a) {
   std::string error;
   const auto work = [&] {
     try {
-      auto net = load_hopnet(checkpoint, a.checkpoint, overrides);
+      auto net = opened.model(device);
       net->eval();
-      net->to(device);
       MeshLibrary lib(a.assets);
       for (std::size_t i = next++; i < chosen.size() && !failed; i = next++) {
         Scene scene = make_scene(dataset.scene(chosen[i]), lib);

@@ -9,6 +9,7 @@ namespace {
 struct GradArgs {
   std::string checkpoint, stats, scene, assets, mode = "reference", out, collisions;
   bool no_collisions_json = false;
+  VariantArgs variant;
   std::int64_t chunk = 0;
   double memory_budget_mb = kDefaultMemoryBudgetMb;
 };
@@ -16,19 +17,21 @@ struct GradArgs {
 int run_grad(const GradArgs& a) {
   namespace fs = std::filesystem;
   const FeatureMode mode = feature_mode_from_string(a.mode);
-  auto model = load_hopnet(a.checkpoint, mode);
+  const auto opened = open_checkpoint(a.checkpoint, a.stats, a.variant, mode);
+  auto model = opened.model();
   model->train();
-  const Normalizer norm(read_stats_json(a.stats));
+  const Normalizer& norm = opened.norm;
   MeshLibrary lib(a.assets);
   const auto kubric = data::read_kubric_metadata(a.scene);
   const Scene scene = make_scene(kubric, lib);
-  const auto g = make_geometry(scene, mode);
+  const auto g = make_geometry(scene, opened.options.lifting());
   std::optional<ContactsByFrame> given;
   const auto coll = a.collisions.empty() && mode == FeatureMode::reference && !a.no_collisions_json
                         ? collisions_beside(kubric)
                         : a.collisions;
   if (!coll.empty()) given = read_collisions_json(coll);
-  const auto tf = trajectory_frames(scene, g, 0.1, 0.0, 2, -1, given ? &*given : nullptr);
+  const auto tf = trajectory_frames(scene, g, opened.options.collision_radius(), 0.0, 2, -1,
+                                    given ? &*given : nullptr);
   const auto chunk = a.chunk > 0 ? a.chunk
                                  : auto_chunk(g, tf, model->options.hidden(),
                                               a.memory_budget_mb * 1024.0 * 1024.0);
@@ -107,6 +110,7 @@ Command add_grad(CLI::App& app) {
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
   c->add_option("--out", gr.out, "output folder")->required();
+  add_variant_options(c, gr.variant, /*with_config=*/false);
   return {c, [args] { return run_grad(*args); }};
 }
 

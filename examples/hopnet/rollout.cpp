@@ -18,14 +18,10 @@ int run_rollout(const RolloutArgs& a) {
   const FeatureMode mode = feature_mode_from_string(a.mode);
   if (!a.viewer.empty()) hopnet_web::require_js_libraries();
   const torch::Device device = nn::device_from_string(a.device);
-  const auto dict = nn::read_tensor_dict(a.checkpoint);
-  auto net =
-      load_hopnet(dict, a.checkpoint, checkpoint_overrides(a.variant, dict, a.checkpoint, mode));
+  const auto opened = open_checkpoint(a.checkpoint, a.stats, a.variant, mode);
+  auto net = opened.model(device);
   net->eval();
-  net->to(device);
-  const auto stats = read_stats_json(a.stats);
-  check_stats_fit(net->options, stats, a.stats);
-  const Normalizer norm(stats);
+  const Normalizer& norm = opened.norm;
   MeshLibrary lib(a.assets);
   const auto kubric = data::read_kubric_metadata(a.scene);
   const Scene scene = make_scene(kubric, lib);

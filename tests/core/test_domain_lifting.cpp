@@ -89,7 +89,7 @@ TEST_CASE(
   const CombinatorialComplex<> cc = to_combinatorial_complex(sc);
   for (int k = 1; k <= sc.dim(); ++k) {
     REQUIRE(cc.size(k) == sc.num_cells(k));
-    REQUIRE(Dense(cc.incidence_matrix(k - 1, k)) == Dense(sc.incidence_matrix(k, false)));
+    REQUIRE(Dense(cc.incidence_matrix(k - 1, k)) == Dense(sc.incidence_matrix(k, Signed::no)));
     REQUIRE(Dense(cc.signed_incidence_matrix(k - 1, k)) == Dense(sc.incidence_matrix(k)));
   }
   REQUIRE(Dense(cc.adjacency_matrix(0, 1)) == Dense(sc.adjacency_matrix(0)));

@@ -9,6 +9,7 @@
 #include "topos/core/domain.hpp"
 #include "topos/core/normalization.hpp"
 #include "topos/core/operators.hpp"
+#include "topos/core/spectral.hpp"
 #include "topos/mesh/primitives.hpp"
 
 #include <cmath>
@@ -99,7 +100,7 @@ TEST_CASE("simplicial complex: faces implied, lexicographic order, TopoNetX sign
   const Dense b1(sc.incidence_matrix(1));
   REQUIRE(b1(0, 0) == -1.0);
   REQUIRE(b1(1, 0) == 1.0);
-  REQUIRE(Dense(sc.incidence_matrix(2, false)).cwiseAbs() == b2.cwiseAbs());
+  REQUIRE(Dense(sc.incidence_matrix(2, Signed::no)).cwiseAbs() == b2.cwiseAbs());
   REQUIRE(Dense(sc.incidence_matrix(0)) == Dense::Ones(1, 4));
   REQUIRE(sc.faces(2, 0, 0) == std::vector<std::int64_t>{1, 2, 3});
   REQUIRE(sc.cofaces(0, 1, 1) == std::vector<std::int64_t>{0, 1, 2});
@@ -189,13 +190,13 @@ TEST_CASE("Hodge Laplacians equal B^T B + B B^T, unsigned ones |.|, adjacency th
       Dense up = Dense(sc.incidence_matrix(k + 1)) * Dense(sc.incidence_matrix(k + 1)).transpose();
       REQUIRE(Dense(sc.up_laplacian_matrix(k)) == up);
       up.diagonal().setZero();
-      REQUIRE(Dense(sc.adjacency_matrix(k, true)) == up);
+      REQUIRE(Dense(sc.adjacency_matrix(k, Signed::yes)) == up);
       REQUIRE(Dense(sc.adjacency_matrix(k)) == up.cwiseAbs());
     }
     if (k > 0) {
       Dense down = Dense(sc.incidence_matrix(k)).transpose() * Dense(sc.incidence_matrix(k));
       down.diagonal().setZero();
-      REQUIRE(Dense(sc.coadjacency_matrix(k, true)) == down);
+      REQUIRE(Dense(sc.coadjacency_matrix(k, Signed::yes)) == down);
     }
     REQUIRE(sc.hodge_laplacian_matrix(k).isApprox(
         SparseMatrix(sc.hodge_laplacian_matrix(k).transpose())));
@@ -207,7 +208,7 @@ TEST_CASE("Hodge Laplacians equal B^T B + B B^T, unsigned ones |.|, adjacency th
   REQUIRE(Dense(cx.hodge_laplacian_matrix(2)) == b2.transpose() * b2);
   Dense a1 = b2.cwiseAbs() * b2.cwiseAbs().transpose();
   a1.diagonal().setZero();
-  REQUIRE(Dense(cx.adjacency_matrix(1, true)) == a1);  // TopoNetX: counts whatever `signed`
+  REQUIRE(Dense(cx.adjacency_matrix(1, Signed::yes)) == a1);  // TopoNetX: counts whatever `signed`
   REQUIRE(Dense(cx.adjacency_matrix(1, 2)) == a1);
 }
 

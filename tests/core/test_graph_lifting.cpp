@@ -308,7 +308,7 @@ TEST_CASE("clique lifting: hand-derived complexes and incidence signs",
   Dense b3(4, 1);
   b3 << -1, 1, -1, 1;  // 0123: +123 -023 +013 -012
   REQUIRE(Dense(sc.incidence_matrix(3)) == b3);
-  REQUIRE(Dense(sc.incidence_matrix(3, false)) == b3.cwiseAbs());
+  REQUIRE(Dense(sc.incidence_matrix(3, Signed::no)) == b3.cwiseAbs());
   Dense b1 = Dense::Zero(4, 6);
   b1.col(0) << -1, 1, 0, 0;  // 01: -0 +1
   b1.col(5) << 0, 0, -1, 1;  // 23: -2 +3

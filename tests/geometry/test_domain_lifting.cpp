@@ -6,6 +6,7 @@
 // and the points inside it), at alphas between every two consecutive filtration values.
 #include <catch2/catch.hpp>
 
+#include "topos/core/spectral.hpp"
 #include "topos/geometry/domain_lifting.hpp"
 
 #include <boost/graph/adjacency_list.hpp>

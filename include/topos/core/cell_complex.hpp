@@ -166,7 +166,8 @@ class CellComplex {
   // ----- operators (TopoNetX's CellComplex methods) -----------------------------------------
 
   /// B_rank: rank 0 is 0 x n_0 (TopoNetX), rank 1 is n_0 x n_1, rank 2 is n_1 x n_2.
-  SparseMatrix incidence_matrix(int rank, bool signed_ = true) const {
+  SparseMatrix incidence_matrix(int rank, Signed sign = Signed::yes) const {
+    const bool signed_ = sign == Signed::yes;
     SparseMatrix m;
     if (rank == 0) return SparseMatrix(0, num_nodes_);
     if (rank == 1)
@@ -179,8 +180,8 @@ class CellComplex {
     if (!signed_) sparse::make_abs(m);
     return m;
   }
-  SparseMatrix coincidence_matrix(int rank, bool signed_ = true) const {
-    return sparse::transpose(incidence_matrix(rank, signed_));
+  SparseMatrix coincidence_matrix(int rank, Signed sign = Signed::yes) const {
+    return sparse::transpose(incidence_matrix(rank, sign));
   }
   /// Unsigned inclusion between two ranks (n_rank x n_to_rank).
   SparseMatrix incidence_matrix(int rank, int to_rank) const {
@@ -193,7 +194,7 @@ class CellComplex {
                          std::to_string(rank) + " and " + std::to_string(to_rank));
     SparseMatrix m;
     if (hi == lo + 1) {
-      m = sparse::abs(incidence_matrix(hi, true));
+      m = sparse::abs(incidence_matrix(hi));
       // A non-closed walk would give 2; regular cells never do, but keep inclusion 0/1.
       for (Eigen::Index k = 0; k < m.nonZeros(); ++k) m.valuePtr()[k] = 1.0;
     } else {  // nodes x 2-cells: the cycle's vertex set
@@ -210,7 +211,7 @@ class CellComplex {
     if (rank < 0 || rank >= std::max(dim(), 1))
       throw ComplexError("up_laplacian_matrix: rank " + std::to_string(rank) + " must be in [0, " +
                          std::to_string(dim() - 1) + "]");
-    SparseMatrix l = up_laplacian(incidence_matrix(rank + 1, true));
+    SparseMatrix l = up_laplacian(incidence_matrix(rank + 1));
     if (!signed_) sparse::make_abs(l);
     return l;
   }
@@ -218,7 +219,7 @@ class CellComplex {
     if (rank < 1 || rank > dim())
       throw ComplexError("down_laplacian_matrix: rank " + std::to_string(rank) +
                          " must be in [1, " + std::to_string(dim()) + "]");
-    SparseMatrix l = down_laplacian(incidence_matrix(rank, true));
+    SparseMatrix l = down_laplacian(incidence_matrix(rank));
     if (!signed_) sparse::make_abs(l);
     return l;
   }
@@ -227,21 +228,21 @@ class CellComplex {
     if (!signed_) sparse::make_abs(l);
     return l;
   }
-  /// Cells of `rank` sharing a cell of rank + 1 (counts); `signed_` is accepted as TopoNetX does
+  /// Cells of `rank` sharing a cell of rank + 1 (counts); `sign` is accepted as TopoNetX does
   /// and has no effect (its incidence_to_adjacency takes |B|).
-  SparseMatrix adjacency_matrix(int rank, bool signed_ = false) const {
-    (void)signed_;
+  SparseMatrix adjacency_matrix(int rank, Signed sign = Signed::no) const {
+    (void)sign;
     if (rank < 0 || rank > 1)
       throw ComplexError("adjacency_matrix: rank " + std::to_string(rank) +
                          " must be 0 or 1 (cells of rank + 1 must exist)");
-    return incidence_to_adjacency(sparse::transpose(incidence_matrix(rank + 1, true)));
+    return incidence_to_adjacency(sparse::transpose(incidence_matrix(rank + 1)));
   }
-  /// Cells of `rank` sharing a cell of rank - 1 (counts); `signed_` has no effect, as in TopoNetX.
-  SparseMatrix coadjacency_matrix(int rank, bool signed_ = false) const {
-    (void)signed_;
+  /// Cells of `rank` sharing a cell of rank - 1 (counts); `sign` has no effect, as in TopoNetX.
+  SparseMatrix coadjacency_matrix(int rank, Signed sign = Signed::no) const {
+    (void)sign;
     if (rank < 0 || rank > 2)
       throw ComplexError("coadjacency_matrix: rank " + std::to_string(rank) + " must be in [0, 2]");
-    return incidence_to_adjacency(incidence_matrix(rank, true));
+    return incidence_to_adjacency(incidence_matrix(rank));
   }
   SparseMatrix adjacency_matrix(int rank, int via_rank) const {
     if (via_rank <= rank)
@@ -255,6 +256,11 @@ class CellComplex {
                          " must be below rank " + std::to_string(rank));
     return incidence_to_adjacency(incidence_matrix(via_rank, rank));
   }
+  // A bool here was TopoNetX's `signed`, an int a rank: two meanings one conversion apart.
+  // Say Signed::yes or Signed::no; incidence_matrix(r, s) with two ranks is the inclusion.
+  SparseMatrix incidence_matrix(int, bool) const = delete;
+  SparseMatrix adjacency_matrix(int, bool) const = delete;
+  SparseMatrix coadjacency_matrix(int, bool) const = delete;
   /// D^{-1/2} L D^{-1/2} of the signed Hodge Laplacian (as SimplicialComplex's).
   SparseMatrix normalized_laplacian_matrix(int rank) const {
     return normalized_laplacian(hodge_laplacian_matrix(rank, true));
@@ -339,14 +345,14 @@ class CellComplex {
     edges_sorted_ = true;
   }
   SparseMatrix signed_hodge(int rank) const {
-    if (rank == 0) return up_laplacian(incidence_matrix(1, true));
+    if (rank == 0) return up_laplacian(incidence_matrix(1));
     if (rank == 1 && dim() == 2) {
-      const SparseMatrix b1 = incidence_matrix(1, true), b1t = sparse::transpose(b1);
-      const SparseMatrix b2 = incidence_matrix(2, true), b2t = sparse::transpose(b2);
+      const SparseMatrix b1 = incidence_matrix(1), b1t = sparse::transpose(b1);
+      const SparseMatrix b2 = incidence_matrix(2), b2t = sparse::transpose(b2);
       return sparse::multiply_sum_symmetric({{&b1t, &b1}, {&b2, &b2t}});
     }
-    if (rank == 1) return down_laplacian(incidence_matrix(1, true));
-    if (rank == 2 && dim() == 2) return down_laplacian(incidence_matrix(2, true));
+    if (rank == 1) return down_laplacian(incidence_matrix(1));
+    if (rank == 2 && dim() == 2) return down_laplacian(incidence_matrix(2));
     throw ComplexError("hodge_laplacian_matrix: rank " + std::to_string(rank) + " must be in [0, " +
                        std::to_string(std::max(dim(), 0)) + "] (the complex has dimension " +
                        std::to_string(dim()) + ")");

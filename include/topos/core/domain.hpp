@@ -12,10 +12,10 @@
 //   SparseMatrix D::adjacency_matrix(int r, int via)     via > r: off-diagonal |B||B|^T, counts
 //   SparseMatrix D::coadjacency_matrix(int r, int via)   via < r: off-diagonal |B|^T|B|, counts
 // (the neighbourhood functions, TopoNetX's CombinatorialComplex semantics). The simplicial and
-// cell complexes also have TopoNetX's oriented vocabulary: incidence_matrix(rank, bool signed),
-// up/down/hodge_laplacian_matrix(rank, signed), adjacency/coadjacency_matrix(rank, bool signed),
-// normalized_laplacian_matrix(rank). Note the overloads: a second argument of type bool means
-// `signed`, of type int a rank. Std + Eigen only (C++17: a trait, not a C++20 concept).
+// cell complexes also have TopoNetX's oriented vocabulary: incidence_matrix(rank, Signed), up/down/
+// hodge_laplacian_matrix(rank, signed), adjacency/coadjacency_matrix(rank, Signed), normalized_
+// laplacian_matrix(rank); `Signed` is a type of its own and the bool forms are deleted, so a sign
+// is never read as a rank or the reverse. Std + Eigen only (C++17: a trait, not a C++20 concept).
 #pragma once
 
 #include "topos/core/cell_complex.hpp"

@@ -11,6 +11,7 @@
 #pragma once
 
 #include "topos/core/operators.hpp"
+#include "topos/core/spectral.hpp"
 #include "topos/core/sparse.hpp"
 
 #include <array>

@@ -269,7 +269,8 @@ class SimplicialComplex {
 
   /// B_rank, n_{rank-1} x n_rank: entry (face i of simplex j) = (-1)^position, |.| if unsigned.
   /// Rank 0 is TopoNetX's 1 x n_0 row of ones (the augmentation map).
-  SparseMatrix incidence_matrix(int rank, bool signed_ = true) const {
+  SparseMatrix incidence_matrix(int rank, Signed sign = Signed::yes) const {
+    const bool signed_ = sign == Signed::yes;
     require_rank(rank, "incidence_matrix");
     if (rank == 0) {
       SparseMatrix m(1, num_nodes());
@@ -280,10 +281,10 @@ class SimplicialComplex {
     return sparse::transpose(coboundary(rank, signed_));
   }
   /// B_rank^T, n_rank x n_{rank-1}.
-  SparseMatrix coincidence_matrix(int rank, bool signed_ = true) const {
+  SparseMatrix coincidence_matrix(int rank, Signed sign = Signed::yes) const {
     require_rank(rank, "coincidence_matrix");
-    if (rank == 0) return sparse::transpose(incidence_matrix(0, signed_));
-    return coboundary(rank, signed_);
+    if (rank == 0) return sparse::transpose(incidence_matrix(0, sign));
+    return coboundary(rank, sign == Signed::yes);
   }
   /// Unsigned inclusion between any two ranks, n_rank x n_to_rank: 1 where one simplex is a
   /// face of the other (the concept's incidence; for to_rank = rank + 1 it is |B_{rank+1}|).
@@ -350,12 +351,12 @@ class SimplicialComplex {
     return l;
   }
   /// Off-diagonal part of the up-Laplacian (TopoNetX default: unsigned).
-  SparseMatrix adjacency_matrix(int rank, bool signed_ = false) const {
-    return sparse::without_diagonal(up_laplacian_matrix(rank, true), !signed_);
+  SparseMatrix adjacency_matrix(int rank, Signed sign = Signed::no) const {
+    return sparse::without_diagonal(up_laplacian_matrix(rank, true), sign == Signed::no);
   }
   /// Off-diagonal part of the down-Laplacian (TopoNetX default: unsigned).
-  SparseMatrix coadjacency_matrix(int rank, bool signed_ = false) const {
-    return sparse::without_diagonal(down_laplacian_matrix(rank, true), !signed_);
+  SparseMatrix coadjacency_matrix(int rank, Signed sign = Signed::no) const {
+    return sparse::without_diagonal(down_laplacian_matrix(rank, true), sign == Signed::no);
   }
   /// Concept form: simplices of `rank` sharing a simplex of rank via_rank > rank, entry = count.
   SparseMatrix adjacency_matrix(int rank, int via_rank) const {
@@ -371,6 +372,11 @@ class SimplicialComplex {
                          " must be below rank " + std::to_string(rank));
     return incidence_to_adjacency(incidence_matrix(via_rank, rank));
   }
+  // A bool here was TopoNetX's `signed`, an int a rank: two meanings one conversion apart.
+  // Say Signed::yes or Signed::no; incidence_matrix(r, s) with two ranks is the inclusion.
+  SparseMatrix incidence_matrix(int, bool) const = delete;
+  SparseMatrix adjacency_matrix(int, bool) const = delete;
+  SparseMatrix coadjacency_matrix(int, bool) const = delete;
   /// D^{-1/2} L D^{-1/2}, L the signed Hodge Laplacian, D the row sums of |L|.
   SparseMatrix normalized_laplacian_matrix(int rank) const {
     return normalized_laplacian(hodge_laplacian_matrix(rank, true));

@@ -31,6 +31,11 @@ class ComplexError : public std::invalid_argument {
 /// The operator type of every domain: row-major, 64-bit indices, double values.
 using SparseMatrix = Eigen::SparseMatrix<double, Eigen::RowMajor, std::int64_t>;
 
+/// TopoNetX's `signed` argument of the oriented operators (incidence_matrix(rank, Signed::no)):
+/// a type of its own, so that no call can mean a rank where a sign was meant, or the reverse
+/// (incidence_matrix(r, s) with two ranks is the n_r × n_s inclusion).
+enum class Signed : bool { no = false, yes = true };
+
 namespace sparse {
 
 // Eigen 3.4's SparseMatrix has no move constructor: passing or returning one by value through

@@ -21,6 +21,7 @@
 #include "topos/core/hypergraph.hpp"
 #include "topos/core/normalization.hpp"
 #include "topos/core/operators.hpp"
+#include "topos/core/spectral.hpp"
 #include "topos/core/simplicial_complex.hpp"
 #include "topos/data/json.hpp"
 
@@ -292,10 +293,10 @@ SparseOp oriented_operator(const D& d, const OpCall& c) {
   const std::string& op = c.op;
   if (op == "incidence_matrix") {
     if (c.has("to_rank")) return d.incidence_matrix(c.integer("rank"), c.integer("to_rank"));
-    return d.incidence_matrix(c.integer("rank"), c.boolean("signed", true));
+    return d.incidence_matrix(c.integer("rank"), Signed(c.boolean("signed", true)));
   }
   if (op == "coincidence_matrix")
-    return d.coincidence_matrix(c.integer("rank"), c.boolean("signed", true));
+    return d.coincidence_matrix(c.integer("rank"), Signed(c.boolean("signed", true)));
   if (op == "hodge_laplacian_matrix")
     return d.hodge_laplacian_matrix(c.integer("rank"), c.boolean("signed", true));
   if (op == "up_laplacian_matrix")
@@ -304,11 +305,11 @@ SparseOp oriented_operator(const D& d, const OpCall& c) {
     return d.down_laplacian_matrix(c.integer("rank"), c.boolean("signed", true));
   if (op == "adjacency_matrix") {
     if (c.has("via_rank")) return d.adjacency_matrix(c.integer("rank"), c.integer("via_rank"));
-    return d.adjacency_matrix(c.integer("rank"), c.boolean("signed", false));
+    return d.adjacency_matrix(c.integer("rank"), Signed(c.boolean("signed", false)));
   }
   if (op == "coadjacency_matrix") {
     if (c.has("via_rank")) return d.coadjacency_matrix(c.integer("rank"), c.integer("via_rank"));
-    return d.coadjacency_matrix(c.integer("rank"), c.boolean("signed", false));
+    return d.coadjacency_matrix(c.integer("rank"), Signed(c.boolean("signed", false)));
   }
   if (op == "normalized_laplacian_matrix") return d.normalized_laplacian_matrix(c.integer("rank"));
   c.fail("unknown op");

@@ -119,7 +119,7 @@ inline std::vector<float> project_sum(const SparseMatrix& b, const std::vector<f
 /// The incidence of rank k of a complex with fewer ranks: an empty n_{k-1} × 0 matrix.
 template <class Complex>
 SparseMatrix incidence_or_empty(const Complex& c, int k, bool signed_) {
-  if (k <= c.dim()) return c.incidence_matrix(k, signed_);
+  if (k <= c.dim()) return c.incidence_matrix(k, Signed(signed_));
   return SparseMatrix(c.num_cells(k - 1), 0);
 }
 inline SparseMatrix gram(const SparseMatrix& a, const SparseMatrix& b) {  // a · b

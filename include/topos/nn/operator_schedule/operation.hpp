@@ -2,15 +2,15 @@
 // The extension point of the operator schedule: an operation defined in user code (its own
 // translation unit, no edit of topos) that a term or a step applies exactly like a built-in one.
 //
-//   struct Gate : topos::nn::Operation {               // x ⊙ σ(x W), W at `path`
+//   struct Gate : topos::nn::Operation {  // x ⊙ σ(x W), W at `path` (using namespace topos::nn)
 //     std::string path;
 //     explicit Gate(std::string p) : path(std::move(p)) {}
-//     std::string str(const std::string& x) const override { return "gate[" + path + "](" + x + ")"; }
-//     topos::nn::TermShape infer(topos::nn::BuildContext& ctx, topos::nn::TermShape x) const override {
+//     std::string str(const std::string& x) const override { return "gate(" + x + ")"; }
+//     TermShape infer(BuildContext& ctx, TermShape x) const override {
 //       ctx.parameter(path, {x.channels, x.channels});  // Glorot; shared if the path recurs
 //       return x;                                        // same rank, same width
 //     }
-//     torch::Tensor forward(topos::nn::RunContext& ctx, const torch::Tensor& x) const override {
+//     torch::Tensor forward(RunContext& ctx, const torch::Tensor& x) const override {
 //       return x * torch::sigmoid(x.matmul(ctx.parameter(path)));
 //     }
 //   };
