@@ -16,11 +16,26 @@
 #include <numeric>
 #include <random>
 #include <set>
+#include <type_traits>
 
 using namespace topos;
 using Dense = Eigen::MatrixXd;
 
 namespace {
+
+// Can `incidence_matrix(rank, x)` (and the adjacencies) be called with an argument of type A?
+template <class D, class A, class = void>
+struct incidence_takes : std::false_type {};
+template <class D, class A>
+struct incidence_takes<
+    D, A, std::void_t<decltype(std::declval<const D&>().incidence_matrix(1, std::declval<A>()))>>
+    : std::true_type {};
+template <class D, class A, class = void>
+struct adjacency_takes : std::false_type {};
+template <class D, class A>
+struct adjacency_takes<
+    D, A, std::void_t<decltype(std::declval<const D&>().adjacency_matrix(1, std::declval<A>()))>>
+    : std::true_type {};
 
 // Triangulated n x m torus: vertex (i, j) = i*m + j, two triangles per square, wrapping around.
 std::vector<std::vector<std::int64_t>> torus_triangles(int n, int m) {
@@ -102,6 +117,16 @@ TEST_CASE("simplicial complex: faces implied, lexicographic order, TopoNetX sign
   REQUIRE(b1(1, 0) == 1.0);
   REQUIRE(Dense(sc.incidence_matrix(2, Signed::no)).cwiseAbs() == b2.cwiseAbs());
   REQUIRE(Dense(sc.incidence_matrix(0)) == Dense::Ones(1, 4));
+  // A sign is Signed, a rank an int: B_1 unsigned is n_0 × n_1, the inclusion (1, 0) is n_1 × n_0,
+  // and a bool, which once meant the sign while an int meant a rank, compiles no more.
+  REQUIRE(Dense(sc.incidence_matrix(1, Signed::no)) == b1.cwiseAbs());
+  REQUIRE(Dense(sc.incidence_matrix(1, 0)) == b1.cwiseAbs().transpose());
+  STATIC_REQUIRE_FALSE(incidence_takes<SimplicialComplex, bool>::value);
+  STATIC_REQUIRE_FALSE(adjacency_takes<SimplicialComplex, bool>::value);
+  STATIC_REQUIRE_FALSE(incidence_takes<CellComplex, bool>::value);
+  STATIC_REQUIRE_FALSE(adjacency_takes<CellComplex, bool>::value);
+  STATIC_REQUIRE(incidence_takes<SimplicialComplex, Signed>::value);
+  STATIC_REQUIRE(incidence_takes<SimplicialComplex, int>::value);
   REQUIRE(sc.faces(2, 0, 0) == std::vector<std::int64_t>{1, 2, 3});
   REQUIRE(sc.cofaces(0, 1, 1) == std::vector<std::int64_t>{0, 1, 2});
   REQUIRE(sc.star(0, 3).size() == 4);  // node 3, edges 13 and 23, triangle 123
