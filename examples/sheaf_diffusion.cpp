@@ -10,7 +10,6 @@
 // node split) and reports the test accuracy at the best validation epoch.
 //
 //   sheaf_diffusion --data-dir ../shared/datasets --dataset Cora [--epochs 200] [--stalk-dim 3]
-#include <CLI/CLI.hpp>
 #include <torch/torch.h>
 
 #include "topos/data/graph_datasets.hpp"
@@ -18,6 +17,8 @@
 #include "topos/nn/operator_schedule.hpp"
 
 #include <cstdio>
+#include <sstream>
+#include <stdexcept>
 #include <iostream>
 #include <string>
 
@@ -125,26 +126,75 @@ topos::nn::OperatorSchedule sheaf_diffusion_schedule(std::int64_t in, std::int64
   return s;
 }
 
+const char* kUsage =
+    "sheaf_diffusion --data-dir DIR [--dataset Cora|Citeseer] [--epochs 200] [--layers 2]\n"
+    "                [--stalk-dim 3] [--channels 16] [--lr 0.01] [--dropout 0.5] [--seed 0]\n"
+    "                [--print] [--require-beats-majority]\n"
+    "Neural Sheaf Diffusion on a Planetoid graph read from DIR/planetoid, as an operator\n"
+    "schedule; --seed picks TopoBench's random 50/25/25 node split, --print shows the schedule,\n"
+    "--require-beats-majority exits 1 unless the test accuracy beats the majority class.\n";
+
 int run(int argc, char** argv) {
-  CLI::App app{"Neural Sheaf Diffusion on a Planetoid graph, as an operator schedule"};
   std::string data_dir, dataset = "Cora";
   int epochs = 200, layers = 2, seed = 0;
   std::int64_t d = 3, f = 16;
   double lr = 0.01, dropout = 0.5, weight_decay = 5e-4;
   bool require_beats_majority = false, print = false;
-  app.add_option("--data-dir", data_dir, "the raw datasets (../shared/datasets)")->required();
-  app.add_option("--dataset", dataset, "Cora or Citeseer");
-  app.add_option("--epochs", epochs)->check(CLI::Range(1, 100000));
-  app.add_option("--layers", layers)->check(CLI::Range(1, 64));
-  app.add_option("--stalk-dim", d, "d: the stalks' dimension")->check(CLI::Range(1, 16));
-  app.add_option("--channels", f, "f: channels per stalk dimension")->check(CLI::Range(1, 1024));
-  app.add_option("--lr", lr);
-  app.add_option("--dropout", dropout)->check(CLI::Range(0.0, 1.0));
-  app.add_option("--seed", seed, "the split's data seed (TopoBench's random 50/25/25)");
-  app.add_flag("--print", print, "print the schedule");
-  app.add_flag("--require-beats-majority", require_beats_majority,
-               "exit 1 unless the test accuracy beats the majority class (a check for the tests)");
-  CLI11_PARSE(app, argc, argv);
+  // The options by hand: a single-file example with no CLI library to compile.
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    const auto value = [&]() -> std::string {
+      if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
+      return argv[++i];
+    };
+    const auto show = [](double v) {
+      std::ostringstream o;
+      o << v;
+      return o.str();
+    };
+    const auto number = [&](double lo, double hi) {
+      const auto v = value();
+      std::size_t used = 0;
+      double x = 0;
+      try {
+        x = std::stod(v, &used);
+      } catch (const std::exception&) {
+        used = 0;
+      }
+      if (used != v.size() || !(x >= lo && x <= hi))
+        throw std::invalid_argument(a + " expects a number in [" + show(lo) + ", " + show(hi) +
+                                    "], got '" + v + "'");
+      return x;
+    };
+    if (a == "--data-dir")
+      data_dir = value();
+    else if (a == "--dataset")
+      dataset = value();
+    else if (a == "--epochs")
+      epochs = static_cast<int>(number(1, 100000));
+    else if (a == "--layers")
+      layers = static_cast<int>(number(1, 64));
+    else if (a == "--stalk-dim")
+      d = static_cast<std::int64_t>(number(1, 16));
+    else if (a == "--channels")
+      f = static_cast<std::int64_t>(number(1, 1024));
+    else if (a == "--lr")
+      lr = number(0, 10);
+    else if (a == "--dropout")
+      dropout = number(0, 1);
+    else if (a == "--seed")
+      seed = static_cast<int>(number(0, 1e9));
+    else if (a == "--print")
+      print = true;
+    else if (a == "--require-beats-majority")
+      require_beats_majority = true;
+    else if (a == "--help" || a == "-h")
+      return std::fputs(kUsage, stdout), 0;
+    else
+      throw std::invalid_argument("unknown option '" + a + "'\n" + kUsage);
+  }
+  if (data_dir.empty())
+    throw std::invalid_argument(std::string("--data-dir is required\n") + kUsage);
   torch::manual_seed(seed);
   torch::set_num_threads(1);
 

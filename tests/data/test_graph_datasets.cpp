@@ -10,10 +10,16 @@
 #include "topos/data/graph_datasets.hpp"
 
 #include <chrono>
+#include <cstring>
 #include <fstream>
 #include <iostream>
+#include <map>
 #include <set>
 #include <sstream>
+
+#ifdef TOPOS_WITH_LIBZIP
+#include <zip.h>
+#endif
 
 using namespace topos::data;
 namespace fs = std::filesystem;

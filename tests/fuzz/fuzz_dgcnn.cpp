@@ -3,6 +3,8 @@
 
 #include "topos/data/graph_datasets.hpp"
 
+#include <algorithm>
+
 TOPOS_FUZZ_TARGET(dgcnn) {
   using namespace topos_fuzz;
   try {

@@ -5,6 +5,8 @@
 
 #include "topos/data/graph_datasets.hpp"
 
+#include <algorithm>
+
 #include <string>
 #include <vector>
 
