@@ -1,11 +1,11 @@
 // topos/nn/conv.hpp
 // The building blocks of the TopoModelX architectures, general enough to write new ones:
-// update functions, inter-neighbourhood aggregation (sum/mean of messages, then an update),
-// messages weighted by an operator's values (Conv: x·W, then A·(x·W), optional attention and
-// row normalisation), polynomial filters (A x, A² x, ... A^K x, optionally row-normalised),
-// attention over a target's incoming messages (per-entry scores from source and target
-// features, an activation, then a per-target softmax or row normalisation), initial-residual
-// updates (UniGCNII), and weight initialisers. Parameter names and layouts are TopoModelX's
+// update functions, messages weighted by an operator's values (Conv: x·W, then A·(x·W),
+// optional attention and row normalisation), polynomial filters (A x, A² x, ... A^K x,
+// optionally row-normalised), attention over a target's incoming messages (per-entry scores
+// from source and target features, an activation, then a per-target softmax or row
+// normalisation), affine powers, readouts and weight initialisers. Parameter names and
+// layouts are TopoModelX's
 // (Conv.weight is in × out, Conv.att_weight has 2·in entries) so its state_dicts load as they are.
 #pragma once
 
@@ -77,22 +77,6 @@ inline Epilogue epilogue_of(Update u) {
 }
 
 enum class Aggr { sum, mean };
-
-/// TopoModelX's Aggregation: messages from several neighbourhoods (same shape) summed or
-/// averaged, then updated.
-inline torch::Tensor aggregate_messages(const std::vector<torch::Tensor>& messages,
-                                        Aggr aggr = Aggr::sum, Update update = Update::sigmoid) {
-  if (messages.empty()) throw std::invalid_argument("aggregate_messages: no messages");
-  torch::Tensor x = messages[0];
-  for (std::size_t i = 1; i < messages.size(); ++i) {
-    if (messages[i].sizes() != x.sizes())
-      throw std::invalid_argument("aggregate_messages: message " + std::to_string(i) +
-                                  " has another shape than message 0");
-    x = x + messages[i];
-  }
-  if (aggr == Aggr::mean) x = x / static_cast<double>(messages.size());
-  return apply_update(x, update);
-}
 
 /// Row normalisation by the operator's row sums, 0 where a row sums to 0 (SCCNN's aggr_norm).
 inline torch::Tensor divide_by_row_sums(const SparseOperator& A, const torch::Tensor& x) {
@@ -255,14 +239,6 @@ inline torch::Tensor combine_terms(const std::vector<torch::Tensor>& terms,
   return X.matmul(W);
 }
 
-/// GCNII's initial-residual and identity-mapping update: x̃ = (1-α) x + α x0, then
-/// (1-β) x̃ + β x̃ W (W: a bias-free linear map).
-inline torch::Tensor initial_residual(const torch::Tensor& x, const torch::Tensor& x0, double alpha,
-                                      double beta, torch::nn::Linear& W) {
-  const auto mixed = (1 - alpha) * x + alpha * x0;
-  return (1 - beta) * mixed + beta * W->forward(mixed);
-}
-
 namespace detail {
 // (a I + b Σ_i A_i)^k is linear in x and the A_i are constants here, so its backward is
 // (a I + b Σ_i A_iᵀ)^k applied to the gradient: nothing of the k intermediate products is kept.
@@ -339,13 +315,6 @@ inline torch::Tensor apply_affine_power(const std::vector<SparseOperator>& terms
 inline torch::Tensor apply_affine_power(const SparseOperator& A, const torch::Tensor& x, int k,
                                         double a, double b) {
   return apply_affine_power(std::vector<SparseOperator>{A}, x, k, a, b);
-}
-
-/// A named group of submodules with no parameters of its own, to reproduce a parameter path
-/// such as "layers.0.conv_1_to_1.conv_2_to_1.weight".
-inline std::shared_ptr<torch::nn::Module> submodule_group(torch::nn::Module& parent,
-                                                          const std::string& name) {
-  return parent.register_module(name, std::make_shared<torch::nn::Module>());
 }
 
 /// Sum of y over the cells of each complex of a batch (`batch[i]` = complex of row i): readout.
