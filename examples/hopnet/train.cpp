@@ -6,7 +6,7 @@
 #include "commands.hpp"
 #include "topos/nn/device.hpp"
 #include "topos/nn/distributed.hpp"
-#include "topos/util/launch.hpp"
+#include "launch.hpp"
 #include "topos/util/memory.hpp"
 #include <chrono>
 #include <future>

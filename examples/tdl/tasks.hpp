@@ -6,7 +6,7 @@
 #include "topos/core/operators.hpp"
 #include "topos/core/sparse.hpp"
 #include "topos/io/atomic_file.hpp"
-#include "topos/util/svg_plot.hpp"
+#include "svg_plot.hpp"
 
 #include <filesystem>
 #include <iostream>

@@ -15,7 +15,7 @@
 #include "topos/models/topobench/protocol.hpp"
 #include "topos/nn/cpu.hpp"
 #include "topos/util/progress.hpp"
-#include "topos/util/svg_plot.hpp"
+#include "svg_plot.hpp"
 
 #include <torch/torch.h>
 
