@@ -14,6 +14,8 @@
 #include "topos/nn/schedule.hpp"
 #include "topos/util/progress.hpp"
 
+#include <nlohmann/json.hpp>
+
 #include <torch/torch.h>
 
 #include <Eigen/Geometry>
@@ -275,15 +277,14 @@ int run_classify(const ClassifyOptions& o) {
     bar.update(1, status.str());
   }
   bar.finish();
-  std::ostringstream summary;
-  summary << "{\n  \"classes\": [\"" << kClasses[0] << "\", \"" << kClasses[1] << "\", \""
-          << kClasses[2] << "\"],\n  \"train_complexes\": " << train.size()
-          << ",\n  \"test_complexes\": " << test.size()
-          << ",\n  \"loss\": " << loss_sum / static_cast<double>(train.size())
-          << ",\n  \"train_accuracy\": " << train_acc
-          << ",\n  \"test_accuracy\": " << test_curve.back() << "\n}\n";
+  const nlohmann::json summary{{"classes", {kClasses[0], kClasses[1], kClasses[2]}},
+                               {"train_complexes", train.size()},
+                               {"test_complexes", test.size()},
+                               {"loss", loss_sum / static_cast<double>(train.size())},
+                               {"train_accuracy", train_acc},
+                               {"test_accuracy", test_curve.back()}};
   write_task_results(o.out, csv.str(), {{"train", train_curve}, {"test", test_curve}}, "accuracy",
-                     summary.str());
+                     summary.dump(2) + "\n");
   return 0;
 }
 

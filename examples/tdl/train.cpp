@@ -14,6 +14,8 @@
 #include "topos/models/simplicial/scn2.hpp"
 #include "topos/util/progress.hpp"
 
+#include <nlohmann/json.hpp>
+
 #include <iomanip>
 #include <iostream>
 #include <random>
@@ -138,10 +140,11 @@ int run_train(const TrainOptions& o) {
   std::cout << "karate club: " << g.num_nodes << " nodes, " << g.edges.size() << " edges; "
             << train_idx.numel() << " training and " << test_idx.numel() << " test nodes\n";
   std::vector<std::pair<std::string, std::vector<double>>> test_curves;
-  std::ostringstream csv, summary;
+  std::ostringstream csv;
   csv << "model,epoch,loss,train_accuracy,test_accuracy\n";
-  summary << "{\n  \"train_nodes\": " << train_idx.numel()
-          << ",\n  \"test_nodes\": " << test_idx.numel() << ",\n  \"models\": {";
+  nlohmann::json summary{{"train_nodes", train_idx.numel()},
+                         {"test_nodes", test_idx.numel()},
+                         {"models", nlohmann::json::object()}};
   for (std::size_t m = 0; m < o.models.size(); ++m) {
     torch::manual_seed(o.seed);
     auto c = make_classifier(o.models[m], g, o);
@@ -171,13 +174,11 @@ int run_train(const TrainOptions& o) {
       bar.update(1, status.str());
     }
     bar.finish();
-    summary << (m ? "," : "") << "\n    \"" << c.name << "\": {\"loss\": " << loss_value
-            << ", \"train_accuracy\": " << train_acc << ", \"test_accuracy\": " << test_acc.back()
-            << "}";
+    summary["models"][c.name] = {
+        {"loss", loss_value}, {"train_accuracy", train_acc}, {"test_accuracy", test_acc.back()}};
     test_curves.push_back({c.name, test_acc});
   }
-  summary << "\n  }\n}\n";
-  write_task_results(o.out, csv.str(), test_curves, "test accuracy", summary.str());
+  write_task_results(o.out, csv.str(), test_curves, "test accuracy", summary.dump(2) + "\n");
   return 0;
 }
 
