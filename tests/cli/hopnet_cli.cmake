@@ -2,7 +2,9 @@
 # clear message, and must not leave the output file behind. Arguments: -DHOPNET=<exe> -DWORK=<dir>.
 file(REMOVE_RECURSE ${WORK})
 file(MAKE_DIRECTORY ${WORK})
-include(${CMAKE_CURRENT_LIST_DIR}/hopnet_run.cmake)
+set(PROGRAM ${HOPNET})
+set(FAILED_RUN_LEAVES_NO ${WORK}/out.json)
+include(${CMAKE_CURRENT_LIST_DIR}/run_program.cmake)
 
 
 

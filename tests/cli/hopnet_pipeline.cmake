@@ -6,7 +6,9 @@
 # -DPYTHON=<python3 or empty> -DCHECK=<scripts/check_torch_file.py>.
 file(REMOVE_RECURSE ${WORK})
 file(MAKE_DIRECTORY ${WORK})
-include(${CMAKE_CURRENT_LIST_DIR}/hopnet_run.cmake)
+set(PROGRAM ${HOPNET})
+set(FAILED_RUN_LEAVES_NO ${WORK}/out.json)
+include(${CMAKE_CURRENT_LIST_DIR}/run_program.cmake)
 
 
 

@@ -6,7 +6,8 @@
 file(REMOVE_RECURSE ${WORK})
 file(MAKE_DIRECTORY ${WORK})
 
-include(${CMAKE_CURRENT_LIST_DIR}/tdl_run.cmake)
+set(PROGRAM ${TDL})
+include(${CMAKE_CURRENT_LIST_DIR}/run_program.cmake)
 macro(expect_failure_topobench name message)
   expect_failure("${name}" "${message}" topobench ${ARGN})
 endmacro()

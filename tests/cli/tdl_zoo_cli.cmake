@@ -6,7 +6,8 @@
 file(REMOVE_RECURSE ${WORK})
 file(MAKE_DIRECTORY ${WORK})
 
-include(${CMAKE_CURRENT_LIST_DIR}/tdl_run.cmake)
+set(PROGRAM ${TDL})
+include(${CMAKE_CURRENT_LIST_DIR}/run_program.cmake)
 
 # Runs `tdl <task> --out WORK/<task> ARGN`, requires it to succeed and to write its accuracy
 # curve, plot and summary; the summary's JSON goes to `summary_var`.
