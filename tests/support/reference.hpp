@@ -1,5 +1,7 @@
-// Access to ../shared/reference for tests: the folder named by TOPOS_REFERENCE_DIR. When it is
-// unset, the test says so and exits with TOPOS_SKIP_CODE, which ctest reports as skipped.
+// Access to the shared data folders for tests: ../shared/reference (TOPOS_REFERENCE_DIR) and
+// ../shared/datasets (TOPOS_DATASETS_DIR). When the variable is unset, the test says so and exits
+// with TOPOS_SKIP_CODE, which ctest reports as skipped; a variable naming a folder without the
+// data's README.md is an error.
 #pragma once
 
 #include <cstdlib>
@@ -9,37 +11,30 @@
 
 namespace topos::test {
 
-inline std::filesystem::path reference_dir(const char* test_name) {
-  const char* dir = std::getenv("TOPOS_REFERENCE_DIR");
+/// The folder named by `variable`, which holds `what` and should be `default_place`.
+inline std::filesystem::path shared_dir(const char* test_name, const char* variable,
+                                        const char* what, const char* default_place) {
+  const char* dir = std::getenv(variable);
   if (dir == nullptr || *dir == '\0') {
-    std::cout << "SKIPPED: '" << test_name
-              << "' needs the reference data; set TOPOS_REFERENCE_DIR to ../shared/reference\n";
+    std::cout << "SKIPPED: '" << test_name << "' needs " << what << "; set " << variable << " to "
+              << default_place << "\n";
     std::exit(TOPOS_SKIP_CODE);
   }
   std::filesystem::path p(dir);
   if (!std::filesystem::exists(p / "README.md")) {
-    std::cerr << "TOPOS_REFERENCE_DIR=" << dir
-              << " does not hold the reference data (no README.md)\n";
+    std::cerr << variable << "=" << dir << " does not hold " << what << " (no README.md)\n";
     std::exit(1);
   }
   return p;
 }
 
-/// The raw benchmark datasets (../shared/datasets): the folder named by TOPOS_DATASETS_DIR, or
-/// skip as reference_dir does.
+inline std::filesystem::path reference_dir(const char* test_name) {
+  return shared_dir(test_name, "TOPOS_REFERENCE_DIR", "the reference data", "../shared/reference");
+}
+
+/// The raw benchmark datasets.
 inline std::filesystem::path datasets_dir(const char* test_name) {
-  const char* dir = std::getenv("TOPOS_DATASETS_DIR");
-  if (dir == nullptr || *dir == '\0') {
-    std::cout << "SKIPPED: '" << test_name
-              << "' needs the raw datasets; set TOPOS_DATASETS_DIR to ../shared/datasets\n";
-    std::exit(TOPOS_SKIP_CODE);
-  }
-  std::filesystem::path p(dir);
-  if (!std::filesystem::exists(p / "README.md")) {
-    std::cerr << "TOPOS_DATASETS_DIR=" << dir << " does not hold the datasets (no README.md)\n";
-    std::exit(1);
-  }
-  return p;
+  return shared_dir(test_name, "TOPOS_DATASETS_DIR", "the raw datasets", "../shared/datasets");
 }
 
 }  // namespace topos::test
