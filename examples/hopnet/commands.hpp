@@ -111,10 +111,11 @@ struct OpenedCheckpoint {
   std::string path;
   std::map<std::string, torch::Tensor> dict;
   CheckpointOverrides overrides;
-  HopnetOptions options;
+  Hopnet net{nullptr};  ///< the model, on the CPU (loading it checked the checkpoint)
   Normalizer norm;
-  /// A model with the checkpoint's weights on `device` (evaluate makes one per worker).
-  Hopnet model(torch::Device device = torch::kCPU) const {
+  const HopnetOptions& options() const { return net->options; }
+  /// Another model with the checkpoint's weights, on `device` (evaluate makes one per worker).
+  Hopnet another(torch::Device device) const {
     auto net = load_hopnet(dict, path, overrides);
     net->to(device);
     return net;
@@ -127,10 +128,10 @@ inline OpenedCheckpoint open_checkpoint(const std::string& path, const std::stri
   c.path = path;
   c.dict = nn::read_tensor_dict(path);
   c.overrides = checkpoint_overrides(variant, c.dict, path, mode);
-  c.options = load_hopnet(c.dict, path, c.overrides)->options;  // a bad checkpoint fails here
+  c.net = load_hopnet(c.dict, path, c.overrides);  // a bad checkpoint fails here
   if (!stats_path.empty()) {
     const auto stats = read_stats_json(stats_path);
-    check_stats_fit(c.options, stats, stats_path);
+    check_stats_fit(c.options(), stats, stats_path);
     c.norm = Normalizer(stats);
   }
   return c;

@@ -49,8 +49,9 @@ int run_evaluate(const EvaluateArgs& a) {
   namespace fs = std::filesystem;
   const FeatureMode mode = feature_mode_from_string(a.mode);
   const torch::Device device = nn::device_from_string(a.device);
-  const auto opened = open_checkpoint(a.checkpoint, a.stats, a.variant, mode);  // one model per
-  const auto& options = opened.options;                                         // thread below
+  // Read and checked once here; each worker thread below makes its own model from it.
+  const auto opened = open_checkpoint(a.checkpoint, a.stats, a.variant, mode);
+  const auto& options = opened.options();
   const Normalizer& norm = opened.norm;
   const auto dataset = data::Dataset::open(a.data);
   const auto& ids = dataset.ids();
@@ -80,7 +81,7 @@ int run_evaluate(const EvaluateArgs& a) {
   std::string error;
   const auto work = [&] {
     try {
-      auto net = opened.model(device);
+      auto net = opened.another(device);
       net->eval();
       MeshLibrary lib(a.assets);
       for (std::size_t i = next++; i < chosen.size() && !failed; i = next++) {

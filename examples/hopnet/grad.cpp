@@ -18,19 +18,19 @@ int run_grad(const GradArgs& a) {
   namespace fs = std::filesystem;
   const FeatureMode mode = feature_mode_from_string(a.mode);
   const auto opened = open_checkpoint(a.checkpoint, a.stats, a.variant, mode);
-  auto model = opened.model();
+  auto model = opened.net;
   model->train();
   const Normalizer& norm = opened.norm;
   MeshLibrary lib(a.assets);
   const auto kubric = data::read_kubric_metadata(a.scene);
   const Scene scene = make_scene(kubric, lib);
-  const auto g = make_geometry(scene, opened.options.lifting());
+  const auto g = make_geometry(scene, opened.options().lifting());
   std::optional<ContactsByFrame> given;
   const auto coll = a.collisions.empty() && mode == FeatureMode::reference && !a.no_collisions_json
                         ? collisions_beside(kubric)
                         : a.collisions;
   if (!coll.empty()) given = read_collisions_json(coll);
-  const auto tf = trajectory_frames(scene, g, opened.options.collision_radius(), 0.0, 2, -1,
+  const auto tf = trajectory_frames(scene, g, opened.options().collision_radius(), 0.0, 2, -1,
                                     given ? &*given : nullptr);
   const auto chunk = a.chunk > 0 ? a.chunk
                                  : auto_chunk(g, tf, model->options.hidden(),

@@ -19,8 +19,9 @@ int run_rollout(const RolloutArgs& a) {
   if (!a.viewer.empty()) hopnet_web::require_js_libraries();
   const torch::Device device = nn::device_from_string(a.device);
   const auto opened = open_checkpoint(a.checkpoint, a.stats, a.variant, mode);
-  auto net = opened.model(device);
+  auto net = opened.net;
   net->eval();
+  net->to(device);
   const Normalizer& norm = opened.norm;
   MeshLibrary lib(a.assets);
   const auto kubric = data::read_kubric_metadata(a.scene);
