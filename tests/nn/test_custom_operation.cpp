@@ -5,6 +5,7 @@
 // that would score against a stale target, and prints activations by name.
 #include "support/torch_prelude.hpp"
 
+#include "support/operator_schedule.hpp"
 #include "topos/nn/operator_schedule.hpp"
 
 #include <atomic>
@@ -12,6 +13,8 @@
 using namespace topos::nn;
 using namespace topos::nn::ops;
 using Catch::Matchers::Contains;
+using topos::test::build_error;
+using topos::test::random_operator;
 
 namespace {
 
@@ -92,26 +95,10 @@ struct Count : Operation {
   }
 };
 
-std::string build_error(const OperatorSchedule& s) {
-  try {
-    OperatorNetwork net(s);
-  } catch (const ScheduleError& e) {
-    return e.what();
-  }
-  return "";
-}
-
-SparseOperator random_operator(std::int64_t rows, std::int64_t cols, int seed) {
-  torch::manual_seed(seed);
-  const auto d = torch::randn({rows, cols}, torch::kDouble) *
-                 (torch::rand({rows, cols}, torch::kDouble) < 0.5).to(torch::kDouble);
-  return SparseOperator::from_dense(d);
-}
-
 }  // namespace
 
 TEST_CASE("a user operation runs in a term like a built-in one", "[nn][schedule][operation]") {
-  const auto A = random_operator(6, 6, 1);
+  const auto A = random_operator(6, 6, 1, 0.5);
   torch::manual_seed(2);
   const auto x = torch::randn({6, 4}, torch::kDouble);
   OperatorSchedule s;
@@ -168,11 +155,22 @@ TEST_CASE("a user operation makes submodules, reads cochains and names its step 
   clash.step(into(0).sum(from(0).apply(LinearPlus("m", 4, {0, "z"}))));
   clash.step(into(0).sum(from(0).apply(Other("m", 4, {0, "z"}))));
   CHECK_THAT(build_error(clash), Contains("module 'm' was made torch::nn::Linear"));
+  // A module's path is a dotted name, as a parameter's is.
+  OperatorSchedule undotted;
+  undotted.input("x", 0, 4).input("z", 0, 4, "z").output("y", 0);
+  undotted.step(into(0).sum(from(0).apply(LinearPlus("block..lin", 4, {0, "z"}))).named("widen"));
+  CHECK_THAT(build_error(undotted),
+             Contains("widen (into (0)): module path 'block..lin' is not a dotted name"));
+  OperatorSchedule trailing_dot;
+  trailing_dot.input("x", 0, 4).output("y", 0);
+  trailing_dot.step(into(0).sum(from(0).apply(Gate("gate."))));
+  CHECK_THAT(build_error(trailing_dot),
+             Contains("step 0 (into (0)): parameter path 'gate.' is not a dotted name"));
 }
 
 TEST_CASE("a user operation's hand-written backward gives autograd's gradients",
           "[nn][schedule][operation]") {
-  const auto A = random_operator(7, 7, 4);
+  const auto A = random_operator(7, 7, 4, 0.5);
   torch::manual_seed(5);
   const auto x = torch::randn({7, 3}, torch::kDouble);
   std::vector<torch::Tensor> grads;

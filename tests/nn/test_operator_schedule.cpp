@@ -4,6 +4,7 @@
 // the network is built (and bad operators when it runs).
 #include "support/torch_prelude.hpp"
 
+#include "support/operator_schedule.hpp"
 #include "topos/models/zoo.hpp"
 #include "topos/nn/operator_schedule.hpp"
 
@@ -13,15 +14,10 @@ using namespace topos;
 using namespace topos::nn;
 using namespace topos::nn::ops;
 using Catch::Matchers::Contains;
+using topos::test::build_error;
+using topos::test::random_operator;
 
 namespace {
-
-SparseOperator dense_operator(std::int64_t rows, std::int64_t cols, int seed) {
-  torch::manual_seed(seed);
-  auto d = torch::randn({rows, cols}, torch::kDouble) *
-           (torch::rand({rows, cols}, torch::kDouble) < 0.4).to(torch::kDouble);
-  return SparseOperator::from_dense(d);
-}
 
 std::set<std::string> parameter_names(const torch::nn::Module& m) {
   std::set<std::string> out;
@@ -36,21 +32,11 @@ torch::Tensor masked_softmax(const torch::Tensor& scores, const torch::Tensor& D
   return torch::where(torch::isnan(w), torch::zeros_like(w), w);
 }
 
-// The error message of building `s`, or "" when it builds.
-std::string build_error(const OperatorSchedule& s) {
-  try {
-    OperatorNetwork net(s);
-  } catch (const ScheduleError& e) {
-    return e.what();
-  }
-  return "";
-}
-
 }  // namespace
 
 TEST_CASE("an operator schedule computes its terms, mix and tail as written", "[nn][schedule]") {
   // Nodes (5, 3 channels), edges (7, 2 channels); B: nodes × edges, L: nodes × nodes.
-  const auto B = dense_operator(5, 7, 1), L = dense_operator(5, 5, 2);
+  const auto B = random_operator(5, 7, 1), L = random_operator(5, 5, 2);
   torch::manual_seed(3);
   const auto x0 = torch::randn({5, 3}, torch::kDouble), x1 = torch::randn({7, 2}, torch::kDouble);
   OperatorSchedule s;
@@ -72,7 +58,7 @@ TEST_CASE("an operator schedule computes its terms, mix and tail as written", "[
   CHECK(net->parameter("layer.a.weight").sizes() == torch::IntArrayRef({3, 4}));
   CHECK(net->parameter("layer.b.weight").sizes() == torch::IntArrayRef({4, 2}));
   CHECK(net->parameter("layer.filter").sizes() == torch::IntArrayRef({2, 3, 1 + 3}));
-  const auto T = dense_operator(7, 7, 4);
+  const auto T = random_operator(7, 7, 4);
   auto out = net->forward({{"x_0", x0}, {"x_1", x1}}, {{"B", B}, {"L", L}, {"S", T}, {"T", T}});
 
   // By hand with dense matrices.
@@ -92,7 +78,7 @@ TEST_CASE("an operator schedule computes its terms, mix and tail as written", "[
 
 TEST_CASE("a parallel group reads one snapshot; a path used twice is one parameter",
           "[nn][schedule]") {
-  const auto A = dense_operator(4, 4, 5);
+  const auto A = random_operator(4, 4, 5);
   torch::manual_seed(6);
   const auto x = torch::randn({4, 2}, torch::kDouble), y = torch::randn({4, 2}, torch::kDouble);
   OperatorSchedule s;
@@ -111,7 +97,7 @@ TEST_CASE("a parallel group reads one snapshot; a path used twice is one paramet
 
 TEST_CASE("attention in a schedule: TopoModelX's Conv with att, and a per-target softmax",
           "[nn][schedule][attention]") {
-  const auto A = dense_operator(5, 7, 7);  // edges (7) -> nodes (5)
+  const auto A = random_operator(5, 7, 7);  // edges (7) -> nodes (5)
   torch::manual_seed(8);
   const auto x0 = torch::randn({5, 4}, torch::kDouble), x1 = torch::randn({7, 4}, torch::kDouble);
   OperatorSchedule s;
@@ -145,7 +131,7 @@ TEST_CASE("attention in a schedule: TopoModelX's Conv with att, and a per-target
 
 TEST_CASE("multi-head attention: per-head GAT scores, concatenated or averaged heads, dropout",
           "[nn][schedule][attention]") {
-  const auto A = dense_operator(6, 6, 21);
+  const auto A = random_operator(6, 6, 21);
   torch::manual_seed(22);
   const auto x = torch::randn({6, 4}, torch::kDouble);
   auto gat = [](bool concat) {
@@ -193,7 +179,7 @@ TEST_CASE("multi-head attention: per-head GAT scores, concatenated or averaged h
 
 TEST_CASE("GATv2 attention: one vector after the activation of keys plus queries",
           "[nn][schedule][attention]") {
-  const auto A = dense_operator(5, 5, 23);
+  const auto A = random_operator(5, 5, 23);
   torch::manual_seed(24);
   const auto x = torch::randn({5, 4}, torch::kDouble), d = torch::randn({5, 4}, torch::kDouble);
   OperatorSchedule s;
@@ -226,7 +212,7 @@ TEST_CASE(
     "attention with keys and queries from other cochains, source-only scores, feature "
     "activation and a transposed operator",
     "[nn][schedule][attention]") {
-  const auto B = dense_operator(5, 7, 25);  // edges (7) -> nodes (5)
+  const auto B = random_operator(5, 7, 25);  // edges (7) -> nodes (5)
   torch::manual_seed(26);
   const auto x0 = torch::randn({5, 4}, torch::kDouble), x1 = torch::randn({7, 4}, torch::kDouble);
   const auto keys = torch::randn({7, 3}, torch::kDouble),
@@ -451,7 +437,7 @@ TEST_CASE("the zoo's schedules create TopoModelX's parameter names and shapes",
 }
 
 TEST_CASE("scale and bias: a learned or buffered scalar, a learned row", "[nn][schedule]") {
-  const auto A = dense_operator(4, 4, 9);
+  const auto A = random_operator(4, 4, 9);
   torch::manual_seed(10);
   const auto x = torch::randn({4, 3}, torch::kDouble);
   OperatorSchedule s;
@@ -485,7 +471,7 @@ TEST_CASE("scale and bias: a learned or buffered scalar, a learned row", "[nn][s
 
 TEST_CASE("pow and normalize: generalised means, differentiated L2 normalisation",
           "[nn][schedule]") {
-  const auto A = dense_operator(5, 6, 11);  // edges (6) -> nodes (5)
+  const auto A = random_operator(5, 6, 11);  // edges (6) -> nodes (5)
   torch::manual_seed(12);
   const auto x = torch::rand({6, 3}, torch::kDouble) + 0.1;
   const auto z = torch::randn({5, 3}, torch::kDouble).requires_grad_(true);
@@ -566,7 +552,7 @@ TEST_CASE("the hypergraph schedules keep TopoModelX's parameter and buffer names
 
 TEST_CASE("intra_aggregate weights each cell by its agreement with the whole cochain",
           "[nn][schedule]") {
-  const auto A = dense_operator(5, 6, 21);  // edges (6) -> nodes (5)
+  const auto A = random_operator(5, 6, 21);  // edges (6) -> nodes (5)
   torch::manual_seed(22);
   const auto x = torch::randn({6, 3}, torch::kDouble).requires_grad_(true);
   OperatorSchedule s;
@@ -592,7 +578,7 @@ TEST_CASE("intra_aggregate weights each cell by its agreement with the whole coc
 
 TEST_CASE("attention offsets read the vector cyclically; mirrored rows swap a row's weights",
           "[nn][schedule][attention]") {
-  const auto A = dense_operator(5, 7, 31);  // cells of rank 1 (7) -> rank 0 (5)
+  const auto A = random_operator(5, 7, 31);  // cells of rank 1 (7) -> rank 0 (5)
   torch::manual_seed(32);
   const auto k = torch::randn({7, 3}, torch::kDouble), q = torch::randn({5, 2}, torch::kDouble);
   auto base = [](const std::string& path) {
@@ -761,8 +747,8 @@ TEST_CASE("HMC and HMPNN as schedules keep TopoModelX's parameter names and shap
 
 TEST_CASE("a filter bank's attention and an affine power against dense products (SAN)",
           "[nn][schedule][attention]") {
-  const auto L = dense_operator(9, 9, 51);
-  const auto M = dense_operator(9, 9, 52);
+  const auto L = random_operator(9, 9, 51);
+  const auto M = random_operator(9, 9, 52);
   torch::manual_seed(53);
   const auto x = torch::randn({9, 4}, torch::kDouble);
   OperatorSchedule s;

@@ -23,6 +23,14 @@ TOPOS_INLINE std::string shape_str(const torch::Tensor& x) {
   return o.str();
 }
 
+/// A parameter's or module's path must be a dotted name: "layers.0.conv", no empty part.
+TOPOS_INLINE void check_dotted_path(const std::string& where, const char* what,
+                                    const std::string& path) {
+  if (path.empty() || path.front() == '.' || path.back() == '.' ||
+      path.find("..") != std::string::npos)
+    throw ScheduleError(where + ": " + what + " path '" + path + "' is not a dotted name");
+}
+
 /// The build context of one step: operations read the widths of the cochains before the step
 /// (recorded: the network keeps the steps that produce them) and create parameters through it.
 class NetworkBuildContext final : public BuildContext {
@@ -114,9 +122,7 @@ TOPOS_INLINE void OperatorNetworkImpl::make_parameter(const std::string& where,
                                                       const std::string& path,
                                                       std::vector<std::int64_t> shape,
                                                       ParameterInit init, bool trainable) {
-  if (path.empty() || path.front() == '.' || path.back() == '.' ||
-      path.find("..") != std::string::npos)
-    throw ScheduleError(where + ": parameter path '" + path + "' is not a dotted name");
+  detail::check_dotted_path(where, "parameter", path);
   auto it = params_.find(path);
   if (it != params_.end()) {
     if (it->second.sizes() != torch::IntArrayRef(shape))
@@ -165,9 +171,7 @@ TOPOS_INLINE void OperatorNetworkImpl::make_module(const std::string& where,
                                                    const std::string& path,
                                                    std::shared_ptr<torch::nn::Module> m) {
   if (!m) throw ScheduleError(where + ": module '" + path + "' is null");
-  if (path.empty() || path.front() == '.' || path.back() == '.' ||
-      path.find("..") != std::string::npos)
-    throw ScheduleError(where + ": module path '" + path + "' is not a dotted name");
+  detail::check_dotted_path(where, "module", path);
   if (auto it = modules_.find(path); it != modules_.end()) {
     const auto& a = *it->second;
     const auto& b = *m;
