@@ -161,6 +161,10 @@ TEST_CASE("a user operation makes submodules, reads cochains and names its step 
   undotted.step(into(0).sum(from(0).apply(LinearPlus("block..lin", 4, {0, "z"}))).named("widen"));
   CHECK_THAT(build_error(undotted),
              Contains("widen (into (0)): module path 'block..lin' is not a dotted name"));
+  OperatorSchedule null_op;
+  null_op.input("x", 0, 4).output("y", 0);
+  null_op.step(into(0).sum(from(0).apply(std::shared_ptr<const Operation>())));
+  CHECK_THAT(build_error(null_op), Contains("step 0 (into (0)): a custom operation is null"));
   OperatorSchedule trailing_dot;
   trailing_dot.input("x", 0, 4).output("y", 0);
   trailing_dot.step(into(0).sum(from(0).apply(Gate("gate."))));
