@@ -371,6 +371,12 @@ class OperatorStep : public ops::Chain<OperatorStep> {
     mix = Mix::concat;
     return *this;
   }
+  /// Terms built in a loop, side by side.
+  OperatorStep& concat(std::vector<ops::Term> t) {
+    sum(std::move(t));
+    mix = Mix::concat;
+    return *this;
+  }
   OperatorStep& named(std::string n) {
     name = std::move(n);
     return *this;
