@@ -137,6 +137,38 @@ inline OpenedCheckpoint open_checkpoint(const std::string& path, const std::stri
   return c;
 }
 
+// ---- the paper's baselines, FIGNet and MeshGraphNet (baselines.cpp) ----------------------------
+/// Whether --config names a baseline (fignet, mgn, mgn-large-radius, or a file with such a model).
+bool is_baseline_config(const std::string& config);
+/// Whether a checkpoint records a baseline model in its topos.config.
+bool is_baseline_checkpoint(const std::string& path);
+int run_baseline_info(const std::string& config, const std::string& checkpoint);
+
+struct BaselineTrainArgs {
+  std::string data, out, assets, split_file, config, init, lr_schedule = "constant";
+  std::int64_t max_steps = -1;
+  int epochs = 1, max_frames = 0, batch_timesteps = 64, stats_stride = 8, val_timesteps = 256,
+      checkpoint_every = 100;
+  double lr = 1e-3;
+  std::uint64_t seed = 0;
+  bool resume = false;
+};
+int run_baseline_train(const BaselineTrainArgs& a);
+
+/// A baseline checkpoint read once; roller() makes a model of its own (one per worker) and
+/// returns the function that rolls out a scene (RolloutOptions' steps and on_step; the
+/// collision radius is the checkpoint's).
+class BaselineRunner {
+ public:
+  explicit BaselineRunner(const std::string& path);
+  std::string name() const;
+  std::function<RolloutResult(const Scene&, RolloutOptions)> roller() const;
+
+ private:
+  std::string path_, name_;
+  std::map<std::string, torch::Tensor> dict_;
+};
+
 inline void write_json_atomic(const nlohmann::json& j, const std::string& path) {
   write_file_atomic(path, j.dump() + "\n");
 }

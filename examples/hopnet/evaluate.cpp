@@ -49,10 +49,33 @@ int run_evaluate(const EvaluateArgs& a) {
   namespace fs = std::filesystem;
   const FeatureMode mode = feature_mode_from_string(a.mode);
   const torch::Device device = nn::device_from_string(a.device);
-  // Read and checked once here; each worker thread below makes its own model from it.
-  const auto opened = open_checkpoint(a.checkpoint, a.stats, a.variant, mode);
-  const auto& options = opened.options();
-  const Normalizer& norm = opened.norm;
+  // Read and checked once here; each worker thread below makes its own model from it: HOPNet
+  // (with --stats) or a baseline (its statistics inside the checkpoint).
+  using Roller = std::function<RolloutResult(const Scene&, RolloutOptions)>;
+  std::function<Roller()> make_roller;
+  std::optional<OpenedCheckpoint> opened;
+  std::optional<BaselineRunner> baseline;
+  std::string model_name = "hopnet", variant;
+  if (is_baseline_checkpoint(a.checkpoint)) {
+    baseline.emplace(a.checkpoint);
+    model_name = variant = baseline->name();
+    make_roller = [&] { return baseline->roller(); };
+  } else {
+    if (a.stats.empty())
+      throw std::invalid_argument(a.checkpoint + " is a HOPNet checkpoint: --stats is required");
+    opened.emplace(open_checkpoint(a.checkpoint, a.stats, a.variant, mode));
+    variant = variant_name(opened->options());
+    make_roller = [&]() -> Roller {
+      auto net = opened->another(device);
+      net->eval();
+      return [net, &opened](const Scene& scene, RolloutOptions opt) mutable {
+        const auto& options = opened->options();
+        const auto g = make_geometry(scene, options.lifting());
+        opt.collision_radius = options.collision_radius();
+        return rollout(*net, opened->norm, scene, g, opt);
+      };
+    };
+  }
   const auto dataset = data::Dataset::open(a.data);
   const auto& ids = dataset.ids();
   const auto chosen = data::split_part(
@@ -81,16 +104,13 @@ int run_evaluate(const EvaluateArgs& a) {
   std::string error;
   const auto work = [&] {
     try {
-      auto net = opened.another(device);
-      net->eval();
+      const Roller roll = make_roller();
       MeshLibrary lib(a.assets);
       for (std::size_t i = next++; i < chosen.size() && !failed; i = next++) {
         Scene scene = make_scene(dataset.scene(chosen[i]), lib);
-        const auto g = make_geometry(scene, options.lifting());
         RolloutOptions opt;
-        opt.collision_radius = options.collision_radius();
         opt.steps = static_cast<int>(std::min<std::int64_t>(a.steps, scene.num_frames - 4));
-        auto r = rollout(*net, norm, scene, g, opt);
+        auto r = roll(scene, opt);
         auto& out = results[i];
         out.model = rollout_metrics(r.poses, scene);
         out.baseline =
@@ -119,7 +139,7 @@ int run_evaluate(const EvaluateArgs& a) {
     const auto& res = results[i];
     seconds += res.seconds;
     for (const auto& [name, m] : std::vector<std::pair<std::string, const RolloutMetrics*>>{
-             {"hopnet", &res.model}, {"constant_velocity", &res.baseline}}) {
+             {model_name, &res.model}, {"constant_velocity", &res.baseline}}) {
       for (int h : horizons) {
         if (h >= static_cast<int>(m->pos_rmse.size())) continue;
         per[name + ".pos_rmse"][h].push_back(m->pos_rmse[static_cast<std::size_t>(h)]);
@@ -150,16 +170,16 @@ int run_evaluate(const EvaluateArgs& a) {
   md << "| model | metric | ";
   std::vector<int> present;
   for (int h : horizons)
-    if (per["hopnet.pos_rmse"].count(h)) present.push_back(h);
+    if (per[model_name + ".pos_rmse"].count(h)) present.push_back(h);
   for (int h : present) md << "frame " << h << " | ";
   md << "\n|---|---|";
   for (std::size_t i = 0; i < present.size(); ++i) md << "---|";
   md << "\n";
-  for (const char* model : {"hopnet", "constant_velocity"}) {
+  for (const std::string& model : {model_name, std::string("constant_velocity")}) {
     for (const char* metric : {"pos_rmse", "ori_rmse", "ori_mae"}) {
       md << "| " << model << " | " << metric << (metric[0] == 'p' ? " (m)" : " (deg)") << " | ";
       for (int h : present) {
-        const auto [m, s] = stat(per[std::string(model) + "." + metric][h]);
+        const auto [m, s] = stat(per[model + "." + metric][h]);
         metrics[model][std::to_string(h)][metric] = {{"mean", m}, {"std", s}};
         char buf[64];
         std::snprintf(buf, sizeof buf, metric[0] == 'p' ? "%.4f ± %.4f" : "%.2f ± %.2f", m, s);
@@ -170,11 +190,13 @@ int run_evaluate(const EvaluateArgs& a) {
   }
   // The layout: metrics.json holds, per frame, mean/std of pos_rmse, ori_rmse, ori_mae (the
   // model's).
-  nlohmann::json top = metrics["hopnet"];
+  const std::string label = model_name == "hopnet" ? "HOPNet" : model_name;
+  nlohmann::json top = metrics[model_name];
   top["baseline_constant_velocity"] = metrics["constant_velocity"];
   top["scenes"] = chosen;
   top["mode"] = to_string(mode);
-  top["variant"] = variant_name(options);
+  top["model"] = model_name;
+  top["variant"] = variant;
   // Per scene (in top["scenes"] order), every frame: for other statistics than the mean over
   // scenes (bootstrap intervals, subsets, pooling; scripts/reproduction_table.py).
   nlohmann::json per_scene = nlohmann::json::array();
@@ -192,13 +214,13 @@ int run_evaluate(const EvaluateArgs& a) {
                     (fs::path(a.out) / "per_scene.json").string());
   {
     std::ostringstream t;
-    t << "# HOPNet rollout errors (" << chosen.size() << " scenes, " << a.split << " split, "
-      << to_string(mode) << " mode)\n\n"
+    t << "# " << label << " rollout errors (" << chosen.size() << " scenes, " << a.split
+      << " split, " << to_string(mode) << " mode)\n\n"
       << md.str();
     write_file_atomic((fs::path(a.out) / "table.md").string(), t.str());
   }
   const std::string title =
-      "HOPNet rollouts (" + std::string(to_string(mode)) + " mode): " + a.data;
+      label + " rollouts (" + std::string(to_string(mode)) + " mode): " + a.data;
   if (!a.no_report) {
     if (!viewer.empty())
       hopnet_viewer::write_viewer_html((fs::path(a.out) / "viewer.html").string(), title, viewer);
@@ -245,8 +267,8 @@ Command add_evaluate(CLI::App& app) {
   ce->add_option("--checkpoint", ev.checkpoint, "model checkpoint")
       ->required()
       ->check(CLI::ExistingFile);
-  ce->add_option("--stats", ev.stats, "normalisation statistics")
-      ->required()
+  ce->add_option("--stats", ev.stats,
+                 "normalisation statistics (HOPNet; a baseline's are in its checkpoint)")
       ->check(CLI::ExistingFile);
   ce->add_option("--data", ev.data, "dataset folder")->required()->check(CLI::ExistingDirectory);
   ce->add_option("--assets", ev.assets,

@@ -1,4 +1,5 @@
-// hopnet info: a checkpoint's or a configuration's variant, parameter count and schedule.
+// hopnet info: a checkpoint's or a configuration's variant, parameter count and schedule (for
+// the baselines also the parameters per module).
 #include "commands.hpp"
 
 namespace hopnet_cli {
@@ -13,6 +14,9 @@ int run_info(const InfoArgs& a) {
   if (a.checkpoint.empty() == a.variant.config.empty())
     throw std::invalid_argument(
         "info: give either --checkpoint FILE or --config PRESET[,PRESET...]");
+  if (a.checkpoint.empty() ? is_baseline_config(a.variant.config)
+                           : is_baseline_checkpoint(a.checkpoint))
+    return run_baseline_info(a.variant.config, a.checkpoint);
   Hopnet model(nullptr);
   if (!a.checkpoint.empty()) {
     const auto dict = nn::read_tensor_dict(a.checkpoint);

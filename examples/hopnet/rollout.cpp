@@ -14,25 +14,22 @@ struct RolloutArgs {
   VariantArgs variant;
 };
 
-int run_rollout(const RolloutArgs& a) {
+// HOPNet's rollout of the scene (a baseline's is BaselineRunner's).
+RolloutResult hopnet_rollout(const RolloutArgs& a, const Scene& scene,
+                             const data::KubricScene& kubric, std::string& variant) {
   const FeatureMode mode = feature_mode_from_string(a.mode);
-  if (!a.viewer.empty()) hopnet_web::require_js_libraries();
   const torch::Device device = nn::device_from_string(a.device);
+  if (a.stats.empty())
+    throw std::invalid_argument(a.checkpoint + " is a HOPNet checkpoint: --stats is required");
   const auto opened = open_checkpoint(a.checkpoint, a.stats, a.variant, mode);
   auto net = opened.net;
   net->eval();
   net->to(device);
-  const Normalizer& norm = opened.norm;
-  MeshLibrary lib(a.assets);
-  const auto kubric = data::read_kubric_metadata(a.scene);
-  const Scene scene = make_scene(kubric, lib);
+  variant = variant_name(net->options);
   const auto geometry = make_geometry(scene, net->options.lifting());
   RolloutOptions opt;
   opt.steps = a.steps;
   opt.collision_radius = net->options.collision_radius();
-  if (scene.num_frames < opt.steps + 4)
-    std::cerr << "note: the scene has " << scene.num_frames << " frames; metrics cover the first "
-              << scene.num_frames << "\n";
   // Reference mode takes the first step's contacts from collisions.json beside the scene, as the
   // reference does.
   const std::string coll =
@@ -47,14 +44,39 @@ int run_rollout(const RolloutArgs& a) {
   }
   ProgressBar bar("rollout", opt.steps, "steps");
   opt.on_step = [&](int, int) { bar.update(); };
-  const auto r = rollout(*net, norm, scene, geometry, opt);
+  auto r = rollout(*net, opened.norm, scene, geometry, opt);
   bar.finish();
+  return r;
+}
+
+int run_rollout(const RolloutArgs& a) {
+  const FeatureMode mode = feature_mode_from_string(a.mode);
+  if (!a.viewer.empty()) hopnet_web::require_js_libraries();
+  MeshLibrary lib(a.assets);
+  const auto kubric = data::read_kubric_metadata(a.scene);
+  const Scene scene = make_scene(kubric, lib);
+  if (scene.num_frames < a.steps + 4)
+    std::cerr << "note: the scene has " << scene.num_frames << " frames; metrics cover the first "
+              << scene.num_frames << "\n";
+  std::string variant;
+  const RolloutResult r = [&] {
+    if (!is_baseline_checkpoint(a.checkpoint)) return hopnet_rollout(a, scene, kubric, variant);
+    const BaselineRunner runner(a.checkpoint);
+    variant = runner.name();
+    RolloutOptions opt;
+    opt.steps = a.steps;
+    ProgressBar bar("rollout", opt.steps, "steps");
+    opt.on_step = [&](int, int) { bar.update(); };
+    auto r = runner.roller()(scene, opt);
+    bar.finish();
+    return r;
+  }();
   const auto m = rollout_metrics(r.poses, scene);
   nlohmann::json j;
   j["scene"] = kubric.source;
   j["mode"] = to_string(mode);
   j["checkpoint"] = a.checkpoint;
-  j["variant"] = variant_name(net->options);
+  j["variant"] = variant;
   j["frames"] = r.num_frames();
   j["pos_rmse"] = m.pos_rmse;
   j["pos_mae"] = m.pos_mae;
@@ -80,11 +102,13 @@ int run_rollout(const RolloutArgs& a) {
   write_json_atomic(j, a.out);
   if (!a.viewer.empty())
     hopnet_viewer::write_viewer_html(
-        a.viewer, "HOPNet rollout (" + std::string(to_string(mode)) + " mode): " + kubric.source,
+        a.viewer,
+        (variant.rfind("fignet", 0) == 0 || variant.rfind("mgn", 0) == 0 ? variant
+                                                                         : std::string("HOPNet")) +
+            " rollout (" + std::string(to_string(mode)) + " mode): " + kubric.source,
         {{kubric.source, &scene, r.poses, {{"prediction", m.pos_rmse}}}});
-  std::printf("rollout: %s, %d steps in %.3f s (%.2f ms/step), mode %s\n",
-              variant_name(net->options).c_str(), opt.steps, r.seconds, 1e3 * r.seconds / opt.steps,
-              to_string(mode));
+  std::printf("rollout: %s, %d steps in %.3f s (%.2f ms/step), mode %s\n", variant.c_str(), a.steps,
+              r.seconds, 1e3 * r.seconds / a.steps, to_string(mode));
   std::printf("%6s %10s %10s %10s %10s\n", "frame", "pos_rmse", "pos_mae", "ori_rmse", "ori_mae");
   for (int f : {4, 25, 50, 75, 100})
     if (f < static_cast<int>(m.pos_rmse.size()))
@@ -105,8 +129,8 @@ Command add_rollout(CLI::App& app) {
   cr->add_option("--checkpoint", ro.checkpoint, "model checkpoint (topos or reference .pt)")
       ->required()
       ->check(CLI::ExistingFile);
-  cr->add_option("--stats", ro.stats, "normalisation statistics (JSON)")
-      ->required()
+  cr->add_option("--stats", ro.stats,
+                 "normalisation statistics (JSON; HOPNet's: a baseline's are in its checkpoint)")
       ->check(CLI::ExistingFile);
   cr->add_option("--scene", ro.scene, "Kubric metadata.json, or the folder holding it")
       ->required()

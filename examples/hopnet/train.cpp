@@ -29,6 +29,8 @@ struct TrainArgs {
   double lr = 1e-4, lr_decay = 0.0, min_z_collision_velocity = 0.0;
   std::uint64_t seed = 0;
   bool resume = false;
+  bool lr_given = false;
+  BaselineTrainArgs baseline;  // the options only the baselines have
 };
 
 // A scene ready for training: its meshes, geometry and, in reference mode, the reference's
@@ -72,6 +74,20 @@ std::vector<LoadedScene> load_scenes(const data::Dataset& dataset,
 
 int run_train(const TrainArgs& a) {
   namespace fs = std::filesystem;
+  if (is_baseline_config(a.variant.config)) {
+    if (a.nproc > 1 || a.hidden > 0 || a.mlp_layers > 0 || a.num_layers > 0 || a.chunk > 0 ||
+        !a.stats.empty() || !a.variant.activation.empty() || a.variant.collision_radius > 0)
+      throw std::invalid_argument(
+          "train --config " + a.variant.config +
+          ": --nproc, --hidden, --mlp-layers, --num-layers, --chunk, --stats, --activation and "
+          "--collision-radius are HOPNet's; set a baseline's fields in a JSON configuration");
+    BaselineTrainArgs b = a.baseline;
+    b.data = a.data, b.out = a.out, b.assets = a.assets, b.split_file = a.split_file;
+    b.config = a.variant.config, b.init = a.init, b.max_steps = a.max_steps;
+    b.epochs = a.epochs, b.max_frames = a.max_frames, b.seed = a.seed, b.resume = a.resume;
+    if (a.lr_given) b.lr = a.lr;
+    return run_baseline_train(b);
+  }
   // --nproc N: this process only launches the N workers (which see RANK in their environment).
   if (a.nproc > 1 && std::getenv("RANK") == nullptr)
     return launch_local_workers(a.nproc, self_command_line());
@@ -407,7 +423,8 @@ Command add_train(CLI::App& app) {
   ct->add_option("--epochs", tr.epochs, "epochs")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
-  ct->add_option("--lr", tr.lr, "Adam learning rate")->capture_default_str();
+  auto* lr =
+      ct->add_option("--lr", tr.lr, "Adam learning rate (baselines: 1e-3)")->capture_default_str();
   ct->add_option("--lr-decay", tr.lr_decay,
                  "exponential decay per epoch (0: constant; the paper's 0.9441)")
       ->capture_default_str();
@@ -445,8 +462,31 @@ Command add_train(CLI::App& app) {
                  "seconds a process waits for the others in a collective before failing")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
+  ct->add_option("--batch-timesteps", tr.baseline.batch_timesteps,
+                 "baselines: random (scene, t) timesteps per optimizer step")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  ct->add_option("--lr-schedule", tr.baseline.lr_schedule,
+                 "baselines: constant, or reference-fignet (lr · 0.1^(step/1e6) + 1e-6)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"constant", "reference-fignet"}));
+  ct->add_option("--checkpoint-every", tr.baseline.checkpoint_every,
+                 "baselines: steps between validation and checkpoint")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  ct->add_option("--stats-stride", tr.baseline.stats_stride,
+                 "baselines: statistics from every n-th training timestep")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  ct->add_option("--val-timesteps", tr.baseline.val_timesteps,
+                 "baselines: validation timesteps (a fixed random sample)")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
   ct->set_config("--config-file", "", "read options from a TOML/INI file");
-  return {ct, [args] { return run_train(*args); }};
+  return {ct, [args, lr] {
+            args->lr_given = lr->count() > 0;
+            return run_train(*args);
+          }};
 }
 
 }  // namespace hopnet_cli

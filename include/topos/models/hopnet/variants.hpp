@@ -1,6 +1,8 @@
 // topos/models/hopnet/variants.hpp
 // The HOPNet family as configurations (hopnet-ablations-spec.md): named presets that compose,
-// JSON configuration files, and the name of the variant a configuration or checkpoint is.
+// JSON configuration files, and the name of the variant a configuration or checkpoint is. The
+// paper's baselines are presets of the same language (fignet, mgn, mgn-large-radius: their
+// "model" field picks models/baselines.hpp; a HOPNet field beside them is a conflict).
 //
 //   standard        HOPNet (spec 6)                 nox4            no object cells (virtual nodes)
 //   noseq           non-sequential MP (64, 3 layers) no-cm-distance  x0 without r0, rt (8 columns)
@@ -41,9 +43,36 @@ inline const std::map<std::string, nlohmann::json>& hopnet_presets() {
   return p;
 }
 
+/// The paper's baselines (models/baselines.hpp) as presets of the same language: FIGNet and
+/// MeshGraphNet with its small and large world-edge radius.
+inline const std::map<std::string, nlohmann::json>& baseline_presets() {
+  static const std::map<std::string, nlohmann::json> p{
+      {"fignet", {{"model", "fignet"}}},
+      {"mgn", {{"model", "mgn"}, {"world_edge_radius", 0.1}}},
+      {"mgn-large-radius", {{"model", "mgn"}, {"world_edge_radius", 0.3}}},
+  };
+  return p;
+}
+
+/// The configuration fields each model has ("model" included).
+inline const std::set<std::string>& model_fields(const std::string& model) {
+  static const std::map<std::string, std::set<std::string>> f{
+      {"hopnet",
+       {"model", "architecture", "center_mass_distance", "hidden", "mlp_layers", "num_layers",
+        "activation", "collision_radius", "mode"}},
+      {"fignet", {"model", "latent", "steps", "mlp_layers", "mesh_edges", "collision_radius"}},
+      {"mgn", {"model", "latent", "steps", "mlp_layers", "world_edge_radius"}},
+  };
+  auto it = f.find(model);
+  if (it == f.end())
+    throw std::invalid_argument("unknown model '" + model + "' (hopnet, fignet or mgn)");
+  return it->second;
+}
+
 inline std::string preset_names() {
   std::string s;
-  for (const auto& [k, v] : hopnet_presets()) s += (s.empty() ? "" : ", ") + k;
+  for (const auto* presets : {&hopnet_presets(), &baseline_presets()})
+    for (const auto& [k, v] : *presets) s += (s.empty() ? "" : ", ") + k;
   return s;
 }
 
@@ -66,9 +95,12 @@ inline std::vector<std::string> split_config(const std::string& text) {
 /// Merges `fields` (from item `who`) into `into`, remembering which item set each field.
 inline void merge_fields(nlohmann::json& into, std::map<std::string, std::string>& set_by,
                          const nlohmann::json& fields, const std::string& who) {
-  static const std::set<std::string> known{
-      "model",      "architecture", "center_mass_distance", "hidden", "mlp_layers",
-      "num_layers", "activation",   "collision_radius",     "mode",   "presets"};
+  static const std::set<std::string> known = [] {
+    std::set<std::string> k{"presets"};
+    for (const char* m : {"hopnet", "fignet", "mgn"})
+      k.insert(model_fields(m).begin(), model_fields(m).end());
+    return k;
+  }();
   for (const auto& [k, v] : fields.items()) {
     if (!known.count(k))
       throw std::invalid_argument(who + ": unknown configuration field '" + k + "'");
@@ -85,9 +117,10 @@ inline void merge_fields(nlohmann::json& into, std::map<std::string, std::string
 
 inline void add_config_item(nlohmann::json& cfg, std::map<std::string, std::string>& set_by,
                             const std::string& item, int depth) {
-  const auto& presets = hopnet_presets();
-  auto p = presets.find(item);
-  if (p != presets.end()) return merge_fields(cfg, set_by, p->second, "preset '" + item + "'");
+  for (const auto* presets : {&hopnet_presets(), &baseline_presets()}) {
+    auto p = presets->find(item);
+    if (p != presets->end()) return merge_fields(cfg, set_by, p->second, "preset '" + item + "'");
+  }
   const bool looks_like_file =
       item.find('/') != std::string::npos || item.find('.') != std::string::npos;
   if (!looks_like_file || !std::filesystem::exists(item))
@@ -118,12 +151,34 @@ inline void add_config_item(nlohmann::json& cfg, std::map<std::string, std::stri
 /// The configuration named by `text` (presets and JSON files, comma-separated), on top of `base`
 /// for the fields nothing sets. Unknown presets, unreadable files, unknown fields and
 /// conflicting items are errors.
-inline HopnetOptions parse_config(const std::string& text, const HopnetOptions& base = {}) {
-  nlohmann::json cfg = base.to_json();
+/// The fields the items of `text` set, checked against the model they name ("hopnet" unless
+/// one sets "model"): a field of another model is an error naming the item that set it.
+inline nlohmann::json config_fields(const std::string& text) {
   nlohmann::json set = nlohmann::json::object();
   std::map<std::string, std::string> set_by;
   for (const auto& item : detail::split_config(text)) detail::add_config_item(set, set_by, item, 0);
-  for (const auto& [k, v] : set.items()) cfg[k] = v;
+  if (set.contains("model") && !set["model"].is_string())
+    throw std::invalid_argument(set_by["model"] + ": \"model\" must be a string");
+  const std::string model = set.value("model", "hopnet");
+  const auto& fields = model_fields(model);
+  for (const auto& [k, v] : set.items())
+    if (!fields.count(k))
+      throw std::invalid_argument(
+          "conflicting configuration: " + set_by[k] + " sets " + k + ", which model " + model +
+          (set_by.count("model") ? " (set by " + set_by["model"] + ")" : std::string()) +
+          " does not have");
+  return set;
+}
+
+/// The model a configuration names: "hopnet", "fignet" or "mgn".
+inline std::string config_model(const std::string& text) {
+  return config_fields(text).value("model", "hopnet");
+}
+
+inline HopnetOptions parse_config(const std::string& text, const HopnetOptions& base = {}) {
+  nlohmann::json cfg = base.to_json();
+  const nlohmann::json fields = config_fields(text);  // items() refers to it: keep it alive
+  for (const auto& [k, v] : fields.items()) cfg[k] = v;
   return HopnetOptions::from_json(cfg);
 }
 

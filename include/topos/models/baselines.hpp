@@ -1,0 +1,263 @@
+// topos/models/baselines.hpp
+// HOPNet's paper baselines as one interface: FIGNet and MeshGraphNet (`fignet`, `mgn`,
+// `mgn-large-radius`) built from a JSON configuration, their features of a scene's timesteps,
+// checkpoints that record the model (a checkpoint of one model loaded as another is an error
+// naming both), and the rollout that turns predicted node accelerations into rigid poses: the
+// vertices integrated (x_{t+1} = a + 2x_t - x_{t-1}) and each moving object fitted by HOPNet's
+// shape matching, so every model is scored through the same pose update and metrics. Frames 0..3
+// are ground truth, as for HOPNet (models/hopnet/rollout.hpp).
+#pragma once
+
+#include "topos/models/fignet/features.hpp"
+#include "topos/models/fignet/model.hpp"
+#include "topos/models/hopnet/rollout.hpp"
+#include "topos/models/hopnet/variants.hpp"
+#include "topos/models/mgn/features.hpp"
+#include "topos/models/mgn/model.hpp"
+#include "topos/nn/serialization.hpp"
+
+#include <variant>
+
+namespace topos::baselines {
+
+/// Whether a configuration's "model" names a baseline.
+inline bool is_baseline_model(const std::string& model) {
+  return model == "fignet" || model == "mgn";
+}
+
+/// One baseline's options: FIGNet's or MeshGraphNet's.
+class BaselineConfig {
+ public:
+  static BaselineConfig from_json(const nlohmann::json& j) {
+    if (!j.is_object() || !j.contains("model") || !j["model"].is_string())
+      throw std::invalid_argument("baseline configuration: no \"model\" (fignet or mgn)");
+    const auto model = j["model"].get<std::string>();
+    if (model == "fignet") return BaselineConfig(fignet::FignetOptions::from_json(j));
+    if (model == "mgn") return BaselineConfig(mgn::MgnOptions::from_json(j));
+    throw std::invalid_argument("baseline configuration: unknown model '" + model +
+                                "' (fignet or mgn)");
+  }
+  explicit BaselineConfig(fignet::FignetOptions o) : options_(o) {}
+  explicit BaselineConfig(mgn::MgnOptions o) : options_(o) {}
+
+  std::string model() const { return is_fignet() ? "fignet" : "mgn"; }
+  /// The preset's name when the configuration is one ("mgn-large-radius"), else the model's.
+  std::string name() const {
+    for (const auto& [preset, fields] : hopnet::baseline_presets()) {
+      auto j = to_json();
+      if (fields.value("model", "") != model()) continue;
+      auto defaults = from_json(fields).to_json();
+      if (defaults == j) return preset;
+    }
+    return model();
+  }
+  bool is_fignet() const { return std::holds_alternative<fignet::FignetOptions>(options_); }
+  const fignet::FignetOptions& fignet() const { return std::get<fignet::FignetOptions>(options_); }
+  const mgn::MgnOptions& mgn() const { return std::get<mgn::MgnOptions>(options_); }
+  nlohmann::json to_json() const { return is_fignet() ? fignet().to_json() : mgn().to_json(); }
+  gns::GraphNetworkSpec spec() const {
+    return is_fignet() ? fignet::fignet_spec(fignet()) : mgn::mgn_spec(mgn());
+  }
+
+ private:
+  std::variant<fignet::FignetOptions, mgn::MgnOptions> options_;
+};
+
+/// The baseline a configuration string names (presets and JSON files, variants.hpp).
+inline BaselineConfig parse_baseline_config(const std::string& text) {
+  const auto fields = hopnet::config_fields(text);
+  if (!is_baseline_model(fields.value("model", "hopnet")))
+    throw std::invalid_argument("configuration '" + text + "' is not a baseline (fignet or mgn)");
+  return BaselineConfig::from_json(fields);
+}
+
+/// A scene's static graph data for one baseline, and its timesteps' graphs.
+class SceneGraphs {
+ public:
+  SceneGraphs(const BaselineConfig& config, const hopnet::Scene& scene) : config_(config) {
+    if (config.is_fignet())
+      geometry_ = fignet::make_fignet_geometry(scene);
+    else
+      geometry_ = mgn::make_mgn_geometry(scene);
+  }
+  /// The graph of the step from poses at t-2, t-1, t (`next`: t+1, for a training target).
+  gns::GraphFrame frame(const hopnet::Poses& p2, const hopnet::Poses& p1, const hopnet::Poses& pt,
+                        const hopnet::Poses* next = nullptr) const {
+    if (config_.is_fignet()) {
+      fignet::FignetFeatureOptions o;
+      o.collision_radius = config_.fignet().collision_radius;
+      o.mesh_edges = config_.fignet().mesh_edges;
+      return fignet::fignet_frame(std::get<fignet::FignetGeometry>(geometry_), p2, p1, pt, next, o);
+    }
+    mgn::MgnFeatureOptions o;
+    o.world_edge_radius = config_.mgn().world_edge_radius;
+    return mgn::mgn_frame(std::get<mgn::MgnGeometry>(geometry_), p2, p1, pt, next, o);
+  }
+  /// The graph of frame t's step in a ground-truth scene (t >= 2; with its target when t+1 exists).
+  gns::GraphFrame frame(const hopnet::Scene& scene, std::int64_t t) const {
+    const auto next = t + 1 < scene.num_frames
+                          ? std::optional<hopnet::Poses>(hopnet::scene_poses(scene, t + 1))
+                          : std::nullopt;
+    return frame(hopnet::scene_poses(scene, t - 2), hopnet::scene_poses(scene, t - 1),
+                 hopnet::scene_poses(scene, t), next ? &*next : nullptr);
+  }
+  const fignet::SceneMeshes& meshes() const {
+    return std::visit([](const auto& g) -> const fignet::SceneMeshes& { return g; }, geometry_);
+  }
+
+ private:
+  BaselineConfig config_;
+  std::variant<fignet::FignetGeometry, mgn::MgnGeometry> geometry_;
+};
+
+/// A baseline's network with its configuration.
+struct Baseline {
+  BaselineConfig config;
+  gns::GraphNetwork net;
+  explicit Baseline(BaselineConfig c)
+      : config(std::move(c)), net(config.spec(), "_encode_process_decode") {}
+  std::int64_t num_parameters() const {
+    std::int64_t n = 0;
+    for (const auto& p : net->parameters()) n += p.numel();
+    return n;
+  }
+};
+
+/// The "model" a checkpoint records in "topos.config" ("hopnet" for HOPNet's, and for reference
+/// HOPNet files, which carry no configuration).
+inline nlohmann::json checkpoint_config(const std::map<std::string, torch::Tensor>& dict,
+                                        const std::string& source) {
+  auto cfg = dict.find("topos.config");
+  if (cfg == dict.end()) return {{"model", "hopnet"}};
+  const auto t = cfg->second.to(torch::kUInt8).contiguous();
+  const std::string text(reinterpret_cast<const char*>(t.data_ptr<std::uint8_t>()),
+                         static_cast<std::size_t>(t.numel()));
+  try {
+    auto j = nlohmann::json::parse(text);
+    if (!j.is_object()) throw std::invalid_argument("not a JSON object");
+    if (!j.contains("model")) j["model"] = "hopnet";
+    return j;
+  } catch (const std::exception& e) {
+    throw std::runtime_error(source + ": unreadable topos.config: " + e.what());
+  }
+}
+
+/// Saves parameters, "topos.config" and the normalisation statistics ("topos.statistics"), so a
+/// baseline checkpoint is self-contained. Atomic.
+inline void save_baseline(const Baseline& b, const gns::Statistics& stats,
+                          const std::string& path) {
+  c10::Dict<std::string, torch::Tensor> dict;
+  for (const auto& p : b.net->named_parameters()) dict.insert(p.key(), p.value().detach().cpu());
+  auto bytes = [](const std::string& s) {
+    return torch::tensor(std::vector<std::uint8_t>(s.begin(), s.end()), torch::kUInt8);
+  };
+  dict.insert("topos.config", bytes(b.config.to_json().dump()));
+  dict.insert("topos.statistics", bytes(stats.to_json().dump()));
+  nn::write_tensor_dict(dict, path);
+}
+
+/// A baseline checkpoint: its model (`expected`, when given, must be the one recorded: "a fignet
+/// checkpoint ... --config asks for mgn"), its parameters and its statistics.
+struct LoadedBaseline {
+  Baseline model;
+  gns::Statistics stats;
+};
+
+inline LoadedBaseline load_baseline(const std::map<std::string, torch::Tensor>& dict,
+                                    const std::string& source, const std::string& expected = "") {
+  const auto cfg = checkpoint_config(dict, source);
+  const std::string model = cfg.value("model", "hopnet");
+  if (!expected.empty() && model != expected)
+    throw std::invalid_argument(source + ": a " + model + " checkpoint (topos.config model '" +
+                                model + "'); the configuration asks for " + expected);
+  if (!is_baseline_model(model))
+    throw std::invalid_argument(source + ": a " + model +
+                                " checkpoint, not a baseline (fignet or mgn)");
+  BaselineConfig config = [&] {
+    try {
+      return BaselineConfig::from_json(cfg);
+    } catch (const std::invalid_argument& e) {
+      throw std::invalid_argument(source + ": " + e.what());
+    }
+  }();
+  LoadedBaseline out{Baseline(config), {}};
+  auto params = dict;
+  params.erase("topos.config");
+  auto st = params.find("topos.statistics");
+  if (st == params.end())
+    throw std::invalid_argument(source + ": missing 'topos.statistics' (the normalisation)");
+  {
+    const auto t = st->second.to(torch::kUInt8).contiguous();
+    const std::string text(reinterpret_cast<const char*>(t.data_ptr<std::uint8_t>()),
+                           static_cast<std::size_t>(t.numel()));
+    try {
+      out.stats = gns::Statistics::from_json(nlohmann::json::parse(text), source);
+    } catch (const nlohmann::json::exception& e) {
+      throw std::invalid_argument(source + ": unreadable topos.statistics: " + e.what());
+    }
+    params.erase(st);
+  }
+  out.stats.check_fits(out.model.config.spec(), source);
+  nn::load_parameters(*out.model.net, params, source);
+  return out;
+}
+
+/// One step: the poses at t+1 predicted from poses at t-2, t-1, t.
+inline hopnet::Poses predict_next(Baseline& b, const gns::Statistics& stats,
+                                  const SceneGraphs& graphs, const hopnet::Poses& p2,
+                                  const hopnet::Poses& p1, const hopnet::Poses& pt) {
+  const auto frame = graphs.frame(p2, p1, pt);
+  const auto spec = b.config.spec();
+  const auto batch = gns::collate(spec, {&frame}, stats);
+  torch::NoGradGuard no_grad;
+  const auto out = b.net->forward(batch).at("mesh").to(torch::kDouble).contiguous();
+  const auto& g = graphs.meshes();
+  const auto& mean = stats.mean.at("acceleration");
+  const auto& sd = stats.std.at("acceleration");
+  const auto* a = out.data_ptr<double>();
+  const auto now = fignet::detail::pose_meshes(g, pt, "pose at t"),
+             before = fignet::detail::pose_meshes(g, p1, "pose at t-1");
+  hopnet::Poses next = pt;
+  for (std::int64_t o = 0; o < g.num_objects(); ++o) {
+    if (g.is_static(o)) continue;
+    const auto& obj = g.objects[static_cast<std::size_t>(o)];
+    const auto k = static_cast<std::size_t>(o);
+    Vertices x = 2.0 * now[k].vertices - before[k].vertices;
+    for (Eigen::Index v = 0; v < x.rows(); ++v)
+      for (int c = 0; c < 3; ++c)
+        x(v, c) += a[3 * (g.node_offset[k] + v) + c] * sd[static_cast<std::size_t>(c)] +
+                   mean[static_cast<std::size_t>(c)];
+    const RigidPose r = shape_match(obj.mesh.vertices, obj.center_of_mass, x, obj.mesh.faces);
+    next.positions.row(o) = r.position.transpose();
+    next.quaternions.row(o) = r.wxyz.transpose();
+  }
+  return next;
+}
+
+/// Rolls out from GT frames 0..3 of `scene` for opt.steps frames (HOPNet's RolloutResult).
+inline hopnet::RolloutResult rollout(Baseline& b, const gns::Statistics& stats,
+                                     const hopnet::Scene& scene, const SceneGraphs& graphs,
+                                     const hopnet::RolloutOptions& opt = {}) {
+  if (scene.num_frames < 4)
+    throw std::invalid_argument(scene.source +
+                                ": a rollout needs at least 4 ground-truth frames, the scene has " +
+                                std::to_string(scene.num_frames));
+  if (opt.steps < 1) throw std::invalid_argument("rollout: steps must be positive");
+  hopnet::RolloutResult r;
+  for (int t = 0; t < 4; ++t) r.poses.push_back(hopnet::scene_poses(scene, t));
+  r.invalid_ratio.assign(static_cast<std::size_t>(opt.steps) + 4, 0.0);
+  const auto start = std::chrono::steady_clock::now();
+  for (int k = 0; k < opt.steps; ++k) {
+    const std::size_t t = r.poses.size() - 1;
+    auto next = predict_next(b, stats, graphs, r.poses[t - 2], r.poses[t - 1], r.poses[t]);
+    if (!next.positions.allFinite())
+      throw std::runtime_error("rollout diverged at frame " + std::to_string(t + 1) +
+                               " (non-finite position)");
+    r.poses.push_back(std::move(next));
+    if (opt.on_step) opt.on_step(k + 1, opt.steps);
+  }
+  r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return r;
+}
+
+}  // namespace topos::baselines
