@@ -83,6 +83,22 @@ int run_baseline_train(const BaselineTrainArgs& a) {
   if (train_ids.empty()) throw data::DataError(a.data + ": no training scenes");
   if (a.batch_timesteps < 1) throw std::invalid_argument("--batch-timesteps must be positive");
   fs::create_directories(a.out);
+  const auto ckpt = (fs::path(a.out) / "checkpoint.pt").string(),
+             opt_path = (fs::path(a.out) / "optimizer.pt").string(),
+             state_path = (fs::path(a.out) / "state.json").string(),
+             journal = (fs::path(a.out) / "commit.journal").string();
+  if (a.resume) recover_file_group(journal);
+  const bool resuming = a.resume && fs::exists(state_path);
+  if (resuming) {  // the model before anything else: its statistics would not fit another's
+    const auto cfg = baselines::checkpoint_config(nn::read_tensor_dict(ckpt), ckpt);
+    const std::string model = cfg.value("model", "hopnet");
+    if (model != config.model())
+      throw std::invalid_argument(ckpt + ": a " + model + " checkpoint (topos.config model '" +
+                                  model + "'); --config asks for " + config.model());
+    if (cfg != config.to_json())
+      throw std::invalid_argument(ckpt + ": trained as " + cfg.dump() + ", --config asks for " +
+                                  config.to_json().dump());
+  }
   std::printf("train: %s (%s), %zu scenes (%zu train, %zu val), %s format\n", config.name().c_str(),
               config.to_json().dump().c_str(), ids.size(), train_ids.size(), val_ids.size(),
               dataset.format().c_str());
@@ -147,20 +163,10 @@ int run_baseline_train(const BaselineTrainArgs& a) {
 
   torch::manual_seed(a.seed);
   baselines::Baseline model(config);
-  const auto ckpt = (fs::path(a.out) / "checkpoint.pt").string(),
-             opt_path = (fs::path(a.out) / "optimizer.pt").string(),
-             state_path = (fs::path(a.out) / "state.json").string(),
-             journal = (fs::path(a.out) / "commit.journal").string();
-  if (a.resume) recover_file_group(journal);
   torch::optim::Adam opt(model.net->parameters(), torch::optim::AdamOptions(a.lr));
   std::int64_t step = 0;
-  const bool resuming = a.resume && fs::exists(state_path);
   if (resuming) {
     const auto dict = nn::read_tensor_dict(ckpt);
-    auto loaded = baselines::load_baseline(dict, ckpt, config.model());
-    if (loaded.model.config.to_json() != config.to_json())
-      throw std::invalid_argument(ckpt + ": trained as " + loaded.model.config.to_json().dump() +
-                                  ", --config asks for " + config.to_json().dump());
     nn::load_parameters(
         *model.net,
         [&] {

@@ -1,0 +1,71 @@
+# The paper's baselines in the hopnet program: info's parameter counts (FIGNet's from the
+# reimplementation's construction, MeshGraphNet's from its layout), a short train, resume, rollout
+# and evaluate per preset on a generated MOVi-A-like dataset, and the errors: conflicting presets,
+# a checkpoint of one model resumed or started as another, a HOPNet checkpoint without statistics.
+# Arguments: -DHOPNET=<exe> -DWORK=<dir>.
+file(REMOVE_RECURSE ${WORK})
+file(MAKE_DIRECTORY ${WORK})
+set(PROGRAM ${HOPNET})
+include(${CMAKE_CURRENT_LIST_DIR}/run_program.cmake)
+
+function(expect_output name text)
+  string(FIND "${LAST_OUTPUT}" "${text}" pos)
+  if(pos EQUAL -1)
+    message(FATAL_ERROR "${name}: expected '${text}' in:\n${LAST_OUTPUT}")
+  endif()
+endfunction()
+
+expect_success("info fignet" info --config fignet)
+expect_output("info fignet" "parameters: 5559430")
+expect_output("info fignet" "tensors: 452")
+expect_success("info mgn" info --config mgn)
+expect_output("info mgn" "parameters: 2613507")
+expect_success("info mgn-large-radius" info --config mgn-large-radius)
+expect_output("info mgn-large-radius" "\"world_edge_radius\":0.3")
+expect_failure("fignet,nox4" "preset 'nox4' sets architecture, which model fignet" info --config fignet,nox4)
+expect_failure("mgn,fignet" "preset 'fignet' sets model" info --config mgn,fignet)
+
+expect_success("generate" generate --dataset movi-a --seeds 1-6 --frames 24 --out ${WORK}/data)
+file(WRITE ${WORK}/split.json "{\"train\": [1, 2, 3, 4], \"val\": [5], \"test\": [6]}")
+set(train train --data ${WORK}/data --split-file ${WORK}/split.json --batch-timesteps 4
+    --checkpoint-every 2 --val-timesteps 8)
+foreach(preset fignet mgn mgn-large-radius)
+  set(out ${WORK}/${preset})
+  expect_success("train ${preset}" ${train} --config ${preset} --out ${out} --max-steps 2)
+  expect_success("resume ${preset}" ${train} --config ${preset} --out ${out} --max-steps 4 --resume)
+  file(STRINGS ${out}/steps.csv rows)
+  list(LENGTH rows n)
+  if(NOT n EQUAL 5)
+    message(FATAL_ERROR "${preset}: steps.csv has ${n} lines after 2 + 2 steps, expected 5")
+  endif()
+  expect_success("info ${preset} checkpoint" info --checkpoint ${out}/checkpoint.pt)
+  expect_output("info ${preset} checkpoint" "variant: ${preset}")
+  expect_success("rollout ${preset}" rollout --checkpoint ${out}/checkpoint.pt --scene ${WORK}/data/6
+                 --steps 6 --out ${out}/rollout.json)
+  file(READ ${out}/rollout.json r)
+  string(JSON frames GET "${r}" frames)
+  if(NOT frames EQUAL 10)
+    message(FATAL_ERROR "${preset}: the rollout has ${frames} frames, expected 4 + 6")
+  endif()
+endforeach()
+expect_success("evaluate fignet" evaluate --checkpoint ${WORK}/fignet/checkpoint.pt --data ${WORK}/data
+               --split-file ${WORK}/split.json --steps 8 --out ${WORK}/eval --no-report)
+file(READ ${WORK}/eval/metrics.json m)
+string(JSON model GET "${m}" model)
+if(NOT model STREQUAL "fignet")
+  message(FATAL_ERROR "evaluate named the model '${model}', expected fignet")
+endif()
+
+expect_failure("resume as another model" "mgn/checkpoint.pt: a mgn checkpoint"
+               ${train} --config fignet --out ${WORK}/mgn --max-steps 6 --resume)
+expect_failure("resume with another radius" "--config asks for"
+               ${train} --config mgn --out ${WORK}/mgn-large-radius --max-steps 6 --resume)
+expect_failure("init from another model" "the configuration asks for fignet"
+               ${train} --config fignet --out ${WORK}/x --init ${WORK}/mgn/checkpoint.pt --max-steps 1)
+expect_failure("HOPNet's options" "are HOPNet's"
+               ${train} --config fignet --out ${WORK}/y --hidden 64 --max-steps 1)
+expect_success("hopnet init" init --out ${WORK}/hopnet.pt --hidden 16)
+expect_failure("HOPNet without statistics" "--stats is required"
+               rollout --checkpoint ${WORK}/hopnet.pt --scene ${WORK}/data/6 --out ${WORK}/h.json)
+expect_failure("HOPNet as a baseline" "a hopnet checkpoint"
+               ${train} --config mgn --out ${WORK}/z --init ${WORK}/hopnet.pt --max-steps 1)
