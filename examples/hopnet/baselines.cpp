@@ -261,11 +261,13 @@ int run_baseline_train(const BaselineTrainArgs& a) {
     model.net->train();
     return n ? sum / static_cast<double>(n) : 0.0;
   };
+  double trained_seconds = resuming ? data::read_json_file(state_path).value("seconds", 0.0) : 0;
   const auto save = [&] {
     FileGroup group(journal);
     baselines::save_baseline(model, stats, group.stage(ckpt));
     nn::write_tensor_dict(nn::adam_state_dict(opt, *model.net), group.stage(opt_path));
-    write_json_atomic({{"step", step}, {"model", config.to_json()}}, group.stage(state_path));
+    write_json_atomic({{"step", step}, {"seconds", trained_seconds}, {"model", config.to_json()}},
+                      group.stage(state_path));
     group.commit();
   };
 
@@ -277,7 +279,8 @@ int run_baseline_train(const BaselineTrainArgs& a) {
   std::int64_t loss_n = 0;
   std::future<gns::GraphBatch> next;
   if (step < total_steps) next = std::async(std::launch::async, batch_of, step);
-  while (step < total_steps) {
+  bool out_of_time = a.max_seconds > 0 && trained_seconds >= a.max_seconds;  // spent before
+  while (step < total_steps && !out_of_time) {
     reset_peak_rss();
     const auto t0 = std::chrono::steady_clock::now();
     const gns::GraphBatch batch = next.get();  // built while the previous step ran
@@ -293,13 +296,15 @@ int run_baseline_train(const BaselineTrainArgs& a) {
                  secs =
                      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     loss_sum += l, ++loss_n;
+    trained_seconds += secs;
+    out_of_time = a.max_seconds > 0 && trained_seconds >= a.max_seconds;
     const auto frames = static_cast<double>(batch.node_offset.size() - 1);
     steps_csv << step << "," << l << "," << secs << "," << frames / secs << "," << lr << ","
               << peak_rss_mb() << "\n";
     char status[96];
     std::snprintf(status, sizeof status, "loss %.4f %.1f timesteps/s", l, frames / secs);
     bar.update(1, status);
-    if (step % a.checkpoint_every == 0 || step == total_steps) {
+    if (step % a.checkpoint_every == 0 || step == total_steps || out_of_time) {
       const double vl = validate();
       checks_csv
           << step << "," << loss_sum / static_cast<double>(loss_n) << "," << vl << ","
@@ -313,8 +318,11 @@ int run_baseline_train(const BaselineTrainArgs& a) {
   }
   bar.finish();
   if (!fs::exists(ckpt)) save();  // --max-steps 0: the initial model, so rollout has one
-  std::printf("trained %lld steps; checkpoint %s (statistics inside; also %s)\n",
-              static_cast<long long>(step), ckpt.c_str(), stats_path.c_str());
+  std::printf(
+      "trained %lld steps in %.1f s of optimizer steps%s; checkpoint %s (statistics "
+      "inside; also %s)\n",
+      static_cast<long long>(step), trained_seconds, out_of_time ? " (--max-seconds reached)" : "",
+      ckpt.c_str(), stats_path.c_str());
   return 0;
 }
 

@@ -150,6 +150,7 @@ struct BaselineTrainArgs {
   int epochs = 1, max_frames = 0, batch_timesteps = 64, stats_stride = 8, val_timesteps = 256,
       checkpoint_every = 100;
   double lr = 1e-3;
+  double max_seconds = 0;  ///< a wall-time budget for the optimizer steps (0: none)
   std::uint64_t seed = 0;
   bool resume = false;
 };

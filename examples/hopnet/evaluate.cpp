@@ -1,5 +1,5 @@
-// hopnet evaluate: roll out every scene of a split; the paper's table beside a constant-velocity
-// baseline.
+// hopnet evaluate: roll out every scene of a split with one or several checkpoints (HOPNet's and
+// the baselines'); the paper's table beside a constant-velocity baseline and the paper's rows.
 #include "commands.hpp"
 #include "report.hpp"
 #include "topos/nn/device.hpp"
@@ -16,8 +16,9 @@ namespace {
 
 // ---- evaluate ---------------------------------------------------------------------------------
 struct EvaluateArgs {
-  std::string checkpoint, stats, data, assets, split = "test", split_file, mode = "reference", out,
-                                               device = "cpu";
+  std::vector<std::string> checkpoints;
+  std::string stats, data, assets, split = "test", split_file, mode = "reference", out,
+                                   device = "cpu";
   int steps = 102, viewer_scenes = 6, jobs = 0;
   VariantArgs variant;
   bool no_report = false;
@@ -49,33 +50,48 @@ int run_evaluate(const EvaluateArgs& a) {
   namespace fs = std::filesystem;
   const FeatureMode mode = feature_mode_from_string(a.mode);
   const torch::Device device = nn::device_from_string(a.device);
-  // Read and checked once here; each worker thread below makes its own model from it: HOPNet
-  // (with --stats) or a baseline (its statistics inside the checkpoint).
+  // Every checkpoint is read and checked once here; each worker thread below makes its own model
+  // from it: HOPNet (with --stats) or a baseline (its statistics inside the checkpoint).
   using Roller = std::function<RolloutResult(const Scene&, RolloutOptions)>;
-  std::function<Roller()> make_roller;
-  std::optional<OpenedCheckpoint> opened;
-  std::optional<BaselineRunner> baseline;
-  std::string model_name = "hopnet", variant;
-  if (is_baseline_checkpoint(a.checkpoint)) {
-    baseline.emplace(a.checkpoint);
-    model_name = variant = baseline->name();
-    make_roller = [&] { return baseline->roller(); };
-  } else {
-    if (a.stats.empty())
-      throw std::invalid_argument(a.checkpoint + " is a HOPNet checkpoint: --stats is required");
-    opened.emplace(open_checkpoint(a.checkpoint, a.stats, a.variant, mode));
-    variant = variant_name(opened->options());
-    make_roller = [&]() -> Roller {
-      auto net = opened->another(device);
-      net->eval();
-      return [net, &opened](const Scene& scene, RolloutOptions opt) mutable {
-        const auto& options = opened->options();
-        const auto g = make_geometry(scene, options.lifting());
-        opt.collision_radius = options.collision_radius();
-        return rollout(*net, opened->norm, scene, g, opt);
+  struct Model {
+    std::string name, variant, checkpoint;
+    std::function<Roller()> make;
+  };
+  std::vector<Model> models;
+  std::vector<std::unique_ptr<OpenedCheckpoint>> opened;
+  std::vector<std::unique_ptr<BaselineRunner>> runners;
+  for (const auto& path : a.checkpoints) {
+    Model m;
+    m.checkpoint = path;
+    if (is_baseline_checkpoint(path)) {
+      runners.push_back(std::make_unique<BaselineRunner>(path));
+      const BaselineRunner* runner = runners.back().get();
+      m.name = m.variant = runner->name();
+      m.make = [runner] { return runner->roller(); };
+    } else {
+      if (a.stats.empty())
+        throw std::invalid_argument(path + " is a HOPNet checkpoint: --stats is required");
+      opened.push_back(
+          std::make_unique<OpenedCheckpoint>(open_checkpoint(path, a.stats, a.variant, mode)));
+      const OpenedCheckpoint* c = opened.back().get();
+      m.name = "hopnet";
+      m.variant = variant_name(c->options());
+      m.make = [c, device]() -> Roller {
+        auto net = c->another(device);
+        net->eval();
+        return [net, c](const Scene& scene, RolloutOptions opt) mutable {
+          const auto g = make_geometry(scene, c->options().lifting());
+          opt.collision_radius = c->options().collision_radius();
+          return rollout(*net, c->norm, scene, g, opt);
+        };
       };
-    };
+    }
+    // Two checkpoints of one model: their variants tell them apart, then their order.
+    for (const auto& other : models)
+      if (other.name == m.name) m.name += " (" + m.variant + ", " + path + ")";
+    models.push_back(std::move(m));
   }
+  const std::string model_name = models.front().name;
   const auto dataset = data::Dataset::open(a.data);
   const auto& ids = dataset.ids();
   const auto chosen = data::split_part(
@@ -93,7 +109,8 @@ int run_evaluate(const EvaluateArgs& a) {
   struct Result {
     std::optional<Scene> scene;  // kept for the viewer
     std::vector<Poses> poses;
-    RolloutMetrics model, baseline;
+    std::vector<RolloutMetrics> models;  // in --checkpoint order; the viewer shows the first's
+    RolloutMetrics baseline;
     double seconds = 0;
     int objects = 0;  // dynamic ones, those the metrics average over
   };
@@ -104,21 +121,26 @@ int run_evaluate(const EvaluateArgs& a) {
   std::string error;
   const auto work = [&] {
     try {
-      const Roller roll = make_roller();
+      std::vector<Roller> rollers;
+      for (const auto& m : models) rollers.push_back(m.make());
       MeshLibrary lib(a.assets);
       for (std::size_t i = next++; i < chosen.size() && !failed; i = next++) {
         Scene scene = make_scene(dataset.scene(chosen[i]), lib);
         RolloutOptions opt;
         opt.steps = static_cast<int>(std::min<std::int64_t>(a.steps, scene.num_frames - 4));
-        auto r = roll(scene, opt);
         auto& out = results[i];
-        out.model = rollout_metrics(r.poses, scene);
+        std::vector<Poses> first;
+        for (auto& roll : rollers) {
+          auto r = roll(scene, opt);
+          out.models.push_back(rollout_metrics(r.poses, scene));
+          out.seconds += r.seconds;
+          if (first.empty()) first = std::move(r.poses);
+        }
         out.baseline =
-            rollout_metrics(constant_velocity(scene, static_cast<int>(r.poses.size())), scene);
-        out.seconds = r.seconds;
+            rollout_metrics(constant_velocity(scene, static_cast<int>(first.size())), scene);
         for (const auto& o : scene.objects) out.objects += !o.is_floor;
         if (static_cast<int>(i) < a.viewer_scenes)
-          out.scene = std::move(scene), out.poses = std::move(r.poses);
+          out.scene = std::move(scene), out.poses = std::move(first);
         std::lock_guard<std::mutex> lock(mutex);
         bar.update(1, "scene " + std::to_string(chosen[i]));
       }
@@ -138,8 +160,11 @@ int run_evaluate(const EvaluateArgs& a) {
   for (std::size_t i = 0; i < chosen.size(); ++i) {
     const auto& res = results[i];
     seconds += res.seconds;
-    for (const auto& [name, m] : std::vector<std::pair<std::string, const RolloutMetrics*>>{
-             {model_name, &res.model}, {"constant_velocity", &res.baseline}}) {
+    std::vector<std::pair<std::string, const RolloutMetrics*>> rows;
+    for (std::size_t k = 0; k < models.size(); ++k)
+      rows.emplace_back(models[k].name, &res.models[k]);
+    rows.emplace_back("constant_velocity", &res.baseline);
+    for (const auto& [name, m] : rows) {
       for (int h : horizons) {
         if (h >= static_cast<int>(m->pos_rmse.size())) continue;
         per[name + ".pos_rmse"][h].push_back(m->pos_rmse[static_cast<std::size_t>(h)]);
@@ -148,11 +173,11 @@ int run_evaluate(const EvaluateArgs& a) {
       }
     }
     if (res.scene)
-      viewer.push_back(
-          {"scene " + std::to_string(chosen[i]),
-           &*res.scene,
-           res.poses,
-           {{"prediction", res.model.pos_rmse}, {"constant velocity", res.baseline.pos_rmse}}});
+      viewer.push_back({"scene " + std::to_string(chosen[i]),
+                        &*res.scene,
+                        res.poses,
+                        {{"prediction", res.models.front().pos_rmse},
+                         {"constant velocity", res.baseline.pos_rmse}}});
   }
   bar.finish();
   const auto stat = [](const std::vector<double>& v) {
@@ -165,6 +190,11 @@ int run_evaluate(const EvaluateArgs& a) {
       if (std::isfinite(x)) s += (x - m) * (x - m);
     return std::pair<double, double>{m, n ? std::sqrt(s / n) : NAN};
   };
+  // The dataset kind decides which of the paper's rows stand beside ours.
+  std::vector<data::KubricScene> sources;
+  for (auto id : chosen) sources.push_back(dataset.scene(id));
+  std::string kind_why;
+  const std::string kind = hopnet_report::infer_movi_kind(sources, &kind_why);
   nlohmann::json metrics;
   std::ostringstream md;
   md << "| model | metric | ";
@@ -175,7 +205,10 @@ int run_evaluate(const EvaluateArgs& a) {
   md << "\n|---|---|";
   for (std::size_t i = 0; i < present.size(); ++i) md << "---|";
   md << "\n";
-  for (const std::string& model : {model_name, std::string("constant_velocity")}) {
+  std::vector<std::string> names;
+  for (const auto& m : models) names.push_back(m.name);
+  names.push_back("constant_velocity");
+  for (const std::string& model : names) {
     for (const char* metric : {"pos_rmse", "ori_rmse", "ori_mae"}) {
       md << "| " << model << " | " << metric << (metric[0] == 'p' ? " (m)" : " (deg)") << " | ";
       for (int h : present) {
@@ -187,27 +220,59 @@ int run_evaluate(const EvaluateArgs& a) {
       }
       md << "\n";
     }
+  }  // The paper's rows (quoted: mean ± std over its three seeds; "–" where it gives none).
+  for (const auto& p : hopnet_report::paper_rows()) {
+    if (p.kind != kind) continue;
+    for (const auto& [metric, mean, sd] :
+         {std::tuple<const char*, const std::array<double, 4>*, const std::array<double, 4>*>{
+              "pos_rmse (m)", &p.pos, &p.pos_std},
+          {"ori_mae (deg)", &p.ori, &p.ori_std}}) {
+      md << "| " << p.label << " | " << metric << " | ";
+      for (int h : present) {
+        const auto k = static_cast<std::size_t>(h / 25 - 1);  // frames 25, 50, 75, 100
+        char buf[64];
+        if (h % 25 != 0 || k > 3 || !std::isfinite((*mean)[k]))
+          std::snprintf(buf, sizeof buf, "–");
+        else
+          std::snprintf(buf, sizeof buf, metric[0] == 'p' ? "%.4f ± %.4f" : "%.2f ± %.2f",
+                        (*mean)[k], (*sd)[k]);
+        md << buf << " | ";
+      }
+      md << "\n";
+    }
   }
+
   // The layout: metrics.json holds, per frame, mean/std of pos_rmse, ori_rmse, ori_mae (the
   // model's).
-  const std::string label = model_name == "hopnet" ? "HOPNet" : model_name;
+  std::string label = model_name == "hopnet" ? "HOPNet" : model_name;
+  for (std::size_t k = 1; k < models.size(); ++k) label += ", " + models[k].name;
   nlohmann::json top = metrics[model_name];
   top["baseline_constant_velocity"] = metrics["constant_velocity"];
   top["scenes"] = chosen;
   top["mode"] = to_string(mode);
   top["model"] = model_name;
-  top["variant"] = variant;
+  top["variant"] = models.front().variant;
+  top["models"] = metrics;  // every checkpoint's and constant velocity's, by name
+  top["model_order"] = names;
   // Per scene (in top["scenes"] order), every frame: for other statistics than the mean over
   // scenes (bootstrap intervals, subsets, pooling; scripts/reproduction_table.py).
   nlohmann::json per_scene = nlohmann::json::array();
-  for (const auto& res : results)
-    per_scene.push_back({{"pos_rmse", res.model.pos_rmse},
-                         {"pos_mae", res.model.pos_mae},
-                         {"ori_rmse", res.model.ori_rmse},
-                         {"ori_mae", res.model.ori_mae},
+  for (const auto& res : results) {
+    const auto& first = res.models.front();
+    nlohmann::json each = nlohmann::json::object();
+    for (std::size_t k = 0; k < models.size(); ++k)
+      each[models[k].name] = {{"pos_rmse", res.models[k].pos_rmse},
+                              {"ori_rmse", res.models[k].ori_rmse},
+                              {"ori_mae", res.models[k].ori_mae}};
+    per_scene.push_back({{"pos_rmse", first.pos_rmse},
+                         {"pos_mae", first.pos_mae},
+                         {"ori_rmse", first.ori_rmse},
+                         {"ori_mae", first.ori_mae},
                          {"cv_pos_rmse", res.baseline.pos_rmse},
                          {"cv_ori_rmse", res.baseline.ori_rmse},
+                         {"models", each},
                          {"objects", res.objects}});
+  }
   top["rollout_seconds"] = seconds;
   write_json_atomic(top, (fs::path(a.out) / "metrics.json").string());
   write_json_atomic({{"scenes", chosen}, {"per_scene", per_scene}},
@@ -226,21 +291,21 @@ int run_evaluate(const EvaluateArgs& a) {
       hopnet_viewer::write_viewer_html((fs::path(a.out) / "viewer.html").string(), title, viewer);
     hopnet_report::EvaluationReport report;
     report.title = title;
-    report.checkpoint = a.checkpoint, report.data = a.data, report.split = a.split,
-    report.mode = to_string(mode);
+    for (const auto& m : models)
+      report.checkpoint += (report.checkpoint.empty() ? "" : ", ") + m.checkpoint;
+    report.data = a.data, report.split = a.split, report.mode = to_string(mode);
+    report.model_names = names;
+    report.model_names.pop_back();  // constant velocity is the report's own row
     report.viewer = viewer.empty() ? "" : "viewer.html";
     report.horizons = horizons;
     report.rollout_seconds = seconds;
-    std::vector<data::KubricScene> sources;
-    for (std::size_t i = 0; i < chosen.size(); ++i) {
-      sources.push_back(dataset.scene(chosen[i]));
-      report.scenes.push_back({chosen[i], static_cast<int>(sources.back().instances.size()),
-                               results[i].model, results[i].baseline,
+    for (std::size_t i = 0; i < chosen.size(); ++i)
+      report.scenes.push_back({chosen[i], static_cast<int>(sources[i].instances.size()),
+                               results[i].models, results[i].baseline,
                                static_cast<int>(i) < a.viewer_scenes ? static_cast<int>(i) : -1});
-    }
-    report.dataset_kind = hopnet_report::infer_movi_kind(sources, &report.dataset_kind_why);
-    // The training curves too, when the checkpoint sits beside its training logs.
-    const auto log_dir = fs::path(a.checkpoint).parent_path();
+    report.dataset_kind = kind, report.dataset_kind_why = kind_why;
+    // The training curves too, when the first checkpoint sits beside its training logs.
+    const auto log_dir = fs::path(models.front().checkpoint).parent_path();
     if (fs::exists(log_dir / "steps.csv") || fs::exists(log_dir / "epochs.csv")) {
       try {
         report.training = hopnet_report::read_training_log(log_dir);
@@ -264,7 +329,9 @@ Command add_evaluate(CLI::App& app) {
   auto* ce = app.add_subcommand(
       "evaluate",
       "roll out every scene of a split; the paper's table beside a constant-velocity baseline");
-  ce->add_option("--checkpoint", ev.checkpoint, "model checkpoint")
+  ce->add_option("--checkpoint", ev.checkpoints,
+                 "model checkpoint (HOPNet's or a baseline's); several, repeated or listed, give "
+                 "one table and one set of curves with every model's rows")
       ->required()
       ->check(CLI::ExistingFile);
   ce->add_option("--stats", ev.stats,

@@ -23,6 +23,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <map>
 #include <optional>
 #include <set>
@@ -150,7 +151,11 @@ struct PaperRow {
   std::array<double, 4> pos, pos_std, ori, ori_std;
 };
 
+/// The paper's rows for one dataset kind: HOPNet's at every horizon, then the baselines it
+/// quotes from the FIGNet paper (supplementary Tables 4 and 5), which have frame 50 only (NaN
+/// elsewhere).
 inline const std::vector<PaperRow>& paper_rows() {
+  const double n = std::nan("");
   static const std::vector<PaperRow> rows{{"movi-a",
                                            "HOPNet paper, MOVi-A (Table 4)",
                                            {0.014, 0.054, 0.115, 0.196},
@@ -168,7 +173,43 @@ inline const std::vector<PaperRow>& paper_rows() {
                                            {0.007, 0.034, 0.073, 0.124},
                                            {1e-4, 1e-4, 0.002, 0.005},
                                            {0.913, 4.051, 8.212, 13.675},
-                                           {0.018, 0.078, 0.200, 0.317}}};
+                                           {0.018, 0.078, 0.200, 0.317}},
+                                          {"movi-a",
+                                           "FIGNet, quoted by the paper (MOVi-A)",
+                                           {n, 0.115, n, n},
+                                           {n, 0.008, n, n},
+                                           {n, 14.837, n, n},
+                                           {n, 0.175, n, n}},
+                                          {"movi-a",
+                                           "MGN-LargeRadius, quoted by the paper (MOVi-A)",
+                                           {n, 0.119, n, n},
+                                           {n, 0.009, n, n},
+                                           {n, 15.069, n, n},
+                                           {n, 0.649, n, n}},
+                                          {"movi-a",
+                                           "MGN, quoted by the paper (MOVi-A)",
+                                           {n, 0.705, n, n},
+                                           {n, 0.069, n, n},
+                                           {n, 31.210, n, n},
+                                           {n, 0.989, n, n}},
+                                          {"movi-b",
+                                           "FIGNet, quoted by the paper (MOVi-B)",
+                                           {n, 0.127, n, n},
+                                           {n, 0.006, n, n},
+                                           {n, 13.990, n, n},
+                                           {n, 0.464, n, n}},
+                                          {"movi-b",
+                                           "MGN-LargeRadius, quoted by the paper (MOVi-B)",
+                                           {n, 0.460, n, n},
+                                           {n, 0.045, n, n},
+                                           {n, 26.342, n, n},
+                                           {n, 1.397, n, n}},
+                                          {"movi-b",
+                                           "MGN, quoted by the paper (MOVi-B)",
+                                           {n, 0.538, n, n},
+                                           {n, 0.035, n, n},
+                                           {n, 26.914, n, n},
+                                           {n, 0.783, n, n}}};
   return rows;
 }
 
@@ -221,7 +262,8 @@ inline std::string infer_movi_kind(const std::vector<topos::data::KubricScene>& 
 struct SceneResult {
   std::int64_t seed = 0;
   int objects = 0;
-  topos::hopnet::RolloutMetrics model, baseline;
+  std::vector<topos::hopnet::RolloutMetrics> models;  ///< per model (model_names' order)
+  topos::hopnet::RolloutMetrics baseline;             ///< constant velocity
   int viewer_index = -1;  ///< its place in viewer.html, -1 when not shown there
 };
 
@@ -230,6 +272,7 @@ struct EvaluationReport {
       viewer;                                  ///< viewer: file name beside index.html, or ""
   std::string dataset_kind, dataset_kind_why;  ///< infer_movi_kind
   std::vector<int> horizons{25, 50, 75, 100};
+  std::vector<std::string> model_names{"topos"};  ///< the checkpoints' models, in order
   std::vector<SceneResult> scenes;
   double rollout_seconds = 0;
   std::optional<TrainingLog> training;  ///< the checkpoint folder's logs, when it has them
@@ -263,10 +306,15 @@ inline FrameStats frame_stats(const std::vector<const std::vector<double>*>& cur
 inline nlohmann::json evaluation_json(const EvaluationReport& r) {
   using RM = topos::hopnet::RolloutMetrics;
   nlohmann::json models = nlohmann::json::object();
-  for (const auto& [model, pick] :
-       std::vector<std::pair<std::string, const RM& (*)(const SceneResult&)>>{
-           {"topos", [](const SceneResult& s) -> const RM& { return s.model; }},
-           {"constant_velocity", [](const SceneResult& s) -> const RM& { return s.baseline; }}}) {
+  std::vector<std::pair<std::string, std::function<const RM&(const SceneResult&)>>> picks;
+  for (std::size_t k = 0; k < r.model_names.size(); ++k)
+    picks.emplace_back(r.model_names[k],
+                       [k](const SceneResult& s) -> const RM& { return s.models.at(k); });
+  picks.emplace_back("constant_velocity",
+                     [](const SceneResult& s) -> const RM& { return s.baseline; });
+  nlohmann::json order = nlohmann::json::array();
+  for (const auto& [model, pick] : picks) {
+    order.push_back(model);
     for (const auto& [metric, member] :
          std::vector<std::pair<std::string, std::vector<double> RM::*>>{
              {"pos_rmse", &RM::pos_rmse},
@@ -287,20 +335,23 @@ inline nlohmann::json evaluation_json(const EvaluationReport& r) {
       const auto get = [&](const std::vector<double>& v) {
         return u < v.size() && std::isfinite(v[u]) ? nlohmann::json(v[u]) : nlohmann::json(nullptr);
       };
-      at[std::to_string(h)] = {{"pos_rmse", get(s.model.pos_rmse)},
-                               {"ori_mae", get(s.model.ori_mae)},
+      at[std::to_string(h)] = {{"pos_rmse", get(s.models.front().pos_rmse)},
+                               {"ori_mae", get(s.models.front().ori_mae)},
                                {"cv_pos_rmse", get(s.baseline.pos_rmse)}};
     }
     scenes.push_back(
         {{"seed", s.seed}, {"objects", s.objects}, {"viewer_index", s.viewer_index}, {"at", at}});
   }
-  nlohmann::json paper = nullptr;
+  nlohmann::json paper = nlohmann::json::array();
+  const auto vec = [](const std::array<double, 4>& a) {
+    return numbers(std::vector<double>(a.begin(), a.end()));
+  };
   for (const auto& p : paper_rows())
     if (p.kind == r.dataset_kind)
-      paper = {{"label", p.label},
-               {"frames", {25, 50, 75, 100}},
-               {"pos_rmse", {{"mean", p.pos}, {"std", p.pos_std}}},
-               {"ori_mae", {{"mean", p.ori}, {"std", p.ori_std}}}};
+      paper.push_back({{"label", p.label},
+                       {"frames", {25, 50, 75, 100}},
+                       {"pos_rmse", {{"mean", vec(p.pos)}, {"std", vec(p.pos_std)}}},
+                       {"ori_mae", {{"mean", vec(p.ori)}, {"std", vec(p.ori_std)}}}});
   return {{"checkpoint", r.checkpoint},
           {"data", r.data},
           {"split", r.split},
@@ -310,6 +361,7 @@ inline nlohmann::json evaluation_json(const EvaluationReport& r) {
           {"dataset_kind_why", r.dataset_kind_why},
           {"horizons", r.horizons},
           {"models", models},
+          {"model_order", order},
           {"scenes", scenes},
           {"paper", paper},
           {"rollout_seconds", r.rollout_seconds}};

@@ -478,6 +478,10 @@ Command add_train(CLI::App& app) {
                  "baselines: statistics from every n-th training timestep")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
+  ct->add_option("--max-seconds", tr.baseline.max_seconds,
+                 "baselines: stop once the optimizer steps have taken this long (a wall-time "
+                 "budget; the checkpoint is written)")
+      ->check(CLI::NonNegativeNumber);
   ct->add_option("--val-timesteps", tr.baseline.val_timesteps,
                  "baselines: validation timesteps (a fixed random sample)")
       ->capture_default_str()

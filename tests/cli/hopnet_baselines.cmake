@@ -56,6 +56,25 @@ if(NOT model STREQUAL "fignet")
   message(FATAL_ERROR "evaluate named the model '${model}', expected fignet")
 endif()
 
+# Several checkpoints: one table with every model's rows, in order, beside constant velocity.
+expect_success("evaluate three" evaluate --checkpoint ${WORK}/fignet/checkpoint.pt
+               ${WORK}/mgn/checkpoint.pt ${WORK}/mgn-large-radius/checkpoint.pt --data ${WORK}/data
+               --split-file ${WORK}/split.json --steps 8 --out ${WORK}/eval3 --no-report)
+file(READ ${WORK}/eval3/metrics.json m)
+foreach(i name IN ZIP_LISTS "0;1;2;3" "fignet;mgn;mgn-large-radius;constant_velocity")
+  string(JSON got GET "${m}" model_order ${i})
+  if(NOT got STREQUAL name)
+    message(FATAL_ERROR "evaluate's model ${i} is '${got}', expected ${name}")
+  endif()
+endforeach()
+file(READ ${WORK}/eval3/table.md table)
+foreach(row "| fignet | pos_rmse" "| mgn | pos_rmse" "| mgn-large-radius | pos_rmse" "| constant_velocity | pos_rmse")
+  string(FIND "${table}" "${row}" pos)
+  if(pos EQUAL -1)
+    message(FATAL_ERROR "table.md has no row '${row}':\n${table}")
+  endif()
+endforeach()
+
 expect_failure("resume as another model" "mgn/checkpoint.pt: a mgn checkpoint"
                ${train} --config fignet --out ${WORK}/mgn --max-steps 6 --resume)
 expect_failure("resume with another radius" "--config asks for"
