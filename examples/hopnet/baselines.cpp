@@ -74,13 +74,10 @@ int run_baseline_train(const BaselineTrainArgs& a) {
   namespace fs = std::filesystem;
   const auto config = baselines::parse_baseline_config(a.config);
   const auto spec = config.spec();
-  const auto dataset = data::Dataset::open(a.data);
+  const auto td = open_training_data(a.data, a.split_file);
+  const auto& dataset = td.dataset;
   const auto& ids = dataset.ids();
-  const auto split =
-      a.split_file.empty() ? data::reference_split(ids) : data::read_split_json(a.split_file);
-  const auto train_ids = data::split_part(split, "train", ids),
-             val_ids = data::split_part(split, "val", ids);
-  if (train_ids.empty()) throw data::DataError(a.data + ": no training scenes");
+  const auto &train_ids = td.train, &val_ids = td.val;
   if (a.batch_timesteps < 1) throw std::invalid_argument("--batch-timesteps must be positive");
   fs::create_directories(a.out);
   const auto ckpt = (fs::path(a.out) / "checkpoint.pt").string(),

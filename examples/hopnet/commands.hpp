@@ -170,6 +170,24 @@ class BaselineRunner {
   std::map<std::string, torch::Tensor> dict_;
 };
 
+/// A dataset opened for training: its train and val scenes by the reference split (or a split
+/// file); no training scene is an error.
+struct TrainingData {
+  data::Dataset dataset;
+  std::vector<std::int64_t> train, val;
+};
+
+inline TrainingData open_training_data(const std::string& path, const std::string& split_file) {
+  TrainingData d{data::Dataset::open(path), {}, {}};
+  const auto& ids = d.dataset.ids();
+  const auto split =
+      split_file.empty() ? data::reference_split(ids) : data::read_split_json(split_file);
+  d.train = data::split_part(split, "train", ids);
+  d.val = data::split_part(split, "val", ids);
+  if (d.train.empty()) throw data::DataError(path + ": no training scenes");
+  return d;
+}
+
 inline void write_json_atomic(const nlohmann::json& j, const std::string& path) {
   write_file_atomic(path, j.dump() + "\n");
 }

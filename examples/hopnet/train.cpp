@@ -131,13 +131,10 @@ int run_train(const TrainArgs& a) {
                   .mode(mode);  // the architecture is the checkpoint's
   }
   const double radius = options.collision_radius();
-  const auto dataset = data::Dataset::open(a.data);
+  const auto td = open_training_data(a.data, a.split_file);
+  const auto& dataset = td.dataset;
   const auto& ids = dataset.ids();
-  const auto split =
-      a.split_file.empty() ? data::reference_split(ids) : data::read_split_json(a.split_file);
-  const auto train_ids = data::split_part(split, "train", ids),
-             val_ids = data::split_part(split, "val", ids);
-  if (train_ids.empty()) throw data::DataError(a.data + ": no training scenes");
+  const auto &train_ids = td.train, &val_ids = td.val;
   if (main_rank) fs::create_directories(a.out);
   say("train: %zu scenes (%zu train, %zu val), %s format, mode %s, variant %s\n", ids.size(),
       train_ids.size(), val_ids.size(), dataset.format().c_str(), to_string(mode),

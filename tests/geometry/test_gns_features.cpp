@@ -27,15 +27,7 @@ constexpr double kTol = 1e-12;
 Scene scene_of(std::vector<SceneObject> objects) {
   Scene s;
   s.objects = std::move(objects);
-  SceneObject fl;
-  fl.asset_id = fl.shape = "floor";
-  fl.mass = 0.0;
-  fl.friction = 0.3;
-  fl.restitution = 0.5;
-  fl.is_floor = true;
-  fl.mesh = hopnet::floor_mesh();
-  fl.center_of_mass = Eigen::Vector3d::Zero();
-  s.objects.push_back(std::move(fl));
+  s.objects.push_back(hopnet::floor_object());
   return s;
 }
 

@@ -234,30 +234,13 @@ inline hopnet::Poses predict_next(Baseline& b, const gns::Statistics& stats,
   return next;
 }
 
-/// Rolls out from GT frames 0..3 of `scene` for opt.steps frames (HOPNet's RolloutResult).
+/// Rolls out from GT frames 0..3 of `scene` for opt.steps frames (HOPNet's loop and result).
 inline hopnet::RolloutResult rollout(Baseline& b, const gns::Statistics& stats,
                                      const hopnet::Scene& scene, const SceneGraphs& graphs,
                                      const hopnet::RolloutOptions& opt = {}) {
-  if (scene.num_frames < 4)
-    throw std::invalid_argument(scene.source +
-                                ": a rollout needs at least 4 ground-truth frames, the scene has " +
-                                std::to_string(scene.num_frames));
-  if (opt.steps < 1) throw std::invalid_argument("rollout: steps must be positive");
-  hopnet::RolloutResult r;
-  for (int t = 0; t < 4; ++t) r.poses.push_back(hopnet::scene_poses(scene, t));
-  r.invalid_ratio.assign(static_cast<std::size_t>(opt.steps) + 4, 0.0);
-  const auto start = std::chrono::steady_clock::now();
-  for (int k = 0; k < opt.steps; ++k) {
-    const std::size_t t = r.poses.size() - 1;
-    auto next = predict_next(b, stats, graphs, r.poses[t - 2], r.poses[t - 1], r.poses[t]);
-    if (!next.positions.allFinite())
-      throw std::runtime_error("rollout diverged at frame " + std::to_string(t + 1) +
-                               " (non-finite position)");
-    r.poses.push_back(std::move(next));
-    if (opt.on_step) opt.on_step(k + 1, opt.steps);
-  }
-  r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  return r;
+  return hopnet::rollout_loop(scene, opt, [&](std::size_t t, hopnet::RolloutResult& r) {
+    return predict_next(b, stats, graphs, r.poses[t - 2], r.poses[t - 1], r.poses[t]);
+  });
 }
 
 }  // namespace topos::baselines

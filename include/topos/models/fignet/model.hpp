@@ -39,10 +39,7 @@ struct FignetOptions {
 };
 
 inline gns::GraphNetworkSpec fignet_spec(const FignetOptions& o) {
-  gns::GraphNetworkSpec s;
-  s.latent = o.network.latent;
-  s.steps = o.network.steps;
-  s.hidden_layers = o.network.mlp_layers;
+  gns::GraphNetworkSpec s = o.network.spec();
   // Both node sets share one normaliser, as do the regular edge sets (the reimplementation's
   // _node_normalizer and _regular_edge_normalizer).
   s.nodes = {{"mesh", 12, "_m_encoder", "mesh_node_fn", "_m_decoder", 3, "node"},

@@ -5,6 +5,7 @@
 #pragma once
 
 #include "topos/data/json.hpp"
+#include "topos/models/gns/network.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -20,6 +21,14 @@ struct NetworkOptions {
   int steps = 10;
   int mlp_layers = 2;  ///< hidden layers per MLP
 
+  /// An empty spec of these sizes (the model adds its sets).
+  GraphNetworkSpec spec() const {
+    GraphNetworkSpec s;
+    s.latent = latent;
+    s.steps = steps;
+    s.hidden_layers = mlp_layers;
+    return s;
+  }
   void to_json(nlohmann::json& j) const {
     j["latent"] = latent;
     j["steps"] = steps;

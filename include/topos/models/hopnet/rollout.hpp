@@ -65,9 +65,11 @@ inline Poses predict_next(HopnetImpl& model, const Normalizer& norm, const Hopne
   return next;
 }
 
-/// Rolls out from GT frames 0..3 of `scene` for opt.steps frames.
-inline RolloutResult rollout(HopnetImpl& model, const Normalizer& norm, const Scene& scene,
-                             const HopnetGeometry& g, const RolloutOptions& opt = {}) {
+/// The autoregressive loop every rigid-body model shares (HOPNet's, the baselines'): ground-truth
+/// frames 0..3, then opt.steps frames, each `step(t, result)` -> the poses at t+1 from the poses
+/// so far (result.poses[0..t]); a non-finite position is an error naming the frame.
+template <class Step>
+RolloutResult rollout_loop(const Scene& scene, const RolloutOptions& opt, Step&& step) {
   if (scene.num_frames < 4)
     throw std::invalid_argument(scene.source +
                                 ": a rollout needs at least 4 ground-truth frames, the scene has " +
@@ -79,14 +81,7 @@ inline RolloutResult rollout(HopnetImpl& model, const Normalizer& norm, const Sc
   const auto start = std::chrono::steady_clock::now();
   for (int k = 0; k < opt.steps; ++k) {
     const std::size_t t = r.poses.size() - 1;
-    const auto posed = pose_objects(g, r.poses[t]);
-    const auto contacts = (k == 0 && opt.first_contacts)
-                              ? *opt.first_contacts
-                              : detect_contacts(g, posed, opt.collision_radius);
-    HopnetFrame frame;
-    Poses next = predict_next(model, norm, g, r.poses[0], r.poses[t - 2], r.poses[t - 1],
-                              r.poses[t], contacts, &frame);
-    r.invalid_ratio[t] = frame.invalid_ratio();
+    Poses next = step(t, r);
     for (Eigen::Index i = 0; i < next.positions.size(); ++i)
       if (!std::isfinite(next.positions.data()[i]))
         throw std::runtime_error("rollout diverged at frame " + std::to_string(t + 1) +
@@ -96,6 +91,22 @@ inline RolloutResult rollout(HopnetImpl& model, const Normalizer& norm, const Sc
   }
   r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return r;
+}
+
+/// Rolls out from GT frames 0..3 of `scene` for opt.steps frames.
+inline RolloutResult rollout(HopnetImpl& model, const Normalizer& norm, const Scene& scene,
+                             const HopnetGeometry& g, const RolloutOptions& opt = {}) {
+  return rollout_loop(scene, opt, [&](std::size_t t, RolloutResult& r) {
+    const auto posed = pose_objects(g, r.poses[t]);
+    const auto contacts = (t == 3 && opt.first_contacts)
+                              ? *opt.first_contacts
+                              : detect_contacts(g, posed, opt.collision_radius);
+    HopnetFrame frame;
+    Poses next = predict_next(model, norm, g, r.poses[0], r.poses[t - 2], r.poses[t - 1],
+                              r.poses[t], contacts, &frame);
+    r.invalid_ratio[t] = frame.invalid_ratio();
+    return next;
+  });
 }
 
 /// Per-frame errors over the dynamic objects (spec 9): position RMSE and MAE (m), orientation

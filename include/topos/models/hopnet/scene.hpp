@@ -51,6 +51,19 @@ inline TriangleMesh floor_mesh() {
   return m;
 }
 
+/// The floor as a scene object: floor_mesh, mass 0, friction 0.3, restitution 0.5, static.
+inline SceneObject floor_object() {
+  SceneObject fl;
+  fl.asset_id = fl.shape = "floor";
+  fl.mass = 0.0;
+  fl.friction = 0.3;
+  fl.restitution = 0.5;
+  fl.is_floor = true;
+  fl.mesh = floor_mesh();
+  fl.center_of_mass = Eigen::Vector3d::Zero();
+  return fl;
+}
+
 /// Loads canonical meshes by shape name from a KuBasic-layout folder
 /// (`<shape>/collision_geometry.obj`,
 /// merged as trimesh does), or the built-in shapes when `assets` is empty. Caches per shape.
@@ -103,15 +116,7 @@ inline Scene make_scene(const data::KubricScene& k, MeshLibrary& meshes) {
     s.positions.middleCols(3 * static_cast<Eigen::Index>(i), 3) = in.positions;
     s.quaternions.middleCols(4 * static_cast<Eigen::Index>(i), 4) = in.quaternions;
   }
-  SceneObject fl;
-  fl.asset_id = fl.shape = "floor";
-  fl.mass = 0.0;
-  fl.friction = 0.3;
-  fl.restitution = 0.5;
-  fl.is_floor = true;
-  fl.mesh = floor_mesh();
-  fl.center_of_mass = Eigen::Vector3d::Zero();
-  s.objects.push_back(std::move(fl));
+  s.objects.push_back(floor_object());
   s.quaternions.col(4 * static_cast<Eigen::Index>(O - 1)).setOnes();
   return s;
 }

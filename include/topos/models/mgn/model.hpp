@@ -31,10 +31,7 @@ struct MgnOptions {
 };
 
 inline gns::GraphNetworkSpec mgn_spec(const MgnOptions& o) {
-  gns::GraphNetworkSpec s;
-  s.latent = o.network.latent;
-  s.steps = o.network.steps;
-  s.hidden_layers = o.network.mlp_layers;
+  gns::GraphNetworkSpec s = o.network.spec();
   s.nodes = {{"mesh", 12, "_node_encoder", "node_fn", "_node_decoder", 3, "node"}};
   s.edges = {
       {"mesh_edges", "mesh", "mesh", 8, 1, "_mesh_edge_encoder", "mesh_edge_fn", "mesh_edge"},
