@@ -5,7 +5,7 @@
 //  - topos: `<root>/dataset.json` (every scene's objects and properties) beside
 //    `positions.npy` (float64, objects × frames × 3) and `quaternions.npy` (objects × frames × 4,
 //    w x y z), all scenes' objects stacked; two reads load a whole dataset, and NumPy opens it.
-// Seed ranges, the reference's 80/10/10 split (spec section 10: the exact lists for seeds
+// Seed ranges, the reference's 80/10/10 split (data/movi_dataset.py: the exact lists for seeds
 // 1..1200 and 1..10; other sets get a documented deterministic split) and custom splits as JSON.
 // std + nlohmann-json.
 #pragma once

@@ -1,6 +1,6 @@
 // topos/data/movi_generator.hpp
 // Seed-exact regeneration of the MOVi-spheres / MOVi-A / MOVi-B scenes with Bullet (double
-// precision, `bullet-float64`), following ../shared/reference/movi-generation.md:
+// precision, `bullet-float64`), following Kubric's MOVi recipe (movi_def_worker.py):
 //  - the scene draws of Kubric's movi_ab_worker replayed with NumpyRandomState (lights, camera,
 //    object count, per object shape / size / colour / material, the overlap-rejection
 //    placement loop, the toss velocity);
@@ -177,7 +177,7 @@ struct MoviScene {
   std::vector<std::vector<std::array<double, 4>>> quaternions;
 };
 
-/// Owns a Bullet world set up as PyBullet + Kubric do (movi-generation.md 1.2).
+/// Owns a Bullet world set up as PyBullet + Kubric do (Kubric's simulator setup).
 class MoviWorld {
  public:
   explicit MoviWorld(double dt) : dt_(dt) {
@@ -310,7 +310,7 @@ class MoviAssets {
   std::map<std::string, MoviAsset> cache_;
 };
 
-/// Generates one scene: the draws of movi-generation.md 1.1, then the simulation.
+/// Generates one scene: the draws of Kubric's MOVi worker, then the simulation.
 inline MoviScene generate_movi_scene(MoviKind kind, std::uint32_t seed, MoviAssets& assets,
                                      int num_frames = 480) {
   static const char* clevr_shapes[] = {"cube", "cylinder", "sphere"};

@@ -7,7 +7,7 @@
 // Order: by (obj0, obj1) with obj0 < obj1, then (face0, face1) ascending.
 //
 // reference_contacts (reference-compatible): the HOPNet reference's vertex-proximity method
-// (utils/collisions.py with trimesh's closest point; spec section 3), quirks included: for each
+// (utils/collisions.py with trimesh's closest point), quirks included: for each
 // ordered object pair (i, k), each vertex of k within d_c of mesh i pairs its closest triangle of
 // i with every face of k that holds the vertex; a pair whose only close vertex is index 0 is
 // skipped; reversed entries are merged into the earlier one. Ties between closest triangles use

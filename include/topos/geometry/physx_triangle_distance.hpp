@@ -1,6 +1,6 @@
 // topos/geometry/physx_triangle_distance.hpp
 // The HOPNet reference's triangle-triangle distance, a port of PhysX's routine
-// (utils/triangles.py; spec section 4.4), quirks included: on the early-exit edge path and on
+// (utils/triangles.py), quirks included: on the early-exit edge path and on
 // the disjoint fallback it returns the *squared* distance, and it returns 0 (the pair is then
 // "unsafe") when it cannot prove the triangles disjoint. Used only in reference-compatible mode;
 // the correct routine is closest_points() in triangle_distance.hpp. Eigen only.

@@ -1,5 +1,6 @@
 // topos/nn/mlp.hpp
-// The MLP block of HOPNet (spec 6.1): Linear(in, hid), act, [(Linear(hid, hid), act) × (L-2)],
+// The MLP block of HOPNet (the reference's models/mlp.py): Linear(in, hid), act,
+// [(Linear(hid, hid), act) × (L-2)],
 // Linear(hid, out), optional act, optional LayerNorm(out). With L = 1 only Linear(in, out) and an
 // optional act (never LayerNorm). Submodules are numbered like torch.nn.Sequential, so parameter
 // names ("0.weight", "2.bias", "4.weight") match the reference's checkpoints.

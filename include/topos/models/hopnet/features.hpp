@@ -1,5 +1,5 @@
 // topos/models/hopnet/features.hpp
-// HOPNet's complex and input features at one timestep (spec sections 2 and 4), without LibTorch.
+// HOPNet's complex and input features at one timestep (data/create_ccs.py), no LibTorch.
 //
 // HopnetGeometry holds what is static in a scene: the global node numbering (objects in order,
 // floor last), the unique edges in first-seen order with their feature direction, each global
@@ -46,10 +46,10 @@ inline const char* to_string(FeatureMode m) {
   return m == FeatureMode::reference ? "reference" : "native";
 }
 
-/// Feature widths (spec 4): x0 16, x1 8, x2 3, x3 28, x4 13; targets 3.
+/// Feature widths (data/create_ccs.py): x0 16, x1 8, x2 3, x3 28, x4 13; targets 3.
 inline constexpr std::array<int, 5> kFeatureWidth{16, 8, 3, 28, 13};
 
-/// The member of the HOPNet family a complex is lifted for (hopnet-ablations-spec.md):
+/// The member of the HOPNet family a complex is lifted for (the reference's models/ablations.py):
 /// hopnet (object cells, sequential layer), no_object_cells (a virtual node per object joined to
 /// its nodes by spoke edges, no rank-4 features) or no_sequential (every rank pair at once, with
 /// the extra adjacencies and incidences that needs).
@@ -373,7 +373,7 @@ inline std::int64_t count_contact_cells(const HopnetGeometry& g,
   return n;
 }
 
-/// The ablations' node and edge features from the standard ones (hopnet-ablations-spec 1.2, 3.5):
+/// The ablations' node and edge features from the standard ones (models/ablations.py):
 /// without centre-mass distances x0 keeps columns 0..7; with virtual object nodes every mesh
 /// node gets its object's columns x4[8:13] (type, mass, friction, restitution), object o's
 /// virtual node (row N+o) is [x4[o, 0:8], zeros, x4[o, 8:13]], and the spoke of node n (row E+n)
@@ -454,7 +454,7 @@ inline HopnetFrame build_frame(const HopnetGeometry& g, const Poses& first, cons
     f.x4(o, 12) = obj.restitution;
   }
 
-  // Faces and contacts in candidate order (spec 2): face0, then face1 (each if new), then the cell.
+  // Faces and contacts in candidate order: face0, then face1 (each if new), then the cell.
   std::vector<std::int64_t> face_row(static_cast<std::size_t>(g.face_offset.back()), -1);
   std::vector<Eigen::Vector3d> normals;
   std::vector<double> normal_dist;  // native: distance of the pair that set the normal
@@ -532,9 +532,9 @@ inline HopnetFrame build_frame(const HopnetGeometry& g, const Poses& first, cons
 ///   values: the half of the contact's face message this pair feeds), B32 (3→2, roles −1/+1),
 ///   B24 (2→4), B04 (0→4), B40 (4→0).
 /// In reference mode B23neg/B23pos carry the reference's role-mixing buffer (neg(f), pos(f) per
-/// face, spec 6.3) and, as backward values, the reference's gradient multiplicity (the number of
+/// face) and, as backward values, the reference's gradient multiplicity (the number of
 /// contacts in which the face has that role); in native mode the pair's own role.
-/// The ablations add (hopnet-ablations-spec 1.1, 2.1): A010 (0→0, nodes sharing a rank-1 cell,
+/// The ablations add (models/ablations.py): A010 (0→0, nodes sharing a rank-1 cell,
 /// spokes included; the reference's explicit zeros on the diagonal contribute nothing and are
 /// left out) and B20 (2→0) for both; no_sequential also A101 (1→1), A232 (2→2, faces sharing a
 /// contact), B01/B10, B14/B41, B03/B30 (the 6 nodes of a contact), B13/B31 (its 6 edges), B21,

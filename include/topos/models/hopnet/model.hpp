@@ -1,5 +1,5 @@
 // topos/models/hopnet/model.hpp
-// HOPNet (Wei & Fink) as a schedule of topos's DSL (spec section 6), its float32
+// HOPNet (Wei & Fink) as a schedule of topos's DSL (the reference's models/hopnet.py), its float32
 // normalisation, the batching of frames, and import of the published PyTorch checkpoints.
 //
 // One processor layer, as a schedule (L = "layer<l>_"):
@@ -17,7 +17,7 @@
 // Module names map one to one onto the reference's checkpoint names (reference_parameter_name).
 //
 // The ablations are other schedules over the same modules and interpreter (HopnetOptions::
-// architecture, hopnet-ablations-spec.md); presets and config files are in variants.hpp.
+// architecture, the reference's models/ablations.py); presets and config files are in variants.hpp.
 // no_object_cells (virtual object nodes, A010 over mesh edges and spokes), one layer:
 //   into 2 = L2([h2, Σ_B02 L0to2(h0), Σ_B12 L1to2(h1)]); the two contact steps and L2p as above
 //   into 0 = L0 ([h0, Σ_B20 L2to0(h2)])                           only where the complex has
@@ -122,7 +122,7 @@ struct HopnetOptions {
   TORCH_ARG(double, collision_radius) = 0.1;     ///< d_c of contact detection (training, rollout)
 };
 
-/// The schedule of spec 6.3 (or of an ablation, hopnet-ablations-spec 1.4, 2.2) for `opt`.
+/// The schedule of the reference's HOPNet.forward (or of an ablation's) for `opt`.
 inline nn::Schedule hopnet_schedule(const HopnetOptions& opt) {
   using namespace nn::dsl;
   using nn::Reduce;

@@ -1,11 +1,11 @@
 // topos/models/hopnet/normalization.hpp
-// HOPNet's normalisation statistics (spec section 5): per-column mean and std of x0..x4 and of
-// the targets t0, t4, read from and written to JSON (keys `x0_mean` … `t4_std`, the layout of
-// the shipped files), and computed from data with the equivariant shared scales:
+// HOPNet's normalisation statistics (compute_normalization.py): per-column mean and std of
+// x0..x4 and of the targets t0, t4, read from and written to JSON (keys `x0_mean` … `t4_std`,
+// the layout of the shipped files), and computed from data with the equivariant shared scales:
 // population moments over all cells of all timesteps, std < 1e-10 replaced by 1, then shared
 // maxima per block (x0[0:8], x0[8:16], x1, x2, t0, t4, x3[0:4], x3's three vertex blocks shared
 // between the two faces, x4[0:8]) and the type columns x4[8:10] forced to mean 0.5, std 0.5.
-// The ablations' files differ (hopnet-ablations-spec 1.3, 3.5): x0 has 21 columns with virtual
+// The ablations' files differ (the ablations' normalisation files): x0 has 21 columns with virtual
 // object nodes (the last 5 are x4's object columns, type forced to 0.5/0.5) and 8 without the
 // centre-mass distances, and without object cells x4/t4 are absent (JSON null).
 // No LibTorch; the float32 application lives with the model.
@@ -175,7 +175,7 @@ class StatsAccumulator {
     return it == acc_.end() ? 0 : it->second.count;
   }
 
-  /// Mean and std per column with the shared scales of spec 5. The layout follows what was
+  /// Mean and std per column with the reference's shared scales. The layout follows what was
   /// added: x0's width, and x4/t4 only if object rows were added (none without object cells).
   NormalizationStats finalize() const {
     NormalizationStats s;

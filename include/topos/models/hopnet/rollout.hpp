@@ -1,5 +1,5 @@
 // topos/models/hopnet/rollout.hpp
-// Autoregressive HOPNet rollout (spec section 9) and the paper's per-frame metrics.
+// Autoregressive HOPNet rollout (utils/rollout.py) and the paper's per-frame metrics.
 // Frames 0..3 come from the ground truth; step t (= 3..) detects contacts on the pose at t
 // (the first step may take given contacts, as the reference takes collisions.json["3"]),
 // builds the features from the poses at t-2, t-1, t and GT frame 0, runs the model, integrates
@@ -109,7 +109,7 @@ inline RolloutResult rollout(HopnetImpl& model, const Normalizer& norm, const Sc
   });
 }
 
-/// Per-frame errors over the dynamic objects (spec 9): position RMSE and MAE (m), orientation
+/// Per-frame errors over the dynamic objects: position RMSE and MAE (m), orientation
 /// MAE and RMSE (deg) of 2·asin|vec(q_gt ⊗ conj(q̂))|, NaN angles skipped as the reference does.
 struct RolloutMetrics {
   std::vector<double> pos_rmse, pos_mae, ori_rmse, ori_mae;

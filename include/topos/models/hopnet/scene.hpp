@@ -1,7 +1,7 @@
 // topos/models/hopnet/scene.hpp
 // A HOPNet scene: the objects of a Kubric scene with their canonical meshes (KuBasic assets
 // merged as trimesh loads them, or the built-in shapes), scaled by `size`, plus the floor
-// appended last (spec 1.2): 4 nodes (±20, ±20, 0), faces [0,1,2] and [1,2,3], mass 0,
+// appended last, as the reference does: 4 nodes (±20, ±20, 0), faces [0,1,2] and [1,2,3], mass 0,
 // friction 0.3, restitution 0.5, identity pose at every frame. No LibTorch.
 #pragma once
 

@@ -1,5 +1,5 @@
 // topos/models/hopnet/training.hpp
-// Training data and loss of HOPNet (spec section 8). A trajectory's timesteps t = 2..T-2 each
+// Training data and loss of HOPNet (scripts/main.py). A trajectory's timesteps t = 2..T-2 each
 // give one complex (contacts detected on the GT pose at t, or given, as the reference's
 // collisions.json) and targets: node accelerations t0 and object accelerations t4 from GT
 // positions. The timesteps are collated into batches (the whole trajectory, or chunks of it),
@@ -7,7 +7,7 @@
 //   Σ_t [ (1/N) Σ_{n,d} (a0 − t0n)² + (1/O) Σ_{o,d} (a4 − t4n)² ]
 // on normalised targets, optionally with the low-velocity collision mask. The timesteps are
 // independent given the ground-truth inputs, so chunks' gradients add up to the whole one's.
-// Without object cells (hopnet-ablations-spec 1.5) t0 has a row per virtual node too (its
+// Without object cells (models/ablations.py) t0 has a row per virtual node too (its
 // object's acceleration), there is no object term, the node term is divided by N+O, and virtual
 // nodes get weight 0.
 #pragma once
@@ -190,7 +190,7 @@ inline torch::Tensor timestep_losses(const HopnetOutput& out, const TrainingItem
       .index_add(0, it.batch.complex.batch(4).to(node.device()), obj);
 }
 
-/// The summed loss of spec 8 for one trajectory (divide by `timesteps` for the logged value).
+/// The summed loss of one trajectory (divide by `timesteps` for the logged value).
 inline torch::Tensor trajectory_loss(HopnetImpl& model, const TrainingItem& it,
                                      const Normalizer& norm) {
   const auto out = model.forward(it.batch, norm);

@@ -1,10 +1,10 @@
 // topos/models/hopnet/variants.hpp
-// The HOPNet family as configurations (hopnet-ablations-spec.md): named presets that compose,
+// The HOPNet family as configurations (models/ablations.py): named presets that compose,
 // JSON configuration files, and the name of the variant a configuration or checkpoint is. The
 // paper's baselines are presets of the same language (fignet, mgn, mgn-large-radius: their
 // "model" field picks models/baselines.hpp; a HOPNet field beside them is a conflict).
 //
-//   standard        HOPNet (spec 6)                 nox4            no object cells (virtual nodes)
+//   standard        HOPNet                          nox4            no object cells (virtual nodes)
 //   noseq           non-sequential MP (64, 3 layers) no-cm-distance  x0 without r0, rt (8 columns)
 //   mlp3            3 Linear layers per MLP          mp2             two message-passing layers
 //   hidden64        64-channel embeddings
