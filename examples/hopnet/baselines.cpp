@@ -86,8 +86,10 @@ int run_baseline_train(const BaselineTrainArgs& a) {
              journal = (fs::path(a.out) / "commit.journal").string();
   if (a.resume) recover_file_group(journal);
   const bool resuming = a.resume && fs::exists(state_path);
+  std::map<std::string, torch::Tensor> resumed;  // the checkpoint resumed from, read once
   if (resuming) {  // the model before anything else: its statistics would not fit another's
-    const auto cfg = baselines::checkpoint_config(nn::read_tensor_dict(ckpt), ckpt);
+    resumed = nn::read_tensor_dict(ckpt);
+    const auto cfg = baselines::checkpoint_config(resumed, ckpt);
     const std::string model = cfg.value("model", "hopnet");
     if (model != config.model())
       throw std::invalid_argument(ckpt + ": a " + model + " checkpoint (topos.config model '" +
@@ -162,26 +164,21 @@ int run_baseline_train(const BaselineTrainArgs& a) {
   baselines::Baseline model(config);
   torch::optim::Adam opt(model.net->parameters(), torch::optim::AdamOptions(a.lr));
   std::int64_t step = 0;
+  // Weights from a baseline checkpoint of this model (load_baseline checks it whole).
+  const auto adopt = [&](const std::map<std::string, torch::Tensor>& dict,
+                         const std::string& path) {
+    const auto loaded = baselines::load_baseline(dict, path, config.model());
+    torch::NoGradGuard ng;
+    auto src = loaded.model.net->named_parameters();
+    for (auto& p : model.net->named_parameters()) p.value().copy_(src[p.key()]);
+  };
   if (resuming) {
-    const auto dict = nn::read_tensor_dict(ckpt);
-    nn::load_parameters(
-        *model.net,
-        [&] {
-          auto d = dict;
-          d.erase("topos.config");
-          d.erase("topos.statistics");
-          return d;
-        }(),
-        ckpt);
+    adopt(resumed, ckpt);
     nn::load_adam_state(opt, *model.net, nn::read_tensor_dict(opt_path), opt_path);
     step = data::read_json_file(state_path).at("step").get<std::int64_t>();
     std::printf("resuming after step %lld\n", static_cast<long long>(step));
   } else if (!a.init.empty()) {
-    const auto dict = nn::read_tensor_dict(a.init);
-    auto loaded = baselines::load_baseline(dict, a.init, config.model());
-    torch::NoGradGuard ng;
-    auto src = loaded.model.net->named_parameters();
-    for (auto& p : model.net->named_parameters()) p.value().copy_(src[p.key()]);
+    adopt(nn::read_tensor_dict(a.init), a.init);
   }
   std::printf("model: %s, %lld parameters, %d timesteps per step, lr %g (%s)\n",
               config.name().c_str(), static_cast<long long>(model.num_parameters()),

@@ -43,12 +43,9 @@ class BaselineConfig {
   std::string model() const { return is_fignet() ? "fignet" : "mgn"; }
   /// The preset's name when the configuration is one ("mgn-large-radius"), else the model's.
   std::string name() const {
-    for (const auto& [preset, fields] : hopnet::baseline_presets()) {
-      auto j = to_json();
-      if (fields.value("model", "") != model()) continue;
-      auto defaults = from_json(fields).to_json();
-      if (defaults == j) return preset;
-    }
+    const auto j = to_json();
+    for (const auto& [preset, fields] : hopnet::baseline_presets())
+      if (fields.value("model", "") == model() && from_json(fields).to_json() == j) return preset;
     return model();
   }
   bool is_fignet() const { return std::holds_alternative<fignet::FignetOptions>(options_); }
@@ -207,8 +204,7 @@ inline hopnet::Poses predict_next(Baseline& b, const gns::Statistics& stats,
                                   const SceneGraphs& graphs, const hopnet::Poses& p2,
                                   const hopnet::Poses& p1, const hopnet::Poses& pt) {
   const auto frame = graphs.frame(p2, p1, pt);
-  const auto spec = b.config.spec();
-  const auto batch = gns::collate(spec, {&frame}, stats);
+  const auto batch = gns::collate(b.net->spec(), {&frame}, stats);
   torch::NoGradGuard no_grad;
   const auto out = b.net->forward(batch).at("mesh").to(torch::kDouble).contiguous();
   const auto& g = graphs.meshes();
