@@ -2,7 +2,7 @@
 // incidence and adjacency matrices.
 #include <benchmark/benchmark.h>
 
-#include "topos/core/lifting.hpp"
+#include "topos/core/mesh_lifting.hpp"
 #include "topos/mesh/primitives.hpp"
 
 static void BM_LiftAndOperators50k(benchmark::State& state) {

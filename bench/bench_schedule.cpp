@@ -6,7 +6,7 @@
 
 #include <torch/torch.h>
 
-#include "topos/core/lifting.hpp"
+#include "topos/core/mesh_lifting.hpp"
 #include "topos/mesh/primitives.hpp"
 #include "topos/nn/schedule.hpp"
 

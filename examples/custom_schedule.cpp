@@ -4,7 +4,7 @@
 // Trains for a few seconds and prints the loss as it falls.
 #include <torch/torch.h>
 
-#include "topos/core/lifting.hpp"
+#include "topos/core/mesh_lifting.hpp"
 #include "topos/mesh/primitives.hpp"
 #include "topos/mesh/rigid.hpp"
 #include "topos/nn/schedule.hpp"

@@ -4,7 +4,7 @@
 #pragma once
 
 #include "topos/core/operators.hpp"
-#include "topos/core/sparse.hpp"
+#include "topos/core/sparse_matrix.hpp"
 #include "topos/io/atomic_file.hpp"
 #include "svg_plot.hpp"
 

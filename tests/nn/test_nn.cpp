@@ -3,7 +3,7 @@
 // validation errors) and parameter save/load by name.
 #include "support/torch_prelude.hpp"
 
-#include "topos/core/lifting.hpp"
+#include "topos/core/mesh_lifting.hpp"
 #include "topos/mesh/primitives.hpp"
 #include "topos/nn/cpu.hpp"
 #include "topos/nn/device.hpp"

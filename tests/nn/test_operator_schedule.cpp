@@ -7,6 +7,7 @@
 #include "support/operator_schedule.hpp"
 #include "topos/models/zoo.hpp"
 #include "topos/nn/operator_schedule.hpp"
+#include "topos/testing/conv.hpp"
 
 #include <set>
 
@@ -109,7 +110,7 @@ TEST_CASE("attention in a schedule: TopoModelX's Conv with att, and a per-target
   s.output("y", 0).output("soft", 0, "soft");
   OperatorNetwork net(s);
   net->to(torch::kDouble);
-  Conv conv(ConvOptions(4, 3).att(true));
+  testing::Conv conv(testing::ConvOptions(4, 3).att(true));
   conv->to(torch::kDouble);
   {
     torch::NoGradGuard g;

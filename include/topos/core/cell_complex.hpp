@@ -14,7 +14,7 @@
 #pragma once
 
 #include "topos/core/operators.hpp"
-#include "topos/core/sparse.hpp"
+#include "topos/core/sparse_matrix.hpp"
 
 #include <algorithm>
 #include <array>

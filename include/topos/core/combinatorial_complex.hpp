@@ -6,7 +6,7 @@
 // Std + Eigen only.
 #pragma once
 
-#include "topos/core/sparse.hpp"
+#include "topos/core/sparse_matrix.hpp"
 
 #include <Eigen/SparseCore>
 

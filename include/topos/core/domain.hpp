@@ -22,7 +22,7 @@
 #include "topos/core/combinatorial_complex.hpp"
 #include "topos/core/hypergraph.hpp"
 #include "topos/core/simplicial_complex.hpp"
-#include "topos/core/sparse.hpp"
+#include "topos/core/sparse_matrix.hpp"
 
 #include <type_traits>
 #include <utility>

@@ -1,6 +1,6 @@
 // topos/core/domain_lifting.hpp
 // Liftings between domains (std + Eigen; the Boost.Graph and CGAL ones are in
-// geometry/domain_lifting.hpp), each with its cell order:
+// geometry/graph_and_point_cloud_lifting.hpp), each with its cell order:
 //   clique_complex(n, edges, max_rank)   graph -> clique complex: every clique of up to
 //                                        max_rank + 1 nodes is a simplex (TopoNetX's
 //                                        graph_to_clique_complex); lexicographic order

@@ -8,7 +8,7 @@
 #pragma once
 
 #include "topos/core/operators.hpp"
-#include "topos/core/sparse.hpp"
+#include "topos/core/sparse_matrix.hpp"
 
 #include <algorithm>
 #include <cstdint>

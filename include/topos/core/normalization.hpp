@@ -12,7 +12,7 @@
 
 #include "topos/core/operators.hpp"
 #include "topos/core/spectral.hpp"
-#include "topos/core/sparse.hpp"
+#include "topos/core/sparse_matrix.hpp"
 
 #include <array>
 #include <cmath>

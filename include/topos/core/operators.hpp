@@ -8,7 +8,7 @@
 // entrywise absolute value of the signed result. Std + Eigen only.
 #pragma once
 
-#include "topos/core/sparse.hpp"
+#include "topos/core/sparse_matrix.hpp"
 
 #include <algorithm>
 #include <cmath>

@@ -6,7 +6,7 @@
 #pragma once
 
 #include "topos/core/combinatorial_complex.hpp"
-#include "topos/core/lifting.hpp"
+#include "topos/core/mesh_lifting.hpp"
 #include "topos/mesh/triangle_mesh.hpp"
 
 #include <boost/graph/connected_components.hpp>

@@ -3,6 +3,7 @@
 // adjacencies, Laplacians with their values) written as data, the way TopoModelX's models are
 // written as layers of convolutions. The zoo's models are schedules of this kind.
 //
+//   using namespace topos::nn;
 //   using namespace topos::nn::ops;
 //   OperatorSchedule s;
 //   s.input("x_0", 0, 8).input("x_1", 1, 4)                  // cochains fed by name
@@ -15,7 +16,9 @@
 //                         from(1).powers({{"laplacian_down_1", 2}, {"laplacian_up_1", 2}})));
 //   s.output("x_1", 1);
 //   OperatorNetwork net(s);                                   // validated here
-//   auto out = net->forward({{"x_0", x0}, {"x_1", x1}}, {{"adjacency_1", A1}, ...});
+//   auto out = net->forward({{"x_0", x0}, {"x_1", x1}}, {{"adjacency_1", A1},
+//                            {"incidence_1", B1}, {"laplacian_down_1", L_down_1},
+//                            {"laplacian_up_1", L_up_1}});   // outputs by name: out["x_1"]
 //
 // A term starts at a cochain (rank, state) and applies its operations in order: operators
 // (`via`, `via_t` for the transpose, `pattern` for the sparsity pattern alone), learned maps
@@ -42,3 +45,4 @@
 
 #include "topos/nn/operator_schedule/builder.hpp"
 #include "topos/nn/operator_schedule/network.hpp"
+#include "topos/nn/cloneable.hpp"  // the models built on OperatorNetwork are Cloneable

@@ -1,17 +1,26 @@
 // topos/nn/schedule.hpp
 // The schedule DSL: a message-passing network over a combinatorial complex written as data.
 //
+//   using namespace topos::nn;
 //   using namespace topos::nn::dsl;
 //   Schedule s;
-//   s.encode(0, "", "enc0")                                   // (rank, state) <- module(input
-//     columns)
-//    .step(into(2).msg(from(0).via("B02").map("phi02"))        // messages, mapped then reduced
-//                 .msg(from(1).via("B12").map("phi12"))
-//                 .combine(Combine::cat_self).update("psi2")   // [self, m1, m2] -> update module
-//                 .when_nonempty(3))                           // per-complex guard
-//    .parallel({into(0)..., into(4)...})                      // read one snapshot
-//    .decode(0, "", "dec0");
-//   ScheduleNetwork net(s, modules, input_channels);           // validated here
+//   s.encode(0, "", "x0", "enc0")                               // (rank, state) <- module(input)
+//       .encode(2, "", "x2", "enc2");
+//   s.step(into(2).msg(from(0).via("B02").map("phi02"))         // messages, mapped then reduced
+//                 .combine_with(Combine::cat_self)              // [self, m] -> update module
+//                 .update_with("psi2")
+//                 .when_nonempty(2));                           // per-complex guard
+//   s.parallel({into(0).msg(from(2).via("B20")).update_with("psi0"),  // one snapshot
+//               into(2).msg(from(0).via("B02")).update_with("psi2b")});
+//   s.decode(0, "", "dec0", "y0");
+//   ScheduleSignature sig{{{"B02", {0, 2}}, {"B20", {2, 0}}}, {{"x0", 3}, {"x2", 3}}};
+//   std::map<std::string, MlpOptions> modules{
+//       {"enc0", MlpOptions(3, 8, 8)},   {"enc2", MlpOptions(3, 8, 8)},
+//       {"phi02", MlpOptions(8, 8, 8)},  {"psi2", MlpOptions(16, 8, 8)},
+//       {"psi0", MlpOptions(16, 8, 8)},  {"psi2b", MlpOptions(16, 8, 8)},
+//       {"dec0", MlpOptions(8, 8, 3)}};
+//   ScheduleNetwork net(s, modules, sig);                       // validated here
+//   auto y = net->forward({{"x0", x0}, {"x2", x2}}, batch).at("y0");
 //
 // Messages come from a (rank, state) through a named, directed neighbourhood of the batch,
 // optionally mapped by a module, then reduced (sum/mean/max, weighted or restricted to a role)

@@ -3,7 +3,7 @@
 // against topos::header_only.
 #include <torch/torch.h>
 
-#include <topos/core/lifting.hpp>
+#include <topos/core/mesh_lifting.hpp>
 #include <topos/geometry/graph.hpp>
 #include <topos/nn/operator_schedule.hpp>
 

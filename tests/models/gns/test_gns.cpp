@@ -249,6 +249,13 @@ TEST_CASE("One Graph-Network block equals an index_select / index_add implementa
   CHECK(torch::allclose(twice.at("mesh").narrow(0, 5, 5), am, 1e-5, 1e-5));
   CHECK(torch::allclose(twice.at("object").narrow(0, 2, 2), ao, 1e-5, 1e-5));
 
+  // A clone computes the same, with parameters of its own under the same names.
+  const auto copy = std::dynamic_pointer_cast<gns::GraphNetworkImpl>(net->clone());
+  REQUIRE(copy != nullptr);
+  CHECK(torch::equal(copy->forward(batch).at("mesh"), out.at("mesh")));
+  CHECK(copy->named_parameters().keys() == net->named_parameters().keys());
+  CHECK(copy->parameters()[0].data_ptr() != net->parameters()[0].data_ptr());
+
   // The loss: squared error over the dynamic nodes only, divided by their number.
   const auto loss = gns::acceleration_loss(out.at("mesh"), batch);
   const auto t = as_tensor(frame.target);

@@ -8,6 +8,8 @@
 
 #include "topos/models/topobench/model.hpp"
 
+#include <sstream>
+
 using namespace topos;
 using namespace topos::models;
 using namespace topos::models::topobench;
@@ -331,6 +333,30 @@ TEST_CASE("Every TopoBench model trains on a batch of lifted graphs", "[topobenc
       opt.step();
     }
     CHECK(eval_loss() < first);
+  }
+}
+
+TEST_CASE("Every TopoBench model clones: same logits, its own parameters, pretty-printed",
+          "[topobench]") {
+  for (const auto& spec : model_specs()) {
+    INFO(spec.name);
+    const auto gs = lift_tiny(spec.domain, 3);
+    const auto b = collate(gs, {0, 1, 2});
+    TopoBenchModel m(TopoBenchModelOptions(spec.name, gs[0].widths, 8, 2).n_layers(2));
+    m->eval();
+    const auto copy = std::dynamic_pointer_cast<TopoBenchModelImpl>(m->clone());
+    REQUIRE(copy != nullptr);
+    CHECK_FALSE(copy->is_training());
+    torch::NoGradGuard no_grad;
+    const auto before = m->forward(b);
+    CHECK(torch::equal(copy->forward(b), before));
+    // The copy's parameters are its own: changing them leaves the original as it was.
+    for (auto& p : copy->parameters()) p.add_(1.0);
+    CHECK(torch::equal(m->forward(b), before));
+    CHECK_FALSE(torch::equal(copy->forward(b), before));
+    std::ostringstream printed;
+    m->pretty_print(printed);
+    CHECK(printed.str().rfind("TopoBenchModel(", 0) == 0);
   }
 }
 

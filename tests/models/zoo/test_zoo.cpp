@@ -5,7 +5,7 @@
 #include "support/torch_prelude.hpp"
 
 #include "support/reference.hpp"
-#include "topos/models/zoo_case.hpp"
+#include "topos/testing/zoo_case.hpp"
 
 #include <filesystem>
 #include <fstream>
@@ -489,6 +489,28 @@ TEST_CASE(
   CHECK((lacking.empty() || lacking == std::set<std::string>{"UniGCN"}));
 }
 
+TEST_CASE("every zoo model clones: the copy of a golden case's model gives its outputs",
+          "[models][zoo][reference]") {
+  std::vector<std::string> unsupported;
+  int models = 0, cloned = 0;
+  for (const auto& [dir, model] : zoo_cases(unsupported, models)) {
+    INFO("case " << dir.filename().string());
+    ZooCase c = load_case(dir, case_operators(dir));
+    torch::NoGradGuard no_grad;
+    const auto out = run_case(c);
+    const auto original = c.model;
+    c.model = original.clone();
+    CHECK(c.model.module.get() != original.module.get());
+    const auto again = run_case(c);
+    for (const auto& name : c.outputs) {
+      INFO("output " << name);
+      CHECK(torch::equal(again.at(name), out.at(name)));
+    }
+    ++cloned;
+  }
+  REQUIRE(cloned >= 6);
+}
+
 TEST_CASE("known TopoModelX mismatches (docs/models.md): still differ",
           "[models][zoo][reference][!mayfail]") {
   std::vector<std::string> unsupported;
@@ -722,6 +744,15 @@ TEST_CASE("every hypergraph model runs under its options: shapes, finite values 
           if (p.value().grad().defined())
             REQUIRE(torch::isfinite(p.value().grad()).all().item<bool>());
       }
+      // A clone computes the same in evaluation mode and keeps its own parameters.
+      z.module->eval();
+      torch::NoGradGuard no_grad;
+      const auto copy = z.clone();
+      CHECK_FALSE(copy.module->is_training());
+      const auto y = z.forward(args);
+      CHECK(torch::equal(copy.forward(args)[0], y[0]));
+      for (auto& p : copy.module->parameters()) p.add_(1.0);
+      CHECK(torch::equal(z.forward(args)[0], y[0]));
     }
   }
   // Options TopoModelX cannot run, and bad configs, are errors naming them.

@@ -131,9 +131,9 @@ inline nn::OperatorSchedule can_schedule(const CANOptions& o) {
   return s;
 }
 
-class CANImpl : public nn::OperatorNetworkImpl {
+class CANImpl : public nn::Cloneable<CANImpl, nn::OperatorNetworkImpl> {
  public:
-  explicit CANImpl(const CANOptions& o) : OperatorNetworkImpl(can_schedule(o)), options(o) {
+  explicit CANImpl(const CANOptions& o) : Cloneable(can_schedule(o)), options(o) {
     // TopoModelX's shared weights: lin_dst is lin_src, so its state_dict names both.
     if (o.share_weights())
       for (int l = 0; l < o.n_layers(); ++l)

@@ -69,9 +69,9 @@ inline nn::OperatorSchedule ccxn_schedule(const CCXNOptions& o) {
   return s;
 }
 
-class CCXNImpl : public nn::OperatorNetworkImpl {
+class CCXNImpl : public nn::Cloneable<CCXNImpl, nn::OperatorNetworkImpl> {
  public:
-  explicit CCXNImpl(const CCXNOptions& o) : OperatorNetworkImpl(ccxn_schedule(o)), options(o) {}
+  explicit CCXNImpl(const CCXNOptions& o) : Cloneable(ccxn_schedule(o)), options(o) {}
   /// Node and edge features, the node adjacency and B_2ᵀ (2-cells × edges). Returns (x_0, x_1,
   /// x_2).
   std::vector<torch::Tensor> forward(const torch::Tensor& x_0, const torch::Tensor& x_1,

@@ -56,9 +56,9 @@ inline nn::OperatorSchedule cwn_schedule(const CWNOptions& o) {
   return s;
 }
 
-class CWNImpl : public nn::OperatorNetworkImpl {
+class CWNImpl : public nn::Cloneable<CWNImpl, nn::OperatorNetworkImpl> {
  public:
-  explicit CWNImpl(const CWNOptions& o) : OperatorNetworkImpl(cwn_schedule(o)), options(o) {}
+  explicit CWNImpl(const CWNOptions& o) : Cloneable(cwn_schedule(o)), options(o) {}
   /// (x_0, x_1, x_2), the edge adjacency, the incidence of 2-cells B_2 (edges × cells), B_1ᵀ.
   std::vector<torch::Tensor> forward(const std::vector<torch::Tensor>& x,
                                      const nn::SparseOperator& adjacency_1,

@@ -154,9 +154,9 @@ inline nn::OperatorSchedule hmc_schedule(const HMCOptions& o) {
   return s;
 }
 
-class HMCImpl : public nn::OperatorNetworkImpl {
+class HMCImpl : public nn::Cloneable<HMCImpl, nn::OperatorNetworkImpl> {
  public:
-  explicit HMCImpl(const HMCOptions& o) : OperatorNetworkImpl(hmc_schedule(o)), options(o) {}
+  explicit HMCImpl(const HMCOptions& o) : Cloneable(hmc_schedule(o)), options(o) {}
   /// (x_0, x_1, x_2); adjacency_0, adjacency_1, coadjacency_2; incidences B_01 (n0 × n1), B_12.
   std::vector<torch::Tensor> forward(const std::vector<torch::Tensor>& x,
                                      const nn::SparseOperator& adjacency_0,

@@ -15,7 +15,7 @@
 // whose node and mesh-edge columns are FIGNet's.
 #pragma once
 
-#include "topos/core/lifting.hpp"
+#include "topos/core/mesh_lifting.hpp"
 #include "topos/geometry/contacts.hpp"
 #include "topos/models/gns/graph.hpp"
 #include "topos/models/hopnet/features.hpp"

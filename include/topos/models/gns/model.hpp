@@ -7,6 +7,7 @@
 
 #include "topos/io/atomic_file.hpp"
 #include "topos/models/gns/network.hpp"
+#include "topos/nn/cloneable.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -238,21 +239,26 @@ inline GraphBatch collate(const GraphNetworkSpec& spec,
 
 /// The network of a spec, registered as one submodule (`root`, the reimplementation's
 /// `_encode_process_decode`), so that parameter names are <root>.<schedule path>.
-class GraphNetworkImpl : public torch::nn::Module {
+struct GraphNetworkOptions {
+  GraphNetworkSpec spec;
+  std::string root;  ///< the submodule's name, the first part of every parameter name
+};
+
+class GraphNetworkImpl : public nn::Cloneable<GraphNetworkImpl> {
  public:
+  explicit GraphNetworkImpl(GraphNetworkOptions o)
+      : options(std::move(o)),
+        network(register_module(options.root,
+                                nn::OperatorNetwork(graph_network_schedule(options.spec)))) {}
   GraphNetworkImpl(GraphNetworkSpec spec, const std::string& root)
-      : spec_(std::move(spec)),
-        network(register_module(root, nn::OperatorNetwork(graph_network_schedule(spec_)))) {}
+      : GraphNetworkImpl(GraphNetworkOptions{std::move(spec), root}) {}
   /// The decoded node sets by name (normalised outputs).
   std::map<std::string, torch::Tensor> forward(const GraphBatch& b) {
     return network->forward(b.inputs, b.operators);
   }
-  const GraphNetworkSpec& spec() const { return spec_; }
+  const GraphNetworkSpec& spec() const { return options.spec; }
 
- private:
-  GraphNetworkSpec spec_;
-
- public:
+  GraphNetworkOptions options;
   nn::OperatorNetwork network;
 };
 TORCH_MODULE(GraphNetwork);

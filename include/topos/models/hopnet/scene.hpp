@@ -5,7 +5,7 @@
 // friction 0.3, restitution 0.5, identity pose at every frame. No LibTorch.
 #pragma once
 
-#include "topos/core/lifting.hpp"
+#include "topos/core/mesh_lifting.hpp"
 #include "topos/io/obj_io.hpp"
 #include "topos/mesh/primitives.hpp"
 #include "topos/mesh/rigid.hpp"

@@ -140,10 +140,9 @@ inline nn::OperatorSchedule allset_schedule(const AllSetOptions& o) {
   return s;
 }
 
-class AllSetImpl : public nn::OperatorNetworkImpl {
+class AllSetImpl : public nn::Cloneable<AllSetImpl, nn::OperatorNetworkImpl> {
  public:
-  explicit AllSetImpl(const AllSetOptions& o)
-      : OperatorNetworkImpl(allset_schedule(o)), options(o) {}
+  explicit AllSetImpl(const AllSetOptions& o) : Cloneable(allset_schedule(o)), options(o) {}
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
   std::vector<torch::Tensor> forward(const torch::Tensor& x0,
                                      const nn::SparseOperator& incidence_1) {

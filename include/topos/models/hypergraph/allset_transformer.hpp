@@ -106,10 +106,10 @@ inline nn::OperatorSchedule allset_transformer_schedule(const AllSetTransformerO
   return s;
 }
 
-class AllSetTransformerImpl : public nn::OperatorNetworkImpl {
+class AllSetTransformerImpl : public nn::Cloneable<AllSetTransformerImpl, nn::OperatorNetworkImpl> {
  public:
   explicit AllSetTransformerImpl(const AllSetTransformerOptions& o)
-      : OperatorNetworkImpl(allset_transformer_schedule(o)), options(o) {}
+      : Cloneable(allset_transformer_schedule(o)), options(o) {}
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
   std::vector<torch::Tensor> forward(const torch::Tensor& x0,
                                      const nn::SparseOperator& incidence_1) {

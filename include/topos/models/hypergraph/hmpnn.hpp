@@ -80,9 +80,9 @@ inline nn::OperatorSchedule hmpnn_schedule(const HMPNNOptions& o) {
   return s;
 }
 
-class HMPNNImpl : public nn::OperatorNetworkImpl {
+class HMPNNImpl : public nn::Cloneable<HMPNNImpl, nn::OperatorNetworkImpl> {
  public:
-  explicit HMPNNImpl(const HMPNNOptions& o) : OperatorNetworkImpl(hmpnn_schedule(o)), options(o) {}
+  explicit HMPNNImpl(const HMPNNOptions& o) : Cloneable(hmpnn_schedule(o)), options(o) {}
   /// x_0 (nodes), x_1 (hyperedges) and the node × hyperedge incidence (its pattern); returns (x_0,
   /// x_1).
   std::vector<torch::Tensor> forward(const torch::Tensor& x0, const torch::Tensor& x1,

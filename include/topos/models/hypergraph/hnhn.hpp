@@ -64,9 +64,9 @@ inline nn::OperatorSchedule hnhn_schedule(const HNHNOptions& o) {
   return s;
 }
 
-class HNHNImpl : public nn::OperatorNetworkImpl {
+class HNHNImpl : public nn::Cloneable<HNHNImpl, nn::OperatorNetworkImpl> {
  public:
-  explicit HNHNImpl(const HNHNOptions& o) : OperatorNetworkImpl(hnhn_schedule(o)), options(o) {}
+  explicit HNHNImpl(const HNHNOptions& o) : Cloneable(hnhn_schedule(o)), options(o) {}
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
   std::vector<torch::Tensor> forward(const torch::Tensor& x0,
                                      const nn::SparseOperator& incidence_1) {

@@ -77,10 +77,9 @@ inline nn::OperatorSchedule hypergat_schedule(const HyperGATOptions& o) {
   return s;
 }
 
-class HyperGATImpl : public nn::OperatorNetworkImpl {
+class HyperGATImpl : public nn::Cloneable<HyperGATImpl, nn::OperatorNetworkImpl> {
  public:
-  explicit HyperGATImpl(const HyperGATOptions& o)
-      : OperatorNetworkImpl(hypergat_schedule(o)), options(o) {}
+  explicit HyperGATImpl(const HyperGATOptions& o) : Cloneable(hypergat_schedule(o)), options(o) {}
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
   std::vector<torch::Tensor> forward(const torch::Tensor& x0,
                                      const nn::SparseOperator& incidence_1) {

@@ -60,10 +60,9 @@ inline nn::OperatorSchedule hypersage_schedule(const HyperSAGEOptions& o) {
   return s;
 }
 
-class HyperSAGEImpl : public nn::OperatorNetworkImpl {
+class HyperSAGEImpl : public nn::Cloneable<HyperSAGEImpl, nn::OperatorNetworkImpl> {
  public:
-  explicit HyperSAGEImpl(const HyperSAGEOptions& o)
-      : OperatorNetworkImpl(hypersage_schedule(o)), options(o) {
+  explicit HyperSAGEImpl(const HyperSAGEOptions& o) : Cloneable(hypersage_schedule(o)), options(o) {
     if (!o.uniform_initialization()) return;  // the schedule's xavier_uniform (gain 1.414)
     torch::NoGradGuard g;
     for (int l = 0; l < o.n_layers(); ++l) {

@@ -47,10 +47,9 @@ inline nn::OperatorSchedule unigcn_schedule(const UniGCNOptions& o) {
   return s;
 }
 
-class UniGCNImpl : public nn::OperatorNetworkImpl {
+class UniGCNImpl : public nn::Cloneable<UniGCNImpl, nn::OperatorNetworkImpl> {
  public:
-  explicit UniGCNImpl(const UniGCNOptions& o)
-      : OperatorNetworkImpl(unigcn_schedule(o)), options(o) {}
+  explicit UniGCNImpl(const UniGCNOptions& o) : Cloneable(unigcn_schedule(o)), options(o) {}
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
   std::vector<torch::Tensor> forward(const torch::Tensor& x0,
                                      const nn::SparseOperator& incidence_1) {

@@ -55,10 +55,9 @@ inline nn::OperatorSchedule unigcnii_schedule(const UniGCNIIOptions& o) {
   return s;
 }
 
-class UniGCNIIImpl : public nn::OperatorNetworkImpl {
+class UniGCNIIImpl : public nn::Cloneable<UniGCNIIImpl, nn::OperatorNetworkImpl> {
  public:
-  explicit UniGCNIIImpl(const UniGCNIIOptions& o)
-      : OperatorNetworkImpl(unigcnii_schedule(o)), options(o) {}
+  explicit UniGCNIIImpl(const UniGCNIIOptions& o) : Cloneable(unigcnii_schedule(o)), options(o) {}
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1 of the last layer).
   std::vector<torch::Tensor> forward(const torch::Tensor& x0,
                                      const nn::SparseOperator& incidence_1) {

@@ -50,10 +50,9 @@ inline nn::OperatorSchedule unigin_schedule(const UniGINOptions& o) {
   return s;
 }
 
-class UniGINImpl : public nn::OperatorNetworkImpl {
+class UniGINImpl : public nn::Cloneable<UniGINImpl, nn::OperatorNetworkImpl> {
  public:
-  explicit UniGINImpl(const UniGINOptions& o)
-      : OperatorNetworkImpl(unigin_schedule(o)), options(o) {}
+  explicit UniGINImpl(const UniGINOptions& o) : Cloneable(unigin_schedule(o)), options(o) {}
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
   std::vector<torch::Tensor> forward(const torch::Tensor& x0,
                                      const nn::SparseOperator& incidence_1) {

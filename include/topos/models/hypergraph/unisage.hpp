@@ -44,10 +44,9 @@ inline nn::OperatorSchedule unisage_schedule(const UniSAGEOptions& o) {
   return s;
 }
 
-class UniSAGEImpl : public nn::OperatorNetworkImpl {
+class UniSAGEImpl : public nn::Cloneable<UniSAGEImpl, nn::OperatorNetworkImpl> {
  public:
-  explicit UniSAGEImpl(const UniSAGEOptions& o)
-      : OperatorNetworkImpl(unisage_schedule(o)), options(o) {}
+  explicit UniSAGEImpl(const UniSAGEOptions& o) : Cloneable(unisage_schedule(o)), options(o) {}
   /// x_0 (nodes) and the node × hyperedge incidence; returns (x_0, x_1) of the last layer.
   std::vector<torch::Tensor> forward(const torch::Tensor& x0,
                                      const nn::SparseOperator& incidence_1) {

@@ -35,10 +35,10 @@ inline nn::OperatorSchedule dist2cycle_schedule(const Dist2CycleOptions& o) {
   return s;
 }
 
-class Dist2CycleImpl : public nn::OperatorNetworkImpl {
+class Dist2CycleImpl : public nn::Cloneable<Dist2CycleImpl, nn::OperatorNetworkImpl> {
  public:
   explicit Dist2CycleImpl(const Dist2CycleOptions& o)
-      : OperatorNetworkImpl(dist2cycle_schedule(o)), options(o) {}
+      : Cloneable(dist2cycle_schedule(o)), options(o) {}
   /// Edge features, the pseudo-inverse L⁺ and the edge adjacency (any two operators multiplied
   /// entrywise).
   torch::Tensor forward(const torch::Tensor& x, const nn::SparseOperator& linv,

@@ -44,9 +44,9 @@ inline nn::OperatorSchedule hsn_schedule(const HSNOptions& o) {
   return s;
 }
 
-class HSNImpl : public nn::OperatorNetworkImpl {
+class HSNImpl : public nn::Cloneable<HSNImpl, nn::OperatorNetworkImpl> {
  public:
-  explicit HSNImpl(const HSNOptions& o) : OperatorNetworkImpl(hsn_schedule(o)), options(o) {}
+  explicit HSNImpl(const HSNOptions& o) : Cloneable(hsn_schedule(o)), options(o) {}
   /// Node features, the node × edge incidence B_1 and the node adjacency.
   torch::Tensor forward(const torch::Tensor& x_0, const nn::SparseOperator& incidence_1,
                         const nn::SparseOperator& adjacency_0) {

@@ -68,9 +68,9 @@ inline nn::OperatorSchedule san_schedule(const SANOptions& o) {
   return s;
 }
 
-class SANImpl : public nn::OperatorNetworkImpl {
+class SANImpl : public nn::Cloneable<SANImpl, nn::OperatorNetworkImpl> {
  public:
-  explicit SANImpl(const SANOptions& o) : OperatorNetworkImpl(san_schedule(o)), options(o) {}
+  explicit SANImpl(const SANOptions& o) : Cloneable(san_schedule(o)), options(o) {}
   torch::Tensor forward(const torch::Tensor& x, const nn::SparseOperator& laplacian_up,
                         const nn::SparseOperator& laplacian_down) {
     return run({{"x_1", x}},

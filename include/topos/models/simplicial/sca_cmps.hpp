@@ -68,10 +68,9 @@ inline nn::OperatorSchedule sca_cmps_schedule(const SCACMPSOptions& o) {
   return s;
 }
 
-class SCACMPSImpl : public nn::OperatorNetworkImpl {
+class SCACMPSImpl : public nn::Cloneable<SCACMPSImpl, nn::OperatorNetworkImpl> {
  public:
-  explicit SCACMPSImpl(const SCACMPSOptions& o)
-      : OperatorNetworkImpl(sca_cmps_schedule(o)), options(o) {}
+  explicit SCACMPSImpl(const SCACMPSOptions& o) : Cloneable(sca_cmps_schedule(o)), options(o) {}
   /// x[r] for r = 0..complex_dim-1; down_laplacians[r-1] = L_r↓ and incidences_t[r-1] = B_rᵀ for r
   /// ≥ 1. Returns every rank's features (rank 0 as given).
   std::vector<torch::Tensor> forward(std::vector<torch::Tensor> x,

@@ -60,9 +60,9 @@ inline nn::OperatorSchedule sccn_schedule(const SCCNOptions& o) {
   return s;
 }
 
-class SCCNImpl : public nn::OperatorNetworkImpl {
+class SCCNImpl : public nn::Cloneable<SCCNImpl, nn::OperatorNetworkImpl> {
  public:
-  explicit SCCNImpl(const SCCNOptions& o) : OperatorNetworkImpl(sccn_schedule(o)), options(o) {}
+  explicit SCCNImpl(const SCCNOptions& o) : Cloneable(sccn_schedule(o)), options(o) {}
   /// x[r] for r = 0..max_rank; incidences[r - 1] = B_r (rank r-1 × rank r) for r = 1..max_rank;
   /// adjacencies[r] the same-rank neighbourhood of rank r.
   std::vector<torch::Tensor> forward(const std::vector<torch::Tensor>& x,

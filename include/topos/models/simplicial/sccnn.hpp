@@ -85,9 +85,9 @@ inline nn::OperatorSchedule sccnn_schedule(const SCCNNOptions& o) {
   return s;
 }
 
-class SCCNNImpl : public nn::OperatorNetworkImpl {
+class SCCNNImpl : public nn::Cloneable<SCCNNImpl, nn::OperatorNetworkImpl> {
  public:
-  explicit SCCNNImpl(const SCCNNOptions& o) : OperatorNetworkImpl(sccnn_schedule(o)), options(o) {
+  explicit SCCNNImpl(const SCCNNOptions& o) : Cloneable(sccnn_schedule(o)), options(o) {
     // TopoModelX's initialisation of the filter weights.
     torch::NoGradGuard g;
     for (int l = 0; l < o.n_layers(); ++l)

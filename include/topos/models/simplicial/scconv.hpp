@@ -65,10 +65,9 @@ inline nn::OperatorSchedule scconv_schedule(const SCConvOptions& o) {
   return s;
 }
 
-class SCConvImpl : public nn::OperatorNetworkImpl {
+class SCConvImpl : public nn::Cloneable<SCConvImpl, nn::OperatorNetworkImpl> {
  public:
-  explicit SCConvImpl(const SCConvOptions& o)
-      : OperatorNetworkImpl(scconv_schedule(o)), options(o) {}
+  explicit SCConvImpl(const SCConvOptions& o) : Cloneable(scconv_schedule(o)), options(o) {}
   std::vector<torch::Tensor> forward(const std::vector<torch::Tensor>& x,
                                      const SCConvOperators& op) {
     if (x.size() != 3) throw std::invalid_argument("SCConv: expected features of ranks 0, 1, 2");

@@ -39,9 +39,9 @@ inline nn::OperatorSchedule scn2_schedule(const SCN2Options& o) {
   return s;
 }
 
-class SCN2Impl : public nn::OperatorNetworkImpl {
+class SCN2Impl : public nn::Cloneable<SCN2Impl, nn::OperatorNetworkImpl> {
  public:
-  explicit SCN2Impl(const SCN2Options& o) : OperatorNetworkImpl(scn2_schedule(o)), options(o) {}
+  explicit SCN2Impl(const SCN2Options& o) : Cloneable(scn2_schedule(o)), options(o) {}
   /// (x_0, x_1, x_2) and the normalised Laplacians of ranks 0, 1, 2.
   std::vector<torch::Tensor> forward(const std::vector<torch::Tensor>& x,
                                      const std::array<nn::SparseOperator, 3>& laplacian) {

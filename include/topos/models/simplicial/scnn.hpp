@@ -58,9 +58,9 @@ inline nn::OperatorSchedule scnn_schedule(const SCNNOptions& o) {
   return s;
 }
 
-class SCNNImpl : public nn::OperatorNetworkImpl {
+class SCNNImpl : public nn::Cloneable<SCNNImpl, nn::OperatorNetworkImpl> {
  public:
-  explicit SCNNImpl(const SCNNOptions& o) : OperatorNetworkImpl(scnn_schedule(o)), options(o) {}
+  explicit SCNNImpl(const SCNNOptions& o) : Cloneable(scnn_schedule(o)), options(o) {}
   /// Features of one rank, its lower and upper Laplacians.
   torch::Tensor forward(const torch::Tensor& x, const nn::SparseOperator& laplacian_down,
                         const nn::SparseOperator& laplacian_up) {

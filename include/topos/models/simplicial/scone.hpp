@@ -42,9 +42,9 @@ inline nn::OperatorSchedule scone_schedule(const SCoNeOptions& o) {
   return s;
 }
 
-class SCoNeImpl : public nn::OperatorNetworkImpl {
+class SCoNeImpl : public nn::Cloneable<SCoNeImpl, nn::OperatorNetworkImpl> {
  public:
-  explicit SCoNeImpl(const SCoNeOptions& o) : OperatorNetworkImpl(scone_schedule(o)), options(o) {}
+  explicit SCoNeImpl(const SCoNeOptions& o) : Cloneable(scone_schedule(o)), options(o) {}
   /// Edge features, the node × edge incidence B_1 and the edge × triangle incidence B_2.
   torch::Tensor forward(const torch::Tensor& x, const nn::SparseOperator& incidence_1,
                         const nn::SparseOperator& incidence_2) {

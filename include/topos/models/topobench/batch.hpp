@@ -6,7 +6,7 @@
 #pragma once
 
 #include "topos/models/topobench/lifting.hpp"
-#include "topos/nn/sparse.hpp"
+#include "topos/nn/sparse_operator.hpp"
 
 #include <torch/torch.h>
 

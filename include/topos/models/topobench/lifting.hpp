@@ -23,7 +23,7 @@
 #pragma once
 
 #include "topos/core/domain_lifting.hpp"
-#include "topos/core/sparse.hpp"
+#include "topos/core/sparse_matrix.hpp"
 
 #include <algorithm>
 #include <array>

@@ -22,6 +22,7 @@
 #include "topos/models/topobench/batch.hpp"
 #include "topos/models/topobench/protocol.hpp"  // model_spec
 #include "topos/nn/graph_norm.hpp"
+#include "topos/nn/cloneable.hpp"
 
 #include <torch/torch.h>
 
@@ -110,7 +111,7 @@ inline nn::OperatorSchedule head_schedule(const TopoBenchModelOptions& o) {
   return s;
 }
 
-class TopoBenchModelImpl : public torch::nn::Module {
+class TopoBenchModelImpl : public nn::Cloneable<TopoBenchModelImpl> {
  public:
   explicit TopoBenchModelImpl(TopoBenchModelOptions o) : options(std::move(o)) {
     const auto& spec = model_spec(options.model());

@@ -6,7 +6,7 @@
 
 #include "topos/config.hpp"
 #include "topos/nn/cochains.hpp"
-#include "topos/nn/conv.hpp"
+#include "topos/nn/functional.hpp"
 #include "topos/nn/operator_schedule/operation.hpp"
 #include "topos/nn/schedule_error.hpp"
 

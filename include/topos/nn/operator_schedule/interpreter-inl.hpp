@@ -4,7 +4,7 @@
 // Compiled into topos::nn, or inline with TOPOS_HEADER_ONLY (topos/config.hpp).
 #pragma once
 
-#include "topos/nn/operator_schedule/build-inl.hpp"  // detail::shape_str
+#include "topos/nn/operator_schedule/parameters-inl.hpp"  // detail::shape_str
 #include "topos/nn/operator_schedule/network.hpp"
 
 #include <algorithm>

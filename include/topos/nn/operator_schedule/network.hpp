@@ -1,7 +1,8 @@
 // topos/nn/operator_schedule/network.hpp
 // OperatorNetwork: the module that runs an OperatorSchedule. Built from a schedule, it infers
-// every cochain's width, checks each step and creates the parameters at the schedule's dotted
-// paths (build-inl.hpp); its forward interprets the steps (interpreter-inl.hpp).
+// every cochain's width, checks each step (build-inl.hpp) and creates the parameters at the
+// schedule's dotted paths (parameters-inl.hpp); its forward interprets the steps
+// (interpreter-inl.hpp).
 #pragma once
 
 #include "topos/config.hpp"
@@ -81,7 +82,7 @@ class OperatorNetworkImpl : public torch::nn::Module {
                        const torch::Tensor& x, Operators& ops, const Cochains& h);
   torch::Tensor run_step(const OperatorStep& s, const Cochains& h, Operators& ops);
 
-  // --- construction: channel and rank inference, parameters at their paths (build-inl.hpp) ---
+  // --- construction: channel and rank inference, parameters (build-, parameters-inl) -
   std::pair<torch::nn::Module*, std::string> owner_of(const std::string& path);
   void make_parameter(const std::string& where, const std::string& path,
                       std::vector<std::int64_t> shape, ParameterInit init, bool trainable = true);

@@ -2,7 +2,9 @@
 // The extension point of the operator schedule: an operation defined in user code (its own
 // translation unit, no edit of topos) that a term or a step applies exactly like a built-in one.
 //
-//   struct Gate : topos::nn::Operation {  // x ⊙ σ(x W), W at `path` (using namespace topos::nn)
+//   using namespace topos::nn;
+//   using namespace topos::nn::ops;
+//   struct Gate : Operation {  // x ⊙ σ(x W), W at `path`
 //     std::string path;
 //     explicit Gate(std::string p) : path(std::move(p)) {}
 //     std::string str(const std::string& x) const override { return "gate(" + x + ")"; }
@@ -24,7 +26,7 @@
 
 #include "topos/nn/cochains.hpp"
 #include "topos/nn/schedule_error.hpp"
-#include "topos/nn/sparse.hpp"
+#include "topos/nn/sparse_operator.hpp"
 
 #include <torch/torch.h>
 

@@ -1,4 +1,4 @@
-// topos/models/zoo_case.hpp
+// topos/testing/zoo_case.hpp
 // Running a TopoModelX golden case (shared/reference/tdl-golden format): the model from
 // case.json's "model" and "config", its weights from state_dict/ (or a torch .pt state_dict),
 // the positional arguments from case.json's "forward" list (inputs/ tensors, operators by name,
@@ -9,7 +9,8 @@
 
 #include "topos/data/json.hpp"
 #include "topos/data/npy.hpp"
-#include "topos/data/tdl_case.hpp"
+#include "topos/models/state_dict.hpp"
+#include "topos/testing/tdl_case.hpp"
 #include "topos/models/zoo.hpp"
 #include "topos/nn/serialization.hpp"
 
@@ -20,50 +21,6 @@
 #include <vector>
 
 namespace topos::models {
-
-/// A float32 tensor from a .npy file (any numeric dtype); errors name the file.
-inline torch::Tensor read_npy_tensor(const std::filesystem::path& path) {
-  if (!std::filesystem::exists(path)) throw data::DataError(path.string() + ": missing file");
-  const auto a = data::read_npy(path.string());
-  auto v = a.as<float>();
-  return torch::from_blob(v.data(), a.shape, torch::kFloat).clone();
-}
-
-/// Writes a tensor as float32 .npy, atomically.
-inline void write_npy_tensor(const std::filesystem::path& path, const torch::Tensor& t) {
-  const auto c = t.detach().to(torch::kCPU, torch::kFloat).contiguous();
-  data::write_npy(path.string(), c.sizes().vec(), c.data_ptr<float>());
-}
-
-/// Loads a TopoModelX state_dict into `m` by parameter name: from a folder of <name>.npy files
-/// (the names listed in state_dict.json beside it when present) or a torch.save'd .pt file. A
-/// missing, unexpected or mis-shaped tensor is an error naming it.
-inline void load_state_dict(torch::nn::Module& m, const std::filesystem::path& source) {
-  std::map<std::string, torch::Tensor> dict;
-  if (std::filesystem::is_directory(source)) {
-    const auto listing = source.parent_path() / "state_dict.json";
-    if (std::filesystem::exists(listing)) {
-      for (const auto& e : data::read_json_file(listing)) {
-        if (!e.is_array() || e.empty() || !e[0].is_string())
-          throw data::DataError(listing.string() + ": entries must be [name, shape]");
-        const auto name = e[0].get<std::string>();
-        auto t = read_npy_tensor(source / (name + ".npy"));
-        if (e.size() > 1 && e[1].is_array() &&
-            e[1].get<std::vector<std::int64_t>>() != t.sizes().vec())
-          throw data::DataError((source / (name + ".npy")).string() +
-                                ": shape differs from state_dict.json");
-        dict[name] = t;
-      }
-    } else {
-      for (const auto& f : std::filesystem::directory_iterator(source))
-        if (f.path().extension() == ".npy")
-          dict[f.path().stem().string()] = read_npy_tensor(f.path());
-    }
-  } else {
-    dict = nn::read_tensor_dict(source.string());
-  }
-  nn::load_parameters(m, dict, source.string());
-}
 
 /// A case's model, its outputs' names and its arguments.
 struct ZooCase {
@@ -179,7 +136,7 @@ inline std::map<std::string, torch::Tensor> case_gradients(ZooCase& c) {
 }
 
 /// The operators of a case, built from DIR/complex.json and DIR/operators.json's op/args
-/// (topos/data/tdl_case.hpp; never DIR/operators/), as float32 like the tensors TopoModelX got
+/// (topos/testing/tdl_case.hpp; never DIR/operators/), as float32 like the tensors TopoModelX got
 /// (its operators were saved as float32 and passed as their nonzero entries).
 inline std::map<std::string, nn::SparseOperator> case_operators(const std::filesystem::path& dir) {
   const tdl::Operators built = tdl::compute_operators(dir);

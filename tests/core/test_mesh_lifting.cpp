@@ -1,9 +1,10 @@
-// Tests of topos/core/lifting.hpp, primitives.hpp and obj_io.hpp: Euler characteristic of closed
-// meshes, HOPNet's edge order, boundary of boundary on lifted meshes, OBJ parsing and errors.
+// Tests of topos/core/mesh_lifting.hpp, primitives.hpp and obj_io.hpp: Euler characteristic of
+// closed meshes, HOPNet's edge order, boundary of boundary on lifted meshes, OBJ parsing and
+// errors.
 #include <catch2/catch.hpp>
 
 #include "support/reference.hpp"
-#include "topos/core/lifting.hpp"
+#include "topos/core/mesh_lifting.hpp"
 #include "topos/io/obj_io.hpp"
 #include "topos/mesh/primitives.hpp"
 

@@ -1,13 +1,13 @@
-// Tests of topos/geometry/domain_lifting.hpp: clique complex of a Boost graph (= the edge-list
-// one), cell complex from a cycle basis (b1 of the graph cycles filled: b1 = 0, one 2-cell per
-// independent cycle), Delaunay triangulations (Euler characteristic of a disc, the empty
+// Tests of topos/geometry/graph_and_point_cloud_lifting.hpp: clique complex of a Boost graph (= the
+// edge-list one), cell complex from a cycle basis (b1 of the graph cycles filled: b1 = 0, one
+// 2-cell per independent cycle), Delaunay triangulations (Euler characteristic of a disc, the empty
 // circumcircle property of every triangle), alpha complexes in 2-D and 3-D against a brute-force
 // alpha filtration of the Delaunay complex (every simplex's value from its smallest circumsphere
 // and the points inside it), at alphas between every two consecutive filtration values.
 #include <catch2/catch.hpp>
 
 #include "topos/core/spectral.hpp"
-#include "topos/geometry/domain_lifting.hpp"
+#include "topos/geometry/graph_and_point_cloud_lifting.hpp"
 
 #include <boost/graph/adjacency_list.hpp>
 

@@ -1,4 +1,4 @@
-// topos/core/lifting.hpp
+// topos/core/mesh_lifting.hpp
 // Lifting several triangle meshes (objects) into one combinatorial complex:
 //   rank 0  every vertex, objects concatenated in order (global id = object offset + local id);
 //   rank 1  unique undirected edges, in order of first appearance when walking the global face

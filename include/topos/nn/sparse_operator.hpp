@@ -1,4 +1,4 @@
-// topos/nn/sparse.hpp
+// topos/nn/sparse_operator.hpp
 // Weighted sparse operators for message passing: SparseOperator holds a matrix (an incidence,
 // a normalised Laplacian, an attention pattern) in row-major CSR together with its transpose,
 // and spmm(A, X, act) is act(A·X) with its own backward (dX = Aᵀ·dZ, d values[k] = <dZ[row k],
@@ -83,8 +83,8 @@ struct SparseOperator {
     return from_sorted(rows, cols, rr, cc, torch::tensor(vv, torch::kDouble).to(dtype));
   }
 
-  /// From an Eigen sparse matrix (core's operators, topos/data/tdl_case.hpp's compute_operators),
-  /// its values rounded to `dtype` and entries that are zero there dropped, as from_triplets.
+  /// From an Eigen sparse matrix (core's operators), its values rounded to `dtype` and entries
+  /// that are zero there dropped, as from_triplets.
   /// A template so this header needs no Eigen include.
   template <class EigenSparse>
   static SparseOperator from_eigen(const EigenSparse& m, torch::Dtype dtype = torch::kFloat) {

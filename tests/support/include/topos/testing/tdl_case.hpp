@@ -1,4 +1,4 @@
-// topos/data/tdl_case.hpp
+// topos/testing/tdl_case.hpp
 // Reading a TDL case in the format of the shared tdl-golden reference (README there): the domain
 // from DIR/complex.json (simplicial, cell, combinatorial or hypergraph; cells in the other
 // library's index order, which is kept), and every operator of DIR/operators.json computed from
@@ -13,7 +13,8 @@
 //                       names an earlier operator of the same case)
 // An unknown op, a missing argument, an operator a domain lacks, an operator with a non-finite
 // entry, pinv of more than kMaxPinvEntries: a DataError naming the file and the operator.
-// Core + nlohmann-json (no LibTorch), so small programs can use it.
+// Core + nlohmann-json (no LibTorch). Test support (the golden cases' harness, also behind
+// `tdl operators`), not part of the installed library.
 #pragma once
 
 #include "topos/core/cell_complex.hpp"

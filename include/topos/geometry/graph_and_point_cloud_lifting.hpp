@@ -1,4 +1,4 @@
-// topos/geometry/domain_lifting.hpp
+// topos/geometry/graph_and_point_cloud_lifting.hpp
 // Liftings that need Boost.Graph or CGAL (the std + Eigen ones are in core/domain_lifting.hpp):
 //   clique_complex(g, max_rank)          any undirected Boost.Graph graph (vertex_index map) ->
 //                                        clique complex, lexicographic order (as core's)

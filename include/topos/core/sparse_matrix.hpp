@@ -1,4 +1,4 @@
-// topos/core/sparse.hpp
+// topos/core/sparse_matrix.hpp
 // The sparse matrix type every topological operator returns (Eigen, row-major, 64-bit indices)
 // and the few sparse kernels the operators need: a Gustavson product with sorted rows, explicit
 // zeros dropped (so the sparsity pattern is exactly the nonzero entries, as NumPy's to_sparse
