@@ -13,9 +13,13 @@
 
 namespace topos::testing {
 
+using nn::attention_weights;
 using nn::AttentionNorm;
+using nn::divide_by_row_sums;
+using nn::pair_scores;
 using nn::SparseOperator;
 using nn::Update;
+using nn::xavier_uniform;
 
 struct ConvOptions {
   ConvOptions(std::int64_t in, std::int64_t out) : in_channels_(in), out_channels_(out) {}
