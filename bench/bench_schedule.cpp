@@ -1,4 +1,4 @@
-// Overhead of the schedule DSL against the same computation written directly in LibTorch, on a
+// Overhead of the operator schedule against the same computation written directly in LibTorch, on a
 // HOPNet-sized complex (two meshes of ~180 nodes and ~520 edges, 26 faces in contact, 13 contact
 // cells, 128 channels): the HOPNet collision block (faces <- nodes, edges; contacts <- faces by
 // role; faces <- contacts by role) and the node/object exchange. Forward, and forward+backward.
@@ -8,19 +8,30 @@
 
 #include "topos/core/mesh_lifting.hpp"
 #include "topos/mesh/primitives.hpp"
-#include "topos/nn/schedule.hpp"
+#include "topos/nn/operator_schedule.hpp"
 
 using namespace topos;
 using namespace topos::nn;
-using namespace topos::nn::dsl;
+using namespace topos::nn::ops;
 
 namespace {
 constexpr int D = 128;
 
+/// The contact cells' second view: the direction (columns 0..2) negated.
+struct NegateDirection : Operation {
+  std::string str(const std::string& x) const override { return "negate_direction(" + x + ")"; }
+  TermShape infer(BuildContext&, TermShape x) const override { return x; }
+  torch::Tensor forward(RunContext&, const torch::Tensor& x) const override {
+    auto sign = torch::ones({x.size(1)}, x.options());
+    sign.slice(0, 0, 3).fill_(-1);
+    return x * sign;
+  }
+};
+
 struct Fixture {
   ComplexBatch batch;
   std::map<std::string, torch::Tensor> inputs;
-  ScheduleNetwork net{nullptr};
+  OperatorNetwork net{nullptr};
 
   Fixture() {
     at::set_num_threads(1);
@@ -47,58 +58,42 @@ struct Fixture {
                                                                             {"B40", 4, 0}})
       v.neighborhoods[name] = incidence_neighborhood(cc, s, t);
     batch = ComplexBatch::collate({v}, 4);
-    ScheduleSignature sig;
-    for (auto& [n, tn] : batch.neighborhoods())
-      sig.neighborhoods[n] = {tn.source_rank, tn.target_rank};
-    sig.inputs = {{"x0", 16}, {"x1", 8}, {"x2", 3}, {"x3", 28}, {"x4", 13}};
-    Schedule s;
-    s.encode(0, "", "x0", "E0")
-        .encode(1, "", "x1", "E1")
-        .encode(2, "", "x2", "E2")
-        .encode(4, "", "x4", "E4")
-        .encode(3, "minus", "x3", "E3")
-        .encode(3, "plus", "x3", "E3", {}, {0, 1, 2});
-    s.step(into(2)
-               .msg(from(0).via("B02").map("P02"))
-               .msg(from(1).via("B12").map("P12"))
-               .msg(from(4).via("B42").map("P42"))
-               .update_with("P2"));
-    s.parallel(
-        {into(3, "plus").msg(from(2).via("B23").map("P23").by_role({-1, 1})).update_with("P3"),
-         into(3, "minus").msg(from(2).via("B23").map("P23").by_role({1, -1})).update_with("P3")});
-    s.step(into(2)
-               .msg(from(3, "plus").via("B32").only(1))
-               .msg(from(3, "minus").via("B32").only(-1))
-               .combine_with(Combine::sum_self)
-               .update_with("P2p"));
-    s.step(into(4).msg(from(2).via("B24").map("P24").reduce(Reduce::mean)).update_with("P4"));
-    s.parallel(
-        {into(0).msg(from(4).via("B40").map("P40")).update_with("P0"),
-         into(4).msg(from(0).via("B04").map("P04").reduce(Reduce::mean)).update_with("P4p")});
-    s.decode(0, "", "D0", "a0").decode(4, "", "D4", "a4");
     auto m = [](std::int64_t in, std::int64_t out = D) { return MlpOptions(in, D, out); };
-    const std::map<std::string, MlpOptions> modules{
-        {"E0", m(16)},
-        {"E1", m(8)},
-        {"E2", m(3)},
-        {"E3", m(28)},
-        {"E4", m(13)},
-        {"P02", m(D)},
-        {"P12", m(D)},
-        {"P42", m(D)},
-        {"P2", m(4 * D)},
-        {"P23", m(D)},
-        {"P3", m(3 * D)},
-        {"P2p", m(D)},
-        {"P24", m(D)},
-        {"P4", m(2 * D)},
-        {"P40", m(D)},
-        {"P0", m(2 * D)},
-        {"P04", m(D)},
-        {"P4p", m(2 * D)},
-        {"D0", m(D, 3).final_activation(false).layer_norm(false)},
-        {"D4", m(D, 3).final_activation(false).layer_norm(false)}};
-    net = ScheduleNetwork(s, modules, sig);
+    const auto decoder = m(D, 3).final_activation(false).layer_norm(false);
+    OperatorSchedule s;
+    for (auto& [n, tn] : batch.neighborhoods()) s.operator_input(n, tn.source_rank, tn.target_rank);
+    for (auto [name, rank, width] : std::vector<std::tuple<std::string, int, int>>{
+             {"x0", 0, 16}, {"x1", 1, 8}, {"x2", 2, 3}, {"x3", 3, 28}, {"x4", 4, 13}})
+      s.input(name, rank, width, "x");
+    s.parallel(
+        {into(0).sum(from(0, "x").mlp("E0", m(16))), into(1).sum(from(1, "x").mlp("E1", m(8))),
+         into(2).sum(from(2, "x").mlp("E2", m(3))), into(4).sum(from(4, "x").mlp("E4", m(13))),
+         into(3, "minus").sum(from(3, "x").mlp("E3", m(28))),
+         into(3, "plus").sum(from(3, "x").apply(NegateDirection()).mlp("E3", m(28)))});
+    s.step(into(2)
+               .concat(from(2), from(0).mlp("P02", m(D)).pattern("B02"),
+                       from(1).mlp("P12", m(D)).pattern("B12"),
+                       from(4).mlp("P42", m(D)).pattern("B42"))
+               .mlp("P2", m(4 * D)));
+    const auto role = [&](int r) { return from(2).mlp("P23", m(D)).pattern("B23").only(r); };
+    s.parallel({into(3, "plus").concat(from(3, "plus"), role(-1), role(1)).mlp("P3", m(3 * D)),
+                into(3, "minus").concat(from(3, "minus"), role(1), role(-1)).mlp("P3", m(3 * D))});
+    s.step(into(2)
+               .sum(from(2), from(3, "plus").pattern("B32").only(1),
+                    from(3, "minus").pattern("B32").only(-1))
+               .mlp("P2p", m(D)));
+    s.step(into(4)
+               .concat(from(4), from(2).mlp("P24", m(D)).pattern("B24", Aggr::mean))
+               .mlp("P4", m(2 * D)));
+    s.parallel(
+        {into(0).concat(from(0), from(4).mlp("P40", m(D)).pattern("B40")).mlp("P0", m(2 * D)),
+         into(4)
+             .concat(from(4), from(0).mlp("P04", m(D)).pattern("B04", Aggr::mean))
+             .mlp("P4p", m(2 * D))});
+    s.step(into(0, "a0").sum(from(0).mlp("D0", decoder)));
+    s.step(into(4, "a4").sum(from(4).mlp("D4", decoder)));
+    s.output("a0", 0, "a0").output("a4", 4, "a4");
+    net = OperatorNetwork(s);
     torch::manual_seed(0);
     inputs = {{"x0", torch::randn({batch.size(0), 16})},
               {"x1", torch::randn({batch.size(1), 8})},
@@ -109,8 +104,8 @@ struct Fixture {
 
   // The same computation written directly with the same modules.
   std::map<std::string, torch::Tensor> direct() {
-    auto M = [&](const char* n, const torch::Tensor& x) { return net->module(n)->forward(x); };
-    auto agg = [&](const torch::Tensor& x, const char* n, Reduce r = Reduce::sum, int role = 0) {
+    auto M = [&](const char* n, const torch::Tensor& x) { return net->mlp(n)->forward(x); };
+    auto agg = [&](const torch::Tensor& x, const char* n, Aggr r = Aggr::sum, int role = 0) {
       return aggregate(x, batch.neighborhood(n), AggregateOptions().with_reduce(r).with_role(role));
     };
     auto h0 = M("E0", inputs["x0"]), h1 = M("E1", inputs["x1"]), h2 = M("E2", inputs["x2"]),
@@ -123,13 +118,13 @@ struct Fixture {
                              agg(M("P42", h4), "B42")},
                             1));
     auto m23 = M("P23", h2);
-    auto np = torch::cat({agg(m23, "B23", Reduce::sum, -1), agg(m23, "B23", Reduce::sum, 1)}, 1);
-    auto nm = torch::cat({agg(m23, "B23", Reduce::sum, 1), agg(m23, "B23", Reduce::sum, -1)}, 1);
+    auto np = torch::cat({agg(m23, "B23", Aggr::sum, -1), agg(m23, "B23", Aggr::sum, 1)}, 1);
+    auto nm = torch::cat({agg(m23, "B23", Aggr::sum, 1), agg(m23, "B23", Aggr::sum, -1)}, 1);
     auto h3p2 = M("P3", torch::cat({h3p, np}, 1)), h3m2 = M("P3", torch::cat({h3m, nm}, 1));
-    h2 = M("P2p", h2 + agg(h3p2, "B32", Reduce::sum, 1) + agg(h3m2, "B32", Reduce::sum, -1));
-    h4 = M("P4", torch::cat({h4, agg(M("P24", h2), "B24", Reduce::mean)}, 1));
+    h2 = M("P2p", h2 + agg(h3p2, "B32", Aggr::sum, 1) + agg(h3m2, "B32", Aggr::sum, -1));
+    h4 = M("P4", torch::cat({h4, agg(M("P24", h2), "B24", Aggr::mean)}, 1));
     auto h0n = M("P0", torch::cat({h0, agg(M("P40", h4), "B40")}, 1));
-    auto h4n = M("P4p", torch::cat({h4, agg(M("P04", h0), "B04", Reduce::mean)}, 1));
+    auto h4n = M("P4p", torch::cat({h4, agg(M("P04", h0), "B04", Aggr::mean)}, 1));
     return {{"a0", M("D0", h0n)}, {"a4", M("D4", h4n)}};
   }
 };

@@ -1,4 +1,4 @@
-// A message-passing network that is not HOPNet, written as a topos schedule: on the built-in
+// A message-passing network that is not HOPNet, written as a topos operator schedule: on the built-in
 // meshes (randomly scaled and rotated), learn the area of every face from its nodes' positions
 // and its edges' vectors, with one round of face <- (nodes, edges) and face <- faces messages.
 // Trains for a few seconds and prints the loss as it falls.
@@ -7,7 +7,7 @@
 #include "topos/core/mesh_lifting.hpp"
 #include "topos/mesh/primitives.hpp"
 #include "topos/mesh/rigid.hpp"
-#include "topos/nn/schedule.hpp"
+#include "topos/nn/operator_schedule.hpp"
 
 #include <chrono>
 #include <iostream>
@@ -15,7 +15,7 @@
 
 using namespace topos;
 using namespace topos::nn;
-using namespace topos::nn::dsl;
+using namespace topos::nn::ops;
 
 struct Sample {
   ComplexView view;
@@ -59,28 +59,24 @@ int main() {
   at::set_num_threads(1);
   torch::manual_seed(0);
   const int D = 32;
-  Schedule s;
-  s.encode(0, "", "x0", "enc0").encode(1, "", "x1", "enc1").encode(2, "", "x2", "enc2");
-  s.step(into(2)
-             .msg(from(0).via("B02").map("phi02"))
-             .msg(from(1).via("B12").map("phi12"))
-             .update_with("face_update"));
-  s.step(into(2).msg(from(2).via("A21").reduce(Reduce::mean)).update_with("face_smooth"));
-  s.decode(2, "", "area", "area");
   auto mlp = [&](std::int64_t in, std::int64_t out) { return MlpOptions(in, D, out); };
-  ScheduleSignature sig;
-  sig.inputs = {{"x0", 3}, {"x1", 4}, {"x2", 1}};
-  sig.neighborhoods = {{"B02", {0, 2}}, {"B12", {1, 2}}, {"A21", {2, 2}}};
-  const std::map<std::string, MlpOptions> modules{
-      {"enc0", mlp(3, D)},
-      {"enc1", mlp(4, D)},
-      {"enc2", mlp(1, D)},
-      {"phi02", mlp(D, D)},
-      {"phi12", mlp(D, D)},
-      {"face_update", mlp(3 * D, D)},
-      {"face_smooth", mlp(2 * D, D)},
-      {"area", mlp(D, 1).final_activation(false).layer_norm(false)}};
-  ScheduleNetwork net(s, modules, sig);
+  OperatorSchedule s;
+  s.input("x0", 0, 3, "x").input("x1", 1, 4, "x").input("x2", 2, 1, "x");  // (rank, "x")
+  s.operator_input("B02", 0, 2).operator_input("B12", 1, 2).operator_input("A21", 2, 2);
+  s.parallel({into(0).sum(from(0, "x").mlp("enc0", mlp(3, D))),  // encoders: (r) from (r, "x")
+              into(1).sum(from(1, "x").mlp("enc1", mlp(4, D))),
+              into(2).sum(from(2, "x").mlp("enc2", mlp(1, D)))});
+  s.step(into(2)  // [h2, Σ_B02 phi02(h0), Σ_B12 phi12(h1)] -> face_update
+             .concat(from(2), from(0).mlp("phi02", mlp(D, D)).pattern("B02"),
+                     from(1).mlp("phi12", mlp(D, D)).pattern("B12"))
+             .mlp("face_update", mlp(3 * D, D)));
+  s.step(into(2)  // [h2, mean over the faces sharing an edge] -> face_smooth
+             .concat(from(2), from(2).pattern("A21", Aggr::mean))
+             .mlp("face_smooth", mlp(2 * D, D)));
+  s.step(into(2, "area").sum(
+      from(2).mlp("area", mlp(D, 1).final_activation(false).layer_norm(false))));
+  s.output("area", 2, "area");
+  OperatorNetwork net(s);  // checked here: ranks, widths, every mlp's input
   std::cout << s.str();
   std::mt19937 rng(1);
   torch::optim::Adam opt(net->parameters(), torch::optim::AdamOptions(3e-3));

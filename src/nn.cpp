@@ -1,4 +1,4 @@
-// The compiled part of topos::nn: the schedule languages' shape inference, interpreters and
+// The compiled part of topos::nn: the operator schedule's shape inference, interpreter and
 // printers, and the checkpoint reader and writer, built once here instead of in every
 // translation unit that includes their headers (topos/config.hpp; TOPOS_HEADER_ONLY inlines
 // them instead).
@@ -9,5 +9,4 @@
 #include "topos/nn/operator_schedule/build-inl.hpp"
 #include "topos/nn/operator_schedule/interpreter-inl.hpp"
 #include "topos/nn/operator_schedule/printer-inl.hpp"
-#include "topos/nn/schedule-inl.hpp"
 #include "topos/nn/serialization-inl.hpp"

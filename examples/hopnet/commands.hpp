@@ -70,7 +70,7 @@ inline void add_variant_options(CLI::App* app, VariantArgs& v, bool with_config)
 /// top.
 inline HopnetOptions variant_options(const VariantArgs& v, const HopnetOptions& base = {}) {
   HopnetOptions o = v.config.empty() ? base : parse_config(v.config, base);
-  if (!v.activation.empty()) o.activation(nn::activation_from_string(v.activation));
+  if (!v.activation.empty()) o.activation(nn::update_from_string(v.activation));
   if (v.collision_radius > 0) o.collision_radius(v.collision_radius);
   o.validate();
   return o;
@@ -88,13 +88,13 @@ inline CheckpointOverrides checkpoint_overrides(const VariantArgs& v,
   ov.mode = mode;
   if (v.collision_radius > 0) ov.collision_radius = v.collision_radius;
   if (!v.activation.empty()) {
-    ov.activation = nn::activation_from_string(v.activation);
+    ov.activation = nn::update_from_string(v.activation);
   } else if (is_reference_checkpoint(dict)) {
     const std::string stem = std::filesystem::path(path).stem().string();
     const std::string word = stem.substr(0, stem.find('_'));
     for (const char* a : {"gelu", "elu", "selu"})
       if (word == a) {
-        ov.activation = nn::activation_from_string(a);
+        ov.activation = nn::update_from_string(a);
         std::cerr << "note: " << path << " is a reference checkpoint named after activation " << a
                   << "; running it with " << a << " (--activation overrides)\n";
       }

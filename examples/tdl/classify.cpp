@@ -1,7 +1,7 @@
 // tdl classify: graph-level classification of many lifted complexes, batched with ComplexBatch.
 // Point clouds sampled from three planar shapes that differ in their holes (a disk, an annulus,
 // a disk with two holes), each randomly scaled, rotated and jittered, are lifted to the clique
-// complex (ranks 0-2) of their radius graph. The network is a schedule: per layer, edges take
+// complex (ranks 0-2) of their radius graph. The network is an operator schedule: per layer, edges take
 // their low-pass Hodge-filtered neighbours, their nodes and their triangles; nodes and triangles
 // do the same; each rank is decoded, averaged over each complex, and a linear head gives the
 // class. Accuracy per epoch to OUT/accuracy.csv and OUT/accuracy.svg, the figures to
@@ -11,7 +11,7 @@
 
 #include "topos/core/domain_lifting.hpp"
 #include "topos/core/neighborhood.hpp"
-#include "topos/nn/schedule.hpp"
+#include "topos/nn/operator_schedule.hpp"
 #include "topos/util/progress.hpp"
 
 #include <nlohmann/json.hpp>
@@ -123,45 +123,43 @@ Sample make_sample(int k, const ClassifyOptions& o, std::mt19937_64& rng) {
 }
 
 /// The network: encoders, `layers` rounds of edge, node and triangle updates, decoders.
-topos::nn::ScheduleNetwork make_network(const ClassifyOptions& o) {
+topos::nn::OperatorNetwork make_network(const ClassifyOptions& o) {
   using namespace topos::nn;
-  using namespace topos::nn::dsl;
-  Schedule s;
-  s.encode(0, "", "x0", "enc0").encode(1, "", "x1", "enc1").encode(2, "", "x2", "enc2");
-  std::map<std::string, MlpOptions> modules;
+  using namespace topos::nn::ops;
   const auto D = o.hidden;
-  modules.emplace("enc0", MlpOptions(1, D, D));
-  modules.emplace("enc1", MlpOptions(1, D, D));
-  modules.emplace("enc2", MlpOptions(1, D, D));
+  OperatorSchedule s;
+  for (int r = 0; r <= 2; ++r) s.input("x" + std::to_string(r), r, 1, "x");
+  for (const auto& [name, ranks] : std::map<std::string, std::pair<int, int>>{{"L0", {0, 0}},
+                                                                              {"L1", {1, 1}},
+                                                                              {"L2", {2, 2}},
+                                                                              {"B10", {1, 0}},
+                                                                              {"B01", {0, 1}},
+                                                                              {"B21", {2, 1}},
+                                                                              {"B12", {1, 2}}})
+    s.operator_input(name, ranks.first, ranks.second);
+  s.parallel({into(0).sum(from(0, "x").mlp("enc0", MlpOptions(1, D, D))),
+              into(1).sum(from(1, "x").mlp("enc1", MlpOptions(1, D, D))),
+              into(2).sum(from(2, "x").mlp("enc2", MlpOptions(1, D, D)))});
   for (int l = 0; l < o.layers; ++l) {
     const std::string i = std::to_string(l);
     s.step(into(1)
-               .msg(from(1).via("L1").weighted())
-               .msg(from(0).via("B01").reduce(Reduce::mean))
-               .msg(from(2).via("B21").reduce(Reduce::mean))
-               .update_with("edge" + i));
+               .concat(from(1), from(1).via("L1"), from(0).pattern("B01", Aggr::mean),
+                       from(2).pattern("B21", Aggr::mean))
+               .mlp("edge" + i, MlpOptions(4 * D, D, D)));
     s.step(into(0)
-               .msg(from(0).via("L0").weighted())
-               .msg(from(1).via("B10").reduce(Reduce::mean))
-               .update_with("node" + i));
+               .concat(from(0), from(0).via("L0"), from(1).pattern("B10", Aggr::mean))
+               .mlp("node" + i, MlpOptions(3 * D, D, D)));
     s.step(into(2)
-               .msg(from(2).via("L2").weighted())
-               .msg(from(1).via("B12").reduce(Reduce::mean))
-               .update_with("triangle" + i));
-    modules.emplace("edge" + i, MlpOptions(4 * D, D, D));
-    modules.emplace("node" + i, MlpOptions(3 * D, D, D));
-    modules.emplace("triangle" + i, MlpOptions(3 * D, D, D));
+               .concat(from(2), from(2).via("L2"), from(1).pattern("B12", Aggr::mean))
+               .mlp("triangle" + i, MlpOptions(3 * D, D, D)));
   }
   for (int r = 0; r <= 2; ++r) {
-    s.decode(r, "", "dec" + std::to_string(r), "y" + std::to_string(r));
-    modules.emplace("dec" + std::to_string(r),
-                    MlpOptions(D, D, D).final_activation(false).layer_norm(false));
+    const auto R = std::to_string(r);
+    s.step(into(r, "y").sum(
+        from(r).mlp("dec" + R, MlpOptions(D, D, D).final_activation(false).layer_norm(false))));
+    s.output("y" + R, r, "y");
   }
-  ScheduleSignature sig;
-  sig.inputs = {{"x0", 1}, {"x1", 1}, {"x2", 1}};
-  sig.neighborhoods = {{"L0", {0, 0}},  {"L1", {1, 1}},  {"L2", {2, 2}}, {"B10", {1, 0}},
-                       {"B01", {0, 1}}, {"B21", {2, 1}}, {"B12", {1, 2}}};
-  return ScheduleNetwork(s, modules, sig);
+  return OperatorNetwork(s);
 }
 
 /// Per complex, the mean of each rank's decoded rows, ranks side by side: B x 3D.

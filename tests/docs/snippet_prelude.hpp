@@ -7,7 +7,6 @@
 #include "topos/core/sparse_matrix.hpp"
 #include "topos/models/simplicial/scn2.hpp"
 #include "topos/nn/operator_schedule.hpp"
-#include "topos/nn/schedule.hpp"
 
 #include <torch/torch.h>
 
@@ -34,8 +33,9 @@ inline topos::models::SCN2 net{nullptr};
 inline std::array<topos::nn::SparseOperator, 3> L;
 inline topos::nn::SparseOperator A0, A1, coA2, B1, B2;
 inline topos::CellComplex cc;
-inline topos::nn::Schedule s;
+inline topos::nn::OperatorSchedule s;
 inline int layers = 2;
+inline std::int64_t D = 8;
 inline topos::nn::SparseOperator op(const topos::SparseMatrix& m) {
   return topos::nn::SparseOperator::from_eigen(m);
 }
@@ -43,7 +43,7 @@ inline topos::nn::SparseOperator op(const topos::SparseMatrix& m) {
 #define SNIPPET_USING_tutorial_zoo \
   using namespace topos;           \
   using namespace topos::nn;       \
-  using namespace topos::nn::dsl;
+  using namespace topos::nn::ops;
 
 namespace snippet_operation {
 inline topos::nn::OperatorSchedule s;
@@ -57,9 +57,3 @@ inline torch::Tensor x0, x1;
 inline topos::nn::SparseOperator A1, B1, L_down_1, L_up_1;
 }  // namespace snippet_operator_schedule
 #define SNIPPET_USING_operator_schedule using namespace topos::nn;
-
-namespace snippet_schedule {
-inline torch::Tensor x0, x1, x2;
-inline topos::nn::ComplexBatch batch;
-}  // namespace snippet_schedule
-#define SNIPPET_USING_schedule using namespace topos::nn;

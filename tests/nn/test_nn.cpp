@@ -1,6 +1,7 @@
-// Tests of topos/nn: aggregations against hand-written loops, the Mlp block, ComplexBatch,
-// the schedule DSL (finite-difference gradients in double, batching, guards, empty ranks,
-// validation errors) and parameter save/load by name.
+// Tests of topos/nn: aggregations against hand-written loops, the Mlp block, ComplexBatch, the
+// operator schedule over a batch's neighbourhoods (mlps, roles, guards, the fast paths against
+// the plain ones, finite-difference gradients in double, batching, empty ranks, errors) and
+// parameter save/load by name.
 #include "support/torch_prelude.hpp"
 
 #include "topos/core/mesh_lifting.hpp"
@@ -8,7 +9,7 @@
 #include "topos/nn/cpu.hpp"
 #include "topos/nn/device.hpp"
 #include "topos/nn/distributed.hpp"
-#include "topos/nn/schedule.hpp"
+#include "topos/nn/operator_schedule.hpp"
 #include "topos/nn/serialization.hpp"
 
 #include <caffe2/serialize/inline_container.h>
@@ -24,7 +25,7 @@
 
 using namespace topos;
 using namespace topos::nn;
-using namespace topos::nn::dsl;
+using namespace topos::nn::ops;
 
 namespace {
 
@@ -64,54 +65,61 @@ ComplexView make_view(int variant, bool with_contact) {
   return v;
 }
 
-ScheduleSignature signature(const std::map<std::string, std::int64_t>& inputs) {
-  ScheduleSignature s;
-  s.inputs = inputs;
-  s.neighborhoods = {{"B01", {0, 1}}, {"B02", {0, 2}}, {"B12", {1, 2}}, {"B04", {0, 4}},
-                     {"B40", {4, 0}}, {"B23", {2, 3}}, {"B32", {3, 2}}};
-  return s;
-}
+/// The second view of a rank-3 cell's features: column 0 negated, then columns (1, 0, 2).
+struct SwapView : Operation {
+  std::string str(const std::string& x) const override { return "swap(" + x + ")"; }
+  TermShape infer(BuildContext& ctx, TermShape x) const override {
+    if (x.channels != 3) ctx.fail("swap needs 3 channels");
+    return x;
+  }
+  torch::Tensor forward(RunContext&, const torch::Tensor& x) const override {
+    auto sign = torch::ones({3}, x.options());
+    sign[0] = -1;
+    return (x * sign).index_select(1, torch::tensor({1, 0, 2}, torch::kLong));
+  }
+};
 
-// A multi-step schedule with roles, a guard and a parallel group; hidden width D.
-Schedule test_schedule() {
-  Schedule s;
-  s.encode(0, "", "x0", "e0")
-      .encode(1, "", "x1", "e1")
-      .encode(2, "", "x2", "e2")
-      .encode(4, "", "x4", "e4")
-      .encode(3, "minus", "x3", "e3")
-      .encode(3, "plus", "x3", "e3", {1, 0, 2}, {0});
-  s.step(into(2)
-             .msg(from(0).via("B02").map("p02"))
-             .msg(from(1).via("B12").map("p12").reduce(Reduce::mean))
-             .update_with("u2"));
-  s.step(into(3, "plus")
-             .msg(from(2).via("B23").map("p23").by_role({-1, 1}))
-             .update_with("u3")
-             .when_nonempty(3));
-  s.step(into(2)
-             .msg(from(3, "plus").via("B32").only(1))
-             .msg(from(3, "minus").via("B32").only(-1))
-             .update_with("u2b")
-             .when_nonempty(3));
-  s.parallel({into(0).msg(from(4).via("B40").map("p40")).update_with("u0"),
-              into(4).msg(from(0).via("B04").map("p04").reduce(Reduce::max)).update_with("u4")});
-  s.decode(0, "", "d0", "a0").decode(2, "", "d2", "a2");
-  return s;
-}
-
-std::map<std::string, MlpOptions> test_modules(int D) {
-  auto m = [&](std::int64_t in, std::int64_t out, bool last = true) {
-    return MlpOptions(in, D, out)
-        .final_activation(last)
-        .layer_norm(last)
-        .activation(Activation::gelu);
+// A multi-step schedule over a batch's neighbourhoods with roles, guards, a maximum and a
+// parallel group; hidden width D.
+OperatorSchedule test_schedule(std::int64_t D) {
+  const auto m = [&](std::int64_t in, std::int64_t out, bool last = true) {
+    return MlpOptions(in, D, out).final_activation(last).layer_norm(last).activation(Update::gelu);
   };
-  return {{"e0", m(3, D)},       {"e1", m(2, D)},     {"e2", m(2, D)},      {"e4", m(2, D)},
-          {"e3", m(3, D)},       {"p02", m(D, D)},    {"p12", m(D, D)},     {"u2", m(3 * D, D)},
-          {"p23", m(D, D)},      {"u3", m(3 * D, D)}, {"u2b", m(3 * D, D)}, {"p40", m(D, D)},
-          {"u0", m(2 * D, D)},   {"p04", m(D, D)},    {"u4", m(2 * D, D)},  {"d0", m(D, 3, false)},
-          {"d2", m(D, 1, false)}};
+  OperatorSchedule s;
+  for (auto [name, rank, width] : std::vector<std::tuple<std::string, int, int>>{
+           {"x0", 0, 3}, {"x1", 1, 2}, {"x2", 2, 2}, {"x3", 3, 3}, {"x4", 4, 2}})
+    s.input(name, rank, width, "x");
+  s.operator_input("B01", 0, 1).operator_input("B02", 0, 2).operator_input("B12", 1, 2);
+  s.operator_input("B04", 0, 4).operator_input("B40", 4, 0).operator_input("B23", 2, 3);
+  s.operator_input("B32", 3, 2);
+  s.parallel(
+      {into(0).sum(from(0, "x").mlp("e0", m(3, D))), into(1).sum(from(1, "x").mlp("e1", m(2, D))),
+       into(2).sum(from(2, "x").mlp("e2", m(2, D))), into(4).sum(from(4, "x").mlp("e4", m(2, D))),
+       into(3, "minus").sum(from(3, "x").mlp("e3", m(3, D))),
+       into(3, "plus").sum(from(3, "x").apply(SwapView()).mlp("e3", m(3, D)))});
+  s.step(into(2)
+             .concat(from(2), from(0).mlp("p02", m(D, D)).pattern("B02"),
+                     from(1).mlp("p12", m(D, D)).pattern("B12", Aggr::mean))
+             .mlp("u2", m(3 * D, D)));
+  const auto side = [&](int role) { return from(2).mlp("p23", m(D, D)).pattern("B23").only(role); };
+  s.step(into(3, "plus")
+             .concat(from(3, "plus"), side(-1), side(1))
+             .mlp("u3", m(3 * D, D))
+             .when_nonempty(3));
+  s.step(into(2)
+             .concat(from(2), from(3, "plus").pattern("B32").only(1),
+                     from(3, "minus").pattern("B32").only(-1))
+             .mlp("u2b", m(3 * D, D))
+             .when_nonempty(3));
+  s.parallel(
+      {into(0).concat(from(0), from(4).mlp("p40", m(D, D)).pattern("B40")).mlp("u0", m(2 * D, D)),
+       into(4)
+           .concat(from(4), from(0).mlp("p04", m(D, D)).pattern("B04", Aggr::max))
+           .mlp("u4", m(2 * D, D))});
+  s.step(into(0, "a0").sum(from(0).mlp("d0", m(D, 3, false))));
+  s.step(into(2, "a2").sum(from(2).mlp("d2", m(D, 1, false))));
+  s.output("a0", 0, "a0").output("a2", 2, "a2");
+  return s;
 }
 
 std::map<std::string, torch::Tensor> random_inputs(const ComplexBatch& b, torch::Dtype dt,
@@ -140,7 +148,7 @@ TEST_CASE("aggregations equal hand-written loops", "[nn][aggregate]") {
   const auto b = ComplexBatch::collate({v}, 1);
   const auto& tn = b.neighborhood("n");
   const auto x = torch::randn({4, 2}, torch::kDouble);
-  auto loop = [&](Reduce r, bool weighted, int role) {
+  auto loop = [&](Aggr r, bool weighted, int role) {
     auto out = torch::zeros({3, 2}, torch::kDouble);
     std::vector<int> count(3, 0);
     std::vector<bool> seen(3, false);
@@ -148,19 +156,19 @@ TEST_CASE("aggregations equal hand-written loops", "[nn][aggregate]") {
       if (role != 0 && n.roles[k] != role) continue;
       auto m = x[n.source[k]] * (weighted ? n.values[k] : 1.0);
       const auto t = n.target[k];
-      if (r == Reduce::max)
+      if (r == Aggr::max)
         out[t] = seen[static_cast<std::size_t>(t)] ? torch::max(out[t], m) : m;
       else
         out[t] += m;
       seen[static_cast<std::size_t>(t)] = true;
       ++count[static_cast<std::size_t>(t)];
     }
-    if (r == Reduce::mean)
+    if (r == Aggr::mean)
       for (int t = 0; t < 3; ++t)
         if (count[static_cast<std::size_t>(t)]) out[t] /= count[static_cast<std::size_t>(t)];
     return out;
   };
-  for (Reduce r : {Reduce::sum, Reduce::mean, Reduce::max})
+  for (Aggr r : {Aggr::sum, Aggr::mean, Aggr::max})
     for (bool w : {false, true})
       for (int role : {0, 1, -1}) {
         INFO(to_string(r) << " weighted " << w << " role " << role);
@@ -184,7 +192,7 @@ TEST_CASE("a neighbourhood with one pair per target, in order, aggregates as a g
   const auto b = ComplexBatch::collate({ComplexView{{4, 2}, {{"n", n}}}}, 1);
   REQUIRE(b.neighborhood("n").one_per_target);
   const auto x = torch::randn({2, 3}, torch::kDouble);
-  for (Reduce r : {Reduce::sum, Reduce::mean, Reduce::max})
+  for (Aggr r : {Aggr::sum, Aggr::mean, Aggr::max})
     for (bool w : {false, true}) {
       const auto got =
           aggregate(x, b.neighborhood("n"), AggregateOptions().with_reduce(r).with_weighted(w));
@@ -242,7 +250,7 @@ TEST_CASE("Mlp follows the reference layout and parameter count", "[nn][mlp]") {
   Mlp one(MlpOptions(4, 8, 5).layers(1));
   REQUIRE(one->named_parameters().size() == 2);  // L = 1: no LayerNorm
   REQUIRE(one->forward(torch::zeros({2, 4})).sizes() == std::vector<std::int64_t>{2, 5});
-  REQUIRE_THROWS_AS(activation_from_string("tanh"), std::invalid_argument);
+  REQUIRE_THROWS_AS(update_from_string("swish"), std::invalid_argument);
 }
 
 TEST_CASE("medium matmul precision: bfloat16 products, float32 out, close to highest",
@@ -293,8 +301,7 @@ TEST_CASE("a batch of complexes gives the per-complex results", "[nn][batch][sch
   const auto batch = ComplexBatch::collate(views, 4);
   REQUIRE(batch.size(3) == 2);
   REQUIRE(batch.counts(3) == std::vector<std::int64_t>{1, 0, 1});
-  ScheduleNetwork net(test_schedule(), test_modules(16),
-                      signature({{"x0", 3}, {"x1", 2}, {"x2", 2}, {"x3", 3}, {"x4", 2}}));
+  OperatorNetwork net(test_schedule(16));
   const auto inputs = random_inputs(batch, torch::kFloat, 3);
   const auto all = net->forward(inputs, batch);
   for (std::size_t c = 0; c < views.size(); ++c) {
@@ -335,8 +342,7 @@ TEST_CASE("the fast paths give the plain schedule's outputs and gradients", "[nn
     }
   }
   const auto batch = ComplexBatch::collate(views, 4);
-  ScheduleNetwork net(test_schedule(), test_modules(8),
-                      signature({{"x0", 3}, {"x1", 2}, {"x2", 2}, {"x3", 3}, {"x4", 2}}));
+  OperatorNetwork net(test_schedule(8));
   net->to(torch::kDouble);
   const auto inputs = random_inputs(batch, torch::kDouble, 11);
   auto run = [&](bool fast) {
@@ -364,8 +370,7 @@ TEST_CASE("a schedule at medium matmul precision stays float32 and close to high
   // concatenation, the object message through its block before the spread).
   const auto batch = ComplexBatch::collate({make_view(0, true), make_view(1, false)}, 4);
   torch::manual_seed(5);
-  ScheduleNetwork net(test_schedule(), test_modules(32),
-                      signature({{"x0", 3}, {"x1", 2}, {"x2", 2}, {"x3", 3}, {"x4", 2}}));
+  OperatorNetwork net(test_schedule(32));
   const auto inputs = random_inputs(batch, torch::kFloat, 11);
   const auto run = [&](MatmulPrecision p) {
     struct Restore {
@@ -396,8 +401,7 @@ TEST_CASE("a schedule at medium matmul precision stays float32 and close to high
 TEST_CASE("schedule gradients match finite differences in double precision",
           "[nn][schedule][grad]") {
   const auto batch = ComplexBatch::collate({make_view(0, true), make_view(1, false)}, 4);
-  ScheduleNetwork net(test_schedule(), test_modules(6),
-                      signature({{"x0", 3}, {"x1", 2}, {"x2", 2}, {"x3", 3}, {"x4", 2}}));
+  OperatorNetwork net(test_schedule(6));
   net->to(torch::kDouble);
   const auto inputs = random_inputs(batch, torch::kDouble, 7);
   auto loss = [&] {
@@ -431,12 +435,11 @@ TEST_CASE("schedule gradients match finite differences in double precision",
   REQUIRE(checked >= 60);
 }
 
-TEST_CASE("schedules are validated when the network is built", "[nn][schedule][errors]") {
-  const auto sig = signature({{"x0", 3}, {"x1", 2}, {"x2", 2}, {"x3", 3}, {"x4", 2}});
-  auto expect = [&](const Schedule& s, std::map<std::string, MlpOptions> mods,
-                    const std::string& what) {
+TEST_CASE("schedules over a batch name their errors: when built, and when run",
+          "[nn][schedule][errors]") {
+  auto expect = [&](const OperatorSchedule& s, const std::string& what) {
     try {
-      ScheduleNetwork net(s, mods, sig);
+      OperatorNetwork net(s);
     } catch (const ScheduleError& e) {
       INFO(e.what());
       CHECK(std::string(e.what()).find(what) != std::string::npos);
@@ -444,48 +447,74 @@ TEST_CASE("schedules are validated when the network is built", "[nn][schedule][e
     }
     FAIL("no ScheduleError; expected: " << what);
   };
-  auto mods = test_modules(8);
-  Schedule s = test_schedule();
-  expect(Schedule(s).step(into(2).msg(from(0).via("B99")).update_with("u2").named("bad nbh")), mods,
-         "bad nbh (into (2)): unknown neighborhood 'B99'");
-  expect(Schedule(s).step(into(2).msg(from(1).via("B02")).update_with("u2").named("wrong dir")),
-         mods,
-         "wrong dir (into (2)): neighborhood 'B02' goes from rank 0 to rank 2, not from 1 to 2");
-  expect(Schedule(s).step(into(2).msg(from(0).via("B02")).update_with("u2").named("chan")), mods,
-         "chan (into (2)): update module 'u2' takes 24 channels but the combined input has 16");
-  expect(Schedule(s).step(into(2).msg(from(0).via("B02")).update_with("nope").named("mod")), mods,
-         "mod (into (2)): unknown module 'nope'");
-  expect(Schedule(s).step(into(2, "ghost").msg(from(0).via("B02")).update_with("u0").named("st")),
-         mods, "st (into (2, \"ghost\")): target (2, \"ghost\") has no cochain");
-  expect(Schedule().encode(0, "", "x9", "e0"), mods, "encode (0): unknown input 'x9'");
-  expect(Schedule().encode(0, "", "x0", "e1"), mods,
-         "encode (0): module 'e1' takes 2 channels but gets 3");
-  expect(Schedule().encode(0, "", "x0", "e0", {0, 7}), mods, "column 7 out of range");
-  expect(Schedule(s).decode(3, "", "d0", "z"), mods, "decode (3): no cochain to decode");
-  REQUIRE(test_schedule().str().find("step 1: into (3, \"plus\") when rank 3 nonempty = "
-                                     "u3(cat[self, p23·(2) via B23 by role])") !=
-          std::string::npos);
+  const auto s = test_schedule(8);
+  const MlpOptions m8(8, 8, 8), m16(16, 8, 8);
+  expect(OperatorSchedule(s).step(
+             into(2).concat(from(2), from(0).pattern("B02")).mlp("u2", m16).named("chan")),
+         "chan (into (2)): mlp 'u2' takes 24 channels but gets 16");
+  expect(OperatorSchedule(s).step(
+             into(2).concat(from(2), from(0).pattern("B02")).mlp("u0", m16).named("again")),
+         "again (into (2)): mlp 'u0' is used again with other options");
+  expect(OperatorSchedule(s).step(into(2).sum(from(1).pattern("B02")).named("dir")),
+         "dir (into (2)): operator 'B02' applies to rank 0 cochains, not rank 1");
+  expect(OperatorSchedule(s).step(
+             into(2).sum(from(2).mlp("w", MlpOptions(8, 8, 4))).when_nonempty(3).named("g")),
+         "g (into (2)): when_nonempty must keep the target's width (8), the step gives 4");
+  expect(OperatorSchedule(s).step(into(2, "new").sum(from(2)).when_nonempty(3).named("g2")),
+         "g2 (into (2, \"new\")): when_nonempty keeps the target's value elsewhere, but (2, "
+         "\"new\") has none before the step");
+  CHECK_THROWS_WITH(from(2).mlp("p", m8).only(1),
+                    Catch::Contains("must follow a via or a pattern"));
+  CHECK_THAT(s.str(), Catch::Contains("sum|B23[role -1]|·p23((2))") &&
+                          Catch::Contains("where rank 3 is nonempty") &&
+                          Catch::Contains("max|B04|·p04((0))") &&
+                          Catch::Contains("e3(swap((3, \"x\")))"));
+
+  // At run time: a neighbourhood that does not fit, a guard without a batch, roles and a
+  // maximum over a sparse operator.
+  const auto batch = ComplexBatch::collate({make_view(0, true)}, 4);
+  OperatorNetwork net(s);
+  auto inputs = random_inputs(batch, torch::kFloat, 1);
+  inputs["x1"] = torch::randn({batch.size(1) + 1, 2});
+  CHECK_THROWS_WITH(net->forward(inputs, batch),
+                    Catch::Contains("neighbourhood 'B12' reads") &&
+                        Catch::Contains("source rows but the cochain (1) has"));
+  OperatorSchedule g;
+  g.input("x", 2, 3).step(into(2).sum(from(2)).when_nonempty(3).named("guarded"));
+  g.output("y", 2);
+  CHECK_THROWS_WITH(OperatorNetwork(g)->forward({{"x", torch::ones({4, 3})}}, {}),
+                    Catch::Contains("guarded (into (2)): when_nonempty(3) needs a ComplexBatch"));
+  OperatorSchedule r;
+  r.input("x", 0, 3).operator_input("A", 0, 0);
+  r.step(into(0).sum(from(0).pattern("A").only(1)).named("roles"));
+  r.output("y", 0);
+  const auto A = SparseOperator::from_dense(torch::eye(4));
+  CHECK_THROWS_WITH(OperatorNetwork(r)->forward({{"x", torch::ones({4, 3})}}, {{"A", A}}),
+                    Catch::Contains("roles (into (0)): only(1) needs a neighbourhood with roles"));
+  OperatorSchedule mx;
+  mx.input("x", 0, 3).operator_input("A", 0, 0);
+  mx.step(into(0).sum(from(0).pattern("A", Aggr::max)));
+  mx.output("y", 0);
+  CHECK_THROWS_WITH(OperatorNetwork(mx)->forward({{"x", torch::ones({4, 3})}}, {{"A", A}}),
+                    Catch::Contains("max over a sparse operator's pattern is not supported"));
 }
 
 TEST_CASE("parameters round-trip by name through a file", "[nn][checkpoint]") {
-  const auto sig = signature({{"x0", 3}, {"x1", 2}, {"x2", 2}, {"x3", 3}, {"x4", 2}});
-  ScheduleNetwork a(test_schedule(), test_modules(8), sig),
-      b(test_schedule(), test_modules(8), sig);
+  OperatorNetwork a(test_schedule(8)), b(test_schedule(8));
   const std::string path = "topos_test_params.pt";
   save_parameters(*a, path);
   const auto dict = read_tensor_dict(path);
-  REQUIRE(dict.count("modules.p23.0.weight") == 1);
+  REQUIRE(dict.count("p23.0.weight") == 1);
   load_parameters(*b, dict, path);
   for (const auto& p : a->named_parameters())
     REQUIRE(torch::equal(p.value(), b->named_parameters()[p.key()]));
   auto missing = dict;
-  missing.erase("modules.u3.2.bias");
-  REQUIRE_THROWS_WITH(load_parameters(*b, missing, "x.pt"),
-                      "x.pt: missing tensor 'modules.u3.2.bias'");
+  missing.erase("u3.2.bias");
+  REQUIRE_THROWS_WITH(load_parameters(*b, missing, "x.pt"), "x.pt: missing tensor 'u3.2.bias'");
   auto shaped = dict;
-  shaped["modules.u3.2.bias"] = torch::zeros({3});
+  shaped["u3.2.bias"] = torch::zeros({3});
   REQUIRE_THROWS_WITH(load_parameters(*b, shaped, "x.pt"),
-                      Catch::Contains("tensor 'modules.u3.2.bias' has shape [3], expected [8]"));
+                      Catch::Contains("tensor 'u3.2.bias' has shape [3], expected [8]"));
   auto extra = dict;
   extra["bogus"] = torch::zeros({1});
   REQUIRE_THROWS_WITH(load_parameters(*b, extra, "x.pt"), "x.pt: unexpected tensor 'bogus'");

@@ -6,6 +6,7 @@
 #pragma once
 
 #include "topos/nn/complex_batch.hpp"
+#include "topos/nn/functional.hpp"  // Aggr
 
 #include <torch/torch.h>
 
@@ -13,17 +14,11 @@
 
 namespace topos::nn {
 
-enum class Reduce { sum, mean, max };
-
-inline const char* to_string(Reduce r) {
-  return r == Reduce::sum ? "sum" : (r == Reduce::mean ? "mean" : "max");
-}
-
 struct AggregateOptions {
-  Reduce reduce = Reduce::sum;
+  Aggr reduce = Aggr::sum;
   bool weighted = false;  ///< multiply messages by the neighbourhood's values
   int role = 0;           ///< keep only pairs of this role (0: all)
-  AggregateOptions& with_reduce(Reduce r) {
+  AggregateOptions& with_reduce(Aggr r) {
     reduce = r;
     return *this;
   }
@@ -77,8 +72,8 @@ inline torch::Tensor aggregate(const torch::Tensor& x, const TensorNeighborhood&
   }
   if (opt.role == 0 && n.one_per_target) return msg;  // every target gets exactly its own pair
   auto out = torch::zeros({n.num_target, x.size(1)}, x.options());
-  if (opt.reduce == Reduce::sum) return out.index_add(0, tgt, msg);
-  if (opt.reduce == Reduce::mean) {
+  if (opt.reduce == Aggr::sum) return out.index_add(0, tgt, msg);
+  if (opt.reduce == Aggr::mean) {
     out = out.index_add(0, tgt, msg);
     auto count = torch::zeros({n.num_target}, x.options())
                      .index_add(0, tgt, torch::ones({tgt.size(0)}, x.options()));

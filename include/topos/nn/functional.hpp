@@ -19,8 +19,9 @@
 
 namespace topos::nn {
 
-/// The update functions of TopoModelX's layers; `none` is the identity.
-enum class Update { none, relu, sigmoid, tanh, elu, leaky_relu };
+/// The activation functions of every model: TopoModelX's update functions and the MLPs' (HOPNet's
+/// gelu and selu); `none` is the identity.
+enum class Update { none, relu, sigmoid, tanh, elu, leaky_relu, gelu, selu };
 
 inline Update update_from_string(const std::string& s) {
   if (s.empty() || s == "none" || s == "None" || s == "null") return Update::none;
@@ -29,8 +30,10 @@ inline Update update_from_string(const std::string& s) {
   if (s == "tanh") return Update::tanh;
   if (s == "elu") return Update::elu;
   if (s == "leaky_relu") return Update::leaky_relu;
-  throw std::invalid_argument("unknown update function '" + s +
-                              "' (relu, sigmoid, tanh, elu, leaky_relu, none)");
+  if (s == "gelu") return Update::gelu;
+  if (s == "selu") return Update::selu;
+  throw std::invalid_argument("unknown activation '" + s +
+                              "' (relu, sigmoid, tanh, elu, leaky_relu, gelu, selu, none)");
 }
 
 /// The name update_from_string reads back ("none" for the identity).
@@ -46,6 +49,10 @@ inline std::string update_name(Update u) {
       return "elu";
     case Update::leaky_relu:
       return "leaky_relu";
+    case Update::gelu:
+      return "gelu";
+    case Update::selu:
+      return "selu";
     default:
       return "none";
   }
@@ -63,6 +70,10 @@ inline torch::Tensor apply_update(const torch::Tensor& x, Update u, double negat
       return torch::elu(x);
     case Update::leaky_relu:
       return torch::leaky_relu(x, negative_slope);
+    case Update::gelu:
+      return torch::gelu(x);
+    case Update::selu:
+      return torch::selu(x);
     default:
       return x;
   }
@@ -76,7 +87,13 @@ inline Epilogue epilogue_of(Update u) {
   return u == Update::relu ? Epilogue::relu : u == Update::elu ? Epilogue::elu : Epilogue::none;
 }
 
-enum class Aggr { sum, mean };
+/// How messages reaching one target are combined. `max` only over a batch's neighbourhoods
+/// (aggregate.hpp), not over a SparseOperator's pattern.
+enum class Aggr { sum, mean, max };
+
+inline const char* aggr_name(Aggr a) {
+  return a == Aggr::sum ? "sum" : (a == Aggr::mean ? "mean" : "max");
+}
 
 /// Row normalisation by the operator's row sums, 0 where a row sums to 0 (SCCNN's aggr_norm).
 inline torch::Tensor divide_by_row_sums(const SparseOperator& A, const torch::Tensor& x) {
@@ -101,6 +118,10 @@ inline void check_node_features(const char* model, const torch::Tensor& x0,
 /// pattern_aggregate(B, pattern_aggregate(Bᵀ, x_0)) with B the node × hyperedge incidence.
 inline torch::Tensor pattern_aggregate(const SparseOperator& A, const torch::Tensor& x,
                                        Aggr aggr = Aggr::sum) {
+  if (aggr == Aggr::max)
+    throw std::invalid_argument(
+        "pattern_aggregate: max over a sparse operator's pattern is not "
+        "supported (it is over a batch neighbourhood)");
   auto y = spmm(A.pattern().to(x.scalar_type()), x);
   if (aggr == Aggr::mean) {
     const auto count = torch::diff(A.crow).to(x.scalar_type()).clamp_min(1).to(x.device());
@@ -266,6 +287,9 @@ inline torch::Tensor apply_affine_power(const SparseOperator& A, const torch::Te
 /// Sum of y over the cells of each complex of a batch (`batch[i]` = complex of row i): readout.
 inline torch::Tensor readout(const torch::Tensor& y, const torch::Tensor& batch,
                              std::int64_t num_complexes, Aggr aggr = Aggr::sum) {
+  if (aggr == Aggr::max)
+    return torch::zeros({num_complexes, y.size(1)}, y.options())
+        .scatter_reduce(0, batch.unsqueeze(1).expand_as(y), y, "amax", /*include_self=*/false);
   auto out = torch::zeros({num_complexes, y.size(1)}, y.options()).index_add(0, batch, y);
   if (aggr == Aggr::mean) {
     const auto count = torch::zeros({num_complexes}, y.options())

@@ -6,6 +6,8 @@
 // names ("0.weight", "2.bias", "4.weight") match the reference's checkpoints.
 #pragma once
 
+#include "topos/nn/functional.hpp"  // Update
+
 #include <torch/torch.h>
 
 #include <dlfcn.h>
@@ -79,28 +81,6 @@ inline torch::Tensor linear(const torch::Tensor& x, const torch::Tensor& weight,
   return y.to(torch::kFloat);
 }
 
-enum class Activation { relu, gelu, elu, selu };
-
-inline Activation activation_from_string(const std::string& s) {
-  if (s == "relu") return Activation::relu;
-  if (s == "gelu") return Activation::gelu;
-  if (s == "elu") return Activation::elu;
-  if (s == "selu") return Activation::selu;
-  throw std::invalid_argument("unknown activation '" + s + "' (relu, gelu, elu, selu)");
-}
-inline const char* to_string(Activation a) {
-  switch (a) {
-    case Activation::relu:
-      return "relu";
-    case Activation::gelu:
-      return "gelu";
-    case Activation::elu:
-      return "elu";
-    default:
-      return "selu";
-  }
-}
-
 struct MlpOptions {
   MlpOptions(std::int64_t in, std::int64_t hidden, std::int64_t out)
       : in_(in), hidden_(hidden), out_(out) {}
@@ -108,7 +88,7 @@ struct MlpOptions {
   TORCH_ARG(std::int64_t, hidden);
   TORCH_ARG(std::int64_t, out);
   TORCH_ARG(int, layers) = 2;
-  TORCH_ARG(Activation, activation) = Activation::relu;
+  TORCH_ARG(Update, activation) = Update::relu;  ///< none: no activation module
   TORCH_ARG(bool, final_activation) = true;
   TORCH_ARG(bool, layer_norm) = true;
 };
@@ -126,17 +106,28 @@ class MlpImpl : public torch::nn::Module {
     auto add_linear = [&](std::int64_t i, std::int64_t out) { add(torch::nn::Linear(i, out)); };
     auto add_act = [&] {
       switch (o.activation()) {
-        case Activation::relu:
+        case Update::none:
+          break;
+        case Update::relu:
           add(torch::nn::ReLU(torch::nn::ReLUOptions().inplace(true)));
           break;
-        case Activation::gelu:
+        case Update::gelu:
           add(torch::nn::GELU());
           break;
-        case Activation::elu:
+        case Update::elu:
           add(torch::nn::ELU());
           break;
-        case Activation::selu:
+        case Update::selu:
           add(torch::nn::SELU());
+          break;
+        case Update::sigmoid:
+          add(torch::nn::Sigmoid());
+          break;
+        case Update::tanh:
+          add(torch::nn::Tanh());
+          break;
+        case Update::leaky_relu:
+          add(torch::nn::LeakyReLU());
           break;
       }
     };
@@ -172,7 +163,7 @@ class MlpImpl : public torch::nn::Module {
     // cannot split an MLP between the two.
     const MatmulPrecision precision = get_float32_matmul_precision();
     const bool bf16 = x.scalar_type() == torch::kFloat && precision == MatmulPrecision::medium &&
-                      options.activation() == Activation::relu;
+                      options.activation() == Update::relu;
     const std::int64_t rows = x.dim() == 2 ? x.size(0) : -1;
     const std::int64_t padded = bf16 ? detail::padded_rows(rows) : rows;
     std::size_t last_linear = 0;

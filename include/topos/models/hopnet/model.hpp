@@ -12,7 +12,6 @@
 #include "topos/models/hopnet/options.hpp"
 #include "topos/models/hopnet/schedule.hpp"
 #include "topos/nn/cloneable.hpp"
-#include "topos/nn/schedule.hpp"
 #include "topos/nn/serialization.hpp"
 
 #include <torch/torch.h>
@@ -35,10 +34,10 @@ struct HopnetOutput {
   torch::Tensor a0, a4;
 };
 
-class HopnetImpl : public nn::Cloneable<HopnetImpl, nn::ScheduleNetworkImpl> {
+class HopnetImpl : public nn::Cloneable<HopnetImpl, nn::OperatorNetworkImpl> {
  public:
   explicit HopnetImpl(const HopnetOptions& opt = {})
-      : Cloneable(hopnet_schedule(opt), hopnet_modules(opt), hopnet_signature(opt)), options(opt) {
+      : Cloneable(hopnet_schedule(opt)), options(opt) {
     opt.validate();
   }
 
@@ -46,7 +45,7 @@ class HopnetImpl : public nn::Cloneable<HopnetImpl, nn::ScheduleNetworkImpl> {
   /// the normalised zero acceleration. Without object cells the test is the node's own type
   /// column (x0[:, 16] with 21 columns), so the floor's virtual node is static too.
   HopnetOutput forward(const HopnetBatch& b, const Normalizer& norm) {
-    auto out = nn::ScheduleNetworkImpl::forward(b.inputs, b.complex);
+    auto out = nn::OperatorNetworkImpl::forward(b.inputs, b.complex);
     if (options.architecture() == Architecture::no_object_cells) {
       const auto& x0 = b.inputs.at("x0");
       const auto node_static = x0.select(1, x0.size(1) - 5).lt(0).unsqueeze(1);
@@ -112,7 +111,7 @@ inline void load_checkpoint(HopnetImpl& model, const std::map<std::string, torch
 /// state dicts do not record (a topos checkpoint records it: a different one is an error).
 struct CheckpointOverrides {
   std::optional<FeatureMode> mode;
-  std::optional<nn::Activation> activation;
+  std::optional<nn::Update> activation;
   std::optional<double> collision_radius;
 };
 
@@ -125,8 +124,8 @@ inline Hopnet load_hopnet(const std::map<std::string, torch::Tensor>& dict,
   if (ov.activation) {
     if (!is_reference_checkpoint(dict) && opt.activation() != *ov.activation)
       throw std::invalid_argument(source + ": the checkpoint was trained with activation " +
-                                  nn::to_string(opt.activation()) + ", not " +
-                                  nn::to_string(*ov.activation));
+                                  nn::update_name(opt.activation()) + ", not " +
+                                  nn::update_name(*ov.activation));
     opt.activation(*ov.activation);
   }
   if (ov.mode) opt.mode(*ov.mode);

@@ -1,12 +1,12 @@
 // topos/models/hopnet/schedule.hpp
-// HOPNet's network as a schedule of topos's DSL (the reference's models/hopnet.py): the schedule
-// of HopnetOptions' architecture, its MLP modules, inputs and neighbourhood signature.
+// HOPNet's network as an operator schedule (the reference's models/hopnet.py): the schedule of
+// HopnetOptions' architecture, with its MLPs at the reference's names ("modules.<name>"), over a
+// ComplexBatch's neighbourhoods; and the one operation of its own, the plus view of a contact.
 #pragma once
 
 #include "topos/models/hopnet/lifting_options.hpp"
 #include "topos/models/hopnet/options.hpp"
-#include "topos/nn/mlp.hpp"
-#include "topos/nn/schedule.hpp"
+#include "topos/nn/operator_schedule.hpp"
 
 #include <cstdint>
 #include <map>
@@ -20,7 +20,8 @@ namespace topos::hopnet {
 //   parallel {
 //     into 3 plus  = L3 ([h3p, Σ_B23neg L2to3(h2), Σ_B23pos L2to3(h2)])
 //     into 3 minus = L3 ([h3m, Σ_B23pos L2to3(h2), Σ_B23neg L2to3(h2)]) }
-//   into 2        = L2p([h2, Σ_{B32, role +1} h3p + Σ_{B32, role −1} h3m])
+//   into 2 contacts = Σ_{B32, role +1} h3p + Σ_{B32, role −1} h3m
+//   into 2        = L2p([h2, contacts])
 //   into 4        = L4 ([h4, mean_B24 L2to4(h2)])            only where the complex has contacts
 //   parallel {
 //     into 0       = L0 ([h0, B40 L4to0(h4)])
@@ -36,7 +37,8 @@ namespace topos::hopnet {
 //   into 0 = L0 ([h0, Σ_B20 L2to0(h2)])                           only where the complex has
 //     contacts
 //   into 0 = L0p([h0, Σ_A010 L0to0(h0)])
-// no_sequential, one layer: a single parallel group (every message reads the layer's input):
+// no_sequential, one layer: every message reads the layer's input (the sums over both contact
+// views first, into scratch states, then one parallel group):
 //   into 3 minus/plus = L3([h3, Σ_B03 L0to3(h0), Σ_B13 L1to3(h1), Σ_B23signed L2to3(h2)])
 //   into 2 = L2([h2, Σ_B02 L0to2(h0), Σ_B12 L1to2(h1), Σ_A232 L2to2(h2), Σ_B32signed L3to2(h3p) +
 //     Σ_B32signed L3to2(h3m), B42 L4to2(h4)])
@@ -46,126 +48,31 @@ namespace topos::hopnet {
 //     L3to1(h3m), B41 L4to1(h4)])
 //   into 4 = L4([h4, mean_B04 L0to4(h0), mean_B14 L1to4(h1), Σ_B24 L2to4(h2)])
 
-/// The schedule of the reference's HOPNet.forward (or of an ablation's) for `opt`.
-inline nn::Schedule hopnet_schedule(const HopnetOptions& opt) {
-  using namespace nn::dsl;
-  using nn::Reduce;
-  const Architecture arch = opt.architecture();
-  nn::Schedule s;
-  s.encode(0, "", "x0", "encoder_0")
-      .encode(1, "", "x1", "encoder_1")
-      .encode(2, "", "x2", "encoder_2");
-  if (arch != Architecture::no_object_cells) s.encode(4, "", "x4", "encoder_4");
-  s.encode(3, "minus", "x3", "encoder_3");
-  if (opt.mode() == FeatureMode::reference) {
+/// The reference's plus view of a contact cell's features (reference mode): the other face's
+/// blocks first ([y0:4, y16:28, y4:16]) and the direction (columns 0..2) negated, after the
+/// normalisation, as the published weights expect. HOPNet's own operation, written through the
+/// operator schedule's extension point (nn::Operation).
+struct ContactPlusView : nn::Operation {
+  std::string str(const std::string& x) const override { return "plus_view(" + x + ")"; }
+  nn::TermShape infer(nn::BuildContext& ctx, nn::TermShape x) const override {
+    if (x.channels != kFeatureWidth[3])
+      ctx.fail("the plus view takes the " + std::to_string(kFeatureWidth[3]) +
+               " contact features, not " + std::to_string(x.channels));
+    return x;
+  }
+  torch::Tensor forward(nn::RunContext&, const torch::Tensor& x) const override {
     std::vector<std::int64_t> cols;  // [y0:4, y16:28, y4:16]: the faces' blocks swapped
     for (int c = 0; c < 4; ++c) cols.push_back(c);
     for (int c = 16; c < 28; ++c) cols.push_back(c);
     for (int c = 4; c < 16; ++c) cols.push_back(c);
-    s.encode(3, "plus", "x3", "encoder_3", cols, {0, 1, 2});
-  } else {
-    s.encode(3, "plus", "x3_plus", "encoder_3");
+    auto sign = torch::ones({x.size(1)}, x.options());
+    for (int c = 0; c < 3; ++c) sign[c] = -1;
+    return (x * sign).index_select(1, torch::tensor(cols, torch::kLong).to(x.device()));
   }
-  for (int l = 0; l < opt.num_layers(); ++l) {
-    const std::string L = "layer" + std::to_string(l) + "_";
-    if (arch == Architecture::no_sequential) {
-      const auto contact = [&](const char* view) {
-        return into(3, view)
-            .msg(from(0).via("B03").map(L + "0to3"))
-            .msg(from(1).via("B13").map(L + "1to3"))
-            .msg(from(2).via("B23signed").map(L + "2to3").weighted())
-            .update_with(L + "3")
-            .named(L + "contacts_" + view);
-      };
-      s.parallel({contact("minus"), contact("plus"),
-                  into(2)
-                      .msg(from(0).via("B02").map(L + "0to2"))
-                      .msg(from(1).via("B12").map(L + "1to2"))
-                      .msg(from(2).via("A232").map(L + "2to2"))
-                      .msg(from(3, "plus").via("B32signed").map(L + "3to2").weighted())
-                      .add(from(3, "minus").via("B32signed").map(L + "3to2").weighted())
-                      .msg(from(4).via("B42").map(L + "4to2"))
-                      .update_with(L + "2")
-                      .named(L + "faces"),
-                  into(0)
-                      .msg(from(0).via("A010").map(L + "0to0"))
-                      .msg(from(1).via("B10").map(L + "1to0"))
-                      .msg(from(2).via("B20").map(L + "2to0"))
-                      .msg(from(3, "plus").via("B30").map(L + "3to0"))
-                      .add(from(3, "minus").via("B30").map(L + "3to0"))
-                      .msg(from(4).via("B40").map(L + "4to0"))
-                      .update_with(L + "0")
-                      .named(L + "nodes"),
-                  into(1)
-                      .msg(from(0).via("B01").map(L + "0to1"))
-                      .msg(from(1).via("A101").map(L + "1to1"))
-                      .msg(from(2).via("B21").map(L + "2to1"))
-                      .msg(from(3, "plus").via("B31").map(L + "3to1"))
-                      .add(from(3, "minus").via("B31").map(L + "3to1"))
-                      .msg(from(4).via("B41").map(L + "4to1"))
-                      .update_with(L + "1")
-                      .named(L + "edges"),
-                  into(4)
-                      .msg(from(0).via("B04").map(L + "0to4").reduce(Reduce::mean))
-                      .msg(from(1).via("B14").map(L + "1to4").reduce(Reduce::mean))
-                      .msg(from(2).via("B24").map(L + "2to4"))
-                      .update_with(L + "4")
-                      .named(L + "objects")});
-      continue;
-    }
-    const bool objects = arch == Architecture::hopnet;
-    auto faces =
-        into(2).msg(from(0).via("B02").map(L + "0to2")).msg(from(1).via("B12").map(L + "1to2"));
-    if (objects) faces.msg(from(4).via("B42").map(L + "4to2"));
-    s.step(faces.update_with(L + "2").named(L + "faces"));
-    s.parallel({into(3, "plus")
-                    .msg(from(2).via("B23neg").map(L + "2to3").weighted())
-                    .msg(from(2).via("B23pos").map(L + "2to3").weighted())
-                    .update_with(L + "3")
-                    .named(L + "contacts_plus"),
-                into(3, "minus")
-                    .msg(from(2).via("B23pos").map(L + "2to3").weighted())
-                    .msg(from(2).via("B23neg").map(L + "2to3").weighted())
-                    .update_with(L + "3")
-                    .named(L + "contacts_minus")});
-    s.step(into(2)
-               .msg(from(3, "plus").via("B32").only(1))
-               .add(from(3, "minus").via("B32").only(-1))
-               .update_with(L + "2p")
-               .named(L + "faces_from_contacts"));
-    if (!objects) {
-      s.step(into(0)
-                 .msg(from(2).via("B20").map(L + "2to0"))
-                 .update_with(L + "0")
-                 .when_nonempty(3)
-                 .named(L + "nodes_from_faces"));
-      s.step(into(0)
-                 .msg(from(0).via("A010").map(L + "0to0"))
-                 .update_with(L + "0p")
-                 .named(L + "nodes_from_nodes"));
-      continue;
-    }
-    s.step(into(4)
-               .msg(from(2).via("B24").map(L + "2to4").reduce(Reduce::mean))
-               .update_with(L + "4")
-               .when_nonempty(3)
-               .named(L + "objects_from_faces"));
-    s.parallel({into(0)
-                    .msg(from(4).via("B40").map(L + "4to0"))
-                    .update_with(L + "0")
-                    .named(L + "nodes_from_objects"),
-                into(4)
-                    .msg(from(0).via("B04").map(L + "0to4").reduce(Reduce::mean))
-                    .update_with(L + "4p")
-                    .named(L + "objects_from_nodes")});
-  }
-  s.decode(0, "", "decoder_0", "a0");
-  if (arch != Architecture::no_object_cells) s.decode(4, "", "decoder_4", "a4");
-  return s;
-}
+};
 
 /// Input widths of an architecture: x0 (lifting), x1 8, x2 3, x3 28, x4 13 (none without object
-/// cells).
+/// cells); x3_plus in native mode.
 inline std::map<std::string, std::int64_t> hopnet_inputs(const HopnetOptions& opt) {
   std::map<std::string, std::int64_t> in{{"x0", opt.lifting().x0_width()},
                                          {"x1", kFeatureWidth[1]},
@@ -176,72 +83,170 @@ inline std::map<std::string, std::int64_t> hopnet_inputs(const HopnetOptions& op
   return in;
 }
 
-inline std::map<std::string, nn::MlpOptions> hopnet_modules(const HopnetOptions& opt) {
+/// The schedule of the reference's HOPNet.forward (or of an ablation's) for `opt`: inputs x0..x4
+/// (and x3_plus), the ComplexBatch's neighbourhoods (hopnet_neighborhoods), outputs a0 and a4.
+inline nn::OperatorSchedule hopnet_schedule(const HopnetOptions& opt) {
+  using namespace nn::ops;
+  using nn::Aggr;
+  using nn::OperatorStep;
+  const Architecture arch = opt.architecture();
   const std::int64_t D = opt.hidden();
-  std::map<std::string, nn::MlpOptions> m;
-  const auto mlp = [&](std::int64_t in, std::int64_t out) {
+  const auto options = [&](std::int64_t in, std::int64_t out) {
     return nn::MlpOptions(in, D, out).layers(opt.mlp_layers()).activation(opt.activation());
   };
+  // The reference's module `name` (state_dict "modules.<name>...") from `in` channels to D.
+  const auto M = [](const std::string& name) { return "modules." + name; };
+  const auto message = [&](int rank, const std::string& state, const std::string& name) {
+    return from(rank, state).mlp(M(name), options(D, D));
+  };
+  const auto self_and = [&](int rank, const std::string& state, std::vector<Term> terms) {
+    std::vector<Term> all{from(rank, state)};
+    all.insert(all.end(), terms.begin(), terms.end());
+    return into(rank, state).concat(std::move(all));
+  };
+  const auto update = [&](OperatorStep step, const std::string& name) {
+    const auto in = static_cast<std::int64_t>(step.terms.size()) * D;
+    return step.mlp(M(name), options(in, D));
+  };
+
+  nn::OperatorSchedule s;
   const auto inputs = hopnet_inputs(opt);
-  for (int r = 0; r < 5; ++r)
-    if (inputs.count("x" + std::to_string(r)))
-      m.emplace("encoder_" + std::to_string(r), mlp(inputs.at("x" + std::to_string(r)), D));
+  for (const auto& [name, width] : inputs)
+    s.input(name, name == "x3_plus" ? 3 : name[1] - '0', width, name);
+  for (const auto& [name, rank] : std::map<std::string, std::pair<int, int>>{
+           {"B02", {0, 2}},    {"B12", {1, 2}},  {"B42", {4, 2}},       {"B23neg", {2, 3}},
+           {"B23pos", {2, 3}}, {"B32", {3, 2}},  {"B24", {2, 4}},       {"B04", {0, 4}},
+           {"B40", {4, 0}},    {"A010", {0, 0}}, {"B20", {2, 0}},       {"B01", {0, 1}},
+           {"B10", {1, 0}},    {"A101", {1, 1}}, {"B14", {1, 4}},       {"B41", {4, 1}},
+           {"B21", {2, 1}},    {"A232", {2, 2}}, {"B03", {0, 3}},       {"B30", {3, 0}},
+           {"B13", {1, 3}},    {"B31", {3, 1}},  {"B23signed", {2, 3}}, {"B32signed", {3, 2}}})
+    s.operator_input(name, rank.first, rank.second);
+
+  std::vector<OperatorStep> encoders;
+  for (int r : {0, 1, 2, 4}) {
+    const auto x = "x" + std::to_string(r);
+    if (!inputs.count(x)) continue;
+    encoders.push_back(
+        into(r)
+            .sum(from(r, x).mlp(M("encoder_" + std::to_string(r)), options(inputs.at(x), D)))
+            .named("encoder_" + std::to_string(r)));
+  }
+  const auto enc3 = [&] { return options(kFeatureWidth[3], D); };
+  encoders.push_back(
+      into(3, "minus").sum(from(3, "x3").mlp(M("encoder_3"), enc3())).named("encoder_3_minus"));
+  encoders.push_back(
+      into(3, "plus")
+          .sum(opt.mode() == FeatureMode::reference
+                   ? from(3, "x3").apply(ContactPlusView()).mlp(M("encoder_3"), enc3())
+                   : from(3, "x3_plus").mlp(M("encoder_3"), enc3()))
+          .named("encoder_3_plus"));
+  s.parallel(encoders);
+
   for (int l = 0; l < opt.num_layers(); ++l) {
     const std::string L = "layer" + std::to_string(l) + "_";
-    switch (opt.architecture()) {
-      case Architecture::hopnet:
-        for (const char* x : {"0to2", "1to2", "4to2", "2to3", "2to4", "0to4", "4to0"})
-          m.emplace(L + x, mlp(D, D));
-        m.emplace(L + "2", mlp(4 * D, D));
-        m.emplace(L + "3", mlp(3 * D, D));
-        for (const char* x : {"2p", "4", "0", "4p"}) m.emplace(L + x, mlp(2 * D, D));
-        break;
-      case Architecture::no_object_cells:
-        for (const char* x : {"0to0", "0to2", "1to2", "2to3", "2to0"}) m.emplace(L + x, mlp(D, D));
-        m.emplace(L + "2", mlp(3 * D, D));
-        m.emplace(L + "3", mlp(3 * D, D));
-        for (const char* x : {"2p", "0", "0p"}) m.emplace(L + x, mlp(2 * D, D));
-        break;
-      case Architecture::no_sequential:
-        for (const char* x : {"0to0", "0to1", "0to2", "0to3", "0to4", "1to0", "1to1",
-                              "1to2", "1to3", "1to4", "2to0", "2to1", "2to2", "2to3",
-                              "2to4", "3to0", "3to1", "3to2", "4to0", "4to1", "4to2"})
-          m.emplace(L + x, mlp(D, D));
-        for (const char* x : {"0", "1", "2"}) m.emplace(L + x, mlp(6 * D, D));
-        for (const char* x : {"3", "4"}) m.emplace(L + x, mlp(4 * D, D));
-        break;
+    s.layer("layer" + std::to_string(l));
+    if (arch == Architecture::no_sequential) {
+      // The messages from both contact views, summed, into scratch states (read below).
+      // (B32signed weighted by its signs, B30 and B31 plain sums.)
+      const auto both_views = [&](int rank, const std::string& op, bool weighted) {
+        const auto module = L + "3to" + std::to_string(rank);
+        auto plus = message(3, "plus", module), minus = message(3, "minus", module);
+        if (weighted)
+          plus.via(op), minus.via(op);
+        else
+          plus.pattern(op), minus.pattern(op);
+        return into(rank, "from_contacts")
+            .sum(plus, minus)
+            .named(L + "contacts_to_" + std::to_string(rank));
+      };
+      s.parallel({both_views(2, "B32signed", true), both_views(0, "B30", false),
+                  both_views(1, "B31", false)});
+      const auto contact = [&](const char* view) {
+        return update(self_and(3, view,
+                               {message(0, "", L + "0to3").pattern("B03"),
+                                message(1, "", L + "1to3").pattern("B13"),
+                                message(2, "", L + "2to3").via("B23signed")}),
+                      L + "3")
+            .named(L + "contacts_" + view);
+      };
+      s.parallel(
+          {contact("minus"), contact("plus"),
+           update(self_and(2, "",
+                           {message(0, "", L + "0to2").pattern("B02"),
+                            message(1, "", L + "1to2").pattern("B12"),
+                            message(2, "", L + "2to2").pattern("A232"), from(2, "from_contacts"),
+                            message(4, "", L + "4to2").pattern("B42")}),
+                  L + "2")
+               .named(L + "faces"),
+           update(self_and(0, "",
+                           {message(0, "", L + "0to0").pattern("A010"),
+                            message(1, "", L + "1to0").pattern("B10"),
+                            message(2, "", L + "2to0").pattern("B20"), from(0, "from_contacts"),
+                            message(4, "", L + "4to0").pattern("B40")}),
+                  L + "0")
+               .named(L + "nodes"),
+           update(self_and(1, "",
+                           {message(0, "", L + "0to1").pattern("B01"),
+                            message(1, "", L + "1to1").pattern("A101"),
+                            message(2, "", L + "2to1").pattern("B21"), from(1, "from_contacts"),
+                            message(4, "", L + "4to1").pattern("B41")}),
+                  L + "1")
+               .named(L + "edges"),
+           update(self_and(4, "",
+                           {message(0, "", L + "0to4").pattern("B04", Aggr::mean),
+                            message(1, "", L + "1to4").pattern("B14", Aggr::mean),
+                            message(2, "", L + "2to4").pattern("B24")}),
+                  L + "4")
+               .named(L + "objects")});
+      continue;
     }
+    const bool objects = arch == Architecture::hopnet;
+    std::vector<Term> to_faces{message(0, "", L + "0to2").pattern("B02"),
+                               message(1, "", L + "1to2").pattern("B12")};
+    if (objects) to_faces.push_back(message(4, "", L + "4to2").pattern("B42"));
+    s.step(update(self_and(2, "", to_faces), L + "2").named(L + "faces"));
+    s.parallel({update(self_and(3, "plus",
+                                {message(2, "", L + "2to3").via("B23neg"),
+                                 message(2, "", L + "2to3").via("B23pos")}),
+                       L + "3")
+                    .named(L + "contacts_plus"),
+                update(self_and(3, "minus",
+                                {message(2, "", L + "2to3").via("B23pos"),
+                                 message(2, "", L + "2to3").via("B23neg")}),
+                       L + "3")
+                    .named(L + "contacts_minus")});
+    // Each face sums the contact cells it takes part in, from its own side.
+    s.step(
+        into(2, "from_contacts")
+            .sum(from(3, "plus").pattern("B32").only(1), from(3, "minus").pattern("B32").only(-1))
+            .named(L + "contacts_to_faces"));
+    s.step(update(self_and(2, "", {from(2, "from_contacts")}), L + "2p")
+               .named(L + "faces_from_contacts"));
+    if (!objects) {
+      s.step(update(self_and(0, "", {message(2, "", L + "2to0").pattern("B20")}), L + "0")
+                 .when_nonempty(3)
+                 .named(L + "nodes_from_faces"));
+      s.step(update(self_and(0, "", {message(0, "", L + "0to0").pattern("A010")}), L + "0p")
+                 .named(L + "nodes_from_nodes"));
+      continue;
+    }
+    s.step(update(self_and(4, "", {message(2, "", L + "2to4").pattern("B24", Aggr::mean)}), L + "4")
+               .when_nonempty(3)
+               .named(L + "objects_from_faces"));
+    s.parallel(
+        {update(self_and(0, "", {message(4, "", L + "4to0").pattern("B40")}), L + "0")
+             .named(L + "nodes_from_objects"),
+         update(self_and(4, "", {message(0, "", L + "0to4").pattern("B04", Aggr::mean)}), L + "4p")
+             .named(L + "objects_from_nodes")});
   }
-  for (int r : {0, 4})
-    if (r == 0 || opt.architecture() != Architecture::no_object_cells)
-      m.emplace("decoder_" + std::to_string(r),
-                mlp(D, 3).final_activation(false).layer_norm(false));
-  return m;
-}
-
-inline nn::ScheduleSignature hopnet_signature(const HopnetOptions& opt) {
-  nn::ScheduleSignature sig;
-  sig.neighborhoods = {{"B02", {0, 2}},    {"B12", {1, 2}},    {"B42", {4, 2}},
-                       {"B23neg", {2, 3}}, {"B23pos", {2, 3}}, {"B32", {3, 2}},
-                       {"B24", {2, 4}},    {"B04", {0, 4}},    {"B40", {4, 0}}};
-  if (opt.architecture() != Architecture::hopnet)
-    sig.neighborhoods.insert({{"A010", {0, 0}}, {"B20", {2, 0}}});
-  if (opt.architecture() == Architecture::no_sequential)
-    sig.neighborhoods.insert({{"B01", {0, 1}},
-                              {"B10", {1, 0}},
-                              {"A101", {1, 1}},
-                              {"B14", {1, 4}},
-                              {"B41", {4, 1}},
-                              {"B21", {2, 1}},
-                              {"A232", {2, 2}},
-                              {"B03", {0, 3}},
-                              {"B30", {3, 0}},
-                              {"B13", {1, 3}},
-                              {"B31", {3, 1}},
-                              {"B23signed", {2, 3}},
-                              {"B32signed", {3, 2}}});
-  sig.inputs = hopnet_inputs(opt);
-  return sig;
+  const auto decoder = options(D, 3).final_activation(false).layer_norm(false);
+  s.step(into(0, "a0").sum(from(0).mlp(M("decoder_0"), decoder)).named("decoder_0"));
+  s.output("a0", 0, "a0");
+  if (arch != Architecture::no_object_cells) {
+    s.step(into(4, "a4").sum(from(4).mlp(M("decoder_4"), decoder)).named("decoder_4"));
+    s.output("a4", 4, "a4");
+  }
+  return s;
 }
 
 }  // namespace topos::hopnet

@@ -191,6 +191,30 @@ TOPOS_INLINE TermShape OperatorNetworkImpl::infer(detail::NetworkBuildContext& c
                               std::to_string(src) + " -> " + std::to_string(dst));
       }
       return x;
+    case TermOp::Kind::mlp: {
+      const auto& o = *t.mlp_options;
+      if (o.in() != x.channels)
+        throw ScheduleError(where + ": mlp '" + t.name + "' takes " + std::to_string(o.in()) +
+                            " channels but gets " + std::to_string(x.channels));
+      if (auto it = mlps_.find(t.name); it != mlps_.end()) {
+        const auto& p = it->second->options;
+        if (p.in() != o.in() || p.hidden() != o.hidden() || p.out() != o.out() ||
+            p.layers() != o.layers() || p.activation() != o.activation() ||
+            p.final_activation() != o.final_activation() || p.layer_norm() != o.layer_norm())
+          throw ScheduleError(where + ": mlp '" + t.name +
+                              "' is used again with other options (shared by its path)");
+      } else {
+        std::shared_ptr<MlpImpl> m;
+        try {
+          m = std::make_shared<MlpImpl>(o);
+        } catch (const std::exception& e) {
+          throw ScheduleError(where + ": mlp '" + t.name + "': " + e.what());
+        }
+        make_module(where, t.name, m);
+        mlps_.emplace(t.name, Mlp(m));
+      }
+      return {x.rank, o.out()};
+    }
     case TermOp::Kind::custom: {
       if (!t.operation) throw ScheduleError(where + ": a custom operation is null");
       const auto y = t.operation->infer(ctx, x);
@@ -372,6 +396,16 @@ TOPOS_INLINE void OperatorNetworkImpl::validate_and_create() {
         throw ScheduleError(where + ": the step's operations end on rank " +
                             std::to_string(y.rank) + ", the target is rank " +
                             std::to_string(s.target.rank));
+      if (s.guard_rank >= 0) {
+        const auto before = ctx.find_width(s.target);
+        if (!before)
+          throw ScheduleError(where + ": when_nonempty keeps the target's value elsewhere, but " +
+                              s.target.str() + " has none before the step");
+        if (*before != y.channels)
+          throw ScheduleError(where + ": when_nonempty must keep the target's width (" +
+                              std::to_string(*before) + "), the step gives " +
+                              std::to_string(y.channels));
+      }
       next[s.target] = y.channels;
     }
     width = std::move(next);
@@ -382,6 +416,8 @@ TOPOS_INLINE void OperatorNetworkImpl::validate_and_create() {
       throw ScheduleError("output '" + o.name + "': no cochain " + o.key.str());
   for (const auto& p : schedule_.parameters())
     make_parameter("parameter '" + p.path + "'", p.path, p.shape, ParameterInit::glorot(p.gain));
+
+  find_compact_steps(reads);
 
   // Liveness, from the outputs back: a step is run by forward() only when a later step or an
   // output reads what it writes. A group reads one snapshot, so its live steps' targets leave
@@ -398,6 +434,57 @@ TOPOS_INLINE void OperatorNetworkImpl::validate_and_create() {
     for (std::size_t i = 0; i < groups[g].size(); ++i)
       if (live[i]) needed.insert(reads[g][i].begin(), reads[g][i].end());
   }
+}
+
+// A step whose one term maps an input row by row, and whose target nothing but aggregations (after
+// row-wise operations) ever reads, can run on the rows those aggregations read (run_compact).
+TOPOS_INLINE void OperatorNetworkImpl::find_compact_steps(
+    const std::vector<std::vector<std::set<CochainKey>>>& reads) {
+  const auto& groups = schedule_.groups();
+  std::set<CochainKey> inputs, outputs;
+  for (const auto& in : schedule_.inputs()) inputs.insert(in.key);
+  for (const auto& out : schedule_.outputs()) outputs.insert(out.key);
+  const auto all_row_wise = [](const std::vector<TermOp>& list) {
+    return std::all_of(list.begin(), list.end(), detail::row_wise);
+  };
+  // Operations that may read a cochain other than their term's source.
+  const auto reads_others = [](const std::vector<TermOp>& list) {
+    return std::any_of(list.begin(), list.end(), [](const TermOp& t) {
+      return t.kind == TermOp::Kind::attend || t.kind == TermOp::Kind::initial_residual ||
+             t.kind == TermOp::Kind::custom;
+    });
+  };
+  for (std::size_t g = 0; g < groups.size(); ++g)
+    for (std::size_t i = 0; i < groups[g].size(); ++i) {
+      const auto& s = groups[g][i];
+      const auto& T = s.target;
+      if (s.terms.size() != 1 || s.guard_rank >= 0 || s.mix == OperatorStep::Mix::filter ||
+          s.mix == OperatorStep::Mix::concat || inputs.count(T) || outputs.count(T) ||
+          !all_row_wise(s.terms[0].operations()) || !all_row_wise(s.operations()))
+        continue;
+      std::vector<std::string> readers;
+      bool compact = true;
+      for (std::size_t g2 = 0; g2 < groups.size() && compact; ++g2)
+        for (std::size_t i2 = 0; i2 < groups[g2].size() && compact; ++i2) {
+          const auto& r = groups[g2][i2];
+          if (g2 == g && i2 == i) continue;
+          if (r.target == T) compact = false;  // written again
+          if (!reads[g2][i2].count(T)) continue;
+          if (reads_others(r.operations())) compact = false;
+          for (const auto& term : r.terms) {
+            const auto& list = term.operations();
+            if (reads_others(list)) compact = false;
+            if (!(term.source == T)) continue;
+            std::size_t k = 0;
+            while (k < list.size() && detail::row_wise(list[k])) ++k;
+            if (k == list.size() || !detail::aggregation(list[k]))
+              compact = false;
+            else
+              readers.push_back(list[k].name);
+          }
+        }
+      if (compact && !readers.empty()) compact_steps_[{g, i}] = std::move(readers);
+    }
 }
 
 }  // namespace topos::nn

@@ -7,6 +7,7 @@
 #include "topos/config.hpp"
 #include "topos/nn/cochains.hpp"
 #include "topos/nn/functional.hpp"
+#include "topos/nn/mlp.hpp"
 #include "topos/nn/operator_schedule/operation.hpp"
 #include "topos/nn/schedule_error.hpp"
 
@@ -91,6 +92,7 @@ struct TermOp {
     normalize,        ///< x / ‖x‖₂ (differentiated), per row or over the whole matrix
     intra_aggregate,  ///< x_i · σ(<relu(Σ_j x_j), x_i>): each cell weighted against the whole
     affine_power,     ///< (a I + b Σ_i A_i)^k x: `filters` the (A_i, k), `value` a, `offset` b
+    mlp,              ///< nn::Mlp at `name` (`mlp_options`), shared by every op naming the path
     custom            ///< an Operation defined outside topos (`operation`)
   };
   explicit TermOp(Kind k, std::string n = {}) : kind(k), name(std::move(n)) {}
@@ -119,6 +121,8 @@ struct TermOp {
   bool per_row = true;              ///< normalize: each row, else the whole matrix
   bool transposed = false;          ///< pattern: over Aᵀ
   bool rescale_rows = false;        ///< dropout: TopoModelX HMPNN's (rescaled_dropout)
+  int role = 0;  ///< via, pattern over a batch neighbourhood: only its pairs of this role (0: all)
+  std::optional<MlpOptions> mlp_options;       ///< mlp
   std::shared_ptr<const Operation> operation;  ///< custom: the user's operation
 };
 
@@ -258,6 +262,24 @@ class Chain {
     t.offset = b;
     return add(std::move(t));
   }
+  /// The MLP (nn::Mlp: Linear layers with activations, optionally a LayerNorm) at `path`, shared
+  /// by every operation that names the path (its options must then be the same). Followed by
+  /// nothing but a concatenating step's mix, its first Linear layer is applied per term where that
+  /// is cheaper (W [x; Σ y] = W_x x + Σ W_y y): HOPNet's updates.
+  Derived& mlp(std::string path, MlpOptions options) {
+    TermOp t(TermOp::Kind::mlp, std::move(path));
+    t.mlp_options = std::move(options);
+    return add(std::move(t));
+  }
+  /// Keeps only the pairs of one role of the `via` or `pattern` before it: a batch neighbourhood's
+  /// roles (ComplexBatch; HOPNet's contact cells reach a face as its side +1 or -1).
+  Derived& only(int role) {
+    if (ops_.empty() ||
+        (ops_.back().kind != TermOp::Kind::via && ops_.back().kind != TermOp::Kind::pattern))
+      throw ScheduleError("only(" + std::to_string(role) + ") must follow a via or a pattern");
+    ops_.back().role = role;
+    return static_cast<Derived&>(*this);
+  }
   /// A user-defined operation (operation.hpp), applied like the built-in ones.
   template <class Op, class = std::enable_if_t<std::is_base_of_v<Operation, std::decay_t<Op>>>>
   Derived& apply(Op&& op) {
@@ -381,6 +403,13 @@ class OperatorStep : public ops::Chain<OperatorStep> {
     name = std::move(n);
     return *this;
   }
+  /// Only in the complexes of a batch that have a cell of `rank`: elsewhere the target keeps its
+  /// value (HOPNet updates objects from faces only where there are contacts). Needs a ComplexBatch
+  /// and a step that keeps the target's width.
+  OperatorStep& when_nonempty(int rank) {
+    guard_rank = rank;
+    return *this;
+  }
 
   CochainKey target;
   std::vector<ops::Term> terms;
@@ -388,6 +417,7 @@ class OperatorStep : public ops::Chain<OperatorStep> {
   std::string filter_path;
   std::int64_t filter_out = 0;
   std::string name;
+  int guard_rank = -1;  ///< >= 0: when_nonempty
 };
 
 namespace ops {
@@ -395,6 +425,40 @@ inline OperatorStep into(int rank, std::string state = "") {
   return OperatorStep({rank, std::move(state)});
 }
 }  // namespace ops
+
+namespace detail {
+
+/// Operations that map each row on its own, the same whichever rows they are given (so that
+/// they can run on the rows an aggregation reads, or once for several terms).
+inline bool row_wise(const TermOp& t) {
+  switch (t.kind) {
+    case TermOp::Kind::mlp:
+    case TermOp::Kind::linear:
+    case TermOp::Kind::weight:
+    case TermOp::Kind::act:
+    case TermOp::Kind::bias:
+    case TermOp::Kind::layer_norm:
+    case TermOp::Kind::head_weights:
+    case TermOp::Kind::scale:
+    case TermOp::Kind::learned_scale:
+    case TermOp::Kind::pow:
+    case TermOp::Kind::unit_rows:
+      return true;
+    case TermOp::Kind::normalize:
+      return t.per_row;
+    default:
+      return false;
+  }
+}
+
+/// An operation that can aggregate over a batch neighbourhood: via (its values, summed) and an
+/// untransposed pattern (sum, mean or max).
+inline bool aggregation(const TermOp& t) {
+  return (t.kind == TermOp::Kind::via && !t.row_norm) ||
+         (t.kind == TermOp::Kind::pattern && !t.transposed);
+}
+
+}  // namespace detail
 
 class OperatorSchedule {
  public:
@@ -405,6 +469,8 @@ class OperatorSchedule {
     return *this;
   }
   /// Operator `name` maps rank `source_rank` cochains to rank `target_rank` (target × source).
+  /// At run time it is a SparseOperator given by name or, failing that, the neighbourhood of that
+  /// name of the ComplexBatch given (index pairs with optional values and roles).
   OperatorSchedule& operator_input(std::string name, int source_rank, int target_rank) {
     operators_[std::move(name)] = {source_rank, target_rank};
     return *this;

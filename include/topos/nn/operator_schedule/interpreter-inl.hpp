@@ -6,6 +6,7 @@
 
 #include "topos/nn/operator_schedule/parameters-inl.hpp"  // detail::shape_str
 #include "topos/nn/operator_schedule/network.hpp"
+#include "topos/nn/operator_schedule/printer-inl.hpp"  // detail::ops_str
 
 #include <algorithm>
 
@@ -13,12 +14,20 @@ namespace topos::nn {
 
 struct OperatorNetworkImpl::Operators {
   const std::map<std::string, SparseOperator>* given;
+  const ComplexBatch* batch = nullptr;  // its neighbourhoods, where no operator is given
   std::map<std::string, SparseOperator> transposed;
   std::map<std::string, SparseOperator> derived;  // the dropped operators of this forward
   const SparseOperator& at(const std::string& where, const std::string& name) const {
     if (auto d = derived.find(name); d != derived.end()) return d->second;
     auto it = given->find(name);
-    if (it == given->end()) throw ScheduleError(where + ": operator '" + name + "' was not given");
+    if (it == given->end()) {
+      if (neighborhood(name))
+        throw ScheduleError(where + ": '" + name +
+                            "' is a neighbourhood of the batch: only via and pattern (and only) "
+                            "apply to it");
+      throw ScheduleError(where + ": operator '" + name + "' was not given" +
+                          (batch ? " and the batch has no neighbourhood of that name" : ""));
+    }
     return it->second;
   }
   const SparseOperator& t(const std::string& where, const std::string& name) {
@@ -26,6 +35,24 @@ struct OperatorNetworkImpl::Operators {
     if (it == transposed.end()) it = transposed.emplace(name, at(where, name).t()).first;
     return it->second;
   }
+  /// The batch's neighbourhood `name`, when no operator of that name is given.
+  const TensorNeighborhood* neighborhood(const std::string& name) const {
+    if (batch == nullptr || derived.count(name) || given->count(name) ||
+        !batch->has_neighborhood(name))
+      return nullptr;
+    return &batch->neighborhood(name);
+  }
+};
+
+/// A term's value; or, for a term that ends on an aggregation over a batch neighbourhood and
+/// whose caller can apply a linear map first, the rows and the aggregation still to apply.
+struct OperatorNetworkImpl::TermValue {
+  bool handled = false;  // false: the term is not one of these, evaluate it the general way
+  torch::Tensor value;
+  torch::Tensor x;
+  TensorNeighborhood n;  // sources renumbered to x's rows
+  AggregateOptions agg;
+  bool deferred = false;
 };
 
 namespace detail {
@@ -83,6 +110,45 @@ TOPOS_INLINE void check_fits(const std::string& where, const std::string& name,
                         std::to_string(x.size(0)) + " rows");
 }
 
+TOPOS_INLINE AggregateOptions aggregate_options(const TermOp& t) {
+  AggregateOptions o;
+  o.role = t.role;
+  o.weighted = t.kind == TermOp::Kind::via;
+  o.reduce = t.kind == TermOp::Kind::via ? Aggr::sum : t.aggr;
+  return o;
+}
+
+/// Each of `rows` cells' position among the sorted `used` ones, or -1.
+TOPOS_INLINE torch::Tensor compact_rows(const torch::Tensor& used, std::int64_t rows) {
+  auto row = torch::full({rows}, -1, used.options());
+  row.index_put_({used}, torch::arange(used.size(0), used.options()));
+  return row;
+}
+
+/// The cache key of a term's first `k` operations from `source`.
+TOPOS_INLINE std::string prefix_key(const CochainKey& source, const std::vector<TermOp>& list,
+                                    std::size_t k) {
+  std::string key = ops_str(source.str(), {list.begin(), list.begin() + static_cast<long>(k)});
+  for (std::size_t i = 0; i < k; ++i)
+    key += "|" + std::to_string(list[i].slope) + "," + std::to_string(list[i].p) + "," +
+           std::to_string(list[i].value) + "," + std::to_string(list[i].offset);
+  return key;
+}
+
+/// A term's operations over a batch neighbourhood: the aggregation, checked against x's rows.
+TOPOS_INLINE torch::Tensor aggregate_over(const std::string& where, const TermOp& t,
+                                          const TensorNeighborhood& n, const torch::Tensor& x) {
+  if (!aggregation(t))
+    throw ScheduleError(where + ": '" + t.name +
+                        "' is a neighbourhood of the batch: only via (without row "
+                        "normalisation) and pattern apply to it");
+  if (n.num_source != x.size(0))
+    throw ScheduleError(where + ": neighbourhood '" + t.name + "' reads " +
+                        std::to_string(n.num_source) + " source rows but the cochain has " +
+                        std::to_string(x.size(0)));
+  return aggregate(x, n, aggregate_options(t));
+}
+
 /// A · x, divided by A's row sums with `row_norm` (0 where a row sums to 0).
 TOPOS_INLINE torch::Tensor multiply(const std::string& where, const std::string& name,
                                     const SparseOperator& A, const torch::Tensor& x,
@@ -98,12 +164,27 @@ TOPOS_INLINE std::map<std::string, torch::Tensor> OperatorNetworkImpl::forward(
     const std::map<std::string, torch::Tensor>& inputs,
     const std::map<std::string, SparseOperator>& operators) {
   auto h = input_cochains(inputs);
-  run_groups(h, operators, 0, schedule_.groups().size(), /*live_only=*/true);
+  run_groups(h, operators, nullptr, 0, schedule_.groups().size(), /*live_only=*/true);
   return output_cochains(h);
 }
 
+TOPOS_INLINE std::map<std::string, torch::Tensor> OperatorNetworkImpl::forward(
+    const std::map<std::string, torch::Tensor>& inputs, const ComplexBatch& batch,
+    const std::map<std::string, SparseOperator>& operators) {
+  auto h = input_cochains(inputs);
+  run_groups(h, operators, &batch, 0, schedule_.groups().size(), /*live_only=*/true);
+  return output_cochains(h);
+}
+
+TOPOS_INLINE Mlp OperatorNetworkImpl::mlp(const std::string& path) const {
+  auto it = mlps_.find(path);
+  if (it == mlps_.end()) throw ScheduleError("no mlp '" + path + "' in the schedule");
+  return it->second;
+}
+
 TOPOS_INLINE void OperatorNetworkImpl::run_layer(
-    Cochains& h, const std::map<std::string, SparseOperator>& operators, const std::string& name) {
+    Cochains& h, const std::map<std::string, SparseOperator>& operators, const std::string& name,
+    const ComplexBatch* batch) {
   const auto& layers = schedule_.layers();
   auto it =
       std::find_if(layers.begin(), layers.end(), [&](const auto& l) { return l.first == name; });
@@ -114,7 +195,7 @@ TOPOS_INLINE void OperatorNetworkImpl::run_layer(
                         "' in the schedule (layers: " + (known.empty() ? "none" : known) + ")");
   }
   const auto next = std::next(it);
-  run_groups(h, operators, it->second,
+  run_groups(h, operators, batch, it->second,
              next == layers.end() ? schedule_.groups().size() : next->second,
              /*live_only=*/false);
 }
@@ -135,9 +216,9 @@ OperatorNetworkImpl::input_cochains(const std::map<std::string, torch::Tensor>& 
 }
 
 TOPOS_INLINE void OperatorNetworkImpl::run_groups(
-    Cochains& h, const std::map<std::string, SparseOperator>& operators, std::size_t begin,
-    std::size_t end, bool live_only) {
-  Operators ops{&operators, {}, {}};
+    Cochains& h, const std::map<std::string, SparseOperator>& operators, const ComplexBatch* batch,
+    std::size_t begin, std::size_t end, bool live_only) {
+  Operators ops{&operators, batch, {}, {}};
   for (const auto& d : schedule_.dropped_operators()) {
     const auto& A = ops.at("dropped operator '" + d.name + "'", d.source);
     ops.derived.emplace(d.name, is_training() && d.rate > 0 ? detail::drop_entries(A, d.rate) : A);
@@ -145,11 +226,27 @@ TOPOS_INLINE void OperatorNetworkImpl::run_groups(
   const auto& groups = schedule_.groups();
   for (std::size_t g = begin; g < end && g < groups.size(); ++g) {
     const Cochains snapshot = h;
-    std::vector<std::pair<CochainKey, torch::Tensor>> updates;
-    for (std::size_t i = 0; i < groups[g].size(); ++i)
-      if (!live_only || live_[g][i])
-        updates.emplace_back(groups[g][i].target, run_step(groups[g][i], snapshot, ops));
-    for (auto& [k, v] : updates) h.set(k.rank, k.state, std::move(v));
+    PrefixCache cache;  // a term prefix shared by several steps of the group is computed once
+    struct Update {
+      CochainKey key;
+      torch::Tensor value, rows;  // rows: defined for a compact cochain
+    };
+    std::vector<Update> updates;
+    for (std::size_t i = 0; i < groups[g].size(); ++i) {
+      if (live_only && !live_[g][i]) continue;
+      const auto& s = groups[g][i];
+      Update u{s.target, {}, {}};
+      if (auto c = compact_steps_.find({g, i}); c != compact_steps_.end())
+        std::tie(u.value, u.rows) = run_compact(s, c->second, snapshot, ops, cache);
+      if (!u.value.defined()) u.value = run_step(s, snapshot, ops, cache);
+      updates.push_back(std::move(u));
+    }
+    for (auto& u : updates) {
+      if (u.rows.defined())
+        h.set_compact(u.key.rank, u.key.state, std::move(u.value), std::move(u.rows));
+      else
+        h.set(u.key.rank, u.key.state, std::move(u.value));
+    }
   }
 }
 
@@ -175,9 +272,9 @@ TOPOS_INLINE std::size_t OperatorNetworkImpl::apply_fused(const std::string& whe
                                                           std::size_t i, torch::Tensor& x,
                                                           Operators& ops, const Cochains& h) {
   const auto& t = list[i];
-  const bool product =
-      ((t.kind == TermOp::Kind::via || t.kind == TermOp::Kind::via_transposed) && !t.row_norm) ||
-      t.kind == TermOp::Kind::linear;
+  const bool product = ((t.kind == TermOp::Kind::via || t.kind == TermOp::Kind::via_transposed) &&
+                        !t.row_norm && !ops.neighborhood(t.name)) ||
+                       t.kind == TermOp::Kind::linear;
   if (!product || i + 1 >= list.size() || list[i + 1].kind != TermOp::Kind::act ||
       !fusable(list[i + 1].update)) {
     x = apply(where, target, t, x, ops, h);
@@ -200,6 +297,12 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::apply(const std::string& where,
                                                       const CochainKey& target, const TermOp& t,
                                                       torch::Tensor x, Operators& ops,
                                                       const Cochains& h) {
+  if (t.kind == TermOp::Kind::via || t.kind == TermOp::Kind::pattern) {
+    if (const auto* n = ops.neighborhood(t.name)) return detail::aggregate_over(where, t, *n, x);
+    if (t.role != 0)
+      throw ScheduleError(where + ": only(" + std::to_string(t.role) + ") needs a neighbourhood " +
+                          "with roles, and operator '" + t.name + "' is a sparse operator");
+  }
   switch (t.kind) {
     case TermOp::Kind::via: {
       return detail::multiply(where, t.name, ops.at(where, t.name), x, t.row_norm);
@@ -266,6 +369,8 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::apply(const std::string& where,
       }
       return apply_affine_power(terms, x, t.filters[0].second, t.value, t.offset);
     }
+    case TermOp::Kind::mlp:
+      return mlps_.at(t.name)->forward(x);
     case TermOp::Kind::custom: {
       detail::NetworkRunContext ctx(*this, where, ops, h);
       return t.operation->forward(ctx, x);
@@ -358,24 +463,130 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::attend(const std::string& where,
   return o.concat() ? torch::cat(heads, 1) : torch::stack(heads, 0).mean(0);
 }
 
+TOPOS_INLINE OperatorNetworkImpl::TermValue OperatorNetworkImpl::evaluate_term(
+    const std::string& where, const CochainKey& target, const ops::Term& term, const Cochains& h,
+    Operators& ops, PrefixCache& cache, bool may_defer) {
+  TermValue v;
+  const auto& list = term.operations();
+  std::size_t k = 0;  // the first operation that is not row-wise
+  while (k < list.size() && detail::row_wise(list[k])) ++k;
+  const TensorNeighborhood* nb =
+      k < list.size() && detail::aggregation(list[k]) ? ops.neighborhood(list[k].name) : nullptr;
+  if (nb == nullptr) return v;  // not handled here
+  v.handled = true;
+  torch::Tensor x = h.at(term.source.rank, term.source.state);
+  TensorNeighborhood n = *nb;
+  if (const auto rows = h.rows(term.source); rows.defined()) {  // a compact cochain
+    if (n.num_source != rows.size(0))
+      throw ScheduleError(where + ": neighbourhood '" + list[k].name + "' reads " +
+                          std::to_string(n.num_source) + " source rows but the cochain has " +
+                          std::to_string(rows.size(0)));
+    n.source = rows.index_select(0, n.source);
+    n.num_source = x.size(0);
+  }
+  if (n.num_source != x.size(0))
+    throw ScheduleError(where + ": neighbourhood '" + list[k].name + "' reads " +
+                        std::to_string(n.num_source) + " source rows but the cochain " +
+                        term.source.str() + " has " + std::to_string(x.size(0)));
+  if (k > 0) {
+    const auto key = fast_ ? detail::prefix_key(term.source, list, k) : std::string();
+    const auto cached = fast_ ? cache.find(key) : cache.end();
+    torch::Tensor used;
+    if (cached == cache.end() && fast_) {
+      used = std::get<0>(torch::_unique(n.source, /*sorted=*/true));
+      if (used.size(0) >= x.size(0)) used = torch::Tensor();
+    }
+    if (cached != cache.end()) {
+      x = cached->second;
+    } else if (used.defined()) {
+      // Some source rows send nothing here: the row-wise prefix runs on the others only, and
+      // the pairs' sources are renumbered.
+      x = x.index_select(0, used);
+      for (std::size_t i = 0; i < k; ++i) i = apply_fused(where, target, list, i, x, ops, h);
+      n.source = detail::compact_rows(used, n.num_source).index_select(0, n.source);
+      n.num_source = used.size(0);
+    } else {
+      for (std::size_t i = 0; i < k; ++i) i = apply_fused(where, target, list, i, x, ops, h);
+      if (fast_) cache.emplace(key, x);
+    }
+  }
+  v.agg = detail::aggregate_options(list[k]);
+  if (may_defer && k + 1 == list.size()) {
+    v.deferred = true;
+    v.x = std::move(x);
+    v.n = std::move(n);
+    return v;
+  }
+  x = aggregate(x, n, v.agg);
+  for (std::size_t i = k + 1; i < list.size(); ++i)
+    i = apply_fused(where, target, list, i, x, ops, h);
+  v.value = std::move(x);
+  return v;
+}
+
 TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_step(const OperatorStep& s, const Cochains& h,
-                                                         Operators& ops) {
+                                                         Operators& ops, PrefixCache& cache) {
   const std::string where = s.name + " (into " + s.target.str() + ")";
+  const auto& tail = s.operations();
+  const auto no_powers = [](const ops::Term& t) {
+    return std::none_of(t.operations().begin(), t.operations().end(),
+                        [](const TermOp& o) { return o.kind == TermOp::Kind::powers; });
+  };
+  const auto over_batch = [&](const ops::Term& t) {
+    for (const auto& o : t.operations())
+      if ((o.kind == TermOp::Kind::via || o.kind == TermOp::Kind::pattern) &&
+          ops.neighborhood(o.name))
+        return true;
+    return false;
+  };
   const bool single =
       s.terms.size() == 1 && (s.mix == OperatorStep::Mix::sum || s.mix == OperatorStep::Mix::mean);
-  if (single && std::none_of(s.terms[0].operations().begin(), s.terms[0].operations().end(),
-                             [](const TermOp& t) { return t.kind == TermOp::Kind::powers; })) {
+  if (single && no_powers(s.terms[0]) && !over_batch(s.terms[0])) {
     // One term: its operations and the step's as one list, so that a product ending the term
     // fuses with the step's activation.
     auto list = s.terms[0].operations();
-    list.insert(list.end(), s.operations().begin(), s.operations().end());
+    list.insert(list.end(), tail.begin(), tail.end());
     torch::Tensor x = h.at(s.terms[0].source.rank, s.terms[0].source.state);
     for (std::size_t i = 0; i < list.size(); ++i)
       i = apply_fused(where, s.target, list, i, x, ops, h);
-    return x;
+    return guard(where, s, std::move(x), h, ops);
   }
+  // A concatenation into an mlp over a batch: a term summed from fewer rows than the target has
+  // is multiplied by its block of the mlp's first weight before the sum (W Σ x = Σ W x):
+  // HOPNet's object-to-node message then costs a product over the objects, not the nodes.
+  const bool split = fast_ && ops.batch != nullptr && s.mix == OperatorStep::Mix::concat &&
+                     !tail.empty() && tail.front().kind == TermOp::Kind::mlp;
+  const torch::Tensor W =
+      split ? mlps_.at(tail.front().name)->first_linear()->weight : torch::Tensor();
+  torch::Tensor early;                  // Σ of the terms already multiplied by their block
+  std::vector<std::int64_t> part_cols;  // the columns of W of the terms left
+  std::int64_t col = 0;
   std::vector<torch::Tensor> terms;
+  const auto add_term = [&](torch::Tensor t) {
+    if (split)
+      for (std::int64_t c = 0; c < t.size(1); ++c) part_cols.push_back(col + c);
+    col += t.dim() == 2 ? t.size(1) : 0;
+    terms.push_back(std::move(t));
+  };
   for (const auto& term : s.terms) {
+    auto v = evaluate_term(where, s.target, term, h, ops, cache, split);
+    if (v.handled) {
+      if (v.deferred) {
+        // Not with backward values: they scale the gradient reaching the message, which must
+        // not reach the weight.
+        const bool scaled_backward = v.agg.weighted && v.n.backward_values.defined();
+        if (v.agg.reduce != Aggr::max && v.agg.role == 0 && v.x.size(0) < v.n.num_target &&
+            !scaled_backward) {
+          const auto block = aggregate(nn::linear(v.x, W.narrow(1, col, v.x.size(1))), v.n, v.agg);
+          early = early.defined() ? early + block : block;
+          col += v.x.size(1);
+          continue;
+        }
+        v.value = aggregate(v.x, v.n, v.agg);
+      }
+      add_term(std::move(v.value));
+      continue;
+    }
     torch::Tensor x = h.at(term.source.rank, term.source.state);
     const auto& list = term.operations();
     for (std::size_t i = 0; i < list.size(); ++i) {
@@ -392,22 +603,78 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_step(const OperatorStep& s, 
       }
       x = torch::Tensor();
     }
-    if (x.defined()) terms.push_back(x);
+    if (x.defined()) add_term(std::move(x));
   }
   torch::Tensor y;
+  std::size_t first_tail = 0;
   if (s.mix == OperatorStep::Mix::filter) {
     y = combine_terms(terms, params_.at(s.filter_path));
+  } else if (split) {
+    auto update = mlps_.at(tail.front().name);
+    if (!early.defined()) {
+      y = update->forward(terms.size() == 1 ? terms[0] : torch::cat(terms, 1));
+    } else {
+      const auto first = update->first_linear();
+      const auto Wd =
+          static_cast<std::int64_t>(part_cols.size()) == W.size(1)
+              ? W
+              : W.index_select(1, torch::tensor(part_cols, torch::kLong).to(W.device()));
+      const auto dense = terms.size() == 1 ? terms[0] : torch::cat(terms, 1);
+      auto z = nn::linear(dense, Wd, first->bias);
+      z.add_(early);
+      y = update->forward_after_first(z);
+    }
+    first_tail = 1;
   } else if (s.mix == OperatorStep::Mix::concat) {
-    y = torch::cat(terms, 1);
+    y = terms.size() == 1 ? terms[0] : torch::cat(terms, 1);
   } else {
     y = terms[0];
     for (std::size_t i = 1; i < terms.size(); ++i) y = y + terms[i];
     if (s.mix == OperatorStep::Mix::mean) y = y / static_cast<double>(terms.size());
   }
-  const auto& list = s.operations();
-  for (std::size_t i = 0; i < list.size(); ++i)
-    i = apply_fused(where, s.target, list, i, y, ops, h);
-  return y;
+  for (std::size_t i = first_tail; i < tail.size(); ++i)
+    i = apply_fused(where, s.target, tail, i, y, ops, h);
+  return guard(where, s, std::move(y), h, ops);
+}
+
+TOPOS_INLINE torch::Tensor OperatorNetworkImpl::guard(const std::string& where,
+                                                      const OperatorStep& s, torch::Tensor updated,
+                                                      const Cochains& h,
+                                                      const Operators& ops) const {
+  if (s.guard_rank < 0) return updated;
+  if (ops.batch == nullptr)
+    throw ScheduleError(where + ": when_nonempty(" + std::to_string(s.guard_rank) +
+                        ") needs a ComplexBatch");
+  const auto& before = h.at(s.target.rank, s.target.state);
+  // Per complex: does it hold a cell of the guard rank? Applied through the target's batch
+  // vector.
+  std::vector<std::int64_t> has;
+  for (auto c : ops.batch->counts(s.guard_rank)) has.push_back(c > 0);
+  const auto active = torch::tensor(has, torch::kLong)
+                          .to(before.device())
+                          .index_select(0, ops.batch->batch(s.target.rank).to(before.device()))
+                          .to(torch::kBool)
+                          .unsqueeze(1);
+  return torch::where(active, updated, before);
+}
+
+TOPOS_INLINE std::pair<torch::Tensor, torch::Tensor> OperatorNetworkImpl::run_compact(
+    const OperatorStep& s, const std::vector<std::string>& readers, const Cochains& h,
+    Operators& ops, PrefixCache& cache) {
+  const auto& src = s.terms[0].source;
+  if (!fast_ || ops.batch == nullptr || h.rows(src).defined()) return {};
+  const auto& x = h.at(src.rank, src.state);
+  std::vector<torch::Tensor> sources;
+  for (const auto& name : readers) {
+    const auto* n = ops.neighborhood(name);
+    if (n == nullptr || n->num_source != x.size(0)) return {};  // the readers will say why
+    sources.push_back(n->source);
+  }
+  const auto used = std::get<0>(torch::_unique(torch::cat(sources), /*sorted=*/true));
+  if (used.size(0) >= x.size(0)) return {};
+  Cochains rows = h;
+  rows.set(src.rank, src.state, x.index_select(0, used));
+  return {run_step(s, rows, ops, cache), detail::compact_rows(used, x.size(0))};
 }
 
 }  // namespace topos::nn

@@ -6,6 +6,8 @@
 #pragma once
 
 #include "topos/config.hpp"
+#include "topos/nn/aggregate.hpp"
+#include "topos/nn/complex_batch.hpp"
 #include "topos/nn/operator_schedule/builder.hpp"
 
 #include <torch/torch.h>
@@ -36,6 +38,13 @@ class OperatorNetworkImpl : public torch::nn::Module {
       const std::map<std::string, torch::Tensor>& inputs,
       const std::map<std::string, SparseOperator>& operators);
 
+  /// The same over a batch of complexes: an operator not given in `operators` is the batch's
+  /// neighbourhood of that name (aggregated by index, with its values, roles and backward
+  /// values), and `when_nonempty` steps see which complexes have cells of a rank.
+  std::map<std::string, torch::Tensor> forward(
+      const std::map<std::string, torch::Tensor>& inputs, const ComplexBatch& batch,
+      const std::map<std::string, SparseOperator>& operators = {});
+
   /// The cochains the inputs give, checked against the schedule's inputs.
   Cochains input_cochains(const std::map<std::string, torch::Tensor>& inputs) const;
 
@@ -44,7 +53,7 @@ class OperatorNetworkImpl : public torch::nn::Module {
   /// operators to them) runs its schedule layer by layer. forward() runs only the steps whose
   /// results a later step or an output reads.
   void run_layer(Cochains& h, const std::map<std::string, SparseOperator>& operators,
-                 const std::string& name);
+                 const std::string& name, const ComplexBatch* batch = nullptr);
 
   std::map<std::string, torch::Tensor> output_cochains(const Cochains& h) const;
 
@@ -56,6 +65,18 @@ class OperatorNetworkImpl : public torch::nn::Module {
   const OperatorSchedule& schedule() const { return schedule_; }
   /// The parameter (or buffer) at a schedule path.
   const torch::Tensor& parameter(const std::string& path) const;
+  /// The MLP at a schedule path (OperatorSchedule's mlp).
+  Mlp mlp(const std::string& path) const;
+
+  /// Off: every operation runs on every row, no term prefix is shared within a parallel group and
+  /// no update is split by blocks; the same numbers up to float rounding, slower (for checking
+  /// the fast paths). On, over a batch's neighbourhoods: (1) a row-wise prefix of a term (mlp,
+  /// linear, activations, ...) before an aggregation runs on the source rows the neighbourhood
+  /// reads, or once per group for all terms that share it; (2) a cochain only ever aggregated is
+  /// computed on the rows aggregations read (HOPNet's edges reach it only through contacts); (3) a
+  /// concatenating step into an mlp applies the first Linear layer's block to a term before its
+  /// sum over a neighbourhood when the term has fewer rows than the target.
+  void set_fast_paths(bool on) { fast_ = on; }
 
  private:
   OperatorSchedule schedule_;
@@ -64,12 +85,16 @@ class OperatorNetworkImpl : public torch::nn::Module {
   std::map<std::string, torch::nn::BatchNorm1d> batch_norms_;
   std::map<std::string, torch::nn::LayerNorm> layer_norms_;
   std::map<std::string, std::shared_ptr<torch::nn::Module>> modules_;  // user operations' modules
+  std::map<std::string, Mlp> mlps_;
   std::vector<std::vector<bool>> live_;  // per group and step: read by a later step or an output
+  // Steps whose target only aggregations read, by (group, step): the operators they read through.
+  std::map<std::pair<std::size_t, std::size_t>, std::vector<std::string>> compact_steps_;
+  bool fast_ = true;
 
   friend class detail::NetworkBuildContext;
   friend class detail::NetworkRunContext;
   void run_groups(Cochains& h, const std::map<std::string, SparseOperator>& operators,
-                  std::size_t begin, std::size_t end, bool live_only);
+                  const ComplexBatch* batch, std::size_t begin, std::size_t end, bool live_only);
 
   // --- the interpreter (interpreter-inl.hpp) -------------------------------------------------
   struct Operators;  // the given operators, their transposes and this forward's dropped ones
@@ -80,7 +105,20 @@ class OperatorNetworkImpl : public torch::nn::Module {
                       torch::Tensor x, Operators& ops, const Cochains& h);
   torch::Tensor attend(const std::string& where, const CochainKey& target, const TermOp& t,
                        const torch::Tensor& x, Operators& ops, const Cochains& h);
-  torch::Tensor run_step(const OperatorStep& s, const Cochains& h, Operators& ops);
+  struct TermValue;  // a term's value, or its rows and the aggregation still to apply
+  using PrefixCache = std::map<std::string, torch::Tensor>;  // per group: shared term prefixes
+  TermValue evaluate_term(const std::string& where, const CochainKey& target, const ops::Term& t,
+                          const Cochains& h, Operators& ops, PrefixCache& cache, bool may_defer);
+  torch::Tensor run_step(const OperatorStep& s, const Cochains& h, Operators& ops,
+                         PrefixCache& cache);
+  /// A compact step (compact_steps_) on the rows its readers aggregate: (value, each row's
+  /// compact row or -1), or (undefined, undefined) where it must run on every row.
+  std::pair<torch::Tensor, torch::Tensor> run_compact(const OperatorStep& s,
+                                                      const std::vector<std::string>& readers,
+                                                      const Cochains& h, Operators& ops,
+                                                      PrefixCache& cache);
+  torch::Tensor guard(const std::string& where, const OperatorStep& s, torch::Tensor updated,
+                      const Cochains& h, const Operators& ops) const;
 
   // --- construction: channel and rank inference, parameters (build-, parameters-inl) -
   std::pair<torch::nn::Module*, std::string> owner_of(const std::string& path);
@@ -92,6 +130,7 @@ class OperatorNetworkImpl : public torch::nn::Module {
   TermShape infer(detail::NetworkBuildContext& ctx, const TermOp& t, TermShape x);
   TermShape infer_attend(detail::NetworkBuildContext& ctx, const TermOp& t, TermShape x);
   void validate_and_create();
+  void find_compact_steps(const std::vector<std::vector<std::set<CochainKey>>>& reads);
 };
 TORCH_MODULE(OperatorNetwork);
 

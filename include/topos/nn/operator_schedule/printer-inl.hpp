@@ -17,18 +17,22 @@ TOPOS_INLINE std::string num(double v) {
   return o.str();
 }
 
+TOPOS_INLINE std::string role_str(const TermOp& t) {
+  return t.role == 0 ? "" : "[role " + std::to_string(t.role) + "]";
+}
+
 TOPOS_INLINE std::string ops_str(std::string x, const std::vector<TermOp>& ops) {
   for (const auto& t : ops) {
     switch (t.kind) {
       case TermOp::Kind::via:
-        x = t.name + (t.row_norm ? "~" : "") + "·" + x;
+        x = t.name + (t.row_norm ? "~" : "") + role_str(t) + "·" + x;
         break;
       case TermOp::Kind::via_transposed:
         x = t.name + "ᵀ" + (t.row_norm ? "~" : "") + "·" + x;
         break;
       case TermOp::Kind::pattern:
-        x = std::string(t.aggr == Aggr::mean ? "mean" : "sum") + "|" + t.name +
-            (t.transposed ? "ᵀ" : "") + "|·" + x;
+        x = std::string(aggr_name(t.aggr)) + "|" + t.name + (t.transposed ? "ᵀ" : "") +
+            role_str(t) + "|·" + x;
         break;
       case TermOp::Kind::weight:
         x = x + "·" + t.name;
@@ -85,6 +89,9 @@ TOPOS_INLINE std::string ops_str(std::string x, const std::vector<TermOp>& ops) 
       case TermOp::Kind::intra_aggregate:
         x = "intra(" + x + ")";
         break;
+      case TermOp::Kind::mlp:
+        x = t.name + "(" + x + ")";
+        break;
       case TermOp::Kind::custom:
         x = t.operation ? t.operation->str(x) : "null(" + x + ")";
         break;
@@ -108,7 +115,8 @@ TOPOS_INLINE std::string step_str(const OperatorStep& s) {
   for (std::size_t i = 0; i < s.terms.size(); ++i)
     mixed += (i ? ", " : "") + ops_str(s.terms[i].source.str(), s.terms[i].operations());
   mixed += "]";
-  return s.name + ": " + s.target.str() + " = " + ops_str(mixed, s.operations());
+  return s.name + ": " + s.target.str() + " = " + ops_str(mixed, s.operations()) +
+         (s.guard_rank >= 0 ? " where rank " + std::to_string(s.guard_rank) + " is nonempty" : "");
 }
 
 }  // namespace detail
