@@ -1,5 +1,5 @@
-// A message-passing network that is not HOPNet, written as a topos operator schedule: on the built-in
-// meshes (randomly scaled and rotated), learn the area of every face from its nodes' positions
+// A message-passing network that is not HOPNet, written as a topos operator schedule: on the built-
+// in meshes (randomly scaled and rotated), learn the area of every face from its nodes' positions
 // and its edges' vectors, with one round of face <- (nodes, edges) and face <- faces messages.
 // Trains for a few seconds and prints the loss as it falls.
 #include <torch/torch.h>

@@ -1,10 +1,10 @@
 // tdl classify: graph-level classification of many lifted complexes, batched with ComplexBatch.
-// Point clouds sampled from three planar shapes that differ in their holes (a disk, an annulus,
-// a disk with two holes), each randomly scaled, rotated and jittered, are lifted to the clique
-// complex (ranks 0-2) of their radius graph. The network is an operator schedule: per layer, edges take
-// their low-pass Hodge-filtered neighbours, their nodes and their triangles; nodes and triangles
-// do the same; each rank is decoded, averaged over each complex, and a linear head gives the
-// class. Accuracy per epoch to OUT/accuracy.csv and OUT/accuracy.svg, the figures to
+// Point clouds sampled from three planar shapes that differ in their holes (a disk, an annulus, a
+// disk with two holes), each randomly scaled, rotated and jittered, are lifted to the clique
+// complex (ranks 0-2) of their radius graph. The network is an operator schedule: per layer, edges
+// take their low-pass Hodge-filtered neighbours, their nodes and their triangles; nodes and
+// triangles do the same; each rank is decoded, averaged over each complex, and a linear head gives
+// the class. Accuracy per epoch to OUT/accuracy.csv and OUT/accuracy.svg, the figures to
 // OUT/summary.json.
 #include "commands.hpp"
 #include "tasks.hpp"

@@ -171,7 +171,7 @@ TEST_CASE("aggregations equal hand-written loops", "[nn][aggregate]") {
   for (Aggr r : {Aggr::sum, Aggr::mean, Aggr::max})
     for (bool w : {false, true})
       for (int role : {0, 1, -1}) {
-        INFO(to_string(r) << " weighted " << w << " role " << role);
+        INFO(aggr_name(r) << " weighted " << w << " role " << role);
         const auto got =
             aggregate(x, tn, AggregateOptions().with_reduce(r).with_weighted(w).with_role(role));
         REQUIRE(torch::allclose(got, loop(r, w, role), 1e-12, 1e-12));

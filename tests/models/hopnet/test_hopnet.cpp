@@ -134,7 +134,7 @@ TEST_CASE("the published MOVi-A model has 707,078 parameters and loads by the re
   REQUIRE(model->options.mlp_layers() == 2);
   const auto dict = nn::read_tensor_dict(G.checkpoint());
   REQUIRE(dict.size() == 116);
-  REQUIRE(torch::equal(model->module("layer0_2to3")->named_parameters()["0.weight"],
+  REQUIRE(torch::equal(model->mlp("modules.layer0_2to3")->named_parameters()["0.weight"],
                        dict.at("_HOPNet__layers.0._HOPNet_Layer__mlp_processor_2to3.0.weight")));
 
   Hopnet fresh;
@@ -873,8 +873,8 @@ TEST_CASE(
   REQUIRE(variant_name(parse_config("nox4").activation(nn::Update::gelu)) ==
           "nox4 (activation gelu)");
   // The NoObjectCells encoder reads 21 node columns; no-cm-distance 8.
-  REQUIRE(Hopnet(parse_config("nox4"))->module("encoder_0")->options.in() == 21);
-  REQUIRE(Hopnet(parse_config("no-cm-distance"))->module("encoder_0")->options.in() == 8);
+  REQUIRE(Hopnet(parse_config("nox4"))->mlp("modules.encoder_0")->options.in() == 21);
+  REQUIRE(Hopnet(parse_config("no-cm-distance"))->mlp("modules.encoder_0")->options.in() == 8);
 
   REQUIRE_THROWS_WITH(parse_config("nox5"),
                       Catch::Contains("unknown configuration 'nox5': not a preset"));
