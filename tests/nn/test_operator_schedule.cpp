@@ -797,3 +797,67 @@ TEST_CASE("a filter bank's attention and an affine power against dense products 
   negative.step(into(1).sum(from(1).affine_power({"L"}, -1, 1.0, -0.1)));
   CHECK_THAT(build_error(negative), Contains("exponent is negative"));
 }
+
+TEST_CASE("an optional operator left out skips the terms that apply it", "[nn][schedule]") {
+  const auto A = random_operator(5, 5, 3), B = random_operator(5, 5, 4);
+  OperatorSchedule s;
+  s.input("x", 0, 3).operator_input("A", 0, 0).optional_operator("B", 0, 0);
+  s.step(into(0).sum(from(0).conv("a", 4).via("A"), from(0).conv("b", 4).via("B")));
+  s.step(into(0, "kept").sum(from(0, "").via("B")));  // only an optional term: keeps the value
+  s.output("y", 0).output("kept", 0, "kept");
+  REQUIRE_THROWS_WITH(OperatorNetwork(OperatorSchedule(s).step(
+                          into(0).concat(from(0), from(0).via("B")).named("cat"))),
+                      Contains("cat (into (0)): the term from (0) applies the optional operator "
+                               "'B', which only a step that sums or averages its terms can skip"));
+  OperatorNetwork net(s);
+  net->to(torch::kDouble);
+  torch::manual_seed(3);
+  const auto x = torch::randn({5, 3}, torch::kDouble);
+  const auto Wa = net->parameter("a.weight"), Wb = net->parameter("b.weight");
+  const auto both = net->forward({{"x", x}}, {{"A", A}, {"B", B}});
+  CHECK(torch::allclose(both.at("y"), A.to_dense().mm(x.mm(Wa)) + B.to_dense().mm(x.mm(Wb)), 1e-5,
+                        1e-6));
+  // Without B, TopoModelX's None: the A term alone; (0, "kept") had no value before its step.
+  CHECK_THROWS_WITH(net->forward({{"x", x}}, {{"A", A}}),
+                    Contains("every term applies an optional operator left out, and (0, "
+                             "\"kept\") has no value to keep"));
+  OperatorSchedule t;
+  t.input("x", 0, 3).operator_input("A", 0, 0).optional_operator("B", 0, 0);
+  t.step(into(0).sum(from(0).conv("a", 4).via("A"), from(0).conv("b", 4).via("B")));
+  t.step(into(0).sum(from(0).conv("c", 4).via("B")));  // left out: (0) stays as it was
+  t.output("y", 0);
+  OperatorNetwork skip(t);
+  skip->to(torch::kDouble);
+  const auto one = skip->forward({{"x", x}}, {{"A", A}}).at("y");
+  CHECK(torch::allclose(one, A.to_dense().mm(x.mm(skip->parameter("a.weight"))), 1e-5, 1e-6));
+}
+
+TEST_CASE("features with leading batch dimensions run element by element, as TopoModelX's",
+          "[nn][schedule]") {
+  // SCoNe on a batch of 3 trajectories of edge features: (3, edges, channels).
+  const auto B1 = random_operator(4, 6, 5), B2 = random_operator(6, 2, 6);
+  models::SCoNe net(models::SCoNeOptions(2, 5, 2));
+  net->to(torch::kDouble);
+  torch::manual_seed(8);
+  const auto x = torch::randn({3, 6, 2}, torch::kDouble);
+  const auto batched = net->forward(x, B1, B2);
+  REQUIRE(batched.sizes() == torch::IntArrayRef({3, 6, 5}));
+  for (std::int64_t b = 0; b < 3; ++b)
+    CHECK(torch::allclose(batched[b], net->forward(x[b], B1, B2), 1e-6, 1e-7));
+  // Two leading dimensions, and gradients through the stack.
+  const auto x4 = torch::randn({2, 3, 6, 2}, torch::dtype(torch::kDouble).requires_grad(true));
+  const auto y4 = net->forward(x4, B1, B2);
+  REQUIRE(y4.sizes() == torch::IntArrayRef({2, 3, 6, 5}));
+  y4.sum().backward();
+  CHECK(x4.grad().abs().sum().item<double>() > 0);
+  // Inputs must agree on their leading dimensions.
+  OperatorSchedule s;
+  s.input("a", 0, 2).input("b", 1, 2).operator_input("B", 1, 0);
+  s.step(into(0).sum(from(0), from(1).via("B")));
+  s.output("y", 0);
+  OperatorNetwork two(s);
+  CHECK_THROWS_WITH(two->forward({{"a", torch::ones({3, 4, 2}, torch::kDouble)},
+                                  {"b", torch::ones({2, 6, 2}, torch::kDouble)}},
+                                 {{"B", random_operator(4, 6, 7)}}),
+                    Contains("input 'b' has leading dimensions [2] but input 'a' has [3]"));
+}

@@ -346,6 +346,20 @@ TOPOS_INLINE void OperatorNetworkImpl::validate_and_create() {
         throw ScheduleError(where + ": another step of the same parallel group writes " +
                             s.target.str());
       if (s.terms.empty()) throw ScheduleError(where + ": a step needs at least one term");
+      for (const auto& term : s.terms)
+        for (const auto& t : term.operations())
+          for (const auto& name : detail::operators_of(t))
+            if (schedule_.optional_operators().count(name) && s.mix != OperatorStep::Mix::sum &&
+                s.mix != OperatorStep::Mix::mean)
+              throw ScheduleError(where + ": the term from " + term.source.str() +
+                                  " applies the optional operator '" + name +
+                                  "', which only a step that sums or averages its terms can skip");
+      for (const auto& t : s.operations())
+        for (const auto& name : detail::operators_of(t))
+          if (schedule_.optional_operators().count(name))
+            throw ScheduleError(where +
+                                ": the step's own operations apply the optional operator '" + name +
+                                "', which cannot be skipped there");
       std::int64_t channels = -1, count = 0;
       for (const auto& term : s.terms) {
         const auto w = ctx.find_width(term.source);

@@ -458,6 +458,25 @@ inline bool aggregation(const TermOp& t) {
          (t.kind == TermOp::Kind::pattern && !t.transposed);
 }
 
+/// The operators an operation applies (none for most).
+inline std::vector<std::string> operators_of(const TermOp& t) {
+  switch (t.kind) {
+    case TermOp::Kind::via:
+    case TermOp::Kind::via_transposed:
+    case TermOp::Kind::pattern:
+    case TermOp::Kind::attend:
+      return {t.name};
+    case TermOp::Kind::powers:
+    case TermOp::Kind::affine_power: {
+      std::vector<std::string> names;
+      for (const auto& f : t.filters) names.push_back(f.first);
+      return names;
+    }
+    default:
+      return {};
+  }
+}
+
 }  // namespace detail
 
 class OperatorSchedule {
@@ -475,6 +494,14 @@ class OperatorSchedule {
     operators_[std::move(name)] = {source_rank, target_rank};
     return *this;
   }
+  /// An operator a forward may leave out (TopoModelX's `None`): a term that applies it is then
+  /// skipped, in a step that sums or averages its terms (checked when the network is built); a
+  /// step left with no term keeps its target as it was.
+  OperatorSchedule& optional_operator(std::string name, int source_rank, int target_rank) {
+    optional_.insert(name);
+    return operator_input(std::move(name), source_rank, target_rank);
+  }
+  const std::set<std::string>& optional_operators() const { return optional_; }
   /// Operator `name`: `source`'s entries, each kept with probability 1 - rate in training (all
   /// of them in evaluation), drawn once per forward and shared by every step that names it (both
   /// directions of an incidence). Ranks as `source`'s.
@@ -549,6 +576,7 @@ class OperatorSchedule {
   int num_steps_ = 0;
   std::vector<Parameter> parameters_;
   std::vector<DroppedOperator> dropped_;
+  std::set<std::string> optional_;
   std::vector<std::pair<std::string, std::size_t>> layers_;
 };
 

@@ -9,6 +9,8 @@
 #include "topos/nn/operator_schedule/printer-inl.hpp"  // detail::ops_str
 
 #include <algorithm>
+#include <functional>
+#include <set>
 
 namespace topos::nn {
 
@@ -17,6 +19,7 @@ struct OperatorNetworkImpl::Operators {
   const ComplexBatch* batch = nullptr;  // its neighbourhoods, where no operator is given
   std::map<std::string, SparseOperator> transposed;
   std::map<std::string, SparseOperator> derived;  // the dropped operators of this forward
+  std::set<std::string> absent;                   // optional operators this forward lacks
   const SparseOperator& at(const std::string& where, const std::string& name) const {
     if (auto d = derived.find(name); d != derived.end()) return d->second;
     auto it = given->find(name);
@@ -149,6 +152,59 @@ TOPOS_INLINE torch::Tensor aggregate_over(const std::string& where, const TermOp
   return aggregate(x, n, aggregate_options(t));
 }
 
+/// The leading dimensions of inputs given as (..., cells, channels): the same for every input of
+/// the schedule, empty when all are matrices.
+TOPOS_INLINE std::vector<std::int64_t> leading_dims(
+    const std::vector<OperatorSchedule::Port>& ports,
+    const std::map<std::string, torch::Tensor>& inputs) {
+  std::vector<std::int64_t> lead;
+  std::string first;
+  for (const auto& port : ports) {
+    auto it = inputs.find(port.name);
+    if (it == inputs.end() || it->second.dim() < 2) continue;  // input_cochains says why
+    const auto sizes = it->second.sizes();
+    std::vector<std::int64_t> l(sizes.begin(), sizes.end() - 2);
+    if (first.empty()) {
+      lead = std::move(l);
+      first = port.name;
+    } else if (l != lead) {
+      throw ScheduleError("input '" + port.name + "' has leading dimensions " +
+                          shape_str(torch::empty(l)) + " but input '" + first + "' has " +
+                          shape_str(torch::empty(lead)));
+    }
+  }
+  return lead;
+}
+
+/// `run` on each element of the leading dimensions, the outputs stacked back into them.
+TOPOS_INLINE std::map<std::string, torch::Tensor> over_leading(
+    const std::vector<OperatorSchedule::Port>& ports,
+    const std::map<std::string, torch::Tensor>& inputs, const std::vector<std::int64_t>& lead,
+    const std::function<
+        std::map<std::string, torch::Tensor>(const std::map<std::string, torch::Tensor>&)>& run) {
+  std::int64_t n = 1;
+  for (auto d : lead) n *= d;
+  std::map<std::string, torch::Tensor> flat = inputs;
+  for (const auto& port : ports)
+    if (auto it = flat.find(port.name); it != flat.end())
+      it->second = it->second.reshape({n, it->second.size(-2), it->second.size(-1)});
+  std::map<std::string, std::vector<torch::Tensor>> outs;
+  for (std::int64_t b = 0; b < n; ++b) {
+    auto in = flat;
+    for (const auto& port : ports)
+      if (auto it = in.find(port.name); it != in.end()) it->second = it->second.select(0, b);
+    for (auto& [name, y] : run(in)) outs[name].push_back(std::move(y));
+  }
+  std::map<std::string, torch::Tensor> out;
+  for (auto& [name, ys] : outs) {
+    auto shape = lead;
+    const auto inner = ys[0].sizes();
+    shape.insert(shape.end(), inner.begin(), inner.end());
+    out[name] = torch::stack(ys).reshape(shape);
+  }
+  return out;
+}
+
 /// A · x, divided by A's row sums with `row_norm` (0 where a row sums to 0).
 TOPOS_INLINE torch::Tensor multiply(const std::string& where, const std::string& name,
                                     const SparseOperator& A, const torch::Tensor& x,
@@ -163,6 +219,9 @@ TOPOS_INLINE torch::Tensor multiply(const std::string& where, const std::string&
 TOPOS_INLINE std::map<std::string, torch::Tensor> OperatorNetworkImpl::forward(
     const std::map<std::string, torch::Tensor>& inputs,
     const std::map<std::string, SparseOperator>& operators) {
+  if (const auto lead = detail::leading_dims(schedule_.inputs(), inputs); !lead.empty())
+    return detail::over_leading(schedule_.inputs(), inputs, lead,
+                                [&](const auto& in) { return forward(in, operators); });
   auto h = input_cochains(inputs);
   run_groups(h, operators, nullptr, 0, schedule_.groups().size(), /*live_only=*/true);
   return output_cochains(h);
@@ -171,6 +230,9 @@ TOPOS_INLINE std::map<std::string, torch::Tensor> OperatorNetworkImpl::forward(
 TOPOS_INLINE std::map<std::string, torch::Tensor> OperatorNetworkImpl::forward(
     const std::map<std::string, torch::Tensor>& inputs, const ComplexBatch& batch,
     const std::map<std::string, SparseOperator>& operators) {
+  if (const auto lead = detail::leading_dims(schedule_.inputs(), inputs); !lead.empty())
+    return detail::over_leading(schedule_.inputs(), inputs, lead,
+                                [&](const auto& in) { return forward(in, batch, operators); });
   auto h = input_cochains(inputs);
   run_groups(h, operators, &batch, 0, schedule_.groups().size(), /*live_only=*/true);
   return output_cochains(h);
@@ -223,6 +285,9 @@ TOPOS_INLINE void OperatorNetworkImpl::run_groups(
     const auto& A = ops.at("dropped operator '" + d.name + "'", d.source);
     ops.derived.emplace(d.name, is_training() && d.rate > 0 ? detail::drop_entries(A, d.rate) : A);
   }
+  for (const auto& name : schedule_.optional_operators())
+    if (!operators.count(name) && !(batch && batch->has_neighborhood(name)))
+      ops.absent.insert(name);
   const auto& groups = schedule_.groups();
   for (std::size_t g = begin; g < end && g < groups.size(); ++g) {
     const Cochains snapshot = h;
@@ -527,6 +592,31 @@ TOPOS_INLINE OperatorNetworkImpl::TermValue OperatorNetworkImpl::evaluate_term(
 TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_step(const OperatorStep& s, const Cochains& h,
                                                          Operators& ops, PrefixCache& cache) {
   const std::string where = s.name + " (into " + s.target.str() + ")";
+  if (!ops.absent.empty()) {  // terms that apply an optional operator left out are skipped
+    const auto uses_absent = [&](const ops::Term& term) {
+      for (const auto& t : term.operations())
+        for (const auto& name : detail::operators_of(t))
+          if (ops.absent.count(name)) return true;
+      return false;
+    };
+    if (std::any_of(s.terms.begin(), s.terms.end(), uses_absent)) {
+      OperatorStep kept = s;
+      kept.terms.clear();
+      for (const auto& term : s.terms)
+        if (!uses_absent(term)) kept.terms.push_back(term);
+      if (kept.terms.empty()) {
+        if (!h.has(s.target.rank, s.target.state))
+          throw ScheduleError(where + ": every term applies an optional operator left out, and " +
+                              s.target.str() + " has no value to keep");
+        return h.at(s.target.rank, s.target.state);
+      }
+      const auto saved = std::move(ops.absent);  // the kept terms apply none of them
+      ops.absent.clear();
+      auto y = run_step(kept, h, ops, cache);
+      ops.absent = saved;
+      return y;
+    }
+  }
   const auto& tail = s.operations();
   const auto no_powers = [](const ops::Term& t) {
     return std::none_of(t.operations().begin(), t.operations().end(),

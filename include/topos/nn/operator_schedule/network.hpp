@@ -33,7 +33,10 @@ class OperatorNetworkImpl : public torch::nn::Module {
   explicit OperatorNetworkImpl(OperatorSchedule schedule);
 
   /// Inputs and operators by name -> outputs by name. An operator whose shape does not fit the
-  /// cochains it is applied to is an error naming the step.
+  /// cochains it is applied to is an error naming the step. Inputs may carry leading batch
+  /// dimensions, (..., cells, channels), the same for every input (TopoModelX's SCoNe trains on
+  /// batches of trajectories): each element runs through the network and the outputs come back
+  /// with the same leading dimensions.
   std::map<std::string, torch::Tensor> forward(
       const std::map<std::string, torch::Tensor>& inputs,
       const std::map<std::string, SparseOperator>& operators);
