@@ -227,12 +227,13 @@ TOPOS_INLINE std::map<std::string, torch::Tensor> OperatorNetworkImpl::forward(
   return output_cochains(h);
 }
 
-TOPOS_INLINE std::map<std::string, torch::Tensor> OperatorNetworkImpl::forward(
+TOPOS_INLINE std::map<std::string, torch::Tensor> OperatorNetworkImpl::forward_batch(
     const std::map<std::string, torch::Tensor>& inputs, const ComplexBatch& batch,
     const std::map<std::string, SparseOperator>& operators) {
   if (const auto lead = detail::leading_dims(schedule_.inputs(), inputs); !lead.empty())
-    return detail::over_leading(schedule_.inputs(), inputs, lead,
-                                [&](const auto& in) { return forward(in, batch, operators); });
+    return detail::over_leading(schedule_.inputs(), inputs, lead, [&](const auto& in) {
+      return forward_batch(in, batch, operators);
+    });
   auto h = input_cochains(inputs);
   run_groups(h, operators, &batch, 0, schedule_.groups().size(), /*live_only=*/true);
   return output_cochains(h);
@@ -280,7 +281,7 @@ OperatorNetworkImpl::input_cochains(const std::map<std::string, torch::Tensor>& 
 TOPOS_INLINE void OperatorNetworkImpl::run_groups(
     Cochains& h, const std::map<std::string, SparseOperator>& operators, const ComplexBatch* batch,
     std::size_t begin, std::size_t end, bool live_only) {
-  Operators ops{&operators, batch, {}, {}};
+  Operators ops{&operators, batch, {}, {}, {}};
   for (const auto& d : schedule_.dropped_operators()) {
     const auto& A = ops.at("dropped operator '" + d.name + "'", d.source);
     ops.derived.emplace(d.name, is_training() && d.rate > 0 ? detail::drop_entries(A, d.rate) : A);

@@ -16,6 +16,7 @@
 #include <map>
 #include <set>
 #include <string>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -44,9 +45,16 @@ class OperatorNetworkImpl : public torch::nn::Module {
   /// The same over a batch of complexes: an operator not given in `operators` is the batch's
   /// neighbourhood of that name (aggregated by index, with its values, roles and backward
   /// values), and `when_nonempty` steps see which complexes have cells of a rank.
+  /// (A template only so that `forward(inputs, {})` still means no operators.)
+  template <class Batch, class = std::enable_if_t<std::is_same_v<Batch, ComplexBatch>>>
   std::map<std::string, torch::Tensor> forward(
+      const std::map<std::string, torch::Tensor>& inputs, const Batch& batch,
+      const std::map<std::string, SparseOperator>& operators = {}) {
+    return forward_batch(inputs, batch, operators);
+  }
+  std::map<std::string, torch::Tensor> forward_batch(
       const std::map<std::string, torch::Tensor>& inputs, const ComplexBatch& batch,
-      const std::map<std::string, SparseOperator>& operators = {});
+      const std::map<std::string, SparseOperator>& operators);
 
   /// The cochains the inputs give, checked against the schedule's inputs.
   Cochains input_cochains(const std::map<std::string, torch::Tensor>& inputs) const;
