@@ -95,7 +95,10 @@ expect_failure("unknown preset" "unknown configuration 'nox3': not a preset" inf
 expect_failure("conflicting presets" "conflicting configuration" info --config nox4,noseq)
 expect_failure("conflicting layers" "conflicting configuration" info --config noseq,mp2)
 expect_failure("info needs one source" "give either --checkpoint FILE or --config" info)
-expect_failure("unknown activation" "unknown activation 'tanh'" info --config standard --activation tanh)
+expect_failure("unknown activation" "unknown activation 'swish'" info --config standard --activation swish)
+expect_failure("activation outside the reference's"
+  "activation tanh is not one of the reference's (relu, gelu, elu, selu)"
+  info --config standard --activation tanh)
 file(WRITE ${WORK}/variant.json "{\"presets\": [\"hidden64\"], \"center_mass_distance\": false}")
 expect_success("info --config FILE" info --config ${WORK}/variant.json)
 string(FIND "${LAST_OUTPUT}" "parameters: 180998\n" pos)

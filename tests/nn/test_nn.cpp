@@ -448,10 +448,10 @@ TEST_CASE("schedules over a batch name their errors: when built, and when run",
     FAIL("no ScheduleError; expected: " << what);
   };
   const auto s = test_schedule(8);
-  const MlpOptions m8(8, 8, 8), m16(16, 8, 8);
+  const MlpOptions m8(8, 8, 8), m16(16, 8, 8), m24(24, 8, 8);
   expect(OperatorSchedule(s).step(
-             into(2).concat(from(2), from(0).pattern("B02")).mlp("u2", m16).named("chan")),
-         "chan (into (2)): mlp 'u2' takes 24 channels but gets 16");
+             into(2).concat(from(2), from(0).pattern("B02")).mlp("u9", m24).named("chan")),
+         "chan (into (2)): mlp 'u9' takes 24 channels but gets 16");
   expect(OperatorSchedule(s).step(
              into(2).concat(from(2), from(0).pattern("B02")).mlp("u0", m16).named("again")),
          "again (into (2)): mlp 'u0' is used again with other options");
