@@ -337,7 +337,7 @@ TEST_CASE("a bad operator schedule is an error naming its step", "[nn][schedule]
   }
   {
     auto s = base();
-    s.step(into(0).sum(from(0)).initial_residual({1, ""}, 0.1, 0.5, "lin"));
+    s.step(into(0).sum(from(0)).apply(models::InitialResidual({1, ""}, 0.1, 0.5, "lin")));
     CHECK_THAT(build_error(s), Contains("residual cochain (1)"));
   }
   {
@@ -551,14 +551,16 @@ TEST_CASE("the hypergraph schedules keep TopoModelX's parameter and buffer names
   CHECK(sage->parameter("layers.1.weight").abs().max().item<double>() <= 0.5);
 }
 
-TEST_CASE("intra_aggregate weights each cell by its agreement with the whole cochain",
+TEST_CASE("SCA-CMPS's IntraAggregate weights each cell by its agreement with the whole cochain",
           "[nn][schedule]") {
   const auto A = random_operator(5, 6, 21);  // edges (6) -> nodes (5)
   torch::manual_seed(22);
   const auto x = torch::randn({6, 3}, torch::kDouble).requires_grad_(true);
   OperatorSchedule s;
   s.input("x", 1, 3).operator_input("A", 1, 0);
-  s.step(into(0).mean(from(1).via("A").intra_aggregate(), from(1).via("A")).act(Update::relu));
+  s.step(into(0)
+             .mean(from(1).via("A").apply(models::IntraAggregate()), from(1).via("A"))
+             .act(Update::relu));
   s.output("y", 0);
   OperatorNetwork net(s);
   const auto y = net->forward({{"x", x}}, {{"A", A}}).at("y");
@@ -676,7 +678,7 @@ TEST_CASE("dropped operators, patterns over the transpose and HMPNN's rescaled d
   // TopoModelX HMPNN's dropout: entries kept with probability p, row i times (2n - kept_i) / n.
   OperatorSchedule d;
   d.input("x", 0, 4).output("y", 0);
-  d.step(into(0).sum(from(0).rescaled_dropout(0.3)));
+  d.step(into(0).sum(from(0).apply(models::RescaledDropout(0.3))));
   OperatorNetwork drop(d);
   const auto ones = torch::ones({10, 4}, torch::kDouble);
   torch::manual_seed(43);
@@ -760,7 +762,7 @@ TEST_CASE("a filter bank's attention and an affine power against dense products 
                                                      .norm(AttentionNorm::softmax)
                                                      .queries(CochainKey{1, "bank"})
                                                      .filters(3)),
-                     from(1).weight("H", 2).affine_power({"L", "M"}, 3, 1.0, -0.1)));
+                     from(1).weight("H", 2).apply(models::AffinePower({"L", "M"}, 3, 1.0, -0.1))));
   OperatorNetwork net(s);
   net->to(torch::kDouble);
   const auto y = net->forward({{"x", x}}, {{"L", L}, {"M", M}}).at("y");
@@ -788,13 +790,14 @@ TEST_CASE("a filter bank's attention and an affine power against dense products 
   uneven.step(into(1).sum(from(1).attend("L", AttendOptions("a").filters(3))));
   CHECK_THAT(build_error(uneven), Contains("messages (4 channels) of whole filters"));
   auto not_square = bad;
-  not_square.step(into(1).sum(from(1).affine_power({"L", "B"}, 2, 1.0, -0.1)).named("harmonic"));
+  not_square.step(
+      into(1).sum(from(1).apply(models::AffinePower({"L", "B"}, 2, 1.0, -0.1))).named("harmonic"));
   CHECK_THAT(
       build_error(not_square),
       Contains("harmonic (into (1)): the affine power needs operators from rank 1 to itself, "
                "'B' maps 0 -> 1"));
   auto negative = bad;
-  negative.step(into(1).sum(from(1).affine_power({"L"}, -1, 1.0, -0.1)));
+  negative.step(into(1).sum(from(1).apply(models::AffinePower({"L"}, -1, 1.0, -0.1))));
   CHECK_THAT(build_error(negative), Contains("exponent is negative"));
 }
 

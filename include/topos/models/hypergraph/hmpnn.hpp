@@ -30,6 +30,26 @@ struct HMPNNOptions {
 /// The schedule: the two input maps, then per layer three steps of messages (states "message"
 /// and "message_sum") and one parallel update of both ranks; without the compatible mode each
 /// layer's incidence is a dropped_operator of "incidence_1".
+/// TopoModelX HMPNN's feature dropout (training only): each entry kept with probability `keep`,
+/// then row i multiplied by (2n - kept_i) / n, n the number of rows. HMPNN's own operation,
+/// through the operator schedule's extension point.
+struct RescaledDropout : nn::Operation {
+  explicit RescaledDropout(double keep) : keep(keep) {}
+  double keep;
+  std::string str(const std::string& x) const override { return "rescaled_dropout(" + x + ")"; }
+  nn::TermShape infer(nn::BuildContext& ctx, nn::TermShape x) const override {
+    if (!(keep >= 0 && keep <= 1))
+      ctx.fail("a dropout rate must be in [0, 1], got " + std::to_string(keep));
+    return x;
+  }
+  torch::Tensor forward(nn::RunContext& ctx, const torch::Tensor& x) const override {
+    if (!ctx.is_training()) return x;
+    const auto mask = torch::bernoulli(torch::full_like(x, keep));
+    const double n = static_cast<double>(x.size(0));
+    return x * mask * ((2 * n - mask.sum(1, true)) / n);
+  }
+};
+
 inline nn::OperatorSchedule hmpnn_schedule(const HMPNNOptions& o) {
   using namespace nn::ops;
   using nn::Update;
@@ -60,7 +80,7 @@ inline nn::OperatorSchedule hmpnn_schedule(const HMPNNOptions& o) {
     auto normalised = [&](int r, const std::string& path) {
       auto t = from(r);
       t.batch_norm(path);
-      return std::move(compatible ? t.rescaled_dropout(rate) : t.dropout(rate));
+      return std::move(compatible ? t.apply(RescaledDropout(rate)) : t.dropout(rate));
     };
     s.step(into(0, "message")
                .sum(from(0).linear(p + "node_to_hyperedge_messenger.messaging_func.0", h))

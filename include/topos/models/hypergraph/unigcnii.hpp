@@ -29,6 +29,33 @@ struct UniGCNIIOptions {
 };
 
 /// The schedule: a linear map, then per layer the two-stage message and GCNII's update.
+/// GCNII's initial residual and identity mapping: x̃ = (1-α) x + α skip, then
+/// (1-β) x̃ + β Linear(x̃) with the bias-free Linear at `path`. UniGCNII's own operation, through
+/// the operator schedule's extension point.
+struct InitialResidual : nn::Operation {
+  InitialResidual(nn::CochainKey skip, double alpha, double beta, std::string path)
+      : skip(std::move(skip)), alpha(alpha), beta(beta), path(std::move(path)) {}
+  nn::CochainKey skip;
+  double alpha, beta;
+  std::string path;
+  std::string str(const std::string& x) const override {
+    return "residual(" + x + ", " + skip.str() + ", " + path + ")";
+  }
+  nn::TermShape infer(nn::BuildContext& ctx, nn::TermShape x) const override {
+    const auto w = ctx.cochain_width(skip);
+    if (skip.rank != x.rank || w != x.channels)
+      ctx.fail("residual cochain " + skip.str() + " of rank " + std::to_string(skip.rank) +
+               " and " + std::to_string(w) + " channels added to rank " + std::to_string(x.rank) +
+               " and " + std::to_string(x.channels));
+    ctx.parameter(path + ".weight", {x.channels, x.channels}, nn::ParameterInit::linear_weight());
+    return x;
+  }
+  torch::Tensor forward(nn::RunContext& ctx, const torch::Tensor& x) const override {
+    const auto mixed = (1 - alpha) * x + alpha * ctx.cochain(skip);
+    return (1 - beta) * mixed + beta * torch::linear(mixed, ctx.parameter(path + ".weight"));
+  }
+};
+
 inline nn::OperatorSchedule unigcnii_schedule(const UniGCNIIOptions& o) {
   using namespace nn::ops;
   using nn::Update;
@@ -45,8 +72,8 @@ inline nn::OperatorSchedule unigcnii_schedule(const UniGCNIIOptions& o) {
     const double beta = std::log((o.topomodelx_compatible() ? o.alpha() : o.beta()) / (l + 1) + 1);
     s.step(into(1).sum(from(0).via_t("incidence_1")));
     auto update = into(0).sum(from(1).via("incidence_1_norm"));
-    update.initial_residual({0, "initial"}, o.alpha(), beta,
-                            "layers." + std::to_string(l) + ".linear");
+    update.apply(InitialResidual({0, "initial"}, o.alpha(), beta,
+                                 "layers." + std::to_string(l) + ".linear"));
     if (o.use_norm()) update.unit_rows();
     s.step(std::move(update.dropout(o.layer_drop()).act(Update::relu)));
   }

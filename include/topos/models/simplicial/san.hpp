@@ -13,6 +13,8 @@
 
 #include "topos/nn/operator_schedule.hpp"
 
+#include <sstream>
+
 namespace topos::models {
 
 struct SANOptions {
@@ -29,6 +31,47 @@ struct SANOptions {
 /// The schedule: per layer the two filter banks' maps (states "down", "up"), then one step
 /// summing the attention over "lower" and "upper" (the Laplacians' patterns) and the harmonic
 /// filter over "laplacian_up" and "laplacian_down".
+/// (a I + b Σ_i A_i)^k x by k rounds of sparse products, the sum and its power never formed (SAN's
+/// harmonic filter (I - ε(L↑ + L↓))^k; nn::apply_affine_power), the A_i square and not trained.
+/// SAN's own operation, through the operator schedule's extension point.
+struct AffinePower : nn::Operation {
+  AffinePower(std::vector<std::string> operators, int k, double a, double b)
+      : operators(std::move(operators)), k(k), a(a), b(b) {}
+  std::vector<std::string> operators;
+  int k;
+  double a, b;
+  std::string str(const std::string& x) const override {
+    std::ostringstream o;
+    o << "(" << a << " I + " << b << " (";
+    for (std::size_t i = 0; i < operators.size(); ++i) o << (i ? " + " : "") << operators[i];
+    o << "))^" << k << "·" << x;
+    return o.str();
+  }
+  nn::TermShape infer(nn::BuildContext& ctx, nn::TermShape x) const override {
+    if (operators.empty()) ctx.fail("an affine power needs an operator");
+    if (k < 0) ctx.fail("an affine power's exponent is negative");
+    for (const auto& op : operators) {
+      const auto [src, dst] = ctx.operator_ranks(op);
+      if (src != x.rank || dst != x.rank)
+        ctx.fail("the affine power needs operators from rank " + std::to_string(x.rank) +
+                 " to itself, '" + op + "' maps " + std::to_string(src) + " -> " +
+                 std::to_string(dst));
+    }
+    return x;
+  }
+  torch::Tensor forward(nn::RunContext& ctx, const torch::Tensor& x) const override {
+    std::vector<nn::SparseOperator> terms;
+    for (const auto& op : operators) {
+      terms.push_back(ctx.op(op));
+      if (terms.back().cols != x.size(0))
+        ctx.fail("operator '" + op + "' has " + std::to_string(terms.back().cols) +
+                 " columns but the cochain it is applied to has " + std::to_string(x.size(0)) +
+                 " rows");
+    }
+    return nn::apply_affine_power(terms, x, k, a, b);
+  }
+};
+
 inline nn::OperatorSchedule san_schedule(const SANOptions& o) {
   using namespace nn::ops;
   if (o.in_channels() <= 0 || o.hidden_channels() <= 0 || o.out_channels() < 0)
@@ -61,8 +104,8 @@ inline nn::OperatorSchedule san_schedule(const SANOptions& o) {
                .sum(bank("down", "lower"), bank("up", "upper"),
                     from(1)
                         .conv(p + "conv_harmonic", c)
-                        .affine_power({"laplacian_up", "laplacian_down"}, o.order_harmonic(), 1.0,
-                                      -o.epsilon_harmonic()))
+                        .apply(AffinePower({"laplacian_up", "laplacian_down"}, o.order_harmonic(),
+                                           1.0, -o.epsilon_harmonic())))
                .named(p + "filters"));
   }
   return s;

@@ -28,6 +28,17 @@ struct SCACMPSOptions {
 
 /// The schedule: per layer, ranks 1 .. complex_dim-1 in turn, the mean of two intra-aggregated
 /// Conv messages, then relu.
+/// Intra-neighbourhood aggregation (Hajij et al.'s CMPS, TopoModelX SCACMPS's intra_aggr): each
+/// row scaled by σ(<relu(Σ_j x_j), x_i>), its agreement with the whole cochain. SCA-CMPS's own
+/// operation, through the operator schedule's extension point.
+struct IntraAggregate : nn::Operation {
+  std::string str(const std::string& x) const override { return "intra(" + x + ")"; }
+  nn::TermShape infer(nn::BuildContext&, nn::TermShape x) const override { return x; }
+  torch::Tensor forward(nn::RunContext&, const torch::Tensor& x) const override {
+    return x * torch::sigmoid(x.matmul(torch::relu(x.sum(0)))).unsqueeze(1);
+  }
+};
+
 inline nn::OperatorSchedule sca_cmps_schedule(const SCACMPSOptions& o) {
   using namespace nn::ops;
   const auto& ch = o.in_channels_all();
@@ -60,8 +71,9 @@ inline nn::OperatorSchedule sca_cmps_schedule(const SCACMPSOptions& o) {
       s.step(
           into(r)
               .mean(
-                  conv(r, r, p + "lap_layers." + i, "down_laplacian_" + R).intra_aggregate(),
-                  conv(r - 1, r, p + "inc_layers." + i, "incidence_" + R + "_t").intra_aggregate())
+                  conv(r, r, p + "lap_layers." + i, "down_laplacian_" + R).apply(IntraAggregate()),
+                  conv(r - 1, r, p + "inc_layers." + i, "incidence_" + R + "_t")
+                      .apply(IntraAggregate()))
               .act(nn::Update::relu));
     }
   }

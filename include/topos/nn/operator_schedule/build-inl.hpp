@@ -122,18 +122,6 @@ TOPOS_INLINE TermShape OperatorNetworkImpl::infer(detail::NetworkBuildContext& c
       if (t.bias)
         make_parameter(where, t.name + ".bias", {t.out}, ParameterInit::linear_bias(x.channels));
       return {x.rank, t.out};
-    case TermOp::Kind::initial_residual: {
-      const auto w = ctx.find_width(t.skip);
-      if (!w) throw ScheduleError(where + ": residual cochain " + t.skip.str() + " has no cochain");
-      if (t.skip.rank != x.rank || *w != x.channels)
-        throw ScheduleError(where + ": residual cochain " + t.skip.str() + " of rank " +
-                            std::to_string(t.skip.rank) + " and " + std::to_string(*w) +
-                            " channels added to rank " + std::to_string(x.rank) + " and " +
-                            std::to_string(x.channels));
-      make_parameter(where, t.name + ".weight", {x.channels, x.channels},
-                     ParameterInit::linear_weight());
-      return x;
-    }
     case TermOp::Kind::powers:
       for (const auto& [name, order] : t.filters) {
         const auto [src, dst] = op(name);
@@ -177,19 +165,6 @@ TOPOS_INLINE TermShape OperatorNetworkImpl::infer(detail::NetworkBuildContext& c
       return x;
     case TermOp::Kind::pow:
     case TermOp::Kind::normalize:
-    case TermOp::Kind::intra_aggregate:
-      return x;
-    case TermOp::Kind::affine_power:
-      if (t.filters.empty()) throw ScheduleError(where + ": an affine power needs an operator");
-      if (t.filters[0].second < 0)
-        throw ScheduleError(where + ": an affine power's exponent is negative");
-      for (const auto& f : t.filters) {
-        const auto [src, dst] = op(f.first);
-        if (src != x.rank || dst != x.rank)
-          throw ScheduleError(where + ": the affine power needs operators from rank " +
-                              std::to_string(x.rank) + " to itself, '" + f.first + "' maps " +
-                              std::to_string(src) + " -> " + std::to_string(dst));
-      }
       return x;
     case TermOp::Kind::mlp: {
       const auto& o = *t.mlp_options;
@@ -464,8 +439,7 @@ TOPOS_INLINE void OperatorNetworkImpl::find_compact_steps(
   // Operations that may read a cochain other than their term's source.
   const auto reads_others = [](const std::vector<TermOp>& list) {
     return std::any_of(list.begin(), list.end(), [](const TermOp& t) {
-      return t.kind == TermOp::Kind::attend || t.kind == TermOp::Kind::initial_residual ||
-             t.kind == TermOp::Kind::custom;
+      return t.kind == TermOp::Kind::attend || t.kind == TermOp::Kind::custom;
     });
   };
   for (std::size_t g = 0; g < groups.size(); ++g)

@@ -71,29 +71,26 @@ struct AttendOptions {
 /// One operation of a term or of a step's tail.
 struct TermOp {
   enum class Kind {
-    via,               ///< A · x
-    via_transposed,    ///< Aᵀ · x
-    pattern,           ///< pattern(A) · x, summed or averaged (A's values ignored)
-    weight,            ///< x · W, W (in × out) at `name`
-    linear,            ///< torch.nn.Linear at `name` (weight out × in, optional bias)
-    act,               ///< an update function
-    dropout,           ///< training only
-    unit_rows,         ///< each row divided by its (undifferentiated) L2 norm; zero rows stay 0
-    batch_norm,        ///< torch.nn.BatchNorm1d at `name`
-    layer_norm,        ///< torch.nn.LayerNorm at `name`
-    attend,            ///< A · x with A's values times attention weights (`param`: the vector)
-    initial_residual,  ///< GCNII: x̃ = (1-α) x + α skip, then (1-β) x̃ + β Linear(x̃)
+    via,             ///< A · x
+    via_transposed,  ///< Aᵀ · x
+    pattern,         ///< pattern(A) · x, summed or averaged (A's values ignored)
+    weight,          ///< x · W, W (in × out) at `name`
+    linear,          ///< torch.nn.Linear at `name` (weight out × in, optional bias)
+    act,             ///< an update function
+    dropout,         ///< training only
+    unit_rows,       ///< each row divided by its (undifferentiated) L2 norm; zero rows stay 0
+    batch_norm,      ///< torch.nn.BatchNorm1d at `name`
+    layer_norm,      ///< torch.nn.LayerNorm at `name`
+    attend,          ///< A · x with A's values times attention weights (`param`: the vector)
     powers,        ///< [y, A₁y..A₁^K₁y, A₂y..A₂^K₂y, ...]: fans the term out, last only
     scale,         ///< x · p, a constant
     head_weights,  ///< [x W_1 | ... | x W_H], W (heads × in × out) at `name`
     bias,          ///< x + b on every row, b at `name` (any shape of as many entries as channels)
-    learned_scale,    ///< (offset + s) · x, s a learned or buffered scalar at `name`
-    pow,              ///< x^value elementwise
-    normalize,        ///< x / ‖x‖₂ (differentiated), per row or over the whole matrix
-    intra_aggregate,  ///< x_i · σ(<relu(Σ_j x_j), x_i>): each cell weighted against the whole
-    affine_power,     ///< (a I + b Σ_i A_i)^k x: `filters` the (A_i, k), `value` a, `offset` b
-    mlp,              ///< nn::Mlp at `name` (`mlp_options`), shared by every op naming the path
-    custom            ///< an Operation defined outside topos (`operation`)
+    learned_scale,  ///< (offset + s) · x, s a learned or buffered scalar at `name`
+    pow,            ///< x^value elementwise
+    normalize,      ///< x / ‖x‖₂ (differentiated), per row or over the whole matrix
+    mlp,            ///< nn::Mlp at `name` (`mlp_options`), shared by every op naming the path
+    custom          ///< an Operation defined outside topos (`operation`)
   };
   explicit TermOp(Kind k, std::string n = {}) : kind(k), name(std::move(n)) {}
   Kind kind;
@@ -105,9 +102,7 @@ struct TermOp {
   double gain = 1.414;
   Update update = Update::none;
   double slope = 0.01;
-  double p = 0;  ///< dropout rate, or α of the initial residual
-  double beta = 0;
-  CochainKey skip;
+  double p = 0;                                      ///< dropout rate
   std::vector<std::pair<std::string, int>> filters;  ///< powers: (operator, order)
   std::string param;                                 ///< attend: the attention vector's path
   AttentionNorm attention_norm = AttentionNorm::none;
@@ -120,7 +115,6 @@ struct TermOp {
   bool trainable = true;            ///< scale: a parameter, else a buffer
   bool per_row = true;              ///< normalize: each row, else the whole matrix
   bool transposed = false;          ///< pattern: over Aᵀ
-  bool rescale_rows = false;        ///< dropout: TopoModelX HMPNN's (rescaled_dropout)
   int role = 0;  ///< via, pattern over a batch neighbourhood: only its pairs of this role (0: all)
   std::optional<MlpOptions> mlp_options;       ///< mlp
   std::shared_ptr<const Operation> operation;  ///< custom: the user's operation
@@ -180,13 +174,6 @@ class Chain {
     t.p = p;
     return add(std::move(t));
   }
-  /// TopoModelX HMPNN's feature dropout (training only): each entry kept with probability
-  /// `keep`, then row i multiplied by (2n - kept_i) / n, n the number of rows.
-  Derived& rescaled_dropout(double keep) {
-    dropout(keep);
-    ops_.back().rescale_rows = true;
-    return static_cast<Derived&>(*this);
-  }
   Derived& unit_rows() { return add(TermOp(TermOp::Kind::unit_rows)); }
   /// torch.nn.BatchNorm1d over the channels at `path` (weight, bias, running statistics).
   Derived& batch_norm(std::string path) {
@@ -195,14 +182,6 @@ class Chain {
   /// torch.nn.LayerNorm over the channels at `path`.
   Derived& layer_norm(std::string path) {
     return add(TermOp(TermOp::Kind::layer_norm, std::move(path)));
-  }
-  /// GCNII's initial residual and identity mapping, the bias-free Linear at `path`.
-  Derived& initial_residual(CochainKey skip, double alpha, double beta, std::string path) {
-    TermOp t(TermOp::Kind::initial_residual, std::move(path));
-    t.skip = std::move(skip);
-    t.p = alpha;
-    t.beta = beta;
-    return add(std::move(t));
   }
   /// x · factor (CAN's skip connection scales its linear map by 1 + 1e-6).
   Derived& scale(double factor) {
@@ -248,18 +227,6 @@ class Chain {
   Derived& normalize(bool per_row = true) {
     TermOp t(TermOp::Kind::normalize);
     t.per_row = per_row;
-    return add(std::move(t));
-  }
-  /// Intra-neighbourhood aggregation (Hajij et al.'s CMPS, TopoModelX SCACMPS's intra_aggr): each
-  /// row scaled by σ(<relu(Σ_j x_j), x_i>), its agreement with the whole cochain.
-  Derived& intra_aggregate() { return add(TermOp(TermOp::Kind::intra_aggregate)); }
-  /// (a I + b Σ_i A_i)^k x by k rounds of sparse products, the sum and its power never formed
-  /// (SAN's harmonic filter (I - ε(L↑ + L↓))^k); the A_i square, their values not trained.
-  Derived& affine_power(const std::vector<std::string>& ops, int k, double a, double b) {
-    TermOp t(TermOp::Kind::affine_power);
-    for (const auto& op : ops) t.filters.emplace_back(op, k);
-    t.value = a;
-    t.offset = b;
     return add(std::move(t));
   }
   /// The MLP (nn::Mlp: Linear layers with activations, optionally a LayerNorm) at `path`, shared
@@ -466,8 +433,7 @@ inline std::vector<std::string> operators_of(const TermOp& t) {
     case TermOp::Kind::pattern:
     case TermOp::Kind::attend:
       return {t.name};
-    case TermOp::Kind::powers:
-    case TermOp::Kind::affine_power: {
+    case TermOp::Kind::powers: {
       std::vector<std::string> names;
       for (const auto& f : t.filters) names.push_back(f.first);
       return names;

@@ -397,18 +397,10 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::apply(const std::string& where,
     }
     case TermOp::Kind::act:
       return apply_update(x, t.update, t.slope);
-    case TermOp::Kind::dropout: {
-      if (!t.rescale_rows || !is_training()) return torch::dropout(x, t.p, is_training());
-      const auto mask = torch::bernoulli(torch::full_like(x, t.p));
-      const double n = static_cast<double>(x.size(0));
-      return x * mask * ((2 * n - mask.sum(1, true)) / n);
-    }
+    case TermOp::Kind::dropout:
+      return torch::dropout(x, t.p, is_training());
     case TermOp::Kind::unit_rows:
       return unit_rows(x);
-    case TermOp::Kind::initial_residual: {
-      const auto mixed = (1 - t.p) * x + t.p * h.at(t.skip.rank, t.skip.state);
-      return (1 - t.beta) * mixed + t.beta * torch::linear(mixed, params_.at(t.name + ".weight"));
-    }
     case TermOp::Kind::powers:
       break;  // handled by the caller (it fans out)
     case TermOp::Kind::scale:
@@ -425,16 +417,6 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::apply(const std::string& where,
       return x.pow(t.value);
     case TermOp::Kind::normalize:
       return x / (t.per_row ? x.norm(2, 1, true) : x.norm()).clamp_min(1e-12);
-    case TermOp::Kind::intra_aggregate:
-      return x * torch::sigmoid(x.matmul(torch::relu(x.sum(0)))).unsqueeze(1);
-    case TermOp::Kind::affine_power: {
-      std::vector<SparseOperator> terms;
-      for (const auto& f : t.filters) {
-        terms.push_back(ops.at(where, f.first));
-        detail::check_fits(where, f.first, terms.back(), x);
-      }
-      return apply_affine_power(terms, x, t.filters[0].second, t.value, t.offset);
-    }
     case TermOp::Kind::mlp:
       return mlps_.at(t.name)->forward(x);
     case TermOp::Kind::custom: {

@@ -59,9 +59,6 @@ TOPOS_INLINE std::string ops_str(std::string x, const std::vector<TermOp>& ops) 
       case TermOp::Kind::layer_norm:
         x = t.name + "(" + x + ")";
         break;
-      case TermOp::Kind::initial_residual:
-        x = "residual(" + x + ", " + t.skip.str() + ", " + t.name + ")";
-        break;
       case TermOp::Kind::powers: {
         std::string f;
         for (const auto& [op, k] : t.filters) f += " " + op + "^1.." + std::to_string(k);
@@ -86,22 +83,12 @@ TOPOS_INLINE std::string ops_str(std::string x, const std::vector<TermOp>& ops) 
       case TermOp::Kind::normalize:
         x = (t.per_row ? "normalize_rows(" : "normalize(") + x + ")";
         break;
-      case TermOp::Kind::intra_aggregate:
-        x = "intra(" + x + ")";
-        break;
       case TermOp::Kind::mlp:
         x = t.name + "(" + x + ")";
         break;
       case TermOp::Kind::custom:
         x = t.operation ? t.operation->str(x) : "null(" + x + ")";
         break;
-      case TermOp::Kind::affine_power: {
-        std::string sum;
-        for (const auto& f : t.filters) sum += (sum.empty() ? "" : " + ") + f.first;
-        x = "(" + num(t.value) + " I + " + num(t.offset) + " (" + sum + "))^" +
-            std::to_string(t.filters.empty() ? 0 : t.filters[0].second) + "·" + x;
-        break;
-      }
     }
   }
   return x;
