@@ -268,11 +268,7 @@ int run_classify(const ClassifyOptions& o) {
     test_curve.push_back(accuracy(test_batch));
     train_curve.push_back(train_acc);
     const double loss = loss_sum / static_cast<double>(train.size());
-    csv << e << "," << loss << "," << train_acc << "," << test_curve.back() << "\n";
-    std::ostringstream status;
-    status << std::fixed << std::setprecision(3) << "loss " << loss << " train " << train_acc
-           << " test " << test_curve.back();
-    bar.update(1, status.str());
+    log_epoch(csv, bar, "", e, loss, train_acc, test_curve.back());
   }
   bar.finish();
   const nlohmann::json summary{{"classes", {kClasses[0], kClasses[1], kClasses[2]}},

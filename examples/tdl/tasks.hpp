@@ -1,15 +1,19 @@
 // examples/tdl/tasks.hpp
 // What tdl's training tasks, `tdl train` (karate club) and `tdl classify` (batched point-cloud
-// complexes), share: the low-pass filters they propagate with and how they write their results.
+// complexes), share: the low-pass filters they propagate with, how an epoch is logged and how
+// they write their results.
 #pragma once
 
 #include "topos/core/operators.hpp"
 #include "topos/core/sparse_matrix.hpp"
 #include "topos/io/atomic_file.hpp"
+#include "topos/util/progress.hpp"
 #include "svg_plot.hpp"
 
 #include <filesystem>
+#include <iomanip>
 #include <iostream>
+#include <sstream>
 #include <string>
 #include <utility>
 #include <vector>
@@ -26,6 +30,17 @@ inline topos::SparseMatrix low_pass_filter(const topos::SparseMatrix& laplacian)
   return topos::sparse::add(
       topos::sparse::identity(laplacian.rows()),
       topos::sparse::scale(topos::normalized_laplacian(laplacian), minus, {}));
+}
+
+/// An epoch's line of accuracy.csv (`row` first: the model's name and a comma, or nothing) and
+/// its progress-bar status.
+inline void log_epoch(std::ostringstream& csv, topos::ProgressBar& bar, const std::string& row,
+                      int epoch, double loss, double train_accuracy, double test_accuracy) {
+  csv << row << epoch << "," << loss << "," << train_accuracy << "," << test_accuracy << "\n";
+  std::ostringstream status;
+  status << std::fixed << std::setprecision(3) << "loss " << loss << " train " << train_accuracy
+         << " test " << test_accuracy;
+  bar.update(1, status.str());
 }
 
 /// OUT/accuracy.csv (`csv`), OUT/accuracy.svg (the accuracy `curves` per epoch, `ylabel` on the

@@ -166,12 +166,7 @@ int run_train(const TrainOptions& o) {
       const auto logits = c.logits();
       train_acc = accuracy(logits, y, train_idx);
       test_acc.push_back(accuracy(logits, y, test_idx));
-      csv << c.name << "," << e << "," << loss_value << "," << train_acc << "," << test_acc.back()
-          << "\n";
-      std::ostringstream status;
-      status << std::fixed << std::setprecision(3) << "loss " << loss_value << " train "
-             << train_acc << " test " << test_acc.back();
-      bar.update(1, status.str());
+      log_epoch(csv, bar, c.name + ",", e, loss_value, train_acc, test_acc.back());
     }
     bar.finish();
     summary["models"][c.name] = {
