@@ -210,8 +210,8 @@ TEST_CASE("GATv2 attention: one vector after the activation of keys plus queries
 }
 
 TEST_CASE(
-    "attention with keys and queries from other cochains, source-only scores, feature "
-    "activation and a transposed operator",
+    "attention with keys and queries from other cochains, source-only scores, activated keys "
+    "and a transposed operator",
     "[nn][schedule][attention]") {
   const auto B = random_operator(5, 7, 25);  // edges (7) -> nodes (5)
   torch::manual_seed(26);
@@ -221,10 +221,12 @@ TEST_CASE(
   OperatorSchedule s;
   s.input("x_0", 0, 4).input("x_1", 1, 4).input("k", 1, 3, "keys").input("q", 0, 2, "queries");
   s.operator_input("B", 1, 0);
+  // HyperGAT's scores a·leaky_relu(x): the activated features as the keys, messages x itself.
+  s.step(into(0, "activated").sum(from(0).act(Update::leaky_relu)));
   s.step(into(1, "src").sum(from(0).attend("B", AttendOptions("a1")
                                                     .transposed(true)
                                                     .source_only(true)
-                                                    .feature_activation(Update::leaky_relu)
+                                                    .keys(CochainKey{0, "activated"})
                                                     .activation(Update::none)
                                                     .norm(AttentionNorm::softmax))));
   s.step(into(0, "kq").sum(from(1).attend("B", AttendOptions("a2")

@@ -40,12 +40,12 @@ inline nn::OperatorSchedule hypergat_schedule(const HyperGATOptions& o) {
   const auto u = o.update_func();
   nn::OperatorSchedule s;
   s.input("x_0", 0, o.in_channels()).operator_input("incidence_1", 1, 0);  // nodes × hyperedges
-  // a·lrelu(features) per entry, softmax per target: HyperGAT's scores.
+  // a·lrelu(features) per entry, softmax per target: HyperGAT's scores, the activated features
+  // as the keys (and queries) of the attention, the messages the features themselves.
   auto scores = [&](const std::string& path, std::int64_t entries) {
     return nn::AttendOptions(path)
         .shape({entries, 1})
         .gain(g)
-        .feature_activation(Update::leaky_relu)
         .activation(Update::none)
         .norm(AttentionNorm::softmax);
   };
@@ -61,15 +61,19 @@ inline nn::OperatorSchedule hypergat_schedule(const HyperGATOptions& o) {
       continue;
     }
     s.step(into(0, "m").sum(from(0).weight(p + "weight1", h, g)));
+    s.step(into(0, "m_act").sum(from(0, "m").act(Update::leaky_relu)));
     s.step(into(1)
-               .sum(from(0, "m").attend(
-                   "incidence_1", scores(p + "att_weight1", h).transposed(true).source_only(true)))
+               .sum(from(0, "m").attend("incidence_1", scores(p + "att_weight1", h)
+                                                           .transposed(true)
+                                                           .source_only(true)
+                                                           .keys(nn::CochainKey{0, "m_act"})))
                .act(u));
+    s.step(into(1, "m").sum(from(1).weight(p + "weight2", h, g)));
+    s.step(into(1, "m_act").sum(from(1, "m").act(Update::leaky_relu)));
     s.step(into(0)
-               .sum(from(1)
-                        .weight(p + "weight2", h, g)
-                        .attend("incidence_1",
-                                scores(p + "att_weight2", 2 * h).queries(nn::CochainKey{0, "m"})))
+               .sum(from(1, "m").attend("incidence_1", scores(p + "att_weight2", 2 * h)
+                                                           .keys(nn::CochainKey{1, "m_act"})
+                                                           .queries(nn::CochainKey{0, "m_act"})))
                .act(u)
                .dropout(o.layer_drop()));
   }

@@ -44,12 +44,10 @@ struct AttendOptions {
   TORCH_ARG(Update, activation) = Update::elu;
   TORCH_ARG(double, negative_slope) = 0.2;
   TORCH_ARG(AttentionNorm, norm) = AttentionNorm::none;
-  TORCH_ARG(std::optional<CochainKey>, keys);            ///< default: the term's features
-  TORCH_ARG(std::optional<CochainKey>, queries);         ///< default: the step's target
-  TORCH_ARG(bool, source_only) = false;                  ///< no queries and no a_t
-  TORCH_ARG(Update, feature_activation) = Update::none;  ///< on keys and queries before scoring
-  TORCH_ARG(double, feature_slope) = 0.01;
-  TORCH_ARG(bool, v2) = false;  ///< GATv2: one vector a, after the activation
+  TORCH_ARG(std::optional<CochainKey>, keys);     ///< default: the term's features
+  TORCH_ARG(std::optional<CochainKey>, queries);  ///< default: the step's target
+  TORCH_ARG(bool, source_only) = false;           ///< no queries and no a_t
+  TORCH_ARG(bool, v2) = false;                    ///< GATv2: one vector a, after the activation
   TORCH_ARG(std::int64_t, heads) = 1;
   TORCH_ARG(bool, concat) = true;       ///< the heads side by side, or their mean
   TORCH_ARG(double, dropout) = 0;       ///< on the weights

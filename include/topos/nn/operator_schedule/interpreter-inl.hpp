@@ -450,10 +450,6 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::attend(const std::string& where,
                           (o.queries() ? "query cochain " + key.str() : "target cochain") +
                           " has " + std::to_string(q.size(0)));
   }
-  if (o.feature_activation() != Update::none) {
-    k = apply_update(k, o.feature_activation(), o.feature_slope());
-    if (q.defined()) q = apply_update(q, o.feature_activation(), o.feature_slope());
-  }
   const auto H = o.heads();
   // The parameter parts: a_s (and a_t) as vectors, heads-major.
   auto a = params_.at(o.param()).reshape({-1});
