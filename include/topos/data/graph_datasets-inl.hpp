@@ -129,6 +129,19 @@ inline std::int64_t parse_single(std::string_view line, const Lines& at, const c
 }
 
 /// One integer per line, every line of the file.
+/// A labels file holds one label per line of `source`'s `count` `items` ("node", "edge"): a
+/// missing or an extra label is an error naming the labels' file and line.
+inline void check_label_count(const TextFile& labels, std::int64_t got, std::int64_t count,
+                              const std::string& item, const std::string& source) {
+  if (got < count)
+    fail(labels.name, got + 1,
+         "missing " + item + " label (" + source + " has " + std::to_string(count) + " " + item +
+             "s)");
+  if (got > count)
+    fail(labels.name, count + 1,
+         "more labels than the " + std::to_string(count) + " " + item + "s of " + source);
+}
+
 inline std::vector<std::int64_t> read_column(const TextFile& f, const char* what) {
   Lines in(f.text, f.name);
   std::string_view line;
@@ -371,15 +384,8 @@ TOPOS_INLINE GraphClassificationDataset parse_tu_dataset(const TuFiles& f,
   std::vector<std::int64_t> node_label;
   if (f.node_labels) {
     node_label = graph_io::read_column(*f.node_labels, "a node label");
-    const auto got = static_cast<std::int64_t>(node_label.size());
-    if (got < num_nodes)
-      fail(f.node_labels->name, got + 1,
-           "missing node label (" + f.graph_indicator.name + " has " + std::to_string(num_nodes) +
-               " nodes)");
-    if (got > num_nodes)
-      fail(f.node_labels->name, num_nodes + 1,
-           "more labels than the " + std::to_string(num_nodes) + " nodes of " +
-               f.graph_indicator.name);
+    graph_io::check_label_count(*f.node_labels, static_cast<std::int64_t>(node_label.size()),
+                                num_nodes, "node", f.graph_indicator.name);
     ds.num_node_labels = graph_io::shift_labels(node_label, f.node_labels->name);
   }
 
@@ -416,13 +422,8 @@ TOPOS_INLINE GraphClassificationDataset parse_tu_dataset(const TuFiles& f,
   std::vector<std::int64_t> edge_label;
   if (f.edge_labels) {
     edge_label = graph_io::read_column(*f.edge_labels, "an edge label");
-    const auto got = static_cast<std::int64_t>(edge_label.size());
-    if (got < num_lines)
-      fail(f.edge_labels->name, got + 1,
-           "missing edge label (" + f.A.name + " has " + std::to_string(num_lines) + " edges)");
-    if (got > num_lines)
-      fail(f.edge_labels->name, num_lines + 1,
-           "more labels than the " + std::to_string(num_lines) + " edges of " + f.A.name);
+    graph_io::check_label_count(*f.edge_labels, static_cast<std::int64_t>(edge_label.size()),
+                                num_lines, "edge", f.A.name);
   }
   const std::vector<std::int64_t> raw_edge_label = edge_label;
   // PyG takes the minimum over every line, self-loops included, before removing them.
