@@ -479,6 +479,26 @@ TEST_CASE("schedules over a batch name their errors: when built, and when run",
   CHECK_THROWS_WITH(net->forward(inputs, batch),
                     Catch::Contains("neighbourhood 'B12' reads") &&
                         Catch::Contains("source rows but the cochain (1) has"));
+  // Only via and an untransposed pattern aggregate over a neighbourhood of the batch.
+  const auto misuse = [&](int rank, Term term) -> std::string {
+    OperatorSchedule m = s;
+    m.step(into(rank, "misuse").sum(std::move(term)).named("misuse"));
+    m.output("misuse", rank, "misuse");
+    OperatorNetwork bad(m);
+    try {
+      bad->forward(random_inputs(batch, torch::kFloat, 2), batch);
+    } catch (const ScheduleError& e) {
+      return e.what();
+    }
+    return "no error";
+  };
+  const std::string only_aggregations =
+      ": 'B40' is a neighbourhood of the batch: only via (without row normalisation) and an "
+      "untransposed pattern apply to it";
+  CHECK_THAT(misuse(0, from(4).via("B40", /*row_norm=*/true)),
+             Catch::Contains("misuse (into (0, \"misuse\"))" + only_aggregations));
+  CHECK_THAT(misuse(4, from(0).via_t("B40")),
+             Catch::Contains("misuse (into (4, \"misuse\"))" + only_aggregations));
   OperatorSchedule g;
   g.input("x", 2, 3).step(into(2).sum(from(2)).when_nonempty(3).named("guarded"));
   g.output("y", 2);

@@ -814,6 +814,10 @@ TEST_CASE("an optional operator left out skips the terms that apply it", "[nn][s
                           into(0).concat(from(0), from(0).via("B")).named("cat"))),
                       Contains("cat (into (0)): the term from (0) applies the optional operator "
                                "'B', which only a step that sums or averages its terms can skip"));
+  REQUIRE_THROWS_WITH(
+      OperatorNetwork(OperatorSchedule(s).step(into(0).sum(from(0)).via("B").named("tail"))),
+      Contains("tail (into (0)): the step's own operations apply the optional operator 'B', "
+               "which cannot be skipped there"));
   OperatorNetwork net(s);
   net->to(torch::kDouble);
   torch::manual_seed(3);

@@ -14,6 +14,28 @@
 
 namespace topos::nn {
 
+namespace detail {
+
+/// An operation other than an aggregation applied to a batch's neighbourhood.
+[[noreturn]] TOPOS_INLINE void not_an_aggregation(const std::string& where,
+                                                  const std::string& name) {
+  throw ScheduleError(where + ": '" + name +
+                      "' is a neighbourhood of the batch: only via (without row normalisation) "
+                      "and an untransposed pattern apply to it");
+}
+
+/// A neighbourhood must read as many source rows as the cochain (`source`, if named) has.
+TOPOS_INLINE void check_reads(const std::string& where, const std::string& name,
+                              std::int64_t num_source, std::int64_t rows,
+                              const std::string& source = "") {
+  if (num_source != rows)
+    throw ScheduleError(where + ": neighbourhood '" + name + "' reads " +
+                        std::to_string(num_source) + " source rows but the cochain " +
+                        (source.empty() ? "" : source + " ") + "has " + std::to_string(rows));
+}
+
+}  // namespace detail
+
 struct OperatorNetworkImpl::Operators {
   const std::map<std::string, SparseOperator>* given;
   const ComplexBatch* batch = nullptr;  // its neighbourhoods, where no operator is given
@@ -24,10 +46,7 @@ struct OperatorNetworkImpl::Operators {
     if (auto d = derived.find(name); d != derived.end()) return d->second;
     auto it = given->find(name);
     if (it == given->end()) {
-      if (neighborhood(name))
-        throw ScheduleError(where + ": '" + name +
-                            "' is a neighbourhood of the batch: only via and pattern (and only) "
-                            "apply to it");
+      if (neighborhood(name)) detail::not_an_aggregation(where, name);
       throw ScheduleError(where + ": operator '" + name + "' was not given" +
                           (batch ? " and the batch has no neighbourhood of that name" : ""));
     }
@@ -141,14 +160,8 @@ TOPOS_INLINE std::string prefix_key(const CochainKey& source, const std::vector<
 /// A term's operations over a batch neighbourhood: the aggregation, checked against x's rows.
 TOPOS_INLINE torch::Tensor aggregate_over(const std::string& where, const TermOp& t,
                                           const TensorNeighborhood& n, const torch::Tensor& x) {
-  if (!aggregation(t))
-    throw ScheduleError(where + ": '" + t.name +
-                        "' is a neighbourhood of the batch: only via (without row "
-                        "normalisation) and pattern apply to it");
-  if (n.num_source != x.size(0))
-    throw ScheduleError(where + ": neighbourhood '" + t.name + "' reads " +
-                        std::to_string(n.num_source) + " source rows but the cochain has " +
-                        std::to_string(x.size(0)));
+  if (!aggregation(t)) not_an_aggregation(where, t.name);
+  check_reads(where, t.name, n.num_source, x.size(0));
   return aggregate(x, n, aggregate_options(t));
 }
 
@@ -520,18 +533,13 @@ TOPOS_INLINE OperatorNetworkImpl::TermValue OperatorNetworkImpl::evaluate_term(
   v.handled = true;
   torch::Tensor x = h.at(term.source.rank, term.source.state);
   TensorNeighborhood n = *nb;
-  if (const auto rows = h.rows(term.source); rows.defined()) {  // a compact cochain
-    if (n.num_source != rows.size(0))
-      throw ScheduleError(where + ": neighbourhood '" + list[k].name + "' reads " +
-                          std::to_string(n.num_source) + " source rows but the cochain has " +
-                          std::to_string(rows.size(0)));
+  const auto rows = h.rows(term.source);  // defined for a compact cochain: each cell's row
+  detail::check_reads(where, list[k].name, n.num_source, rows.defined() ? rows.size(0) : x.size(0),
+                      term.source.str());
+  if (rows.defined()) {
     n.source = rows.index_select(0, n.source);
     n.num_source = x.size(0);
   }
-  if (n.num_source != x.size(0))
-    throw ScheduleError(where + ": neighbourhood '" + list[k].name + "' reads " +
-                        std::to_string(n.num_source) + " source rows but the cochain " +
-                        term.source.str() + " has " + std::to_string(x.size(0)));
   if (k > 0) {
     const auto key = fast_ ? detail::prefix_key(term.source, list, k) : std::string();
     const auto cached = fast_ ? cache.find(key) : cache.end();
@@ -589,11 +597,7 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_step(const OperatorStep& s, 
                               s.target.str() + " has no value to keep");
         return h.at(s.target.rank, s.target.state);
       }
-      const auto saved = std::move(ops.absent);  // the kept terms apply none of them
-      ops.absent.clear();
-      auto y = run_step(kept, h, ops, cache);
-      ops.absent = saved;
-      return y;
+      return run_step(kept, h, ops, cache);  // the kept terms apply none of them
     }
   }
   const auto& tail = s.operations();
