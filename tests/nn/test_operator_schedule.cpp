@@ -135,71 +135,83 @@ TEST_CASE("multi-head attention: per-head GAT scores, concatenated or averaged h
   const auto A = random_operator(6, 6, 21);
   torch::manual_seed(22);
   const auto x = torch::randn({6, 4}, torch::kDouble);
-  auto gat = [](bool concat) {
-    return AttendOptions("att.src")
-        .target_param("att.dst")
-        .shape({1, 2, 2})
-        .target_shape({1, 2, 2})
-        .gain(1.0)
-        .heads(2)
-        .concat(concat)
-        .queries(CochainKey{0, ""})
-        .activation(Update::leaky_relu)
-        .negative_slope(0.2)
-        .norm(AttentionNorm::softmax);
+  // CAN's attention: a_src and a_dst as parameters of their own, 1 × heads × channels per head.
+  auto gat = [](const std::string& path, bool concat, double dropout = 0) {
+    models::CanAttention a("A", path, CochainKey{0, ""}, 2);
+    a.concat = concat;
+    a.dropout = dropout;
+    a.activation = Update::leaky_relu;
+    a.negative_slope = 0.2;
+    return a;
   };
   OperatorSchedule s;
   s.input("x", 0, 4).operator_input("A", 0, 0);
-  s.parallel({into(0, "cat").sum(from(0).attend("A", gat(true))),
-              into(0, "mean").sum(from(0).attend("A", gat(false))),
-              into(0, "drop").sum(from(0).attend("A", gat(true).dropout(1.0)))});
+  s.parallel({into(0, "cat").sum(from(0).apply(gat("att", true))),
+              into(0, "mean").sum(from(0).apply(gat("att", false))),
+              into(0, "drop").sum(from(0).apply(gat("att", true, 1.0))),
+              // The schedule's own attend: one vector [a_s | a_t], each part heads-major.
+              into(0, "one").sum(from(0).attend("A", AttendOptions("one")
+                                                         .heads(2)
+                                                         .queries(CochainKey{0, ""})
+                                                         .activation(Update::leaky_relu)
+                                                         .negative_slope(0.2)
+                                                         .norm(AttentionNorm::softmax)))});
   s.output("cat", 0, "cat").output("mean", 0, "mean").output("drop", 0, "drop");
+  s.output("one", 0, "one");
   OperatorNetwork net(s);
   net->to(torch::kDouble);
-  CHECK(parameter_names(*net) == std::set<std::string>{"att.src", "att.dst"});
-  CHECK(net->parameter("att.dst").sizes() == torch::IntArrayRef({1, 2, 2}));
+  CHECK(parameter_names(*net) ==
+        std::set<std::string>{"att.att_weight_src", "att.att_weight_dst", "one"});
+  CHECK(net->parameter("att.att_weight_dst").sizes() == torch::IntArrayRef({1, 2, 2}));
+  CHECK(net->parameter("one").sizes() == torch::IntArrayRef({8}));
+  CHECK_THAT(s.str(), Contains("can_attend[att ×2]A·(0)") && Contains("att[one ×2]A·(0)"));
   net->eval();
   const auto out = net->forward({{"x", x}}, {{"A", A}});
   // Head h: softmax over i's entries of leaky_relu(a_s,h·x_h[j] + a_t,h·x_h[i]), messages x_h.
   const auto D = A.to_dense();
-  std::vector<torch::Tensor> heads;
+  std::vector<torch::Tensor> heads, one;
   for (int h = 0; h < 2; ++h) {
     const auto xh = x.narrow(1, 2 * h, 2);
-    const auto a_s = net->parameter("att.src")[0][h], a_t = net->parameter("att.dst")[0][h];
+    const auto a_s = net->parameter("att.att_weight_src")[0][h],
+               a_t = net->parameter("att.att_weight_dst")[0][h];
     const auto scores =
         torch::leaky_relu(xh.matmul(a_s).unsqueeze(0) + xh.matmul(a_t).unsqueeze(1), 0.2);
     heads.push_back((masked_softmax(scores, D) * D).mm(xh));
+    const auto& a = net->parameter("one");
+    const auto s1 = torch::leaky_relu(xh.matmul(a.narrow(0, 2 * h, 2)).unsqueeze(0) +
+                                          xh.matmul(a.narrow(0, 4 + 2 * h, 2)).unsqueeze(1),
+                                      0.2);
+    one.push_back((masked_softmax(s1, D) * D).mm(xh));
   }
   CHECK(torch::allclose(out.at("cat"), torch::cat(heads, 1), 1e-10, 1e-12));
   CHECK(torch::allclose(out.at("mean"), (heads[0] + heads[1]) / 2, 1e-10, 1e-12));
+  CHECK(torch::allclose(out.at("one"), torch::cat(one, 1), 1e-10, 1e-12));
   CHECK(torch::equal(out.at("drop"), out.at("cat")));  // dropout on the weights: training only
   net->train();
   CHECK(torch::equal(net->forward({{"x", x}}, {{"A", A}}).at("drop"),
                      torch::zeros({6, 4}, torch::kDouble)));
 }
 
-TEST_CASE("GATv2 attention: one vector after the activation of keys plus queries",
+TEST_CASE("GATv2 attention (CAN's): one vector after the activation of keys plus queries",
           "[nn][schedule][attention]") {
   const auto A = random_operator(5, 5, 23);
   torch::manual_seed(24);
   const auto x = torch::randn({5, 4}, torch::kDouble), d = torch::randn({5, 4}, torch::kDouble);
   OperatorSchedule s;
   s.input("x", 0, 4).input("d", 0, 4, "dst").operator_input("A", 0, 0);
-  s.step(into(0, "y").sum(from(0).attend("A", AttendOptions("att")
-                                                  .shape({1, 2, 2})
-                                                  .v2(true)
-                                                  .heads(2)
-                                                  .queries(CochainKey{0, "dst"})
-                                                  .activation(Update::leaky_relu)
-                                                  .negative_slope(0.2)
-                                                  .norm(AttentionNorm::softmax))));
+  models::CanAttention v2("A", "att", CochainKey{0, "dst"}, 2);
+  v2.v2 = true;
+  v2.activation = Update::leaky_relu;
+  v2.negative_slope = 0.2;
+  s.step(into(0, "y").sum(from(0).apply(v2)));
   s.output("y", 0, "y");
   OperatorNetwork net(s);
   net->to(torch::kDouble);
+  CHECK(net->parameter("att.att_weight").sizes() == torch::IntArrayRef({1, 2, 2}));
   const auto out = net->forward({{"x", x}, {"d", d}}, {{"A", A}}).at("y");
   // Entry (i, j) of head h: a_h · leaky_relu(x_j + d_i) over the head's channels.
   const auto D = A.to_dense();
-  const auto a = net->parameter("att").reshape({2, 2});
+  const auto a = net->parameter("att.att_weight").reshape({2, 2});
   const auto e = torch::leaky_relu(x.unsqueeze(0) + d.unsqueeze(1), 0.2);  // [i][j] = x_j + d_i
   std::vector<torch::Tensor> heads;
   for (int h = 0; h < 2; ++h) {
@@ -360,11 +372,14 @@ TEST_CASE("a bad operator schedule is an error naming its step", "[nn][schedule]
   };
   CHECK_THAT(error(into(0).sum(from(1).attend("B", AttendOptions("att").heads(3)))),
              Contains("bad") && Contains("with 3 heads"));
-  CHECK_THAT(error(into(0).sum(from(1).attend("B", AttendOptions("att").v2(true)))),
-             Contains("bad") && Contains("(GATv2) needs queries as wide as its keys, got 3 and 2"));
-  CHECK_THAT(error(into(0).sum(
-                 from(1).attend("B", AttendOptions("att").source_only(true).target_param("t")))),
-             Contains("bad") && Contains("has no target part for 't'"));
+  models::CanAttention v2("B", "att", CochainKey{0, ""}, 1);
+  v2.v2 = true;
+  CHECK_THAT(error(into(0).sum(from(1).apply(v2))),
+             Contains("bad") && Contains("CAN attention over 'B' (GATv2) needs queries as wide as "
+                                         "its keys, got 3 and 2"));
+  CHECK_THAT(error(into(0).sum(from(1).apply(models::CanAttention("B", "att", {0, ""}, 2)))),
+             Contains("bad") && Contains("with 2 heads: the messages (2) and queries (3) need "
+                                         "channels divisible by the heads"));
   CHECK_THAT(
       error(into(0).sum(from(1).attend("B", AttendOptions("att").keys(CochainKey{1, "nope"})))),
       Contains("bad") && Contains("takes its keys from (1, \"nope\")"));
@@ -581,31 +596,31 @@ TEST_CASE("SCA-CMPS's IntraAggregate weights each cell by its agreement with the
   CHECK_THAT(s.str(), Contains("intra(A·(1))"));
 }
 
-TEST_CASE("attention offsets read the vector cyclically; mirrored rows swap a row's weights",
+TEST_CASE("HMC's attention: offsets read the vector cyclically; mirrored rows swap a row's weights",
           "[nn][schedule][attention]") {
   const auto A = random_operator(5, 7, 31);  // cells of rank 1 (7) -> rank 0 (5)
   torch::manual_seed(32);
   const auto k = torch::randn({7, 3}, torch::kDouble), q = torch::randn({5, 2}, torch::kDouble);
-  auto base = [](const std::string& path) {
-    return AttendOptions(path)
-        .activation(Update::leaky_relu)
-        .negative_slope(0.2)
-        .norm(AttentionNorm::softmax)
-        .shape({5, 1});
+  auto base = [](const CochainKey& queries) {
+    models::HmcAttention a("A", "a", queries);
+    a.shape = {5, 1};
+    return a;
   };
   OperatorSchedule s;
   s.input("k", 1, 3).input("q", 0, 2).operator_input("A", 1, 0);
   // Forward: a_s from entry 4 (wrapping to 0, 1), a_t from entry 2. Reverse: keys q (rank 0)
   // over Aᵀ, queries k, a_s from entry 3, a_t from entry 0; mirrored rows.
-  s.parallel({into(0, "fwd").sum(from(1).attend(
-                  "A", base("a").queries(CochainKey{0, ""}).source_offset(4).target_offset(2))),
-              into(1, "rev").sum(from(0).attend("A", base("a")
-                                                         .transposed(true)
-                                                         .queries(CochainKey{1, ""})
-                                                         .source_offset(3)
-                                                         .target_offset(0)
-                                                         .mirrored_rows(true)))});
+  auto fwd = base(CochainKey{0, ""});
+  fwd.source_offset = 4;
+  fwd.target_offset = 2;
+  auto rev = base(CochainKey{1, ""});
+  rev.transposed = true;
+  rev.source_offset = 3;
+  rev.target_offset = 0;
+  rev.mirrored_rows = true;
+  s.parallel({into(0, "fwd").sum(from(1).apply(fwd)), into(1, "rev").sum(from(0).apply(rev))});
   s.output("fwd", 0, "fwd").output("rev", 1, "rev");
+  CHECK_THAT(s.str(), Contains("hmc_attend[a]A·(1)") && Contains("hmc_attend[a]Aᵀ·(0)"));
   OperatorNetwork net(s);
   net->to(torch::kDouble);
   const auto a = net->parameter("a").reshape({-1});
@@ -629,20 +644,25 @@ TEST_CASE("attention offsets read the vector cyclically; mirrored rows swap a ro
   CHECK(torch::allclose(out.at("rev"), (w * Dt).mm(q), 1e-10, 1e-12));
   CHECK_FALSE(torch::allclose(out.at("rev"), (masked_softmax(sr, Dt) * Dt).mm(q), 1e-6, 1e-6));
 
-  // Offsets need a vector with both parts, inside it.
+  // Offsets inside the vector, and a vector of both parts.
   OperatorSchedule bad;
   bad.input("k", 1, 3).input("q", 0, 2).operator_input("A", 1, 0).output("y", 0);
   auto too_far = bad;
-  too_far.step(
-      into(0).sum(from(1).attend("A", base("a").queries(CochainKey{0, ""}).target_offset(5))));
-  CHECK_THAT(build_error(too_far), Contains("offsets in [0, 5), got 5"));
+  auto far = base(CochainKey{0, ""});
+  far.target_offset = 5;
+  too_far.step(into(0).sum(from(1).apply(far)).named("hbs"));
+  CHECK_THAT(build_error(too_far),
+             Contains("hbs (into (0)): HMC attention over 'A' needs offsets in [0, 5), got 5"));
   auto one_part = bad;
-  one_part.step(
-      into(0).sum(from(1).attend("A", base("a").shape({}).source_only(true).source_offset(1))));
-  CHECK_THAT(build_error(one_part), Contains("has offsets but no target part"));
+  auto short_vector = base(CochainKey{0, ""});
+  short_vector.shape = {3, 1};
+  one_part.step(into(0).sum(from(1).apply(short_vector)).named("hbs"));
+  CHECK_THAT(build_error(one_part),
+             Contains("hbs (into (0)): HMC attention over 'A' needs 5 entries in 'a', its shape "
+                      "[3, 1] has 3"));
 }
 
-TEST_CASE("dropped operators, patterns over the transpose and HMPNN's rescaled dropout",
+TEST_CASE("HMPNN's dropped incidence entries, patterns over the transpose, its rescaled dropout",
           "[nn][schedule]") {
   // A node × hyperedge pattern of 12 × 8 with about half the entries.
   torch::manual_seed(41);
@@ -650,18 +670,21 @@ TEST_CASE("dropped operators, patterns over the transpose and HMPNN's rescaled d
       SparseOperator::from_dense((torch::rand({12, 8}, torch::kDouble) < 0.5).to(torch::kDouble));
   OperatorSchedule s;
   s.input("nodes", 0, 12).input("edges", 1, 8).operator_input("B", 1, 0);
-  s.dropped_operator("B_dropped", "B", 0.5);
+  // B's entries dropped at rate 0.5, one draw under the key "B.kept" shared by both directions.
+  const models::DroppedPattern up("B", "B.kept", 0.5, /*transposed=*/true);
+  const models::DroppedPattern down("B", "B.kept", 0.5);
   // One-hot features: what reaches each cell names the entries kept.
-  s.parallel({into(1, "from_nodes").sum(from(0).pattern_t("B_dropped")),
-              into(0, "from_edges").sum(from(1).pattern("B_dropped")),
-              into(1, "mean").sum(from(0).pattern_t("B", Aggr::mean))});
+  s.parallel(
+      {into(1, "from_nodes").sum(from(0).apply(up)), into(0, "from_edges").sum(from(1).apply(down)),
+       into(1, "mean").sum(from(0).apply(models::DroppedPattern("B", "", 0, true, Aggr::mean)))});
   s.output("from_nodes", 1, "from_nodes").output("from_edges", 0, "from_edges");
   s.output("mean", 1, "mean");
   OperatorNetwork net(s);
   const std::map<std::string, torch::Tensor> in{{"nodes", torch::eye(12, torch::kDouble)},
                                                 {"edges", torch::eye(8, torch::kDouble)}};
   const auto D = B.to_dense();
-  CHECK_THAT(s.str(), Contains("sum|B_droppedᵀ|"));
+  CHECK_THAT(s.str(), Contains("sum|Bᵀ dropped 0.5 [B.kept]|·(0)") &&
+                          Contains("sum|B dropped 0.5 [B.kept]|·(1)") && Contains("mean|Bᵀ|·(0)"));
   net->eval();  // every entry
   auto out = net->forward(in, {{"B", B}});
   CHECK(torch::equal(out.at("from_nodes"), D.t()));
@@ -692,23 +715,26 @@ TEST_CASE("dropped operators, patterns over the transpose and HMPNN's rescaled d
   drop->eval();
   CHECK(torch::equal(drop->forward({{"x", ones}}, {}).at("y"), ones));
 
-  // Errors name the dropped operator or the step.
-  OperatorSchedule unknown = s;
-  unknown.dropped_operator("C", "nowhere", 0.1);
-  CHECK_THAT(build_error(unknown), Contains("dropped operator 'C': unknown operator 'nowhere'"));
-  OperatorSchedule rate = s;
-  rate.dropped_operator("C", "B", 1.5);
-  CHECK_THAT(build_error(rate), Contains("the rate must be in [0, 1]"));
-  OperatorSchedule taken = s;
-  taken.dropped_operator("B", "B", 0.1);
-  CHECK_THAT(build_error(taken), Contains("already an operator input"));
+  // Errors name the step.
+  const auto with = [&](const models::DroppedPattern& op) {
+    OperatorSchedule t = s;
+    t.step(into(1, "bad").sum(from(0).apply(op)).named("dropping"));
+    return build_error(t);
+  };
+  CHECK_THAT(with(models::DroppedPattern("nowhere", "C", 0.1, true)),
+             Contains("dropping (into (1, \"bad\")): unknown operator 'nowhere'"));
+  CHECK_THAT(
+      with(models::DroppedPattern("B", "C", 1.5, true)),
+      Contains("dropping") && Contains("the rate of dropped entries of 'B' must be in [0, 1]"));
+  CHECK_THAT(with(models::DroppedPattern("B", "", 0.1, true)),
+             Contains("dropping") && Contains("entries of 'B' dropped need a key"));
   OperatorSchedule bad_dropout;
   bad_dropout.input("x", 0, 2).output("y", 0);
   bad_dropout.step(into(0).sum(from(0).dropout(2)).named("dropping"));
   CHECK_THAT(build_error(bad_dropout), Contains("dropping (into (0)): a dropout rate"));
   OperatorSchedule wrong_rank;
   wrong_rank.input("x", 1, 2).operator_input("B", 1, 0).output("y", 1);
-  wrong_rank.step(into(1).sum(from(1).pattern_t("B")));
+  wrong_rank.step(into(1).sum(from(1).apply(models::DroppedPattern("B", "", 0, true))));
   CHECK_THAT(build_error(wrong_rank), Contains("operator 'Bᵀ' applies to rank 0 cochains"));
 }
 
@@ -759,11 +785,7 @@ TEST_CASE("a filter bank's attention and an affine power against dense products 
   OperatorSchedule s;
   s.input("x", 1, 4).operator_input("L", 1, 1).operator_input("M", 1, 1).output("y", 1);
   s.step(into(1, "bank").sum(from(1).head_weights("W", 3, 2)));  // [x W_0 | x W_1 | x W_2]
-  s.step(into(1).sum(from(1, "bank").attend("L", AttendOptions("a")
-                                                     .activation(Update::elu)
-                                                     .norm(AttentionNorm::softmax)
-                                                     .queries(CochainKey{1, "bank"})
-                                                     .filters(3)),
+  s.step(into(1).sum(from(1, "bank").apply(models::SanFilterAttention("L", "a", {1, "bank"}, 3)),
                      from(1).weight("H", 2).apply(models::AffinePower({"L", "M"}, 3, 1.0, -0.1))));
   OperatorNetwork net(s);
   net->to(torch::kDouble);
@@ -780,17 +802,21 @@ TEST_CASE("a filter bank's attention and an affine power against dense products 
   const auto T = torch::eye(9, torch::kDouble) - 0.1 * (D + M.to_dense());
   expect = expect + T.mm(T.mm(T.mm(x.mm(H))));
   CHECK(torch::allclose(y, expect, 1e-10, 1e-12));
-  CHECK_THAT(s.str(), Contains("(1 I + -0.1 (L + M))^3"));
+  CHECK_THAT(s.str(), Contains("(1 I + -0.1 (L + M))^3") &&
+                          Contains("san_attend[a ×3 filters]L·(1, \"bank\")"));
 
   OperatorSchedule bad;
   bad.input("x", 1, 4).input("x0", 0, 4).operator_input("L", 1, 1).output("y", 1);
   bad.operator_input("B", 0, 1);
-  auto two_heads = bad;
-  two_heads.step(into(1).sum(from(1).attend("L", AttendOptions("a").heads(2).filters(2))));
-  CHECK_THAT(build_error(two_heads), Contains("with 2 filters needs one head"));
+  auto no_filter = bad;
+  no_filter.step(into(1).sum(from(1).apply(models::SanFilterAttention("L", "a", {1, ""}, 0))));
+  CHECK_THAT(build_error(no_filter), Contains("SAN attention over 'L' with 0 filters"));
   auto uneven = bad;
-  uneven.step(into(1).sum(from(1).attend("L", AttendOptions("a").filters(3))));
-  CHECK_THAT(build_error(uneven), Contains("messages (4 channels) of whole filters"));
+  uneven.step(
+      into(1).sum(from(1).apply(models::SanFilterAttention("L", "a", {1, ""}, 3))).named("bank"));
+  CHECK_THAT(build_error(uneven),
+             Contains("bank (into (1)): SAN attention over 'L' with 3 filters needs messages (4 "
+                      "channels) of whole filters"));
   auto not_square = bad;
   not_square.step(
       into(1).sum(from(1).apply(models::AffinePower({"L", "B"}, 2, 1.0, -0.1))).named("harmonic"));

@@ -4,7 +4,8 @@
 // polynomial filters (A x, A² x, ... A^K x,
 // optionally row-normalised), attention over a target's incoming messages (per-entry scores
 // from source and target features, an activation, then a per-target softmax or row
-// normalisation), affine powers, readouts and weight initialisers. Parameter names and
+// normalisation; the weighted operator and multi-head messages every attention shares), affine
+// powers, readouts and weight initialisers. Parameter names and
 // layouts are TopoModelX's
 // (Conv.weight is in × out, Conv.att_weight has 2·in entries) so its state_dicts load as they are.
 #pragma once
@@ -182,6 +183,52 @@ inline torch::Tensor attention_weights(const SparseOperator& A, const torch::Ten
   if (norm == AttentionNorm::softmax) return row_softmax(A, s);
   if (norm == AttentionNorm::row_sum) return row_normalize(A, s);
   return s;
+}
+
+/// Per cell and head, <f_h, a_h>: f (cells × heads·C) and a (heads·C entries) split head-major.
+/// One head: the vector f·a (a matrix-vector product: torch's index_select on an n × 1 matrix is
+/// 2.5x slower); several: cells × heads. With entry_scores, GAT's raw a_s·k_j + a_t·q_i per head.
+inline torch::Tensor head_scores(const torch::Tensor& f, const torch::Tensor& a,
+                                 std::int64_t heads = 1) {
+  if (heads == 1) return f.mv(a.reshape({-1}));
+  return (f.reshape({f.size(0), heads, -1}) * a.reshape({1, heads, -1})).sum(-1);
+}
+
+/// The operator attention applies: A's pattern with values w ⊙ A's values, w the weights from
+/// raw per-entry scores (attention_weights: activation, then the per-target norm), entry k taking
+/// entry order[k]'s weight when `order` is given (a permutation of A's entries: HMC's mirrored
+/// rows, SparseOperator::row_mirror), then dropped out at rate `dropout` in training. The one
+/// place every attention (the schedule's `attend`, HMC's, CAN's, SAN's operations) weighs A.
+inline SparseOperator attention_operator(const SparseOperator& A, const torch::Tensor& raw,
+                                         Update activation, double negative_slope,
+                                         AttentionNorm norm, double dropout = 0,
+                                         bool training = false, const torch::Tensor& order = {}) {
+  auto w = attention_weights(A, raw, activation, negative_slope, norm);
+  if (order.defined()) w = w.index_select(0, order.to(w.device()));
+  if (dropout > 0) w = torch::dropout(w, dropout, training);
+  return A.with_values(w * A.values.to(w.scalar_type()));
+}
+
+/// Multi-head attention's messages: x (A.cols × heads·C) split into heads in column blocks, head
+/// h's block multiplied by attention_operator(A, its raw scores) (`raw`: one score per entry for
+/// one head, or nnz × heads), the heads side by side (`concat`) or averaged.
+inline torch::Tensor multi_head_attention(const SparseOperator& A, const torch::Tensor& raw,
+                                          const torch::Tensor& x, bool concat, Update activation,
+                                          double negative_slope, AttentionNorm norm,
+                                          double dropout = 0, bool training = false) {
+  const auto H = raw.dim() == 1 ? 1 : raw.size(1);
+  if (x.size(1) % H)
+    throw std::invalid_argument("multi_head_attention: " + std::to_string(x.size(1)) +
+                                " channels for " + std::to_string(H) + " heads");
+  std::vector<torch::Tensor> heads;
+  const auto x_h = H == 1 ? std::vector<torch::Tensor>{x} : x.split(x.size(1) / H, 1);
+  for (std::int64_t i = 0; i < H; ++i) {
+    const auto W = attention_operator(A, raw.dim() == 1 ? raw : raw.select(1, i).contiguous(),
+                                      activation, negative_slope, norm, dropout, training);
+    heads.push_back(spmm(W, x_h[static_cast<std::size_t>(i)].contiguous()));
+  }
+  if (H == 1) return heads[0];
+  return concat ? torch::cat(heads, 1) : torch::stack(heads, 0).mean(0);
 }
 
 /// Glorot initialisation with TopoModelX's gain for a weight of any rank (fan_in = size(1)·rest,

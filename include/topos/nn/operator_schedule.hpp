@@ -24,8 +24,8 @@
 // (`via`, `via_t` for the transpose, `pattern` for the sparsity pattern alone), learned maps
 // (`conv`/`weight`: x·W with W in × out, TopoModelX's Conv layout; `linear`: torch.nn.Linear;
 // `head_weights`, `bias`, `scale` by a learned or buffered scalar), activations, dropout,
-// attention (`attend`: GAT or GATv2 scores, one or several heads, keys and queries from other
-// cochains), `pow`, `normalize`, and last, optionally, a polynomial filter (`powers`) that fans
+// attention (`attend`: GAT scores, one or several heads, keys and queries from other cochains),
+// `pow`, `normalize`, and last, optionally, a polynomial filter (`powers`) that fans
 // the term out into [y, A y, ..., A^K y]. A step mixes its terms (sum, mean, concatenation, or a
 // filter weight over all of them), applies its own operations, and writes the target cochain.
 // Steps run in sequence; a parallel group reads one snapshot (a layer that updates every rank at

@@ -15,14 +15,94 @@
 // the lift makes one row per stored entry of the adjacency it gets, which must be as many as
 // the edges (an adjacency holding each edge once). With `pooling`, TopoModelX's PoolLayer follows
 // every layer but the first (the edges of highest score kept, the Laplacians restricted to them),
-// and the schedule runs layer by layer. Written as an operator schedule (can_schedule).
+// and the schedule runs layer by layer. Written as an operator schedule (can_schedule), its
+// attention CAN's own operation (CanAttention).
 #pragma once
 
 #include "topos/nn/operator_schedule.hpp"
 
 #include <cmath>
+#include <string>
+#include <utility>
+#include <vector>
 
 namespace topos::models {
+
+/// CAN's multi-head attention, its own operation through the operator schedule's extension
+/// point: messages x (the term's features, heads in column blocks) over A (`op`), per head a
+/// per-target softmax of the scores, with dropout on the weights in training, times A's values;
+/// the heads concatenated or averaged. The scores of entry (i, j) against the `queries` cochain
+/// q: GAT's act(a_src·x_j + a_dst·q_i), a_src and a_dst at `path`.att_weight_src and
+/// .att_weight_dst, or GATv2's (`v2`) a·act(x_j + q_i), a at `path`.att_weight; each of shape
+/// 1 × heads × (channels / heads), Glorot with gain 1 (TopoModelX's CAN).
+struct CanAttention : nn::Operation {
+  CanAttention(std::string op, std::string path, nn::CochainKey queries, std::int64_t heads)
+      : op(std::move(op)), path(std::move(path)), queries(std::move(queries)), heads(heads) {}
+  std::string op, path;
+  nn::CochainKey queries;
+  std::int64_t heads;
+  bool concat = true;
+  bool v2 = false;
+  double dropout = 0;
+  nn::Update activation = nn::Update::leaky_relu;
+  double negative_slope = 0.2;
+
+  std::string str(const std::string& x) const override {
+    return std::string(v2 ? "can_attend_v2[" : "can_attend[") + path +
+           (heads > 1 ? " ×" + std::to_string(heads) : "") + "]" + op + "·" + x;
+  }
+  nn::TermShape infer(nn::BuildContext& ctx, nn::TermShape x) const override {
+    const auto [src, dst] = ctx.operator_ranks(op);
+    if (src != x.rank)
+      ctx.fail("operator '" + op + "' applies to rank " + std::to_string(src) +
+               " cochains, not rank " + std::to_string(x.rank));
+    const auto fail = [&](const std::string& why) {
+      ctx.fail("CAN attention over '" + op + "' " + why);
+    };
+    if (queries.rank != dst)
+      fail("scores against " + queries.str() + ", which needs a cochain of rank " +
+           std::to_string(dst));
+    const auto ck = x.channels, cq = ctx.cochain_width(queries);
+    if (heads < 1 || ck % heads || cq % heads)
+      fail("with " + std::to_string(heads) + " heads: the messages (" + std::to_string(ck) +
+           ") and queries (" + std::to_string(cq) + ") need channels divisible by the heads");
+    if (v2 && cq != ck)
+      fail("(GATv2) needs queries as wide as its keys, got " + std::to_string(cq) + " and " +
+           std::to_string(ck));
+    if (!(dropout >= 0 && dropout <= 1)) fail("needs a dropout rate in [0, 1]");
+    const auto glorot = nn::ParameterInit::glorot(1.0);
+    if (v2) {
+      ctx.parameter(path + ".att_weight", {1, heads, ck / heads}, glorot);
+    } else {
+      ctx.parameter(path + ".att_weight_src", {1, heads, ck / heads}, glorot);
+      ctx.parameter(path + ".att_weight_dst", {1, heads, cq / heads}, glorot);
+    }
+    return {dst, concat ? ck : ck / heads};
+  }
+  torch::Tensor forward(nn::RunContext& ctx, const torch::Tensor& x) const override {
+    const auto& A = ctx.op(op);
+    const auto& q = ctx.cochain(queries);
+    if (A.cols != x.size(0) || A.rows != q.size(0))
+      ctx.fail("operator '" + op + "' is " + std::to_string(A.rows) + " x " +
+               std::to_string(A.cols) + " but its messages have " + std::to_string(x.size(0)) +
+               " rows and its queries " + queries.str() + " " + std::to_string(q.size(0)));
+    torch::Tensor raw;  // nnz × heads, or nnz with one head (v1)
+    if (v2) {
+      const auto a = ctx.parameter(path + ".att_weight").reshape({-1});
+      const auto e = nn::apply_update(
+          x.index_select(0, A.col.to(x.device())) + q.index_select(0, A.row.to(x.device())),
+          activation, negative_slope);
+      raw = (e.reshape({e.size(0), heads, -1}) * a.reshape({1, heads, -1})).sum(-1);
+    } else {
+      raw = nn::entry_scores(
+          A, nn::head_scores(x, ctx.parameter(path + ".att_weight_src").reshape({-1}), heads),
+          nn::head_scores(q, ctx.parameter(path + ".att_weight_dst").reshape({-1}), heads));
+    }
+    return nn::multi_head_attention(A, raw, x, concat, v2 ? nn::Update::none : activation,
+                                    negative_slope, nn::AttentionNorm::softmax, dropout,
+                                    ctx.is_training());
+  }
+};
 
 struct CANOptions {
   CANOptions(std::int64_t in_channels_0, std::int64_t in_channels_1, std::int64_t out_channels)
@@ -96,28 +176,22 @@ inline nn::OperatorSchedule can_schedule(const CANOptions& o) {
     std::vector<nn::OperatorStep> maps;
     std::vector<Term> terms;
     for (const std::string side : {"lower", "upper"}) {
-      const auto q = p + side + "_att.";
-      auto att = nn::AttendOptions(q + (v2 ? "att_weight" : "att_weight_src"))
-                     .shape({1, H, c})
-                     .gain(1.0)
-                     .activation(o.att_activation())
-                     .negative_slope(o.att_negative_slope())
-                     .norm(nn::AttentionNorm::softmax)
-                     .heads(H)
-                     .concat(o.concat())
-                     .dropout(l == 0 && o.topomodelx_compatible() ? 0.0 : o.dropout());
+      const auto q = p + side + "_att";
+      const auto queries = v2 && !o.share_weights() ? side + "_dst" : side;
+      CanAttention att(side, q, nn::CochainKey{1, queries}, H);
+      att.concat = o.concat();
+      att.v2 = v2;
+      att.dropout = l == 0 && o.topomodelx_compatible() ? 0.0 : o.dropout();
+      att.activation = o.att_activation();
+      att.negative_slope = o.att_negative_slope();
       if (v2) {
-        maps.push_back(into(1, side).sum(from(1).linear(q + "lin_src", out, false)));
+        maps.push_back(into(1, side).sum(from(1).linear(q + ".lin_src", out, false)));
         if (!o.share_weights())
-          maps.push_back(into(1, side + "_dst").sum(from(1).linear(q + "lin_dst", out, false)));
-        att.v2(true).queries(nn::CochainKey{1, o.share_weights() ? side : side + "_dst"});
+          maps.push_back(into(1, side + "_dst").sum(from(1).linear(q + ".lin_dst", out, false)));
       } else {
-        maps.push_back(into(1, side).sum(from(1).linear(q + "lin", out, false)));
-        att.target_param(q + "att_weight_dst")
-            .target_shape({1, H, c})
-            .queries(nn::CochainKey{1, side});
+        maps.push_back(into(1, side).sum(from(1).linear(q + ".lin", out, false)));
       }
-      terms.push_back(std::move(from(1, side).attend(side, std::move(att))));
+      terms.push_back(std::move(from(1, side).apply(std::move(att))));
     }
     if (o.skip_connection())
       terms.push_back(

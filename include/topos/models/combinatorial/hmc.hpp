@@ -11,7 +11,7 @@
 // "m<r>", "s<ab>", "t<ab>") and one of messages. TopoModelX's parameter names are kept
 // (layers.<i>.hbs_0_level1.weight.0 / .att_weight.0, layers.<i>.hbns_0_1_level1.w_s / .w_t /
 // .att_weight); its HBS takes a as [a_t | a_s] and its reverse HBNS direction the vector rotated
-// by the source's width (AttendOptions' offsets).
+// by the source's width (HmcAttention's offsets, HMC's own operation).
 // TopoModelX's HBS builds its neighbourhood as I·A with torch.sparse.mm, whose result lists each
 // row's entries in descending column order while the softmax returns them ascending; pairing the
 // two lists by position gives entry (i, j) the attention of the entry mirrored within row i. The
@@ -22,8 +22,85 @@
 #include "topos/nn/operator_schedule.hpp"
 
 #include <array>
+#include <optional>
+#include <sstream>
+#include <string>
+#include <utility>
+#include <vector>
 
 namespace topos::models {
+
+/// HMC's attention (HBS, HBNS), its own operation through the operator schedule's extension
+/// point: messages x (the term's features) over A (or Aᵀ with `transposed`), entry (i, j)
+/// weighted by the per-target softmax of leaky_relu(a_s·x_j + a_t·q_i), q the `queries` cochain,
+/// times A's value. a is one parameter at `param` of x's plus q's widths, a_s and a_t read from
+/// it cyclically from `source_offset` (default 0) and `target_offset` (default a_s's length):
+/// TopoModelX's HBS takes [a_t | a_s], its reverse HBNS direction a rotated vector. With
+/// `mirrored_rows`, entry k of a row takes the weight of the row's mirrored entry (the
+/// (n-1-k)-th): TopoModelX's HBS pairs softmax weights in ascending column order with a
+/// product's descending indices (SparseOperator::row_mirror).
+struct HmcAttention : nn::Operation {
+  HmcAttention(std::string op, std::string param, nn::CochainKey queries)
+      : op(std::move(op)), param(std::move(param)), queries(std::move(queries)) {}
+  std::string op, param;
+  nn::CochainKey queries;
+  std::vector<std::int64_t> shape;  ///< the parameter's (default: a vector)
+  bool transposed = false;
+  std::optional<std::int64_t> source_offset, target_offset;
+  bool mirrored_rows = false;
+  double negative_slope = 0.2;
+
+  std::string name() const { return op + (transposed ? "ᵀ" : ""); }
+  std::string str(const std::string& x) const override {
+    return "hmc_attend[" + param + "]" + name() + "·" + x;
+  }
+  nn::TermShape infer(nn::BuildContext& ctx, nn::TermShape x) const override {
+    auto [src, dst] = ctx.operator_ranks(op);
+    if (transposed) std::swap(src, dst);
+    if (src != x.rank)
+      ctx.fail("operator '" + name() + "' applies to rank " + std::to_string(src) +
+               " cochains, not rank " + std::to_string(x.rank));
+    const auto fail = [&](const std::string& why) {
+      ctx.fail("HMC attention over '" + name() + "' " + why);
+    };
+    if (queries.rank != dst)
+      fail("scores against " + queries.str() + ", which needs a cochain of rank " +
+           std::to_string(dst));
+    const auto n = x.channels + ctx.cochain_width(queries);
+    for (const auto& offset : {source_offset, target_offset})
+      if (offset && (*offset < 0 || *offset >= n))
+        fail("needs offsets in [0, " + std::to_string(n) + "), got " + std::to_string(*offset));
+    const auto s = shape.empty() ? std::vector<std::int64_t>{n} : shape;
+    if (torch::empty(s).numel() != n) {
+      std::ostringstream o;
+      o << "needs " << n << " entries in '" << param << "', its shape " << torch::IntArrayRef(s)
+        << " has " << torch::empty(s).numel();
+      fail(o.str());
+    }
+    ctx.parameter(param, s, nn::ParameterInit::glorot(1.414));
+    return {dst, x.channels};
+  }
+  torch::Tensor forward(nn::RunContext& ctx, const torch::Tensor& x) const override {
+    const auto& A = transposed ? ctx.op_transposed(op) : ctx.op(op);
+    const auto& q = ctx.cochain(queries);
+    if (A.cols != x.size(0) || A.rows != q.size(0))
+      ctx.fail("operator '" + name() + "' is " + std::to_string(A.rows) + " x " +
+               std::to_string(A.cols) + " but its messages have " + std::to_string(x.size(0)) +
+               " rows and its queries " + queries.str() + " " + std::to_string(q.size(0)));
+    const auto a = ctx.parameter(param).reshape({-1});
+    const auto ck = x.size(1);
+    const auto part = [&a](std::int64_t offset, std::int64_t n) {  // from offset on, wrapping
+      return offset == 0 ? a.narrow(0, 0, n) : a.roll({-offset}).narrow(0, 0, n);
+    };
+    const auto a_s = part(source_offset.value_or(0), ck);
+    const auto a_t = part(target_offset.value_or(ck), a.size(0) - ck);
+    const auto raw = nn::entry_scores(A, nn::head_scores(x, a_s), nn::head_scores(q, a_t));
+    const auto W = nn::attention_operator(A, raw, nn::Update::leaky_relu, negative_slope,
+                                          nn::AttentionNorm::softmax, 0, false,
+                                          mirrored_rows ? A.row_mirror() : torch::Tensor());
+    return nn::spmm(W, x.contiguous());
+  }
+};
 
 /// Per layer: (in, intermediate, out) channels of ranks 0, 1, 2.
 using HMCChannels = std::vector<std::array<std::array<std::int64_t, 3>, 3>>;
@@ -64,23 +141,21 @@ inline nn::OperatorSchedule hmc_schedule(const HMCOptions& o) {
       .operator_input("incidence_1", 1, 0)   // B_01: n0 × n1
       .operator_input("incidence_2", 2, 1);  // B_12: n1 × n2
   const auto u = o.update_func_attention();
-  auto attention = [&](const std::string& path) {
-    return nn::AttendOptions(path)
-        .activation(nn::Update::leaky_relu)
-        .negative_slope(o.negative_slope())
-        .norm(nn::AttentionNorm::softmax);
+  auto attention = [&](const std::string& op, const std::string& path, const CochainKey& queries,
+                       std::int64_t n) {
+    HmcAttention a(op, path, queries);
+    a.shape = {n, 1};
+    a.negative_slope = o.negative_slope();
+    return a;
   };
   // HBS on rank r over `op`, from the map m<r>: a = [a_t | a_s].
   auto hbs = [&](const std::string& path, int r, std::int64_t out, const std::string& op) {
     const CochainKey m{r, "m" + std::to_string(r)};
-    return std::move(from(r, m.state)
-                         .attend(op, attention(path + ".att_weight.0")
-                                         .shape({2 * out, 1})
-                                         .queries(m)
-                                         .source_offset(out)
-                                         .target_offset(0)
-                                         .mirrored_rows(o.topomodelx_compatible()))
-                         .act(u));
+    auto a = attention(op, path + ".att_weight.0", m, 2 * out);
+    a.source_offset = out;
+    a.target_offset = 0;
+    a.mirrored_rows = o.topomodelx_compatible();
+    return std::move(from(r, m.state).apply(std::move(a)).act(u));
   };
   // HBNS between ranks a < b over incidence B (n_a × n_b), from the maps s<ab> (rank b, a's
   // out channels) and t<ab> (rank a, b's out channels); a_s then a_t for the message on a, the
@@ -88,23 +163,19 @@ inline nn::OperatorSchedule hmc_schedule(const HMCOptions& o) {
   auto hbns_on_target = [&](const std::string& path, int a, std::int64_t out_a, std::int64_t out_b,
                             const std::string& op) {
     const auto ab = std::to_string(a) + std::to_string(a + 1);
-    return std::move(from(a + 1, "s" + ab)
-                         .attend(op, attention(path + ".att_weight")
-                                         .shape({out_a + out_b, 1})
-                                         .queries(CochainKey{a, "t" + ab}))
-                         .act(u));
+    return std::move(
+        from(a + 1, "s" + ab)
+            .apply(attention(op, path + ".att_weight", CochainKey{a, "t" + ab}, out_a + out_b))
+            .act(u));
   };
   auto hbns_on_source = [&](const std::string& path, int a, std::int64_t out_a, std::int64_t out_b,
                             const std::string& op) {
     const auto ab = std::to_string(a) + std::to_string(a + 1);
-    return std::move(from(a, "t" + ab)
-                         .attend(op, attention(path + ".att_weight")
-                                         .shape({out_a + out_b, 1})
-                                         .transposed(true)
-                                         .queries(CochainKey{a + 1, "s" + ab})
-                                         .source_offset(out_b)
-                                         .target_offset(2 * out_b % (out_a + out_b)))
-                         .act(u));
+    auto att = attention(op, path + ".att_weight", CochainKey{a + 1, "s" + ab}, out_a + out_b);
+    att.transposed = true;
+    att.source_offset = out_b;
+    att.target_offset = 2 * out_b % (out_a + out_b);
+    return std::move(from(a, "t" + ab).apply(std::move(att)).act(u));
   };
   // The maps of one level: m<r> for the HBS of the ranks in `hbs_ranks`, s01, t01, s12, t12.
   auto maps = [&](const std::string& p, const std::string& level,

@@ -9,12 +9,83 @@
 // rows by (2n - kept in the row) / n; topomodelx_compatible reproduces both, the default drops
 // incidence entries (one draw per layer, shared by both directions) and uses standard dropout.
 // BatchNorm in eval mode uses the loaded running statistics. Parameters as TopoModelX's
-// (linear_node, linear_edge, layers.<i>.*). Written as an operator schedule (hmpnn_schedule).
+// (linear_node, linear_edge, layers.<i>.*). Written as an operator schedule (hmpnn_schedule),
+// with HMPNN's own operations DroppedPattern and RescaledDropout.
 #pragma once
 
 #include "topos/nn/operator_schedule.hpp"
 
+#include <sstream>
+#include <string>
+#include <utility>
+
 namespace topos::models {
+
+/// Messages over an operator's sparsity pattern (or its transpose's), summed or averaged as
+/// nn::pattern_aggregate, with each entry of the operator kept with probability 1 - rate in
+/// training (all of them in evaluation, or with rate 0). The entries kept are drawn once per run
+/// of the schedule and shared, through RunContext::scratch under `key`, by every operation naming
+/// the key: both directions of HMPNN's incidence in a layer (B's entries for nodes to hyperedges
+/// over Bᵀ and back over B). HMPNN's own operation, through the extension point.
+struct DroppedPattern : nn::Operation {
+  DroppedPattern(std::string op, std::string key, double rate, bool transposed = false,
+                 nn::Aggr aggr = nn::Aggr::sum)
+      : op(std::move(op)), key(std::move(key)), rate(rate), transposed(transposed), aggr(aggr) {}
+  std::string op, key;
+  double rate;
+  bool transposed;
+  nn::Aggr aggr;
+
+  std::string name() const { return op + (transposed ? "ᵀ" : ""); }
+  std::string str(const std::string& x) const override {
+    std::ostringstream o;
+    o << nn::aggr_name(aggr) << "|" << name();
+    if (rate > 0) o << " dropped " << rate << " [" << key << "]";
+    o << "|·" << x;
+    return o.str();
+  }
+  nn::TermShape infer(nn::BuildContext& ctx, nn::TermShape x) const override {
+    auto [src, dst] = ctx.operator_ranks(op);
+    if (transposed) std::swap(src, dst);
+    if (src != x.rank)
+      ctx.fail("operator '" + name() + "' applies to rank " + std::to_string(src) +
+               " cochains, not rank " + std::to_string(x.rank));
+    if (!(rate >= 0 && rate <= 1))
+      ctx.fail("the rate of dropped entries of '" + op + "' must be in [0, 1], got " +
+               std::to_string(rate));
+    if (rate > 0 && key.empty())
+      ctx.fail("entries of '" + op + "' dropped need a key (the draw shared by the steps)");
+    return {dst, x.channels};
+  }
+  torch::Tensor forward(nn::RunContext& ctx, const torch::Tensor& x) const override {
+    if (!ctx.is_training() || rate == 0) {
+      const auto& A = transposed ? ctx.op_transposed(op) : ctx.op(op);
+      check(ctx, A, x);
+      return nn::pattern_aggregate(A, x, aggr);
+    }
+    const auto& B = ctx.op(op);
+    auto& mask = ctx.scratch(key);  // which of B's entries this run keeps
+    if (!mask.defined()) mask = torch::rand({B.nnz()}) >= rate;
+    if (mask.dim() != 1 || mask.size(0) != B.nnz())
+      ctx.fail("the entries kept under '" + key + "' are " + std::to_string(mask.numel()) +
+               ", operator '" + op + "' has " + std::to_string(B.nnz()));
+    const auto keep = mask.nonzero().squeeze(1).to(B.row.device());
+    const auto kept = nn::SparseOperator::from_sorted(
+        B.rows, B.cols, nn::index_vector(B.row.index_select(0, keep)),
+        nn::index_vector(B.col.index_select(0, keep)), B.values.index_select(0, keep));
+    const auto A = transposed ? kept.t() : kept;
+    check(ctx, A, x);
+    return nn::pattern_aggregate(A, x, aggr);
+  }
+
+ private:
+  void check(nn::RunContext& ctx, const nn::SparseOperator& A, const torch::Tensor& x) const {
+    if (A.cols != x.size(0))
+      ctx.fail("operator '" + name() + "' has " + std::to_string(A.cols) +
+               " columns but the cochain it is applied to has " + std::to_string(x.size(0)) +
+               " rows");
+  }
+};
 
 struct HMPNNOptions {
   HMPNNOptions(std::int64_t in, std::int64_t hidden) : in_channels_(in), hidden_channels_(hidden) {}
@@ -27,9 +98,6 @@ struct HMPNNOptions {
   TORCH_ARG(bool, topomodelx_compatible) = false;
 };
 
-/// The schedule: the two input maps, then per layer three steps of messages (states "message"
-/// and "message_sum") and one parallel update of both ranks; without the compatible mode each
-/// layer's incidence is a dropped_operator of "incidence_1".
 /// TopoModelX HMPNN's feature dropout (training only): each entry kept with probability `keep`,
 /// then row i multiplied by (2n - kept_i) / n, n the number of rows. HMPNN's own operation,
 /// through the operator schedule's extension point.
@@ -50,6 +118,10 @@ struct RescaledDropout : nn::Operation {
   }
 };
 
+/// The schedule: the two input maps, then per layer three steps of messages (states "message"
+/// and "message_sum") and one parallel update of both ranks; without the compatible mode each
+/// layer drops entries of "incidence_1" (DroppedPattern, one draw per layer under the key
+/// "incidence_1.layer_<l>" for both directions).
 inline nn::OperatorSchedule hmpnn_schedule(const HMPNNOptions& o) {
   using namespace nn::ops;
   using nn::Update;
@@ -71,11 +143,10 @@ inline nn::OperatorSchedule hmpnn_schedule(const HMPNNOptions& o) {
               into(1).sum(from(1).linear("linear_edge", h))});
   for (int l = 0; l < o.n_layers(); ++l) {
     const auto p = "layers." + std::to_string(l) + ".";
-    std::string B = "incidence_1";
-    if (!compatible && o.adjacency_dropout_rate() > 0) {
-      B = "incidence_1.layer_" + std::to_string(l);
-      s.dropped_operator(B, "incidence_1", o.adjacency_dropout_rate());
-    }
+    const double dropped = compatible ? 0.0 : o.adjacency_dropout_rate();
+    const auto key = "incidence_1.layer_" + std::to_string(l);
+    const DroppedPattern up("incidence_1", key, dropped, /*transposed=*/true, aggr);
+    const DroppedPattern down("incidence_1", key, dropped, /*transposed=*/false, aggr);
     const auto rate = o.regular_dropout_rate();
     auto normalised = [&](int r, const std::string& path) {
       auto t = from(r);
@@ -85,13 +156,15 @@ inline nn::OperatorSchedule hmpnn_schedule(const HMPNNOptions& o) {
     s.step(into(0, "message")
                .sum(from(0).linear(p + "node_to_hyperedge_messenger.messaging_func.0", h))
                .act(Update::sigmoid));
-    s.step(into(1, "message_sum").sum(from(0, "message").pattern_t(B, aggr)));
+    s.step(into(1, "message_sum").sum(from(0, "message").apply(up)));
     s.step(into(1, "message")
                .concat(from(1), from(1, "message_sum"))
                .linear(p + "hyperedge_to_node_messenger.messaging_func.linear", h)
                .act(Update::sigmoid));
     s.parallel({into(0)
-                    .sum(normalised(0, p + "node_batchnorm"), from(1, "message").pattern(B, aggr))
+                    .sum(normalised(0, p + "node_batchnorm"),
+                         dropped > 0 ? from(1, "message").apply(down)
+                                     : from(1, "message").pattern("incidence_1", aggr))
                     .act(Update::sigmoid),
                 into(1)
                     .sum(normalised(1, p + "hyperedge_batchnorm"), from(1, "message_sum"))

@@ -4,7 +4,8 @@
 // (Σ_p A^(p+1) x W_p with A the per-target softmax of elu(a·[x W_j || x W_i]), the filters'
 // outputs side by side in the score) plus a harmonic filter (I - εL)^k x W with
 // L = L_up + L_down. Written as an operator schedule (san_schedule): the filter banks as head
-// weights, attention with `filters`, the harmonic filter as an affine power. Everything is sparse
+// weights, their attention and the harmonic filter as SAN's own operations (SanFilterAttention,
+// AffinePower). Everything is sparse
 // products, the filter bank's powers in Horner form (P products for P filters): TopoModelX forms
 // the attention matrix densely and the harmonic projection as a dense n × n matrix power.
 // Parameters as TopoModelX's (layers.<i>.conv_down.weight (filters × in × out), .att_weight
@@ -14,6 +15,9 @@
 #include "topos/nn/operator_schedule.hpp"
 
 #include <sstream>
+#include <string>
+#include <utility>
+#include <vector>
 
 namespace topos::models {
 
@@ -28,9 +32,6 @@ struct SANOptions {
   TORCH_ARG(int, n_layers) = 2;
 };
 
-/// The schedule: per layer the two filter banks' maps (states "down", "up"), then one step
-/// summing the attention over "lower" and "upper" (the Laplacians' patterns) and the harmonic
-/// filter over "laplacian_up" and "laplacian_down".
 /// (a I + b Σ_i A_i)^k x by k rounds of sparse products, the sum and its power never formed (SAN's
 /// harmonic filter (I - ε(L↑ + L↓))^k; nn::apply_affine_power), the A_i square and not trained.
 /// SAN's own operation, through the operator schedule's extension point.
@@ -72,6 +73,65 @@ struct AffinePower : nn::Operation {
   }
 };
 
+/// SAN's attention over a filter bank, its own operation through the operator schedule's
+/// extension point: the messages x are `filters` slices of equal width (x W_0 | ... | x W_(P-1),
+/// from head_weights); one operator W, A's entries (i, j) weighted by the per-target softmax of
+/// elu(a_s·x_j + a_t·q_i) (all the slices side by side, q the `queries` cochain; a at `param`, of
+/// x's plus q's widths) times A's values; then Σ_p W^(p+1) x_p, in Horner form:
+/// W(x_0 + W(x_1 + ... W x_(P-1))), P products.
+struct SanFilterAttention : nn::Operation {
+  SanFilterAttention(std::string op, std::string param, nn::CochainKey queries,
+                     std::int64_t filters)
+      : op(std::move(op)), param(std::move(param)), queries(std::move(queries)), filters(filters) {}
+  std::string op, param;
+  nn::CochainKey queries;
+  std::int64_t filters;
+
+  std::string str(const std::string& x) const override {
+    return "san_attend[" + param + " ×" + std::to_string(filters) + " filters]" + op + "·" + x;
+  }
+  nn::TermShape infer(nn::BuildContext& ctx, nn::TermShape x) const override {
+    const auto [src, dst] = ctx.operator_ranks(op);
+    if (src != x.rank)
+      ctx.fail("operator '" + op + "' applies to rank " + std::to_string(src) +
+               " cochains, not rank " + std::to_string(x.rank));
+    const auto fail = [&](const std::string& why) {
+      ctx.fail("SAN attention over '" + op + "' " + why);
+    };
+    if (queries.rank != dst)
+      fail("scores against " + queries.str() + ", which needs a cochain of rank " +
+           std::to_string(dst));
+    const auto cq = ctx.cochain_width(queries);
+    if (filters < 1 || x.channels % filters)
+      fail("with " + std::to_string(filters) + " filters needs messages (" +
+           std::to_string(x.channels) + " channels) of whole filters");
+    ctx.parameter(param, {x.channels + cq}, nn::ParameterInit::glorot(1.414));
+    return {dst, x.channels / filters};
+  }
+  torch::Tensor forward(nn::RunContext& ctx, const torch::Tensor& x) const override {
+    const auto& A = ctx.op(op);
+    const auto& q = ctx.cochain(queries);
+    if (A.cols != x.size(0) || A.rows != q.size(0))
+      ctx.fail("operator '" + op + "' is " + std::to_string(A.rows) + " x " +
+               std::to_string(A.cols) + " but its messages have " + std::to_string(x.size(0)) +
+               " rows and its queries " + queries.str() + " " + std::to_string(q.size(0)));
+    const auto a = ctx.parameter(param).reshape({-1});
+    const auto ck = x.size(1);
+    const auto raw = nn::entry_scores(A, nn::head_scores(x, a.narrow(0, 0, ck)),
+                                      nn::head_scores(q, a.narrow(0, ck, a.size(0) - ck)));
+    const auto W = nn::attention_operator(A, raw, nn::Update::elu, 0.2, nn::AttentionNorm::softmax);
+    // The slices by one split: its backward writes every slice's gradient into one matrix, where
+    // a narrow per slice allocates a zero-filled one each.
+    const auto x_p = x.split(ck / filters, 1);
+    auto z = x_p[static_cast<std::size_t>(filters - 1)].contiguous();
+    for (auto p = filters - 2; p >= 0; --p) z = x_p[static_cast<std::size_t>(p)] + nn::spmm(W, z);
+    return nn::spmm(W, z);
+  }
+};
+
+/// The schedule: per layer the two filter banks' maps (states "down", "up"), then one step
+/// summing the attention over "lower" and "upper" (the Laplacians' patterns) and the harmonic
+/// filter over "laplacian_up" and "laplacian_down".
 inline nn::OperatorSchedule san_schedule(const SANOptions& o) {
   using namespace nn::ops;
   if (o.in_channels() <= 0 || o.hidden_channels() <= 0 || o.out_channels() < 0)
@@ -91,12 +151,8 @@ inline nn::OperatorSchedule san_schedule(const SANOptions& o) {
     const auto p = "layers." + std::to_string(l) + ".";
     const auto c = l + 1 == o.n_layers() ? out : o.hidden_channels();
     auto bank = [&](const std::string& side, const std::string& op) {
-      const auto path = p + "conv_" + side;
-      return std::move(from(1, side).attend(op, nn::AttendOptions(path + ".att_weight")
-                                                    .activation(nn::Update::elu)
-                                                    .norm(nn::AttentionNorm::softmax)
-                                                    .queries(nn::CochainKey{1, side})
-                                                    .filters(P)));
+      return std::move(from(1, side).apply(
+          SanFilterAttention(op, p + "conv_" + side + ".att_weight", {1, side}, P)));
     };
     s.parallel({into(1, "down").sum(from(1).head_weights(p + "conv_down.weight", P, c)),
                 into(1, "up").sum(from(1).head_weights(p + "conv_up.weight", P, c))});

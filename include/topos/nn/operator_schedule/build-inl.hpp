@@ -101,9 +101,8 @@ TOPOS_INLINE TermShape OperatorNetworkImpl::infer(detail::NetworkBuildContext& c
   switch (t.kind) {
     case TermOp::Kind::via:
     case TermOp::Kind::pattern: {
-      auto [src, dst] = op(t.name);
-      if (t.transposed) std::swap(src, dst);
-      if (src != x.rank) throw rank_error(t.name + (t.transposed ? "ᵀ" : ""), src);
+      const auto [src, dst] = op(t.name);
+      if (src != x.rank) throw rank_error(t.name, src);
       return {dst, x.channels};
     }
     case TermOp::Kind::attend:
@@ -249,47 +248,18 @@ TOPOS_INLINE TermShape OperatorNetworkImpl::infer_attend(detail::NetworkBuildCon
     throw fail("with " + std::to_string(H) + " heads: the messages (" + std::to_string(x.channels) +
                "), keys (" + std::to_string(ck) + ") and queries (" + std::to_string(cq) +
                ") need channels divisible by the heads");
-  if (o.v2() && cq != ck)
-    throw fail("(GATv2) needs queries as wide as its keys, got " + std::to_string(cq) + " and " +
-               std::to_string(ck));
-  const bool split = !o.target_param().empty();
-  if (split && (o.v2() || o.source_only()))
-    throw fail("has no target part for '" + o.target_param() + "'");
-  if (o.dropout() < 0 || o.dropout() > 1) throw fail("needs a dropout rate in [0, 1]");
-  const auto P = o.filters();
-  if (P < 1 || (P > 1 && (H != 1 || x.channels % P)))
-    throw fail("with " + std::to_string(P) + " filters needs one head and messages (" +
-               std::to_string(x.channels) + " channels) of whole filters");
-  const auto n = o.source_only() || o.v2() || split ? ck : ck + cq;
-  for (const auto& offset : {o.source_offset(), o.target_offset()})
-    if (offset && (n == ck || *offset < 0 || *offset >= n))
-      throw fail(n == ck ? "has offsets but no target part in its parameter"
-                         : "needs offsets in [0, " + std::to_string(n) + "), got " +
-                               std::to_string(*offset));
-  auto make = [&](const std::string& path, std::vector<std::int64_t> shape, std::int64_t count) {
-    if (shape.empty()) shape = {count};
-    if (torch::empty(shape).numel() != count)
-      throw fail("needs " + std::to_string(count) + " entries in '" + path + "', its shape " +
-                 detail::shape_str(torch::empty(shape)) + " has " +
-                 std::to_string(torch::empty(shape).numel()));
-    make_parameter(where, path, shape, ParameterInit::glorot(o.gain()));
-  };
-  make(o.param(), o.shape(), n);
-  if (split) make(o.target_param(), o.target_shape(), cq);
-  return {dst, o.concat() && P == 1 ? x.channels : x.channels / (H * P)};
+  if (!(o.dropout() >= 0 && o.dropout() <= 1)) throw fail("needs a dropout rate in [0, 1]");
+  const auto n = ck + cq;  // a_s, then a_t (none with source_only)
+  auto shape = o.shape().empty() ? std::vector<std::int64_t>{n} : o.shape();
+  if (torch::empty(shape).numel() != n)
+    throw fail("needs " + std::to_string(n) + " entries in '" + o.param() + "', its shape " +
+               detail::shape_str(torch::empty(shape)) + " has " +
+               std::to_string(torch::empty(shape).numel()));
+  make_parameter(where, o.param(), shape, ParameterInit::glorot(o.gain()));
+  return {dst, o.concat() ? x.channels : x.channels / H};
 }
 
 TOPOS_INLINE void OperatorNetworkImpl::validate_and_create() {
-  for (const auto& d : schedule_.dropped_operators()) {
-    const auto where = "dropped operator '" + d.name + "'";
-    auto& sig = schedule_.operators();
-    auto it = sig.find(d.source);
-    if (it == sig.end()) throw ScheduleError(where + ": unknown operator '" + d.source + "'");
-    if (sig.count(d.name)) throw ScheduleError(where + ": the name is already an operator input");
-    if (!(d.rate >= 0 && d.rate <= 1))
-      throw ScheduleError(where + ": the rate must be in [0, 1], got " + std::to_string(d.rate));
-    schedule_.operator_input(d.name, it->second.first, it->second.second);
-  }
   std::map<CochainKey, std::int64_t> width;
   std::set<std::string> names;
   for (const auto& in : schedule_.inputs()) {

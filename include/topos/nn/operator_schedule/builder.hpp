@@ -29,41 +29,28 @@ namespace topos::nn {
 /// How `attend` scores and weighs a term's messages; the defaults are TopoModelX Conv's attention
 /// (one head, one (2·C) vector). Per head, scores from keys k (the term's features, or a cochain
 /// of the source rank) and queries q (the step's target before the step, or a cochain of the
-/// target rank): GAT's act(a_s·k_j + a_t·q_i), GATv2's a·act(k_j + q_i) (`v2`), or act(a_s·k_j)
-/// (`source_only`); then the per-target norm, dropout (training only), times A's values. Head h's
-/// messages are its slice of the term's features; the heads are concatenated or averaged.
+/// target rank): GAT's act(a_s·k_j + a_t·q_i), or act(a_s·k_j) (`source_only`); then the
+/// per-target norm, dropout (training only), times A's values (nn::attention_operator). Head h's
+/// messages are its slice of the term's features; the heads are concatenated or averaged
+/// (nn::multi_head_attention). Attention that one model alone needs is an Operation of that
+/// model's (models::HmcAttention, models::CanAttention, models::SanFilterAttention).
 struct AttendOptions {
   explicit AttendOptions(std::string param) : param_(std::move(param)) {}
-  /// The source part a_s then the target part a_t, in one parameter unless `target_param`.
+  /// The source part a_s then the target part a_t, in one parameter.
   TORCH_ARG(std::string, param);
-  TORCH_ARG(std::string, target_param);  ///< a_t as a parameter of its own (CAN's att_weight_dst)
-  /// Parameter shapes (default: vectors); only their element counts are fixed (heads-major).
+  /// The parameter's shape (default: a vector); only its element count is fixed (heads-major).
   TORCH_ARG(std::vector<std::int64_t>, shape);
-  TORCH_ARG(std::vector<std::int64_t>, target_shape);
-  TORCH_ARG(double, gain) = 1.414;  ///< Glorot gain of the parameters
+  TORCH_ARG(double, gain) = 1.414;  ///< Glorot gain of the parameter
   TORCH_ARG(Update, activation) = Update::elu;
   TORCH_ARG(double, negative_slope) = 0.2;
   TORCH_ARG(AttentionNorm, norm) = AttentionNorm::none;
   TORCH_ARG(std::optional<CochainKey>, keys);     ///< default: the term's features
   TORCH_ARG(std::optional<CochainKey>, queries);  ///< default: the step's target
   TORCH_ARG(bool, source_only) = false;           ///< no queries and no a_t
-  TORCH_ARG(bool, v2) = false;                    ///< GATv2: one vector a, after the activation
   TORCH_ARG(std::int64_t, heads) = 1;
   TORCH_ARG(bool, concat) = true;       ///< the heads side by side, or their mean
   TORCH_ARG(double, dropout) = 0;       ///< on the weights
   TORCH_ARG(bool, transposed) = false;  ///< attend over Aᵀ
-  /// Where a_s and a_t start in the one parameter (default: 0 and a_s's length), read cyclically:
-  /// TopoModelX's HMC takes [a_t | a_s] for same-rank attention and a rotated vector for the
-  /// reverse direction of an incidence.
-  TORCH_ARG(std::optional<std::int64_t>, source_offset);
-  TORCH_ARG(std::optional<std::int64_t>, target_offset);
-  /// Entry k of a row takes the weight of the row's mirrored entry (the (n-1-k)-th): TopoModelX's
-  /// HBS pairs softmax weights in ascending column order with a product's descending indices.
-  TORCH_ARG(bool, mirrored_rows) = false;
-  /// A filter bank (SAN): the messages are `filters` slices of equal width, slice p (from 0)
-  /// propagated p + 1 times by the one attention-weighted operator, the results summed (one
-  /// head; the keys and queries are all the slices side by side).
-  TORCH_ARG(std::int64_t, filters) = 1;
 };
 
 /// One operation of a term or of a step's tail.
@@ -112,7 +99,6 @@ struct TermOp {
   double offset = 0;                ///< scale: added to the scalar
   bool trainable = true;            ///< scale: a parameter, else a buffer
   bool per_row = true;              ///< normalize: each row, else the whole matrix
-  bool transposed = false;          ///< pattern: over Aᵀ
   int role = 0;  ///< via, pattern over a batch neighbourhood: only its pairs of this role (0: all)
   std::optional<MlpOptions> mlp_options;       ///< mlp
   std::shared_ptr<const Operation> operation;  ///< custom: the user's operation
@@ -138,12 +124,6 @@ class Chain {
     TermOp t(TermOp::Kind::pattern, std::move(op));
     t.aggr = aggr;
     return add(std::move(t));
-  }
-  /// The same over Aᵀ (a hypergraph's nodes to its hyperedges over B).
-  Derived& pattern_t(std::string op, Aggr aggr = Aggr::sum) {
-    pattern(std::move(op), aggr);
-    ops_.back().transposed = true;
-    return static_cast<Derived&>(*this);
   }
   /// x · W with W (in × out) at `path` (Glorot-initialised with `gain`).
   Derived& weight(std::string path, std::int64_t out, double gain = 1.414) {
@@ -287,8 +267,8 @@ class Term : public Chain<Term> {
                                      .norm(norm)
                                      .negative_slope(negative_slope));
   }
-  /// Attention with its options: heads, keys and queries from other cochains, GATv2 or
-  /// source-only scores, a separate target part, dropout (AttendOptions).
+  /// Attention with its options: heads, keys and queries from other cochains, source-only
+  /// scores, dropout, Aᵀ (AttendOptions).
   Term& attend(std::string op, AttendOptions o) {
     TermOp t(TermOp::Kind::attend, std::move(op));
     t.param = o.param();
@@ -416,11 +396,10 @@ inline bool row_wise(const TermOp& t) {
   }
 }
 
-/// An operation that can aggregate over a batch neighbourhood: via (its values, summed) and an
-/// untransposed pattern (sum, mean or max).
+/// An operation that can aggregate over a batch neighbourhood: via (its values, summed) and a
+/// pattern (sum, mean or max).
 inline bool aggregation(const TermOp& t) {
-  return (t.kind == TermOp::Kind::via && !t.row_norm) ||
-         (t.kind == TermOp::Kind::pattern && !t.transposed);
+  return (t.kind == TermOp::Kind::via && !t.row_norm) || t.kind == TermOp::Kind::pattern;
 }
 
 /// The operators an operation applies (none for most).
@@ -466,13 +445,6 @@ class OperatorSchedule {
     return operator_input(std::move(name), source_rank, target_rank);
   }
   const std::set<std::string>& optional_operators() const { return optional_; }
-  /// Operator `name`: `source`'s entries, each kept with probability 1 - rate in training (all
-  /// of them in evaluation), drawn once per forward and shared by every step that names it (both
-  /// directions of an incidence). Ranks as `source`'s.
-  OperatorSchedule& dropped_operator(std::string name, std::string source, double rate) {
-    dropped_.push_back({std::move(name), std::move(source), rate});
-    return *this;
-  }
   OperatorSchedule& step(OperatorStep s) {
     name_step(s);
     groups_.push_back({std::move(s)});
@@ -520,11 +492,6 @@ class OperatorSchedule {
     double gain;
   };
   const std::vector<Parameter>& parameters() const { return parameters_; }
-  struct DroppedOperator {
-    std::string name, source;
-    double rate;
-  };
-  const std::vector<DroppedOperator>& dropped_operators() const { return dropped_; }
 
   /// One line per step, e.g. "layer 0 rank 1: (1) = elu(linear(Σ[conv(1)·A1, ...]))".
   std::string str() const;
@@ -539,7 +506,6 @@ class OperatorSchedule {
   std::vector<std::vector<OperatorStep>> groups_;
   int num_steps_ = 0;
   std::vector<Parameter> parameters_;
-  std::vector<DroppedOperator> dropped_;
   std::set<std::string> optional_;
   std::vector<std::pair<std::string, std::size_t>> layers_;
 };

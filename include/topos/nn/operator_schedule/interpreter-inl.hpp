@@ -40,10 +40,9 @@ struct OperatorNetworkImpl::Operators {
   const std::map<std::string, SparseOperator>* given;
   const ComplexBatch* batch = nullptr;  // its neighbourhoods, where no operator is given
   std::map<std::string, SparseOperator> transposed;
-  std::map<std::string, SparseOperator> derived;  // the dropped operators of this forward
-  std::set<std::string> absent;                   // optional operators this forward lacks
+  std::set<std::string> absent;                  // optional operators this forward lacks
+  std::map<std::string, torch::Tensor> scratch;  // RunContext::scratch: kept for this run
   const SparseOperator& at(const std::string& where, const std::string& name) const {
-    if (auto d = derived.find(name); d != derived.end()) return d->second;
     auto it = given->find(name);
     if (it == given->end()) {
       if (neighborhood(name)) detail::not_an_aggregation(where, name);
@@ -59,9 +58,7 @@ struct OperatorNetworkImpl::Operators {
   }
   /// The batch's neighbourhood `name`, when no operator of that name is given.
   const TensorNeighborhood* neighborhood(const std::string& name) const {
-    if (batch == nullptr || derived.count(name) || given->count(name) ||
-        !batch->has_neighborhood(name))
-      return nullptr;
+    if (batch == nullptr || given->count(name) || !batch->has_neighborhood(name)) return nullptr;
     return &batch->neighborhood(name);
   }
 };
@@ -100,6 +97,7 @@ class NetworkRunContext final : public RunContext {
     return h_.at(key.rank, key.state);
   }
   bool is_training() const override { return net_.is_training(); }
+  torch::Tensor& scratch(const std::string& key) override { return ops_.scratch[key]; }
 
  protected:
   std::shared_ptr<torch::nn::Module> module_at(const std::string& path) const override {
@@ -114,14 +112,6 @@ class NetworkRunContext final : public RunContext {
   OperatorNetworkImpl::Operators& ops_;
   const Cochains& h_;
 };
-
-/// A's entries, each kept with probability 1 - rate.
-TOPOS_INLINE SparseOperator drop_entries(const SparseOperator& A, double rate) {
-  const auto keep = (torch::rand({A.nnz()}) >= rate).nonzero().squeeze(1).to(A.row.device());
-  return SparseOperator::from_sorted(A.rows, A.cols, index_vector(A.row.index_select(0, keep)),
-                                     index_vector(A.col.index_select(0, keep)),
-                                     A.values.index_select(0, keep));
-}
 
 /// A clear error naming the step and the operator when A cannot be applied to x.
 TOPOS_INLINE void check_fits(const std::string& where, const std::string& name,
@@ -295,10 +285,6 @@ TOPOS_INLINE void OperatorNetworkImpl::run_groups(
     Cochains& h, const std::map<std::string, SparseOperator>& operators, const ComplexBatch* batch,
     std::size_t begin, std::size_t end, bool live_only) {
   Operators ops{&operators, batch, {}, {}, {}};
-  for (const auto& d : schedule_.dropped_operators()) {
-    const auto& A = ops.at("dropped operator '" + d.name + "'", d.source);
-    ops.derived.emplace(d.name, is_training() && d.rate > 0 ? detail::drop_entries(A, d.rate) : A);
-  }
   for (const auto& name : schedule_.optional_operators())
     if (!operators.count(name) && !(batch && batch->has_neighborhood(name)))
       ops.absent.insert(name);
@@ -396,8 +382,8 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::apply(const std::string& where,
     case TermOp::Kind::layer_norm:
       return layer_norms_.at(t.name)->forward(x);
     case TermOp::Kind::pattern: {
-      const auto& A = t.transposed ? ops.t(where, t.name) : ops.at(where, t.name);
-      detail::check_fits(where, t.name + (t.transposed ? "ᵀ" : ""), A, x);
+      const auto& A = ops.at(where, t.name);
+      detail::check_fits(where, t.name, A, x);
       return pattern_aggregate(A, x, t.aggr);
     }
     case TermOp::Kind::weight: {
@@ -463,61 +449,16 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::attend(const std::string& where,
                           (o.queries() ? "query cochain " + key.str() : "target cochain") +
                           " has " + std::to_string(q.size(0)));
   }
+  // The parameter's parts a_s and a_t (heads-major), per cell and head <f_h, a_h>, per entry
+  // a_s·k_j (+ a_t·q_i); then the weights and each head's messages (functional.hpp).
   const auto H = o.heads();
-  // The parameter parts: a_s (and a_t) as vectors, heads-major.
-  auto a = params_.at(o.param()).reshape({-1});
-  torch::Tensor a_s = a, a_t;
-  if (!o.target_param().empty()) {
-    a_t = params_.at(o.target_param()).reshape({-1});
-  } else if (q.defined() && !o.v2()) {
-    // a's entries from `offset` on, wrapping around.
-    const auto part = [&a](std::int64_t offset, std::int64_t n) {
-      return offset == 0 ? a.narrow(0, 0, n) : a.roll({-offset}).narrow(0, 0, n);
-    };
-    a_s = part(o.source_offset().value_or(0), k.size(1));
-    a_t = part(o.target_offset().value_or(k.size(1)), a.size(0) - k.size(1));
-  }
-  // Per cell and head <f_h, a_h> (one head: a matrix-vector product, as pair_scores, and
-  // the scores a vector: torch's index_select on an n × 1 matrix is 2.5x slower).
-  auto dots = [H](const torch::Tensor& f, const torch::Tensor& v) {
-    if (H == 1) return f.mv(v);
-    return (f.reshape({f.size(0), H, -1}) * v.reshape({1, H, -1})).sum(-1);
-  };
-  const auto col = A.col.to(x.device()), row = A.row.to(x.device());
-  torch::Tensor raw;  // nnz × heads, or nnz with one head
-  if (o.v2()) {
-    const auto e = apply_update(k.index_select(0, col) + q.index_select(0, row), o.activation(),
-                                o.negative_slope());
-    raw = (e.reshape({e.size(0), H, -1}) * a_s.reshape({1, H, -1})).sum(-1);
-  } else {
-    raw = dots(k, a_s).index_select(0, col);
-    if (q.defined()) raw = raw + dots(q, a_t).index_select(0, row);
-  }
-  const auto act = o.v2() ? Update::none : o.activation();
-  // Head i's weights on A's entries, times A's values.
-  const auto weighted = [&](std::int64_t i) {
-    auto w = attention_weights(A, raw.dim() == 1 ? raw : raw.select(1, i).contiguous(), act,
-                               o.negative_slope(), o.norm());
-    if (o.mirrored_rows()) w = w.index_select(0, A.row_mirror());
-    if (o.dropout() > 0) w = torch::dropout(w, o.dropout(), is_training());
-    return A.with_values(w * A.values.to(w.scalar_type()));
-  };
-  // The slices by one split: its backward writes every slice's gradient into one matrix, where
-  // a narrow per slice allocates a zero-filled one each.
-  if (o.filters() > 1) {  // Σ_p W^(p+1) x_p = W(x_0 + W(x_1 + ... W x_(P-1))): P products
-    const auto W = weighted(0);
-    const auto P = o.filters();
-    const auto x_p = x.split(x.size(1) / P, 1);
-    auto z = x_p[static_cast<std::size_t>(P - 1)].contiguous();
-    for (auto p = P - 2; p >= 0; --p) z = x_p[static_cast<std::size_t>(p)] + spmm(W, z);
-    return spmm(W, z);
-  }
-  std::vector<torch::Tensor> heads;
-  const auto x_h = H == 1 ? std::vector<torch::Tensor>{x} : x.split(x.size(1) / H, 1);
-  for (std::int64_t i = 0; i < H; ++i)
-    heads.push_back(spmm(weighted(i), x_h[static_cast<std::size_t>(i)].contiguous()));
-  if (H == 1) return heads[0];
-  return o.concat() ? torch::cat(heads, 1) : torch::stack(heads, 0).mean(0);
+  const auto a = params_.at(o.param()).reshape({-1});
+  const auto ck = k.size(1);
+  const auto raw = q.defined() ? entry_scores(A, head_scores(k, a.narrow(0, 0, ck), H),
+                                              head_scores(q, a.narrow(0, ck, a.size(0) - ck), H))
+                               : head_scores(k, a, H).index_select(0, A.col.to(x.device()));
+  return multi_head_attention(A, raw, x, o.concat(), o.activation(), o.negative_slope(), o.norm(),
+                              o.dropout(), is_training());
 }
 
 TOPOS_INLINE OperatorNetworkImpl::TermValue OperatorNetworkImpl::evaluate_term(

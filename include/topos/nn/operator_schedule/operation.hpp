@@ -100,7 +100,7 @@ class RunContext {
   [[noreturn]] void fail(const std::string& why) const {
     throw ScheduleError(where() + ": " + why);
   }
-  /// A given (or dropped) operator by name, and its transpose (computed once per forward).
+  /// A given operator by name, and its transpose (computed once per forward).
   virtual const SparseOperator& op(const std::string& name) = 0;
   virtual const SparseOperator& op_transposed(const std::string& name) = 0;
   /// A parameter or buffer made by `BuildContext::parameter` / `buffer`.
@@ -116,6 +116,10 @@ class RunContext {
   /// (BuildContext::cochain_width).
   virtual const torch::Tensor& cochain(const CochainKey& key) const = 0;
   virtual bool is_training() const = 0;
+  /// A tensor kept for one run of the schedule (one forward, or one run_layer), shared by every
+  /// operation naming the key: a random mask drawn once and used by several steps (HMPNN's
+  /// dropped incidence entries, models::DroppedPattern). Undefined until an operation sets it.
+  virtual torch::Tensor& scratch(const std::string& key) = 0;
 
  protected:
   virtual std::shared_ptr<torch::nn::Module> module_at(const std::string& path) const = 0;

@@ -31,8 +31,7 @@ TOPOS_INLINE std::string ops_str(std::string x, const std::vector<TermOp>& ops) 
         x = t.name + "ᵀ" + (t.row_norm ? "~" : "") + "·" + x;
         break;
       case TermOp::Kind::pattern:
-        x = std::string(aggr_name(t.aggr)) + "|" + t.name + (t.transposed ? "ᵀ" : "") +
-            role_str(t) + "|·" + x;
+        x = std::string(aggr_name(t.aggr)) + "|" + t.name + role_str(t) + "|·" + x;
         break;
       case TermOp::Kind::weight:
         x = x + "·" + t.name;
