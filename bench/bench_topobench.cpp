@@ -8,6 +8,10 @@
 //   BM_epoch           topos's whole epoch: shuffle, collate, encoder, backbone, readout, loss,
 //                      Adam step
 //   BM_lift            lifting a whole dataset (features and operators included)
+//   BM_epoch_options   SCCN's whole epoch on IMDB-BINARY's clique complexes to rank 3 (1.7M
+//                      tetrahedra: dense products and allocations dominate), with the
+//                      interpreter's fast paths off or on (arg 1) and freed memory kept in
+//                      the heap (nn::keep_freed_memory) or given back to the kernel (arg 2)
 // Needs TOPOS_DATASETS_DIR. Run with
 //   OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 ./build/bench/bench_topobench
 #include "topos/data/graph_datasets.hpp"
@@ -15,6 +19,7 @@
 #include "topos/nn/cpu.hpp"
 
 #include <benchmark/benchmark.h>
+#include <malloc.h>
 
 #include <cstdlib>
 #include <map>
@@ -57,6 +62,7 @@ struct Setting {
   int layers;
   std::size_t batch;
   double topomodelx_ms;  ///< tdl-bench README, the lowest figure
+  int complex_dim = 2;   ///< the clique lifting's top rank
 };
 // TopoBench's (hidden, layers, batch size) as the Python script has them, and its times.
 const Setting kSettings[] = {
@@ -72,12 +78,12 @@ struct Prepared {
 
 const Prepared& prepared(const Setting& s) {
   static std::map<std::string, std::unique_ptr<Prepared>> cache;
-  const std::string key = std::string(s.model) + s.dataset;
+  const std::string key = std::string(s.model) + s.dataset + std::to_string(s.complex_dim);
   auto& p = cache[key];
   if (!p) {
     p = std::make_unique<Prepared>();
     const auto& ds = dataset(s.dataset);
-    p->graphs = lift(ds, model_spec(s.model).domain, 2);
+    p->graphs = lift(ds, model_spec(s.model).domain, s.complex_dim);
     p->train = random_split(static_cast<std::int64_t>(ds.graphs.size()), 0).train;
     for (const auto& which : batches_of(p->train, s.batch))
       p->batches.push_back(collate(p->graphs, which));
@@ -123,8 +129,8 @@ void BM_backbone_epoch(benchmark::State& state, Setting s) {
       s.topomodelx_ms / 1e3 * static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
 }
 
-void BM_epoch(benchmark::State& state, Setting s) {
-  if (skip_without_data(state)) return;
+// Epochs of Adam on the train split; `warm_up` untimed ones first (the heap's growth, paid once).
+void run_epochs(benchmark::State& state, const Setting& s, bool fast_paths, int warm_up = 0) {
   nn::set_cpu_threads(1, 1);
   const auto& p = prepared(s);
   const auto& ds = dataset(s.dataset);
@@ -133,11 +139,12 @@ void BM_epoch(benchmark::State& state, Setting s) {
                            .n_layers(s.layers)
                            .dropout(0.25)
                            .propagate_signal_down(model_spec(s.model).cell_dimensions > 1));
+  model->backbone->set_fast_paths(fast_paths);
   torch::optim::Adam opt(model->parameters(), torch::optim::AdamOptions(1e-3));
   std::mt19937_64 rng(0);
   auto order = p.train;
   model->train();
-  for (auto _ : state) {
+  const auto epoch = [&] {
     std::shuffle(order.begin(), order.end(), rng);
     for (const auto& which : batches_of(order, s.batch)) {
       const auto b = collate(p.graphs, which);
@@ -146,7 +153,26 @@ void BM_epoch(benchmark::State& state, Setting s) {
       loss.backward();
       opt.step();
     }
+  };
+  for (int i = 0; i < warm_up; ++i) epoch();
+  for (auto _ : state) epoch();
+}
+
+void BM_epoch(benchmark::State& state, Setting s) {
+  if (skip_without_data(state)) return;
+  run_epochs(state, s, true);
+}
+
+void BM_epoch_options(benchmark::State& state, Setting s) {
+  if (skip_without_data(state)) return;
+  if (state.range(1) != 0) {
+    nn::keep_freed_memory();
+  } else {  // glibc's defaults: blocks over the mmap threshold go back to the kernel at free
+    mallopt(M_MMAP_MAX, 65536);
+    mallopt(M_TRIM_THRESHOLD, 128 * 1024);
+    mallopt(M_TOP_PAD, 0);
   }
+  run_epochs(state, s, state.range(0) != 0, /*warm_up=*/1);
 }
 
 void BM_lift(benchmark::State& state, const char* name, Domain d) {
@@ -175,6 +201,15 @@ const int registered = [] {
         ->Unit(benchmark::kMillisecond)
         ->MinTime(1.0);
   }
+  // TopoBench's SCCN on IMDB-BINARY: width 128, 4 layers, batches of 128, cliques to rank 3.
+  benchmark::RegisterBenchmark("BM_epoch_options/SCCN/IMDB-BINARY", BM_epoch_options,
+                               Setting{"SCCN", "IMDB-BINARY", 128, 4, 128, 0, 3})
+      ->ArgNames({"fast", "heap"})
+      ->Args({0, 1})
+      ->Args({1, 1})
+      ->Args({1, 0})
+      ->Unit(benchmark::kMillisecond)
+      ->Iterations(2);
   benchmark::RegisterBenchmark("BM_lift/clique/REDDIT-BINARY", BM_lift, "REDDIT-BINARY",
                                Domain::simplicial)
       ->Unit(benchmark::kMillisecond)

@@ -540,6 +540,10 @@ int run_topobench(const TopoBenchOptions& o) {
   // run's time went to libgomp's spin-waits on a busy two-core machine.
   const int workers = std::max(1, std::min<int>(o.jobs, static_cast<int>(jobs.size())));
   topos::nn::set_cpu_threads(1, 1);
+  // Freed memory kept in the heap: glibc hands every block over 32 MB back to the kernel, and an
+  // IMDB batch's rank-3 cochains (200k tetrahedra × 128 channels) were faulted in afresh at every
+  // operation (docs/benchmarks.md: BM_epoch_options).
+  topos::nn::keep_freed_memory();
 
   // The majority classifier per (dataset, split), beside the runs (baselines.csv).
   std::map<std::pair<std::string, std::int64_t>, double> baselines;

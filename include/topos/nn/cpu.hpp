@@ -53,9 +53,11 @@ inline void set_cpu_threads(int intra_op, int blas) {
 
 /// Keeps freed memory in the process: glibc returns every block above 32 MB to the kernel at
 /// free, so each training step re-faults hundreds of MB of fresh zero pages (a third of the step
-/// time for a 477-timestep trajectory). Call once, before large tensors are allocated.
+/// time for a 477-timestep trajectory). Call once, before large tensors are allocated. Threads
+/// share the main arena: another arena's heap cannot hold a block of over 64 MB and maps it.
 inline void keep_freed_memory() {
 #ifdef M_MMAP_MAX
+  mallopt(M_ARENA_MAX, 1);
   mallopt(M_MMAP_MAX, 0);
   mallopt(M_TRIM_THRESHOLD, 1 << 30);
   mallopt(M_TOP_PAD, 64 << 20);
