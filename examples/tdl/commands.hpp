@@ -1,7 +1,7 @@
 // examples/tdl/commands.hpp
-// The tdl program's subcommands. Each lives in its own translation unit and registers itself
-// on the CLI11 app with one function; main.cpp calls them, one line per subcommand, and runs
-// the callback the parsed subcommand set.
+// The tdl program's subcommands. Each lives in its own translation unit (but forward and grad,
+// which share cases.cpp) and registers itself on the CLI11 app with one function; main.cpp calls
+// them, one line per subcommand, and runs the callback the parsed subcommand set.
 #pragma once
 
 #include <CLI/CLI.hpp>
