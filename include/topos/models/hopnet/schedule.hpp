@@ -8,6 +8,7 @@
 #include "topos/models/hopnet/options.hpp"
 #include "topos/nn/operator_schedule.hpp"
 
+#include <array>
 #include <cstdint>
 #include <map>
 #include <string>
@@ -169,35 +170,26 @@ inline nn::OperatorSchedule hopnet_schedule(const HopnetOptions& opt) {
                       L + "3")
             .named(L + "contacts_" + view);
       };
-      s.parallel(
-          {contact("minus"), contact("plus"),
-           update(self_and(2, "",
-                           {message(0, "", L + "0to2").pattern("B02"),
-                            message(1, "", L + "1to2").pattern("B12"),
-                            message(2, "", L + "2to2").pattern("A232"), from(2, "from_contacts"),
-                            message(4, "", L + "4to2").pattern("B42")}),
-                  L + "2")
-               .named(L + "faces"),
-           update(self_and(0, "",
-                           {message(0, "", L + "0to0").pattern("A010"),
-                            message(1, "", L + "1to0").pattern("B10"),
-                            message(2, "", L + "2to0").pattern("B20"), from(0, "from_contacts"),
-                            message(4, "", L + "4to0").pattern("B40")}),
-                  L + "0")
-               .named(L + "nodes"),
-           update(self_and(1, "",
-                           {message(0, "", L + "0to1").pattern("B01"),
-                            message(1, "", L + "1to1").pattern("A101"),
-                            message(2, "", L + "2to1").pattern("B21"), from(1, "from_contacts"),
-                            message(4, "", L + "4to1").pattern("B41")}),
-                  L + "1")
-               .named(L + "edges"),
-           update(self_and(4, "",
-                           {message(0, "", L + "0to4").pattern("B04", Aggr::mean),
-                            message(1, "", L + "1to4").pattern("B14", Aggr::mean),
-                            message(2, "", L + "2to4").pattern("B24")}),
-                  L + "4")
-               .named(L + "objects")});
+      // Rank r's update from ranks 0, 1 and 2 over ops[0..2] and, below the objects, the contacts'
+      // sum and the objects over ops[3]: the reference's concatenation order.
+      const auto from_all = [&](int r, const std::array<const char*, 4>& ops, const char* name) {
+        const auto R = std::to_string(r);
+        std::vector<Term> terms;
+        for (int q : {0, 1, 2})
+          terms.push_back(message(q, "", L + std::to_string(q) + "to" + R)
+                              .pattern(ops[static_cast<std::size_t>(q)],
+                                       r == 4 && q < 2 ? Aggr::mean : Aggr::sum));
+        if (r != 4) {
+          terms.push_back(from(r, "from_contacts"));
+          terms.push_back(message(4, "", L + "4to" + R).pattern(ops[3]));
+        }
+        return update(self_and(r, "", std::move(terms)), L + R).named(L + name);
+      };
+      s.parallel({contact("minus"), contact("plus"),
+                  from_all(2, {"B02", "B12", "A232", "B42"}, "faces"),
+                  from_all(0, {"A010", "B10", "B20", "B40"}, "nodes"),
+                  from_all(1, {"B01", "A101", "B21", "B41"}, "edges"),
+                  from_all(4, {"B04", "B14", "B24", ""}, "objects")});
       continue;
     }
     const bool objects = arch == Architecture::hopnet;
