@@ -67,8 +67,10 @@ inline torch::Tensor apply_update(const torch::Tensor& x, Update u, double negat
       return torch::sigmoid(x);
     case Update::tanh:
       return torch::tanh(x);
-    case Update::elu:
-      return torch::elu(x);
+    case Update::elu:  // on the CPU, the vectorised expm1 of the product kernels' epilogue
+      return x.device().is_cpu() && x.is_floating_point() && x.numel() > 0
+                 ? detail::EluFunction::apply(x)
+                 : torch::elu(x);
     case Update::leaky_relu:
       return torch::leaky_relu(x, negative_slope);
     case Update::gelu:

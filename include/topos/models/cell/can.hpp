@@ -52,10 +52,7 @@ struct CanAttention : nn::Operation {
            (heads > 1 ? " ×" + std::to_string(heads) : "") + "]" + op + "·" + x;
   }
   nn::TermShape infer(nn::BuildContext& ctx, nn::TermShape x) const override {
-    const auto [src, dst] = ctx.operator_ranks(op);
-    if (src != x.rank)
-      ctx.fail("operator '" + op + "' applies to rank " + std::to_string(src) +
-               " cochains, not rank " + std::to_string(x.rank));
+    const auto dst = ctx.operator_from(op, x.rank).second;
     const auto fail = [&](const std::string& why) {
       ctx.fail("CAN attention over '" + op + "' " + why);
     };

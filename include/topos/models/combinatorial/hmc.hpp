@@ -55,11 +55,7 @@ struct HmcAttention : nn::Operation {
     return "hmc_attend[" + param + "]" + name() + "·" + x;
   }
   nn::TermShape infer(nn::BuildContext& ctx, nn::TermShape x) const override {
-    auto [src, dst] = ctx.operator_ranks(op);
-    if (transposed) std::swap(src, dst);
-    if (src != x.rank)
-      ctx.fail("operator '" + name() + "' applies to rank " + std::to_string(src) +
-               " cochains, not rank " + std::to_string(x.rank));
+    const auto dst = ctx.operator_from(op, x.rank, transposed).second;
     const auto fail = [&](const std::string& why) {
       ctx.fail("HMC attention over '" + name() + "' " + why);
     };

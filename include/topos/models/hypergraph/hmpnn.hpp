@@ -45,11 +45,7 @@ struct DroppedPattern : nn::Operation {
     return o.str();
   }
   nn::TermShape infer(nn::BuildContext& ctx, nn::TermShape x) const override {
-    auto [src, dst] = ctx.operator_ranks(op);
-    if (transposed) std::swap(src, dst);
-    if (src != x.rank)
-      ctx.fail("operator '" + name() + "' applies to rank " + std::to_string(src) +
-               " cochains, not rank " + std::to_string(x.rank));
+    const auto dst = ctx.operator_from(op, x.rank, transposed).second;
     if (!(rate >= 0 && rate <= 1))
       ctx.fail("the rate of dropped entries of '" + op + "' must be in [0, 1], got " +
                std::to_string(rate));

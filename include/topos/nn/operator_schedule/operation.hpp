@@ -77,6 +77,17 @@ class BuildContext {
   virtual const CochainKey& target() const = 0;
   /// (source rank, target rank) of a declared operator; fails, naming the step, when undeclared.
   virtual std::pair<int, int> operator_ranks(const std::string& name) const = 0;
+  /// The same for the operator (or with `transposed` its transpose) applied to a term of rank
+  /// `rank`: fails, naming the step, when it maps cochains of another rank.
+  std::pair<int, int> operator_from(const std::string& name, int rank,
+                                    bool transposed = false) const {
+    auto [src, dst] = operator_ranks(name);
+    if (transposed) std::swap(src, dst);
+    if (src != rank)
+      fail("operator '" + name + (transposed ? "ᵀ" : "") + "' applies to rank " +
+           std::to_string(src) + " cochains, not rank " + std::to_string(rank));
+    return {src, dst};
+  }
   /// The width of a cochain as the step reads it (before the step); fails when no input or
   /// earlier step produces it. The network keeps the steps that produce what is read here.
   virtual std::int64_t cochain_width(const CochainKey& key) = 0;
