@@ -142,8 +142,8 @@ class TopoBenchModelImpl : public nn::Cloneable<TopoBenchModelImpl> {
     std::map<std::string, torch::Tensor> encoded;
     for (std::size_t k = 0; k < spec.encoded_ranks.size(); ++k) {
       const auto r = static_cast<std::size_t>(spec.encoded_ranks[k]);
-      auto e = norms_[k]->forward(b.x.at(r), b.batch.at(r), b.num_graphs);
-      e = torch::relu(linears_[k]->forward(e));
+      auto e = torch::relu(
+          nn::graph_norm_linear(norms_[k], linears_[k], b.x.at(r), b.batch.at(r), b.num_graphs));
       if (options.dropout() > 0) e = torch::dropout(e, options.dropout(), is_training());
       encoded["x_" + std::to_string(r)] = e;
     }
