@@ -51,12 +51,13 @@ TORCH_MODULE(GraphNorm);
 
 /// linear(norm(x, batch, num_graphs)) for an input that needs no gradient and is mostly zeros:
 /// one-hot labels, bags of words, and their sums over cells (every TopoBench feature). Per graph
-/// the pair is x (W diag s_g)ᵀ + c_g, with s_g = w / sqrt(σ²_g + ε), σ²_g = E_g[x²] - (2α - α²) μ_g²
-/// and c_g = (b - α μ_g s_g) Wᵀ + bias, so the work is a weighted sum of Wᵀ's rows per nonzero of x
-/// (torch::embedding_bag) plus graph × channel tensors; the dense pair makes a dozen passes over
-/// every entry of x (Citeseer: 3,703 words, 1 % of them set). The statistics are accumulated in
-/// double, since the expanded variance cancels. Values and gradients (w, b, α, W, bias) are the
-/// two modules'; where more than a quarter of x is set, it runs the two modules.
+/// the pair is x (W diag s_g)ᵀ + c_g, with s_g = w / sqrt(σ²_g + ε),
+/// σ²_g = E_g[x²] - (2α - α²) μ_g² and c_g = (b - α μ_g s_g) Wᵀ + bias, so the work is a weighted
+/// sum of Wᵀ's rows per nonzero of x (torch::embedding_bag) plus graph × channel tensors; the
+/// dense pair makes a dozen passes over every entry of x (Citeseer: 3,703 words, 1 % of them set).
+/// The statistics are accumulated in double, since the expanded variance cancels. Values and
+/// gradients (w, b, α, W, bias) are the two modules'; where more than a quarter of x is set, it
+/// runs the two modules.
 inline torch::Tensor graph_norm_linear(GraphNorm& norm, torch::nn::Linear& linear,
                                        const torch::Tensor& x, const torch::Tensor& batch,
                                        std::int64_t num_graphs) {
@@ -65,8 +66,8 @@ inline torch::Tensor graph_norm_linear(GraphNorm& norm, torch::nn::Linear& linea
   TORCH_CHECK(batch.dim() == 1 && batch.size(0) == x.size(0),
               "graph_norm_linear: batch needs one graph per row of x");
   TORCH_CHECK(linear->weight.size(1) == x.size(1) && norm->weight.size(0) == x.size(1),
-              "graph_norm_linear: x has ", x.size(1), " channels, the norm ",
-              norm->weight.size(0), " and the linear ", linear->weight.size(1));
+              "graph_norm_linear: x has ", x.size(1), " channels, the norm ", norm->weight.size(0),
+              " and the linear ", linear->weight.size(1));
   const auto n = x.size(0), f = x.size(1);
   const auto nz = x.nonzero();  // row-major, so grouped by row as embedding_bag's bags are
   if (4 * nz.size(0) > n * f) return linear->forward(norm->forward(x, batch, num_graphs));
@@ -79,7 +80,8 @@ inline torch::Tensor graph_norm_linear(GraphNorm& norm, torch::nn::Linear& linea
                          .index_add_(0, batch, torch::ones({n}, dbl))
                          .clamp_min(1)
                          .unsqueeze(1);
-  const auto mean = torch::zeros({num_graphs * f}, dbl).index_add_(0, entry, v).view({-1, f}) / count;
+  const auto mean =
+      torch::zeros({num_graphs * f}, dbl).index_add_(0, entry, v).view({-1, f}) / count;
   const auto square =
       torch::zeros({num_graphs * f}, dbl).index_add_(0, entry, v * v).view({-1, f}) / count;
   const auto alpha = norm->mean_scale.to(torch::kDouble);

@@ -241,7 +241,8 @@ TEST_CASE("GraphNorm normalises each graph of a batch on its own", "[topobench]"
 TEST_CASE("GraphNorm then Linear over the nonzeros equals the two modules, gradients included",
           "[topobench]") {
   torch::manual_seed(11);
-  const auto batch = torch::tensor(std::vector<std::int64_t>{0, 0, 0, 0, 1, 1, 2, 2, 2}, torch::kLong);
+  const auto batch =
+      torch::tensor(std::vector<std::int64_t>{0, 0, 0, 0, 1, 1, 2, 2, 2}, torch::kLong);
   for (double density : {0.1, 0.2, 0.9}) {  // the last runs the two modules
     INFO("density " << density);
     // Counts (a projection-sum of one-hot labels), with a channel no row of graph 1 sets.
@@ -275,9 +276,9 @@ TEST_CASE("GraphNorm then Linear over the nonzeros equals the two modules, gradi
   }
   nn::GraphNorm norm(3);
   torch::nn::Linear linear(4, 2);
-  CHECK_THROWS_WITH(nn::graph_norm_linear(norm, linear, torch::zeros({2, 4}),
-                                          torch::zeros({2}, torch::kLong), 1),
-                    Catch::Contains("x has 4 channels, the norm 3 and the linear 4"));
+  CHECK_THROWS_WITH(
+      nn::graph_norm_linear(norm, linear, torch::zeros({2, 4}), torch::zeros({2}, torch::kLong), 1),
+      Catch::Contains("x has 4 channels, the norm 3 and the linear 4"));
 }
 
 TEST_CASE("A batch stacks features and puts every operator block-diagonally", "[topobench]") {

@@ -84,6 +84,8 @@ TOPOS_INLINE OperatorNetworkImpl::OperatorNetworkImpl(OperatorSchedule schedule)
     : schedule_(std::move(schedule)) {
   validate_and_create();
 }
+
+TOPOS_INLINE OperatorNetworkImpl::~OperatorNetworkImpl() = default;
 TOPOS_INLINE TermShape OperatorNetworkImpl::infer(detail::NetworkBuildContext& ctx, const TermOp& t,
                                                   TermShape x) {
   const std::string& where = ctx.where();

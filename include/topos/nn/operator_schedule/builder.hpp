@@ -77,7 +77,15 @@ struct TermOp {
     mlp,            ///< nn::Mlp at `name` (`mlp_options`), shared by every op naming the path
     custom          ///< an Operation defined outside topos (`operation`)
   };
-  explicit TermOp(Kind k, std::string n = {}) : kind(k), name(std::move(n)) {}
+  explicit TermOp(Kind k, std::string n = {});
+  // The special members are compiled once (builder-inl.hpp): steps copy and move their
+  // operations, and a user's translation unit would otherwise generate that code for every one
+  // of these members (a third of a small model's compile time).
+  TermOp(const TermOp&);
+  TermOp(TermOp&&) noexcept;
+  TermOp& operator=(const TermOp&);
+  TermOp& operator=(TermOp&&) noexcept;
+  ~TermOp();
   Kind kind;
   std::string name;       ///< operator or parameter path
   bool row_norm = false;  ///< via: divide by the operator's row sums; powers: from `norm_from`
@@ -104,12 +112,30 @@ struct TermOp {
   std::shared_ptr<const Operation> operation;  ///< custom: the user's operation
 };
 
+namespace detail {
+/// The operations of a term or step, with its container code compiled once (builder-inl.hpp).
+class OperationList {
+ public:
+  OperationList();
+  OperationList(const OperationList&);
+  OperationList(OperationList&&) noexcept;
+  OperationList& operator=(const OperationList&);
+  OperationList& operator=(OperationList&&) noexcept;
+  ~OperationList();
+  const std::vector<TermOp>& operations() const { return ops_; }
+
+ protected:
+  void push(TermOp t);
+  std::vector<TermOp> ops_;
+};
+}  // namespace detail
+
 namespace ops {
 
 /// The fluent operations shared by terms (which start at a cochain) and steps (whose operations
 /// act on the mixed terms).
 template <class Derived>
-class Chain {
+class Chain : public detail::OperationList {
  public:
   /// A · x, optionally divided by A's row sums (TopoModelX Conv's aggr_norm).
   Derived& via(std::string op, bool row_norm = false) {
@@ -236,18 +262,16 @@ class Chain {
     t.operation = std::move(op);
     return add(std::move(t));
   }
-  const std::vector<TermOp>& operations() const { return ops_; }
 
  protected:
   Derived& add(TermOp t) {
-    ops_.push_back(std::move(t));
+    push(std::move(t));
     return static_cast<Derived&>(*this);
   }
   Derived& row_norm_last(bool on) {
     ops_.back().row_norm = on;
     return static_cast<Derived&>(*this);
   }
-  std::vector<TermOp> ops_;
 };
 
 /// A term: a cochain and what is done to it.
@@ -301,20 +325,21 @@ inline Term from(int rank, std::string state = "") {
 class OperatorStep : public ops::Chain<OperatorStep> {
  public:
   enum class Mix { sum, mean, filter, concat };
-  explicit OperatorStep(CochainKey target) : target(std::move(target)) {}
+  explicit OperatorStep(CochainKey target);
+  OperatorStep(const OperatorStep&);
+  OperatorStep(OperatorStep&&) noexcept;
+  OperatorStep& operator=(const OperatorStep&);
+  OperatorStep& operator=(OperatorStep&&) noexcept;
+  ~OperatorStep();
 
   template <class... T>
   OperatorStep& sum(T&&... t) {
     mix = Mix::sum;
-    (terms.push_back(std::forward<T>(t)), ...);
+    (add_term(std::forward<T>(t)), ...);
     return *this;
   }
   /// Terms built in a loop.
-  OperatorStep& sum(std::vector<ops::Term> t) {
-    mix = Mix::sum;
-    terms.insert(terms.end(), t.begin(), t.end());
-    return *this;
-  }
+  OperatorStep& sum(std::vector<ops::Term> t);
   template <class... T>
   OperatorStep& mean(T&&... t) {
     sum(std::forward<T>(t)...);
@@ -339,11 +364,7 @@ class OperatorStep : public ops::Chain<OperatorStep> {
     return *this;
   }
   /// Terms built in a loop, side by side.
-  OperatorStep& concat(std::vector<ops::Term> t) {
-    sum(std::move(t));
-    mix = Mix::concat;
-    return *this;
-  }
+  OperatorStep& concat(std::vector<ops::Term> t);
   OperatorStep& named(std::string n) {
     name = std::move(n);
     return *this;
@@ -363,6 +384,9 @@ class OperatorStep : public ops::Chain<OperatorStep> {
   std::int64_t filter_out = 0;
   std::string name;
   int guard_rank = -1;  ///< >= 0: when_nonempty
+
+ private:
+  void add_term(ops::Term t);
 };
 
 namespace ops {
@@ -424,58 +448,38 @@ inline std::vector<std::string> operators_of(const TermOp& t) {
 
 class OperatorSchedule {
  public:
+  OperatorSchedule();
+  OperatorSchedule(const OperatorSchedule&);
+  OperatorSchedule(OperatorSchedule&&) noexcept;
+  OperatorSchedule& operator=(const OperatorSchedule&);
+  OperatorSchedule& operator=(OperatorSchedule&&) noexcept;
+  ~OperatorSchedule();
   /// Cochain (rank, state) is given as input `name` with `channels` columns.
   OperatorSchedule& input(std::string name, int rank, std::int64_t channels,
-                          std::string state = "") {
-    inputs_.push_back({std::move(name), {rank, std::move(state)}, channels});
-    return *this;
-  }
+                          std::string state = "");
   /// Operator `name` maps rank `source_rank` cochains to rank `target_rank` (target × source).
   /// At run time it is a SparseOperator given by name or, failing that, the neighbourhood of that
   /// name of the ComplexBatch given (index pairs with optional values and roles).
-  OperatorSchedule& operator_input(std::string name, int source_rank, int target_rank) {
-    operators_[std::move(name)] = {source_rank, target_rank};
-    return *this;
-  }
+  OperatorSchedule& operator_input(std::string name, int source_rank, int target_rank);
   /// An operator a forward may leave out (TopoModelX's `None`): a term that applies it is then
   /// skipped, in a step that sums or averages its terms (checked when the network is built); a
   /// step left with no term keeps its target as it was.
-  OperatorSchedule& optional_operator(std::string name, int source_rank, int target_rank) {
-    optional_.insert(name);
-    return operator_input(std::move(name), source_rank, target_rank);
-  }
+  OperatorSchedule& optional_operator(std::string name, int source_rank, int target_rank);
   const std::set<std::string>& optional_operators() const { return optional_; }
-  OperatorSchedule& step(OperatorStep s) {
-    name_step(s);
-    groups_.push_back({std::move(s)});
-    return *this;
-  }
+  OperatorSchedule& step(OperatorStep s);
   /// Steps that read one snapshot of the cochains.
-  OperatorSchedule& parallel(std::vector<OperatorStep> steps) {
-    for (auto& s : steps) name_step(s);
-    groups_.push_back(std::move(steps));
-    return *this;
-  }
+  OperatorSchedule& parallel(std::vector<OperatorStep> steps);
   /// Starts a named layer: the steps added from here to the next layer() form it, and
   /// OperatorNetwork::run_layer runs them alone (a model that changes its complex between
   /// layers, as CAN's pooling does).
-  OperatorSchedule& layer(std::string name) {
-    layers_.emplace_back(std::move(name), groups_.size());
-    return *this;
-  }
+  OperatorSchedule& layer(std::string name);
   /// The layers in order: name and first step group.
   const std::vector<std::pair<std::string, std::size_t>>& layers() const { return layers_; }
-  OperatorSchedule& output(std::string name, int rank, std::string state = "") {
-    outputs_.push_back({std::move(name), {rank, std::move(state)}, 0});
-    return *this;
-  }
+  OperatorSchedule& output(std::string name, int rank, std::string state = "");
   /// A Glorot-initialised parameter that no step need use: a state_dict name kept where a mode
   /// ignores it (HyperGAT's TopoModelX-compatible attention vectors).
   OperatorSchedule& parameter(std::string path, std::vector<std::int64_t> shape,
-                              double gain = 1.414) {
-    parameters_.push_back({std::move(path), std::move(shape), gain});
-    return *this;
-  }
+                              double gain = 1.414);
 
   struct Port {
     std::string name;
@@ -497,10 +501,7 @@ class OperatorSchedule {
   std::string str() const;
 
  private:
-  void name_step(OperatorStep& s) {
-    if (s.name.empty()) s.name = "step " + std::to_string(num_steps_);
-    ++num_steps_;
-  }
+  void name_step(OperatorStep& s);
   std::vector<Port> inputs_, outputs_;
   std::map<std::string, std::pair<int, int>> operators_;
   std::vector<std::vector<OperatorStep>> groups_;
@@ -513,5 +514,6 @@ class OperatorSchedule {
 }  // namespace topos::nn
 
 #ifdef TOPOS_HEADER_ONLY
+#include "topos/nn/operator_schedule/builder-inl.hpp"
 #include "topos/nn/operator_schedule/printer-inl.hpp"
 #endif
