@@ -799,4 +799,10 @@ class CombinatorialComplex {
   }
 };
 
+// The default complex is compiled once in topos::core_compiled (src/core.cpp), which topos::nn
+// links; TOPOS_CORE_COMPILED, which it sets, keeps each translation unit from instantiating it.
+#ifdef TOPOS_CORE_COMPILED
+extern template class CombinatorialComplex<DefaultComplexOptions>;
+#endif
+
 }  // namespace topos

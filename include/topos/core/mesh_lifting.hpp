@@ -201,4 +201,9 @@ LiftedMeshes<Options> lift_meshes(const std::vector<TriangleMesh>& meshes,
   return out;
 }
 
+#ifdef TOPOS_CORE_COMPILED  // compiled once (src/core.cpp; combinatorial_complex.hpp)
+extern template LiftedMeshes<DefaultComplexOptions> lift_meshes<DefaultComplexOptions>(
+    const std::vector<TriangleMesh>&, const LiftOptions&);
+#endif
+
 }  // namespace topos

@@ -123,4 +123,11 @@ Neighborhood adjacency_neighborhood(const CombinatorialComplex<Options>& cc, int
   return neighborhood_from_matrix(m, r, r, std::move(name));
 }
 
+#ifdef TOPOS_CORE_COMPILED  // compiled once (src/core.cpp; combinatorial_complex.hpp)
+extern template Neighborhood incidence_neighborhood<DefaultComplexOptions>(
+    const CombinatorialComplex<DefaultComplexOptions>&, int, int, std::string);
+extern template Neighborhood adjacency_neighborhood<DefaultComplexOptions>(
+    const CombinatorialComplex<DefaultComplexOptions>&, int, int, std::string);
+#endif
+
 }  // namespace topos
