@@ -8,6 +8,9 @@
 //   BM_epoch           topos's whole epoch: shuffle, collate, encoder, backbone, readout, loss,
 //                      Adam step
 //   BM_lift            lifting a whole dataset (features and operators included)
+//   BM_encoder         TopoBench's encoder (GraphNorm then Linear, 64 wide) forward + backward
+//                      over every rank of Cora's or Citeseer's clique complex: the two modules
+//                      (arg 0) or nn::graph_norm_linear over the features' nonzeros (arg 1)
 //   BM_epoch_options   SCCN's whole epoch on IMDB-BINARY's clique complexes to rank 3 (1.7M
 //                      tetrahedra: dense products and allocations dominate), with the
 //                      interpreter's fast paths off or on (arg 1) and freed memory kept in
@@ -193,6 +196,44 @@ void BM_lift(benchmark::State& state, const char* name, Domain d) {
   state.counters["graphs"] = static_cast<double>(ds.graphs.size());
 }
 
+void BM_encoder(benchmark::State& state, const char* name) {
+  if (skip_without_data(state)) return;
+  nn::set_cpu_threads(1, 1);
+  // As `tdl topobench` runs; registered last, so BM_epoch_options's heap:0 runs before this.
+  nn::keep_freed_memory();
+  const bool sparse = state.range(0) != 0;
+  static std::map<std::string, LiftedGraph> cache;
+  auto it = cache.find(name);
+  if (it == cache.end()) {
+    const auto ds = data::load_topobench_node_dataset(datasets_dir(), name);
+    LiftingOptions o;
+    o.complex_dim = 3;
+    it = cache
+             .emplace(name, lift_graph(ds.num_nodes, ds.edges, ds.x, ds.num_node_features, {},
+                                       Domain::simplicial, o))
+             .first;
+  }
+  const Batch b = collate({it->second}, {0});
+  torch::manual_seed(0);
+  std::vector<nn::GraphNorm> norms;
+  std::vector<torch::nn::Linear> linears;
+  std::int64_t entries = 0;
+  for (const auto& x : b.x) {
+    norms.emplace_back(x.size(1)), linears.emplace_back(x.size(1), 64);
+    entries += x.numel();
+  }
+  for (auto _ : state) {
+    torch::Tensor loss = torch::zeros({});
+    for (std::size_t r = 0; r < b.x.size(); ++r) {
+      const auto y = sparse ? nn::graph_norm_linear(norms[r], linears[r], b.x[r], b.batch[r], 1)
+                            : linears[r]->forward(norms[r]->forward(b.x[r], b.batch[r], 1));
+      loss = loss + torch::relu(y).sum();
+    }
+    loss.backward();
+  }
+  state.counters["feature_entries"] = static_cast<double>(entries);
+}
+
 const int registered = [] {
   for (const auto& s : kSettings) {
     const std::string tag = std::string(s.model) + "/" + s.dataset;
@@ -224,6 +265,13 @@ const int registered = [] {
   benchmark::RegisterBenchmark("BM_lift/cycle/NCI1", BM_lift, "NCI1", Domain::cell)
       ->Unit(benchmark::kMillisecond)
       ->Iterations(1);
+  for (const char* name : {"Cora", "Citeseer"})
+    benchmark::RegisterBenchmark((std::string("BM_encoder/") + name).c_str(), BM_encoder, name)
+        ->ArgName("sparse")
+        ->Arg(0)
+        ->Arg(1)
+        ->Unit(benchmark::kMillisecond)
+        ->MinTime(1.0);
   return 0;
 }();
 
