@@ -19,6 +19,7 @@
 // attention CAN's own operation (CanAttention).
 #pragma once
 
+#include "topos/models/query_attention.hpp"
 #include "topos/nn/operator_schedule.hpp"
 
 #include <cmath>
@@ -56,10 +57,8 @@ struct CanAttention : nn::Operation {
     const auto fail = [&](const std::string& why) {
       ctx.fail("CAN attention over '" + op + "' " + why);
     };
-    if (queries.rank != dst)
-      fail("scores against " + queries.str() + ", which needs a cochain of rank " +
-           std::to_string(dst));
-    const auto ck = x.channels, cq = ctx.cochain_width(queries);
+    const auto ck = x.channels,
+               cq = query_width(ctx, queries, dst, "CAN attention over '" + op + "'");
     if (heads < 1 || ck % heads || cq % heads)
       fail("with " + std::to_string(heads) + " heads: the messages (" + std::to_string(ck) +
            ") and queries (" + std::to_string(cq) + ") need channels divisible by the heads");
@@ -78,11 +77,7 @@ struct CanAttention : nn::Operation {
   }
   torch::Tensor forward(nn::RunContext& ctx, const torch::Tensor& x) const override {
     const auto& A = ctx.op(op);
-    const auto& q = ctx.cochain(queries);
-    if (A.cols != x.size(0) || A.rows != q.size(0))
-      ctx.fail("operator '" + op + "' is " + std::to_string(A.rows) + " x " +
-               std::to_string(A.cols) + " but its messages have " + std::to_string(x.size(0)) +
-               " rows and its queries " + queries.str() + " " + std::to_string(q.size(0)));
+    const auto& q = query_rows(ctx, A, x, queries, op);
     torch::Tensor raw;  // nnz × heads, or nnz with one head (v1)
     if (v2) {
       const auto a = ctx.parameter(path + ".att_weight").reshape({-1});

@@ -19,6 +19,7 @@
 // entry with its own weight.
 #pragma once
 
+#include "topos/models/query_attention.hpp"
 #include "topos/nn/operator_schedule.hpp"
 
 #include <array>
@@ -59,10 +60,8 @@ struct HmcAttention : nn::Operation {
     const auto fail = [&](const std::string& why) {
       ctx.fail("HMC attention over '" + name() + "' " + why);
     };
-    if (queries.rank != dst)
-      fail("scores against " + queries.str() + ", which needs a cochain of rank " +
-           std::to_string(dst));
-    const auto n = x.channels + ctx.cochain_width(queries);
+    const auto n =
+        x.channels + query_width(ctx, queries, dst, "HMC attention over '" + name() + "'");
     for (const auto& offset : {source_offset, target_offset})
       if (offset && (*offset < 0 || *offset >= n))
         fail("needs offsets in [0, " + std::to_string(n) + "), got " + std::to_string(*offset));
@@ -78,11 +77,7 @@ struct HmcAttention : nn::Operation {
   }
   torch::Tensor forward(nn::RunContext& ctx, const torch::Tensor& x) const override {
     const auto& A = transposed ? ctx.op_transposed(op) : ctx.op(op);
-    const auto& q = ctx.cochain(queries);
-    if (A.cols != x.size(0) || A.rows != q.size(0))
-      ctx.fail("operator '" + name() + "' is " + std::to_string(A.rows) + " x " +
-               std::to_string(A.cols) + " but its messages have " + std::to_string(x.size(0)) +
-               " rows and its queries " + queries.str() + " " + std::to_string(q.size(0)));
+    const auto& q = query_rows(ctx, A, x, queries, name());
     const auto a = ctx.parameter(param).reshape({-1});
     const auto ck = x.size(1);
     const auto part = [&a](std::int64_t offset, std::int64_t n) {  // from offset on, wrapping

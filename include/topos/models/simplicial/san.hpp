@@ -12,6 +12,7 @@
 // (2·out·filters), layers.<i>.conv_harmonic.weight).
 #pragma once
 
+#include "topos/models/query_attention.hpp"
 #include "topos/nn/operator_schedule.hpp"
 
 #include <sstream>
@@ -95,10 +96,7 @@ struct SanFilterAttention : nn::Operation {
     const auto fail = [&](const std::string& why) {
       ctx.fail("SAN attention over '" + op + "' " + why);
     };
-    if (queries.rank != dst)
-      fail("scores against " + queries.str() + ", which needs a cochain of rank " +
-           std::to_string(dst));
-    const auto cq = ctx.cochain_width(queries);
+    const auto cq = query_width(ctx, queries, dst, "SAN attention over '" + op + "'");
     if (filters < 1 || x.channels % filters)
       fail("with " + std::to_string(filters) + " filters needs messages (" +
            std::to_string(x.channels) + " channels) of whole filters");
@@ -107,11 +105,7 @@ struct SanFilterAttention : nn::Operation {
   }
   torch::Tensor forward(nn::RunContext& ctx, const torch::Tensor& x) const override {
     const auto& A = ctx.op(op);
-    const auto& q = ctx.cochain(queries);
-    if (A.cols != x.size(0) || A.rows != q.size(0))
-      ctx.fail("operator '" + op + "' is " + std::to_string(A.rows) + " x " +
-               std::to_string(A.cols) + " but its messages have " + std::to_string(x.size(0)) +
-               " rows and its queries " + queries.str() + " " + std::to_string(q.size(0)));
+    const auto& q = query_rows(ctx, A, x, queries, op);
     const auto a = ctx.parameter(param).reshape({-1});
     const auto ck = x.size(1);
     const auto raw = nn::entry_scores(A, nn::head_scores(x, a.narrow(0, 0, ck)),
