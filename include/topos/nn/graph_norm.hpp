@@ -18,12 +18,19 @@ inline torch::Tensor segment_sum(const torch::Tensor& x, const torch::Tensor& ba
   return torch::zeros({num_segments, x.size(1)}, x.options()).index_add(0, batch, x);
 }
 
+/// Rows per segment, at least 1 (a divisor for means), as a column of `options`' dtype.
+inline torch::Tensor segment_count(const torch::Tensor& batch, std::int64_t num_segments,
+                                   const torch::TensorOptions& options) {
+  return torch::zeros({num_segments}, options)
+      .index_add(0, batch, torch::ones({batch.size(0)}, options))
+      .clamp_min(1)
+      .unsqueeze(1);
+}
+
 /// Rows of x averaged per segment; empty segments give zeros.
 inline torch::Tensor segment_mean(const torch::Tensor& x, const torch::Tensor& batch,
                                   std::int64_t num_segments) {
-  const auto count = torch::zeros({num_segments}, x.options())
-                         .index_add(0, batch, torch::ones({x.size(0)}, x.options()));
-  return segment_sum(x, batch, num_segments) / count.clamp_min(1).unsqueeze(1);
+  return segment_sum(x, batch, num_segments) / segment_count(batch, num_segments, x.options());
 }
 
 class GraphNormImpl : public torch::nn::Module {
@@ -76,10 +83,7 @@ inline torch::Tensor graph_norm_linear(GraphNorm& norm, torch::nn::Linear& linea
   const auto entry = batch.index_select(0, rows) * f + cols;  // (graph, channel), flattened
   const auto dbl = x.options().dtype(torch::kDouble);
   const auto v = values.to(torch::kDouble);
-  const auto count = torch::zeros({num_graphs}, dbl)
-                         .index_add_(0, batch, torch::ones({n}, dbl))
-                         .clamp_min(1)
-                         .unsqueeze(1);
+  const auto count = segment_count(batch, num_graphs, dbl);
   const auto mean =
       torch::zeros({num_graphs * f}, dbl).index_add_(0, entry, v).view({-1, f}) / count;
   const auto square =
