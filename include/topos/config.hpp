@@ -12,3 +12,12 @@
 #else
 #define TOPOS_INLINE
 #endif
+
+// The same for the few core functions compiled in topos::core_compiled (src/core.cpp, which
+// defines TOPOS_CORE_COMPILED_SOURCE): declared only where TOPOS_CORE_COMPILED is set (by
+// linking that target), inline in every translation unit with topos::core alone.
+#if defined(TOPOS_CORE_COMPILED) || defined(TOPOS_CORE_COMPILED_SOURCE)
+#define TOPOS_CORE_INLINE
+#else
+#define TOPOS_CORE_INLINE inline
+#endif

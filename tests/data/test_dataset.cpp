@@ -4,6 +4,8 @@
 // mismatched or malformed files, never a silent wrong answer.
 #include <catch2/catch.hpp>
 
+#include "support/fresh_dir.hpp"
+
 #include "topos/data/dataset.hpp"
 
 #include <fstream>
@@ -13,12 +15,6 @@ using namespace topos::data;
 namespace fs = std::filesystem;
 
 namespace {
-fs::path fresh_dir(const std::string& name) {
-  const auto d = fs::temp_directory_path() / ("topos_test_dataset_" + name);
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
 
 std::vector<KubricScene> random_scenes(int n, std::int64_t frames, unsigned seed) {
   std::mt19937 rng(seed);
@@ -114,7 +110,7 @@ TEST_CASE("custom splits are read, checked against the dataset, and round-trip",
 }
 
 TEST_CASE("a topos dataset holds every pose and property exactly", "[data][dataset][format]") {
-  const auto dir = fresh_dir("roundtrip");
+  const auto dir = topos::testing::fresh_dir("dataset_roundtrip");
   const auto scenes = random_scenes(7, 11, 3);
   write_topos_dataset(scenes, dir);
   const auto d = Dataset::open(dir);
@@ -144,11 +140,12 @@ TEST_CASE("a topos dataset holds every pose and property exactly", "[data][datas
   // Scenes of different lengths do not make one dataset.
   auto mixed = random_scenes(2, 5, 4);
   mixed[1] = random_scenes(1, 6, 5)[0];
-  REQUIRE_THROWS_WITH(write_topos_dataset(mixed, fresh_dir("mixed")), Catch::Contains("frames"));
+  REQUIRE_THROWS_WITH(write_topos_dataset(mixed, topos::testing::fresh_dir("dataset_mixed")),
+                      Catch::Contains("frames"));
 }
 
 TEST_CASE("a Kubric folder and its packed topos dataset read alike", "[data][dataset][format]") {
-  const auto kub = fresh_dir("kubric");
+  const auto kub = topos::testing::fresh_dir("dataset_kubric");
   const auto scenes = random_scenes(3, 4, 9);
   for (const auto& s : scenes) {
     nlohmann::json j{
@@ -178,7 +175,7 @@ TEST_CASE("a Kubric folder and its packed topos dataset read alike", "[data][dat
   REQUIRE(k.format() == "kubric");
   std::vector<KubricScene> read;
   for (auto id : k.ids()) read.push_back(k.scene(id));
-  const auto packed = fresh_dir("packed");
+  const auto packed = topos::testing::fresh_dir("dataset_packed");
   write_topos_dataset(read, packed);
   const auto t = Dataset::open(packed);
   REQUIRE(t.ids() == k.ids());
@@ -191,11 +188,11 @@ TEST_CASE("a Kubric folder and its packed topos dataset read alike", "[data][dat
 }
 
 TEST_CASE("damaged topos datasets are clear errors", "[data][dataset][format][errors]") {
-  const auto good = fresh_dir("good");
+  const auto good = topos::testing::fresh_dir("dataset_good");
   write_topos_dataset(random_scenes(3, 6, 1), good);
   const auto damaged = [&](const std::string& name,
                            const std::function<void(const fs::path&)>& damage) {
-    const auto d = fresh_dir(name);
+    const auto d = topos::testing::fresh_dir("dataset_" + name);
     for (const auto& f : {"dataset.json", "positions.npy", "quaternions.npy"})
       fs::copy_file(good / f, d / f);
     damage(d);
@@ -252,5 +249,6 @@ TEST_CASE("damaged topos datasets are clear errors", "[data][dataset][format][er
                                               });
                                             })),
                       Catch::Contains("malformed dataset index"));
-  REQUIRE_THROWS_WITH(Dataset::open(fresh_dir("empty")), Catch::Contains("no scene folders"));
+  REQUIRE_THROWS_WITH(Dataset::open(topos::testing::fresh_dir("dataset_empty")),
+                      Catch::Contains("no scene folders"));
 }

@@ -6,6 +6,8 @@
 // the TU / DGCNN graphs equal a brute-force re-read by a different, simpler parser.
 #include <catch2/catch.hpp>
 
+#include "support/fresh_dir.hpp"
+
 #include "support/reference.hpp"
 #include "topos/data/graph_datasets.hpp"
 
@@ -25,13 +27,6 @@ using namespace topos::data;
 namespace fs = std::filesystem;
 
 namespace {
-
-fs::path fresh_dir(const std::string& name) {
-  const auto d = fs::temp_directory_path() / ("topos_test_graph_datasets_" + name);
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
 
 void write(const fs::path& p, const std::string& text) {
   fs::create_directories(p.parent_path());
@@ -63,7 +58,7 @@ struct TuSet {
   std::string edge_labels = "2\n2\n2\n1\n1\n7\n1\n1\n";
 
   fs::path write_to(const std::string& dir_name, const std::string& prefix = "TOY") const {
-    const auto d = fresh_dir(dir_name);
+    const auto d = topos::testing::fresh_dir("graph_datasets_" + dir_name);
     write(d / (prefix + "_A.txt"), A);
     write(d / (prefix + "_graph_indicator.txt"), graph_indicator);
     write(d / (prefix + "_graph_labels.txt"), graph_labels);
@@ -204,7 +199,7 @@ struct PlanetoidSet {
       {0, {1, 1, 0}}, {1, {0, 2}}, {2, {1}}, {3, {4}}, {4, {3, 3}}};
 
   fs::path write_to(const std::string& dir_name, const std::string& name) const {
-    const auto d = fresh_dir(dir_name);
+    const auto d = topos::testing::fresh_dir("graph_datasets_" + dir_name);
     const auto f = [&](const std::string& part) { return d / ("ind." + name + "." + part); };
     write(f("x"), csr_pickle({allx[0]}, 2));
     write(f("y"), one_hot_pickle({ally[0]}, 3));
@@ -266,7 +261,7 @@ TEST_CASE("TU reader: optional label files, CRLF, a last line without newline",
 #ifdef TOPOS_WITH_LIBZIP
 TEST_CASE("TU and DGCNN readers: a zip reads as its folder", "[graph_datasets]") {
   const TuSet s;
-  const auto dir = fresh_dir("tu_zip");
+  const auto dir = topos::testing::fresh_dir("graph_datasets_tu_zip");
   const auto zip_path = dir / "TOY.zip";
   {
     int err = 0;
@@ -430,7 +425,7 @@ TEST_CASE("DGCNN reader: duplicates, self-loops, isolated nodes, sorted labels",
   CHECK(ds.graphs[0].node_labels == std::vector<std::int64_t>{0, 1, 0});
   CHECK(ds.graphs[1].node_labels == std::vector<std::int64_t>{5});
   // From a file: the same.
-  const auto dir = fresh_dir("dgcnn");
+  const auto dir = topos::testing::fresh_dir("graph_datasets_dgcnn");
   write(dir / "toy.txt", kDgcnn);
   CHECK(read_dgcnn_dataset(dir / "toy.txt", "toy").graphs[0].edges == Edges{{0, 1}, {1, 2}});
 }
@@ -646,7 +641,7 @@ TEST_CASE("torch_cpu_normal reproduces torch.normal on the CPU", "[graph_dataset
 }
 
 TEST_CASE("TopoBench features on hand-written datasets", "[graph_datasets]") {
-  const auto root = fresh_dir("topobench_root");
+  const auto root = topos::testing::fresh_dir("graph_datasets_topobench_root");
   SECTION("IMDB: one-hot degree over 0..135, every edge listed four times") {
     // A star: node 1 joined to 2, 3, 4 (degree 3), each edge as IMDB lists it.
     std::string a;

@@ -6,6 +6,8 @@
 
 #include <catch2/catch.hpp>
 
+#include "support/fresh_dir.hpp"
+
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -22,17 +24,11 @@ std::string slurp(const fs::path& p) {
 void put(const fs::path& p, const std::string& text) {
   std::ofstream(p, std::ios::binary) << text;
 }
-fs::path fresh_dir(const std::string& name) {
-  const auto d = fs::temp_directory_path() / ("topos_io_test_" + name);
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
 }  // namespace
 
 TEST_CASE("a file group replaces its files together, and recovery completes an interrupted commit",
           "[io][atomic]") {
-  const auto d = fresh_dir("group");
+  const auto d = topos::testing::fresh_dir("io_group");
   const auto a = (d / "a").string(), b = (d / "b").string(), journal = (d / "journal").string();
   put(a, "old-a");
   put(b, "old-b");
@@ -74,7 +70,7 @@ TEST_CASE("a file group replaces its files together, and recovery completes an i
 
 TEST_CASE("a resumed CSV log keeps the header and the committed rows, never a row cut short",
           "[io][log]") {
-  const auto d = fresh_dir("log");
+  const auto d = topos::testing::fresh_dir("io_log");
   const auto steps = (d / "steps.csv").string();
   put(steps, "epoch,step,loss\n0,1,0.5\n0,2,0.4\n1,3,0.3\n1,4,0.2\n2,5,0.");
   topos::truncate_csv_log(steps, 1, 3);
