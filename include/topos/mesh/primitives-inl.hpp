@@ -1,6 +1,6 @@
 // topos/mesh/primitives-inl.hpp
-// The definitions of primitives.hpp's functions: compiled once in topos::core_compiled (src/core.cpp),
-// or inline in every translation unit with topos::core alone (topos/config.hpp).
+// The definitions of primitives.hpp's functions: compiled once in topos::core_compiled
+// (src/core.cpp), or inline in every translation unit with topos::core alone (topos/config.hpp).
 #pragma once
 
 #include "topos/mesh/primitives.hpp"

@@ -1,6 +1,6 @@
 // topos/mesh/rigid-inl.hpp
-// The definitions of rigid.hpp's functions: compiled once in topos::core_compiled (src/core.cpp),
-// or inline in every translation unit with topos::core alone (topos/config.hpp).
+// The definitions of rigid.hpp's functions: compiled once in topos::core_compiled
+// (src/core.cpp), or inline in every translation unit with topos::core alone (topos/config.hpp).
 #pragma once
 
 #include "topos/mesh/rigid.hpp"
