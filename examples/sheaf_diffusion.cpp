@@ -13,7 +13,7 @@
 #include <torch/torch.h>
 
 #include "topos/data/graph_datasets.hpp"
-#include "topos/models/topobench/protocol.hpp"
+#include "topos/models/topobench/split.hpp"
 #include "topos/nn/operator_schedule.hpp"
 
 #include <cstdio>

@@ -2,13 +2,13 @@
 // TopoBench's protocol as data (std only): the hyperparameters of every (model, dataset) pair
 // parsed from the one-run-per-line file `reproduce-hparams.txt` (TopoBench's
 // scripts/reproduce.sh, see ../shared/datasets/topobench/), the table's model and dataset names,
-// its random splits (numpy's legacy RandomState replayed), and runs.csv, the runner's resumable
+// its random splits (split.hpp), and runs.csv, the runner's resumable
 // record of finished runs with the table's summary (mean and std over the splits).
 #pragma once
 
-#include "topos/data/json.hpp"  // DataError, read_text_file
-#include "topos/data/numpy_random.hpp"
+#include "topos/data/json.hpp"                 // DataError, read_text_file
 #include "topos/models/topobench/lifting.hpp"  // Domain
+#include "topos/models/topobench/split.hpp"
 #include "topos/io/atomic_file.hpp"
 
 #include <algorithm>
@@ -122,37 +122,6 @@ const T& find_name(const std::vector<T>& list, const std::string& name, const ch
   for (const auto& x : list) known += std::string(known.empty() ? "" : ", ") + x.name;
   throw std::invalid_argument(std::string("unknown ") + what + " '" + name + "' (known: " + known +
                               ")");
-}
-
-/// numpy.random.permutation(n) on a legacy RandomState: Fisher-Yates from the top, j drawn with
-/// the masked rejection of randint(0, i + 1).
-inline std::vector<std::int64_t> numpy_permutation(data::NumpyRandomState& rs, std::int64_t n) {
-  std::vector<std::int64_t> a(static_cast<std::size_t>(n));
-  std::iota(a.begin(), a.end(), std::int64_t{0});
-  for (std::int64_t i = n - 1; i >= 1; --i)
-    std::swap(a[static_cast<std::size_t>(i)], a[static_cast<std::size_t>(rs.randint(0, i + 1))]);
-  return a;
-}
-
-struct Split {
-  std::vector<std::size_t> train, val, test;
-};
-
-/// TopoBench's random split (split_utils.py): np.random.seed(42), ten permutations drawn in a
-/// row, the (data_seed mod 10)-th taken; the first int(0.5 n) train, the next int(0.25 n)
-/// validation, the rest test. Not stratified.
-inline Split random_split(std::int64_t n, std::int64_t data_seed) {
-  data::NumpyRandomState rs(42);
-  std::vector<std::int64_t> perm;
-  for (std::int64_t f = 0; f <= ((data_seed % 10) + 10) % 10; ++f) perm = numpy_permutation(rs, n);
-  const auto n_train = static_cast<std::size_t>(n / 2), n_val = static_cast<std::size_t>(n / 4);
-  Split s;
-  for (std::size_t i = 0; i < perm.size(); ++i)
-    (i < n_train           ? s.train
-     : i < n_train + n_val ? s.val
-                           : s.test)
-        .push_back(static_cast<std::size_t>(perm[i]));
-  return s;
 }
 
 /// One (model, dataset) line of reproduce-hparams.txt.
