@@ -1,0 +1,443 @@
+// topos/nn/operator_schedule/term-inl.hpp
+// One term of a step evaluated: its cochain read through the network's operators, its operations
+// applied in order (products fused with the activation that follows, attention, aggregation over
+// a neighbourhood), with the checks that name the step. interpreter-inl.hpp runs the steps.
+// Compiled into topos::nn, or inline with TOPOS_HEADER_ONLY (topos/config.hpp).
+#pragma once
+
+#include "topos/nn/operator_schedule/parameters-inl.hpp"  // detail::shape_str
+#include "topos/nn/operator_schedule/network.hpp"
+#include "topos/nn/operator_schedule/printer-inl.hpp"  // detail::ops_str
+
+#include <algorithm>
+#include <functional>
+#include <set>
+
+namespace topos::nn {
+
+namespace detail {
+
+/// An operation other than an aggregation applied to a batch's neighbourhood.
+[[noreturn]] TOPOS_INLINE void not_an_aggregation(const std::string& where,
+                                                  const std::string& name) {
+  throw ScheduleError(where + ": '" + name +
+                      "' is a neighbourhood of the batch: only via (without row normalisation) "
+                      "and an untransposed pattern apply to it");
+}
+
+/// A neighbourhood must read as many source rows as the cochain (`source`, if named) has.
+TOPOS_INLINE void check_reads(const std::string& where, const std::string& name,
+                              std::int64_t num_source, std::int64_t rows,
+                              const std::string& source = "") {
+  if (num_source != rows)
+    throw ScheduleError(where + ": neighbourhood '" + name + "' reads " +
+                        std::to_string(num_source) + " source rows but the cochain " +
+                        (source.empty() ? "" : source + " ") + "has " + std::to_string(rows));
+}
+
+}  // namespace detail
+
+struct OperatorNetworkImpl::Operators {
+  const std::map<std::string, SparseOperator>* given;
+  const ComplexBatch* batch = nullptr;  // its neighbourhoods, where no operator is given
+  std::map<std::string, SparseOperator> transposed;
+  std::set<std::string> absent;                  // optional operators this forward lacks
+  std::map<std::string, torch::Tensor> scratch;  // RunContext::scratch: kept for this run
+  const SparseOperator& at(const std::string& where, const std::string& name) const {
+    auto it = given->find(name);
+    if (it == given->end()) {
+      if (neighborhood(name)) detail::not_an_aggregation(where, name);
+      throw ScheduleError(where + ": operator '" + name + "' was not given" +
+                          (batch ? " and the batch has no neighbourhood of that name" : ""));
+    }
+    return it->second;
+  }
+  const SparseOperator& t(const std::string& where, const std::string& name) {
+    auto it = transposed.find(name);
+    if (it == transposed.end()) it = transposed.emplace(name, at(where, name).t()).first;
+    return it->second;
+  }
+  /// The batch's neighbourhood `name`, when no operator of that name is given.
+  const TensorNeighborhood* neighborhood(const std::string& name) const {
+    if (batch == nullptr || given->count(name) || !batch->has_neighborhood(name)) return nullptr;
+    return &batch->neighborhood(name);
+  }
+};
+
+/// A term's value; or, for a term that ends on an aggregation over a batch neighbourhood and
+/// whose caller can apply a linear map first, the rows and the aggregation still to apply.
+struct OperatorNetworkImpl::TermValue {
+  bool handled = false;  // false: the term is not one of these, evaluate it the general way
+  torch::Tensor value;
+  torch::Tensor x;
+  TensorNeighborhood n;  // sources renumbered to x's rows
+  AggregateOptions agg;
+  bool deferred = false;
+};
+
+namespace detail {
+
+/// What a user operation sees of a running step (operation.hpp).
+class NetworkRunContext final : public RunContext {
+ public:
+  NetworkRunContext(OperatorNetworkImpl& net, const std::string& where,
+                    OperatorNetworkImpl::Operators& ops, const Cochains& h)
+      : net_(net), where_(where), ops_(ops), h_(h) {}
+  const std::string& where() const override { return where_; }
+  const SparseOperator& op(const std::string& name) override { return ops_.at(where_, name); }
+  const SparseOperator& op_transposed(const std::string& name) override {
+    return ops_.t(where_, name);
+  }
+  const torch::Tensor& parameter(const std::string& path) const override {
+    auto it = net_.params_.find(path);
+    if (it == net_.params_.end()) fail("no parameter '" + path + "'");
+    return it->second;
+  }
+  const torch::Tensor& cochain(const CochainKey& key) const override {
+    if (!h_.has(key.rank, key.state)) fail("no cochain " + key.str() + " before the step");
+    return h_.at(key.rank, key.state);
+  }
+  bool is_training() const override { return net_.is_training(); }
+  torch::Tensor& scratch(const std::string& key) override { return ops_.scratch[key]; }
+
+ protected:
+  std::shared_ptr<torch::nn::Module> module_at(const std::string& path) const override {
+    auto it = net_.modules_.find(path);
+    if (it == net_.modules_.end()) fail("no module '" + path + "'");
+    return it->second;
+  }
+
+ private:
+  OperatorNetworkImpl& net_;
+  const std::string& where_;
+  OperatorNetworkImpl::Operators& ops_;
+  const Cochains& h_;
+};
+
+/// A clear error naming the step and the operator when A cannot be applied to x.
+TOPOS_INLINE void check_fits(const std::string& where, const std::string& name,
+                             const SparseOperator& A, const torch::Tensor& x) {
+  if (A.cols != x.size(0))
+    throw ScheduleError(where + ": operator '" + name + "' has " + std::to_string(A.cols) +
+                        " columns but the cochain it is applied to has " +
+                        std::to_string(x.size(0)) + " rows");
+}
+
+TOPOS_INLINE AggregateOptions aggregate_options(const TermOp& t) {
+  AggregateOptions o;
+  o.role = t.role;
+  o.weighted = t.kind == TermOp::Kind::via;
+  o.reduce = t.kind == TermOp::Kind::via ? Aggr::sum : t.aggr;
+  return o;
+}
+
+/// Each of `rows` cells' position among the sorted `used` ones, or -1.
+TOPOS_INLINE torch::Tensor compact_rows(const torch::Tensor& used, std::int64_t rows) {
+  auto row = torch::full({rows}, -1, used.options());
+  row.index_put_({used}, torch::arange(used.size(0), used.options()));
+  return row;
+}
+
+/// The cache key of a term's first `k` operations from `source`.
+TOPOS_INLINE std::string prefix_key(const CochainKey& source, const std::vector<TermOp>& list,
+                                    std::size_t k) {
+  std::string key = ops_str(source.str(), {list.begin(), list.begin() + static_cast<long>(k)});
+  for (std::size_t i = 0; i < k; ++i)
+    key += "|" + std::to_string(list[i].slope) + "," + std::to_string(list[i].p) + "," +
+           std::to_string(list[i].value) + "," + std::to_string(list[i].offset);
+  return key;
+}
+
+/// A term's operations over a batch neighbourhood: the aggregation, checked against x's rows.
+TOPOS_INLINE torch::Tensor aggregate_over(const std::string& where, const TermOp& t,
+                                          const TensorNeighborhood& n, const torch::Tensor& x) {
+  if (!aggregation(t)) not_an_aggregation(where, t.name);
+  check_reads(where, t.name, n.num_source, x.size(0));
+  return aggregate(x, n, aggregate_options(t));
+}
+
+/// The leading dimensions of inputs given as (..., cells, channels): the same for every input of
+/// the schedule, empty when all are matrices.
+TOPOS_INLINE std::vector<std::int64_t> leading_dims(
+    const std::vector<OperatorSchedule::Port>& ports,
+    const std::map<std::string, torch::Tensor>& inputs) {
+  std::vector<std::int64_t> lead;
+  std::string first;
+  for (const auto& port : ports) {
+    auto it = inputs.find(port.name);
+    if (it == inputs.end() || it->second.dim() < 2) continue;  // input_cochains says why
+    const auto sizes = it->second.sizes();
+    std::vector<std::int64_t> l(sizes.begin(), sizes.end() - 2);
+    if (first.empty()) {
+      lead = std::move(l);
+      first = port.name;
+    } else if (l != lead) {
+      throw ScheduleError("input '" + port.name + "' has leading dimensions " +
+                          shape_str(torch::empty(l)) + " but input '" + first + "' has " +
+                          shape_str(torch::empty(lead)));
+    }
+  }
+  return lead;
+}
+
+/// `run` on each element of the leading dimensions, the outputs stacked back into them.
+TOPOS_INLINE std::map<std::string, torch::Tensor> over_leading(
+    const std::vector<OperatorSchedule::Port>& ports,
+    const std::map<std::string, torch::Tensor>& inputs, const std::vector<std::int64_t>& lead,
+    const std::function<
+        std::map<std::string, torch::Tensor>(const std::map<std::string, torch::Tensor>&)>& run) {
+  std::int64_t n = 1;
+  for (auto d : lead) n *= d;
+  std::map<std::string, torch::Tensor> flat = inputs;
+  for (const auto& port : ports)
+    if (auto it = flat.find(port.name); it != flat.end())
+      it->second = it->second.reshape({n, it->second.size(-2), it->second.size(-1)});
+  std::map<std::string, std::vector<torch::Tensor>> outs;
+  for (std::int64_t b = 0; b < n; ++b) {
+    auto in = flat;
+    for (const auto& port : ports)
+      if (auto it = in.find(port.name); it != in.end()) it->second = it->second.select(0, b);
+    for (auto& [name, y] : run(in)) outs[name].push_back(std::move(y));
+  }
+  std::map<std::string, torch::Tensor> out;
+  for (auto& [name, ys] : outs) {
+    auto shape = lead;
+    const auto inner = ys[0].sizes();
+    shape.insert(shape.end(), inner.begin(), inner.end());
+    out[name] = torch::stack(ys).reshape(shape);
+  }
+  return out;
+}
+
+/// A · x, divided by A's row sums with `row_norm` (0 where a row sums to 0).
+TOPOS_INLINE torch::Tensor multiply(const std::string& where, const std::string& name,
+                                    const SparseOperator& A, const torch::Tensor& x,
+                                    bool row_norm) {
+  detail::check_fits(where, name, A, x);
+  const auto y = spmm(A, x);
+  return row_norm ? divide_by_row_sums(A, y) : y;
+}
+
+}  // namespace detail
+
+TOPOS_INLINE std::size_t OperatorNetworkImpl::apply_fused(const std::string& where,
+                                                          const CochainKey& target,
+                                                          const std::vector<TermOp>& list,
+                                                          std::size_t i, torch::Tensor& x,
+                                                          Operators& ops, const Cochains& h) {
+  const auto& t = list[i];
+  const auto is_product = [&](const TermOp& o) {
+    return (o.kind == TermOp::Kind::via || o.kind == TermOp::Kind::via_transposed) && o.role == 0 &&
+           !ops.neighborhood(o.name);
+  };
+  // A weight next to a sparse product: A (x W) = (A x) W, so the dense product runs on the side
+  // with fewer rows (SCCN's tetrahedra to triangles: the weight after the sum, on a quarter of
+  // the rows). Sparse entries are weighted as 4 dense multiply-adds (their gather is slower).
+  if (fast_ && i + 1 < list.size() && x.dim() == 2) {
+    const bool weight_first = t.kind == TermOp::Kind::weight && is_product(list[i + 1]);
+    const bool via_first = is_product(t) && list[i + 1].kind == TermOp::Kind::weight;
+    const auto& p = weight_first ? list[i + 1] : t;
+    const auto& w = weight_first ? t : list[i + 1];
+    if (weight_first || via_first) {
+      const auto& W = params_.at(w.name);
+      const bool transposed = p.kind == TermOp::Kind::via_transposed;
+      const auto& A = transposed ? ops.t(where, p.name) : ops.at(where, p.name);
+      if (W.dim() == 2 && A.cols == x.size(0)) {
+        const double n = static_cast<double>(x.size(0)), m = static_cast<double>(A.rows),
+                     nnz = 4.0 * static_cast<double>(A.nnz()),
+                     c_in = static_cast<double>(W.size(0)), c_out = static_cast<double>(W.size(1));
+        const double cost_weight_first = n * c_in * c_out + nnz * c_out,
+                     cost_via_first = nnz * c_in + m * c_in * c_out;
+        if (weight_first ? cost_via_first < 0.8 * cost_weight_first
+                         : cost_weight_first < 0.8 * cost_via_first) {
+          const auto name = transposed ? p.name + "ᵀ" : p.name;
+          if (weight_first) {
+            x = detail::multiply(where, name, A, x, p.row_norm);
+            x = linear_act(x, W.t(), {});
+          } else {
+            x = detail::multiply(where, name, A, linear_act(x, W.t(), {}), p.row_norm);
+          }
+          return i + 1;
+        }
+      }
+    }
+  }
+  const bool product = (is_product(t) && !t.row_norm) || t.kind == TermOp::Kind::linear;
+  if (!product || i + 1 >= list.size() || list[i + 1].kind != TermOp::Kind::act ||
+      !fusable(list[i + 1].update)) {
+    x = apply(where, target, t, x, ops, h);
+    return i;
+  }
+  const auto act = epilogue_of(list[i + 1].update);
+  if (t.kind == TermOp::Kind::linear) {
+    x = linear_act(x, params_.at(t.name + ".weight"),
+                   t.bias ? params_.at(t.name + ".bias") : torch::Tensor(), act);
+  } else {
+    const bool transposed = t.kind == TermOp::Kind::via_transposed;
+    const auto& A = transposed ? ops.t(where, t.name) : ops.at(where, t.name);
+    detail::check_fits(where, transposed ? t.name + "ᵀ" : t.name, A, x);
+    x = spmm(A, x, act);
+  }
+  return i + 1;
+}
+
+TOPOS_INLINE torch::Tensor OperatorNetworkImpl::apply(const std::string& where,
+                                                      const CochainKey& target, const TermOp& t,
+                                                      torch::Tensor x, Operators& ops,
+                                                      const Cochains& h) {
+  if (t.kind == TermOp::Kind::via || t.kind == TermOp::Kind::pattern) {
+    if (const auto* n = ops.neighborhood(t.name)) return detail::aggregate_over(where, t, *n, x);
+    if (t.role != 0)
+      throw ScheduleError(where + ": only(" + std::to_string(t.role) + ") needs a neighbourhood " +
+                          "with roles, and operator '" + t.name + "' is a sparse operator");
+  }
+  switch (t.kind) {
+    case TermOp::Kind::via: {
+      return detail::multiply(where, t.name, ops.at(where, t.name), x, t.row_norm);
+    }
+    case TermOp::Kind::via_transposed: {
+      return detail::multiply(where, t.name + "ᵀ", ops.t(where, t.name), x, t.row_norm);
+    }
+    case TermOp::Kind::attend:
+      return attend(where, target, t, x, ops, h);
+    case TermOp::Kind::batch_norm:
+      return batch_norms_.at(t.name)->forward(x);
+    case TermOp::Kind::layer_norm:
+      return layer_norms_.at(t.name)->forward(x);
+    case TermOp::Kind::pattern: {
+      const auto& A = ops.at(where, t.name);
+      detail::check_fits(where, t.name, A, x);
+      return pattern_aggregate(A, x, t.aggr);
+    }
+    case TermOp::Kind::weight: {
+      const auto& W = params_.at(t.name);
+      return x.dim() == 2 && W.dim() == 2 ? linear_act(x, W.t(), {}) : x.matmul(W);
+    }
+    case TermOp::Kind::linear: {
+      const auto& b = t.bias ? params_.at(t.name + ".bias") : torch::Tensor();
+      return torch::linear(x, params_.at(t.name + ".weight"), b);
+    }
+    case TermOp::Kind::act:
+      return apply_update(x, t.update, t.slope);
+    case TermOp::Kind::dropout:
+      return torch::dropout(x, t.p, is_training());
+    case TermOp::Kind::unit_rows:
+      return unit_rows(x);
+    case TermOp::Kind::powers:
+      break;  // handled by the caller (it fans out)
+    case TermOp::Kind::scale:
+      return x * t.p;
+    case TermOp::Kind::head_weights: {     // x [W_1 | ... | W_H]: one product, head-major
+      const auto& W = params_.at(t.name);  // heads × in × out
+      return linear_act(x, W.permute({1, 0, 2}).reshape({W.size(1), -1}).t(), {});
+    }
+    case TermOp::Kind::bias:
+      return x + params_.at(t.name).reshape({-1});
+    case TermOp::Kind::learned_scale:
+      return (t.offset + params_.at(t.name)) * x;
+    case TermOp::Kind::pow:
+      return x.pow(t.value);
+    case TermOp::Kind::normalize:
+      return x / (t.per_row ? x.norm(2, 1, true) : x.norm()).clamp_min(1e-12);
+    case TermOp::Kind::mlp:
+      return mlps_.at(t.name)->forward(x);
+    case TermOp::Kind::custom: {
+      detail::NetworkRunContext ctx(*this, where, ops, h);
+      return t.operation->forward(ctx, x);
+    }
+  }
+  return x;
+}
+
+TOPOS_INLINE torch::Tensor OperatorNetworkImpl::attend(const std::string& where,
+                                                       const CochainKey& target, const TermOp& t,
+                                                       const torch::Tensor& x, Operators& ops,
+                                                       const Cochains& h) {
+  const auto& o = t.attention;
+  const auto& A = o.transposed() ? ops.t(where, t.name) : ops.at(where, t.name);
+  const auto name = t.name + (o.transposed() ? "ᵀ" : "");
+  detail::check_fits(where, name, A, x);
+  auto k = x;
+  if (o.keys()) {
+    k = h.at(o.keys()->rank, o.keys()->state);
+    detail::check_fits(where, name, A, k);
+  }
+  torch::Tensor q;
+  if (!o.source_only()) {
+    const auto& key = o.queries() ? *o.queries() : target;
+    q = h.at(key.rank, key.state);
+    if (A.rows != q.size(0))
+      throw ScheduleError(where + ": operator '" + name + "' has " + std::to_string(A.rows) +
+                          " rows but the " +
+                          (o.queries() ? "query cochain " + key.str() : "target cochain") +
+                          " has " + std::to_string(q.size(0)));
+  }
+  // The parameter's parts a_s and a_t (heads-major), per cell and head <f_h, a_h>, per entry
+  // a_s·k_j (+ a_t·q_i); then the weights and each head's messages (functional.hpp).
+  const auto H = o.heads();
+  const auto a = params_.at(o.param()).reshape({-1});
+  const auto ck = k.size(1);
+  const auto raw = q.defined() ? entry_scores(A, head_scores(k, a.narrow(0, 0, ck), H),
+                                              head_scores(q, a.narrow(0, ck, a.size(0) - ck), H))
+                               : head_scores(k, a, H).index_select(0, A.col.to(x.device()));
+  return multi_head_attention(A, raw, x, o.concat(), o.activation(), o.negative_slope(), o.norm(),
+                              o.dropout(), is_training());
+}
+
+TOPOS_INLINE OperatorNetworkImpl::TermValue OperatorNetworkImpl::evaluate_term(
+    const std::string& where, const CochainKey& target, const ops::Term& term, const Cochains& h,
+    Operators& ops, PrefixCache& cache, bool may_defer) {
+  TermValue v;
+  const auto& list = term.operations();
+  std::size_t k = 0;  // the first operation that is not row-wise
+  while (k < list.size() && detail::row_wise(list[k])) ++k;
+  const TensorNeighborhood* nb =
+      k < list.size() && detail::aggregation(list[k]) ? ops.neighborhood(list[k].name) : nullptr;
+  if (nb == nullptr) return v;  // not handled here
+  v.handled = true;
+  torch::Tensor x = h.at(term.source.rank, term.source.state);
+  TensorNeighborhood n = *nb;
+  const auto rows = h.rows(term.source);  // defined for a compact cochain: each cell's row
+  detail::check_reads(where, list[k].name, n.num_source, rows.defined() ? rows.size(0) : x.size(0),
+                      term.source.str());
+  if (rows.defined()) {
+    n.source = rows.index_select(0, n.source);
+    n.num_source = x.size(0);
+  }
+  if (k > 0) {
+    const auto key = fast_ ? detail::prefix_key(term.source, list, k) : std::string();
+    const auto cached = fast_ ? cache.find(key) : cache.end();
+    torch::Tensor used;
+    if (cached == cache.end() && fast_) {
+      used = std::get<0>(torch::_unique(n.source, /*sorted=*/true));
+      if (used.size(0) >= x.size(0)) used = torch::Tensor();
+    }
+    if (cached != cache.end()) {
+      x = cached->second;
+    } else if (used.defined()) {
+      // Some source rows send nothing here: the row-wise prefix runs on the others only, and
+      // the pairs' sources are renumbered.
+      x = x.index_select(0, used);
+      for (std::size_t i = 0; i < k; ++i) i = apply_fused(where, target, list, i, x, ops, h);
+      n.source = detail::compact_rows(used, n.num_source).index_select(0, n.source);
+      n.num_source = used.size(0);
+    } else {
+      for (std::size_t i = 0; i < k; ++i) i = apply_fused(where, target, list, i, x, ops, h);
+      if (fast_) cache.emplace(key, x);
+    }
+  }
+  v.agg = detail::aggregate_options(list[k]);
+  if (may_defer && k + 1 == list.size()) {
+    v.deferred = true;
+    v.x = std::move(x);
+    v.n = std::move(n);
+    return v;
+  }
+  x = aggregate(x, n, v.agg);
+  for (std::size_t i = k + 1; i < list.size(); ++i)
+    i = apply_fused(where, target, list, i, x, ops, h);
+  v.value = std::move(x);
+  return v;
+}
+
+}  // namespace topos::nn
