@@ -5,7 +5,7 @@
 // viewer, and the training curves when the checkpoint's folder has its logs); `hopnet plot`
 // writes the training curves alone. The plots are Chart.js (web_assets.hpp); the page is
 // web/report.html, filled with the numbers as JSON. Also what the report reads: the training
-// logs (steps.csv, epochs.csv), the paper's result tables (hopnet-spec section 15) and the
+// logs (steps.csv, epochs.csv), the paper's result tables (docs/reproduction.md) and the
 // dataset kind, inferred from the scenes' shapes and sizes.
 #pragma once
 
@@ -144,8 +144,9 @@ inline nlohmann::json training_json(const TrainingLog& log) {
 // ---- the paper's results and the dataset kind -------------------------------------------------
 
 /// One row of the paper's supplementary tables: mean ± std over three training seeds at frames
-/// 25, 50, 75, 100 (hopnet-spec.md section 15). The orientation figures are printed as RMSE
-/// but are probably the MAE (spec section 9), so the report sets them beside ori_mae.
+/// 25, 50, 75, 100 (the paper's Tables 4-11, docs/reproduction.md). The orientation figures are
+/// printed as RMSE but are probably the MAE (docs/reproduction.md), so the report sets them
+/// beside ori_mae.
 struct PaperRow {
   std::string kind, label;
   std::array<double, 4> pos, pos_std, ori, ori_std;
@@ -213,9 +214,9 @@ inline const std::vector<PaperRow>& paper_rows() {
   return rows;
 }
 
-/// The MOVi kind the scenes were drawn from, by the generator's rules (movi-generation.md
-/// section 1): spheres has only spheres and A only cubes, cylinders and spheres, both of size
-/// 0.7 or 1.4; B has the other KuBasic shapes or sizes in between. "" when nothing fits (an
+/// The MOVi kind the scenes were drawn from, by the generator's rules
+/// (topos/data/movi_generator.hpp): spheres has only spheres and A only cubes, cylinders and
+/// spheres, both of size 0.7 or 1.4; B has the other KuBasic shapes or sizes in between. "" when nothing fits (an
 /// asset outside KuBasic, a MOVi-C scene). `why` says what decided.
 inline std::string infer_movi_kind(const std::vector<topos::data::KubricScene>& scenes,
                                    std::string* why = nullptr) {

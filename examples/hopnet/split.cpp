@@ -31,7 +31,7 @@ Command add_split(CLI::App& app) {
   auto args = std::make_shared<SplitArgs>();
   auto& sp = *args;
   auto* cs = app.add_subcommand(
-      "split", "the reference 80/10/10 split of a seed set or dataset (spec section 10)");
+      "split", "the reference 80/10/10 split of a seed set or dataset (docs/datasets.md)");
   cs->add_option("--seeds", sp.seeds, "seed set, e.g. 1-1200");
   cs->add_option("--data", sp.data, "or: a dataset folder")->check(CLI::ExistingDirectory);
   cs->add_option("--part", sp.part, "print one part as a comma-separated list: train, val or test");

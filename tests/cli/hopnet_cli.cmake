@@ -71,7 +71,7 @@ file(WRITE ${WORK}/junk.pt "not a checkpoint")
 expect_failure("not a checkpoint" "not a readable torch file" info --checkpoint ${WORK}/junk.pt)
 expect_failure("missing option" "--checkpoint is required" rollout --stats ${WORK}/stats.json --scene ${WORK}/scene --out ${WORK}/out.json)
 
-# The HOPNet family: parameter counts of every preset and composition (hopnet-ablations-spec 4),
+# The HOPNet family: parameter counts of every preset and composition (docs/hopnet.md),
 # the variant a checkpoint is, and bad configurations.
 foreach(case "standard=707078" "nox4=539651" "noseq=951814" "no-cm-distance=706054" "mlp3=1037318" "mp2=1287174" "hidden64=181510"
              "mlp3,no-cm-distance=1036294" "mp2,no-cm-distance=1286150" "hidden64,no-cm-distance=180998")

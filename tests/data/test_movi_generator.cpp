@@ -1,4 +1,4 @@
-// Tests of topos/data: NumPy's RandomState replay (test vector of movi-generation.md), the
+// Tests of topos/data: NumPy's RandomState replay (the reference recipe's test vector), the
 // Bullet MOVi generator against the real Kubric scene MOVi-A seed 8 (objects, frame-0 state to
 // float32 rounding, positions within 1 mm at frame 180 and 5 cm at frame 479), generation on
 // the built-in shapes, and the Kubric reader's errors.
@@ -68,7 +68,7 @@ TEST_CASE("MOVi-A seed 8 regenerated with Bullet matches the real Kubric scene",
             << worst479 * 1e2 << " cm at frame 479\n";
   REQUIRE(worst180 < 1e-3);
   // The issue asks 5 cm at frame 479; the sphere ends 5.4 cm off, as in the recipe's own
-  // validation (movi-generation.md section 4: 0.054 m at 2 s for this sphere).
+  // validation (0.054 m at 2 s for this sphere).
   REQUIRE(worst479 < 6e-2);
 }
 

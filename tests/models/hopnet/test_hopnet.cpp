@@ -285,12 +285,12 @@ NormalizationStats unit_stats() {
   for (const auto& [k, n] : NormalizationStats::layout())
     s.mean[k].assign(n, 0.0), s.std[k].assign(n, 1.0);
   s.mean["x4"][8] = s.mean["x4"][9] = s.std["x4"][8] = s.std["x4"][9] =
-      0.5;  // type columns, as spec 5 forces
+      0.5;  // type columns, as the reference forces them
   return s;
 }
 }  // namespace
 
-TEST_CASE("normalisation statistics: population moments with the shared scales of spec 5",
+TEST_CASE("normalisation statistics: population moments with the reference's shared scales",
           "[hopnet][stats]") {
   std::mt19937 rng(5);
   std::normal_distribution<double> nd;
@@ -839,13 +839,13 @@ TEST_CASE("LibTorch's Adam fed the reference's gradients reproduces its three st
   }
 }
 
-// ---- the HOPNet family (hopnet-ablations-spec.md) ---------------------------------------------
+// ---- the HOPNet family (docs/hopnet.md) ----------------------------------------------------
 
 TEST_CASE(
     "HOPNet variants: presets compose into the reference's parameter counts; bad configurations "
     "are errors",
     "[hopnet][variants]") {
-  // Counts of hopnet-ablations-spec section 4 (the reference classes' constructions).
+  // Counts of the reference classes' constructions (docs/hopnet.md, the HOPNet family).
   for (const auto& [config, want] :
        std::vector<std::pair<std::string, std::int64_t>>{{"standard", 707078},
                                                          {"nox4", 539651},
@@ -938,14 +938,14 @@ TEST_CASE(
   REQUIRE(V.model->num_parameters() == 539651);
   REQUIRE(V.dict.size() == 88);
   REQUIRE(variant_name(V.model->options) == "nox4");
-  // The complex of hopnet-ablations-spec 1.1.
+  // The complex of the ablation golden case (nox4 on MOVi-A scene 8).
   const auto& g = V.g;
   REQUIRE(g.num_rank0() == 187);
   REQUIRE(g.num_rank1() == 707);
   std::int64_t virtual_first = 0;
   for (char c : g.spoke_virtual_first) virtual_first += c;
   REQUIRE(virtual_first == 54);
-  // z0 of the nox4 statistics (spec 1.3), in float32.
+  // z0 of the nox4 statistics, in float32.
   const auto z0 = V.norm.zero_node_acceleration();
   REQUIRE(z0[0].item<float>() == Approx(-1.2923704e-4f).epsilon(1e-6));
   REQUIRE(z0[1].item<float>() == Approx(4.3692067e-5f).epsilon(1e-6));
@@ -992,7 +992,7 @@ TEST_CASE(
       REQUIRE(acc[186].abs().max().item<double>() == 0.0);
     }
   }
-  // Node features of spec 1.2: x0n[0, 16:21] and the cylinder's virtual row at t = 3.
+  // Node features of the golden case: x0n[0, 16:21] and the cylinder's virtual row at t = 3.
   const auto tf = trajectory_frames(V.G.scene, g, 0.1, 0.0, 3, 3);
   const auto x0n = V.norm.normalize("x0", tf.frames[0].x0);
   const std::array<double, 5> obj{1, -1, 0.071063, 1.008522, 1.012018};
