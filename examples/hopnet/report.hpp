@@ -216,8 +216,8 @@ inline const std::vector<PaperRow>& paper_rows() {
 
 /// The MOVi kind the scenes were drawn from, by the generator's rules
 /// (topos/data/movi_generator.hpp): spheres has only spheres and A only cubes, cylinders and
-/// spheres, both of size 0.7 or 1.4; B has the other KuBasic shapes or sizes in between. "" when nothing fits (an
-/// asset outside KuBasic, a MOVi-C scene). `why` says what decided.
+/// spheres, both of size 0.7 or 1.4; B has the other KuBasic shapes or sizes in between. ""
+/// when nothing fits (an asset outside KuBasic, a MOVi-C scene). `why` says what decided.
 inline std::string infer_movi_kind(const std::vector<topos::data::KubricScene>& scenes,
                                    std::string* why = nullptr) {
   static const std::set<std::string> clevr{"cube", "cylinder", "sphere"};
