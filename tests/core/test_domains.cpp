@@ -225,6 +225,13 @@ TEST_CASE("Hodge Laplacians equal B^T B + B B^T, unsigned ones |.|, adjacency th
     }
     REQUIRE(sc.hodge_laplacian_matrix(k).isApprox(
         SparseMatrix(sc.hodge_laplacian_matrix(k).transpose())));
+    // Row sums of |L| from the factors, without forming L (cancellations included).
+    if (k > 0 && k < sc.dim()) {
+      const SparseMatrix b = sc.incidence_matrix(k), c = sc.incidence_matrix(k + 1);
+      const SparseMatrix bt = b.transpose(), ct = c.transpose();
+      REQUIRE(sparse::abs_row_sums_of_products({{&bt, &b}, {&c, &ct}}) ==
+              l.cwiseAbs().rowwise().sum());
+    }
   }
   const CellComplex cx = torus_cells(3, 4);
   const Dense b1(cx.incidence_matrix(1)), b2(cx.incidence_matrix(2));

@@ -112,7 +112,7 @@ inline bool check_product_terms(const ProductTerms& terms) {
 
 // Calls f(terms') with every factor compressed (copies only when needed).
 template <class F>
-SparseMatrix with_compressed_terms(const ProductTerms& terms, F&& f) {
+auto with_compressed_terms(const ProductTerms& terms, F&& f) {
   std::vector<SparseMatrix> copies;
   copies.reserve(2 * terms.size());
   ProductTerms t;
@@ -266,6 +266,39 @@ inline SparseMatrix multiply_sum_symmetric(const ProductTerms& terms) {
   if (detail::check_product_terms(terms)) return detail::multiply_sum_symmetric_compressed(terms);
   return detail::with_compressed_terms(
       terms, [](const ProductTerms& t) { return detail::multiply_sum_symmetric_compressed(t); });
+}
+
+/// The row sums of |A1 * B1 + A2 * B2 + ...| without forming the sum: one row at a time in a
+/// dense accumulator, so the memory is O(columns) however many entries the sum has (the
+/// normalisation of a Hodge Laplacian applied as its factors, where entries of the two products
+/// cancel and |L| is not |A1 B1| + |A2 B2|).
+inline Eigen::VectorXd abs_row_sums_of_products(const ProductTerms& terms) {
+  if (!detail::check_product_terms(terms))
+    return detail::with_compressed_terms(
+        terms, [](const ProductTerms& t) { return abs_row_sums_of_products(t); });
+  const std::int64_t n = terms[0].first->rows(), m = terms[0].second->cols();
+  Eigen::VectorXd sums = Eigen::VectorXd::Zero(n);
+  std::vector<double> acc(static_cast<std::size_t>(m), 0.0);
+  std::vector<std::int64_t> touched;
+  for (std::int64_t i = 0; i < n; ++i) {
+    for (const auto& [a, b] : terms) {
+      const std::int64_t *ao = a->outerIndexPtr(), *ai = a->innerIndexPtr();
+      const std::int64_t *bo = b->outerIndexPtr(), *bi = b->innerIndexPtr();
+      const double *av = a->valuePtr(), *bv = b->valuePtr();
+      for (std::int64_t p = ao[i]; p < ao[i + 1]; ++p)
+        for (std::int64_t q = bo[ai[p]]; q < bo[ai[p] + 1]; ++q) {
+          auto& x = acc[static_cast<std::size_t>(bi[q])];
+          if (x == 0.0) touched.push_back(bi[q]);  // listed again if it cancels to 0: harmless
+          x += av[p] * bv[q];
+        }
+    }
+    double s = 0;
+    for (const auto j : touched)
+      s += std::abs(acc[static_cast<std::size_t>(j)]), acc[static_cast<std::size_t>(j)] = 0.0;
+    sums[i] = s;
+    touched.clear();
+  }
+  return sums;
 }
 
 /// A * B (see multiply_sum).

@@ -125,6 +125,7 @@ inline torch::Tensor pattern_aggregate(const SparseOperator& A, const torch::Ten
     throw std::invalid_argument(
         "pattern_aggregate: max over a sparse operator's pattern is not "
         "supported (it is over a batch neighbourhood)");
+  A.require_entries("pattern_aggregate");
   auto y = spmm(A.pattern().to(x.scalar_type()), x);
   if (aggr == Aggr::mean) {
     const auto count = torch::diff(A.crow).to(x.scalar_type()).clamp_min(1).to(x.device());
@@ -156,6 +157,7 @@ inline std::vector<torch::Tensor> powers(const SparseOperator& A, torch::Tensor 
 /// Per-entry scores from per-cell ones: s_col[col k] + s_row[row k] (a source's and a target's).
 inline torch::Tensor entry_scores(const SparseOperator& A, const torch::Tensor& s_col,
                                   const torch::Tensor& s_row) {
+  A.require_entries("entry_scores");
   return s_col.index_select(0, A.col.to(s_col.device())) +
          s_row.index_select(0, A.row.to(s_row.device()));
 }
@@ -315,7 +317,7 @@ inline torch::Tensor apply_affine_power(const std::vector<SparseOperator>& terms
                                   std::to_string(A.rows) + " x " + std::to_string(A.cols));
   if (k == 0) return x;
   bool plain = !x.device().is_cpu();
-  for (const auto& A : terms) plain = plain || A.values.requires_grad();
+  for (const auto& A : terms) plain = plain || A.factored() || A.values.requires_grad();
   if (plain) {
     auto y = x;
     for (int i = 0; i < k; ++i) {

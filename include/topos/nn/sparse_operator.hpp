@@ -6,6 +6,12 @@
 // kernel (kernels.hpp) walks each target row once with the channel loop in vector registers,
 // several times faster on one core than torch 1.13's COO kernel. Row-wise softmax over the
 // pattern (attention) and row sums complete the set.
+//
+// An operator too large to form can be kept as its factors (SparseOperator::product_sum):
+// diag(l) · Σ_k F_k1 F_k2 ⋯ · diag(r), which spmm applies factor by factor. REDDIT-BINARY's rank-1
+// down Laplacian B_1ᵀB_1 has Σ_v deg(v)² = 372 million entries; its factors have four per edge.
+// Such an operator has no explicit entries: what needs them (attention, with_values, the
+// operator algebra) says so; materialize() forms it.
 #pragma once
 
 #include "topos/nn/kernels.hpp"
@@ -18,6 +24,7 @@
 #include <cstring>
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <numeric>
 #include <stdexcept>
 #include <string>
@@ -45,9 +52,33 @@ struct SparseOperator {
   std::int64_t rows = 0, cols = 0;
   torch::Tensor crow, col, row, values;
   torch::Tensor t_crow, t_col, t_row, t_perm;
+  /// Set for a factored operator (product_sum), whose CSR fields are then undefined.
+  struct Factors;
+  std::shared_ptr<const Factors> factors;
 
-  std::int64_t nnz() const { return col.defined() ? col.size(0) : 0; }
-  bool defined() const { return crow.defined(); }
+  /// Stored entries; for a factored operator, its factors' entries (the work of one product).
+  std::int64_t nnz() const;
+  bool defined() const { return crow.defined() || factors; }
+  bool factored() const { return static_cast<bool>(factors); }
+  /// Throws, naming `who`, when the operator is factored (it has no entries to read).
+  void require_entries(const std::string& who) const {
+    if (factors)
+      throw std::invalid_argument(who + ": the operator (" + std::to_string(rows) + " x " +
+                                  std::to_string(cols) +
+                                  ") is kept as a product of sparse factors and has no explicit "
+                                  "entries; materialize() it first");
+  }
+
+  /// diag(left) · Σ_k (products[k][0] · products[k][1] ⋯) · diag(right), kept as its factors and
+  /// applied factor by factor (left, right: one value per row / column, or undefined). Every
+  /// product must chain and have the same shape. Differentiable in x, not in the factors.
+  static SparseOperator product_sum(std::vector<std::vector<SparseOperator>> products,
+                                    torch::Tensor left = {}, torch::Tensor right = {});
+  /// The explicit operator (a factored one multiplied out, entries that are zero dropped); an
+  /// explicit one as is. Not differentiable.
+  SparseOperator materialize() const;
+  /// A · B for explicit operators, by rows (Gustavson), zeros dropped. Not differentiable.
+  static SparseOperator product(const SparseOperator& a, const SparseOperator& b);
 
   /// From (row, col, value) triplets in any order; duplicates are summed and entries that are
   /// exactly zero in `dtype` dropped, so the pattern is the nonzero entries (what a dense
@@ -147,6 +178,7 @@ struct SparseOperator {
 
   /// Aᵀ; its values are a differentiable gather of A's.
   SparseOperator t() const {
+    if (factors) return transposed_factors();
     SparseOperator b;
     b.rows = cols;
     b.cols = rows;
@@ -158,6 +190,7 @@ struct SparseOperator {
   }
   /// The same pattern with other values (one per entry, row-major order), e.g. attention.
   SparseOperator with_values(torch::Tensor v) const {
+    require_entries("SparseOperator::with_values");
     if (v.dim() != 1 || v.size(0) != nnz())
       throw std::invalid_argument("SparseOperator::with_values: expected " + std::to_string(nnz()) +
                                   " values");
@@ -165,7 +198,7 @@ struct SparseOperator {
     b.values = std::move(v);
     return b;
   }
-  SparseOperator to(torch::Dtype dtype) const { return with_values(values.to(dtype)); }
+  SparseOperator to(torch::Dtype dtype) const;
   /// |A|, or every stored entry set to one (the pattern).
   SparseOperator abs() const { return with_values(values.abs()); }
   SparseOperator pattern() const { return with_values(torch::ones_like(values)); }
@@ -173,20 +206,16 @@ struct SparseOperator {
   /// (n-1-i)-th): the pairing of code that matches values listed in ascending column order with
   /// the indices of a product listed in descending order (TopoModelX's HBS attention).
   torch::Tensor row_mirror() const {
+    require_entries("SparseOperator::row_mirror");
     const auto k = torch::arange(nnz(), row.options());
     return crow.index_select(0, row) + crow.index_select(0, row + 1) - 1 - k;
   }
-  torch::Tensor row_sums() const {
-    return torch::zeros({rows}, values.options()).index_add(0, row, values);
-  }
-  torch::Tensor col_sums() const {
-    return torch::zeros({cols}, values.options()).index_add(0, col, values);
-  }
-  torch::Tensor to_dense() const {
-    return torch::zeros({rows, cols}, values.options()).index_put({row, col}, values);
-  }
+  torch::Tensor row_sums() const;
+  torch::Tensor col_sums() const;
+  torch::Tensor to_dense() const;
   /// diag(left) · A · diag(right) (either may be undefined): a differentiable rescale.
   SparseOperator scaled(const torch::Tensor& left, const torch::Tensor& right = {}) const {
+    if (factors) return scaled_factors(left, right);
     auto v = values;
     if (left.defined()) v = v * left.index_select(0, row);
     if (right.defined()) v = v * right.index_select(0, col);
@@ -222,6 +251,7 @@ struct SparseOperator {
   /// A ⊙ B (same shape), entry by entry: the entries where both patterns meet (products that
   /// are zero dropped). Operator algebra, not differentiable.
   static SparseOperator hadamard(const SparseOperator& a, const SparseOperator& b) {
+    a.require_entries("SparseOperator::hadamard"), b.require_entries("SparseOperator::hadamard");
     if (a.rows != b.rows || a.cols != b.cols)
       throw std::invalid_argument("SparseOperator::hadamard: shapes differ");
     const auto ca = index_vector(a.crow), cola = index_vector(a.col), cb = index_vector(b.crow),
@@ -249,6 +279,7 @@ struct SparseOperator {
   /// the order given: entry (i, j) is A[keep[i], keep[j]] (index_select on both dimensions, as
   /// CAN's pooling restricts its Laplacians to the cells it keeps). Not differentiable.
   SparseOperator principal_submatrix(const torch::Tensor& keep) const {
+    require_entries("SparseOperator::principal_submatrix");
     if (rows != cols)
       throw std::invalid_argument(
           "SparseOperator::principal_submatrix: the operator is not square");
@@ -275,6 +306,7 @@ struct SparseOperator {
   /// A + B (same shape): the union of both patterns (entries that sum to zero dropped), by a
   /// merge of the sorted rows, O(nnz). Operator algebra, not differentiable.
   static SparseOperator sum(const SparseOperator& a, const SparseOperator& b) {
+    a.require_entries("SparseOperator::sum"), b.require_entries("SparseOperator::sum");
     if (a.rows != b.rows || a.cols != b.cols)
       throw std::invalid_argument("SparseOperator::sum: shapes differ");
     const auto ca = index_vector(a.crow), cola = index_vector(a.col), cb = index_vector(b.crow),
@@ -305,7 +337,131 @@ struct SparseOperator {
     return from_sorted(a.rows, a.cols, r, c,
                        torch::tensor(v, torch::kDouble).to(a.values.scalar_type()));
   }
+
+ private:
+  SparseOperator transposed_factors() const;
+  SparseOperator scaled_factors(const torch::Tensor& left, const torch::Tensor& right) const;
 };
+
+/// A factored operator's parts (SparseOperator::product_sum).
+struct SparseOperator::Factors {
+  std::vector<std::vector<SparseOperator>> products;  ///< each applied right to left
+  torch::Tensor left, right;                          ///< diagonal scales, or undefined
+};
+
+inline std::int64_t SparseOperator::nnz() const {
+  if (!factors) return col.defined() ? col.size(0) : 0;
+  std::int64_t n = 0;
+  for (const auto& p : factors->products)
+    for (const auto& f : p) n += f.nnz();
+  return n;
+}
+
+inline SparseOperator SparseOperator::product_sum(std::vector<std::vector<SparseOperator>> products,
+                                                  torch::Tensor left, torch::Tensor right) {
+  if (products.empty() || products[0].empty())
+    throw std::invalid_argument("SparseOperator::product_sum: no product");
+  const auto rows = products[0].front().rows, cols = products[0].back().cols;
+  for (std::size_t k = 0; k < products.size(); ++k) {
+    const auto& p = products[k];
+    if (p.empty()) throw std::invalid_argument("SparseOperator::product_sum: an empty product");
+    for (std::size_t i = 0; i < p.size(); ++i) {
+      if (!p[i].defined())
+        throw std::invalid_argument("SparseOperator::product_sum: product " + std::to_string(k) +
+                                    " has an undefined factor");
+      if (i + 1 < p.size() && p[i].cols != p[i + 1].rows)
+        throw std::invalid_argument(
+            "SparseOperator::product_sum: in product " + std::to_string(k) + ", factor " +
+            std::to_string(i) + " has " + std::to_string(p[i].cols) + " columns but factor " +
+            std::to_string(i + 1) + " has " + std::to_string(p[i + 1].rows) + " rows");
+    }
+    if (p.front().rows != rows || p.back().cols != cols)
+      throw std::invalid_argument("SparseOperator::product_sum: product " + std::to_string(k) +
+                                  " is " + std::to_string(p.front().rows) + " x " +
+                                  std::to_string(p.back().cols) + ", product 0 is " +
+                                  std::to_string(rows) + " x " + std::to_string(cols));
+  }
+  if ((left.defined() && (left.dim() != 1 || left.size(0) != rows)) ||
+      (right.defined() && (right.dim() != 1 || right.size(0) != cols)))
+    throw std::invalid_argument("SparseOperator::product_sum: the diagonal scales must have " +
+                                std::to_string(rows) + " and " + std::to_string(cols) + " entries");
+  SparseOperator a;
+  a.rows = rows, a.cols = cols;
+  a.factors = std::make_shared<const Factors>(Factors{std::move(products), left, right});
+  return a;
+}
+
+inline SparseOperator SparseOperator::transposed_factors() const {
+  std::vector<std::vector<SparseOperator>> products;
+  for (const auto& p : factors->products) {
+    std::vector<SparseOperator> q;
+    for (auto it = p.rbegin(); it != p.rend(); ++it) q.push_back(it->t());
+    products.push_back(std::move(q));
+  }
+  return product_sum(std::move(products), factors->right, factors->left);
+}
+
+inline SparseOperator SparseOperator::scaled_factors(const torch::Tensor& left,
+                                                     const torch::Tensor& right) const {
+  const auto times = [](const torch::Tensor& a, const torch::Tensor& b) {
+    return !a.defined() ? b : !b.defined() ? a : a * b;
+  };
+  return product_sum(factors->products, times(factors->left, left), times(factors->right, right));
+}
+
+inline SparseOperator SparseOperator::to(torch::Dtype dtype) const {
+  if (!factors) return with_values(values.to(dtype));
+  auto products = factors->products;
+  for (auto& p : products)
+    for (auto& f : p) f = f.to(dtype);
+  const auto cast = [&](const torch::Tensor& d) { return d.defined() ? d.to(dtype) : d; };
+  return product_sum(std::move(products), cast(factors->left), cast(factors->right));
+}
+
+inline SparseOperator SparseOperator::product(const SparseOperator& a, const SparseOperator& b) {
+  a.require_entries("SparseOperator::product"), b.require_entries("SparseOperator::product");
+  if (a.cols != b.rows)
+    throw std::invalid_argument("SparseOperator::product: " + std::to_string(a.rows) + " x " +
+                                std::to_string(a.cols) + " times " + std::to_string(b.rows) +
+                                " x " + std::to_string(b.cols));
+  const auto ac = index_vector(a.crow), acol = index_vector(a.col), bc = index_vector(b.crow),
+             bcol = index_vector(b.col);
+  const auto av = value_vector(a.values), bv = value_vector(b.values);
+  std::vector<double> acc(static_cast<std::size_t>(b.cols), 0.0);
+  std::vector<char> seen(static_cast<std::size_t>(b.cols), 0);
+  std::vector<std::int64_t> r, c, touched;
+  std::vector<double> v;
+  for (std::int64_t i = 0; i < a.rows; ++i) {
+    for (auto p = ac[static_cast<std::size_t>(i)]; p < ac[static_cast<std::size_t>(i) + 1]; ++p) {
+      const auto k = static_cast<std::size_t>(acol[static_cast<std::size_t>(p)]);
+      for (auto q = bc[k]; q < bc[k + 1]; ++q) {
+        const auto j = static_cast<std::size_t>(bcol[static_cast<std::size_t>(q)]);
+        if (!seen[j]) seen[j] = 1, touched.push_back(static_cast<std::int64_t>(j));
+        acc[j] += av[static_cast<std::size_t>(p)] * bv[static_cast<std::size_t>(q)];
+      }
+    }
+    std::sort(touched.begin(), touched.end());
+    for (auto j : touched) {
+      r.push_back(i), c.push_back(j), v.push_back(acc[static_cast<std::size_t>(j)]);
+      acc[static_cast<std::size_t>(j)] = 0.0, seen[static_cast<std::size_t>(j)] = 0;
+    }
+    touched.clear();
+  }
+  return from_triplets(a.rows, b.cols, r, c, v, a.values.scalar_type());
+}
+
+inline SparseOperator SparseOperator::materialize() const {
+  if (!factors) return *this;
+  SparseOperator total;
+  for (const auto& p : factors->products) {
+    SparseOperator m = p.front().materialize();
+    for (std::size_t i = 1; i < p.size(); ++i) m = product(m, p[i].materialize());
+    total = total.defined() ? sum(total, m) : m;
+  }
+  const auto dtype = total.values.scalar_type();
+  const auto cast = [&](const torch::Tensor& d) { return d.defined() ? d.detach().to(dtype) : d; };
+  return total.scaled(cast(factors->left), cast(factors->right));
+}
 
 namespace detail {
 inline torch::Tensor csr_apply(const torch::Tensor& crow, const torch::Tensor& col,
@@ -373,6 +529,21 @@ inline torch::Tensor spmm(const SparseOperator& A, const torch::Tensor& X,
                                 std::to_string(A.cols) + " but the features have " +
                                 (X.dim() == 2 ? std::to_string(X.size(0)) + " rows"
                                               : std::to_string(X.dim()) + " dimensions"));
+  if (A.factored()) {  // factor by factor, right to left; autograd composes the backward
+    const auto& f = *A.factors;
+    const auto scale = [&](const torch::Tensor& x, const torch::Tensor& d) {
+      return d.defined() ? x * d.to(x.options()).unsqueeze(1) : x;
+    };
+    const auto x = scale(X, f.right);
+    torch::Tensor y;
+    for (const auto& p : f.products) {
+      auto z = x;
+      for (auto it = p.rbegin(); it != p.rend(); ++it) z = spmm(*it, z);
+      y = y.defined() ? y + z : z;
+    }
+    y = scale(y, f.left);
+    return act == Epilogue::relu ? torch::relu(y) : act == Epilogue::elu ? torch::elu(y) : y;
+  }
   auto values = A.values.scalar_type() == X.scalar_type() ? A.values : A.values.to(X.scalar_type());
   if (!X.device().is_cpu()) {
     const auto idx = torch::stack({A.row, A.col}).to(X.device());
@@ -383,6 +554,20 @@ inline torch::Tensor spmm(const SparseOperator& A, const torch::Tensor& X,
   }
   return detail::SpmmFunction::apply(values, X, A.crow, A.col, A.row, A.t_crow, A.t_col, A.t_perm,
                                      A.rows, static_cast<std::int64_t>(act));
+}
+
+inline torch::Tensor SparseOperator::row_sums() const {
+  if (factors)
+    return spmm(*this, torch::ones({cols, 1}, factors->products[0][0].values.options())).squeeze(1);
+  return torch::zeros({rows}, values.options()).index_add(0, row, values);
+}
+inline torch::Tensor SparseOperator::col_sums() const {
+  if (factors) return t().row_sums();
+  return torch::zeros({cols}, values.options()).index_add(0, col, values);
+}
+inline torch::Tensor SparseOperator::to_dense() const {
+  if (factors) return spmm(*this, torch::eye(cols, factors->products[0][0].values.options()));
+  return torch::zeros({rows, cols}, values.options()).index_put({row, col}, values);
 }
 
 namespace detail {
@@ -416,6 +601,7 @@ struct RowSoftmaxFunction : public torch::autograd::Function<RowSoftmaxFunction>
 /// Softmax of per-entry scores within each row of A's pattern (a target's incoming messages),
 /// as torch.sparse.softmax(·, dim=1): every row's entries sum to one, empty rows stay empty.
 inline torch::Tensor row_softmax(const SparseOperator& A, const torch::Tensor& scores) {
+  A.require_entries("row_softmax");
   if (scores.dim() != 1 || scores.size(0) != A.nnz())
     throw std::invalid_argument("row_softmax: expected one score per entry (" +
                                 std::to_string(A.nnz()) + ")");
@@ -424,6 +610,7 @@ inline torch::Tensor row_softmax(const SparseOperator& A, const torch::Tensor& s
 
 /// Per-row normalisation of per-entry scores (x / row sum), TopoModelX's non-softmax attention.
 inline torch::Tensor row_normalize(const SparseOperator& A, const torch::Tensor& scores) {
+  A.require_entries("row_normalize");
   const auto row = A.row.to(scores.device());
   const auto sum = torch::zeros({A.rows}, scores.options()).index_add(0, row, scores);
   return scores / sum.index_select(0, row);

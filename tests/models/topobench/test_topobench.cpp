@@ -302,6 +302,69 @@ TEST_CASE("A batch stacks features and puts every operator block-diagonally", "[
   }
 }
 
+TEST_CASE("Rank-1 Laplacians kept as factors are the formed ones, in a batch and in a model",
+          "[topobench]") {
+  // The tiny graphs (two triangles sharing an edge, where L_1's products cancel) and a hub whose
+  // edges all share a node, with a triangle on it.
+  auto graphs = tiny_graphs();
+  graphs.push_back({7, {{0, 1}, {0, 2}, {0, 3}, {0, 4}, {0, 5}, {0, 6}, {1, 2}}});
+  for (Domain d : {Domain::cell, Domain::simplicial}) {
+    LiftingOptions formed, factored;
+    factored.factored = factorable_operators(d);
+    std::vector<LiftedGraph> a, b;
+    torch::manual_seed(5);
+    for (const auto& g : graphs) {
+      const auto x = torch::rand({g.n, 2});
+      const std::vector<float> xv(x.data_ptr<float>(), x.data_ptr<float>() + x.numel());
+      a.push_back(lift_graph(g.n, g.edges, xv, 2, {}, d, formed));
+      b.push_back(lift_graph(g.n, g.edges, xv, 2, {}, d, factored));
+      a.back().label = b.back().label = static_cast<std::int64_t>(a.size() % 2);
+    }
+    REQUIRE(b[0].factored.size() == factored.factored.size());
+    const std::vector<std::size_t> all{0, 1, 2, 3};
+    const auto ba = collate(a, all), bb = collate(b, all);
+    for (const auto& name : factored.factored) {
+      INFO(domain_name(d) << " " << name);
+      REQUIRE(bb.operators.at(name).factored());
+      REQUIRE_FALSE(b[0].operators.count(name));
+      CHECK(torch::allclose(bb.operators.at(name).to_dense(), ba.operators.at(name).to_dense(),
+                            1e-6, 1e-6));
+      // The formed operator has an entry per pair of edges sharing a node; the factors four per
+      // edge (two in B_1, two in B_1ᵀ) plus B_2's and B_2ᵀ's in the Hodge Laplacian.
+      if (name == "down_laplacian_1") CHECK(bb.operators.at(name).nnz() == 4 * ba.x.at(1).size(0));
+    }
+    // A model over each: the same logits and gradients with the same parameters.
+    for (const char* m : {"CCCN", "SCN", "SCCN", "SCCNN"}) {
+      const auto& spec = model_spec(m);
+      if (spec.domain != d) continue;
+      INFO(m);
+      std::vector<std::int64_t> in;
+      for (const auto& x : ba.x) in.push_back(x.size(1));
+      torch::manual_seed(1);
+      TopoBenchModel model(TopoBenchModelOptions(m, in, 8, 2).propagate_signal_down(true));
+      model->eval();
+      const auto ya = model->forward(ba), yb = model->forward(bb);
+      CHECK(torch::allclose(ya, yb, 1e-5, 1e-5));
+      auto ga = torch::autograd::grad({ya.sum()}, model->parameters(), {}, false, false, true);
+      auto gb = torch::autograd::grad({yb.sum()}, model->parameters(), {}, false, false, true);
+      for (std::size_t k = 0; k < ga.size(); ++k)
+        if (ga[k].defined()) {  // float32 sums in another order: within 1e-3 of the largest
+          const double err = (ga[k] - gb[k]).abs().max().item<double>(),
+                       scale = ga[k].abs().max().item<double>();
+          INFO("parameter " << k << ": max error " << err << ", largest " << scale);
+          CHECK(err <= 1e-6 + 1e-3 * scale);
+        }
+    }
+  }
+  LiftingOptions bad;
+  bad.factored = {"up_laplacian_1"};
+  REQUIRE_THROWS_WITH(lift_graph(3, {{0, 1}}, {1, 1, 1}, 1, {}, Domain::cell, bad),
+                      Catch::Contains("'up_laplacian_1' cannot be kept as factors in the cell"));
+  bad.factored = {"hodge_laplacian_1"}, bad.signed_incidence = false;
+  REQUIRE_THROWS_WITH(lift_graph(3, {{0, 1}}, {1, 1, 1}, 1, {}, Domain::simplicial, bad),
+                      Catch::Contains("without signed incidences"));
+}
+
 TEST_CASE("Every TopoBench model has the parameter count of TopoBench's construction",
           "[topobench]") {
   // Per (model): encoder Σ_r (3F_r + F_r h + h) over its encoded ranks (GraphNorm, Linear),

@@ -217,6 +217,54 @@ TEST_CASE("operator algebra: entrywise product, self loops, mirrored rows", "[nn
   }
 }
 
+TEST_CASE("a factored operator acts as the product it stands for, and never needs its entries",
+          "[nn][sparse]") {
+  // L = diag(l) (A Aᵀ + B C) diag(r) with A 7 x 5, B 7 x 4, C 4 x 7.
+  const auto A = random_operator(7, 5, 0.4, torch::kDouble, 11),
+             B = random_operator(7, 4, 0.5, torch::kDouble, 12),
+             C = random_operator(4, 7, 0.5, torch::kDouble, 13);
+  const auto l = torch::rand({7}, torch::kDouble) + 0.5, r = torch::rand({7}, torch::kDouble);
+  const auto L = SparseOperator::product_sum({{A, A.t()}, {B, C}}, l, r);
+  const auto dense =
+      torch::diag(l)
+          .matmul(A.to_dense().matmul(A.to_dense().t()) + B.to_dense().matmul(C.to_dense()))
+          .matmul(torch::diag(r));
+  REQUIRE(L.factored());
+  REQUIRE(L.rows == 7);
+  REQUIRE(L.nnz() == 2 * A.nnz() + B.nnz() + C.nnz());
+  REQUIRE(torch::allclose(L.to_dense(), dense));
+  REQUIRE(torch::allclose(L.t().to_dense(), dense.t()));
+  REQUIRE(torch::allclose(L.row_sums(), dense.sum(1)));
+  REQUIRE(torch::allclose(L.col_sums(), dense.sum(0)));
+  const auto s = torch::rand({7}, torch::kDouble);
+  REQUIRE(torch::allclose(L.scaled(s, s).to_dense(),
+                          torch::diag(s).matmul(dense).matmul(torch::diag(s))));
+  // materialize() forms it: the same entries, zeros dropped, a plain CSR operator.
+  const auto M = L.materialize();
+  REQUIRE_FALSE(M.factored());
+  REQUIRE(torch::allclose(M.to_dense(), dense));
+  REQUIRE(M.nnz() == dense.ne(0).sum().item<std::int64_t>());
+  REQUIRE(
+      torch::allclose(SparseOperator::product(B, C).to_dense(), B.to_dense().matmul(C.to_dense())));
+  // spmm, with a fused activation, and its gradient in x against finite differences.
+  const auto X = torch::randn({7, 3}, torch::kDouble);
+  REQUIRE(torch::allclose(spmm(L, X), dense.matmul(X)));
+  REQUIRE(torch::allclose(spmm(L, X, Epilogue::relu), torch::relu(dense.matmul(X))));
+  REQUIRE(gradcheck([&](const std::vector<torch::Tensor>& in) { return spmm(L.t(), in[0]); }, {X}));
+  REQUIRE(torch::allclose(spmm(L.to(torch::kFloat), X.to(torch::kFloat)),
+                          dense.matmul(X).to(torch::kFloat), 1e-4, 1e-5));
+  // What needs entries says so; shapes that do not chain are named.
+  REQUIRE_THROWS_WITH(L.with_values(torch::ones({L.nnz()})), Catch::Contains("materialize"));
+  REQUIRE_THROWS_WITH(row_softmax(L, torch::ones({L.nnz()})), Catch::Contains("row_softmax"));
+  REQUIRE_THROWS_WITH(SparseOperator::sum(L, M), Catch::Contains("product of sparse factors"));
+  REQUIRE_THROWS_WITH(SparseOperator::product_sum({{A, B}}),
+                      Catch::Contains("factor 0 has 5 columns but factor 1 has 7 rows"));
+  REQUIRE_THROWS_WITH(SparseOperator::product_sum({{A, A.t()}, {A}}),
+                      Catch::Contains("product 1 is 7 x 5"));
+  REQUIRE_THROWS_WITH(SparseOperator::product_sum({{A, A.t()}}, torch::ones({3})),
+                      Catch::Contains("diagonal scales"));
+}
+
 TEST_CASE("CAN's pooling keeps the edges of highest score and restricts the Laplacians",
           "[models][zoo]") {
   torch::manual_seed(21);

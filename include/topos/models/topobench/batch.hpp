@@ -2,7 +2,8 @@
 // Many lifted graphs (topobench/lifting.hpp) as one disjoint union, as TopoBench's collate does:
 // features of each rank stacked, every named operator block-diagonal, per rank the graph each
 // cell belongs to, and the graphs' classes. The operators are concatenated from their sorted
-// triplets with shifted indices (still sorted), so building a batch is O(cells + nonzeros).
+// triplets with shifted indices (still sorted), so building a batch is O(cells + nonzeros); a
+// factored operator's factors are each block-diagonal, its scales concatenated.
 #pragma once
 
 #include "topos/models/topobench/lifting.hpp"
@@ -39,6 +40,37 @@ inline std::vector<std::vector<std::size_t>> batches_of(const std::vector<std::s
   return out;
 }
 
+namespace detail {
+/// The block-diagonal stack of part(i) over the graphs `which`, each part sorted triplets.
+template <class Part>
+nn::SparseOperator block_diagonal(const std::vector<std::size_t>& which, Part part) {
+  std::int64_t nnz = 0;
+  for (auto i : which) nnz += part(i).nnz();
+  std::vector<std::int64_t> r, c;
+  r.reserve(static_cast<std::size_t>(nnz)), c.reserve(static_cast<std::size_t>(nnz));
+  auto values = torch::empty({nnz}, torch::kFloat);
+  float* vp = values.data_ptr<float>();
+  std::int64_t rows = 0, cols = 0;
+  for (auto i : which) {
+    const Triplets& t = part(i);
+    for (std::int64_t k = 0; k < t.nnz(); ++k)
+      r.push_back(t.row[static_cast<std::size_t>(k)] + rows),
+          c.push_back(t.col[static_cast<std::size_t>(k)] + cols);
+    if (t.nnz()) std::memcpy(vp, t.value.data(), sizeof(float) * t.value.size());
+    vp += t.nnz(), rows += t.rows, cols += t.cols;
+  }
+  return nn::SparseOperator::from_sorted(rows, cols, r, c, values);
+}
+/// The concatenation of scale(i) over the graphs (undefined when the first graph has none).
+template <class Scale>
+torch::Tensor concatenated(const std::vector<std::size_t>& which, Scale scale) {
+  if (scale(which.front()).empty()) return {};
+  std::vector<float> all;
+  for (auto i : which) all.insert(all.end(), scale(i).begin(), scale(i).end());
+  return torch::tensor(all, torch::kFloat);
+}
+}  // namespace detail
+
 /// The block-diagonal union of `graphs[which[i]]`. Every graph must have the same ranks, widths
 /// and operator names (one lifting of one dataset).
 inline Batch collate(const std::vector<LiftedGraph>& graphs,
@@ -68,23 +100,28 @@ inline Batch collate(const std::vector<LiftedGraph>& graphs,
     }
     b.x.push_back(x), b.batch.push_back(owner);
   }
-  for (const auto& [name, t0] : first.operators) {
-    std::int64_t nnz = 0;
-    for (auto i : which) nnz += graphs[i].operators.at(name).nnz();
-    std::vector<std::int64_t> r, c;
-    r.reserve(static_cast<std::size_t>(nnz)), c.reserve(static_cast<std::size_t>(nnz));
-    auto values = torch::empty({nnz}, torch::kFloat);
-    float* vp = values.data_ptr<float>();
-    std::int64_t rows = 0, cols = 0;
-    for (auto i : which) {
-      const Triplets& t = graphs[i].operators.at(name);
-      for (std::int64_t k = 0; k < t.nnz(); ++k)
-        r.push_back(t.row[static_cast<std::size_t>(k)] + rows),
-            c.push_back(t.col[static_cast<std::size_t>(k)] + cols);
-      if (t.nnz()) std::memcpy(vp, t.value.data(), sizeof(float) * t.value.size());
-      vp += t.nnz(), rows += t.rows, cols += t.cols;
-    }
-    b.operators.emplace(name, nn::SparseOperator::from_sorted(rows, cols, r, c, values));
+  for (const auto& [name, t0] : first.operators)
+    b.operators.emplace(
+        name, detail::block_diagonal(which, [&, n = name](std::size_t i) -> const Triplets& {
+          return graphs[i].operators.at(n);
+        }));
+  for (const auto& [name, f0] : first.factored) {
+    const auto at = [&, n = name](std::size_t i) -> const FactoredTriplets& {
+      return graphs[i].factored.at(n);
+    };
+    std::vector<std::vector<nn::SparseOperator>> products(f0.products.size());
+    for (std::size_t k = 0; k < products.size(); ++k)
+      for (std::size_t j = 0; j < f0.products[k].size(); ++j)
+        products[k].push_back(detail::block_diagonal(
+            which, [&](std::size_t i) -> const Triplets& { return at(i).products.at(k).at(j); }));
+    b.operators.emplace(
+        name,
+        nn::SparseOperator::product_sum(
+            std::move(products),
+            detail::concatenated(
+                which, [&](std::size_t i) -> const std::vector<float>& { return at(i).left; }),
+            detail::concatenated(
+                which, [&](std::size_t i) -> const std::vector<float>& { return at(i).right; })));
   }
   std::vector<std::int64_t> labels;
   for (auto i : which) labels.push_back(graphs[i].label);

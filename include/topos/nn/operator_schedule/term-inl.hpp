@@ -357,6 +357,7 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::attend(const std::string& where,
   const auto& A = o.transposed() ? ops.t(where, t.name) : ops.at(where, t.name);
   const auto name = t.name + (o.transposed() ? "ᵀ" : "");
   detail::check_fits(where, name, A, x);
+  A.require_entries(where + ": attention over operator '" + name + "'");
   auto k = x;
   if (o.keys()) {
     k = h.at(o.keys()->rank, o.keys()->state);
