@@ -15,6 +15,10 @@
 //                      tetrahedra: dense products and allocations dominate), with the
 //                      interpreter's fast paths off or on (arg 1) and freed memory kept in
 //                      the heap (nn::keep_freed_memory) or given back to the kernel (arg 2)
+//   BM_rank1_laplacian SCN's normalised Hodge Laplacian of rank 1 on REDDIT-BINARY's first eight
+//                      training batches of 16 (data seed 0), spmm forward + backward over 32
+//                      channels: formed (arg 0) or kept as its factors (arg 1, what `tdl
+//                      topobench` does there); counter entries: the operator's stored entries
 // Needs TOPOS_DATASETS_DIR. Run with
 //   OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 ./build/bench/bench_topobench
 #include "topos/data/graph_datasets.hpp"
@@ -196,6 +200,38 @@ void BM_lift(benchmark::State& state, const char* name, Domain d) {
   state.counters["graphs"] = static_cast<double>(ds.graphs.size());
 }
 
+void BM_rank1_laplacian(benchmark::State& state) {
+  if (skip_without_data(state)) return;
+  nn::set_cpu_threads(1, 1);
+  const bool factored = state.range(0) != 0;
+  const auto& ds = dataset("REDDIT-BINARY");
+  const auto train = random_split(static_cast<std::int64_t>(ds.graphs.size()), 0).train;
+  const auto batches = batches_of(train, 16);
+  LiftingOptions o;
+  o.operators = {"hodge_laplacian_1_norm"};
+  if (factored) o.factored = o.operators;
+  std::vector<nn::SparseOperator> ops;
+  std::int64_t entries = 0;
+  for (std::size_t k = 0; k < 8; ++k) {
+    std::vector<LiftedGraph> graphs;
+    for (auto i : batches[k]) {
+      const auto& g = ds.graphs[i];
+      graphs.push_back(
+          lift_graph(g.num_nodes, g.edges, g.x, ds.num_node_features, {}, Domain::simplicial, o));
+    }
+    std::vector<std::size_t> all(graphs.size());
+    for (std::size_t i = 0; i < all.size(); ++i) all[i] = i;
+    ops.push_back(collate(graphs, all).operators.at("hodge_laplacian_1_norm"));
+    entries += ops.back().nnz();
+  }
+  torch::manual_seed(0);
+  std::vector<torch::Tensor> xs;
+  for (const auto& A : ops) xs.push_back(torch::randn({A.cols, 32}).requires_grad_(true));
+  for (auto _ : state)
+    for (std::size_t k = 0; k < ops.size(); ++k) nn::spmm(ops[k], xs[k]).sum().backward();
+  state.counters["entries"] = static_cast<double>(entries);
+}
+
 void BM_encoder(benchmark::State& state, const char* name) {
   if (skip_without_data(state)) return;
   nn::set_cpu_threads(1, 1);
@@ -258,6 +294,12 @@ const int registered = [] {
                                Domain::simplicial)
       ->Unit(benchmark::kMillisecond)
       ->Iterations(1);
+  benchmark::RegisterBenchmark("BM_rank1_laplacian/SCN/REDDIT-BINARY", BM_rank1_laplacian)
+      ->ArgName("factored")
+      ->Arg(0)
+      ->Arg(1)
+      ->Unit(benchmark::kMillisecond)
+      ->MinTime(1.0);
   benchmark::RegisterBenchmark("BM_lift/clique/IMDB-BINARY", BM_lift, "IMDB-BINARY",
                                Domain::simplicial)
       ->Unit(benchmark::kMillisecond)
