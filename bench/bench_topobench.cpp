@@ -19,7 +19,10 @@
 //                      training batches of 16 (data seed 0), spmm forward + backward over 32
 //                      channels: formed (arg 0) or kept as its factors (arg 1, what `tdl
 //                      topobench` does there); counter entries: the operator's stored entries
-// Needs TOPOS_DATASETS_DIR. Run with
+//   BM_dropout         dropout (p = 0.5, training) of a 4000 × 128 float tensor, forward: torch's
+//                      (arg 0) or nn::dropout (arg 1); every TopoBench encoder and several
+//                      backbones drop out at every step (no data needed)
+// Needs TOPOS_DATASETS_DIR (but for BM_dropout). Run with
 //   OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 ./build/bench/bench_topobench
 #include "topos/data/graph_datasets.hpp"
 #include "topos/models/topobench/model.hpp"
@@ -232,6 +235,16 @@ void BM_rank1_laplacian(benchmark::State& state) {
   state.counters["entries"] = static_cast<double>(entries);
 }
 
+void BM_dropout(benchmark::State& state) {
+  nn::set_cpu_threads(1, 1);
+  nn::keep_freed_memory();  // as `tdl topobench` runs (registered after BM_epoch_options)
+  torch::manual_seed(0);
+  const auto x = torch::randn({4000, 128});
+  for (auto _ : state)
+    benchmark::DoNotOptimize(state.range(0) ? nn::dropout(x, 0.5, true)
+                                            : torch::dropout(x, 0.5, true));
+}
+
 void BM_encoder(benchmark::State& state, const char* name) {
   if (skip_without_data(state)) return;
   nn::set_cpu_threads(1, 1);
@@ -300,6 +313,12 @@ const int registered = [] {
       ->Arg(1)
       ->Unit(benchmark::kMillisecond)
       ->MinTime(1.0);
+  benchmark::RegisterBenchmark("BM_dropout", BM_dropout)
+      ->ArgName("topos")
+      ->Arg(0)
+      ->Arg(1)
+      ->Unit(benchmark::kMicrosecond)
+      ->MinTime(0.5);
   benchmark::RegisterBenchmark("BM_lift/clique/IMDB-BINARY", BM_lift, "IMDB-BINARY",
                                Domain::simplicial)
       ->Unit(benchmark::kMillisecond)

@@ -134,6 +134,47 @@ std::map<std::string, torch::Tensor> random_inputs(const ComplexBatch& b, torch:
 
 }  // namespace
 
+TEST_CASE("dropout keeps 1 - p of the entries, scaled, repeatably, with its mask as gradient",
+          "[nn][dropout]") {
+  for (double p : {0.1, 0.5, 0.75}) {
+    INFO("p = " << p);
+    const std::int64_t n = 1'000'001;  // odd: the last element takes half a draw
+    const auto x = torch::ones({n}, torch::kFloat).requires_grad_(true);
+    torch::manual_seed(7);
+    const auto y = nn::dropout(x, p, true);
+    const auto kept = y.ne(0);
+    // Binomial(n, 1 - p): within 5 standard deviations.
+    const double frac = kept.to(torch::kDouble).mean().item<double>();
+    CHECK(std::abs(frac - (1 - p)) < 5 * std::sqrt(p * (1 - p) / static_cast<double>(n)));
+    CHECK(torch::allclose(y.masked_select(kept), torch::full({1}, 1 / (1 - p))));
+    // Neighbouring draws (the two halves of one 64-bit draw, and consecutive pairs) independent.
+    const auto k = kept.to(torch::kDouble);
+    for (std::int64_t lag : {1, 2, 3}) {
+      const auto a = k.slice(0, 0, n - lag) - (1 - p), b = k.slice(0, lag) - (1 - p);
+      CHECK(std::abs((a * b).mean().item<double>()) < 5 * p * (1 - p) / std::sqrt(double(n)));
+    }
+    // The gradient is the mask; the same seed gives the same mask, the next call another.
+    y.sum().backward();
+    CHECK(torch::equal(x.grad(), y.detach()));
+    torch::manual_seed(7);
+    CHECK(torch::equal(nn::dropout(x, p, true), y));
+    CHECK_FALSE(torch::equal(nn::dropout(x, p, true), y));
+    // Threads split the draws by position, so any thread count gives the same mask.
+    const int threads = at::get_num_threads();
+    at::set_num_threads(2);
+    torch::manual_seed(7);
+    CHECK(torch::equal(nn::dropout(x, p, true), y));
+    at::set_num_threads(threads);
+  }
+  const auto x = torch::randn({5, 3}, torch::kDouble);
+  CHECK(torch::equal(nn::dropout(x, 0.5, false), x));  // evaluation: the identity
+  CHECK(torch::equal(nn::dropout(x, 0.0, true), x));
+  CHECK(nn::dropout(x, 1.0, true).eq(0).all().item<bool>());
+  const auto y = nn::dropout(x, 0.5, true);
+  CHECK((y.eq(0) | y.isclose(2 * x)).all().item<bool>());
+  CHECK_THROWS_WITH(nn::dropout(x, 1.5, true), Catch::Contains("rate 1.5"));
+}
+
 TEST_CASE("aggregations equal hand-written loops", "[nn][aggregate]") {
   Neighborhood n;
   n.source_rank = 0;

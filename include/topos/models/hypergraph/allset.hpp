@@ -52,13 +52,13 @@ class TopoMLPImpl : public torch::nn::Module {
       steps_.push_back([act](const torch::Tensor& x) { return nn::apply_update(x, act); });
       ++idx;  // the activation module
       steps_.push_back(
-          [this](const torch::Tensor& x) { return torch::dropout(x, dropout_, is_training()); });
+          [this](const torch::Tensor& x) { return nn::dropout(x, dropout_, is_training()); });
       ++idx;  // Dropout
     }
   }
   torch::Tensor forward(torch::Tensor x) {
     for (auto& s : steps_) x = s(x);
-    return torch::dropout(x, dropout_, is_training());
+    return nn::dropout(x, dropout_, is_training());
   }
 
  private:

@@ -144,7 +144,7 @@ class TopoBenchModelImpl : public nn::Cloneable<TopoBenchModelImpl> {
       const auto r = static_cast<std::size_t>(spec.encoded_ranks[k]);
       auto e = torch::relu(
           nn::graph_norm_linear(norms_[k], linears_[k], b.x.at(r), b.batch.at(r), b.num_graphs));
-      if (options.dropout() > 0) e = torch::dropout(e, options.dropout(), is_training());
+      if (options.dropout() > 0) e = nn::dropout(e, options.dropout(), is_training());
       encoded["x_" + std::to_string(r)] = e;
     }
     std::map<std::string, torch::Tensor> in;

@@ -320,7 +320,7 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::apply(const std::string& where,
     case TermOp::Kind::act:
       return apply_update(x, t.update, t.slope);
     case TermOp::Kind::dropout:
-      return torch::dropout(x, t.p, is_training());
+      return nn::dropout(x, t.p, is_training());
     case TermOp::Kind::unit_rows:
       return unit_rows(x);
     case TermOp::Kind::powers:
