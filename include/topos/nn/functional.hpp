@@ -277,16 +277,33 @@ inline void xavier_uniform(const torch::Tensor& w, double gain = 1.414) {
 }
 
 /// A weight tensor for the combination of several filter terms: y = Σ_k X_k W[:, :, k]
-/// (TopoModelX's einsum "nik,iok->no" over stacked terms), computed without the stack.
+/// (TopoModelX's einsum "nik,iok->no" over stacked terms), computed without the stack. A term
+/// given twice as the same tensor (a schedule naming one term twice, computed once: TopoBench's
+/// SCCNN takes L↓x_1 twice) is multiplied once, by the sum of its weight slices.
 inline torch::Tensor combine_terms(const std::vector<torch::Tensor>& terms,
                                    const torch::Tensor& weight) {
   if (static_cast<std::int64_t>(terms.size()) != weight.size(2))
     throw std::invalid_argument("combine_terms: " + std::to_string(terms.size()) +
                                 " terms for a weight with " + std::to_string(weight.size(2)) +
                                 " filters");
-  const auto X = torch::cat(terms, 1);  // n × (K·in), term-major
-  const auto W = weight.permute({2, 0, 1}).reshape({-1, weight.size(1)});  // (K·in) × out
-  return X.matmul(W);
+  std::vector<torch::Tensor> unique;
+  std::vector<std::vector<std::int64_t>> slices;  // per unique term, its filters
+  for (std::size_t k = 0; k < terms.size(); ++k) {
+    std::size_t j = 0;
+    while (j < unique.size() && !unique[j].is_same(terms[k])) ++j;
+    if (j == unique.size()) unique.push_back(terms[k]), slices.emplace_back();
+    slices[j].push_back(static_cast<std::int64_t>(k));
+  }
+  const auto X = torch::cat(unique, 1);  // n × (K·in), term-major
+  if (unique.size() == terms.size())
+    return X.matmul(weight.permute({2, 0, 1}).reshape({-1, weight.size(1)}));  // (K·in) × out
+  std::vector<torch::Tensor> blocks;
+  for (const auto& s : slices) {
+    auto w = weight.select(2, s[0]);
+    for (std::size_t i = 1; i < s.size(); ++i) w = w + weight.select(2, s[i]);
+    blocks.push_back(w);
+  }
+  return X.matmul(torch::cat(blocks, 0));
 }
 
 namespace detail {

@@ -368,6 +368,25 @@ TEST_CASE("compatible and intended modes: where they agree and where they differ
   REQUIRE(torch::allclose(b->forward(x, Ld, Lu), torch::relu(normed), 1e-10, 1e-10));
 }
 
+TEST_CASE("combine_terms is Σ_k X_k W[:, :, k], a repeated term multiplied once", "[nn][conv]") {
+  torch::manual_seed(4);
+  const auto a = torch::randn({6, 3}, torch::kDouble), b = torch::randn({6, 3}, torch::kDouble);
+  for (const auto& terms : {std::vector<torch::Tensor>{a, b, a},             // a twice: one product
+                            std::vector<torch::Tensor>{a, b, a.clone()}}) {  // three products
+    const auto W = torch::randn({3, 2, 3}, torch::kDouble).requires_grad_(true);
+    const auto y = combine_terms(terms, W);
+    auto ref = torch::zeros({6, 2}, torch::kDouble);
+    for (int k = 0; k < 3; ++k) ref = ref + terms[k].matmul(W.select(2, k));
+    REQUIRE(torch::allclose(y, ref));
+    const auto R = torch::randn({6, 2}, torch::kDouble);
+    const auto g = torch::autograd::grad({(y * R).sum()}, {W})[0];
+    const auto g_ref = torch::autograd::grad({(ref * R).sum()}, {W})[0];
+    REQUIRE(torch::allclose(g, g_ref));
+  }
+  REQUIRE_THROWS_WITH(combine_terms({a, b}, torch::randn({3, 2, 3})),
+                      Catch::Contains("2 terms for a weight with 3 filters"));
+}
+
 TEST_CASE("polynomial filters and the affine power equal dense matrix powers", "[nn][conv]") {
   const auto A = random_operator(12, 12, 0.3, torch::kDouble, 5);
   const auto D = A.to_dense();
