@@ -30,6 +30,7 @@
 #include <mutex>
 #include <numeric>
 #include <random>
+#include <limits>
 #include <set>
 #include <sstream>
 #include <thread>
@@ -48,6 +49,8 @@ struct TopoBenchOptions {
   std::vector<std::int64_t> splits;  ///< empty: the seeds of the hparams line
   int jobs = 1;
   int max_epochs = 0;  ///< > 0: at most this many epochs (quick checks; not the protocol)
+  /// Σ_v deg(v)² over a dataset above which its rank-1 pair operators are kept as factors.
+  std::int64_t factor_above = 100'000'000;
 };
 
 /// A dataset lifted for one domain: its graphs (one for a node-level set) and classes.
@@ -440,12 +443,6 @@ std::int64_t shared_node_pairs(const fs::path& root, const topobench::DatasetNam
   return total;
 }
 
-/// A model's rank-1 pair operators with more entries than this over a dataset are kept as their
-/// factors (B_1ᵀB_1 ...): formed for the whole dataset as float32 triplets, 100 million entries
-/// take 2 GB per operator, then as much again for a batch's CSR and its transpose. A cell whose
-/// operators cannot be factored (unsigned simplicial Laplacians) is not run.
-constexpr std::int64_t kMaxOperatorEntries = 100'000'000;
-
 int run_topobench(const TopoBenchOptions& o) {
   const fs::path root(o.data_dir), out(o.out);
   const fs::path hparams_path =
@@ -513,15 +510,15 @@ int run_topobench(const TopoBenchOptions& o) {
       bool factored = false;
       if (const auto rank1 = rank1_pair_operators(*m); !rank1.empty()) {
         if (!pairs.count(d->name)) pairs[d->name] = shared_node_pairs(root, *d);
-        if (pairs[d->name] > kMaxOperatorEntries) {
+        if (pairs[d->name] > o.factor_above) {
           const auto can = tb::factorable_operators(
               m->domain, m->domain == tb::Domain::simplicial && cfg.signed_incidence);
           factored = std::all_of(rank1.begin(), rank1.end(),
                                  [&](const std::string& op) { return can.count(op) > 0; });
           std::ostringstream why;
           why << "its rank-1 down Laplacian (edges sharing a node) has " << pairs[d->name]
-              << " entries over the dataset (sum of squared degrees), above the "
-              << kMaxOperatorEntries << " this 24 GB machine holds per operator";
+              << " entries over the dataset (sum of squared degrees), above the " << o.factor_above
+              << " of --factor-above";
           if (!factored) {
             why << ", and its operators cannot be kept as factors";
             not_run.push_back({m->name, d->name, why.str()});
@@ -754,6 +751,13 @@ void register_topobench(CLI::App& app, Run& run) {
   cmd->add_option("--max-epochs", o->max_epochs,
                   "cap the epochs (quick checks; the protocol's own limits when 0)")
       ->check(CLI::Range(0, 100000))
+      ->capture_default_str();
+  // Formed for a whole dataset as float32 triplets, 100 million entries take 2 GB per operator,
+  // then as much again for a batch's CSR and its transpose.
+  cmd->add_option("--factor-above", o->factor_above,
+                  "keep the rank-1 Laplacians (edges sharing a node) as products of incidences "
+                  "where a dataset's sum of squared degrees exceeds this (REDDIT-BINARY: 372 M)")
+      ->check(CLI::Range(std::int64_t{0}, std::numeric_limits<std::int64_t>::max()))
       ->capture_default_str();
   cmd->callback([o, models, datasets, splits, &run] {
     o->models = split_list(*models);
