@@ -61,12 +61,18 @@ nn::SparseOperator block_diagonal(const std::vector<std::size_t>& which, Part pa
   }
   return nn::SparseOperator::from_sorted(rows, cols, r, c, values);
 }
-/// The concatenation of scale(i) over the graphs (undefined when the first graph has none).
+/// The concatenation of scale(i) over the graphs, `size` entries; undefined (no scale) when every
+/// graph's is empty. A graph without edges has an empty scale whether the operator is scaled or
+/// not, so the first graph alone cannot decide.
 template <class Scale>
-torch::Tensor concatenated(const std::vector<std::size_t>& which, Scale scale) {
-  if (scale(which.front()).empty()) return {};
+torch::Tensor concatenated(const std::vector<std::size_t>& which, std::int64_t size, Scale scale) {
   std::vector<float> all;
   for (auto i : which) all.insert(all.end(), scale(i).begin(), scale(i).end());
+  if (all.empty()) return {};
+  if (static_cast<std::int64_t>(all.size()) != size)
+    throw std::invalid_argument("topobench::collate: a factored operator's scales have " +
+                                std::to_string(all.size()) + " entries for " +
+                                std::to_string(size) + " cells");
   return torch::tensor(all, torch::kFloat);
 }
 }  // namespace detail
@@ -114,14 +120,13 @@ inline Batch collate(const std::vector<LiftedGraph>& graphs,
       for (std::size_t j = 0; j < f0.products[k].size(); ++j)
         products[k].push_back(detail::block_diagonal(
             which, [&](std::size_t i) -> const Triplets& { return at(i).products.at(k).at(j); }));
-    b.operators.emplace(
-        name,
-        nn::SparseOperator::product_sum(
-            std::move(products),
-            detail::concatenated(
-                which, [&](std::size_t i) -> const std::vector<float>& { return at(i).left; }),
-            detail::concatenated(
-                which, [&](std::size_t i) -> const std::vector<float>& { return at(i).right; })));
+    const auto left = detail::concatenated(
+        which, products.at(0).front().rows,
+        [&](std::size_t i) -> const std::vector<float>& { return at(i).left; });
+    const auto right = detail::concatenated(
+        which, products.at(0).back().cols,
+        [&](std::size_t i) -> const std::vector<float>& { return at(i).right; });
+    b.operators.emplace(name, nn::SparseOperator::product_sum(std::move(products), left, right));
   }
   std::vector<std::int64_t> labels;
   for (auto i : which) labels.push_back(graphs[i].label);
