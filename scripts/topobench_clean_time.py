@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """The TopoBench table's wall time on a quiet machine, from timed epochs of every cell.
 
-Usage: topobench_clean_time.py TDL DATA_DIR RUNS_CSV OUT_CSV [EPOCHS]. Standard library only.
+Usage: topobench_clean_time.py TDL DATA_DIR RUNS_CSV OUT_CSV [EPOCHS [DATASET...]]. Standard
+library only.
 
 The runs of docs/topobench/runs.csv were made beside builds and tests, so their recorded seconds
 say little about the table's cost. This runs every cell of RUNS_CSV once (data seed 0, EPOCHS
@@ -11,6 +12,8 @@ run's seconds over its epochs (a run's fixed costs, collating the evaluation bat
 pass, included: an overestimate for runs of more epochs). The table's clean time is then the sum
 over its runs of epochs x seconds per epoch, over the two runs that go side by side, plus each
 dataset's liftings. OUT_CSV gets model,dataset,seconds_per_epoch,runs,epochs,estimated_seconds.
+Every model of the table is timed on each DATASET given, also where RUNS_CSV has no run yet (its
+runs and estimate are then 0: the epochs a run will take are not known before it runs).
 """
 import csv
 import os
@@ -22,11 +25,16 @@ import time
 
 tdl, data_dir, runs_csv, out_csv = sys.argv[1:5]
 epochs = int(sys.argv[5]) if len(sys.argv) > 5 else 10
+MODELS = ["GCN", "AllSetTransformer", "EDGNN", "UniGNN2", "CWN", "CCCN", "CCXN", "SCN", "SCCN",
+          "SCCNN"]
 
 runs = list(csv.DictReader(open(runs_csv)))
 cells = {}
 for r in runs:
     cells.setdefault((r["model"], r["dataset"]), []).append(int(r["epochs"]))
+for d in sys.argv[6:]:
+    for m in MODELS:
+        cells.setdefault((m, d), [])
 datasets = []
 for _, d in cells:
     if d not in datasets:
