@@ -157,10 +157,10 @@ inline std::vector<float> to_floats(const Eigen::VectorXd& d) {
   return f;
 }
 /// Σ_k a_k b_k kept as factors, scaled by diag(d) on both sides when d is given.
-inline FactoredTriplets factored(const std::vector<std::array<const SparseMatrix*, 2>>& terms,
+inline FactoredTriplets factored(const sparse::ProductTerms& terms,
                                  const Eigen::VectorXd* d = nullptr) {
   FactoredTriplets f;
-  f.rows = terms.at(0)[0]->rows(), f.cols = terms.at(0)[1]->cols();
+  f.rows = terms.at(0).first->rows(), f.cols = terms.at(0).second->cols();
   for (const auto& [a, b] : terms) f.products.push_back({to_triplets(*a), to_triplets(*b)});
   if (d) f.left = f.right = to_floats(*d);
   return f;
@@ -325,12 +325,12 @@ inline LiftedGraph lift_graph(std::int64_t num_nodes,
     put(("up_laplacian_" + R).c_str(), [&] { return to_triplets(sign(up(r))); });
   }
   // Signed only (factorable_operators): L_1's two products cancel where edges share a triangle.
-  put_factored("down_laplacian_1", [&] { return detail::factored({{&b1t, &b1}}); });
-  put_factored("hodge_laplacian_1", [&] { return detail::factored({{&b1t, &b1}, {&b2, &b2t}}); });
+  const sparse::ProductTerms l1{{&b1t, &b1}, {&b2, &b2t}};  // L_1 = B_1ᵀB_1 + B_2B_2ᵀ
+  put_factored("down_laplacian_1", [&] { return detail::factored({l1[0]}); });
+  put_factored("hodge_laplacian_1", [&] { return detail::factored(l1); });
   put_factored("hodge_laplacian_1_norm", [&] {
-    const Eigen::VectorXd d =
-        detail::inverse_sqrt(sparse::abs_row_sums_of_products({{&b1t, &b1}, {&b2, &b2t}}));
-    return detail::factored({{&b1t, &b1}, {&b2, &b2t}}, &d);
+    const Eigen::VectorXd d = detail::inverse_sqrt(sparse::abs_row_sums_of_products(l1));
+    return detail::factored(l1, &d);
   });
   return g;
 }
