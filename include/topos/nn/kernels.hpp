@@ -109,7 +109,7 @@ inline torch::Tensor linear_act(const torch::Tensor& x, const torch::Tensor& W,
                      (!b.defined() || (b.dim() == 1 && b.scalar_type() == x.scalar_type()));
   if (!fused || (act == Epilogue::none && !detail::dense_kernel_fits(W.size(1), W.size(0)))) {
     const auto y = torch::linear(x, W, b);
-    return act == Epilogue::relu ? torch::relu(y) : act == Epilogue::elu ? torch::elu(y) : y;
+    return detail::activate(y, act);
   }
   if (x.size(1) != W.size(1) || (b.defined() && b.numel() != W.size(0)))
     throw std::invalid_argument("linear_act: " + std::to_string(x.size(1)) +

@@ -339,6 +339,8 @@ struct SparseOperator {
   }
 
  private:
+  /// The dtype and device of the values, a factored operator's those of its first factor.
+  torch::TensorOptions value_options() const;
   SparseOperator transposed_factors() const;
   SparseOperator scaled_factors(const torch::Tensor& left, const torch::Tensor& right) const;
 };
@@ -389,6 +391,10 @@ inline SparseOperator SparseOperator::product_sum(std::vector<std::vector<Sparse
   a.rows = rows, a.cols = cols;
   a.factors = std::make_shared<const Factors>(Factors{std::move(products), left, right});
   return a;
+}
+
+inline torch::TensorOptions SparseOperator::value_options() const {
+  return factors ? factors->products[0][0].value_options() : values.options();
 }
 
 inline SparseOperator SparseOperator::transposed_factors() const {
@@ -541,8 +547,7 @@ inline torch::Tensor spmm(const SparseOperator& A, const torch::Tensor& X,
       for (auto it = p.rbegin(); it != p.rend(); ++it) z = spmm(*it, z);
       y = y.defined() ? y + z : z;
     }
-    y = scale(y, f.left);
-    return act == Epilogue::relu ? torch::relu(y) : act == Epilogue::elu ? torch::elu(y) : y;
+    return detail::activate(scale(y, f.left), act);
   }
   auto values = A.values.scalar_type() == X.scalar_type() ? A.values : A.values.to(X.scalar_type());
   if (!X.device().is_cpu()) {
@@ -550,15 +555,14 @@ inline torch::Tensor spmm(const SparseOperator& A, const torch::Tensor& X,
     const auto y = torch::sparse_coo_tensor(idx, values.to(X.device()), {A.rows, A.cols})
                        ._coalesced_(true)
                        .mm(X);
-    return act == Epilogue::relu ? torch::relu(y) : act == Epilogue::elu ? torch::elu(y) : y;
+    return detail::activate(y, act);
   }
   return detail::SpmmFunction::apply(values, X, A.crow, A.col, A.row, A.t_crow, A.t_col, A.t_perm,
                                      A.rows, static_cast<std::int64_t>(act));
 }
 
 inline torch::Tensor SparseOperator::row_sums() const {
-  if (factors)
-    return spmm(*this, torch::ones({cols, 1}, factors->products[0][0].values.options())).squeeze(1);
+  if (factors) return spmm(*this, torch::ones({cols, 1}, value_options())).squeeze(1);
   return torch::zeros({rows}, values.options()).index_add(0, row, values);
 }
 inline torch::Tensor SparseOperator::col_sums() const {
@@ -566,7 +570,7 @@ inline torch::Tensor SparseOperator::col_sums() const {
   return torch::zeros({cols}, values.options()).index_add(0, col, values);
 }
 inline torch::Tensor SparseOperator::to_dense() const {
-  if (factors) return spmm(*this, torch::eye(cols, factors->products[0][0].values.options()));
+  if (factors) return spmm(*this, torch::eye(cols, value_options()));
   return torch::zeros({rows, cols}, values.options()).index_put({row, col}, values);
 }
 

@@ -239,6 +239,10 @@ TEST_CASE("a factored operator acts as the product it stands for, and never need
   const auto s = torch::rand({7}, torch::kDouble);
   REQUIRE(torch::allclose(L.scaled(s, s).to_dense(),
                           torch::diag(s).matmul(dense).matmul(torch::diag(s))));
+  // A factor may itself be factored.
+  const auto N = SparseOperator::product_sum({{L, A}});
+  REQUIRE(torch::allclose(N.to_dense(), dense.matmul(A.to_dense())));
+  REQUIRE(torch::allclose(N.row_sums(), dense.matmul(A.to_dense()).sum(1)));
   // materialize() forms it: the same entries, zeros dropped, a plain CSR operator.
   const auto M = L.materialize();
   REQUIRE_FALSE(M.factored());

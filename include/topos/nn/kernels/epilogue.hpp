@@ -173,6 +173,12 @@ void epilogue_range(T* y, const T* g, T* out, std::int64_t n, Epilogue e) {
   });
 }
 
+/// act(y) as torch's own differentiable ops, on any device: where a product is not fused (other
+/// devices and dtypes, factored operators, dense maps the kernels do not take).
+inline torch::Tensor activate(const torch::Tensor& y, Epilogue e) {
+  return e == Epilogue::relu ? torch::relu(y) : e == Epilogue::elu ? torch::elu(y) : y;
+}
+
 /// y = act(y) in place (g undefined), or the gradient g ⊙ act'(y) from the output y.
 inline torch::Tensor apply_epilogue(const torch::Tensor& y, const torch::Tensor& g, Epilogue e) {
   if (e == Epilogue::none) return g.defined() ? g : y;
