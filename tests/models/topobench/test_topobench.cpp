@@ -325,6 +325,12 @@ TEST_CASE("Rank-1 Laplacians kept as factors are the formed ones, in a batch and
     REQUIRE(b[0].factored.size() == factored.factored.size());
     const std::vector<std::size_t> all{0, 1, 2, 3, 4};
     const auto ba = collate(a, all), bb = collate(b, all);
+    // Scales that do not cover the cells are named, not used.
+    if (d == Domain::simplicial) {
+      auto bad = b;
+      bad[2].factored.at("hodge_laplacian_1_norm").left.pop_back();
+      REQUIRE_THROWS_WITH(collate(bad, all), Catch::Contains("scales have"));
+    }
     for (const auto& name : factored.factored) {
       INFO(domain_name(d) << " " << name);
       REQUIRE(bb.operators.at(name).factored());
