@@ -896,3 +896,63 @@ TEST_CASE("features with leading batch dimensions run element by element, as Top
                                  {{"B", random_operator(4, 6, 7)}}),
                     Contains("input 'b' has leading dimensions [2] but input 'a' has [3]"));
 }
+
+TEST_CASE("a filter's taps weighted on their source's rows: the sums and gradients as written",
+          "[nn][schedule]") {
+  // Ranks of 4, 30 and 6 cells into rank 1 (30): the taps from ranks 0 and 2 cost less weighted
+  // on their source's rows, then carried by their chains (a shared prefix, a row-normalised
+  // product, a tap given twice); the taps from rank 1, one not a product, stay stacked.
+  const auto B1 = random_operator(4, 30, 31), B2 = random_operator(30, 6, 32);
+  const auto Ld = random_operator(30, 30, 33, 0.1), Lu = random_operator(30, 30, 34, 0.1);
+  const std::int64_t c = 8;
+  OperatorSchedule s;
+  for (int r = 0; r < 3; ++r) s.input("x_" + std::to_string(r), r, c);
+  s.operator_input("B1", 1, 0).operator_input("B2", 2, 1);
+  s.operator_input("Ld", 1, 1).operator_input("Lu", 1, 1);
+  s.step(into(1)
+             .filter("w", c, from(0).via_t("B1"), from(0).via_t("B1").via("Ld"),
+                     from(0).via_t("B1").via("Lu", true), from(1), from(1).via("Ld"),
+                     from(1).via("Ld"), from(1).via("Lu").act(Update::tanh), from(2).via("B2"),
+                     from(2).via("B2").via("Ld"), from(2).via("B2").via("Ld"))
+             .act(Update::sigmoid));
+  s.output("y", 1);
+  OperatorNetwork net(s);
+  net->to(torch::kDouble);
+  torch::manual_seed(35);
+  std::map<std::string, torch::Tensor> x;
+  for (int r : {0, 1, 2}) {
+    const std::int64_t n = r == 0 ? 4 : r == 1 ? 30 : 6;
+    x["x_" + std::to_string(r)] = torch::randn({n, c}, torch::kDouble).requires_grad_();
+  }
+  const std::map<std::string, SparseOperator> ops{{"B1", B1}, {"B2", B2}, {"Ld", Ld}, {"Lu", Lu}};
+  auto run = [&](bool fast) {
+    net->set_fast_paths(fast);
+    net->zero_grad();
+    for (auto& [k, v] : x) v.mutable_grad() = torch::Tensor();
+    const auto y = net->forward(x, ops).at("y");
+    y.pow(3).sum().backward();
+    std::vector<torch::Tensor> r{y.detach(), net->parameter("w").grad().clone()};
+    for (auto& [k, v] : x) r.push_back(v.grad().clone());
+    return r;
+  };
+  const auto fast = run(true), plain = run(false);
+  // By hand, densely.
+  const auto W = net->parameter("w");
+  const auto b1 = B1.to_dense().t(), b2 = B2.to_dense(), ld = Ld.to_dense(), lu = Lu.to_dense();
+  const auto lu_n =
+      lu / torch::where(lu.sum(1, true) == 0, torch::ones_like(lu.sum(1, true)), lu.sum(1, true));
+  const auto x0 = x["x_0"].detach(), x1 = x["x_1"].detach(), x2 = x["x_2"].detach();
+  const std::vector<torch::Tensor> T{
+      b1.mm(x0),        ld.mm(b1.mm(x0)), lu_n.mm(b1.mm(x0)),     x1,
+      ld.mm(x1),        ld.mm(x1),        torch::tanh(lu.mm(x1)), b2.mm(x2),
+      ld.mm(b2.mm(x2)), ld.mm(b2.mm(x2))};
+  auto z = torch::zeros({30, c}, torch::kDouble);
+  for (std::size_t k = 0; k < T.size(); ++k) z += T[k].mm(W.select(2, static_cast<long>(k)));
+  CHECK(torch::allclose(fast[0], torch::sigmoid(z), 1e-12, 1e-12));
+  for (std::size_t i = 0; i < fast.size(); ++i) {
+    INFO("tensor " << i);
+    CHECK(torch::allclose(fast[i], plain[i], 1e-10, 1e-12));
+  }
+  // The fast path ran: its sums are taken in another order.
+  CHECK_FALSE(torch::equal(fast[0], plain[0]));
+}

@@ -90,7 +90,9 @@ class OperatorNetworkImpl : public torch::nn::Module {
   /// reads, or once per group for all terms that share it; (2) a cochain only ever aggregated is
   /// computed on the rows aggregations read (HOPNet's edges reach it only through contacts); (3) a
   /// concatenating step into an mlp applies the first Linear layer's block to a term before its
-  /// sum over a neighbourhood when the term has fewer rows than the target.
+  /// sum over a neighbourhood when the term has fewer rows than the target. Over sparse
+  /// operators: (4) a filter's taps share their chains' prefixes within a group, and a source's
+  /// taps are multiplied by their weights before the chains when that costs less (run_filter).
   void set_fast_paths(bool on) { fast_ = on; }
 
  private:
@@ -126,6 +128,10 @@ class OperatorNetworkImpl : public torch::nn::Module {
                           const Cochains& h, Operators& ops, PrefixCache& cache, bool may_defer);
   torch::Tensor run_step(const OperatorStep& s, const Cochains& h, Operators& ops,
                          PrefixCache& cache);
+  /// A filter step whose terms are chains of sparse products, each source's taps weighted on
+  /// the side with fewer rows; undefined where the step is not one (the general path runs it).
+  torch::Tensor run_filter(const std::string& where, const OperatorStep& s, const Cochains& h,
+                           Operators& ops, PrefixCache& cache);
   /// A compact step (compact_steps_) on the rows its readers aggregate: (value, each row's
   /// compact row or -1), or (undefined, undefined) where it must run on every row.
   std::pair<torch::Tensor, torch::Tensor> run_compact(const OperatorStep& s,
