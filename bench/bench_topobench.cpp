@@ -172,6 +172,23 @@ void BM_epoch(benchmark::State& state, Setting s) {
   run_epochs(state, s, true);
 }
 
+// One Adam step over the model's parameters (random gradients): the part of a training step
+// that does not depend on the batch. Counter tensors: how many parameter tensors it updates.
+void BM_adam_step(benchmark::State& state, Setting s) {
+  if (skip_without_data(state)) return;
+  nn::set_cpu_threads(1, 1);
+  const auto& p = prepared(s);
+  const auto& ds = dataset(s.dataset);
+  torch::manual_seed(0);
+  TopoBenchModel model(TopoBenchModelOptions(s.model, p.graphs[0].widths, s.hidden, ds.num_classes)
+                           .n_layers(s.layers)
+                           .propagate_signal_down(model_spec(s.model).cell_dimensions > 1));
+  torch::optim::Adam opt(model->parameters(), torch::optim::AdamOptions(1e-3));
+  for (auto& t : model->parameters()) t.mutable_grad() = torch::randn_like(t);
+  for (auto _ : state) opt.step();
+  state.counters["tensors"] = static_cast<double>(model->parameters().size());
+}
+
 void BM_epoch_options(benchmark::State& state, Setting s) {
   if (skip_without_data(state)) return;
   // glibc's own heap (blocks over its mmap threshold, at most 32 MB, go back to the kernel at
@@ -292,6 +309,9 @@ const int registered = [] {
     benchmark::RegisterBenchmark(("BM_epoch/" + tag).c_str(), BM_epoch, s)
         ->Unit(benchmark::kMillisecond)
         ->MinTime(1.0);
+    benchmark::RegisterBenchmark(("BM_adam_step/" + tag).c_str(), BM_adam_step, s)
+        ->Unit(benchmark::kMicrosecond)
+        ->MinTime(0.5);
   }
   // TopoBench's SCCN on IMDB-BINARY: width 128, 4 layers, batches of 128, cliques to rank 3.
   benchmark::RegisterBenchmark("BM_epoch_options/SCCN/IMDB-BINARY", BM_epoch_options,

@@ -378,11 +378,18 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_filter(const std::string& wh
       push = [&](const torch::Tensor& z, const std::vector<std::size_t>& at, std::size_t depth) {
         torch::Tensor out;
         const auto add = [&](const torch::Tensor& t) { out = out.defined() ? out + t : t; };
+        // Each tap's columns, taken apart once (one autograd node) when some go their own way.
+        std::vector<torch::Tensor> pieces;
+        const auto piece = [&](std::size_t p) -> const torch::Tensor& {
+          if (pieces.empty())
+            pieces = at.size() == 1 ? std::vector<torch::Tensor>{z} : z.split(cols, 1);
+          return pieces[p];
+        };
         std::vector<std::pair<std::string, std::vector<std::size_t>>> next;  // by next product
         for (std::size_t p = 0; p < at.size(); ++p) {
           const auto& chain = chains[at[p]];
           if (chain.size() == depth) {
-            add(z.narrow(1, static_cast<std::int64_t>(p) * cols, cols));
+            add(piece(p));
             continue;
           }
           const auto& o = *chain[depth].op;
@@ -395,14 +402,14 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_filter(const std::string& wh
         for (const auto& [key, ps] : next) {
           std::vector<torch::Tensor> parts;
           std::vector<std::size_t> below;
-          for (auto p : ps) {
-            parts.push_back(z.narrow(1, static_cast<std::int64_t>(p) * cols, cols));
-            below.push_back(at[p]);
+          for (auto p : ps) below.push_back(at[p]);
+          torch::Tensor zp = z;  // every tap takes this product: all the columns
+          if (ps.size() < at.size()) {
+            for (auto p : ps) parts.push_back(piece(p));
+            zp = parts.size() == 1 ? parts[0].contiguous() : torch::cat(parts, 1);
           }
           const auto& link = chains[below[0]][depth];
-          const auto zp = ps.size() == at.size() ? z : torch::cat(parts, 1);
-          add(push(detail::multiply(where, name_of(*link.op), *link.A, zp.contiguous(),
-                                    link.op->row_norm),
+          add(push(detail::multiply(where, name_of(*link.op), *link.A, zp, link.op->row_norm),
                    below, depth + 1));
         }
         return out;
