@@ -262,6 +262,23 @@ void BM_dropout(benchmark::State& state) {
                                             : torch::dropout(x, 0.5, true));
 }
 
+// x Wᵀ + b forward and backward (x and W need gradients), rows × 64 by 64 × 64: torch's
+// linear (OpenBLAS) against nn::linear_act (topos's narrow-product kernel). AllSetTransformer's
+// REDDIT-BINARY batches have about 110 k rows.
+void BM_linear(benchmark::State& state) {
+  nn::set_cpu_threads(1, 1);
+  torch::manual_seed(0);
+  const auto x = torch::randn({state.range(1), 64}).requires_grad_();
+  const auto W = torch::randn({64, 64}).requires_grad_(), b = torch::randn({64}).requires_grad_();
+  for (auto _ : state) {
+    const auto y = state.range(0) ? nn::linear_act(x, W, b) : torch::linear(x, W, b);
+    y.sum().backward();
+  }
+  state.counters["GFLOP/s"] =
+      benchmark::Counter(6.0 * 64 * 64 * static_cast<double>(state.range(1)),
+                         benchmark::Counter::kIsIterationInvariantRate);
+}
+
 void BM_encoder(benchmark::State& state, const char* name) {
   if (skip_without_data(state)) return;
   nn::set_cpu_threads(1, 1);
@@ -333,6 +350,11 @@ const int registered = [] {
       ->Arg(1)
       ->Unit(benchmark::kMillisecond)
       ->MinTime(1.0);
+  benchmark::RegisterBenchmark("BM_linear", BM_linear)
+      ->ArgNames({"topos", "rows"})
+      ->ArgsProduct({{0, 1}, {2000, 20000, 110000}})
+      ->Unit(benchmark::kMicrosecond)
+      ->MinTime(0.5);
   benchmark::RegisterBenchmark("BM_dropout", BM_dropout)
       ->ArgName("topos")
       ->Arg(0)
