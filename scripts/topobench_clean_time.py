@@ -1,8 +1,10 @@
 #!/usr/bin/env python3
 """The TopoBench table's wall time on a quiet machine, from timed epochs of every cell.
 
-Usage: topobench_clean_time.py TDL DATA_DIR RUNS_CSV OUT_CSV [EPOCHS [DATASET...]]. Standard
-library only.
+Usage: topobench_clean_time.py [--only MODEL,...] TDL DATA_DIR RUNS_CSV OUT_CSV
+[EPOCHS [DATASET...]]. Standard library only. With --only, only those models are timed again;
+every other cell keeps its seconds per epoch from the OUT_CSV already there (after a change that
+concerns a few models).
 
 The runs of docs/topobench/runs.csv were made beside builds and tests, so their recorded seconds
 say little about the table's cost. This runs every cell of RUNS_CSV once (data seed 0, EPOCHS
@@ -23,8 +25,17 @@ import sys
 import tempfile
 import time
 
-tdl, data_dir, runs_csv, out_csv = sys.argv[1:5]
-epochs = int(sys.argv[5]) if len(sys.argv) > 5 else 10
+args = sys.argv[1:]
+only = None
+if args and args[0] == "--only":
+    if len(args) < 2:
+        sys.exit("--only needs a comma-separated list of models")
+    only = args[1].split(",")
+    args = args[2:]
+if len(args) < 4:
+    sys.exit(__doc__)
+tdl, data_dir, runs_csv, out_csv = args[:4]
+epochs = int(args[4]) if len(args) > 4 else 10
 MODELS = ["GCN", "AllSetTransformer", "EDGNN", "UniGNN2", "CWN", "CCCN", "CCXN", "SCN", "SCCN",
           "SCCNN"]
 
@@ -32,7 +43,7 @@ runs = list(csv.DictReader(open(runs_csv)))
 cells = {}
 for r in runs:
     cells.setdefault((r["model"], r["dataset"]), []).append(int(r["epochs"]))
-for d in sys.argv[6:]:
+for d in args[5:]:
     for m in MODELS:
         cells.setdefault((m, d), [])
 datasets = []
@@ -41,9 +52,23 @@ for _, d in cells:
         datasets.append(d)
 
 per_epoch, lifting = {}, {}
+if only is not None:
+    unknown = [m for m in only if m not in MODELS]
+    if unknown:
+        sys.exit(f"--only: unknown models {unknown} (the table's: {', '.join(MODELS)})")
+    if not os.path.exists(out_csv):
+        sys.exit(f"--only keeps the other cells' figures from {out_csv}, which does not exist")
+    for r in csv.DictReader(open(out_csv)):
+        if r["model"] not in only:
+            per_epoch[(r["model"], r["dataset"])] = float(r["seconds_per_epoch"])
+    missing = [c for c in cells if c[0] not in only and c not in per_epoch]
+    if missing:
+        sys.exit(f"{out_csv} has no seconds per epoch for {missing}: time them (without --only)")
 env = dict(os.environ, OMP_NUM_THREADS="1")
 for d in datasets:
-    models = [m for (m, dd) in cells if dd == d]
+    models = [m for (m, dd) in cells if dd == d and (only is None or m in only)]
+    if not models:
+        continue
     with tempfile.TemporaryDirectory() as out:
         start = time.time()
         p = subprocess.run([tdl, "topobench", "--data-dir", data_dir, "--out", out, "--models",
@@ -67,4 +92,5 @@ with open(out_csv + ".tmp", "w", newline="") as f:
 os.replace(out_csv + ".tmp", out_csv)
 lift = sum(lifting.values())
 print(f"runs: {len(runs)}, cells: {len(cells)}; run time {total / 3600:.2f} h of one core; "
-      f"with two runs side by side {total / 2 / 3600:.2f} h, plus liftings {lift / 60:.1f} min")
+      f"with two runs side by side {total / 2 / 3600:.2f} h, plus liftings {lift / 60:.1f} min"
+      + (" (of the datasets timed again)" if only is not None else ""))

@@ -118,3 +118,28 @@ if(NOT rc EQUAL 1 OR pos EQUAL -1 OR NOT gcn)
   message(FATAL_ERROR "a failing cell: expected exit 1, CWN failed in not_run.csv and GCN's run (exit ${rc}):\n${not_run}\n${out}${err}")
 endif()
 message(STATUS "ok: a failing cell is recorded and the others run")
+
+# scripts/topobench_clean_time.py --only CWN: CWN's MUTAG cell is timed again (one epoch), and
+# UniGNN2's keeps the seconds per epoch of the clean-time file already there.
+if(NOT PYTHON3)
+  message(STATUS "SKIPPED: topobench_clean_time.py needs python3")
+  return()
+endif()
+set(header "model,dataset,seconds_per_epoch,runs,epochs,estimated_seconds\n")
+file(WRITE ${WORK}/clean.csv "${header}CWN,MUTAG,999.0000,1,1,999.0\nUniGNN2,MUTAG,123.0000,1,1,123.0\n")
+execute_process(COMMAND ${PYTHON3} ${SCRIPTS}/topobench_clean_time.py --only CWN ${TDL} ${data}
+  ${WORK}/mutag/runs.csv ${WORK}/clean.csv 1 RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+file(STRINGS ${WORK}/clean.csv uni REGEX "^UniGNN2,MUTAG,123.0000,1,")
+file(STRINGS ${WORK}/clean.csv cwn REGEX "^CWN,MUTAG,")
+string(REPLACE "," ";" cwn_fields "${cwn}")
+list(GET cwn_fields 2 cwn_seconds)
+if(NOT rc EQUAL 0 OR NOT uni OR cwn_seconds STREQUAL "999.0000" OR NOT cwn_seconds GREATER 0)
+  message(FATAL_ERROR "clean time --only CWN: expected CWN timed again and UniGNN2 kept (exit ${rc}):\n${uni}\n${cwn}\n${out}${err}")
+endif()
+execute_process(COMMAND ${PYTHON3} ${SCRIPTS}/topobench_clean_time.py --only CWN ${TDL} ${data}
+  ${WORK}/mutag/runs.csv ${WORK}/nowhere.csv 1 RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+string(FIND "${err}" "which does not exist" pos)
+if(rc EQUAL 0 OR pos EQUAL -1)
+  message(FATAL_ERROR "clean time --only without a clean-time file: expected an error naming it:\n${out}${err}")
+endif()
+message(STATUS "ok: clean time of one model again, the others kept (CWN ${cwn_seconds} s per epoch)")
