@@ -139,15 +139,21 @@ void BM_backbone_epoch(benchmark::State& state, Setting s) {
 }
 
 // Epochs of Adam on the train split; `warm_up` untimed ones first (the heap's growth, paid once).
-void run_epochs(benchmark::State& state, const Setting& s, bool fast_paths, int warm_up = 0) {
+// The setting's model (seed 0, the encoder's dropout 0.25), on one thread.
+TopoBenchModel make_model(const Setting& s) {
   nn::set_cpu_threads(1, 1);
   const auto& p = prepared(s);
-  const auto& ds = dataset(s.dataset);
   torch::manual_seed(0);
-  TopoBenchModel model(TopoBenchModelOptions(s.model, p.graphs[0].widths, s.hidden, ds.num_classes)
-                           .n_layers(s.layers)
-                           .dropout(0.25)
-                           .propagate_signal_down(model_spec(s.model).cell_dimensions > 1));
+  return TopoBenchModel(
+      TopoBenchModelOptions(s.model, p.graphs[0].widths, s.hidden, dataset(s.dataset).num_classes)
+          .n_layers(s.layers)
+          .dropout(0.25)
+          .propagate_signal_down(model_spec(s.model).cell_dimensions > 1));
+}
+
+void run_epochs(benchmark::State& state, const Setting& s, bool fast_paths, int warm_up = 0) {
+  const auto& p = prepared(s);
+  auto model = make_model(s);
   model->backbone->set_fast_paths(fast_paths);
   torch::optim::Adam opt(model->parameters(), torch::optim::AdamOptions(1e-3));
   std::mt19937_64 rng(0);
@@ -176,13 +182,7 @@ void BM_epoch(benchmark::State& state, Setting s) {
 // that does not depend on the batch. Counter tensors: how many parameter tensors it updates.
 void BM_adam_step(benchmark::State& state, Setting s) {
   if (skip_without_data(state)) return;
-  nn::set_cpu_threads(1, 1);
-  const auto& p = prepared(s);
-  const auto& ds = dataset(s.dataset);
-  torch::manual_seed(0);
-  TopoBenchModel model(TopoBenchModelOptions(s.model, p.graphs[0].widths, s.hidden, ds.num_classes)
-                           .n_layers(s.layers)
-                           .propagate_signal_down(model_spec(s.model).cell_dimensions > 1));
+  auto model = make_model(s);
   torch::optim::Adam opt(model->parameters(), torch::optim::AdamOptions(1e-3));
   for (auto& t : model->parameters()) t.mutable_grad() = torch::randn_like(t);
   for (auto _ : state) opt.step();
