@@ -31,9 +31,11 @@
 #include <numeric>
 #include <random>
 #include <limits>
+#include <map>
 #include <set>
 #include <sstream>
 #include <thread>
+#include <tuple>
 
 namespace tdl_cli {
 
@@ -279,8 +281,30 @@ topobench::RunResult train_run(const LiftedDataset& data, const topobench::Model
   return r;
 }
 
-std::string curve_file(const topobench::RunResult& r) {
-  return r.model + "_" + r.dataset + "_" + std::to_string(r.split_seed) + ".csv";
+// Every run's validation curve, one file: model,dataset,split_seed,epoch,loss,val_accuracy.
+constexpr const char* kCurvesHeader = "model,dataset,split_seed,epoch,loss,val_accuracy\n";
+
+// Per (model, dataset, split seed): the checks' epochs and validation accuracies.
+std::map<std::tuple<std::string, std::string, std::int64_t>,
+         std::pair<std::vector<int>, std::vector<double>>>
+read_curves(const fs::path& file) {
+  std::map<std::tuple<std::string, std::string, std::int64_t>,
+           std::pair<std::vector<int>, std::vector<double>>>
+      out;
+  std::ifstream in(file);
+  std::string line;
+  std::getline(in, line);  // header
+  while (std::getline(in, line)) {
+    std::istringstream f(line);
+    std::string m, d, s, e, l, a;
+    if (std::getline(f, m, ',') && std::getline(f, d, ',') && std::getline(f, s, ',') &&
+        std::getline(f, e, ',') && std::getline(f, l, ',') && std::getline(f, a, ',')) {
+      auto& c = out[{m, d, std::stoll(s)}];
+      c.first.push_back(std::stoi(e));
+      c.second.push_back(std::stod(a));
+    }
+  }
+  return out;
 }
 
 std::string html_escape(const std::string& s) {
@@ -385,22 +409,15 @@ std::string report_html(const fs::path& out, const std::vector<topobench::RunRes
     h << "</tr>\n";
   }
   h << "</table>\n<h2>Validation accuracy per split</h2>\n";
+  const auto curves = read_curves(out / "curves.csv");
   for (const auto& c : cells) {
     std::vector<std::pair<std::string, std::vector<double>>> series;
     int every = 1;
     for (const auto& r : runs) {
       if (r.model != c.model || r.dataset != c.dataset) continue;
-      std::ifstream in(out / "curves" / curve_file(r));
-      std::string line;
-      std::vector<double> v;
-      std::vector<int> epochs;
-      std::getline(in, line);  // header
-      while (std::getline(in, line)) {
-        std::istringstream f(line);
-        std::string e, l, a;
-        if (std::getline(f, e, ',') && std::getline(f, l, ',') && std::getline(f, a, ','))
-          epochs.push_back(std::stoi(e)), v.push_back(std::stod(a));
-      }
+      const auto it = curves.find({r.model, r.dataset, r.split_seed});
+      if (it == curves.end()) continue;  // a run without its curve: none to draw
+      const auto& [epochs, v] = it->second;
       if (epochs.size() >= 2) every = epochs[1] - epochs[0];
       series.emplace_back("split " + std::to_string(r.split_seed), v);
     }
@@ -456,7 +473,17 @@ int run_topobench(const TopoBenchOptions& o) {
   for (auto* d : datasets)
     for (auto* m : models) topobench::find_config(configs, *m, *d);
 
-  fs::create_directories(out / "curves");
+  fs::create_directories(out);
+  std::string curves_csv = kCurvesHeader;
+  if (std::ifstream in(out / "curves.csv"); in) {
+    std::ostringstream all;
+    all << in.rdbuf();
+    if (all.str().rfind(kCurvesHeader, 0) != 0)
+      throw std::runtime_error(
+          (out / "curves.csv").string() + ": expected the header " +
+          std::string(kCurvesHeader).substr(0, std::string(kCurvesHeader).size() - 1));
+    curves_csv = all.str();
+  }
   const fs::path runs_path = out / "runs.csv";
   std::vector<topobench::RunResult> runs;
   if (fs::exists(runs_path))
@@ -650,14 +677,15 @@ int run_topobench(const TopoBenchOptions& o) {
         const auto r = train_run(*data, *j.model, *j.dataset, *j.cfg, j.seed, o.max_epochs, curve,
                                  workers == 1);
         std::ostringstream c;
-        c << "epoch,loss,val_accuracy\n";
         for (const auto& ch : curve)
-          c << ch.epoch << "," << ch.loss << "," << ch.val_accuracy << "\n";
+          c << r.model << "," << r.dataset << "," << r.split_seed << "," << ch.epoch << ","
+            << ch.loss << "," << ch.val_accuracy << "\n";
         const double majority = majority_accuracy(*data, j.seed);
         std::lock_guard<std::mutex> lock(mutex);
         baselines[{j.dataset->name, j.seed}] = majority;
         topos::write_file_atomic((out / "baselines.csv").string(), baselines_csv());
-        topos::write_file_atomic((out / "curves" / curve_file(r)).string(), c.str());
+        curves_csv += c.str();
+        topos::write_file_atomic((out / "curves.csv").string(), curves_csv);
         runs.push_back(r);
         topos::write_file_atomic(runs_path.string(), topobench::format_runs(runs));
         topos::write_file_atomic((out / "summary.csv").string(),
@@ -732,7 +760,7 @@ void register_topobench(CLI::App& app, Run& run) {
       "TopoBench's table: raw datasets lifted, trained and tested with TopoBench's "
       "hyperparameters and protocol; resumable (OUT/runs.csv)");
   cmd->add_option("--data-dir", o->data_dir, "the raw datasets (../shared/datasets)")->required();
-  cmd->add_option("--out", o->out, "output folder: runs.csv, summary.csv, index.html, curves/")
+  cmd->add_option("--out", o->out, "output folder: runs.csv, summary.csv, index.html, curves.csv")
       ->required();
   cmd->add_option("--models", *models,
                   "comma-separated: GCN, AllSetTransformer, EDGNN, UniGNN2, "

@@ -32,6 +32,15 @@ expect_failure_topobench("bad split" "--splits"
 file(WRITE ${WORK}/data/topobench/bad-hparams.txt "simplicial/scn MUTAG lr=abc hid=8\n")
 expect_failure_topobench("malformed hparams" "bad-hparams.txt:1: lr=abc is not a number"
   --data-dir ${WORK}/data --hparams ${WORK}/data/topobench/bad-hparams.txt --models SCN --datasets MUTAG --out ${WORK}/o)
+# A curves.csv of another format is named, and left as it was.
+file(MAKE_DIRECTORY ${WORK}/bad_curves)
+file(WRITE ${WORK}/bad_curves/curves.csv "epoch,loss,val_accuracy\n1,0.5,0.5\n")
+expect_failure_topobench("curves.csv of another format" "curves.csv: expected the header model,dataset,split_seed"
+  --data-dir ${WORK}/data --models SCN --datasets MUTAG --out ${WORK}/bad_curves)
+file(READ ${WORK}/bad_curves/curves.csv after)
+if(NOT after STREQUAL "epoch,loss,val_accuracy\n1,0.5,0.5\n")
+  message(FATAL_ERROR "a failed start changed curves.csv")
+endif()
 # A malformed runs.csv is named with its line and left as it was.
 file(MAKE_DIRECTORY ${WORK}/bad_runs)
 set(bad "model,dataset,split_seed,test_accuracy,best_epoch,epochs,seconds\nSCN,MUTAG,0,1.5,1,1,1\n")
@@ -55,9 +64,16 @@ execute_process(COMMAND ${TDL} topobench --data-dir ${data} --models CWN,UniGNN2
 if(NOT rc EQUAL 0)
   message(FATAL_ERROR "tdl topobench failed:\n${out}${err}")
 endif()
-foreach(f runs.csv summary.csv baselines.csv index.html curves/CWN_MUTAG_0.csv curves/UniGNN2_MUTAG_0.csv)
+foreach(f runs.csv summary.csv baselines.csv index.html curves.csv)
   if(NOT EXISTS ${WORK}/mutag/${f})
     message(FATAL_ERROR "tdl topobench did not write ${f}")
+  endif()
+endforeach()
+# Every run's validation curve in one file, a row per check.
+foreach(m CWN UniGNN2)
+  file(STRINGS ${WORK}/mutag/curves.csv checks REGEX "^${m},MUTAG,0,[0-9]+,")
+  if(NOT checks)
+    message(FATAL_ERROR "curves.csv has no validation checks of ${m} on MUTAG split 0")
   endif()
 endforeach()
 file(STRINGS ${WORK}/mutag/baselines.csv base REGEX "^MUTAG,0,")
