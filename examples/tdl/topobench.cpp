@@ -293,16 +293,22 @@ read_curves(const fs::path& file) {
       out;
   std::ifstream in(file);
   std::string line;
-  std::getline(in, line);  // header
-  while (std::getline(in, line)) {
+  std::getline(in, line);  // header, checked when the runner starts
+  for (int n = 2; std::getline(in, line); ++n) {
     std::istringstream f(line);
     std::string m, d, s, e, l, a;
     if (std::getline(f, m, ',') && std::getline(f, d, ',') && std::getline(f, s, ',') &&
         std::getline(f, e, ',') && std::getline(f, l, ',') && std::getline(f, a, ',')) {
-      auto& c = out[{m, d, std::stoll(s)}];
-      c.first.push_back(std::stoi(e));
-      c.second.push_back(std::stod(a));
+      try {
+        auto& c = out[{m, d, std::stoll(s)}];
+        c.first.push_back(std::stoi(e));
+        c.second.push_back(std::stod(a));
+        continue;
+      } catch (const std::exception&) {  // std::stoi's own message names no file
+      }
     }
+    throw std::runtime_error(file.string() + ":" + std::to_string(n) + ": malformed row '" + line +
+                             "'");
   }
   return out;
 }
@@ -483,6 +489,7 @@ int run_topobench(const TopoBenchOptions& o) {
           (out / "curves.csv").string() + ": expected the header " +
           std::string(kCurvesHeader).substr(0, std::string(kCurvesHeader).size() - 1));
     curves_csv = all.str();
+    read_curves(out / "curves.csv");  // a malformed row is named before anything runs
   }
   const fs::path runs_path = out / "runs.csv";
   std::vector<topobench::RunResult> runs;

@@ -41,6 +41,9 @@ file(READ ${WORK}/bad_curves/curves.csv after)
 if(NOT after STREQUAL "epoch,loss,val_accuracy\n1,0.5,0.5\n")
   message(FATAL_ERROR "a failed start changed curves.csv")
 endif()
+file(WRITE ${WORK}/bad_curves/curves.csv "model,dataset,split_seed,epoch,loss,val_accuracy\nSCN,MUTAG,0,x,0.5,0.5\n")
+expect_failure_topobench("curves.csv with a malformed row" "curves.csv:2: malformed row 'SCN,MUTAG,0,x,0.5,0.5'"
+  --data-dir ${WORK}/data --models SCN --datasets MUTAG --out ${WORK}/bad_curves)
 # A malformed runs.csv is named with its line and left as it was.
 file(MAKE_DIRECTORY ${WORK}/bad_runs)
 set(bad "model,dataset,split_seed,test_accuracy,best_epoch,epochs,seconds\nSCN,MUTAG,0,1.5,1,1,1\n")
