@@ -262,15 +262,18 @@ void BM_dropout(benchmark::State& state) {
                                             : torch::dropout(x, 0.5, true));
 }
 
-// x Wᵀ + b forward, or forward and backward (x and W need gradients), rows × 64 by 64 × 64: torch's
-// linear (OpenBLAS) against nn::linear_act (topos's narrow-product kernel). AllSetTransformer's
-// REDDIT-BINARY batches have about 110 k rows.
+// x Wᵀ + b forward, or forward and backward (x and W need gradients), rows × width by width ×
+// width (64, 128): torch's linear (OpenBLAS) against nn::linear_act (topos's register-blocked
+// kernel; 128 wide in panels of 64). AllSetTransformer's REDDIT-BINARY batches have about 110 k
+// rows.
 void BM_linear(benchmark::State& state) {
   nn::set_cpu_threads(1, 1);
   nn::keep_freed_memory();  // as `tdl topobench` runs (registered after BM_epoch_options)
   torch::manual_seed(0);
-  const auto x = torch::randn({state.range(1), 64}).requires_grad_();
-  const auto W = torch::randn({64, 64}).requires_grad_(), b = torch::randn({64}).requires_grad_();
+  const std::int64_t width = state.range(3);
+  const auto x = torch::randn({state.range(1), width}).requires_grad_();
+  const auto W = torch::randn({width, width}).requires_grad_();
+  const auto b = torch::randn({width}).requires_grad_();
   const bool backward = state.range(2) != 0;
   torch::AutoGradMode grad(backward);
   for (auto _ : state) {
@@ -278,7 +281,8 @@ void BM_linear(benchmark::State& state) {
     if (backward) y.sum().backward();
   }
   state.counters["GFLOP/s"] =
-      benchmark::Counter((backward ? 6.0 : 2.0) * 64 * 64 * static_cast<double>(state.range(1)),
+      benchmark::Counter((backward ? 6.0 : 2.0) * static_cast<double>(width * width) *
+                             static_cast<double>(state.range(1)),
                          benchmark::Counter::kIsIterationInvariantRate);
 }
 
@@ -354,8 +358,8 @@ const int registered = [] {
       ->Unit(benchmark::kMillisecond)
       ->MinTime(1.0);
   benchmark::RegisterBenchmark("BM_linear", BM_linear)
-      ->ArgNames({"topos", "rows", "backward"})
-      ->ArgsProduct({{0, 1}, {2000, 20000, 110000}, {0, 1}})
+      ->ArgNames({"topos", "rows", "backward", "width"})
+      ->ArgsProduct({{0, 1}, {2000, 20000, 110000}, {0, 1}, {64, 128}})
       ->Unit(benchmark::kMicrosecond)
       ->MinTime(0.5);
   benchmark::RegisterBenchmark("BM_dropout", BM_dropout)

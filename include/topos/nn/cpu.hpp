@@ -20,6 +20,7 @@
 #include <map>
 #include <mutex>
 #include <new>
+#include <string>
 #include <thread>
 #include <vector>
 
@@ -33,6 +34,15 @@ inline bool set_blas_threads(int n) {
   if (set == nullptr) return false;
   set(n < 1 ? 1 : n);
   return true;
+}
+
+/// The kernel set OpenBLAS multiplies with (its core name: "Haswell", "Cooperlake", ...), or ""
+/// when the process's BLAS is not OpenBLAS. OPENBLAS_CORETYPE overrides OpenBLAS's choice, and the
+/// choice doubles sgemm's speed or halves it (AVX2 or AVX-512 kernels), so timings name it.
+inline std::string blas_kernels() {
+  using Name = char* (*)();
+  auto name = reinterpret_cast<Name>(dlsym(RTLD_DEFAULT, "openblas_get_corename"));
+  return name != nullptr ? std::string(name()) : std::string();
 }
 
 /// The cores this process may run on: its CPU affinity (taskset, a container's cpuset), not every

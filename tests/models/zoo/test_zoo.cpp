@@ -7,6 +7,7 @@
 #include "support/reference.hpp"
 #include "topos/testing/zoo_case.hpp"
 
+#include <array>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -158,6 +159,56 @@ TEST_CASE("activations fused into spmm and linear_act equal torch's, forward and
   REQUIRE_THROWS_WITH(
       linear_act(torch::randn({3, 4}), torch::randn({2, 5}), torch::Tensor(), Epilogue::elu),
       Catch::Contains("4 input channels") && Catch::Contains("5"));
+}
+
+TEST_CASE("linear_act in panels of 64 outputs equals torch's linear, forward and backward",
+          "[nn][sparse]") {
+  using topos::nn::detail::dense_kernel_fits;
+#if defined(TOPOS_HAVE_V4)
+  // Multiples of 64 above 64 take the panels where the CPU has AVX-512, and BLAS elsewhere.
+  CHECK(dense_kernel_fits(128, 128) == topos::nn::detail::cpu_has_v4());
+  CHECK(dense_kernel_fits(64, 512) == topos::nn::detail::cpu_has_v4());
+#endif
+  CHECK_FALSE(dense_kernel_fits(257, 64));
+  CHECK_FALSE(dense_kernel_fits(64, 576));
+  CHECK_FALSE(dense_kernel_fits(64, 96));
+  const auto torch_act = [](const torch::Tensor& z, Epilogue e) {
+    return e == Epilogue::relu ? torch::relu(z) : e == Epilogue::elu ? torch::elu(z) : z;
+  };
+  torch::manual_seed(11);
+  // (rows, inputs, outputs): rows that leave a tail after blocks of 6 and of 48; 192 outputs are
+  // three panels; 128 and 256 inputs make the backward's dx and dW panels too; 512 outputs take
+  // the forward's panels and BLAS's backward (the fused one holds at most 256 outputs).
+  for (auto [n, K, N] : {std::array<std::int64_t, 3>{67, 64, 128},
+                         {130, 128, 128},
+                         {49, 32, 256},
+                         {53, 128, 64},
+                         {100, 256, 192},
+                         {7, 64, 512}}) {
+    for (const auto dt : {torch::kFloat, torch::kDouble}) {
+      for (const auto e : {Epilogue::none, Epilogue::relu, Epilogue::elu}) {
+        INFO(n << " x " << K << " by " << K << " x " << N << ", "
+               << (dt == torch::kFloat ? "float" : "double") << ", epilogue "
+               << static_cast<int>(e));
+        const auto x = torch::randn({n, K}, dt).requires_grad_(true);
+        const auto W = (torch::randn({N, K}, dt) / 8).requires_grad_(true);
+        const auto b = torch::randn({N}, dt).requires_grad_(true);
+        const auto xr = x.detach().clone().requires_grad_(true);
+        const auto Wr = W.detach().clone().requires_grad_(true);
+        const auto br = b.detach().clone().requires_grad_(true);
+        const auto y = linear_act(x, W, b, e);
+        const auto yr = torch_act(torch::linear(xr, Wr, br), e);
+        const double tol = dt == torch::kFloat ? 2e-5 : 1e-12;
+        REQUIRE(torch::allclose(y, yr, tol, tol));
+        const auto R = torch::randn(y.sizes(), dt);
+        (y * R).sum().backward();
+        (yr * R).sum().backward();
+        REQUIRE(torch::allclose(x.grad(), xr.grad(), tol * 4, tol * 4));
+        REQUIRE(torch::allclose(W.grad(), Wr.grad(), tol * 4, tol * 4));
+        REQUIRE(torch::allclose(b.grad(), br.grad(), tol * 4, tol * 4));
+      }
+    }
+  }
 }
 
 TEST_CASE("from_triplets sums duplicates and drops zeros", "[nn][sparse]") {

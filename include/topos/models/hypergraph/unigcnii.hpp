@@ -8,6 +8,7 @@
 // operator schedule (unigcnii_schedule).
 #pragma once
 
+#include "topos/nn/kernels.hpp"
 #include "topos/nn/operator_schedule.hpp"
 
 #include <cmath>
@@ -52,7 +53,9 @@ struct InitialResidual : nn::Operation {
   }
   torch::Tensor forward(nn::RunContext& ctx, const torch::Tensor& x) const override {
     const auto mixed = (1 - alpha) * x + alpha * ctx.cochain(skip);
-    return (1 - beta) * mixed + beta * torch::linear(mixed, ctx.parameter(path + ".weight"));
+    // (1-β) x̃ + β x̃ Wᵀ as one product with (1-β) I + β W: one pass over the rows, not three.
+    const auto& W = ctx.parameter(path + ".weight");
+    return nn::linear_act(mixed, beta * W + (1 - beta) * torch::eye(W.size(0), W.options()), {});
   }
 };
 
