@@ -315,7 +315,7 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::apply(const std::string& where,
     }
     case TermOp::Kind::linear: {
       const auto& b = t.bias ? params_.at(t.name + ".bias") : torch::Tensor();
-      return torch::linear(x, params_.at(t.name + ".weight"), b);
+      return linear_act(x, params_.at(t.name + ".weight"), b);
     }
     case TermOp::Kind::act:
       return apply_update(x, t.update, t.slope);
