@@ -167,24 +167,29 @@ TEST_CASE("linear_act in panels of 64 outputs equals torch's linear, forward and
 #if defined(TOPOS_HAVE_V4)
   // Multiples of 64 above 64 take the panels where the CPU has AVX-512, and BLAS elsewhere.
   CHECK(dense_kernel_fits(128, 128) == topos::nn::detail::cpu_has_v4());
-  CHECK(dense_kernel_fits(64, 512) == topos::nn::detail::cpu_has_v4());
+  CHECK(dense_kernel_fits(64, 1024) == topos::nn::detail::cpu_has_v4());
+  CHECK(dense_kernel_fits(1024, 64) == topos::nn::detail::cpu_has_v4());
 #endif
-  CHECK_FALSE(dense_kernel_fits(257, 64));
-  CHECK_FALSE(dense_kernel_fits(64, 576));
+  CHECK_FALSE(dense_kernel_fits(1025, 64));
+  CHECK_FALSE(dense_kernel_fits(64, 1088));
   CHECK_FALSE(dense_kernel_fits(64, 96));
   const auto torch_act = [](const torch::Tensor& z, Epilogue e) {
     return e == Epilogue::relu ? torch::relu(z) : e == Epilogue::elu ? torch::elu(z) : z;
   };
   torch::manual_seed(11);
   // (rows, inputs, outputs): rows that leave a tail after blocks of 6 and of 48; 192 outputs are
-  // three panels; 128 and 256 inputs make the backward's dx and dW panels too; 512 outputs take
-  // the forward's panels and BLAS's backward (the fused one holds at most 256 outputs).
+  // three panels; 128 and 256 inputs make the backward's dx and dW panels too; 320 and 1024
+  // outputs make the fused backward's blocks shorter than 32 rows (25 and 8); 576 inputs give a
+  // backward of 576 outputs in panels.
   for (auto [n, K, N] : {std::array<std::int64_t, 3>{67, 64, 128},
                          {130, 128, 128},
                          {49, 32, 256},
                          {53, 128, 64},
                          {100, 256, 192},
-                         {7, 64, 512}}) {
+                         {7, 64, 512},
+                         {77, 64, 320},
+                         {41, 32, 1024},
+                         {29, 576, 64}}) {
     for (const auto dt : {torch::kFloat, torch::kDouble}) {
       for (const auto e : {Epilogue::none, Epilogue::relu, Epilogue::elu}) {
         INFO(n << " x " << K << " by " << K << " x " << N << ", "

@@ -181,18 +181,19 @@ inline void dense_rows_clone(const double* X, const double* M, const double* b, 
 }
 #endif
 
-/// The widths dense_product's kernel takes (the rest goes to torch's BLAS): K ≤ 256 inputs, and
-/// 8, 16, 32 or 64 outputs, or a multiple of 64 up to 512 with AVX-512 (the panels are measured
-/// there only; elsewhere OpenBLAS keeps them).
+/// The widths dense_product's kernel takes (the rest goes to torch's BLAS). With AVX-512: up to
+/// 1024 inputs, and 8, 16, 32 or 64 outputs or a multiple of 64 up to 1024 (a filter's taps side
+/// by side: SCCNN's are 5 × 64 wide). Without: up to 256 inputs and 8 to 64 outputs (the wide
+/// shapes were measured with AVX-512 only; elsewhere OpenBLAS keeps them). linear_act's fused
+/// backward takes the same widths with inputs and outputs swapped.
 inline bool dense_kernel_fits(std::int64_t K, std::int64_t N) {
 #if defined(__GNUC__)
-  if (K > 256 || N <= 0) return false;
-  if (N == 8 || N == 16 || N == 32 || N == 64) return true;
+  if (K < 0 || N <= 0) return false;
+  const bool narrow = N == 8 || N == 16 || N == 32 || N == 64;
 #if defined(TOPOS_HAVE_V4)
-  return N % 64 == 0 && N <= 512 && cpu_has_v4();
-#else
-  return false;
+  if (cpu_has_v4()) return K <= 1024 && (narrow || (N % 64 == 0 && N <= 1024));
 #endif
+  return K <= 256 && narrow;
 #else
   return K < 0 && N < 0;
 #endif
@@ -274,8 +275,10 @@ static TOPOS_INLINE_KERNEL void linear_backward_rows(const T* x, const T* W, con
                                                      T* dx, T* dW, T* db, std::int64_t begin,
                                                      std::int64_t end, std::int64_t K,
                                                      std::int64_t N) {
-  constexpr std::int64_t B = 32;
-  alignas(64) T dZ[B * 256];
+  // Blocks of 32 rows, fewer above 256 outputs so that dZ keeps its 32 KB (float) on the stack.
+  constexpr std::int64_t capacity = 32 * 256;
+  const std::int64_t B = std::max<std::int64_t>(1, std::min<std::int64_t>(32, capacity / N));
+  alignas(64) T dZ[capacity];
   for (std::int64_t i0 = begin; i0 < end; i0 += B) {
     const std::int64_t rows = std::min(B, end - i0);
     const T* z = g + i0 * N;
