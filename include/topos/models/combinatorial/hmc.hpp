@@ -51,7 +51,7 @@ struct HmcAttention : nn::Operation {
   bool mirrored_rows = false;
   double negative_slope = 0.2;
 
-  std::string name() const { return op + (transposed ? "ᵀ" : ""); }
+  std::string name() const { return nn::operator_label(op, transposed); }
   std::string str(const std::string& x) const override {
     return "hmc_attend[" + param + "]" + name() + "·" + x;
   }

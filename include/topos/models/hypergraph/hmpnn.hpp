@@ -36,7 +36,7 @@ struct DroppedPattern : nn::Operation {
   bool transposed;
   nn::Aggr aggr;
 
-  std::string name() const { return op + (transposed ? "ᵀ" : ""); }
+  std::string name() const { return nn::operator_label(op, transposed); }
   std::string str(const std::string& x) const override {
     std::ostringstream o;
     o << nn::aggr_name(aggr) << "|" << name();

@@ -111,7 +111,7 @@ TOPOS_INLINE TermShape OperatorNetworkImpl::infer(detail::NetworkBuildContext& c
       return infer_attend(ctx, t, x);
     case TermOp::Kind::via_transposed: {
       const auto [src, dst] = op(t.name);
-      if (dst != x.rank) throw rank_error(t.name + "ᵀ", dst);
+      if (dst != x.rank) throw rank_error(operator_label(t.name, true), dst);
       return {src, x.channels};
     }
     case TermOp::Kind::weight:
@@ -213,7 +213,7 @@ TOPOS_INLINE TermShape OperatorNetworkImpl::infer_attend(detail::NetworkBuildCon
     throw ScheduleError(where + ": unknown operator '" + t.name + "'");
   auto [src, dst] = it->second;
   if (o.transposed()) std::swap(src, dst);
-  const auto name = t.name + (o.transposed() ? "ᵀ" : "");
+  const auto name = operator_label(t.name, o.transposed());
   const auto fail = [&](const std::string& why) {
     return ScheduleError(where + ": attention over '" + name + "' " + why);
   };

@@ -313,7 +313,7 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_filter(const std::string& wh
            detail::prefix_key(src, s.terms[k].operations(), j);
   };
   const auto name_of = [](const TermOp& o) {
-    return o.kind == TermOp::Kind::via_transposed ? o.name + "ᵀ" : o.name;
+    return operator_label(o.name, o.kind == TermOp::Kind::via_transposed);
   };
   // Each source's product taps: weighted first when that costs less.
   const double c_in = static_cast<double>(W.size(0)), c_out = static_cast<double>(W.size(1));

@@ -38,6 +38,12 @@
 
 namespace topos::nn {
 
+/// An operator as schedules print it and their errors name it: `name`, or `nameᵀ` applied
+/// transposed.
+inline std::string operator_label(const std::string& name, bool transposed) {
+  return transposed ? name + "ᵀ" : name;
+}
+
 /// A term's value while the network is built: the rank of its cells and its channels.
 struct TermShape {
   int rank = 0;
@@ -84,7 +90,7 @@ class BuildContext {
     auto [src, dst] = operator_ranks(name);
     if (transposed) std::swap(src, dst);
     if (src != rank)
-      fail("operator '" + name + (transposed ? "ᵀ" : "") + "' applies to rank " +
+      fail("operator '" + operator_label(name, transposed) + "' applies to rank " +
            std::to_string(src) + " cochains, not rank " + std::to_string(rank));
     return {src, dst};
   }

@@ -28,7 +28,7 @@ TOPOS_INLINE std::string ops_str(std::string x, const std::vector<TermOp>& ops) 
         x = t.name + (t.row_norm ? "~" : "") + role_str(t) + "·" + x;
         break;
       case TermOp::Kind::via_transposed:
-        x = t.name + "ᵀ" + (t.row_norm ? "~" : "") + "·" + x;
+        x = operator_label(t.name, true) + (t.row_norm ? "~" : "") + "·" + x;
         break;
       case TermOp::Kind::pattern:
         x = std::string(aggr_name(t.aggr)) + "|" + t.name + role_str(t) + "|·" + x;
@@ -51,7 +51,7 @@ TOPOS_INLINE std::string ops_str(std::string x, const std::vector<TermOp>& ops) 
       case TermOp::Kind::attend: {
         const auto& a = t.attention;
         x = "att[" + t.param + (a.heads() > 1 ? " ×" + std::to_string(a.heads()) : "") + "]" +
-            t.name + (a.transposed() ? "ᵀ" : "") + "·" + x;
+            operator_label(t.name, a.transposed()) + "·" + x;
         break;
       }
       case TermOp::Kind::batch_norm:

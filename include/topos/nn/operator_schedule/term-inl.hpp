@@ -250,7 +250,7 @@ TOPOS_INLINE std::size_t OperatorNetworkImpl::apply_fused(const std::string& whe
                      cost_via_first = nnz * c_in + m * c_in * c_out;
         if (weight_first ? cost_via_first < 0.8 * cost_weight_first
                          : cost_weight_first < 0.8 * cost_via_first) {
-          const auto name = transposed ? p.name + "ᵀ" : p.name;
+          const auto name = operator_label(p.name, transposed);
           if (weight_first) {
             x = detail::multiply(where, name, A, x, p.row_norm);
             x = linear_act(x, W.t(), {});
@@ -275,7 +275,7 @@ TOPOS_INLINE std::size_t OperatorNetworkImpl::apply_fused(const std::string& whe
   } else {
     const bool transposed = t.kind == TermOp::Kind::via_transposed;
     const auto& A = transposed ? ops.t(where, t.name) : ops.at(where, t.name);
-    detail::check_fits(where, transposed ? t.name + "ᵀ" : t.name, A, x);
+    detail::check_fits(where, operator_label(t.name, transposed), A, x);
     x = spmm(A, x, act);
   }
   return i + 1;
@@ -296,7 +296,8 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::apply(const std::string& where,
       return detail::multiply(where, t.name, ops.at(where, t.name), x, t.row_norm);
     }
     case TermOp::Kind::via_transposed: {
-      return detail::multiply(where, t.name + "ᵀ", ops.t(where, t.name), x, t.row_norm);
+      return detail::multiply(where, operator_label(t.name, true), ops.t(where, t.name), x,
+                              t.row_norm);
     }
     case TermOp::Kind::attend:
       return attend(where, target, t, x, ops, h);
@@ -355,7 +356,7 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::attend(const std::string& where,
                                                        const Cochains& h) {
   const auto& o = t.attention;
   const auto& A = o.transposed() ? ops.t(where, t.name) : ops.at(where, t.name);
-  const auto name = t.name + (o.transposed() ? "ᵀ" : "");
+  const auto name = operator_label(t.name, o.transposed());
   detail::check_fits(where, name, A, x);
   A.require_entries(where + ": attention over operator '" + name + "'");
   auto k = x;
