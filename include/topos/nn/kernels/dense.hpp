@@ -85,6 +85,8 @@ static TOPOS_INLINE_KERNEL void dense_rows_fixed(const T* X, const T* M, const T
 // K = 128) stays in L1 while it meets every panel of M. A panel of M may come from L2 (128 × 64
 // floats fill 32 KB), so six rows share each load of it, not four: on a Zen 5 core 128 × 128
 // products run at 240 GFLOP/s that way and at 185 with four (OpenBLAS's AVX2 kernels: 118).
+template <class T, int VB>
+constexpr int panel_rows = VB == 64 && sizeof(T) == 4 ? 6 : 0;  // 0: dense_rows_fixed's own
 template <class T, Epilogue E, int VB>
 static TOPOS_INLINE_KERNEL void dense_rows_panels(const T* X, const T* M, const T* b, T* Y,
                                                   std::int64_t begin, std::int64_t end,
@@ -93,8 +95,8 @@ static TOPOS_INLINE_KERNEL void dense_rows_panels(const T* X, const T* M, const 
   for (std::int64_t i0 = begin; i0 < end; i0 += rows) {
     const std::int64_t i1 = std::min(end, i0 + rows);
     for (std::int64_t c = 0; c < N; c += 64)
-      dense_rows_fixed<T, 64, E, VB, (VB == 64 && sizeof(T) == 4 ? 6 : 0)>(
-          X, M + c, b ? b + c : nullptr, Y + c, i0, i1, K, N, N);
+      dense_rows_fixed<T, 64, E, VB, panel_rows<T, VB>>(X, M + c, b ? b + c : nullptr, Y + c, i0,
+                                                        i1, K, N, N);
   }
 }
 
@@ -286,27 +288,8 @@ static TOPOS_INLINE_KERNEL void linear_backward_rows(const T* x, const T* W, con
       epilogue_rows<T, VB>(const_cast<T*>(y + i0 * N), g + i0 * N, dZ, rows * N, E);
       z = dZ;
     }
-    if (dx) {
-      switch (K) {
-        case 8:
-          dense_rows_fixed<T, 8, Epilogue::none, VB>(z, W, nullptr, dx + i0 * K, 0, rows, N);
-          break;
-        case 16:
-          dense_rows_fixed<T, 16, Epilogue::none, VB>(z, W, nullptr, dx + i0 * K, 0, rows, N);
-          break;
-        case 32:
-          dense_rows_fixed<T, 32, Epilogue::none, VB>(z, W, nullptr, dx + i0 * K, 0, rows, N);
-          break;
-        case 64:
-          dense_rows_fixed<T, 64, Epilogue::none, VB>(z, W, nullptr, dx + i0 * K, 0, rows, N);
-          break;
-        default:  // a multiple of 64: panels of dx's columns
-          for (std::int64_t c = 0; c < K; c += 64)
-            dense_rows_fixed<T, 64, Epilogue::none, VB, (VB == 64 && sizeof(T) == 4 ? 6 : 0)>(
-                z, W + c, nullptr, dx + i0 * K + c, 0, rows, N, K, K);
-          break;
-      }
-    }
+    if (dx)  // dx = dZ W: the forward's product with W's K columns as outputs
+      dense_rows_width<T, Epilogue::none, VB>(z, W, nullptr, dx + i0 * K, 0, rows, N, K);
     if (dW) {
       switch (K) {
         case 8:
