@@ -29,7 +29,7 @@ if [ -z "${TOPOS_HOPNET:-}" ]; then
   cmake -S . -B build -DCMAKE_BUILD_TYPE=Release >/dev/null
   cmake --build build -j2 --target hopnet
 fi
-H="${TOPOS_HOPNET:-$root/build/examples/hopnet}"
+H="${TOPOS_HOPNET:-$root/build/apps/hopnet}"
 OUT="${TOPOS_REPRO_DIR:-$root/build/reproduction}"
 FULL="${TOPOS_REPRO_FULL:-0}"
 mkdir -p "$OUT/eval"

@@ -1,4 +1,4 @@
-// examples/tdl/zoo_commands.hpp
+// apps/tdl/zoo_commands.hpp
 // What the tdl program's model-zoo subcommands (forward, grad, train) share: the case options and
 // opening a case (model, weights, operators built from complex.json). LibTorch; included only by
 // their translation units, never by main.cpp or operators.cpp.

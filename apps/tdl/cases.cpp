@@ -1,4 +1,4 @@
-// examples/tdl/cases.cpp
+// apps/tdl/cases.cpp
 // The golden-case subcommands of the model zoo, in one translation unit (their code is a few
 // lines each over topos/testing/zoo_case.hpp, compiled once into topos_testing_zoo):
 //   tdl forward --case DIR --out OUTDIR: runs a golden case's model (eval mode) and writes

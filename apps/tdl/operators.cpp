@@ -1,4 +1,4 @@
-// examples/tdl/operators.cpp
+// apps/tdl/operators.cpp
 // `tdl operators --case DIR --out OUTDIR`: builds the case's domain from DIR/complex.json and
 // every operator of DIR/operators.json from its op/args (topos/testing/tdl_case.hpp), then writes
 // each as OUTDIR/<name>.npy, dense float32, atomically. Everything is computed before the first
