@@ -5,7 +5,7 @@
 #pragma once
 
 #include "commands.hpp"
-#include "topos/testing/zoo_case.hpp"
+#include "topos/models/zoo/golden_case.hpp"
 
 #include <filesystem>
 #include <string>
