@@ -10,7 +10,7 @@
 # KuBasic asset folder for MOVi-A's own meshes; the built-in shapes when unset).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-H=build/examples/hopnet
+H=build/apps/hopnet
 OUT=${1:-build/baselines}
 SEEDS=${SEEDS:-1-40} FRAMES=${FRAMES:-130} EPOCHS=${EPOCHS:-6} BATCH=${BATCH:-64}
 STEPS_BATCH=${STEPS_BATCH:-16}

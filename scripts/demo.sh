@@ -9,7 +9,7 @@ bash scripts/setup.sh
 export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1
 cmake -S . -B build -DCMAKE_BUILD_TYPE=Release -DTOPOS_WERROR="${TOPOS_WERROR:-ON}" >/dev/null  # as scripts/test.sh: one build serves both
 cmake --build build -j2 --target hopnet
-H=build/examples/hopnet
+H=build/apps/hopnet
 OUT=build/demo
 rm -rf "$OUT"
 $H generate --dataset movi-a --seeds 1-40 --frames 130 --out "$OUT/data"

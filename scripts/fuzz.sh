@@ -31,7 +31,8 @@ for ref in "$root/../shared/reference" "$root/../../shared/reference"; do
 done
 
 CC=clang CXX=clang++ cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTOPOS_FUZZ=ON \
-  -DBUILD_TESTING=OFF -DTOPOS_BUILD_EXAMPLES=OFF -DTOPOS_BUILD_BENCHMARKS=OFF >/dev/null
+  -DBUILD_TESTING=OFF -DTOPOS_BUILD_APPS=OFF -DTOPOS_BUILD_EXAMPLES=OFF \
+  -DTOPOS_BUILD_BENCHMARKS=OFF >/dev/null
 targets=()
 for h in "${harnesses[@]}"; do targets+=("fuzz_$h"); done
 cmake --build "$build" -j "$jobs" --target "${targets[@]}"

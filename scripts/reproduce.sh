@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Reproduces the paper's rollout tables with the published checkpoints and writes
-# docs/reproduction.md: regenerates the 120 test seeds (spec section 10) of MOVi-A, MOVi-spheres
+# docs/reproduction.md: regenerates the 120 test seeds (the reference split) of MOVi-A, MOVi-spheres
 # and MOVi-B with Bullet and the KuBasic assets, and evaluates
 #  - modela / models / modelb in reference and native mode (Tables 4, 5, 6's diagonal),
 #  - every published checkpoint on every dataset it was not trained on (Table 6),
@@ -29,7 +29,7 @@ if [ -z "${TOPOS_HOPNET:-}" ]; then
   cmake -S . -B build -DCMAKE_BUILD_TYPE=Release >/dev/null
   cmake --build build -j2 --target hopnet
 fi
-H="${TOPOS_HOPNET:-$root/build/examples/hopnet}"
+H="${TOPOS_HOPNET:-$root/build/apps/hopnet}"
 OUT="${TOPOS_REPRO_DIR:-$root/build/reproduction}"
 FULL="${TOPOS_REPRO_FULL:-0}"
 mkdir -p "$OUT/eval"
@@ -62,7 +62,7 @@ evaluate modela-movi-spheres-reference modela_seed2_e39 movia movi-spheres refer
 evaluate modela-movi-b-reference modela_seed2_e39 movia movi-b reference
 evaluate modelb-movi-spheres-reference modelb_seed0_e39 movib movi-spheres reference
 evaluate modelb-movi-a-reference modelb_seed0_e39 movib movi-a reference
-# The variants' published weights (hopnet-ablations-spec.md).
+# The variants' published weights (the paper's ablations).
 evaluate nox4-movi-a-reference movia-nox4_seed0_e39 movia-nox4 movi-a reference
 evaluate noseq-movi-a-reference movia-noseq_seed1_e39 movia movi-a reference
 evaluate gelu-movi-spheres-reference gelu_seed0_e39 movis movi-spheres reference test --activation gelu
@@ -78,7 +78,7 @@ if [ "$FULL" = 1 ]; then
   if [ ! -f "$OUT/stats-movi-a.json" ]; then
     "${NICE[@]}" "$H" stats --data "$OUT/data/movi-a-all" --assets "$REF/data/kubasic" --collision-radius 0.05 0.1 0.2 --out "$OUT/stats-movi-a.json"
   fi
-  # The test split of every dataset size n = 1200 - k (one sample missing, spec section 10).
+  # The test split of every dataset size n = 1200 - k (one sample missing: the reference split).
   mkdir -p "$OUT/splits"
   for n in 1199 1198 1197 1196 1195 1190 1180 1100; do
     "$H" split --seeds "1-$n" --part test > "$OUT/splits/test-$n.txt"

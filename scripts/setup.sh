@@ -44,7 +44,7 @@ else
   $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
 fi
 
-# The HTML report and the 3D rollout viewer (examples/hopnet/web/) inline three.js and Chart.js
+# The HTML report and the 3D rollout viewer (apps/hopnet/web/) inline three.js and Chart.js
 # from the npm registry, pinned. Debian's libjs-three is three r111 (2019), 76 releases behind,
 # and its libjs-chart.js is 3.9; npm has the maintained versions. They go to one folder that the
 # hopnet program reads when it writes a page (TOPOS_JS_DIR overrides it at build and run time).

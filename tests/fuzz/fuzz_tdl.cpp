@@ -1,9 +1,9 @@
-// Fuzz harness: a tdl case (testing/tdl_case.hpp), the files `tdl operators --case DIR` reads.
+// Fuzz harness: a tdl case (topos/data/tdl_case.hpp), the files `tdl operators --case DIR` reads.
 // The input is complex.json, then optionally a NUL byte and operators.json, then optionally a
 // NUL byte and case.json (its "domain" is the fallback when complex.json names none).
 #include "fuzz_target.hpp"
 
-#include "topos/testing/tdl_case.hpp"
+#include "topos/data/tdl_case.hpp"
 
 #include <cmath>
 #include <cstdint>

@@ -5,7 +5,8 @@
 #include "support/torch_prelude.hpp"
 
 #include "support/reference.hpp"
-#include "topos/testing/zoo_case.hpp"
+#include "topos/models/zoo.hpp"
+#include "topos/models/zoo/golden_case.hpp"
 
 #include <array>
 #include <filesystem>

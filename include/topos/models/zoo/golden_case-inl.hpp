@@ -1,18 +1,23 @@
-// tests/support/src/zoo_case.cpp
-// The definitions of topos/testing/zoo_case.hpp (documented there), compiled once into the
-// topos_testing_zoo library: load_case builds the model by name (make_zoo_model, every model of
-// the zoo) and the operators through tdl_case, which took minutes at -O3 in each translation unit
-// that included the header.
-#include "topos/testing/zoo_case.hpp"
+// topos/models/zoo/golden_case-inl.hpp
+// The implementation of golden_case.hpp (documented there): compiled once into topos::zoo
+// (src/zoo.cpp), or inline with TOPOS_HEADER_ONLY (topos/config.hpp). load_case builds the
+// model by name (make_zoo_model: every model of the zoo) and the operators through tdl_case.hpp,
+// which takes minutes in each translation unit that compiles it.
+#pragma once
+
+#include "topos/data/tdl_case.hpp"
+#include "topos/models/zoo.hpp"
+#include "topos/models/zoo/golden_case.hpp"
 
 namespace topos::models {
 
-namespace {
+namespace detail {
 
 // One entry of case.json's "forward" list: an inputs/ tensor, an operator by name, a tuple, list
 // or dict of entries, or null.
-ZooArg case_argument(const nlohmann::json& e, const std::filesystem::path& dir,
-                     const std::map<std::string, nn::SparseOperator>& ops, torch::Dtype dtype) {
+inline ZooArg case_argument(const nlohmann::json& e, const std::filesystem::path& dir,
+                            const std::map<std::string, nn::SparseOperator>& ops,
+                            torch::Dtype dtype) {
   if (e.is_null()) return ZooArg{};
   if (!e.is_object())
     throw ZooError("case.json: a forward entry must be an object or null, got " + e.dump());
@@ -45,10 +50,11 @@ ZooArg case_argument(const nlohmann::json& e, const std::filesystem::path& dir,
   }
   throw ZooError("case.json: forward entry '" + name + "' has unknown source '" + from + "'");
 }
-}  // namespace
+}  // namespace detail
 
-ZooCase load_case(const std::filesystem::path& dir, const OperatorSource& operator_source,
-                  bool topomodelx_compatible, torch::Dtype dtype) {
+TOPOS_INLINE ZooCase load_case(const std::filesystem::path& dir,
+                               const OperatorSource& operator_source, bool topomodelx_compatible,
+                               torch::Dtype dtype) {
   ZooCase c;
   c.dir = dir;
   c.spec = data::read_json_file(dir / "case.json");
@@ -64,11 +70,11 @@ ZooCase load_case(const std::filesystem::path& dir, const OperatorSource& operat
                    c.spec.at("kwargs").dump() + ")");
   const auto operators = operator_source();
   for (const auto& e : c.spec.at("forward"))
-    c.args.push_back(case_argument(e, dir, operators, dtype));
+    c.args.push_back(detail::case_argument(e, dir, operators, dtype));
   c.outputs = c.spec.at("outputs").get<std::vector<std::string>>();
   return c;
 }
-std::map<std::string, torch::Tensor> run_case(ZooCase& c) {
+TOPOS_INLINE std::map<std::string, torch::Tensor> run_case(ZooCase& c) {
   const auto out = c.model.forward(c.args);
   if (out.size() != c.outputs.size())
     throw ZooError(c.model.name + ": the model returns " + std::to_string(out.size()) +
@@ -78,7 +84,7 @@ std::map<std::string, torch::Tensor> run_case(ZooCase& c) {
   return named;
 }
 
-std::map<std::string, torch::Tensor> case_gradients(ZooCase& c) {
+TOPOS_INLINE std::map<std::string, torch::Tensor> case_gradients(ZooCase& c) {
   auto& m = *c.model.module;
   for (auto& p : m.parameters()) p.mutable_grad() = torch::Tensor();
   const auto out = run_case(c);
@@ -97,7 +103,8 @@ std::map<std::string, torch::Tensor> case_gradients(ZooCase& c) {
   return g;
 }
 
-std::map<std::string, nn::SparseOperator> case_operators(const std::filesystem::path& dir) {
+TOPOS_INLINE std::map<std::string, nn::SparseOperator> case_operators(
+    const std::filesystem::path& dir) {
   const tdl::Operators built = tdl::compute_operators(dir);
   std::map<std::string, nn::SparseOperator> ops;
   for (const auto& [name, m] : built.by_name)

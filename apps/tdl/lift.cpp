@@ -1,4 +1,4 @@
-// examples/tdl/lift.cpp
+// apps/tdl/lift.cpp
 // `tdl lift --data-dir DIR --dataset NAME --lifting clique|cycle|khop`: lifts every graph of a
 // TopoBench dataset (topos/data/graph_datasets.hpp) with TopoBench's lifting
 // (topos/core/domain_lifting.hpp: clique_lifting, cycle_lifting, khop_lifting) and prints one

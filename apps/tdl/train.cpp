@@ -1,4 +1,4 @@
-// tdl train: node classification on Zachary's karate club (examples/tdl/data/karate_club.txt),
+// tdl train: node classification on Zachary's karate club (apps/tdl/data/karate_club.txt),
 // lifted to its clique complex (SCN2, SCCNN) and to its neighbourhood hypergraph (UniGCNII),
 // each model followed by a linear layer to the classes (the two factions). One-hot node
 // features (edges and triangles get a constant feature), a stratified train/test split, Adam on

@@ -1,4 +1,4 @@
-// examples/tdl/commands.hpp
+// apps/tdl/commands.hpp
 // The tdl program's subcommands. Each lives in its own translation unit (but forward and grad,
 // which share cases.cpp) and registers itself on the CLI11 app with one function; main.cpp calls
 // them, one line per subcommand, and runs the callback the parsed subcommand set.

@@ -1,12 +1,12 @@
-// examples/tdl/operators.cpp
+// apps/tdl/operators.cpp
 // `tdl operators --case DIR --out OUTDIR`: builds the case's domain from DIR/complex.json and
-// every operator of DIR/operators.json from its op/args (topos/testing/tdl_case.hpp), then writes
+// every operator of DIR/operators.json from its op/args (topos/data/tdl_case.hpp), then writes
 // each as OUTDIR/<name>.npy, dense float32, atomically. Everything is computed before the first
 // file is written, so a bad case leaves OUTDIR untouched.
 #include "commands.hpp"
 
 #include "topos/data/npy.hpp"
-#include "topos/testing/tdl_case.hpp"
+#include "topos/data/tdl_case.hpp"
 
 #include <cstdio>
 #include <filesystem>

@@ -1,4 +1,4 @@
-// examples/hopnet/viewer.hpp
+// apps/hopnet/viewer.hpp
 // The hopnet program's 3D rollout viewer: one self-contained HTML file that opens offline. It
 // shows the predicted rollout and the ground truth side by side or overlaid (three.js: lit,
 // shadowed, orbit controls, one colour per object), plays, pauses and scrubs through the frames,

@@ -1,4 +1,4 @@
-// examples/tdl/tasks.hpp
+// apps/tdl/tasks.hpp
 // What tdl's training tasks, `tdl train` (karate club) and `tdl classify` (batched point-cloud
 // complexes), share: the low-pass filters they propagate with, how an epoch is logged and how
 // they write their results.

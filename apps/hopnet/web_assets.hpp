@@ -1,6 +1,6 @@
-// examples/hopnet/web_assets.hpp
+// apps/hopnet/web_assets.hpp
 // What the hopnet program's HTML pages (the evaluation report, the training curves, the rollout
-// viewer) are made of: their templates (examples/hopnet/web/, compiled in by
+// viewer) are made of: their templates (apps/hopnet/web/, compiled in by
 // cmake/embed_text.cmake) and the JavaScript libraries they inline, three.js and Chart.js from
 // npm (installed by scripts/setup.sh). Every page is one self-contained file that opens offline:
 // Chart.js goes in as a classic script; three.js, which npm ships only as ES modules, goes in as

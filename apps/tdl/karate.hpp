@@ -1,5 +1,5 @@
-// examples/tdl/karate.hpp
-// Zachary's karate club for `tdl train`: reading examples/tdl/data/karate_club.txt (nodes with
+// apps/tdl/karate.hpp
+// Zachary's karate club for `tdl train`: reading apps/tdl/data/karate_club.txt (nodes with
 // their faction, undirected edges) and lifting the graph to the domains the models run on: its
 // clique complex up to triangles (a simplicial complex) and the hypergraph of closed
 // neighbourhoods (one hyperedge {v} ∪ N(v) per node).

@@ -1,8 +1,8 @@
-// examples/hopnet/commands.hpp
+// apps/hopnet/commands.hpp
 // The hopnet program's subcommands, one file each (info.cpp, train.cpp, ...). Each add_<name>
 // declares its options on the program and returns the subcommand with the function that runs it
 // once the command line is parsed; main.cpp only lists them. Also the program's shared includes
-// (precompiled: see examples/CMakeLists.txt) and the few helpers several subcommands use.
+// (one unity translation unit: apps/CMakeLists.txt) and the few helpers several subcommands use.
 #pragma once
 
 #include "topos/data/dataset.hpp"

@@ -1,4 +1,4 @@
-// examples/hopnet/launch.hpp
+// apps/hopnet/launch.hpp
 // A local launcher for data-parallel jobs, like `torchrun --nproc-per-node N` on one machine:
 // starts N copies of this program with torchrun's environment (RANK, LOCAL_RANK, WORLD_SIZE,
 // LOCAL_WORLD_SIZE, MASTER_ADDR=127.0.0.1) and a fresh c10d FileStore path in

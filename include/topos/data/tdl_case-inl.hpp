@@ -1,9 +1,12 @@
-// tests/support/src/tdl_case.cpp
-// The definitions of topos/testing/tdl_case.hpp (documented there), compiled once into the
-// topos_testing library: evaluating an operator instantiates every operator of every domain and
-// Eigen's sparse and dense algebra, which took minutes at -O3 in each translation unit that
-// included the header. The helpers below are this file's own.
-#include "topos/testing/tdl_case.hpp"
+// topos/data/tdl_case-inl.hpp
+// The implementation of tdl_case.hpp (documented there): compiled once into topos::data
+// (src/tdl_case.cpp), or inline with TOPOS_HEADER_ONLY (topos/config.hpp). Evaluating an
+// operator instantiates every operator of every domain and Eigen's sparse and dense algebra,
+// which takes minutes in each translation unit that compiles it. The helpers in detail are this
+// file's own.
+#pragma once
+
+#include "topos/data/tdl_case.hpp"
 
 #include "topos/core/normalization.hpp"
 #include "topos/core/operators.hpp"
@@ -16,7 +19,6 @@
 namespace topos::tdl {
 
 namespace detail {
-namespace {
 
 using json = nlohmann::ordered_json;
 
@@ -45,7 +47,7 @@ struct NodeMap {
 
 // Nodes are numbered by their position in the list; labels must be distinct integers, and
 // increasing where orientation follows the node order (simplicial).
-NodeMap map_nodes(const json& labels, const std::string& source, bool increasing) {
+inline NodeMap map_nodes(const json& labels, const std::string& source, bool increasing) {
   NodeMap m;
   m.source = source;
   if (!labels.is_array()) throw data::DataError(source + ": the node list must be an array");
@@ -69,14 +71,14 @@ NodeMap map_nodes(const json& labels, const std::string& source, bool increasing
   return m;
 }
 
-const json& member(const json& j, const char* key, const std::string& source) {
+inline const json& member(const json& j, const char* key, const std::string& source) {
   if (!j.is_object() || !j.contains(key))
     throw data::DataError(source + ": missing \"" + key + "\"");
   return j.at(key);
 }
 
 // Ranks of a {"0": [...], "1": [...]} object, checked contiguous from 0.
-std::vector<const json*> ranked_cells(const json& cells, const std::string& source) {
+inline std::vector<const json*> ranked_cells(const json& cells, const std::string& source) {
   if (!cells.is_object())
     throw data::DataError(source + ": \"cells\" must be an object {rank: [cells...]}");
   std::map<int, const json*> by_rank;
@@ -105,11 +107,10 @@ std::vector<const json*> ranked_cells(const json& cells, const std::string& sour
   return out;
 }
 
-}  // namespace
 }  // namespace detail
 
-Domain parse_domain(const nlohmann::ordered_json& j, const std::string& src,
-                    const std::string& fallback_domain) {
+TOPOS_INLINE Domain parse_domain(const nlohmann::ordered_json& j, const std::string& src,
+                                 const std::string& fallback_domain) {
   using detail::json;
   std::string kind = fallback_domain;
   if (j.is_object() && j.contains("domain")) {
@@ -183,13 +184,13 @@ Domain parse_domain(const nlohmann::ordered_json& j, const std::string& src,
                         "\" (expected simplicial, cell, combinatorial or hypergraph)");
 }
 
-Domain read_domain(const std::filesystem::path& complex_json, const std::string& fallback_domain) {
+TOPOS_INLINE Domain read_domain(const std::filesystem::path& complex_json,
+                                const std::string& fallback_domain) {
   return parse_domain(data::read_ordered_json_file(complex_json), complex_json.string(),
                       fallback_domain);
 }
 
 namespace detail {
-namespace {
 
 // One operator's evaluation context: its name and op for error messages, typed argument access.
 struct OpCall {
@@ -275,7 +276,7 @@ SparseOp set_operator(const D& d, const OpCall& c) {
   c.fail("unknown op");
 }
 
-bool is_complex_op(const std::string& op) {
+inline bool is_complex_op(const std::string& op) {
   static const char* ops[] = {"incidence_matrix",       "coincidence_matrix",
                               "hodge_laplacian_matrix", "up_laplacian_matrix",
                               "down_laplacian_matrix",  "adjacency_matrix",
@@ -285,10 +286,9 @@ bool is_complex_op(const std::string& op) {
   return false;
 }
 
-}  // namespace
 }  // namespace detail
 
-std::vector<std::string> known_ops() {
+TOPOS_INLINE std::vector<std::string> known_ops() {
   return {"incidence_matrix",
           "coincidence_matrix",
           "hodge_laplacian_matrix",
@@ -310,9 +310,9 @@ std::vector<std::string> known_ops() {
           "pinv"};
 }
 
-SparseOp evaluate_operator(const std::string& name, const std::string& op,
-                           const nlohmann::ordered_json& args, const Domain& domain,
-                           const Operators& earlier) {
+TOPOS_INLINE SparseOp evaluate_operator(const std::string& name, const std::string& op,
+                                        const nlohmann::ordered_json& args, const Domain& domain,
+                                        const Operators& earlier) {
   const detail::OpCall c{name, op, args, earlier};
   try {
     if (detail::is_complex_op(op)) {
@@ -395,8 +395,8 @@ SparseOp evaluate_operator(const std::string& name, const std::string& op,
   c.fail("unknown op (known: " + list + ")");
 }
 
-Operators compute_operators(const nlohmann::ordered_json& ops, const Domain& domain,
-                            const std::string& source) {
+TOPOS_INLINE Operators compute_operators(const nlohmann::ordered_json& ops, const Domain& domain,
+                                         const std::string& source) {
   if (!ops.is_object())
     throw data::DataError(source + ": must be an object {name: {\"op\", \"args\"}}");
   Operators out;
@@ -433,7 +433,7 @@ Operators compute_operators(const nlohmann::ordered_json& ops, const Domain& dom
   return out;
 }
 
-Operators compute_operators(const std::filesystem::path& case_dir) {
+TOPOS_INLINE Operators compute_operators(const std::filesystem::path& case_dir) {
   std::string fallback;
   if (std::filesystem::exists(case_dir / "case.json"))
     fallback = case_domain(data::read_json_file(case_dir / "case.json"));

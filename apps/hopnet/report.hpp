@@ -1,4 +1,4 @@
-// examples/hopnet/report.hpp
+// apps/hopnet/report.hpp
 // The hopnet program's HTML report: `hopnet evaluate` writes index.html (the error table at the
 // paper's horizons, error-vs-frame plots with a mean ± std band for topos and the
 // constant-velocity baseline beside the paper's points, a per-scene table with links into the

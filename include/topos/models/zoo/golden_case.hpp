@@ -1,20 +1,26 @@
-// topos/testing/zoo_case.hpp
-// Running a TopoModelX golden case (shared/reference/tdl-golden format): the model from
-// case.json's "model" and "config", its weights from state_dict/ (or a torch .pt state_dict),
-// the positional arguments from case.json's "forward" list (inputs/ tensors, operators by name,
-// tuples/lists, None), in eval mode; and the parameter gradients of Σ_outputs Σ(out · R).
-// The operators are built from complex.json and operators.json (case_operators), never read
-// from the case's operators/ folder. Declarations only: the definitions (which build any of the
-// zoo's models) are compiled once, in tests/support/src/zoo_case.cpp (CMake target
-// topos_testing_zoo).
+// topos/models/zoo/golden_case.hpp
+// Running a model case of the TDL golden format: a TopoModelX model saved with its weights,
+// inputs and outputs (case.json, complex.json, operators.json, state_dict/, inputs/, grads/), so
+// that topos's model is checked against TopoModelX's on the same numbers (the zoo's parity
+// tests, `tdl forward` and `tdl grad`). The model comes from case.json's "model" and "config"
+// (make_zoo_model, topos/models/zoo.hpp), its weights from state_dict/ (or a torch .pt
+// state_dict), the positional arguments from case.json's "forward" list (inputs/ tensors,
+// operators by name, tuples/lists, None), in eval mode; and the parameter gradients of
+// Σ_outputs Σ(out · R). The operators are built from complex.json and operators.json
+// (case_operators, topos/data/tdl_case.hpp), never read from the case's operators/ folder.
+// This header declares; golden_case-inl.hpp implements (it builds any of the zoo's models),
+// compiled once into topos::zoo (src/zoo.cpp), or inline with TOPOS_HEADER_ONLY
+// (topos/config.hpp).
 #pragma once
 
+#include "topos/config.hpp"
 #include "topos/data/json.hpp"
-#include "topos/data/npy.hpp"
 #include "topos/models/state_dict.hpp"
-#include "topos/testing/tdl_case.hpp"
-#include "topos/models/zoo.hpp"
-#include "topos/nn/serialization.hpp"
+#include "topos/models/zoo/arguments.hpp"
+#include "topos/nn/sparse_operator.hpp"
+
+#include <nlohmann/json.hpp>
+#include <torch/torch.h>
 
 #include <filesystem>
 #include <functional>
@@ -56,8 +62,12 @@ std::map<std::string, torch::Tensor> run_case(ZooCase& c);
 std::map<std::string, torch::Tensor> case_gradients(ZooCase& c);
 
 /// The operators of a case, built from DIR/complex.json and DIR/operators.json's op/args
-/// (topos/testing/tdl_case.hpp; never DIR/operators/), as float32 like the tensors TopoModelX got
+/// (topos/data/tdl_case.hpp; never DIR/operators/), as float32 like the tensors TopoModelX got
 /// (its operators were saved as float32 and passed as their nonzero entries).
 std::map<std::string, nn::SparseOperator> case_operators(const std::filesystem::path& dir);
 
 }  // namespace topos::models
+
+#ifdef TOPOS_HEADER_ONLY
+#include "topos/models/zoo/golden_case-inl.hpp"
+#endif

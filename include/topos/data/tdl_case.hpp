@@ -1,8 +1,11 @@
-// topos/testing/tdl_case.hpp
-// Reading a TDL case in the format of the shared tdl-golden reference (README there): the domain
-// from DIR/complex.json (simplicial, cell, combinatorial or hypergraph; cells in the other
-// library's index order, which is kept), and every operator of DIR/operators.json computed from
-// its meaning (`op` + `args`) alone, never from its name and never from DIR/operators/:
+// topos/data/tdl_case.hpp
+// Reading a case of the TDL golden format (a folder with complex.json, operators.json and, for
+// a model case, case.json): the domain from DIR/complex.json (simplicial, cell, combinatorial or
+// hypergraph; cells in the other library's index order, which is kept), and every operator of
+// DIR/operators.json computed from its meaning (`op` + `args`) alone, never from its name and
+// never from DIR/operators/. What it is for: checking topos's operators against another
+// library's on the same complex (the parity tests, `tdl operators`), and building a golden model
+// case's operators (topos/models/zoo/golden_case.hpp). The ops:
 //   complex operators   incidence_matrix, hodge_/up_/down_laplacian_matrix, adjacency_matrix,
 //                       coadjacency_matrix, normalized_laplacian_matrix (+ coincidence_matrix)
 //   normalisations      compute_laplacian_normalized_matrix, compute_x_laplacian_normalized_matrix,
@@ -13,12 +16,12 @@
 //                       names an earlier operator of the same case)
 // An unknown op, a missing argument, an operator a domain lacks, an operator with a non-finite
 // entry, pinv of more than kMaxPinvEntries: a DataError naming the file and the operator.
-// Core + nlohmann-json (no LibTorch). Test support (the golden cases' harness, also behind
-// `tdl operators`), not part of the installed library. Declarations only: the definitions (which
-// instantiate every operator of every domain) are compiled once, in tests/support/src/
-// tdl_case.cpp (CMake target topos_testing).
+// Core + nlohmann-json (no LibTorch). This header declares; tdl_case-inl.hpp implements (it
+// instantiates every operator of every domain), compiled once into topos::data
+// (src/tdl_case.cpp), or inline with TOPOS_HEADER_ONLY (topos/config.hpp).
 #pragma once
 
+#include "topos/config.hpp"
 #include "topos/core/cell_complex.hpp"
 #include "topos/core/combinatorial_complex.hpp"
 #include "topos/core/hypergraph.hpp"
@@ -95,3 +98,7 @@ Operators compute_operators(const nlohmann::ordered_json& ops, const Domain& dom
 Operators compute_operators(const std::filesystem::path& case_dir);
 
 }  // namespace topos::tdl
+
+#ifdef TOPOS_HEADER_ONLY
+#include "topos/data/tdl_case-inl.hpp"
+#endif

@@ -1,6 +1,6 @@
-// examples/tdl/cases.cpp
-// The golden-case subcommands of the model zoo, in one translation unit (their code is a few
-// lines each over topos/testing/zoo_case.hpp, compiled once into topos_testing_zoo):
+// apps/tdl/cases.cpp
+// The golden-case subcommands of the model zoo (a few lines each over
+// topos/models/zoo/golden_case.hpp, compiled once into topos::zoo):
 //   tdl forward --case DIR --out OUTDIR: runs a golden case's model (eval mode) and writes
 //     OUTDIR/<output>.npy for every output case.json names.
 //   tdl grad --case DIR --out OUTDIR: writes OUTDIR/<param>.npy, the gradient of

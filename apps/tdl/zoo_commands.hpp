@@ -1,11 +1,11 @@
-// examples/tdl/zoo_commands.hpp
+// apps/tdl/zoo_commands.hpp
 // What the tdl program's model-zoo subcommands (forward, grad, train) share: the case options and
 // opening a case (model, weights, operators built from complex.json). LibTorch; included only by
 // their translation units, never by main.cpp or operators.cpp.
 #pragma once
 
 #include "commands.hpp"
-#include "topos/testing/zoo_case.hpp"
+#include "topos/models/zoo/golden_case.hpp"
 
 #include <filesystem>
 #include <string>

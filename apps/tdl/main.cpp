@@ -1,4 +1,4 @@
-// examples/tdl/main.cpp
+// apps/tdl/main.cpp
 // tdl: topological deep learning on TDL cases (the tdl-golden format): computing a case's
 // operators with topos and (built with LibTorch) running TopoModelX models: forward, grad, and
 // training on the karate club (train) and on batched point-cloud complexes (classify). Each
