@@ -26,7 +26,7 @@ STATE=(checkpoint.pt optimizer.pt state.json stats.json steps.csv epochs.csv)
 
 hopnet_binary() {
   if [ -n "${TOPOS_HOPNET:-}" ]; then echo "$TOPOS_HOPNET"; return; fi
-  for h in build/apps/hopnet build/examples/hopnet; do
+  for h in build/apps/hopnet; do
     if [ -x "$h" ]; then echo "$root/$h"; return; fi
   done
   echo "hopnet_training: no hopnet binary: build it (cmake --build build --target hopnet) or set TOPOS_HOPNET" >&2
