@@ -59,7 +59,8 @@ case "$cmd" in
     mkdir -p "$WORK"
     nice -n 19 "$H" generate --dataset movi-a --seeds 1-1200 --assets "$REF/data/kubasic" \
       --format topos --out "$WORK/data/movi-a"
-    if [ ! -e "$RUN/state.json" ] && [ -e "$SNAP/state.json" ]; then
+    # (a snapshot may hold only stats.json: the statistics pass of a run that had not yet committed a step)
+    if [ ! -e "$RUN/state.json" ] && [ ! -e "$RUN/stats.json" ] && [ -e "$SNAP/stats.json" ]; then
       echo "hopnet_training: starting from the committed snapshot $SNAP"
       mkdir -p "$RUN" && cp "$SNAP"/* "$RUN"/
     fi
@@ -73,13 +74,17 @@ case "$cmd" in
       --matmul-precision "${TOPOS_TRAINING_PRECISION:-medium}" --resume
     ;;
   snapshot)
-    [ -e "$RUN/state.json" ] || { echo "hopnet_training: no run in $RUN" >&2; exit 1; }
+    [ -e "$RUN/stats.json" ] || { echo "hopnet_training: no run in $RUN" >&2; exit 1; }
     copy_state "$SNAP"
-    echo "hopnet_training: $SNAP holds step $(/usr/bin/python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['step'])" "$SNAP/state.json")"
+    if [ -e "$SNAP/state.json" ]; then
+      echo "hopnet_training: $SNAP holds step $(/usr/bin/python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['step'])" "$SNAP/state.json")"
+    else
+      echo "hopnet_training: $SNAP holds the statistics only (no step committed yet)"
+    fi
     ;;
   status)
     d="$RUN"; [ -e "$d/state.json" ] || d="$SNAP"
-    [ -e "$d/state.json" ] || { echo "hopnet_training: no run yet"; exit 0; }
+    [ -e "$d/state.json" ] || { echo "hopnet_training: no step committed yet"; exit 0; }
     /usr/bin/python3 - "$d" <<'EOF'
 import csv, json, sys
 d = sys.argv[1]
