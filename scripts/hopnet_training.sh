@@ -37,15 +37,17 @@ hopnet_binary() {
 # trainer so that no commit is half-renamed while the files are read.
 copy_state() {
   local dest=$1 pids
-  pids=$(pgrep -f "hopnet train .*--out $RUN" || true)
-  [ -n "$pids" ] && kill -STOP $pids
+  pids=$(pgrep -f -- " train .*--out $RUN( |$)" || true)
+  if [ -n "$pids" ]; then kill -STOP $pids; fi
   for _ in $(seq 50); do  # a commit in progress (journal or staged files): let it finish
     if [ ! -e "$RUN/commit.journal" ] && ! ls "$RUN"/*.next >/dev/null 2>&1; then break; fi
-    [ -n "$pids" ] && kill -CONT $pids && sleep 0.2 && kill -STOP $pids
+    if [ -n "$pids" ]; then kill -CONT $pids; sleep 0.2; kill -STOP $pids; fi
   done
   mkdir -p "$dest.tmp"
-  for f in "${STATE[@]}" best.pt; do [ -e "$RUN/$f" ] && cp "$RUN/$f" "$dest.tmp/$f"; done
-  [ -n "$pids" ] && kill -CONT $pids
+  for f in "${STATE[@]}" best.pt; do
+    if [ -e "$RUN/$f" ]; then cp "$RUN/$f" "$dest.tmp/$f"; fi
+  done
+  if [ -n "$pids" ]; then kill -CONT $pids; fi
   rm -rf "$dest" && mv "$dest.tmp" "$dest"
 }
 
