@@ -53,8 +53,7 @@ std::vector<Index> cell_arg(const py::handle& obj, const std::string& arg);
 /// edge_index) or (E, 2) given as a list.
 Edges edges_arg(const py::handle& obj, const std::string& arg);
 /// A real vector (tensor, array or list of numbers) of `expected` entries (-1: any).
-Eigen::VectorXd vector_arg(const py::handle& obj, const std::string& arg,
-                           Index expected = -1);
+Eigen::VectorXd vector_arg(const py::handle& obj, const std::string& arg, Index expected = -1);
 
 /// TopoNetX's `signed`: exactly True or False (an int there is a rank passed by mistake).
 Signed signed_arg(const py::handle& obj, const std::string& where);

@@ -163,21 +163,23 @@ void bind_hopnet(py::module_& parent) {
       .def_property_readonly(
           "mode", [](const Checkpoint& c) { return std::string(to_string(c.net->options.mode())); })
       .def_property_readonly(
-          "activation", [](const Checkpoint& c) { return nn::update_name(c.net->options.activation()); })
+          "activation",
+          [](const Checkpoint& c) { return nn::update_name(c.net->options.activation()); })
       .def_property_readonly("collision_radius",
                              [](const Checkpoint& c) { return c.net->options.collision_radius(); })
-      .def_property_readonly("options",
-                             [](const Checkpoint& c) {
-                               return py::module_::import("json").attr("loads")(
-                                   c.net->options.to_json().dump());
-                             })
+      .def_property_readonly(
+          "options",
+          [](const Checkpoint& c) {
+            return py::module_::import("json").attr("loads")(c.net->options.to_json().dump());
+          })
       .def_property_readonly("num_parameters",
                              [](const Checkpoint& c) { return c.net->num_parameters(); })
       .def(
           "state_dict",
           [](const Checkpoint& c) {
             py::dict d;
-            for (const auto& p : c.net->named_parameters()) d[py::str(p.key())] = p.value().detach();
+            for (const auto& p : c.net->named_parameters())
+              d[py::str(p.key())] = p.value().detach();
             return d;
           },
           "the parameters by topos's names (the model's own memory, detached)")
@@ -219,45 +221,45 @@ void bind_hopnet(py::module_& parent) {
                                for (auto o : s.dynamic) v.push_back(s.scene.objects[o].mass);
                                return vector_tensor(v);
                              })
-      .def_property_readonly("positions",
-                             [](const PyScene& s) {
-                               std::vector<Poses> p;
-                               for (Index f = 0; f < s.scene.num_frames; ++f)
-                                 p.push_back(scene_poses(s.scene, f));
-                               return trajectory(p, s, false);
-                             },
-                             "ground truth, [frames, objects, 3] (m)")
-      .def_property_readonly("quaternions",
-                             [](const PyScene& s) {
-                               std::vector<Poses> p;
-                               for (Index f = 0; f < s.scene.num_frames; ++f)
-                                 p.push_back(scene_poses(s.scene, f));
-                               return trajectory(p, s, true);
-                             },
-                             "ground truth, [frames, objects, 4] (w, x, y, z)")
+      .def_property_readonly(
+          "positions",
+          [](const PyScene& s) {
+            std::vector<Poses> p;
+            for (Index f = 0; f < s.scene.num_frames; ++f) p.push_back(scene_poses(s.scene, f));
+            return trajectory(p, s, false);
+          },
+          "ground truth, [frames, objects, 3] (m)")
+      .def_property_readonly(
+          "quaternions",
+          [](const PyScene& s) {
+            std::vector<Poses> p;
+            for (Index f = 0; f < s.scene.num_frames; ++f) p.push_back(scene_poses(s.scene, f));
+            return trajectory(p, s, true);
+          },
+          "ground truth, [frames, objects, 4] (w, x, y, z)")
       .def("__repr__", [](const PyScene& s) {
         return "Scene('" + s.scene.source + "', " + std::to_string(s.dynamic.size()) +
                " objects, " + std::to_string(s.scene.num_frames) + " frames)";
       });
 
   py::class_<PyRollout>(m, "Rollout", "A rollout's trajectory (frames 0..3: the ground truth)")
-      .def_property_readonly("positions",
-                             [](const PyRollout& r) {
-                               return trajectory(r.result.poses, *r.scene, false);
-                             },
-                             "[frames, objects, 3] (m), the scene's objects in metadata order")
-      .def_property_readonly("quaternions",
-                             [](const PyRollout& r) {
-                               return trajectory(r.result.poses, *r.scene, true);
-                             },
-                             "[frames, objects, 4] (w, x, y, z)")
+      .def_property_readonly(
+          "positions",
+          [](const PyRollout& r) { return trajectory(r.result.poses, *r.scene, false); },
+          "[frames, objects, 3] (m), the scene's objects in metadata order")
+      .def_property_readonly(
+          "quaternions",
+          [](const PyRollout& r) { return trajectory(r.result.poses, *r.scene, true); },
+          "[frames, objects, 4] (w, x, y, z)")
       .def_property_readonly(
           "invalid_ratio", [](const PyRollout& r) { return vector_tensor(r.result.invalid_ratio); })
       .def_property_readonly("seconds", [](const PyRollout& r) { return r.result.seconds; })
       .def_property_readonly("num_frames", [](const PyRollout& r) { return r.result.num_frames(); })
       .def(
           "metrics",
-          [](const PyRollout& r) { return metrics_dict(rollout_metrics(r.result.poses, r.scene->scene)); },
+          [](const PyRollout& r) {
+            return metrics_dict(rollout_metrics(r.result.poses, r.scene->scene));
+          },
           "the paper's per-frame errors against the ground truth: pos_rmse, pos_mae (m), ori_rmse, "
           "ori_mae (degrees), float64 tensors indexed by frame");
 
@@ -312,7 +314,8 @@ void bind_hopnet(py::module_& parent) {
       "metrics",
       [](const at::Tensor& positions, const at::Tensor& quaternions,
          std::shared_ptr<PyScene> scene) {
-        return metrics_dict(rollout_metrics(poses_from(positions, quaternions, *scene), scene->scene));
+        return metrics_dict(
+            rollout_metrics(poses_from(positions, quaternions, *scene), scene->scene));
       },
       py::arg("positions"), py::arg("quaternions"), py::arg("scene"),
       "the paper's per-frame errors of a trajectory ([frames, objects, 3] and [frames, objects, "

@@ -50,8 +50,8 @@ OutSpec out_spec(const std::string& format, const py::object& dtype, const std::
                           "'dense' (torch) or 'scipy' (scipy.sparse.csr_matrix)");
   }
   if (dtype.is_none()) {
-    o.dtype = o.format == Format::scipy ? at::kDouble
-                                        : at::typeMetaToScalarType(at::get_default_dtype());
+    o.dtype =
+        o.format == Format::scipy ? at::kDouble : at::typeMetaToScalarType(at::get_default_dtype());
   } else if (THPDtype_Check(dtype.ptr())) {
     o.dtype = reinterpret_cast<THPDtype*>(dtype.ptr())->scalar_type;
     if (!at::isFloatingType(o.dtype))
@@ -66,7 +66,9 @@ OutSpec out_spec(const std::string& format, const py::object& dtype, const std::
 
 namespace {
 
-py::object to_numpy(const at::Tensor& t) { return py::cast(t).attr("numpy")(); }
+py::object to_numpy(const at::Tensor& t) {
+  return py::cast(t).attr("numpy")();
+}
 
 // A compressed copy when `m` is not (every operator is; the check is free).
 const SparseMatrix& compressed(const SparseMatrix& m, std::optional<SparseMatrix>& keep) {
@@ -133,7 +135,9 @@ py::object emit(const SparseMatrix& matrix, const OutSpec& out) {
 
 namespace {
 
-bool is_tensor(const py::handle& obj) { return THPVariable_Check(obj.ptr()); }
+bool is_tensor(const py::handle& obj) {
+  return THPVariable_Check(obj.ptr());
+}
 
 // An object with the array interface (numpy) as a torch tensor (shares its memory).
 std::optional<at::Tensor> as_tensor(const py::handle& obj) {
@@ -149,9 +153,9 @@ SparseMatrix from_triplets(Index rows, Index cols, const std::int64_t* r, const 
   t.reserve(static_cast<std::size_t>(nnz));
   for (Index k = 0; k < nnz; ++k) {
     if (r[k] < 0 || r[k] >= rows || c[k] < 0 || c[k] >= cols)
-      throw py::value_error(arg + ": entry (" + std::to_string(r[k]) + ", " +
-                            std::to_string(c[k]) + ") is outside the " + std::to_string(rows) +
-                            " x " + std::to_string(cols) + " shape");
+      throw py::value_error(arg + ": entry (" + std::to_string(r[k]) + ", " + std::to_string(c[k]) +
+                            ") is outside the " + std::to_string(rows) + " x " +
+                            std::to_string(cols) + " shape");
     if (v[k] != 0.0) t.emplace_back(r[k], c[k], v[k]);
   }
   SparseMatrix m(rows, cols);
@@ -175,8 +179,8 @@ SparseMatrix sparse_arg(const py::handle& obj, const std::string& arg) {
                            c10::str(t.sizes()) + "; pass x.to_sparse() (COO) or " +
                            "x.to_sparse_csr()");
     if (t.dim() != 2)
-      throw py::value_error(arg + ": expected a 2-D sparse matrix, got " +
-                            std::to_string(t.dim()) + " dimensions");
+      throw py::value_error(arg + ": expected a 2-D sparse matrix, got " + std::to_string(t.dim()) +
+                            " dimensions");
     const Index rows = t.size(0), cols = t.size(1);
     if (t.layout() == at::kSparse) {
       const at::Tensor c = t.coalesce();
@@ -198,8 +202,8 @@ SparseMatrix sparse_arg(const py::handle& obj, const std::string& arg) {
       const std::int64_t* cr = crow.data_ptr<std::int64_t>();
       for (Index i = 0; i < rows; ++i)
         for (Index k = cr[i]; k < cr[i + 1]; ++k) r[static_cast<std::size_t>(k)] = i;
-      return from_triplets(rows, cols, r.data(), col.data_ptr<std::int64_t>(),
-                           v.data_ptr<double>(), nnz, arg);
+      return from_triplets(rows, cols, r.data(), col.data_ptr<std::int64_t>(), v.data_ptr<double>(),
+                           nnz, arg);
     }
     throw py::type_error(arg + ": torch layout " + c10::str(t.layout()) +
                          " is not supported; pass a sparse COO or CSR tensor");
@@ -378,7 +382,9 @@ std::string shape_repr(const char* name, const T& d) {
   return s.str();
 }
 
-py::tuple shape_tuple(const std::vector<Index>& s) { return py::tuple(py::cast(s)); }
+py::tuple shape_tuple(const std::vector<Index>& s) {
+  return py::tuple(py::cast(s));
+}
 
 at::Tensor vector_tensor(const Eigen::VectorXd& v) {
   at::Tensor t = at::empty({v.size()}, at::kDouble);
@@ -479,7 +485,8 @@ void def_oriented_operators(py::class_<C>& cls, const std::string& name) {
       .def_property_readonly("num_nodes", &C::num_nodes)
       .def("__len__", &C::num_nodes)
       .def("num_cells", &C::num_cells, py::arg("rank"))
-      .def("skeleton", &C::skeleton, py::arg("rank"), "the cells of a rank as node lists, in id order")
+      .def("skeleton", &C::skeleton, py::arg("rank"),
+           "the cells of a rank as node lists, in id order")
       .def("euler_characteristic", &C::euler_characteristic)
       .def("__repr__", [name](const C& c) { return shape_repr(name.c_str(), c); });
 }
@@ -540,13 +547,13 @@ void bind_simplicial(py::module_& m) {
           [](const SC& sc, const py::object& s) {
             const auto nodes = cell_arg(s, "index(simplex)");
             const auto id = sc.find(nodes);
-            if (!id) throw py::key_error("simplex " + std::string(py::str(s)) + " is not in the complex");
+            if (!id)
+              throw py::key_error("simplex " + std::string(py::str(s)) + " is not in the complex");
             return *id;
           },
           py::arg("simplex"), "the id of a simplex within its rank (row of the operators)")
-      .def(
-          "__contains__",
-          [](const SC& sc, const py::object& s) { return sc.contains(cell_arg(s, "simplex")); })
+      .def("__contains__",
+           [](const SC& sc, const py::object& s) { return sc.contains(cell_arg(s, "simplex")); })
       .def("simplex", &SC::simplex, py::arg("rank"), py::arg("id"))
       .def("faces", &SC::faces, py::arg("rank"), py::arg("id"), py::arg("face_rank"))
       .def("cofaces", &SC::cofaces, py::arg("rank"), py::arg("id"), py::arg("coface_rank"))
@@ -608,8 +615,10 @@ void bind_cell(py::module_& m) {
             const auto c = cell_arg(cell, "CellComplex.add_cell(cell)");
             if (rank == 1) {
               if (c.size() != 2)
-                throw py::value_error("CellComplex.add_cell: a rank-1 cell (an edge) has 2 nodes, "
-                                      "got " + std::to_string(c.size()));
+                throw py::value_error(
+                    "CellComplex.add_cell: a rank-1 cell (an edge) has 2 nodes, "
+                    "got " +
+                    std::to_string(c.size()));
               cx.add_edge(c[0], c[1]);
             } else if (rank == 2) {
               cx.add_cell(c);
@@ -639,28 +648,29 @@ void bind_combinatorial(py::module_& m) {
     }
     return cc.add_cell(c, rank).first;
   };
-  cls.def(py::init([add](const py::object& cells, const py::object& ranks,
-                         const py::object& num_nodes) {
-            const Cells cs = cells_arg(cells, "CombinatorialComplex(cells)");
-            std::vector<int> rk;
-            if (ranks.is_none()) {
-              if (!cs.empty())
-                throw py::value_error("CombinatorialComplex(cells, ranks): ranks are required "
-                                      "with cells (one per cell, or one for all)");
-            } else if (PyIndex_Check(ranks.ptr())) {
-              rk.assign(cs.size(), ranks.cast<int>());
-            } else {
-              rk = ranks.cast<std::vector<int>>();
-              if (rk.size() != cs.size())
-                throw py::value_error("CombinatorialComplex(cells, ranks): " +
-                                      std::to_string(cs.size()) + " cells but " +
-                                      std::to_string(rk.size()) + " ranks");
-            }
-            CC cc(num_nodes_of(cs, num_nodes));
-            for (std::size_t i = 0; i < cs.size(); ++i)
-              add(cc, cs[i], rk[i], "CombinatorialComplex(cells)[" + std::to_string(i) + "]");
-            return cc;
-          }),
+  cls.def(py::init(
+              [add](const py::object& cells, const py::object& ranks, const py::object& num_nodes) {
+                const Cells cs = cells_arg(cells, "CombinatorialComplex(cells)");
+                std::vector<int> rk;
+                if (ranks.is_none()) {
+                  if (!cs.empty())
+                    throw py::value_error(
+                        "CombinatorialComplex(cells, ranks): ranks are required "
+                        "with cells (one per cell, or one for all)");
+                } else if (PyIndex_Check(ranks.ptr())) {
+                  rk.assign(cs.size(), ranks.cast<int>());
+                } else {
+                  rk = ranks.cast<std::vector<int>>();
+                  if (rk.size() != cs.size())
+                    throw py::value_error(
+                        "CombinatorialComplex(cells, ranks): " + std::to_string(cs.size()) +
+                        " cells but " + std::to_string(rk.size()) + " ranks");
+                }
+                CC cc(num_nodes_of(cs, num_nodes));
+                for (std::size_t i = 0; i < cs.size(); ++i)
+                  add(cc, cs[i], rk[i], "CombinatorialComplex(cells)[" + std::to_string(i) + "]");
+                return cc;
+              }),
           py::arg("cells") = py::list(), py::arg("ranks") = py::none(),
           py::arg("num_nodes") = py::none(),
           "cells with their ranks (a list, or one int for all); nodes 0..n-1")
@@ -683,7 +693,8 @@ void bind_combinatorial(py::module_& m) {
           "index",
           [](const CC& cc, const py::object& c) {
             const auto f = cc.find(cell_arg(c, "index(cell)"));
-            if (!f) throw py::key_error("cell " + std::string(py::str(c)) + " is not in the complex");
+            if (!f)
+              throw py::key_error("cell " + std::string(py::str(c)) + " is not in the complex");
             return py::make_tuple(f->rank, f->id);
           },
           py::arg("cell"), "(rank, id) of a cell given by its nodes")
@@ -720,18 +731,18 @@ void bind_hypergraph(py::module_& m) {
   py::class_<HG> cls(m, "Hypergraph",
                      "Nodes 0..n-1 and hyperedges (node sets, optional weights) in insertion "
                      "order (topos/core/hypergraph.hpp).");
-  cls.def(py::init([](const py::object& edges, const py::object& num_nodes,
-                      const py::object& weights) {
-            const Cells cs = cells_arg(edges, "Hypergraph(hyperedges)");
-            const Eigen::VectorXd w =
-                weights.is_none()
-                    ? Eigen::VectorXd::Ones(static_cast<Eigen::Index>(cs.size()))
-                    : vector_arg(weights, "Hypergraph(weights)", static_cast<Index>(cs.size()));
-            HG h(num_nodes_of(cs, num_nodes));
-            for (std::size_t i = 0; i < cs.size(); ++i)
-              h.add_hyperedge(cs[i], w[static_cast<Eigen::Index>(i)]);
-            return h;
-          }),
+  cls.def(py::init(
+              [](const py::object& edges, const py::object& num_nodes, const py::object& weights) {
+                const Cells cs = cells_arg(edges, "Hypergraph(hyperedges)");
+                const Eigen::VectorXd w =
+                    weights.is_none()
+                        ? Eigen::VectorXd::Ones(static_cast<Eigen::Index>(cs.size()))
+                        : vector_arg(weights, "Hypergraph(weights)", static_cast<Index>(cs.size()));
+                HG h(num_nodes_of(cs, num_nodes));
+                for (std::size_t i = 0; i < cs.size(); ++i)
+                  h.add_hyperedge(cs[i], w[static_cast<Eigen::Index>(i)]);
+                return h;
+              }),
           py::arg("hyperedges") = py::list(), py::arg("num_nodes") = py::none(),
           py::arg("weights") = py::none())
       .def_static(
@@ -777,8 +788,8 @@ void bind_hypergraph(py::module_& m) {
             return op(out_spec(format, dtype, "Hypergraph.incidence_matrix"),
                       [&] { return h.incidence_matrix(rank, to_rank, weighted); });
           },
-          py::arg("rank") = 0, py::arg("to_rank") = 1, py::arg("weighted") = false,
-          TOPOS_OUT_ARGS, "node x hyperedge membership (rank 0 to 1; 1 to 0 is its transpose)")
+          py::arg("rank") = 0, py::arg("to_rank") = 1, py::arg("weighted") = false, TOPOS_OUT_ARGS,
+          "node x hyperedge membership (rank 0 to 1; 1 to 0 is its transpose)")
       .def(
           "adjacency_matrix",
           [](const HG& h, int rank, int via, const std::string& format, const py::object& dtype) {
@@ -824,7 +835,8 @@ void bind_liftings(py::module_& m) {
         py::gil_scoped_release release;
         return cycle_basis(n, e);
       },
-      py::arg("num_nodes"), py::arg("edges"), "networkx's cycle_basis (>= 3.2), same cycles and order");
+      py::arg("num_nodes"), py::arg("edges"),
+      "networkx's cycle_basis (>= 3.2), same cycles and order");
   m.def(
       "cycle_lifting",
       [](Index n, const py::object& edges, const py::object& max_cell_length) {
@@ -864,7 +876,8 @@ void bind_normalization(py::module_& parent) {
       [](const py::object& l, const std::string& format, const py::object& dtype) {
         const std::string w = "compute_laplacian_normalized_matrix";
         const SparseMatrix L = sparse_arg(l, w + "(L)");
-        return op(out_spec(format, dtype, w), [&] { return compute_laplacian_normalized_matrix(L); });
+        return op(out_spec(format, dtype, w),
+                  [&] { return compute_laplacian_normalized_matrix(L); });
       },
       py::arg("L"), TOPOS_OUT_ARGS, "L / lambda_max(L)");
   m.def(
@@ -890,8 +903,7 @@ void bind_normalization(py::module_& parent) {
       TOPOS_OUT_ARGS, "D^-1/2 (|A| + m I)^T D^-1/2");
   m.def(
       "compute_xu_asymmetric_normalized_matrix",
-      [](const py::object& b, bool is_sparse, const std::string& format,
-         const py::object& dtype) {
+      [](const py::object& b, bool is_sparse, const std::string& format, const py::object& dtype) {
         const std::string w = "compute_xu_asymmetric_normalized_matrix";
         const SparseMatrix B = sparse_arg(b, w + "(B)");
         return op(out_spec(format, dtype, w),

@@ -314,31 +314,42 @@ def test_from_flat_mesh():
 # ----- the GIL -------------------------------------------------------------------------------
 
 
+def gil_probe(call, seconds=0.6):
+    """Runs `call` repeatedly in a thread for `seconds` while this thread wakes up every
+    millisecond; returns the most wake-ups that fell inside one call. This thread needs the GIL
+    to record a wake-up, so a call that holds it sees at most the one or two at its edges (where
+    the worker runs bytecode), whatever the machine's load; one that releases it, many."""
+    done = threading.Event()
+    calls = []
+
+    def work():
+        t0 = time.perf_counter()
+        while time.perf_counter() - t0 < seconds:
+            c0 = time.perf_counter()
+            call()
+            calls.append((c0, time.perf_counter()))
+        done.set()
+
+    ticks = []
+    t = threading.Thread(target=work)
+    t.start()
+    while not done.is_set():
+        time.sleep(0.001)
+        ticks.append(time.perf_counter())
+    t.join()
+    return max(sum(c0 < x < c1 for x in ticks) for c0, c1 in calls)
+
+
 def test_long_operator_releases_the_gil():
-    # A clique complex big enough that its Hodge Laplacian takes a while; while a thread
-    # computes it, this thread keeps running (it could not if the call held the GIL).
+    # A clique complex whose rank-1 Hodge Laplacian takes about 0.1-0.3 s. (The probe itself,
+    # checked on sum(range(10**7)), which holds the GIL: 0-3 wake-ups inside a call; this call:
+    # 60-110 on the loaded 2-core machine.)
     rng = random.Random(1)
     n = 3000
     edges = [(u, v) for u in range(n) for v in rng.sample(range(n), 12) if u != v]
     sc = topos.clique_complex(n, edges, 3)
-    done = threading.Event()
-    ticks = 0
-
-    def work():
-        for _ in range(40):
-            sc.hodge_laplacian_matrix(1, format="csr")
-        done.set()
-
-    t = threading.Thread(target=work)
-    start = time.perf_counter()
-    t.start()
-    while not done.is_set():
-        ticks += 1
-        time.sleep(0.001)
-    t.join()
-    elapsed = time.perf_counter() - start
-    assert elapsed > 0.05, f"the work took only {elapsed:.3f} s: too short to tell"
-    assert ticks >= 10, f"this thread ran {ticks} times in {elapsed:.2f} s: the GIL was held"
+    inside = gil_probe(lambda: sc.hodge_laplacian_matrix(1, format="csr"))
+    assert inside >= 10, f"this thread woke up only {inside} times during a call: the GIL was held"
 
 
 # ----- errors -------------------------------------------------------------------------------
@@ -381,7 +392,7 @@ def test_errors_are_python_exceptions_naming_the_argument():
     with pytest.raises(ValueError, match="expected a 2-D sparse matrix"):
         tn.compute_laplacian_normalized_matrix(torch.ones(2, 2, 2).to_sparse())
     with pytest.raises(topos.ComplexError, match="compute_bunch_normalized_matrices: B1 has"):
-        tn.compute_bunch_normalized_matrices(sc.incidence_matrix(1), sc.incidence_matrix(1))
+        tn.compute_bunch_normalized_matrices(sc.incidence_matrix(2), sc.incidence_matrix(1))
     with pytest.raises(KeyError, match=r"\[0, 5\] is not in the complex"):
         sc.index([0, 5])
     with pytest.raises(ValueError, match="Hypergraph\\(weights\\): expected 2 entries, got 3"):

@@ -30,7 +30,7 @@ def reference_rollout(checkpoint, scene):
 
 
 def test_reference_rollout_matches_the_papers_metrics(checkpoint, scene, reference_rollout):
-    assert checkpoint.variant == "hopnet" and checkpoint.mode == "reference"
+    assert checkpoint.variant == "standard" and checkpoint.mode == "reference"
     assert checkpoint.num_parameters == 707078
     r = reference_rollout
     assert r.num_frames == 106
