@@ -52,6 +52,12 @@ at::Tensor trajectory(const std::vector<Poses>& poses, const PyScene& s, bool qu
   return t;
 }
 
+std::vector<Poses> ground_truth(const PyScene& s) {
+  std::vector<Poses> p;
+  for (Index f = 0; f < s.scene.num_frames; ++f) p.push_back(scene_poses(s.scene, f));
+  return p;
+}
+
 at::Tensor vector_tensor(const std::vector<double>& v) {
   at::Tensor t = at::empty({static_cast<Index>(v.size())}, at::kDouble);
   std::copy(v.begin(), v.end(), t.data_ptr<double>());
@@ -222,20 +228,10 @@ void bind_hopnet(py::module_& parent) {
                                return vector_tensor(v);
                              })
       .def_property_readonly(
-          "positions",
-          [](const PyScene& s) {
-            std::vector<Poses> p;
-            for (Index f = 0; f < s.scene.num_frames; ++f) p.push_back(scene_poses(s.scene, f));
-            return trajectory(p, s, false);
-          },
+          "positions", [](const PyScene& s) { return trajectory(ground_truth(s), s, false); },
           "ground truth, [frames, objects, 3] (m)")
       .def_property_readonly(
-          "quaternions",
-          [](const PyScene& s) {
-            std::vector<Poses> p;
-            for (Index f = 0; f < s.scene.num_frames; ++f) p.push_back(scene_poses(s.scene, f));
-            return trajectory(p, s, true);
-          },
+          "quaternions", [](const PyScene& s) { return trajectory(ground_truth(s), s, true); },
           "ground truth, [frames, objects, 4] (w, x, y, z)")
       .def("__repr__", [](const PyScene& s) {
         return "Scene('" + s.scene.source + "', " + std::to_string(s.dynamic.size()) +

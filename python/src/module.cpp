@@ -400,86 +400,77 @@ Index num_nodes_of(const Cells& cells, const py::object& num_nodes) {
   return n;
 }
 
-// The oriented operators of the simplicial and cell complexes (TopoNetX's methods and defaults).
+// A method name(rank, signed=default, *, format, dtype) returning f(complex, rank, sign).
+template <class C, class F>
+void def_signed_operator(py::class_<C>& cls, const std::string& cls_name, const char* name,
+                         bool default_sign, F f, const char* doc) {
+  const std::string where = cls_name + "." + name;
+  cls.def(
+      name,
+      [where, f](const C& c, int rank, const py::object& sign, const std::string& format,
+                 const py::object& dtype) {
+        const Signed s = signed_arg(sign, where);
+        return op(out_spec(format, dtype, where), [&] { return f(c, rank, s); });
+      },
+      py::arg("rank"), py::arg("signed") = default_sign, TOPOS_OUT_ARGS, doc);
+}
+
+// A method name(rank, other_rank, *, format, dtype) returning f(domain, rank, other_rank): the
+// operators between two ranks of the combinatorial complex and the hypergraph.
+template <class C, class F, class... Extra>
+void def_rank_pair_operator(py::class_<C>& cls, const std::string& cls_name, const char* name, F f,
+                            const char* doc, const Extra&... ranks) {
+  const std::string where = cls_name + "." + name;
+  cls.def(
+      name,
+      [where, f](const C& c, int rank, int other, const std::string& format,
+                 const py::object& dtype) {
+        return op(out_spec(format, dtype, where), [&] { return f(c, rank, other); });
+      },
+      ranks..., TOPOS_OUT_ARGS, doc);
+}
+
+// The oriented operators of the simplicial and cell complexes (TopoNetX's methods and defaults)
+// and their common queries.
 template <class C>
 void def_oriented_operators(py::class_<C>& cls, const std::string& name) {
-  const auto where = [name](const char* method) { return name + "." + method; };
+  using S = Signed;
+  const auto on = [](S s) { return s == S::yes; };
+  def_signed_operator(
+      cls, name, "incidence_matrix", true,
+      [](const C& c, int r, S s) { return c.incidence_matrix(r, s); },
+      "B_rank (n_{rank-1} x n_rank), TopoNetX's incidence_matrix(rank, signed)");
+  def_signed_operator(
+      cls, name, "coincidence_matrix", true,
+      [](const C& c, int r, S s) { return c.coincidence_matrix(r, s); }, "B_rank^T");
+  def_signed_operator(
+      cls, name, "up_laplacian_matrix", true,
+      [on](const C& c, int r, S s) { return c.up_laplacian_matrix(r, on(s)); },
+      "B_{rank+1} B_{rank+1}^T (|.| entrywise when unsigned)");
+  def_signed_operator(
+      cls, name, "down_laplacian_matrix", true,
+      [on](const C& c, int r, S s) { return c.down_laplacian_matrix(r, on(s)); },
+      "B_rank^T B_rank (|.| entrywise when unsigned)");
+  def_signed_operator(
+      cls, name, "hodge_laplacian_matrix", true,
+      [on](const C& c, int r, S s) { return c.hodge_laplacian_matrix(r, on(s)); },
+      "down + up Laplacian (terms of missing ranks omitted)");
+  def_signed_operator(
+      cls, name, "adjacency_matrix", false,
+      [](const C& c, int r, S s) { return c.adjacency_matrix(r, s); },
+      "cells of `rank` sharing a coface (TopoNetX's adjacency_matrix; unsigned by default)");
+  def_signed_operator(
+      cls, name, "coadjacency_matrix", false,
+      [](const C& c, int r, S s) { return c.coadjacency_matrix(r, s); },
+      "cells of `rank` sharing a face (TopoNetX's coadjacency_matrix; unsigned by default)");
+  const std::string normalized = name + ".normalized_laplacian_matrix";
   cls.def(
-         "incidence_matrix",
-         [where](const C& c, int rank, const py::object& sign, const std::string& format,
-                 const py::object& dtype) {
-           const Signed s = signed_arg(sign, where("incidence_matrix"));
-           return op(out_spec(format, dtype, where("incidence_matrix")),
-                     [&] { return c.incidence_matrix(rank, s); });
+         "normalized_laplacian_matrix",
+         [normalized](const C& c, int rank, const std::string& format, const py::object& dtype) {
+           return op(out_spec(format, dtype, normalized),
+                     [&] { return c.normalized_laplacian_matrix(rank); });
          },
-         py::arg("rank"), py::arg("signed") = true, TOPOS_OUT_ARGS,
-         "B_rank (n_{rank-1} x n_rank), TopoNetX's incidence_matrix(rank, signed)")
-      .def(
-          "coincidence_matrix",
-          [where](const C& c, int rank, const py::object& sign, const std::string& format,
-                  const py::object& dtype) {
-            const Signed s = signed_arg(sign, where("coincidence_matrix"));
-            return op(out_spec(format, dtype, where("coincidence_matrix")),
-                      [&] { return c.coincidence_matrix(rank, s); });
-          },
-          py::arg("rank"), py::arg("signed") = true, TOPOS_OUT_ARGS, "B_rank^T")
-      .def(
-          "up_laplacian_matrix",
-          [where](const C& c, int rank, const py::object& sign, const std::string& format,
-                  const py::object& dtype) {
-            const bool s = signed_arg(sign, where("up_laplacian_matrix")) == Signed::yes;
-            return op(out_spec(format, dtype, where("up_laplacian_matrix")),
-                      [&] { return c.up_laplacian_matrix(rank, s); });
-          },
-          py::arg("rank"), py::arg("signed") = true, TOPOS_OUT_ARGS,
-          "B_{rank+1} B_{rank+1}^T (|.| entrywise when unsigned)")
-      .def(
-          "down_laplacian_matrix",
-          [where](const C& c, int rank, const py::object& sign, const std::string& format,
-                  const py::object& dtype) {
-            const bool s = signed_arg(sign, where("down_laplacian_matrix")) == Signed::yes;
-            return op(out_spec(format, dtype, where("down_laplacian_matrix")),
-                      [&] { return c.down_laplacian_matrix(rank, s); });
-          },
-          py::arg("rank"), py::arg("signed") = true, TOPOS_OUT_ARGS,
-          "B_rank^T B_rank (|.| entrywise when unsigned)")
-      .def(
-          "hodge_laplacian_matrix",
-          [where](const C& c, int rank, const py::object& sign, const std::string& format,
-                  const py::object& dtype) {
-            const bool s = signed_arg(sign, where("hodge_laplacian_matrix")) == Signed::yes;
-            return op(out_spec(format, dtype, where("hodge_laplacian_matrix")),
-                      [&] { return c.hodge_laplacian_matrix(rank, s); });
-          },
-          py::arg("rank"), py::arg("signed") = true, TOPOS_OUT_ARGS,
-          "down + up Laplacian (terms of missing ranks omitted)")
-      .def(
-          "adjacency_matrix",
-          [where](const C& c, int rank, const py::object& sign, const std::string& format,
-                  const py::object& dtype) {
-            const Signed s = signed_arg(sign, where("adjacency_matrix"));
-            return op(out_spec(format, dtype, where("adjacency_matrix")),
-                      [&] { return c.adjacency_matrix(rank, s); });
-          },
-          py::arg("rank"), py::arg("signed") = false, TOPOS_OUT_ARGS,
-          "cells of `rank` sharing a coface (TopoNetX's adjacency_matrix; unsigned by default)")
-      .def(
-          "coadjacency_matrix",
-          [where](const C& c, int rank, const py::object& sign, const std::string& format,
-                  const py::object& dtype) {
-            const Signed s = signed_arg(sign, where("coadjacency_matrix"));
-            return op(out_spec(format, dtype, where("coadjacency_matrix")),
-                      [&] { return c.coadjacency_matrix(rank, s); });
-          },
-          py::arg("rank"), py::arg("signed") = false, TOPOS_OUT_ARGS,
-          "cells of `rank` sharing a face (TopoNetX's coadjacency_matrix; unsigned by default)")
-      .def(
-          "normalized_laplacian_matrix",
-          [where](const C& c, int rank, const std::string& format, const py::object& dtype) {
-            return op(out_spec(format, dtype, where("normalized_laplacian_matrix")),
-                      [&] { return c.normalized_laplacian_matrix(rank); });
-          },
-          py::arg("rank"), TOPOS_OUT_ARGS, "D^-1/2 L D^-1/2 of the signed Hodge Laplacian")
+         py::arg("rank"), TOPOS_OUT_ARGS, "D^-1/2 L D^-1/2 of the signed Hodge Laplacian")
       .def_property_readonly("shape", [](const C& c) { return shape_tuple(c.shape()); })
       .def_property_readonly("dim", &C::dim)
       .def_property_readonly("num_nodes", &C::num_nodes)
@@ -698,32 +689,23 @@ void bind_combinatorial(py::module_& m) {
             return py::make_tuple(f->rank, f->id);
           },
           py::arg("cell"), "(rank, id) of a cell given by its nodes")
-      .def(
-          "incidence_matrix",
-          [](const CC& cc, int rank, int to_rank, const std::string& format,
-             const py::object& dtype) {
-            return op(out_spec(format, dtype, "CombinatorialComplex.incidence_matrix"),
-                      [&] { return cc.incidence_matrix(rank, to_rank); });
-          },
-          py::arg("rank"), py::arg("to_rank"), TOPOS_OUT_ARGS,
-          "n_rank x n_to_rank inclusion (TopoNetX's incidence_matrix(rank, to_rank))")
-      .def(
-          "adjacency_matrix",
-          [](const CC& cc, int rank, int via, const std::string& format, const py::object& dtype) {
-            return op(out_spec(format, dtype, "CombinatorialComplex.adjacency_matrix"),
-                      [&] { return cc.adjacency_matrix(rank, via); });
-          },
-          py::arg("rank"), py::arg("via_rank"), TOPOS_OUT_ARGS,
-          "cells of `rank` sharing a cell of via_rank > rank (entry: how many)")
-      .def(
-          "coadjacency_matrix",
-          [](const CC& cc, int rank, int via, const std::string& format, const py::object& dtype) {
-            return op(out_spec(format, dtype, "CombinatorialComplex.coadjacency_matrix"),
-                      [&] { return cc.coadjacency_matrix(rank, via); });
-          },
-          py::arg("rank"), py::arg("via_rank"), TOPOS_OUT_ARGS,
-          "cells of `rank` sharing a cell of via_rank < rank (entry: how many)")
       .def("__repr__", [](const CC& c) { return shape_repr("CombinatorialComplex", c); });
+  const std::string name = "CombinatorialComplex";
+  def_rank_pair_operator(
+      cls, name, "incidence_matrix",
+      [](const CC& c, int r, int to) { return c.incidence_matrix(r, to); },
+      "n_rank x n_to_rank inclusion (TopoNetX's incidence_matrix(rank, to_rank))", py::arg("rank"),
+      py::arg("to_rank"));
+  def_rank_pair_operator(
+      cls, name, "adjacency_matrix",
+      [](const CC& c, int r, int via) { return c.adjacency_matrix(r, via); },
+      "cells of `rank` sharing a cell of via_rank > rank (entry: how many)", py::arg("rank"),
+      py::arg("via_rank"));
+  def_rank_pair_operator(
+      cls, name, "coadjacency_matrix",
+      [](const CC& c, int r, int via) { return c.coadjacency_matrix(r, via); },
+      "cells of `rank` sharing a cell of via_rank < rank (entry: how many)", py::arg("rank"),
+      py::arg("via_rank"));
 }
 
 void bind_hypergraph(py::module_& m) {
@@ -790,53 +772,46 @@ void bind_hypergraph(py::module_& m) {
           },
           py::arg("rank") = 0, py::arg("to_rank") = 1, py::arg("weighted") = false, TOPOS_OUT_ARGS,
           "node x hyperedge membership (rank 0 to 1; 1 to 0 is its transpose)")
-      .def(
-          "adjacency_matrix",
-          [](const HG& h, int rank, int via, const std::string& format, const py::object& dtype) {
-            return op(out_spec(format, dtype, "Hypergraph.adjacency_matrix"),
-                      [&] { return h.adjacency_matrix(rank, via); });
-          },
-          py::arg("rank") = 0, py::arg("via_rank") = 1, TOPOS_OUT_ARGS,
-          "nodes sharing hyperedges (entry: how many)")
-      .def(
-          "coadjacency_matrix",
-          [](const HG& h, int rank, int via, const std::string& format, const py::object& dtype) {
-            return op(out_spec(format, dtype, "Hypergraph.coadjacency_matrix"),
-                      [&] { return h.coadjacency_matrix(rank, via); });
-          },
-          py::arg("rank") = 1, py::arg("via_rank") = 0, TOPOS_OUT_ARGS,
-          "hyperedges sharing nodes (entry: how many)")
       .def("__repr__", [](const HG& h) { return shape_repr("Hypergraph", h); });
+  def_rank_pair_operator(
+      cls, "Hypergraph", "adjacency_matrix",
+      [](const HG& h, int r, int via) { return h.adjacency_matrix(r, via); },
+      "nodes sharing hyperedges (entry: how many)", py::arg("rank") = 0, py::arg("via_rank") = 1);
+  def_rank_pair_operator(
+      cls, "Hypergraph", "coadjacency_matrix",
+      [](const HG& h, int r, int via) { return h.coadjacency_matrix(r, via); },
+      "hyperedges sharing nodes (entry: how many)", py::arg("rank") = 1, py::arg("via_rank") = 0);
+}
+
+// A lifting f(num_nodes, edges, extra...) as name(num_nodes, edges, extra...), run without the
+// GIL; `args` names the extra arguments.
+template <class R, class... A, class... Extra>
+void def_graph_lifting(py::module_& m, const char* name, R (*f)(Index, const Edges&, A...),
+                       const char* doc, const Extra&... args) {
+  const std::string where = std::string(name) + "(edges)";
+  m.def(
+      name,
+      [where, f](Index n, const py::object& edges, A... a) {
+        const Edges e = edges_arg(edges, where);
+        py::gil_scoped_release release;
+        return f(n, e, a...);
+      },
+      py::arg("num_nodes"), py::arg("edges"), args..., doc);
 }
 
 void bind_liftings(py::module_& m) {
-  m.def(
-      "clique_complex",
-      [](Index n, const py::object& edges, int max_rank) {
-        const Edges e = edges_arg(edges, "clique_complex(edges)");
-        py::gil_scoped_release release;
-        return clique_complex(n, e, max_rank);
-      },
-      py::arg("num_nodes"), py::arg("edges"), py::arg("max_rank"),
-      "every clique of at most max_rank + 1 nodes as a simplex");
-  m.def(
-      "clique_lifting",
-      [](Index n, const py::object& edges, int complex_dim) {
-        const Edges e = edges_arg(edges, "clique_lifting(edges)");
-        py::gil_scoped_release release;
-        return clique_lifting(n, e, complex_dim);
-      },
-      py::arg("num_nodes"), py::arg("edges"), py::arg("complex_dim") = 3,
-      "TopoBench's SimplicialCliqueLifting");
-  m.def(
-      "cycle_basis",
-      [](Index n, const py::object& edges) {
-        const Edges e = edges_arg(edges, "cycle_basis(edges)");
-        py::gil_scoped_release release;
-        return cycle_basis(n, e);
-      },
-      py::arg("num_nodes"), py::arg("edges"),
-      "networkx's cycle_basis (>= 3.2), same cycles and order");
+  def_graph_lifting(m, "clique_complex", &clique_complex,
+                    "every clique of at most max_rank + 1 nodes as a simplex", py::arg("max_rank"));
+  def_graph_lifting(m, "clique_lifting", &clique_lifting, "TopoBench's SimplicialCliqueLifting",
+                    py::arg("complex_dim") = 3);
+  def_graph_lifting(m, "cycle_basis", &cycle_basis,
+                    "networkx's cycle_basis (>= 3.2), same cycles and order");
+  def_graph_lifting(m, "khop_lifting", &khop_lifting,
+                    "TopoBench's HypergraphKHopLifting: hyperedge v = the k-hop ball of v",
+                    py::arg("k") = 1);
+  def_graph_lifting(m, "neighborhood_hypergraph", &neighborhood_hypergraph,
+                    "hyperedge v = v and its neighbours");
+  // TopoBench's None (no limit) is -1 in C++.
   m.def(
       "cycle_lifting",
       [](Index n, const py::object& edges, const py::object& max_cell_length) {
@@ -847,21 +822,6 @@ void bind_liftings(py::module_& m) {
       },
       py::arg("num_nodes"), py::arg("edges"), py::arg("max_cell_length") = 10,
       "TopoBench's CellCycleLifting (max_cell_length None: every basis cycle)");
-  m.def(
-      "khop_lifting",
-      [](Index n, const py::object& edges, int k) {
-        const Edges e = edges_arg(edges, "khop_lifting(edges)");
-        py::gil_scoped_release release;
-        return khop_lifting(n, e, k);
-      },
-      py::arg("num_nodes"), py::arg("edges"), py::arg("k") = 1,
-      "TopoBench's HypergraphKHopLifting: hyperedge v = the k-hop ball of v");
-  m.def(
-      "neighborhood_hypergraph",
-      [](Index n, const py::object& edges) {
-        return neighborhood_hypergraph(n, edges_arg(edges, "neighborhood_hypergraph(edges)"));
-      },
-      py::arg("num_nodes"), py::arg("edges"));
   m.def("to_hypergraph", &to_hypergraph, py::arg("complex"),
         "every simplex of rank >= 1 as a hyperedge (TopoNetX's to_hypergraph)");
   m.def("to_combinatorial_complex", &to_combinatorial_complex, py::arg("complex"));
