@@ -196,7 +196,12 @@ void bind_hopnet(py::module_& parent) {
             py::gil_scoped_release release;
             save_hopnet(*c.net, p);
           },
-          py::arg("path"), "a topos checkpoint (torch.load opens it)");
+          py::arg("path"), "a topos checkpoint (torch.load opens it)")
+      .def("__repr__", [](const Checkpoint& c) {
+        return "Checkpoint('" + c.path + "', variant " + variant_name(c.net->options) + ", mode " +
+               to_string(c.net->options.mode()) +
+               (c.norm ? ", stats '" + *c.stats_path + "'" : "") + ")";
+      });
 
   py::class_<PyScene, std::shared_ptr<PyScene>>(m, "Scene", "A Kubric scene with its meshes")
       .def(py::init([](const py::object& path, const py::object& assets) {

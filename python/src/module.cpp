@@ -169,9 +169,7 @@ at::Tensor real_values(const at::Tensor& v, const std::string& arg) {
   return v.to(at::kCPU, at::kDouble).contiguous();
 }
 
-}  // namespace
-
-SparseMatrix sparse_arg(const py::handle& obj, const std::string& arg) {
+SparseMatrix sparse_arg_unchecked(const py::handle& obj, const std::string& arg) {
   if (is_tensor(obj)) {
     const at::Tensor t = py::cast<at::Tensor>(obj);
     if (t.layout() == at::kStrided)
@@ -229,6 +227,16 @@ SparseMatrix sparse_arg(const py::handle& obj, const std::string& arg) {
                          "; pass torch.as_tensor(x).to_sparse() or scipy.sparse.csr_matrix(x)");
   throw py::type_error(arg + ": expected a sparse matrix (torch sparse COO or CSR tensor, or " +
                        "scipy.sparse), got " + type);
+}
+
+}  // namespace
+
+SparseMatrix sparse_arg(const py::handle& obj, const std::string& arg) {
+  try {
+    return sparse_arg_unchecked(obj, arg);
+  } catch (const c10::Error& e) {  // torch's own checks (coalesce of indices out of range, ...)
+    throw py::value_error(arg + ": " + e.what_without_backtrace());
+  }
 }
 
 namespace {
@@ -791,7 +799,10 @@ void def_graph_lifting(py::module_& m, const char* name, R (*f)(Index, const Edg
   const std::string where = std::string(name) + "(edges)";
   m.def(
       name,
-      [where, f](Index n, const py::object& edges, A... a) {
+      [where, name, f](Index n, const py::object& edges, A... a) {
+        if (n < 0)
+          throw py::value_error(std::string(name) + ": num_nodes " + std::to_string(n) +
+                                " must be >= 0");
         const Edges e = edges_arg(edges, where);
         py::gil_scoped_release release;
         return f(n, e, a...);
@@ -815,6 +826,8 @@ void bind_liftings(py::module_& m) {
   m.def(
       "cycle_lifting",
       [](Index n, const py::object& edges, const py::object& max_cell_length) {
+        if (n < 0)
+          throw py::value_error("cycle_lifting: num_nodes " + std::to_string(n) + " must be >= 0");
         const Edges e = edges_arg(edges, "cycle_lifting(edges)");
         const int len = max_cell_length.is_none() ? -1 : max_cell_length.cast<int>();
         py::gil_scoped_release release;

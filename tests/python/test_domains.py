@@ -401,3 +401,7 @@ def test_errors_are_python_exceptions_naming_the_argument():
         topos.CombinatorialComplex([[0, 1]])
     with pytest.raises(topos.ComplexError, match="add_cell"):
         topos.CombinatorialComplex([[0, 1], [0, 1, 2]], ranks=[2, 1])  # rank condition
+    with pytest.raises(ValueError, match=r"compute_laplacian_normalized_matrix\(L\): entry \(0, 5\) is outside the 2 x 2 shape"):
+        tn.compute_laplacian_normalized_matrix(torch._sparse_coo_tensor_unsafe(torch.tensor([[0], [5]]), torch.tensor([1.0]), (2, 2)))
+    with pytest.raises(ValueError, match="clique_lifting: num_nodes -3 must be >= 0"):
+        topos.clique_lifting(-3, [])

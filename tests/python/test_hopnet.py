@@ -32,6 +32,7 @@ def reference_rollout(checkpoint, scene):
 def test_reference_rollout_matches_the_papers_metrics(checkpoint, scene, reference_rollout):
     assert checkpoint.variant == "standard" and checkpoint.mode == "reference"
     assert checkpoint.num_parameters == 707078
+    assert "variant standard, mode reference, stats" in repr(checkpoint)
     r = reference_rollout
     assert r.num_frames == 106
     m = r.metrics()
@@ -69,6 +70,8 @@ def test_topos_checkpoint_round_trip(checkpoint, scene, ref, tmp_path):
     back = hopnet.Checkpoint(path, stats=ref / "normalization" / "movia.json")
     assert back.options == checkpoint.options
     a, b = checkpoint.state_dict(), back.state_dict()
+    # The tensors are the model's own (no copy): two calls give the same memory.
+    assert all(t.data_ptr() == checkpoint.state_dict()[k].data_ptr() for k, t in a.items())
     assert a.keys() == b.keys() and len(a) > 0
     for k in a:
         assert torch.equal(a[k], b[k]), k
