@@ -49,8 +49,8 @@ SparseMatrix sparse_arg(const py::handle& obj, const std::string& arg);
 Cells cells_arg(const py::handle& obj, const std::string& arg);
 /// One cell: a list of integer node ids (or a 1-D integer tensor).
 std::vector<Index> cell_arg(const py::handle& obj, const std::string& arg);
-/// Edges of a graph: a list of (u, v) pairs, or an integer tensor of shape (2, E) (PyG's
-/// edge_index) or (E, 2) given as a list.
+/// Edges of a graph: a list of (u, v) pairs, or an integer tensor or array of shape (2, E) (PyG's
+/// edge_index).
 Edges edges_arg(const py::handle& obj, const std::string& arg);
 /// A real vector (tensor, array or list of numbers) of `expected` entries (-1: any).
 Eigen::VectorXd vector_arg(const py::handle& obj, const std::string& arg, Index expected = -1);

@@ -10,6 +10,8 @@
 
 #include <pybind11/stl.h>
 
+#include <cerrno>
+#include <filesystem>
 #include <memory>
 #include <optional>
 
@@ -111,12 +113,24 @@ std::vector<Poses> poses_from(const at::Tensor& positions, const at::Tensor& qua
   return out;
 }
 
-std::string optional_str(const py::object& o, const char* arg) {
+// A path argument: str or os.PathLike ("" for None).
+std::string path_str(const py::object& o, const char* arg) {
   if (o.is_none()) return {};
   if (!py::isinstance<py::str>(o) && !py::hasattr(o, "__fspath__"))
     throw py::type_error(std::string(arg) + " must be a path (str or os.PathLike), got " +
                          type_name(o));
   return py::str(py::module_::import("os").attr("fspath")(o));
+}
+
+// A path to read ("" for None); one that does not exist is Python's FileNotFoundError.
+std::string path_arg(const py::object& o, const char* arg) {
+  const std::string p = path_str(o, arg);
+  if (!p.empty() && !std::filesystem::exists(p)) {
+    PyErr_SetObject(PyExc_FileNotFoundError,
+                    py::make_tuple(ENOENT, std::string(arg) + ": no such file or folder", p).ptr());
+    throw py::error_already_set();
+  }
+  return p;
 }
 
 }  // namespace
@@ -130,8 +144,8 @@ void bind_hopnet(py::module_& parent) {
                        const py::object& mode, const py::object& activation,
                        const py::object& collision_radius, const std::string& device) {
              auto c = std::make_shared<Checkpoint>();
-             c->path = optional_str(path_obj, "checkpoint");
-             const std::string stats = optional_str(stats_obj, "stats");
+             c->path = path_arg(path_obj, "checkpoint");
+             const std::string stats = path_arg(stats_obj, "stats");
              CheckpointOverrides ov;
              if (!mode.is_none()) ov.mode = feature_mode_from_string(mode.cast<std::string>());
              if (!collision_radius.is_none()) {
@@ -192,7 +206,7 @@ void bind_hopnet(py::module_& parent) {
       .def(
           "save",
           [](const Checkpoint& c, const py::object& path) {
-            const std::string p = optional_str(path, "path");
+            const std::string p = path_str(path, "path");
             py::gil_scoped_release release;
             save_hopnet(*c.net, p);
           },
@@ -205,7 +219,7 @@ void bind_hopnet(py::module_& parent) {
 
   py::class_<PyScene, std::shared_ptr<PyScene>>(m, "Scene", "A Kubric scene with its meshes")
       .def(py::init([](const py::object& path, const py::object& assets) {
-             const std::string p = optional_str(path, "scene"), a = optional_str(assets, "assets");
+             const std::string p = path_arg(path, "scene"), a = path_arg(assets, "assets");
              py::gil_scoped_release release;
              auto s = std::make_shared<PyScene>();
              MeshLibrary lib(a);
@@ -281,7 +295,7 @@ void bind_hopnet(py::module_& parent) {
           if (c.net->options.mode() == FeatureMode::reference)
             coll = collisions_json_beside(scene->scene.source);
         } else {
-          coll = optional_str(collisions, "collisions");
+          coll = path_arg(collisions, "collisions");
         }
         PyRollout r;
         r.scene = scene;

@@ -90,8 +90,10 @@ def test_reference_activation_from_the_file_name(ref):
 
 
 def test_hopnet_errors(ref, checkpoint, scene, tmp_path):
-    with pytest.raises(Exception, match="no_such.pt"):
+    with pytest.raises(FileNotFoundError, match="checkpoint: no such file or folder: .*no_such.pt"):
         hopnet.Checkpoint(tmp_path / "no_such.pt")
+    with pytest.raises(FileNotFoundError, match="stats: no such file or folder"):
+        hopnet.Checkpoint(ref / "checkpoints" / "modela_seed2_e39.pt", stats=tmp_path / "s.json")
     bad = tmp_path / "bad.pt"
     bad.write_bytes(b"not a checkpoint")
     with pytest.raises(RuntimeError, match="bad.pt"):
@@ -105,8 +107,10 @@ def test_hopnet_errors(ref, checkpoint, scene, tmp_path):
         hopnet.rollout(no_stats, scene)
     with pytest.raises(ValueError, match="steps must be positive"):
         hopnet.rollout(checkpoint, scene, steps=0)
-    with pytest.raises(topos.DataError, match="asset folder does not exist"):
+    with pytest.raises(FileNotFoundError, match="assets: no such file or folder"):
         hopnet.Scene(ref / "movi-a" / "8", assets=tmp_path / "nothing")
+    with pytest.raises(topos.DataError, match="metadata.json"):
+        hopnet.Scene(tmp_path)  # a folder without metadata.json
     with pytest.raises(ValueError, match=r"metrics\(positions\): expected shape \(frames, 3, 3\)"):
         hopnet.metrics(torch.zeros(10, 2, 3), torch.zeros(10, 3, 4), scene)
     with pytest.raises(TypeError, match=r"metrics\(quaternions\): expected a floating tensor"):
