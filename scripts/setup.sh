@@ -14,6 +14,9 @@ packages=(
   libzip-dev  # topos::data: TU and DGCNN datasets read from the zips they are published as
   python3  # scripts/check_torch_file.py: the tests' torch.load compatibility check
   python3-torch  # tests/nn/test_python_interop.cpp: torch.load / torch.save where users are
+  # The Python package (python/, TOPOS_PYTHON): its extension on pybind11 and torch's casters,
+  # and its tests (tests/python: pytest, numpy, scipy.sparse as TopoNetX's users hold operators).
+  python3-dev pybind11-dev python3-numpy python3-scipy python3-pytest
   clang-format  # ctest code_style (scripts/check_style.sh): the tree stays as .clang-format says
 )
 # Headless Chromium is only needed for the viewer screenshot test: scripts/test.sh asks for it

@@ -90,14 +90,12 @@ inline CheckpointOverrides checkpoint_overrides(const VariantArgs& v,
   if (!v.activation.empty()) {
     ov.activation = nn::update_from_string(v.activation);
   } else if (is_reference_checkpoint(dict)) {
-    const std::string stem = std::filesystem::path(path).stem().string();
-    const std::string word = stem.substr(0, stem.find('_'));
-    for (const char* a : {"gelu", "elu", "selu"})
-      if (word == a) {
-        ov.activation = nn::update_from_string(a);
-        std::cerr << "note: " << path << " is a reference checkpoint named after activation " << a
-                  << "; running it with " << a << " (--activation overrides)\n";
-      }
+    ov.activation = activation_from_reference_name(path);
+    if (ov.activation) {
+      const std::string a = nn::update_name(*ov.activation);
+      std::cerr << "note: " << path << " is a reference checkpoint named after activation " << a
+                << "; running it with " << a << " (--activation overrides)\n";
+    }
   }
   return ov;
 }

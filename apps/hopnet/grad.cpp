@@ -73,8 +73,7 @@ int run_grad(const GradArgs& a) {
 }  // namespace
 
 std::string collisions_beside(const data::KubricScene& scene) {
-  const auto p = std::filesystem::path(scene.source).parent_path() / "collisions.json";
-  return std::filesystem::exists(p) ? p.string() : std::string();
+  return collisions_json_beside(scene.source);
 }
 
 Command add_grad(CLI::App& app) {

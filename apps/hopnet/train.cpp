@@ -310,8 +310,7 @@ int run_train(const TrainArgs& a) {
     group.commit();
   };
   const auto out_of_time = [&] { return a.max_seconds > 0 && trained_seconds >= a.max_seconds; };
-  for (int epoch = start_epoch; epoch < a.epochs && step < total_steps && !out_of_time();
-       ++epoch) {
+  for (int epoch = start_epoch; epoch < a.epochs && step < total_steps && !out_of_time(); ++epoch) {
     const double lr = a.lr * (a.lr_decay > 0 ? std::pow(a.lr_decay, epoch) : 1.0);
     for (auto& g : opt.param_groups()) static_cast<torch::optim::AdamOptions&>(g.options()).lr(lr);
     const auto order = nn::epoch_order(n_train, a.seed, epoch);
@@ -418,7 +417,8 @@ int run_train(const TrainArgs& a) {
           ro.collision_radius = radius;
           const auto r = rollout(*model, norm, val[v].scene, val[v].geometry, ro);
           nn::set_float32_matmul_precision(precision);
-          r_sum += rollout_metrics(r.poses, val[v].scene).pos_rmse[static_cast<std::size_t>(a.val_frame)];
+          r_sum += rollout_metrics(r.poses, val[v].scene)
+                       .pos_rmse[static_cast<std::size_t>(a.val_frame)];
           r_n += 1;
         }
       }
@@ -430,9 +430,13 @@ int run_train(const TrainArgs& a) {
       if (r_n > 0) vr = r_sum / r_n;
     }
     if (!main_rank) continue;
-    const bool new_best = std::isfinite(vr) && (best.is_null() || vr < best.at("val_rollout_pos_rmse").get<double>());
+    const bool new_best =
+        std::isfinite(vr) && (best.is_null() || vr < best.at("val_rollout_pos_rmse").get<double>());
     if (new_best)
-      best = {{"epoch", epoch + 1}, {"step", step}, {"frame", a.val_frame}, {"val_rollout_pos_rmse", vr}};
+      best = {{"epoch", epoch + 1},
+              {"step", step},
+              {"frame", a.val_frame},
+              {"val_rollout_pos_rmse", vr}};
     epochs_csv << epoch + 1 << "," << epoch_loss_sum / static_cast<double>(epoch_steps) << "," << vl
                << "," << epoch_seconds << "," << lr << "," << vr << "\n";
     if (std::isfinite(vr))

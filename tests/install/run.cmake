@@ -1,11 +1,22 @@
 # Installs topos into a temporary prefix, configures and builds a consumer project with
 # find_package(topos REQUIRED COMPONENTS nn geometry), against the compiled topos::nn and
-# header-only, and runs both.
+# header-only, and runs both; with PYTHON, imports the installed Python package first.
 file(REMOVE_RECURSE "${WORK_DIR}")
 set(prefix "${WORK_DIR}/prefix")
 execute_process(COMMAND ${CMAKE_COMMAND} --install "${TOPOS_BINARY_DIR}" --prefix "${prefix}" RESULT_VARIABLE rc)
 if(rc)
   message(FATAL_ERROR "cmake --install failed: ${rc}")
+endif()
+# The Python package (TOPOS_PYTHON builds: PYTHON is set), imported from the prefix alone.
+if(PYTHON)
+  execute_process(COMMAND ${CMAKE_COMMAND} -E env PYTHONPATH=${prefix}/${PYTHON_INSTALL_DIR}
+      PYTHONDONTWRITEBYTECODE=1 ${PYTHON} -c
+      "import topos; assert topos.__file__.startswith('${prefix}/'), topos.__file__; print(topos.SimplicialComplex([[0, 1, 2]]).shape)"
+    WORKING_DIRECTORY "${WORK_DIR}" RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+  if(rc OR NOT out MATCHES "\\(3, 3, 1\\)")
+    message(FATAL_ERROR "the installed Python package failed (${rc}): ${out}${err}")
+  endif()
+  message(STATUS "the installed Python package said: ${out}")
 endif()
 set(launcher)
 find_program(CCACHE ccache)

@@ -15,6 +15,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <filesystem>
 #include <map>
 #include <string>
 #include <vector>
@@ -69,6 +70,14 @@ inline std::map<std::int64_t, std::vector<ContactCandidate>> parse_collisions_js
 inline std::map<std::int64_t, std::vector<ContactCandidate>> read_collisions_json(
     const std::string& path) {
   return parse_collisions_json(data::read_text_file(path), path);
+}
+
+/// The reference's contacts beside a Kubric scene (collisions.json in the folder of its
+/// metadata.json, `scene_source`), or "" when there is none. Reference mode takes the first
+/// step's contacts from it, as the reference does.
+inline std::string collisions_json_beside(const std::string& scene_source) {
+  const auto p = std::filesystem::path(scene_source).parent_path() / "collisions.json";
+  return std::filesystem::exists(p) ? p.string() : std::string();
 }
 
 namespace detail {

@@ -17,6 +17,7 @@
 #include <torch/torch.h>
 
 #include <cstdint>
+#include <filesystem>
 #include <map>
 #include <optional>
 #include <regex>
@@ -114,6 +115,17 @@ struct CheckpointOverrides {
   std::optional<nn::Update> activation;
   std::optional<double> collision_radius;
 };
+
+/// The activation a reference checkpoint's file name gives by the reference's convention: the
+/// first '_'-separated word of the name ("gelu_seed0_e39.pt") when it is gelu, elu or selu. A
+/// reference state dict does not record its activation; other names mean ReLU, its default.
+inline std::optional<nn::Update> activation_from_reference_name(const std::string& path) {
+  const std::string stem = std::filesystem::path(path).stem().string();
+  const std::string word = stem.substr(0, stem.find('_'));
+  for (const char* a : {"gelu", "elu", "selu"})
+    if (word == a) return nn::update_from_string(a);
+  return std::nullopt;
+}
 
 /// Loads a checkpoint (topos or reference, of any architecture) from a checkpoint already read
 /// (nn::read_tensor_dict); `source` names it in errors. Several models (one per thread) can be
