@@ -9,7 +9,10 @@
 #include "launch.hpp"
 #include "topos/util/memory.hpp"
 #include <chrono>
+#include <cmath>
+#include <ctime>
 #include <future>
+#include <limits>
 #include <numeric>
 #include <random>
 
@@ -27,6 +30,9 @@ struct TrainArgs {
   double dist_timeout = 1800;
   VariantArgs variant;
   double lr = 1e-4, lr_decay = 0.0, min_z_collision_velocity = 0.0;
+  std::int64_t checkpoint_every = 0;  // 0: the model's default (HOPNet every step, baselines 100)
+  double max_seconds = 0;             // step seconds over the whole run, resumes included
+  int val_rollouts = -1, val_frame = 50;  // -1: every validation scene
   std::uint64_t seed = 0;
   bool resume = false;
   bool lr_given = false;
@@ -85,6 +91,8 @@ int run_train(const TrainArgs& a) {
     b.data = a.data, b.out = a.out, b.assets = a.assets, b.split_file = a.split_file;
     b.config = a.variant.config, b.init = a.init, b.max_steps = a.max_steps;
     b.epochs = a.epochs, b.max_frames = a.max_frames, b.seed = a.seed, b.resume = a.resume;
+    b.max_seconds = a.max_seconds;
+    if (a.checkpoint_every > 0) b.checkpoint_every = static_cast<int>(a.checkpoint_every);
     if (a.lr_given) b.lr = a.lr;
     return run_baseline_train(b);
   }
@@ -181,14 +189,19 @@ int run_train(const TrainArgs& a) {
   torch::manual_seed(a.seed);
   const auto ckpt = (fs::path(a.out) / "checkpoint.pt").string(),
              opt_path = (fs::path(a.out) / "optimizer.pt").string(),
-             state_path = (fs::path(a.out) / "state.json").string();
-  // checkpoint.pt, optimizer.pt and state.json are replaced together (FileGroup): a run killed
-  // at any point resumes from the last whole epoch. Only rank 0 writes, so only it recovers.
+             state_path = (fs::path(a.out) / "state.json").string(),
+             best_path = (fs::path(a.out) / "best.pt").string();
+  // checkpoint.pt, optimizer.pt, state.json (and best.pt when it improves) are replaced together
+  // (FileGroup) every --checkpoint-every steps and at every epoch's end: a run killed at any
+  // point resumes from the last committed step. Only rank 0 writes, so only it recovers.
   const auto journal = (fs::path(a.out) / "commit.journal").string();
   if (a.resume && main_rank) recover_file_group(journal);
   Hopnet model(options);
+  // Where the run stands: `epoch` epochs done, then `epoch_step` steps of the next one.
   int start_epoch = 0;
-  std::int64_t step = 0;
+  std::int64_t step = 0, start_epoch_step = 0;
+  double epoch_loss_sum = 0, epoch_seconds = 0, trained_seconds = 0;
+  nlohmann::json best = nullptr;  // the validation rollouts' best epoch so far
   // Rank 0 decides whether and from what to resume; the others receive its model, optimizer
   // state and position, so --resume works for any world size (and needs no shared folder).
   const bool resuming =
@@ -227,7 +240,15 @@ int run_train(const TrainArgs& a) {
         main_rank ? data::read_text_file(state_path) : std::string(), 0, "state broadcast"));
     start_epoch = st.at("epoch").get<int>();
     step = st.at("step").get<std::int64_t>();
-    say("resuming after epoch %d (step %lld)\n", start_epoch, static_cast<long long>(step));
+    start_epoch_step = st.value("epoch_step", std::int64_t{0});
+    epoch_loss_sum = st.value("epoch_loss_sum", 0.0);
+    epoch_seconds = st.value("epoch_seconds", 0.0);
+    trained_seconds = st.value("seconds", 0.0);
+    best = st.value("best", nlohmann::json(nullptr));
+    if (start_epoch_step == 0)
+      say("resuming after epoch %d (step %lld)\n", start_epoch, static_cast<long long>(step));
+    else
+      say("resuming in epoch %d after step %lld\n", start_epoch + 1, static_cast<long long>(step));
   }
   say("model: %lld parameters, device %s, %d worker%s per trajectory, matmul precision %s\n",
       static_cast<long long>(model->num_parameters()), device.str().c_str(), workers,
@@ -236,17 +257,20 @@ int run_train(const TrainArgs& a) {
   if (main_rank) {
     const auto steps_path = fs::path(a.out) / "steps.csv",
                epochs_path = fs::path(a.out) / "epochs.csv";
-    if (a.resume) {  // the rows logged after the last committed epoch are trained again
+    if (a.resume) {  // the rows logged after the last commit are trained again
       truncate_csv_log(steps_path.string(), 1, step);
       truncate_csv_log(epochs_path.string(), 0, start_epoch);
     }
     const bool new_logs = !a.resume || !fs::exists(steps_path) || fs::file_size(steps_path) == 0;
     steps_csv.open(steps_path, new_logs ? std::ios::trunc : std::ios::app);
     epochs_csv.open(epochs_path, new_logs ? std::ios::trunc : std::ios::app);
+    epochs_csv.precision(10);  // the validation errors that pick best.pt, as compared
     if (new_logs) {
-      steps_csv
-          << "epoch,step,scene,loss,seconds_per_step,timesteps_per_second,chunks,peak_rss_mb\n";
-      epochs_csv << "epoch,train_loss,val_loss,seconds,lr\n";
+      // seconds_per_step is wall time; cpu_seconds the process's CPU time over the step (all
+      // threads), which a machine shared with other work inflates far less: the clean time.
+      steps_csv << "epoch,step,scene,loss,seconds_per_step,timesteps_per_second,chunks,peak_rss_mb,"
+                   "cpu_seconds\n";
+      epochs_csv << "epoch,train_loss,val_loss,seconds,lr,val_rollout_pos_rmse\n";
     }
   }
   // Every optimizer step takes world × per_rank trajectories of the epoch's order (the last step
@@ -256,34 +280,64 @@ int run_train(const TrainArgs& a) {
   const std::int64_t all_steps = static_cast<std::int64_t>(a.epochs) * epoch_steps;
   const std::int64_t total_steps =
       a.max_steps >= 0 ? std::min<std::int64_t>(a.max_steps, all_steps) : all_steps;
+  const std::int64_t checkpoint_every = a.checkpoint_every > 0 ? a.checkpoint_every : 1;
   ProgressBar bar("train", total_steps, "steps", log);
   bar.resume_from(std::min(step, total_steps));
   const auto params = model->parameters();
-  for (int epoch = start_epoch; epoch < a.epochs && step < total_steps; ++epoch) {
+  // One commit of the run's state; `epochs_done` epochs complete, `epoch_step` steps into the next.
+  const auto save = [&](int epochs_done, std::int64_t epoch_step, bool new_best) {
+    steps_csv.flush();  // the rows of the committed steps are on disk before the commit
+    epochs_csv.flush();
+    FileGroup group(journal);
+    model->to(torch::kCPU);
+    save_hopnet(*model, group.stage(ckpt));
+    if (new_best) save_hopnet(*model, group.stage(best_path));
+    model->to(device);
+    nn::write_tensor_dict(nn::adam_state_dict(opt, *model),
+                          group.stage(opt_path));  // same bytes for the same state
+    write_json_atomic({{"epoch", epochs_done},
+                       {"step", step},
+                       {"epoch_step", epoch_step},
+                       {"epoch_loss_sum", epoch_loss_sum},
+                       {"epoch_seconds", epoch_seconds},
+                       {"seconds", trained_seconds},
+                       {"best", best},
+                       {"world_size", world},
+                       {"trajectories_per_step", world * per_rank},
+                       {"workers", workers},
+                       {"matmul_precision", a.matmul_precision}},
+                      group.stage(state_path));
+    group.commit();
+  };
+  const auto out_of_time = [&] { return a.max_seconds > 0 && trained_seconds >= a.max_seconds; };
+  for (int epoch = start_epoch; epoch < a.epochs && step < total_steps && !out_of_time();
+       ++epoch) {
     const double lr = a.lr * (a.lr_decay > 0 ? std::pow(a.lr_decay, epoch) : 1.0);
     for (auto& g : opt.param_groups()) static_cast<torch::optim::AdamOptions&>(g.options()).lr(lr);
     const auto order = nn::epoch_order(n_train, a.seed, epoch);
-    const std::int64_t steps_now = std::min(epoch_steps, total_steps - step);
+    // A resumed epoch starts after its committed steps; the order is the same (seed, epoch).
+    const std::int64_t first = epoch == start_epoch ? start_epoch_step : 0;
+    if (first == 0) epoch_loss_sum = 0, epoch_seconds = 0;
+    const std::int64_t last = std::min(epoch_steps, first + (total_steps - step));
     // This rank's trajectories of the epoch, step by step: built one ahead on another thread.
     std::vector<nn::StepShard> shards;
     std::vector<std::int64_t> mine;
-    for (std::int64_t s = 0; s < steps_now; ++s) {
+    for (std::int64_t s = first; s < last; ++s) {
       shards.push_back(nn::step_shard(order, s, world, dist.rank(), per_rank));
       mine.insert(mine.end(), shards.back().items.begin(), shards.back().items.end());
     }
-    const auto t_epoch = std::chrono::steady_clock::now();
-    double sum = 0;
-    int n = 0;
     model->train();
     std::future<std::vector<TrainingItem>> next;
     std::size_t taken = 0;
     if (!mine.empty())
       next = std::async(std::launch::async, make_chunks,
                         std::cref(train[static_cast<std::size_t>(mine[0])]));
-    for (std::int64_t s = 0; s < steps_now; ++s) {
-      const auto& shard = shards[static_cast<std::size_t>(s)];
+    std::int64_t s = first;
+    for (; s < last && !out_of_time(); ++s) {
+      const auto& shard = shards[static_cast<std::size_t>(s - first)];
       reset_peak_rss();
       const auto t0 = std::chrono::steady_clock::now();
+      const std::clock_t c0 = std::clock();  // the process's CPU time, every thread's
       // Gradients reset to none, as the reference's (PyTorch >= 2.0) zero_grad: a parameter no
       // trajectory of the step reaches is skipped by Adam rather than moved by its momentum.
       for (auto& p : params) p.mutable_grad() = torch::Tensor();
@@ -306,8 +360,12 @@ int run_train(const TrainArgs& a) {
                                     : std::vector<double>{loss_sum, T};
       const double secs =
           std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      const double cpu = static_cast<double>(std::clock() - c0) / CLOCKS_PER_SEC;
       const double l = totals[0] / static_cast<double>(shard.total);
-      sum += l, ++n, ++step;
+      epoch_loss_sum += l, epoch_seconds += secs, trained_seconds += secs, ++step;
+      // Every rank stops after the same step: the budget is checked on the ranks' mean time.
+      if (world > 1 && a.max_seconds > 0)
+        trained_seconds = dist.all_reduce_sum({trained_seconds}, "time budget")[0] / world;
       if (main_rank) {
         std::string scenes;  // every rank's trajectories of the step, from the shared order
         for (std::int64_t k = s * world * per_rank;
@@ -317,50 +375,70 @@ int run_train(const TrainArgs& a) {
                         train[static_cast<std::size_t>(order[static_cast<std::size_t>(k)])].id);
         // chunks and peak_rss_mb are rank 0's (each process holds its own trajectories).
         steps_csv << epoch << "," << step << "," << scenes << "," << l << "," << secs << ","
-                  << totals[1] / secs << "," << n_chunks << "," << peak_rss_mb() << "\n";
+                  << totals[1] / secs << "," << n_chunks << "," << peak_rss_mb() << "," << cpu
+                  << "\n";
       }
+      // A commit every --checkpoint-every steps and where the run stops (the step's row is
+      // flushed first); the epoch's last step is committed after its validation, with the epoch.
+      if (main_rank && s + 1 < epoch_steps &&
+          ((s + 1) % checkpoint_every == 0 || s + 1 == last || out_of_time()))
+        save(epoch, s + 1, false);
       char status[96];
       std::snprintf(status, sizeof status, "epoch %d loss %.4f %.0f timesteps/s", epoch + 1, l,
                     totals[1] / secs);
       bar.update(1, status);
     }
-    if (main_rank) steps_csv.flush();
-    // Validation: rank r takes val scenes r, r + world, ...; the sums are all-reduced.
-    double vl = 0;
+    if (s < epoch_steps) {  // stopped inside the epoch (--max-steps, --max-seconds): committed
+      if (next.valid()) next.wait();
+      break;
+    }
+    // Validation: rank r takes val scenes r, r + world, ...; the sums are all-reduced. The loss
+    // over every timestep, and the rollout from ground-truth frames 0-3 to --val-frame, whose
+    // position RMSE picks best.pt (the paper picks models by rollout, not one-step, error).
+    double vl = 0, vr = std::numeric_limits<double>::quiet_NaN();
     {
       torch::NoGradGuard ng;
       model->eval();
-      double v_sum = 0;
+      double v_sum = 0, r_sum = 0, r_n = 0;
+      const std::size_t n_roll =
+          a.val_rollouts < 0 ? val.size()
+                             : std::min(val.size(), static_cast<std::size_t>(a.val_rollouts));
       for (std::size_t v = static_cast<std::size_t>(dist.rank()); v < val.size();
            v += static_cast<std::size_t>(world)) {
         const auto chunks = make_chunks(val[v]);
         double l = 0;
         for (const auto& c : chunks) l += trajectory_loss(*model, c, norm).item<double>();
         v_sum += l / static_cast<double>(timesteps(chunks));
+        if (v < n_roll && val[v].scene.num_frames > a.val_frame) {
+          // Rolled out at full precision whatever the training's: the model as it will be used.
+          const auto precision = nn::get_float32_matmul_precision();
+          nn::set_float32_matmul_precision(nn::MatmulPrecision::highest);
+          RolloutOptions ro;
+          ro.steps = a.val_frame - 3;
+          ro.collision_radius = radius;
+          const auto r = rollout(*model, norm, val[v].scene, val[v].geometry, ro);
+          nn::set_float32_matmul_precision(precision);
+          r_sum += rollout_metrics(r.poses, val[v].scene).pos_rmse[static_cast<std::size_t>(a.val_frame)];
+          r_n += 1;
+        }
       }
-      if (world > 1) v_sum = dist.all_reduce_sum({v_sum}, "validation all-reduce")[0];
+      if (world > 1) {
+        const auto t = dist.all_reduce_sum({v_sum, r_sum, r_n}, "validation all-reduce");
+        v_sum = t[0], r_sum = t[1], r_n = t[2];
+      }
       if (!val.empty()) vl = v_sum / static_cast<double>(val.size());
+      if (r_n > 0) vr = r_sum / r_n;
     }
-    const double secs =
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - t_epoch).count();
     if (!main_rank) continue;
-    epochs_csv << epoch + 1 << "," << (n ? sum / n : 0.0) << "," << vl << "," << secs << "," << lr
-               << "\n";
-    epochs_csv.flush();
-    FileGroup group(journal);
-    model->to(torch::kCPU);
-    save_hopnet(*model, group.stage(ckpt));
-    model->to(device);
-    nn::write_tensor_dict(nn::adam_state_dict(opt, *model),
-                          group.stage(opt_path));  // same bytes for the same state
-    write_json_atomic({{"epoch", epoch + 1},
-                       {"step", step},
-                       {"world_size", world},
-                       {"trajectories_per_step", world * per_rank},
-                       {"workers", workers},
-                       {"matmul_precision", a.matmul_precision}},
-                      group.stage(state_path));
-    group.commit();
+    const bool new_best = std::isfinite(vr) && (best.is_null() || vr < best.at("val_rollout_pos_rmse").get<double>());
+    if (new_best)
+      best = {{"epoch", epoch + 1}, {"step", step}, {"frame", a.val_frame}, {"val_rollout_pos_rmse", vr}};
+    epochs_csv << epoch + 1 << "," << epoch_loss_sum / static_cast<double>(epoch_steps) << "," << vl
+               << "," << epoch_seconds << "," << lr << "," << vr << "\n";
+    if (std::isfinite(vr))
+      say("epoch %d: validation rollout position RMSE at frame %d %.5f m%s\n", epoch + 1,
+          a.val_frame, vr, new_best ? " (best so far: best.pt)" : "");
+    save(epoch + 1, 0, new_best);
   }
   bar.finish();
   // Nobody leaves before rank 0 has written the last checkpoint (a launcher may stop the rest).
@@ -467,17 +545,26 @@ Command add_train(CLI::App& app) {
                  "baselines: constant, or reference-fignet (lr · 0.1^(step/1e6) + 1e-6)")
       ->capture_default_str()
       ->check(CLI::IsMember({"constant", "reference-fignet"}));
-  ct->add_option("--checkpoint-every", tr.baseline.checkpoint_every,
-                 "baselines: steps between validation and checkpoint")
-      ->capture_default_str()
+  ct->add_option("--checkpoint-every", tr.checkpoint_every,
+                 "steps between checkpoints (HOPNet: default 1, every step, so a kill loses at "
+                 "most the step in flight; baselines: validation and checkpoint, default 100)")
       ->check(CLI::PositiveNumber);
+  ct->add_option("--val-rollouts", tr.val_rollouts,
+                 "HOPNet: validation scenes rolled out at each epoch's end to pick best.pt "
+                 "(-1: all, 0: none)")
+      ->capture_default_str()
+      ->check(CLI::Range(-1, 1 << 30));
+  ct->add_option("--val-frame", tr.val_frame,
+                 "HOPNet: the frame whose position RMSE over the validation rollouts picks best.pt")
+      ->capture_default_str()
+      ->check(CLI::Range(4, 1 << 20));
   ct->add_option("--stats-stride", tr.baseline.stats_stride,
                  "baselines: statistics from every n-th training timestep")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
-  ct->add_option("--max-seconds", tr.baseline.max_seconds,
-                 "baselines: stop once the optimizer steps have taken this long (a wall-time "
-                 "budget; the checkpoint is written)")
+  ct->add_option("--max-seconds", tr.max_seconds,
+                 "stop once the optimizer steps have taken this long over the whole run, resumes "
+                 "included (a wall-time budget; the checkpoint is written)")
       ->check(CLI::NonNegativeNumber);
   ct->add_option("--val-timesteps", tr.baseline.val_timesteps,
                  "baselines: validation timesteps (a fixed random sample)")

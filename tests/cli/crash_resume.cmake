@@ -128,10 +128,12 @@ function(check_train out what)
   require_no_leftovers(${out})
 endfunction()
 
-# Crash points of a run: 1 stats.json; per epoch checkpoint.pt.next, optimizer.pt.next,
-# state.json.next (halfway through each), the journal, then after each of the three renames.
-# Points 2-8 hit every step of the first commit; 11 and 13 the second epoch's.
-foreach(point 1 2 3 4 5 6 7 8 11 13)
+# Crash points of a run: 1 stats.json; per commit (every step: --checkpoint-every defaults to
+# 1) checkpoint.pt.next, optimizer.pt.next, state.json.next (halfway through each), the
+# journal, then after each of the three renames. Points 2-8 hit every step of the first
+# commit (after step 1, inside epoch 1); 11 and 13 the second's; 16-22 the commit at epoch 1's
+# end, after its validation.
+foreach(point 1 2 3 4 5 6 7 8 11 13 16 22)
   set(out ${WORK}/train_${point})
   run(${point} ${train} --out ${out})
   if(RC EQUAL 0)
@@ -145,10 +147,10 @@ foreach(point 1 2 3 4 5 6 7 8 11 13)
 endforeach()
 
 # Killed again and again at the same point of every run (after stats and a whole commit, the
-# next epoch's checkpoint write): each resumed run gets one epoch further.
+# next commit's checkpoint write): each resumed run gets one step further.
 set(out ${WORK}/train_repeated)
 run(9 ${train} --out ${out})
-foreach(attempt RANGE 1 6)
+foreach(attempt RANGE 1 12)
   run(9 ${train} --out ${out} --resume)
   if(RC EQUAL 0)
     break()
@@ -170,3 +172,33 @@ foreach(delay 1.5 3)
   check_train(${out} "train killed at ${delay} s, resumed")
 endforeach()
 message(STATUS "ok: train killed at every commit step and mid-epoch resumes to the same checkpoint")
+
+# Stopped on purpose inside an epoch (--max-steps, --max-seconds), then resumed to the end: the
+# same run as an uninterrupted one, continued from the step after the last, not the next epoch.
+set(out ${WORK}/train_max_steps)
+run(0 ${train} --out ${out} --max-steps 4)
+if(NOT RC EQUAL 0)
+  message(FATAL_ERROR "train --max-steps 4 failed:\n${OUT}")
+endif()
+run(0 ${train} --out ${out} --resume)
+string(FIND "${OUT}" "resuming in epoch 2 after step 4" pos)
+if(NOT RC EQUAL 0 OR pos EQUAL -1)
+  message(FATAL_ERROR "resuming after --max-steps 4 (inside epoch 2) did not continue there:\n${OUT}")
+endif()
+check_train(${out} "train stopped by --max-steps inside an epoch, resumed")
+set(out ${WORK}/train_max_seconds)
+run(0 ${train} --out ${out} --max-seconds 0.000001)
+file(READ ${out}/state.json state)
+string(JSON stopped GET "${state}" step)
+if(NOT RC EQUAL 0 OR NOT stopped EQUAL 1)
+  message(FATAL_ERROR "train --max-seconds 1e-6 should stop after its first step (state.json: ${state}):\n${OUT}")
+endif()
+run(0 ${train} --out ${out} --max-seconds 0.000001 --resume)
+file(READ ${out}/state.json state)
+string(JSON stopped GET "${state}" step)
+if(NOT RC EQUAL 0 OR NOT stopped EQUAL 1)
+  message(FATAL_ERROR "--max-seconds counts the whole run: a resumed run past its budget trains nothing (state.json: ${state})")
+endif()
+run(0 ${train} --out ${out} --resume)
+check_train(${out} "train stopped by --max-seconds, resumed")
+message(STATUS "ok: --max-steps and --max-seconds stop inside an epoch and resume there")
