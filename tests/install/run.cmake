@@ -1,6 +1,7 @@
 # Installs topos into a temporary prefix, configures and builds a consumer project with
-# find_package(topos REQUIRED COMPONENTS nn geometry), against the compiled topos::nn and
-# header-only, and runs both; with PYTHON, imports the installed Python package first.
+# find_package(topos REQUIRED COMPONENTS nn geometry zoo), against the compiled topos::nn and
+# header-only, and one on topos::zoo, and runs them; with PYTHON, imports the installed Python
+# package first.
 file(REMOVE_RECURSE "${WORK_DIR}")
 set(prefix "${WORK_DIR}/prefix")
 execute_process(COMMAND ${CMAKE_COMMAND} --install "${TOPOS_BINARY_DIR}" --prefix "${prefix}" RESULT_VARIABLE rc)
@@ -32,7 +33,7 @@ execute_process(COMMAND ${CMAKE_COMMAND} --build "${WORK_DIR}/build" RESULT_VARI
 if(rc)
   message(FATAL_ERROR "building the consumer failed: ${rc}")
 endif()
-foreach(exe consumer consumer_header_only)
+foreach(exe consumer consumer_header_only consumer_zoo)
   execute_process(COMMAND "${WORK_DIR}/build/${exe}" RESULT_VARIABLE rc OUTPUT_VARIABLE out)
   message(STATUS "${exe} said: ${out}")
   if(rc OR NOT out MATCHES "consumer ok")
