@@ -136,37 +136,11 @@ TOPOS_INLINE TermShape OperatorNetworkImpl::infer(detail::NetworkBuildContext& c
     case TermOp::Kind::layer_norm:
       make_norm(where, t, x.channels);
       return x;
-    case TermOp::Kind::dropout:
-      if (!(t.p >= 0 && t.p <= 1))
-        throw ScheduleError(where + ": a dropout rate must be in [0, 1], got " +
-                            std::to_string(t.p));
-      return x;
-    case TermOp::Kind::act:
-    case TermOp::Kind::unit_rows:
-      return x;
-    case TermOp::Kind::scale:
-      return x;
     case TermOp::Kind::head_weights:
       if (t.heads < 1)
         throw ScheduleError(where + ": head weights '" + t.name + "' need at least one head");
       make_parameter(where, t.name, {t.heads, x.channels, t.out}, ParameterInit::glorot(t.gain));
       return {x.rank, t.heads * t.out};
-    case TermOp::Kind::bias: {
-      const auto shape = t.shape.empty() ? std::vector<std::int64_t>{x.channels} : t.shape;
-      if (torch::empty(shape).numel() != x.channels)
-        throw ScheduleError(where + ": bias '" + t.name + "' of shape " +
-                            detail::shape_str(torch::empty(shape)) + " added to " +
-                            std::to_string(x.channels) + " channels");
-      make_parameter(where, t.name, shape,
-                     t.gain > 0 ? ParameterInit::glorot(t.gain) : ParameterInit::zeros());
-      return x;
-    }
-    case TermOp::Kind::learned_scale:
-      make_parameter(where, t.name, {1}, ParameterInit::constant(t.value), t.trainable);
-      return x;
-    case TermOp::Kind::pow:
-    case TermOp::Kind::normalize:
-      return x;
     case TermOp::Kind::mlp: {
       const auto& o = *t.mlp_options;
       if (o.in() != x.channels)
@@ -197,6 +171,7 @@ TOPOS_INLINE TermShape OperatorNetworkImpl::infer(detail::NetworkBuildContext& c
       if (y.channels <= 0)
         throw ScheduleError(where + ": operation " + t.operation->str("x") + " gives " +
                             std::to_string(y.channels) + " channels");
+      inferred_[&t] = {x.rank, y};  // forward's result is checked against it
       return y;
     }
   }
@@ -410,9 +385,7 @@ TOPOS_INLINE void OperatorNetworkImpl::find_compact_steps(
   };
   // Operations that may read a cochain other than their term's source.
   const auto reads_others = [](const std::vector<TermOp>& list) {
-    return std::any_of(list.begin(), list.end(), [](const TermOp& t) {
-      return t.kind == TermOp::Kind::attend || t.kind == TermOp::Kind::custom;
-    });
+    return std::any_of(list.begin(), list.end(), detail::reads_cochains);
   };
   for (std::size_t g = 0; g < groups.size(); ++g)
     for (std::size_t i = 0; i < groups[g].size(); ++i) {

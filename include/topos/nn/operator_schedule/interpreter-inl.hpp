@@ -124,144 +124,204 @@ TOPOS_INLINE std::vector<torch::Tensor> OperatorNetworkImpl::run(
   return v;
 }
 
+namespace detail {
+
+/// A term as errors name it: "the term conv·A·(1)".
+inline std::string term_str(const ops::Term& t) {
+  return "the term " + ops_str(t.source.str(), t.operations());
+}
+
+inline std::string describe(const char* what) {
+  return what;
+}
+inline std::string describe(const ops::Term* term) {
+  return term_str(*term);
+}
+
+/// `f()`, a LibTorch error in it rethrown as a ScheduleError naming the step and `what` (a term,
+/// the mix, the step's operations), described only then.
+template <class What, class F>
+auto naming(const std::string& where, What what, F&& f) -> decltype(f()) {
+  try {
+    return f();
+  } catch (const c10::Error& e) {
+    throw ScheduleError(where + ": " + describe(what) + ": " + e.what_without_backtrace());
+  }
+}
+
+/// Does the term apply an optional operator that this forward left out?
+inline bool applies_absent(const ops::Term& term, const std::set<std::string>& absent) {
+  if (absent.empty()) return false;
+  for (const auto& t : term.operations())
+    for (const auto& name : operators_of(t))
+      if (absent.count(name)) return true;
+  return false;
+}
+
+}  // namespace detail
+
+/// The values a step mixes, each with the term it comes from (a polynomial filter's several);
+/// for a concatenation into an mlp over a batch (`split`), the terms already multiplied by their
+/// block of the mlp's first weight W, summed, and the columns of W of the values left.
+struct OperatorNetworkImpl::StepTerms {
+  std::vector<torch::Tensor> values;
+  std::vector<const ops::Term*> from;
+  torch::Tensor W, early;
+  std::vector<std::int64_t> cols;
+  std::int64_t col = 0;  // the next term's first column of W
+  void add(torch::Tensor t, const ops::Term* term) {
+    if (W.defined())
+      for (std::int64_t c = 0; c < t.size(1); ++c) cols.push_back(col + c);
+    col += t.dim() == 2 ? t.size(1) : 0;
+    values.push_back(std::move(t));
+    from.push_back(term);
+  }
+};
+
 TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_step(const OperatorStep& s, const Cochains& h,
                                                          Operators& ops, PrefixCache& cache) {
   const std::string where = s.name + " (into " + s.target.str() + ")";
-  if (!ops.absent.empty()) {  // terms that apply an optional operator left out are skipped
-    const auto uses_absent = [&](const ops::Term& term) {
-      for (const auto& t : term.operations())
-        for (const auto& name : detail::operators_of(t))
-          if (ops.absent.count(name)) return true;
-      return false;
-    };
-    if (std::any_of(s.terms.begin(), s.terms.end(), uses_absent)) {
-      OperatorStep kept = s;
-      kept.terms.clear();
-      for (const auto& term : s.terms)
-        if (!uses_absent(term)) kept.terms.push_back(term);
-      if (kept.terms.empty()) {
-        if (!h.has(s.target.rank, s.target.state))
-          throw ScheduleError(where + ": every term applies an optional operator left out, and " +
-                              s.target.str() + " has no value to keep");
-        return h.at(s.target.rank, s.target.state);
-      }
-      return run_step(kept, h, ops, cache);  // the kept terms apply none of them
-    }
+  std::vector<const ops::Term*> terms;  // those that apply no optional operator left out
+  for (const auto& term : s.terms)
+    if (!detail::applies_absent(term, ops.absent)) terms.push_back(&term);
+  if (terms.empty()) {
+    if (!h.has(s.target.rank, s.target.state))
+      throw ScheduleError(where + ": every term applies an optional operator left out, and " +
+                          s.target.str() + " has no value to keep");
+    return h.at(s.target.rank, s.target.state);
   }
   const auto& tail = s.operations();
-  const auto no_powers = [](const ops::Term& t) {
-    return std::none_of(t.operations().begin(), t.operations().end(),
-                        [](const TermOp& o) { return o.kind == TermOp::Kind::powers; });
-  };
-  const auto over_batch = [&](const ops::Term& t) {
+  const auto over_batch_or_powers = [&](const ops::Term& t) {
     for (const auto& o : t.operations())
-      if ((o.kind == TermOp::Kind::via || o.kind == TermOp::Kind::pattern) &&
-          ops.neighborhood(o.name))
+      if (o.kind == TermOp::Kind::powers ||
+          ((o.kind == TermOp::Kind::via || o.kind == TermOp::Kind::pattern) &&
+           ops.neighborhood(o.name)))
         return true;
     return false;
   };
   const bool single =
-      s.terms.size() == 1 && (s.mix == OperatorStep::Mix::sum || s.mix == OperatorStep::Mix::mean);
-  if (single && no_powers(s.terms[0]) && !over_batch(s.terms[0])) {
+      terms.size() == 1 && (s.mix == OperatorStep::Mix::sum || s.mix == OperatorStep::Mix::mean);
+  if (single && !over_batch_or_powers(*terms[0])) {
     // One term: its operations and the step's as one list, so that a product ending the term
     // fuses with the step's activation.
-    auto list = s.terms[0].operations();
-    list.insert(list.end(), tail.begin(), tail.end());
-    torch::Tensor x = h.at(s.terms[0].source.rank, s.terms[0].source.state);
-    for (std::size_t i = 0; i < list.size(); ++i)
-      i = apply_fused(where, s.target, list, i, x, ops, h);
-    return guard(where, s, std::move(x), h, ops);
-  }
-  if (fast_ && s.mix == OperatorStep::Mix::filter)
-    if (auto y = run_filter(where, s, h, ops, cache); y.defined()) {
-      for (std::size_t i = 0; i < tail.size(); ++i)
-        i = apply_fused(where, s.target, tail, i, y, ops, h);
-      return guard(where, s, std::move(y), h, ops);
-    }
-  // A concatenation into an mlp over a batch: a term summed from fewer rows than the target has
-  // is multiplied by its block of the mlp's first weight before the sum (W Σ x = Σ W x):
-  // HOPNet's object-to-node message then costs a product over the objects, not the nodes.
-  const bool split = fast_ && ops.batch != nullptr && s.mix == OperatorStep::Mix::concat &&
-                     !tail.empty() && tail.front().kind == TermOp::Kind::mlp;
-  const torch::Tensor W =
-      split ? mlps_.at(tail.front().name)->first_linear()->weight : torch::Tensor();
-  torch::Tensor early;                  // Σ of the terms already multiplied by their block
-  std::vector<std::int64_t> part_cols;  // the columns of W of the terms left
-  std::int64_t col = 0;
-  std::vector<torch::Tensor> terms;
-  const auto add_term = [&](torch::Tensor t) {
-    if (split)
-      for (std::int64_t c = 0; c < t.size(1); ++c) part_cols.push_back(col + c);
-    col += t.dim() == 2 ? t.size(1) : 0;
-    terms.push_back(std::move(t));
-  };
-  for (const auto& term : s.terms) {
-    auto v = evaluate_term(where, s.target, term, h, ops, cache, split);
-    if (v.handled) {
-      if (v.deferred) {
-        // Not with backward values: they scale the gradient reaching the message, which must
-        // not reach the weight.
-        const bool scaled_backward = v.agg.weighted && v.n.backward_values.defined();
-        if (v.agg.reduce != Aggr::max && v.agg.role == 0 && v.x.size(0) < v.n.num_target &&
-            !scaled_backward) {
-          const auto block = aggregate(nn::linear(v.x, W.narrow(1, col, v.x.size(1))), v.n, v.agg);
-          early = early.defined() ? early + block : block;
-          col += v.x.size(1);
-          continue;
-        }
-        v.value = aggregate(v.x, v.n, v.agg);
-      }
-      add_term(std::move(v.value));
-      continue;
-    }
-    torch::Tensor x = h.at(term.source.rank, term.source.state);
-    const auto& list = term.operations();
-    for (std::size_t i = 0; i < list.size(); ++i) {
-      const auto& t = list[i];
-      if (t.kind != TermOp::Kind::powers) {
+    const auto& term = *terms[0];
+    auto y = detail::naming(where, &term, [&] {
+      const detail::OperationSeq list(term.operations(), &tail);
+      torch::Tensor x = h.at(term.source.rank, term.source.state);
+      for (std::size_t i = 0; i < list.size(); ++i)
         i = apply_fused(where, s.target, list, i, x, ops, h);
-        continue;
-      }
-      terms.push_back(x);
-      for (const auto& [name, order] : t.filters) {
-        const auto& A = ops.at(where, name);
-        detail::check_fits(where, name, A, x);
-        for (auto& p : powers(A, x, order, t.row_norm, t.norm_from)) terms.push_back(p);
-      }
-      x = torch::Tensor();
-    }
-    if (x.defined()) add_term(std::move(x));
+      return x;
+    });
+    return guard(where, s, std::move(y), h, ops);
   }
   torch::Tensor y;
-  std::size_t first_tail = 0;
-  if (s.mix == OperatorStep::Mix::filter) {
-    y = combine_terms(terms, params_.at(s.filter_path));
-  } else if (split) {
-    auto update = mlps_.at(tail.front().name);
-    if (!early.defined()) {
-      y = update->forward(terms.size() == 1 ? terms[0] : torch::cat(terms, 1));
-    } else {
-      const auto first = update->first_linear();
-      const auto Wd =
-          static_cast<std::int64_t>(part_cols.size()) == W.size(1)
-              ? W
-              : W.index_select(1, torch::tensor(part_cols, torch::kLong).to(W.device()));
-      const auto dense = terms.size() == 1 ? terms[0] : torch::cat(terms, 1);
-      auto z = nn::linear(dense, Wd, first->bias);
-      z.add_(early);
-      y = update->forward_after_first(z);
+  std::size_t first = 0;  // the first of the step's operations left to apply
+  if (fast_ && s.mix == OperatorStep::Mix::filter)
+    y = detail::naming(where, "the filter", [&] { return run_filter(where, s, h, ops, cache); });
+  if (!y.defined()) {
+    // A concatenation into an mlp over a batch: a term summed from fewer rows than the target
+    // has is multiplied by its block of the mlp's first weight before the sum (W Σ x = Σ W x):
+    // HOPNet's object-to-node message then costs a product over the objects, not the nodes.
+    StepTerms values;
+    if (fast_ && ops.batch != nullptr && s.mix == OperatorStep::Mix::concat && !tail.empty() &&
+        tail.front().kind == TermOp::Kind::mlp) {
+      values.W = mlps_.at(tail.front().name)->first_linear()->weight;
+      first = 1;  // mix applies the mlp
     }
-    first_tail = 1;
-  } else if (s.mix == OperatorStep::Mix::concat) {
-    y = terms.size() == 1 ? terms[0] : torch::cat(terms, 1);
-  } else {
-    y = terms[0];
-    for (std::size_t i = 1; i < terms.size(); ++i) y = y + terms[i];
-    if (s.mix == OperatorStep::Mix::mean) y = y / static_cast<double>(terms.size());
+    for (const auto* term : terms)
+      detail::naming(where, term,
+                     [&] { evaluate_into(where, s.target, *term, h, ops, cache, values); });
+    y = mix(where, s, values);
   }
-  for (std::size_t i = first_tail; i < tail.size(); ++i)
-    i = apply_fused(where, s.target, tail, i, y, ops, h);
+  y = detail::naming(where, "the step's operations", [&] {
+    for (std::size_t i = first; i < tail.size(); ++i)
+      i = apply_fused(where, s.target, tail, i, y, ops, h);
+    return y;
+  });
   return guard(where, s, std::move(y), h, ops);
+}
+
+TOPOS_INLINE void OperatorNetworkImpl::evaluate_into(const std::string& where,
+                                                     const CochainKey& target,
+                                                     const ops::Term& term, const Cochains& h,
+                                                     Operators& ops, PrefixCache& cache,
+                                                     StepTerms& out) {
+  auto v = evaluate_term(where, target, term, h, ops, cache, out.W.defined());
+  if (v.handled) {
+    if (v.deferred) {
+      // Not with backward values: they scale the gradient reaching the message, which must not
+      // reach the weight.
+      const bool scaled_backward = v.agg.weighted && v.n.backward_values.defined();
+      if (v.agg.reduce != Aggr::max && v.agg.role == 0 && v.x.size(0) < v.n.num_target &&
+          !scaled_backward) {
+        const auto block =
+            aggregate(nn::linear(v.x, out.W.narrow(1, out.col, v.x.size(1))), v.n, v.agg);
+        out.early = out.early.defined() ? out.early + block : block;
+        out.col += v.x.size(1);
+        return;
+      }
+      v.value = aggregate(v.x, v.n, v.agg);
+    }
+    return out.add(std::move(v.value), &term);
+  }
+  torch::Tensor x = h.at(term.source.rank, term.source.state);
+  const auto& list = term.operations();
+  for (std::size_t i = 0; i < list.size(); ++i) {
+    const auto& t = list[i];
+    if (t.kind != TermOp::Kind::powers) {
+      i = apply_fused(where, target, list, i, x, ops, h);
+      continue;
+    }
+    out.values.push_back(x);
+    out.from.push_back(&term);
+    for (const auto& [name, order] : t.filters) {
+      const auto& A = ops.at(where, name);
+      detail::check_fits(where, name, A, x);
+      for (auto& p : powers(A, x, order, t.row_norm, t.norm_from)) {
+        out.values.push_back(p);
+        out.from.push_back(&term);
+      }
+    }
+    x = torch::Tensor();
+  }
+  if (x.defined()) out.add(std::move(x), &term);
+}
+
+TOPOS_INLINE torch::Tensor OperatorNetworkImpl::mix(const std::string& where, const OperatorStep& s,
+                                                    StepTerms& t) {
+  auto& v = t.values;
+  for (std::size_t i = 1; i < v.size(); ++i) {  // what LibTorch would say without the terms
+    if (v[i].dim() != 2 || v[0].dim() != 2) break;
+    if (v[i].size(0) != v[0].size(0))
+      throw ScheduleError(where + ": " + detail::term_str(*t.from[i]) + " gives " +
+                          std::to_string(v[i].size(0)) + " rows, " + detail::term_str(*t.from[0]) +
+                          " gives " + std::to_string(v[0].size(0)) +
+                          ": the terms of a step must give one row per cell of its target");
+    if (v[i].scalar_type() != v[0].scalar_type())
+      throw ScheduleError(where + ": " + detail::term_str(*t.from[i]) + " gives " +
+                          c10::toString(v[i].scalar_type()) + ", " + detail::term_str(*t.from[0]) +
+                          " gives " + c10::toString(v[0].scalar_type()) +
+                          ": give the inputs and operators one dtype (net->to(dtype))");
+  }
+  return detail::naming(where, "mixing the terms", [&]() -> torch::Tensor {
+    const auto cat = [&] { return v.size() == 1 ? v[0] : torch::cat(v, 1); };
+    if (s.mix == OperatorStep::Mix::filter) return combine_terms(v, params_.at(s.filter_path));
+    if (t.W.defined()) {
+      auto update = mlps_.at(s.operations().front().name);
+      if (!t.early.defined()) return update->forward(cat());
+      const auto& W = t.W;
+      const auto Wd = static_cast<std::int64_t>(t.cols.size()) == W.size(1)
+                          ? W
+                          : W.index_select(1, torch::tensor(t.cols, torch::kLong).to(W.device()));
+      auto z = nn::linear(cat(), Wd, update->first_linear()->bias);
+      z.add_(t.early);
+      return update->forward_after_first(z);
+    }
+    if (s.mix == OperatorStep::Mix::concat) return cat();
+    auto y = v[0];
+    for (std::size_t i = 1; i < v.size(); ++i) y = y + v[i];
+    return s.mix == OperatorStep::Mix::mean ? y / static_cast<double>(v.size()) : y;
+  });
 }
 
 // A filter Σ_k T_k Θ_k whose taps are chains of sparse products, T_k = P_k x_s, is linear in
