@@ -136,35 +136,8 @@ TOPOS_INLINE TermShape OperatorNetworkImpl::infer(detail::NetworkBuildContext& c
     case TermOp::Kind::layer_norm:
       make_norm(where, t, x.channels);
       return x;
-    case TermOp::Kind::head_weights:
-      if (t.heads < 1)
-        throw ScheduleError(where + ": head weights '" + t.name + "' need at least one head");
-      make_parameter(where, t.name, {t.heads, x.channels, t.out}, ParameterInit::glorot(t.gain));
-      return {x.rank, t.heads * t.out};
-    case TermOp::Kind::mlp: {
-      const auto& o = *t.mlp_options;
-      if (o.in() != x.channels)
-        throw ScheduleError(where + ": mlp '" + t.name + "' takes " + std::to_string(o.in()) +
-                            " channels but gets " + std::to_string(x.channels));
-      if (auto it = mlps_.find(t.name); it != mlps_.end()) {
-        const auto& p = it->second->options;
-        if (p.in() != o.in() || p.hidden() != o.hidden() || p.out() != o.out() ||
-            p.layers() != o.layers() || p.activation() != o.activation() ||
-            p.final_activation() != o.final_activation() || p.layer_norm() != o.layer_norm())
-          throw ScheduleError(where + ": mlp '" + t.name +
-                              "' is used again with other options (shared by its path)");
-      } else {
-        std::shared_ptr<MlpImpl> m;
-        try {
-          m = std::make_shared<MlpImpl>(o);
-        } catch (const std::exception& e) {
-          throw ScheduleError(where + ": mlp '" + t.name + "': " + e.what());
-        }
-        make_module(where, t.name, m);
-        mlps_.emplace(t.name, Mlp(m));
-      }
-      return {x.rank, o.out()};
-    }
+    case TermOp::Kind::mlp:
+      return {x.rank, make_mlp(where, t, x.channels)};
     case TermOp::Kind::custom: {
       if (!t.operation) throw ScheduleError(where + ": a custom operation is null");
       const auto y = t.operation->infer(ctx, x);
@@ -176,6 +149,34 @@ TOPOS_INLINE TermShape OperatorNetworkImpl::infer(detail::NetworkBuildContext& c
     }
   }
   return x;
+}
+
+// An mlp's module at its path, made once and shared by the operations naming the path (which
+// must then give the same options); its output width.
+TOPOS_INLINE std::int64_t OperatorNetworkImpl::make_mlp(const std::string& where, const TermOp& t,
+                                                        std::int64_t channels) {
+  const auto& o = *t.mlp_options;
+  if (o.in() != channels)
+    throw ScheduleError(where + ": mlp '" + t.name + "' takes " + std::to_string(o.in()) +
+                        " channels but gets " + std::to_string(channels));
+  if (auto it = mlps_.find(t.name); it != mlps_.end()) {
+    const auto& p = it->second->options;
+    if (p.in() != o.in() || p.hidden() != o.hidden() || p.out() != o.out() ||
+        p.layers() != o.layers() || p.activation() != o.activation() ||
+        p.final_activation() != o.final_activation() || p.layer_norm() != o.layer_norm())
+      throw ScheduleError(where + ": mlp '" + t.name +
+                          "' is used again with other options (shared by its path)");
+  } else {
+    std::shared_ptr<MlpImpl> m;
+    try {
+      m = std::make_shared<MlpImpl>(o);
+    } catch (const std::exception& e) {
+      throw ScheduleError(where + ": mlp '" + t.name + "': " + e.what());
+    }
+    make_module(where, t.name, m);
+    mlps_.emplace(t.name, Mlp(m));
+  }
+  return o.out();
 }
 
 TOPOS_INLINE TermShape OperatorNetworkImpl::infer_attend(detail::NetworkBuildContext& ctx,

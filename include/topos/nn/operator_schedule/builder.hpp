@@ -67,10 +67,9 @@ struct TermOp {
     batch_norm,      ///< torch.nn.BatchNorm1d at `name`
     layer_norm,      ///< torch.nn.LayerNorm at `name`
     attend,          ///< A · x with A's values times attention weights (`attention`)
-    powers,        ///< [y, A₁y..A₁^K₁y, A₂y..A₂^K₂y, ...]: fans the term out, last only
-    head_weights,  ///< [x W_1 | ... | x W_H], W (heads × in × out) at `name`
-    mlp,           ///< nn::Mlp at `name` (`mlp_options`), shared by every op naming the path
-    custom         ///< an Operation (`operation`, its `traits`)
+    powers,  ///< [y, A₁y..A₁^K₁y, A₂y..A₂^K₂y, ...]: fans the term out, last only
+    mlp,     ///< nn::Mlp at `name` (`mlp_options`), shared by every op naming the path
+    custom   ///< an Operation (`operation`, its `traits`)
   };
   explicit TermOp(Kind k, std::string n = {});
   // The special members are compiled once (builder-inl.hpp): steps copy and move their
@@ -91,7 +90,6 @@ struct TermOp {
   std::vector<std::pair<std::string, int>> filters;  ///< powers: (operator, order)
   int norm_from = 1;
   AttendOptions attention{""};  ///< attend: its options
-  std::int64_t heads = 1;       ///< head_weights
   int role = 0;  ///< via, pattern over a batch neighbourhood: only its pairs of this role (0: all)
   std::optional<MlpOptions> mlp_options;       ///< mlp
   std::shared_ptr<const Operation> operation;  ///< custom: the operation
@@ -174,11 +172,7 @@ class Chain : public detail::OperationList {
   /// TopoModelX's multi-head layout (AllSetTransformer's K and V).
   Derived& head_weights(std::string path, std::int64_t heads, std::int64_t out,
                         double gain = 1.414) {
-    TermOp t(TermOp::Kind::head_weights, std::move(path));
-    t.heads = heads;
-    t.out = out;
-    t.gain = gain;
-    return add(std::move(t));
+    return apply(builtin::HeadWeights(std::move(path), heads, out, gain));
   }
   /// x + b on every row, b at `path` of `shape` (default: a vector), flattened; zeros when new,
   /// or with a `gain` Glorot-initialised (HNHN's biases, 1 × channels).
@@ -362,7 +356,6 @@ inline bool row_wise(const TermOp& t) {
     case TermOp::Kind::linear:
     case TermOp::Kind::weight:
     case TermOp::Kind::layer_norm:
-    case TermOp::Kind::head_weights:
       return true;
     case TermOp::Kind::custom:
       return t.traits.row_wise;

@@ -4,6 +4,7 @@
 // (topos/config.hpp).
 #pragma once
 
+#include "topos/nn/kernels.hpp"
 #include "topos/nn/operator_schedule/elementwise.hpp"
 #include "topos/nn/operator_schedule/printer-inl.hpp"  // detail::num
 
@@ -127,6 +128,22 @@ TOPOS_INLINE torch::Tensor Bias::forward(RunContext& ctx, const torch::Tensor& x
 }
 TOPOS_INLINE OperationTraits Bias::traits() const {
   return row_wise("bias");  // with its printed path
+}
+
+TOPOS_INLINE std::string HeadWeights::str(const std::string& x) const {
+  return x + "·" + path_ + "[×" + std::to_string(heads_) + "]";
+}
+TOPOS_INLINE TermShape HeadWeights::infer(BuildContext& ctx, TermShape x) const {
+  if (heads_ < 1) ctx.fail("head weights '" + path_ + "' need at least one head");
+  ctx.parameter(path_, {heads_, x.channels, out_}, ParameterInit::glorot(gain_));
+  return {x.rank, heads_ * out_};
+}
+TOPOS_INLINE torch::Tensor HeadWeights::forward(RunContext& ctx, const torch::Tensor& x) const {
+  const auto& W = ctx.parameter(path_);  // heads × in × out: one product, head-major
+  return linear_act(x, W.permute({1, 0, 2}).reshape({W.size(1), -1}).t(), {});
+}
+TOPOS_INLINE OperationTraits HeadWeights::traits() const {
+  return row_wise("heads");  // with its printed path
 }
 
 TOPOS_INLINE std::string Pow::str(const std::string& x) const {

@@ -1,6 +1,7 @@
 // topos/nn/operator_schedule/elementwise.hpp
 // The schedule's built-in operations that act on each entry or row without an operator:
-// activations, dropout, constant and learned scales, biases, powers and normalisations. Each is
+// activations, dropout, constant and learned scales, biases, per-head maps, powers and
+// normalisations. Each is
 // an Operation, written as a user's would be, and declares the traits the network's fast paths
 // read (row-wise, a fusable activation); the builder's `act`, `dropout`, `scale`, `bias`, `pow`,
 // `normalize` and `unit_rows` apply them.
@@ -98,6 +99,23 @@ class Bias final : public Operation {
  private:
   std::string path_;
   std::vector<std::int64_t> shape_;
+  double gain_;
+};
+
+/// One map per head, side by side: [x W_1 | ... | x W_H] with W (heads × in × out) at `path`,
+/// Glorot-initialised with `gain` (TopoModelX's multi-head layout).
+class HeadWeights final : public Operation {
+ public:
+  HeadWeights(std::string path, std::int64_t heads, std::int64_t out, double gain)
+      : path_(std::move(path)), heads_(heads), out_(out), gain_(gain) {}
+  std::string str(const std::string& x) const override;
+  TermShape infer(BuildContext& ctx, TermShape x) const override;
+  torch::Tensor forward(RunContext& ctx, const torch::Tensor& x) const override;
+  OperationTraits traits() const override;
+
+ private:
+  std::string path_;
+  std::int64_t heads_, out_;
   double gain_;
 };
 

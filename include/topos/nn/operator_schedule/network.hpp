@@ -25,6 +25,7 @@ namespace topos::nn {
 namespace detail {
 class NetworkBuildContext;
 class NetworkRunContext;
+struct FilterTaps;
 
 /// A term's operations followed by a step's (a step of one term runs them as one list, so that
 /// a product ending the term fuses with the step's activation), without copying them.
@@ -158,6 +159,12 @@ class OperatorNetworkImpl : public torch::nn::Module {
   /// the side with fewer rows; undefined where the step is not one (the general path runs it).
   torch::Tensor run_filter(const std::string& where, const OperatorStep& s, const Cochains& h,
                            Operators& ops, PrefixCache& cache);
+  /// The filter's taps as chains of sparse products; false where they are not.
+  bool filter_chains(const std::string& where, detail::FilterTaps& f, Operators& ops);
+  /// The taps not `skip`ped, each distinct prefix once, combined with their slices of W.
+  torch::Tensor other_taps(const std::string& where, const detail::FilterTaps& f,
+                           const std::vector<bool>& skip, const torch::Tensor& W, Operators& ops,
+                           PrefixCache& cache);
   /// A compact step (compact_steps_) on the rows its readers aggregate: (value, each row's
   /// compact row or -1), or (undefined, undefined) where it must run on every row.
   std::pair<torch::Tensor, torch::Tensor> run_compact(const OperatorStep& s,
@@ -174,6 +181,7 @@ class OperatorNetworkImpl : public torch::nn::Module {
   void make_module(const std::string& where, const std::string& path,
                    std::shared_ptr<torch::nn::Module> m);
   void make_norm(const std::string& where, const TermOp& t, std::int64_t channels);
+  std::int64_t make_mlp(const std::string& where, const TermOp& t, std::int64_t channels);
   TermShape infer(detail::NetworkBuildContext& ctx, const TermOp& t, TermShape x);
   TermShape infer_attend(detail::NetworkBuildContext& ctx, const TermOp& t, TermShape x);
   void validate_and_create();

@@ -55,9 +55,6 @@ TOPOS_INLINE std::string ops_str(std::string x, const std::vector<TermOp>& ops) 
         x = "powers[" + x + ";" + f + "]";
         break;
       }
-      case TermOp::Kind::head_weights:
-        x = x + "·" + t.name + "[×" + std::to_string(t.heads) + "]";
-        break;
       case TermOp::Kind::mlp:
         x = t.name + "(" + x + ")";
         break;

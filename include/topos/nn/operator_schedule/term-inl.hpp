@@ -360,11 +360,7 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::apply(const std::string& where,
       return linear_act(x, params_.at(t.name + ".weight"), b);
     }
     case TermOp::Kind::powers:
-      break;                               // handled by the caller (it fans out)
-    case TermOp::Kind::head_weights: {     // x [W_1 | ... | W_H]: one product, head-major
-      const auto& W = params_.at(t.name);  // heads × in × out
-      return linear_act(x, W.permute({1, 0, 2}).reshape({W.size(1), -1}).t(), {});
-    }
+      break;  // handled by the caller (it fans out)
     case TermOp::Kind::mlp:
       return mlps_.at(t.name)->forward(x);
     case TermOp::Kind::custom: {
