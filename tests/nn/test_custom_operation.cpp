@@ -516,3 +516,46 @@ TEST_CASE("what a step's operations return is checked, and errors in a step name
                              "gives 3: the terms of a step must give one row per cell of its "
                              "target"));
 }
+
+TEST_CASE("the built-in elementwise operations are Operations with declared traits",
+          "[nn][schedule][operation]") {
+  torch::manual_seed(12);
+  const auto x = torch::randn({5, 4}, torch::kDouble);
+  // Applied as Operations, they compute and print what the builder's calls do.
+  OperatorSchedule by_builder, by_hand;
+  by_builder.input("x", 0, 4).output("y", 0);
+  by_hand.input("x", 0, 4).output("y", 0);
+  by_builder.step(into(0).sum(
+      from(0).act(Update::elu).scale(0.5).pow(2).bias("b").head_weights("h", 2, 3).unit_rows()));
+  by_hand.step(into(0).sum(from(0)
+                               .apply(builtin::Activation(Update::elu))
+                               .apply(builtin::Scale(0.5))
+                               .apply(builtin::Pow(2))
+                               .apply(builtin::Bias("b", {}, 0))
+                               .apply(builtin::HeadWeights("h", 2, 3, 1.414))
+                               .apply(builtin::UnitRows())));
+  CHECK(by_builder.str() == by_hand.str());
+  CHECK_THAT(by_builder.str(), Contains("unit_rows((0.5·elu((0)))^2 + b·h[×2])"));
+  torch::manual_seed(13);
+  OperatorNetwork a(by_builder);
+  torch::manual_seed(13);
+  OperatorNetwork b(by_hand);
+  a->to(torch::kDouble), b->to(torch::kDouble);
+  const auto ya = a->forward({{"x", x}}, {}).at("y"), yb = b->forward({{"x", x}}, {}).at("y");
+  CHECK(ya.sizes() == torch::IntArrayRef({5, 6}));
+  CHECK(torch::allclose(ya, yb, 0, 0));
+  // The expected values written out (b starts at zero).
+  const auto& H = a->parameter("h");
+  const auto z = torch::cat(
+      {(0.5 * torch::elu(x)).pow(2).matmul(H[0]), (0.5 * torch::elu(x)).pow(2).matmul(H[1])}, 1);
+  CHECK(torch::allclose(ya, z / z.norm(2, 1, true), 1e-12, 1e-12));
+  // Their traits: what the fast paths may assume.
+  CHECK(builtin::Activation(Update::relu).traits().activation == Update::relu);
+  CHECK(builtin::Activation(Update::relu).traits().row_wise);
+  CHECK_FALSE(builtin::Dropout(0.5).traits().row_wise);  // a fresh mask per entry
+  CHECK_FALSE(builtin::Dropout(0.5).traits().reads_cochains);
+  CHECK(builtin::Normalize(true).traits().row_wise);
+  CHECK_FALSE(builtin::Normalize(false).traits().row_wise);  // the whole matrix's norm
+  CHECK(builtin::Scale(2).traits().identity != builtin::Scale(2.0000001).traits().identity);
+  CHECK(builtin::LearnedScale("s", 0, true, 1).traits().row_wise);
+}
