@@ -261,3 +261,301 @@ TEST_CASE("a schedule prints activations by name", "[nn][schedule]") {
   CHECK_THAT(text, Contains("leaky_relu(sum[relu((0))])"));
   CHECK(text.find("act") == std::string::npos);
 }
+
+namespace {
+
+// x ⊙ σ(x W) again, recording the rows of each call; `declared` says it is row-wise.
+struct RowGate : Operation {
+  std::string path;
+  bool declared;
+  std::shared_ptr<std::vector<std::int64_t>> rows = std::make_shared<std::vector<std::int64_t>>();
+  RowGate(std::string p, bool d) : path(std::move(p)), declared(d) {}
+  std::string str(const std::string& x) const override { return "rowgate(" + x + ")"; }
+  TermShape infer(BuildContext& ctx, TermShape x) const override {
+    ctx.parameter(path, {x.channels, x.channels});
+    return x;
+  }
+  torch::Tensor forward(RunContext& ctx, const torch::Tensor& x) const override {
+    rows->push_back(x.size(0));
+    return x * torch::sigmoid(x.matmul(ctx.parameter(path)));
+  }
+  OperationTraits traits() const override {
+    OperationTraits t;
+    t.row_wise = declared;
+    return t;
+  }
+};
+
+// A batch of one complex: 6 nodes, 4 edges, 2 faces; the nodes-to-edges pairs read nodes 0-2
+// only, the nodes-to-faces pairs nodes 1-3: nodes 4 and 5 send nothing.
+ComplexBatch small_batch() {
+  ComplexView v;
+  v.sizes = {6, 4, 2};
+  topos::Neighborhood n01;
+  n01.name = "N01", n01.source_rank = 0, n01.target_rank = 1;
+  n01.source = {0, 1, 1, 2, 2, 0}, n01.target = {0, 0, 1, 1, 2, 3};
+  n01.num_source = 6, n01.num_target = 4;
+  topos::Neighborhood n02 = n01;
+  n02.name = "N02", n02.target_rank = 2;
+  n02.source = {1, 2, 3, 3}, n02.target = {0, 0, 1, 0};
+  n02.num_target = 2;
+  v.neighborhoods = {{"N01", n01}, {"N02", n02}};
+  return ComplexBatch::collate({v}, 2);
+}
+
+}  // namespace
+
+TEST_CASE("a user operation declared row-wise takes the row-wise fast paths, with the same numbers",
+          "[nn][schedule][operation]") {
+  const auto batch = small_batch();
+  torch::manual_seed(8);
+  const auto x = torch::randn({6, 3}, torch::kDouble);
+  struct Run {
+    torch::Tensor y1, y2, grad;
+    std::vector<std::int64_t> rows;  // of each call of the gate
+  };
+  // compact: the gate writes (0, "h"), which only the aggregations read; else the gate is the
+  // prefix of both aggregations' terms.
+  const auto run = [&](bool compact, bool declared, bool fast) {
+    auto gate = std::make_shared<RowGate>("gate", declared);
+    OperatorSchedule s;
+    s.input("x", 0, 3).operator_input("N01", 0, 1).operator_input("N02", 0, 2);
+    if (compact) {
+      s.step(into(0, "h").sum(from(0).apply(gate)));
+      s.parallel({into(1).sum(from(0, "h").pattern("N01")),
+                  into(2).sum(from(0, "h").pattern("N02", Aggr::mean))});
+    } else {
+      s.parallel({into(1).sum(from(0).apply(gate).pattern("N01")),
+                  into(2).sum(from(0).apply(gate).pattern("N02", Aggr::mean))});
+    }
+    s.output("y1", 1).output("y2", 2);
+    torch::manual_seed(9);
+    OperatorNetwork net(s);
+    net->to(torch::kDouble);
+    net->set_fast_paths(fast);
+    const auto out = net->forward({{"x", x}}, batch);
+    (out.at("y1").pow(2).sum() + out.at("y2").sum()).backward();
+    return Run{out.at("y1").detach(), out.at("y2").detach(), net->parameter("gate").grad().clone(),
+               *gate->rows};
+  };
+  using Rows = std::vector<std::int64_t>;
+  for (bool compact : {false, true}) {
+    INFO((compact ? "a compact step" : "a row-wise prefix"));
+    const auto plain = run(compact, false, false);
+    const auto fast = run(compact, true, true);
+    // Declared: each aggregation's prefix on the 3 nodes it reads, or the compact step on the 4
+    // that some aggregation reads. Undeclared, or without fast paths: every node.
+    CHECK(fast.rows == (compact ? Rows{4} : Rows{3, 3}));
+    CHECK(plain.rows == (compact ? Rows{6} : Rows{6, 6}));
+    CHECK(run(compact, false, true).rows == plain.rows);
+    CHECK(run(compact, true, false).rows == plain.rows);
+    CHECK(torch::allclose(fast.y1, plain.y1, 1e-12, 1e-12));
+    CHECK(torch::allclose(fast.y2, plain.y2, 1e-12, 1e-12));
+    CHECK(torch::allclose(fast.grad, plain.grad, 1e-12, 1e-12));
+    CHECK(fast.grad.abs().sum().item<double>() > 0);
+    // The sums written out: edge 0 hears nodes 0 and 1, face 0 the mean of nodes 1, 2 and 3.
+    torch::manual_seed(9);
+    OperatorSchedule one;
+    one.input("x", 0, 3).output("y", 0);
+    one.step(into(0).sum(from(0).apply(RowGate("gate", false))));
+    OperatorNetwork net(one);
+    net->to(torch::kDouble);
+    const auto g = net->forward({{"x", x}}, {}).at("y").detach();
+    CHECK(torch::allclose(plain.y1[0], g[0] + g[1], 1e-12, 1e-12));
+    CHECK(torch::allclose(plain.y2[0], (g[1] + g[2] + g[3]) / 3, 1e-12, 1e-12));
+  }
+}
+
+namespace {
+
+// A · x through RunContext::op; `declared` lists A among its operators.
+struct Through : Operation {
+  std::string op;
+  bool declared;
+  Through(std::string o, bool d) : op(std::move(o)), declared(d) {}
+  std::string str(const std::string& x) const override { return "through[" + op + "](" + x + ")"; }
+  TermShape infer(BuildContext& ctx, TermShape x) const override {
+    return {ctx.operator_from(op, x.rank).second, x.channels};
+  }
+  torch::Tensor forward(RunContext& ctx, const torch::Tensor& x) const override {
+    return spmm(ctx.op(op), x);
+  }
+  OperationTraits traits() const override {
+    OperationTraits t;
+    if (declared) t.operators = {op};
+    return t;
+  }
+};
+
+// relu, declared as the activation it is (counting the calls the product's kernel spares it).
+struct CountedRelu : Operation {
+  std::shared_ptr<std::atomic<int>> calls = std::make_shared<std::atomic<int>>(0);
+  std::string str(const std::string& x) const override { return "myrelu(" + x + ")"; }
+  TermShape infer(BuildContext&, TermShape x) const override { return x; }
+  torch::Tensor forward(RunContext&, const torch::Tensor& x) const override {
+    ++*calls;
+    return torch::relu(x);
+  }
+  OperationTraits traits() const override {
+    OperationTraits t;
+    t.row_wise = true;
+    t.activation = Update::relu;
+    return t;
+  }
+};
+
+}  // namespace
+
+TEST_CASE("a user operation's declared operators and activation: skipped terms, fused kernels",
+          "[nn][schedule][operation]") {
+  const auto A = random_operator(5, 5, 3, 0.5);
+  torch::manual_seed(4);
+  const auto x = torch::randn({5, 2}, torch::kDouble);
+  // An optional operator left out skips the term whose operation declares it.
+  for (bool declared : {true, false}) {
+    OperatorSchedule s;
+    s.input("x", 0, 2).optional_operator("A", 0, 0).output("y", 0);
+    s.step(into(0).sum(from(0), from(0).apply(Through("A", declared))).named("skip"));
+    OperatorNetwork net(s);
+    CHECK(torch::allclose(net->forward({{"x", x}}, {{"A", A}}).at("y"), x + A.to_dense().matmul(x),
+                          1e-12, 1e-12));
+    if (declared)
+      CHECK(torch::equal(net->forward({{"x", x}}, {}).at("y"), x));
+    else
+      CHECK_THROWS_WITH(net->forward({{"x", x}}, {}),
+                        Contains("skip (into (0))") && Contains("operator 'A' was not given"));
+  }
+  // A declared optional operator in a concatenation cannot be skipped: refused when built.
+  OperatorSchedule cat;
+  cat.input("x", 0, 2).optional_operator("A", 0, 0).output("y", 0);
+  cat.step(into(0).concat(from(0), from(0).apply(Through("A", true))));
+  CHECK_THAT(build_error(cat), Contains("applies the optional operator 'A'"));
+  // A product followed by an operation that declares itself relu applies it in its kernel.
+  CountedRelu relu;
+  OperatorSchedule fused;
+  fused.input("x", 0, 2).operator_input("A", 0, 0).output("y", 0);
+  fused.step(into(0).sum(from(0).via("A").apply(relu)));
+  OperatorNetwork net(fused);
+  const auto y = net->forward({{"x", x}}, {{"A", A}}).at("y");
+  CHECK(torch::allclose(y, torch::relu(A.to_dense().matmul(x)), 1e-12, 1e-12));
+  CHECK(*relu.calls == 0);
+  // Not after an operation with no kernel of its own (a transposed row-normalised product).
+  OperatorSchedule unfused;
+  unfused.input("x", 0, 2).operator_input("A", 0, 0).output("y", 0);
+  unfused.step(into(0).sum(from(0).via_t("A", true).apply(relu)));
+  OperatorNetwork net2(unfused);
+  net2->forward({{"x", x}}, {{"A", A}});
+  CHECK(*relu.calls == 1);
+}
+
+namespace {
+
+// Returns what its infer did not promise: another width, dtype or row count; or fails in
+// LibTorch (a parameter made with the wrong shape).
+struct Liar : Operation {
+  enum class Lie { channels, dtype, rows, torch_error } lie;
+  explicit Liar(Lie l) : lie(l) {}
+  std::string str(const std::string& x) const override { return "liar(" + x + ")"; }
+  TermShape infer(BuildContext& ctx, TermShape x) const override {
+    ctx.parameter("w", {x.channels + 1, x.channels});
+    return x;
+  }
+  torch::Tensor forward(RunContext& ctx, const torch::Tensor& x) const override {
+    switch (lie) {
+      case Lie::channels:
+        return torch::cat({x, x}, 1);
+      case Lie::dtype:
+        return x.to(torch::kDouble);
+      case Lie::rows:
+        return x.narrow(0, 0, x.size(0) - 1);
+      case Lie::torch_error:
+        break;
+    }
+    return x.matmul(ctx.parameter("w"));
+  }
+};
+
+}  // namespace
+
+TEST_CASE("what a step's operations return is checked, and errors in a step name it and the term",
+          "[nn][schedule][operation]") {
+  const auto x = torch::randn({6, 4});
+  const auto error = [&](Liar::Lie lie) {
+    OperatorSchedule s;
+    s.input("x", 0, 4).output("y", 0);
+    s.step(into(0).sum(from(0), from(0).apply(Liar(lie))).named("lying"));
+    OperatorNetwork net(s);
+    try {
+      net->forward({{"x", x}}, {});
+    } catch (const ScheduleError& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  CHECK_THAT(error(Liar::Lie::channels),
+             Contains("lying (into (0)): operation liar(x) returned 8 channels, but its infer "
+                      "said 4: return TermShape{0, 8} from infer, or 4 columns from forward"));
+  CHECK_THAT(error(Liar::Lie::dtype),
+             Contains("lying (into (0)): operation liar(x) returned Double, but it was given "
+                      "Float: return the operand's dtype"));
+  CHECK_THAT(error(Liar::Lie::rows),
+             Contains("lying (into (0)): operation liar(x) returned 5 rows, but rank 0 has 6 "
+                      "cells here"));
+  // A LibTorch error inside a term: rethrown naming the step and the term.
+  CHECK_THAT(error(Liar::Lie::torch_error), Contains("lying (into (0)): the term liar((0)): ") &&
+                                                Contains("cannot be multiplied"));
+  // Summed terms that reach different cells (two operators disagreeing on the edges' count):
+  // named, rather than LibTorch's broadcast error.
+  OperatorSchedule s;
+  s.input("x", 0, 4).operator_input("B", 0, 1).operator_input("C", 0, 1).output("y", 1);
+  s.step(into(1).sum(from(0).via("B"), from(0).via("C")).named("edges"));
+  OperatorNetwork net(s);
+  const auto B = random_operator(3, 6, 1), C = random_operator(4, 6, 2);
+  CHECK_THROWS_WITH(net->forward({{"x", x}}, {{"B", B}, {"C", C}}),
+                    Contains("edges (into (1)): the term C·(0) gives 4 rows, the term B·(0) "
+                             "gives 3: the terms of a step must give one row per cell of its "
+                             "target"));
+}
+
+TEST_CASE("the built-in elementwise operations are Operations with declared traits",
+          "[nn][schedule][operation]") {
+  torch::manual_seed(12);
+  const auto x = torch::randn({5, 4}, torch::kDouble);
+  // Applied as Operations, they compute and print what the builder's calls do.
+  OperatorSchedule by_builder, by_hand;
+  by_builder.input("x", 0, 4).output("y", 0);
+  by_hand.input("x", 0, 4).output("y", 0);
+  by_builder.step(into(0).sum(
+      from(0).act(Update::elu).scale(0.5).pow(2).bias("b").head_weights("h", 2, 3).unit_rows()));
+  by_hand.step(into(0).sum(from(0)
+                               .apply(builtin::Activation(Update::elu))
+                               .apply(builtin::Scale(0.5))
+                               .apply(builtin::Pow(2))
+                               .apply(builtin::Bias("b", {}, 0))
+                               .apply(builtin::HeadWeights("h", 2, 3, 1.414))
+                               .apply(builtin::UnitRows())));
+  CHECK(by_builder.str() == by_hand.str());
+  CHECK_THAT(by_builder.str(), Contains("unit_rows((0.5·elu((0)))^2 + b·h[×2])"));
+  torch::manual_seed(13);
+  OperatorNetwork a(by_builder);
+  torch::manual_seed(13);
+  OperatorNetwork b(by_hand);
+  a->to(torch::kDouble), b->to(torch::kDouble);
+  const auto ya = a->forward({{"x", x}}, {}).at("y"), yb = b->forward({{"x", x}}, {}).at("y");
+  CHECK(ya.sizes() == torch::IntArrayRef({5, 6}));
+  CHECK(torch::allclose(ya, yb, 0, 0));
+  // The expected values written out (b starts at zero).
+  const auto& H = a->parameter("h");
+  const auto z = torch::cat(
+      {(0.5 * torch::elu(x)).pow(2).matmul(H[0]), (0.5 * torch::elu(x)).pow(2).matmul(H[1])}, 1);
+  CHECK(torch::allclose(ya, z / z.norm(2, 1, true), 1e-12, 1e-12));
+  // Their traits: what the fast paths may assume.
+  CHECK(builtin::Activation(Update::relu).traits().activation == Update::relu);
+  CHECK(builtin::Activation(Update::relu).traits().row_wise);
+  CHECK_FALSE(builtin::Dropout(0.5).traits().row_wise);  // a fresh mask per entry
+  CHECK_FALSE(builtin::Dropout(0.5).traits().reads_cochains);
+  CHECK(builtin::Normalize(true).traits().row_wise);
+  CHECK_FALSE(builtin::Normalize(false).traits().row_wise);  // the whole matrix's norm
+  CHECK(builtin::Scale(2).traits().identity != builtin::Scale(2.0000001).traits().identity);
+  CHECK(builtin::LearnedScale("s", 0, true, 1).traits().row_wise);
+}

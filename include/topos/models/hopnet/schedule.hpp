@@ -70,6 +70,12 @@ struct ContactPlusView : nn::Operation {
     for (int c = 0; c < 3; ++c) sign[c] = -1;
     return (x * sign).index_select(1, torch::tensor(cols, torch::kLong).to(x.device()));
   }
+  nn::OperationTraits traits() const override {  // a column permutation, row by row
+    nn::OperationTraits t;
+    t.row_wise = true;
+    t.identity = "plus_view";
+    return t;
+  }
 };
 
 /// Input widths of an architecture: x0 (lifting), x1 8, x2 3, x3 28, x4 13 (none without object

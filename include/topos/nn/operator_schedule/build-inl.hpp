@@ -136,71 +136,47 @@ TOPOS_INLINE TermShape OperatorNetworkImpl::infer(detail::NetworkBuildContext& c
     case TermOp::Kind::layer_norm:
       make_norm(where, t, x.channels);
       return x;
-    case TermOp::Kind::dropout:
-      if (!(t.p >= 0 && t.p <= 1))
-        throw ScheduleError(where + ": a dropout rate must be in [0, 1], got " +
-                            std::to_string(t.p));
-      return x;
-    case TermOp::Kind::act:
-    case TermOp::Kind::unit_rows:
-      return x;
-    case TermOp::Kind::scale:
-      return x;
-    case TermOp::Kind::head_weights:
-      if (t.heads < 1)
-        throw ScheduleError(where + ": head weights '" + t.name + "' need at least one head");
-      make_parameter(where, t.name, {t.heads, x.channels, t.out}, ParameterInit::glorot(t.gain));
-      return {x.rank, t.heads * t.out};
-    case TermOp::Kind::bias: {
-      const auto shape = t.shape.empty() ? std::vector<std::int64_t>{x.channels} : t.shape;
-      if (torch::empty(shape).numel() != x.channels)
-        throw ScheduleError(where + ": bias '" + t.name + "' of shape " +
-                            detail::shape_str(torch::empty(shape)) + " added to " +
-                            std::to_string(x.channels) + " channels");
-      make_parameter(where, t.name, shape,
-                     t.gain > 0 ? ParameterInit::glorot(t.gain) : ParameterInit::zeros());
-      return x;
-    }
-    case TermOp::Kind::learned_scale:
-      make_parameter(where, t.name, {1}, ParameterInit::constant(t.value), t.trainable);
-      return x;
-    case TermOp::Kind::pow:
-    case TermOp::Kind::normalize:
-      return x;
-    case TermOp::Kind::mlp: {
-      const auto& o = *t.mlp_options;
-      if (o.in() != x.channels)
-        throw ScheduleError(where + ": mlp '" + t.name + "' takes " + std::to_string(o.in()) +
-                            " channels but gets " + std::to_string(x.channels));
-      if (auto it = mlps_.find(t.name); it != mlps_.end()) {
-        const auto& p = it->second->options;
-        if (p.in() != o.in() || p.hidden() != o.hidden() || p.out() != o.out() ||
-            p.layers() != o.layers() || p.activation() != o.activation() ||
-            p.final_activation() != o.final_activation() || p.layer_norm() != o.layer_norm())
-          throw ScheduleError(where + ": mlp '" + t.name +
-                              "' is used again with other options (shared by its path)");
-      } else {
-        std::shared_ptr<MlpImpl> m;
-        try {
-          m = std::make_shared<MlpImpl>(o);
-        } catch (const std::exception& e) {
-          throw ScheduleError(where + ": mlp '" + t.name + "': " + e.what());
-        }
-        make_module(where, t.name, m);
-        mlps_.emplace(t.name, Mlp(m));
-      }
-      return {x.rank, o.out()};
-    }
+    case TermOp::Kind::mlp:
+      return {x.rank, make_mlp(where, t, x.channels)};
     case TermOp::Kind::custom: {
       if (!t.operation) throw ScheduleError(where + ": a custom operation is null");
       const auto y = t.operation->infer(ctx, x);
       if (y.channels <= 0)
         throw ScheduleError(where + ": operation " + t.operation->str("x") + " gives " +
                             std::to_string(y.channels) + " channels");
+      inferred_[&t] = {x.rank, y};  // forward's result is checked against it
       return y;
     }
   }
   return x;
+}
+
+// An mlp's module at its path, made once and shared by the operations naming the path (which
+// must then give the same options); its output width.
+TOPOS_INLINE std::int64_t OperatorNetworkImpl::make_mlp(const std::string& where, const TermOp& t,
+                                                        std::int64_t channels) {
+  const auto& o = *t.mlp_options;
+  if (o.in() != channels)
+    throw ScheduleError(where + ": mlp '" + t.name + "' takes " + std::to_string(o.in()) +
+                        " channels but gets " + std::to_string(channels));
+  if (auto it = mlps_.find(t.name); it != mlps_.end()) {
+    const auto& p = it->second->options;
+    if (p.in() != o.in() || p.hidden() != o.hidden() || p.out() != o.out() ||
+        p.layers() != o.layers() || p.activation() != o.activation() ||
+        p.final_activation() != o.final_activation() || p.layer_norm() != o.layer_norm())
+      throw ScheduleError(where + ": mlp '" + t.name +
+                          "' is used again with other options (shared by its path)");
+  } else {
+    std::shared_ptr<MlpImpl> m;
+    try {
+      m = std::make_shared<MlpImpl>(o);
+    } catch (const std::exception& e) {
+      throw ScheduleError(where + ": mlp '" + t.name + "': " + e.what());
+    }
+    make_module(where, t.name, m);
+    mlps_.emplace(t.name, Mlp(m));
+  }
+  return o.out();
 }
 
 TOPOS_INLINE TermShape OperatorNetworkImpl::infer_attend(detail::NetworkBuildContext& ctx,
@@ -410,9 +386,7 @@ TOPOS_INLINE void OperatorNetworkImpl::find_compact_steps(
   };
   // Operations that may read a cochain other than their term's source.
   const auto reads_others = [](const std::vector<TermOp>& list) {
-    return std::any_of(list.begin(), list.end(), [](const TermOp& t) {
-      return t.kind == TermOp::Kind::attend || t.kind == TermOp::Kind::custom;
-    });
+    return std::any_of(list.begin(), list.end(), detail::reads_cochains);
   };
   for (std::size_t g = 0; g < groups.size(); ++g)
     for (std::size_t i = 0; i < groups[g].size(); ++i) {

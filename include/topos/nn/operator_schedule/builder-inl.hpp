@@ -25,6 +25,12 @@ TOPOS_INLINE OperationList::~OperationList() = default;
 TOPOS_INLINE void OperationList::push(TermOp t) {
   ops_.push_back(std::move(t));
 }
+TOPOS_INLINE void OperationList::push_operation(std::shared_ptr<const Operation> op) {
+  TermOp t(TermOp::Kind::custom);
+  if (op) t.traits = op->traits();
+  t.operation = std::move(op);
+  ops_.push_back(std::move(t));
+}
 }  // namespace detail
 
 TOPOS_INLINE OperatorStep::OperatorStep(CochainKey target) : target(std::move(target)) {}

@@ -8,6 +8,7 @@
 #include "topos/nn/cochains.hpp"
 #include "topos/nn/functional.hpp"
 #include "topos/nn/mlp.hpp"
+#include "topos/nn/operator_schedule/elementwise.hpp"
 #include "topos/nn/operator_schedule/operation.hpp"
 #include "topos/nn/schedule_error.hpp"
 
@@ -53,7 +54,9 @@ struct AttendOptions {
   TORCH_ARG(bool, transposed) = false;  ///< attend over Aᵀ
 };
 
-/// One operation of a term or of a step's tail.
+/// One operation of a term or of a step's tail: one of the built-in kinds that the interpreter
+/// still handles itself, or an Operation (`custom`: the elementwise built-ins of elementwise.hpp
+/// and a user's), whose declared traits the network reads.
 struct TermOp {
   enum class Kind {
     via,             ///< A · x
@@ -61,21 +64,12 @@ struct TermOp {
     pattern,         ///< pattern(A) · x, summed or averaged (A's values ignored)
     weight,          ///< x · W, W (in × out) at `name`
     linear,          ///< torch.nn.Linear at `name` (weight out × in, optional bias)
-    act,             ///< an update function
-    dropout,         ///< training only
-    unit_rows,       ///< each row divided by its (undifferentiated) L2 norm; zero rows stay 0
     batch_norm,      ///< torch.nn.BatchNorm1d at `name`
     layer_norm,      ///< torch.nn.LayerNorm at `name`
-    attend,          ///< A · x with A's values times attention weights (`param`: the vector)
-    powers,        ///< [y, A₁y..A₁^K₁y, A₂y..A₂^K₂y, ...]: fans the term out, last only
-    scale,         ///< x · p, a constant
-    head_weights,  ///< [x W_1 | ... | x W_H], W (heads × in × out) at `name`
-    bias,          ///< x + b on every row, b at `name` (any shape of as many entries as channels)
-    learned_scale,  ///< (offset + s) · x, s a learned or buffered scalar at `name`
-    pow,            ///< x^value elementwise
-    normalize,      ///< x / ‖x‖₂ (differentiated), per row or over the whole matrix
-    mlp,            ///< nn::Mlp at `name` (`mlp_options`), shared by every op naming the path
-    custom          ///< an Operation defined outside topos (`operation`)
+    attend,          ///< A · x with A's values times attention weights (`attention`)
+    powers,  ///< [y, A₁y..A₁^K₁y, A₂y..A₂^K₂y, ...]: fans the term out, last only
+    mlp,     ///< nn::Mlp at `name` (`mlp_options`), shared by every op naming the path
+    custom   ///< an Operation (`operation`, its `traits`)
   };
   explicit TermOp(Kind k, std::string n = {});
   // The special members are compiled once (builder-inl.hpp): steps copy and move their
@@ -93,23 +87,13 @@ struct TermOp {
   std::int64_t out = 0;
   bool bias = true;
   double gain = 1.414;
-  Update update = Update::none;
-  double slope = 0.01;
-  double p = 0;                                      ///< dropout rate
   std::vector<std::pair<std::string, int>> filters;  ///< powers: (operator, order)
-  std::string param;                                 ///< attend: the attention vector's path
-  AttentionNorm attention_norm = AttentionNorm::none;
   int norm_from = 1;
-  AttendOptions attention{""};      ///< attend: its options (param, update, slope repeat some)
-  std::int64_t heads = 1;           ///< head_weights
-  std::vector<std::int64_t> shape;  ///< bias: the parameter's shape
-  double value = 0;                 ///< scale: the scalar's initial value; pow: the exponent
-  double offset = 0;                ///< scale: added to the scalar
-  bool trainable = true;            ///< scale: a parameter, else a buffer
-  bool per_row = true;              ///< normalize: each row, else the whole matrix
+  AttendOptions attention{""};  ///< attend: its options
   int role = 0;  ///< via, pattern over a batch neighbourhood: only its pairs of this role (0: all)
   std::optional<MlpOptions> mlp_options;       ///< mlp
-  std::shared_ptr<const Operation> operation;  ///< custom: the user's operation
+  std::shared_ptr<const Operation> operation;  ///< custom: the operation
+  OperationTraits traits;                      ///< custom: operation->traits(), read once
 };
 
 namespace detail {
@@ -126,6 +110,8 @@ class OperationList {
 
  protected:
   void push(TermOp t);
+  /// A custom TermOp holding `op` and its traits.
+  void push_operation(std::shared_ptr<const Operation> op);
   std::vector<TermOp> ops_;
 };
 }  // namespace detail
@@ -168,17 +154,10 @@ class Chain : public detail::OperationList {
     return add(std::move(t));
   }
   Derived& act(Update u, double negative_slope = 0.01) {
-    TermOp t(TermOp::Kind::act);
-    t.update = u;
-    t.slope = negative_slope;
-    return add(std::move(t));
+    return apply(builtin::Activation(u, negative_slope));
   }
-  Derived& dropout(double p) {
-    TermOp t(TermOp::Kind::dropout);
-    t.p = p;
-    return add(std::move(t));
-  }
-  Derived& unit_rows() { return add(TermOp(TermOp::Kind::unit_rows)); }
+  Derived& dropout(double p) { return apply(builtin::Dropout(p)); }
+  Derived& unit_rows() { return apply(builtin::UnitRows()); }
   /// torch.nn.BatchNorm1d over the channels at `path` (weight, bias, running statistics).
   Derived& batch_norm(std::string path) {
     return add(TermOp(TermOp::Kind::batch_norm, std::move(path)));
@@ -188,51 +167,28 @@ class Chain : public detail::OperationList {
     return add(TermOp(TermOp::Kind::layer_norm, std::move(path)));
   }
   /// x · factor (CAN's skip connection scales its linear map by 1 + 1e-6).
-  Derived& scale(double factor) {
-    TermOp t(TermOp::Kind::scale);
-    t.p = factor;
-    return add(std::move(t));
-  }
+  Derived& scale(double factor) { return apply(builtin::Scale(factor)); }
   /// One map per head, side by side: [x W_1 | ... | x W_H] with W (heads × in × out) at `path`,
   /// TopoModelX's multi-head layout (AllSetTransformer's K and V).
   Derived& head_weights(std::string path, std::int64_t heads, std::int64_t out,
                         double gain = 1.414) {
-    TermOp t(TermOp::Kind::head_weights, std::move(path));
-    t.heads = heads;
-    t.out = out;
-    t.gain = gain;
-    return add(std::move(t));
+    return apply(builtin::HeadWeights(std::move(path), heads, out, gain));
   }
   /// x + b on every row, b at `path` of `shape` (default: a vector), flattened; zeros when new,
   /// or with a `gain` Glorot-initialised (HNHN's biases, 1 × channels).
   Derived& bias(std::string path, std::vector<std::int64_t> shape = {}, double gain = 0) {
-    TermOp t(TermOp::Kind::bias, std::move(path));
-    t.shape = std::move(shape);
-    t.gain = gain;
-    return add(std::move(t));
+    return apply(builtin::Bias(std::move(path), std::move(shape), gain));
   }
   /// (offset + s) · x, s a scalar (shape {1}) at `path` starting at `value`: a parameter when
   /// `trainable`, else a buffer (GIN's (1 + ε) x).
   Derived& scale(std::string path, double value, bool trainable = true, double offset = 0) {
-    TermOp t(TermOp::Kind::learned_scale, std::move(path));
-    t.value = value;
-    t.trainable = trainable;
-    t.offset = offset;
-    return add(std::move(t));
+    return apply(builtin::LearnedScale(std::move(path), value, trainable, offset));
   }
   /// x^exponent elementwise (a generalised mean: pow(p), a mean, pow(1 / p)).
-  Derived& pow(double exponent) {
-    TermOp t(TermOp::Kind::pow);
-    t.value = exponent;
-    return add(std::move(t));
-  }
+  Derived& pow(double exponent) { return apply(builtin::Pow(exponent)); }
   /// x divided by its L2 norm, differentiated (unlike unit_rows), the norm clamped at 1e-12: each
   /// row's (torch's F.normalize), or with per_row false the whole matrix's.
-  Derived& normalize(bool per_row = true) {
-    TermOp t(TermOp::Kind::normalize);
-    t.per_row = per_row;
-    return add(std::move(t));
-  }
+  Derived& normalize(bool per_row = true) { return apply(builtin::Normalize(per_row)); }
   /// The MLP (nn::Mlp: Linear layers with activations, optionally a LayerNorm) at `path`, shared
   /// by every operation that names the path (its options must then be the same). Followed by
   /// nothing but a concatenating step's mix, its first Linear layer is applied per term where that
@@ -258,9 +214,8 @@ class Chain : public detail::OperationList {
         std::shared_ptr<const Operation>(std::make_shared<std::decay_t<Op>>(std::forward<Op>(op))));
   }
   Derived& apply(std::shared_ptr<const Operation> op) {
-    TermOp t(TermOp::Kind::custom);
-    t.operation = std::move(op);
-    return add(std::move(t));
+    push_operation(std::move(op));
+    return static_cast<Derived&>(*this);
   }
 
  protected:
@@ -295,10 +250,6 @@ class Term : public Chain<Term> {
   /// scores, dropout, Aᵀ (AttendOptions).
   Term& attend(std::string op, AttendOptions o) {
     TermOp t(TermOp::Kind::attend, std::move(op));
-    t.param = o.param();
-    t.update = o.activation();
-    t.attention_norm = o.norm();
-    t.slope = o.negative_slope();
     t.attention = std::move(o);
     return add(std::move(t));
   }
@@ -404,20 +355,26 @@ inline bool row_wise(const TermOp& t) {
     case TermOp::Kind::mlp:
     case TermOp::Kind::linear:
     case TermOp::Kind::weight:
-    case TermOp::Kind::act:
-    case TermOp::Kind::bias:
     case TermOp::Kind::layer_norm:
-    case TermOp::Kind::head_weights:
-    case TermOp::Kind::scale:
-    case TermOp::Kind::learned_scale:
-    case TermOp::Kind::pow:
-    case TermOp::Kind::unit_rows:
       return true;
-    case TermOp::Kind::normalize:
-      return t.per_row;
+    case TermOp::Kind::custom:
+      return t.traits.row_wise;
     default:
       return false;
   }
+}
+
+/// Operations that may read a cochain other than their operand: attention, and an operation
+/// that does not declare otherwise.
+inline bool reads_cochains(const TermOp& t) {
+  return t.kind == TermOp::Kind::attend ||
+         (t.kind == TermOp::Kind::custom && !t.traits.row_wise && t.traits.reads_cochains);
+}
+
+/// The activation an operation is (OperationTraits::activation), for a product to fuse.
+inline const std::optional<Update>& activation_of(const TermOp& t) {
+  static const std::optional<Update> none;
+  return t.kind == TermOp::Kind::custom ? t.traits.activation : none;
 }
 
 /// An operation that can aggregate over a batch neighbourhood: via (its values, summed) and a
@@ -439,6 +396,8 @@ inline std::vector<std::string> operators_of(const TermOp& t) {
       for (const auto& f : t.filters) names.push_back(f.first);
       return names;
     }
+    case TermOp::Kind::custom:
+      return t.traits.operators;
     default:
       return {};
   }
@@ -515,5 +474,6 @@ class OperatorSchedule {
 
 #ifdef TOPOS_HEADER_ONLY
 #include "topos/nn/operator_schedule/builder-inl.hpp"
+#include "topos/nn/operator_schedule/elementwise-inl.hpp"
 #include "topos/nn/operator_schedule/printer-inl.hpp"
 #endif

@@ -124,144 +124,364 @@ TOPOS_INLINE std::vector<torch::Tensor> OperatorNetworkImpl::run(
   return v;
 }
 
+namespace detail {
+
+/// A term as errors name it: "the term conv·A·(1)".
+inline std::string term_str(const ops::Term& t) {
+  return "the term " + ops_str(t.source.str(), t.operations());
+}
+
+inline std::string describe(const char* what) {
+  return what;
+}
+inline std::string describe(const ops::Term* term) {
+  return term_str(*term);
+}
+
+/// `f()`, a LibTorch error in it rethrown as a ScheduleError naming the step and `what` (a term,
+/// the mix, the step's operations), described only then.
+template <class What, class F>
+auto naming(const std::string& where, What what, F&& f) -> decltype(f()) {
+  try {
+    return f();
+  } catch (const c10::Error& e) {
+    throw ScheduleError(where + ": " + describe(what) + ": " + e.what_without_backtrace());
+  }
+}
+
+/// Does the term apply an optional operator that this forward left out?
+inline bool applies_absent(const ops::Term& term, const std::set<std::string>& absent) {
+  if (absent.empty()) return false;
+  for (const auto& t : term.operations())
+    for (const auto& name : operators_of(t))
+      if (absent.count(name)) return true;
+  return false;
+}
+
+}  // namespace detail
+
+/// The values a step mixes, each with the term it comes from (a polynomial filter's several);
+/// for a concatenation into an mlp over a batch (`split`), the terms already multiplied by their
+/// block of the mlp's first weight W, summed, and the columns of W of the values left.
+struct OperatorNetworkImpl::StepTerms {
+  std::vector<torch::Tensor> values;
+  std::vector<const ops::Term*> from;
+  torch::Tensor W, early;
+  std::vector<std::int64_t> cols;
+  std::int64_t col = 0;  // the next term's first column of W
+  void add(torch::Tensor t, const ops::Term* term) {
+    if (W.defined())
+      for (std::int64_t c = 0; c < t.size(1); ++c) cols.push_back(col + c);
+    col += t.dim() == 2 ? t.size(1) : 0;
+    values.push_back(std::move(t));
+    from.push_back(term);
+  }
+};
+
 TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_step(const OperatorStep& s, const Cochains& h,
                                                          Operators& ops, PrefixCache& cache) {
   const std::string where = s.name + " (into " + s.target.str() + ")";
-  if (!ops.absent.empty()) {  // terms that apply an optional operator left out are skipped
-    const auto uses_absent = [&](const ops::Term& term) {
-      for (const auto& t : term.operations())
-        for (const auto& name : detail::operators_of(t))
-          if (ops.absent.count(name)) return true;
-      return false;
-    };
-    if (std::any_of(s.terms.begin(), s.terms.end(), uses_absent)) {
-      OperatorStep kept = s;
-      kept.terms.clear();
-      for (const auto& term : s.terms)
-        if (!uses_absent(term)) kept.terms.push_back(term);
-      if (kept.terms.empty()) {
-        if (!h.has(s.target.rank, s.target.state))
-          throw ScheduleError(where + ": every term applies an optional operator left out, and " +
-                              s.target.str() + " has no value to keep");
-        return h.at(s.target.rank, s.target.state);
-      }
-      return run_step(kept, h, ops, cache);  // the kept terms apply none of them
-    }
+  std::vector<const ops::Term*> terms;  // those that apply no optional operator left out
+  for (const auto& term : s.terms)
+    if (!detail::applies_absent(term, ops.absent)) terms.push_back(&term);
+  if (terms.empty()) {
+    if (!h.has(s.target.rank, s.target.state))
+      throw ScheduleError(where + ": every term applies an optional operator left out, and " +
+                          s.target.str() + " has no value to keep");
+    return h.at(s.target.rank, s.target.state);
   }
   const auto& tail = s.operations();
-  const auto no_powers = [](const ops::Term& t) {
-    return std::none_of(t.operations().begin(), t.operations().end(),
-                        [](const TermOp& o) { return o.kind == TermOp::Kind::powers; });
-  };
-  const auto over_batch = [&](const ops::Term& t) {
+  const auto over_batch_or_powers = [&](const ops::Term& t) {
     for (const auto& o : t.operations())
-      if ((o.kind == TermOp::Kind::via || o.kind == TermOp::Kind::pattern) &&
-          ops.neighborhood(o.name))
+      if (o.kind == TermOp::Kind::powers ||
+          ((o.kind == TermOp::Kind::via || o.kind == TermOp::Kind::pattern) &&
+           ops.neighborhood(o.name)))
         return true;
     return false;
   };
   const bool single =
-      s.terms.size() == 1 && (s.mix == OperatorStep::Mix::sum || s.mix == OperatorStep::Mix::mean);
-  if (single && no_powers(s.terms[0]) && !over_batch(s.terms[0])) {
+      terms.size() == 1 && (s.mix == OperatorStep::Mix::sum || s.mix == OperatorStep::Mix::mean);
+  if (single && !over_batch_or_powers(*terms[0])) {
     // One term: its operations and the step's as one list, so that a product ending the term
     // fuses with the step's activation.
-    auto list = s.terms[0].operations();
-    list.insert(list.end(), tail.begin(), tail.end());
-    torch::Tensor x = h.at(s.terms[0].source.rank, s.terms[0].source.state);
-    for (std::size_t i = 0; i < list.size(); ++i)
-      i = apply_fused(where, s.target, list, i, x, ops, h);
-    return guard(where, s, std::move(x), h, ops);
-  }
-  if (fast_ && s.mix == OperatorStep::Mix::filter)
-    if (auto y = run_filter(where, s, h, ops, cache); y.defined()) {
-      for (std::size_t i = 0; i < tail.size(); ++i)
-        i = apply_fused(where, s.target, tail, i, y, ops, h);
-      return guard(where, s, std::move(y), h, ops);
-    }
-  // A concatenation into an mlp over a batch: a term summed from fewer rows than the target has
-  // is multiplied by its block of the mlp's first weight before the sum (W Σ x = Σ W x):
-  // HOPNet's object-to-node message then costs a product over the objects, not the nodes.
-  const bool split = fast_ && ops.batch != nullptr && s.mix == OperatorStep::Mix::concat &&
-                     !tail.empty() && tail.front().kind == TermOp::Kind::mlp;
-  const torch::Tensor W =
-      split ? mlps_.at(tail.front().name)->first_linear()->weight : torch::Tensor();
-  torch::Tensor early;                  // Σ of the terms already multiplied by their block
-  std::vector<std::int64_t> part_cols;  // the columns of W of the terms left
-  std::int64_t col = 0;
-  std::vector<torch::Tensor> terms;
-  const auto add_term = [&](torch::Tensor t) {
-    if (split)
-      for (std::int64_t c = 0; c < t.size(1); ++c) part_cols.push_back(col + c);
-    col += t.dim() == 2 ? t.size(1) : 0;
-    terms.push_back(std::move(t));
-  };
-  for (const auto& term : s.terms) {
-    auto v = evaluate_term(where, s.target, term, h, ops, cache, split);
-    if (v.handled) {
-      if (v.deferred) {
-        // Not with backward values: they scale the gradient reaching the message, which must
-        // not reach the weight.
-        const bool scaled_backward = v.agg.weighted && v.n.backward_values.defined();
-        if (v.agg.reduce != Aggr::max && v.agg.role == 0 && v.x.size(0) < v.n.num_target &&
-            !scaled_backward) {
-          const auto block = aggregate(nn::linear(v.x, W.narrow(1, col, v.x.size(1))), v.n, v.agg);
-          early = early.defined() ? early + block : block;
-          col += v.x.size(1);
-          continue;
-        }
-        v.value = aggregate(v.x, v.n, v.agg);
-      }
-      add_term(std::move(v.value));
-      continue;
-    }
-    torch::Tensor x = h.at(term.source.rank, term.source.state);
-    const auto& list = term.operations();
-    for (std::size_t i = 0; i < list.size(); ++i) {
-      const auto& t = list[i];
-      if (t.kind != TermOp::Kind::powers) {
+    const auto& term = *terms[0];
+    auto y = detail::naming(where, &term, [&] {
+      const detail::OperationSeq list(term.operations(), &tail);
+      torch::Tensor x = h.at(term.source.rank, term.source.state);
+      for (std::size_t i = 0; i < list.size(); ++i)
         i = apply_fused(where, s.target, list, i, x, ops, h);
-        continue;
-      }
-      terms.push_back(x);
-      for (const auto& [name, order] : t.filters) {
-        const auto& A = ops.at(where, name);
-        detail::check_fits(where, name, A, x);
-        for (auto& p : powers(A, x, order, t.row_norm, t.norm_from)) terms.push_back(p);
-      }
-      x = torch::Tensor();
-    }
-    if (x.defined()) add_term(std::move(x));
+      return x;
+    });
+    return guard(where, s, std::move(y), h, ops);
   }
   torch::Tensor y;
-  std::size_t first_tail = 0;
-  if (s.mix == OperatorStep::Mix::filter) {
-    y = combine_terms(terms, params_.at(s.filter_path));
-  } else if (split) {
-    auto update = mlps_.at(tail.front().name);
-    if (!early.defined()) {
-      y = update->forward(terms.size() == 1 ? terms[0] : torch::cat(terms, 1));
-    } else {
-      const auto first = update->first_linear();
-      const auto Wd =
-          static_cast<std::int64_t>(part_cols.size()) == W.size(1)
-              ? W
-              : W.index_select(1, torch::tensor(part_cols, torch::kLong).to(W.device()));
-      const auto dense = terms.size() == 1 ? terms[0] : torch::cat(terms, 1);
-      auto z = nn::linear(dense, Wd, first->bias);
-      z.add_(early);
-      y = update->forward_after_first(z);
+  std::size_t first = 0;  // the first of the step's operations left to apply
+  if (fast_ && s.mix == OperatorStep::Mix::filter)
+    y = detail::naming(where, "the filter", [&] { return run_filter(where, s, h, ops, cache); });
+  if (!y.defined()) {
+    // A concatenation into an mlp over a batch: a term summed from fewer rows than the target
+    // has is multiplied by its block of the mlp's first weight before the sum (W Σ x = Σ W x):
+    // HOPNet's object-to-node message then costs a product over the objects, not the nodes.
+    StepTerms values;
+    if (fast_ && ops.batch != nullptr && s.mix == OperatorStep::Mix::concat && !tail.empty() &&
+        tail.front().kind == TermOp::Kind::mlp) {
+      values.W = mlps_.at(tail.front().name)->first_linear()->weight;
+      first = 1;  // mix applies the mlp
     }
-    first_tail = 1;
-  } else if (s.mix == OperatorStep::Mix::concat) {
-    y = terms.size() == 1 ? terms[0] : torch::cat(terms, 1);
-  } else {
-    y = terms[0];
-    for (std::size_t i = 1; i < terms.size(); ++i) y = y + terms[i];
-    if (s.mix == OperatorStep::Mix::mean) y = y / static_cast<double>(terms.size());
+    for (const auto* term : terms)
+      detail::naming(where, term,
+                     [&] { evaluate_into(where, s.target, *term, h, ops, cache, values); });
+    y = mix(where, s, values);
   }
-  for (std::size_t i = first_tail; i < tail.size(); ++i)
-    i = apply_fused(where, s.target, tail, i, y, ops, h);
+  y = detail::naming(where, "the step's operations", [&] {
+    for (std::size_t i = first; i < tail.size(); ++i)
+      i = apply_fused(where, s.target, tail, i, y, ops, h);
+    return y;
+  });
   return guard(where, s, std::move(y), h, ops);
+}
+
+TOPOS_INLINE void OperatorNetworkImpl::evaluate_into(const std::string& where,
+                                                     const CochainKey& target,
+                                                     const ops::Term& term, const Cochains& h,
+                                                     Operators& ops, PrefixCache& cache,
+                                                     StepTerms& out) {
+  auto v = evaluate_term(where, target, term, h, ops, cache, out.W.defined());
+  if (v.handled) {
+    if (v.deferred) {
+      // Not with backward values: they scale the gradient reaching the message, which must not
+      // reach the weight.
+      const bool scaled_backward = v.agg.weighted && v.n.backward_values.defined();
+      if (v.agg.reduce != Aggr::max && v.agg.role == 0 && v.x.size(0) < v.n.num_target &&
+          !scaled_backward) {
+        const auto block =
+            aggregate(nn::linear(v.x, out.W.narrow(1, out.col, v.x.size(1))), v.n, v.agg);
+        out.early = out.early.defined() ? out.early + block : block;
+        out.col += v.x.size(1);
+        return;
+      }
+      v.value = aggregate(v.x, v.n, v.agg);
+    }
+    return out.add(std::move(v.value), &term);
+  }
+  torch::Tensor x = h.at(term.source.rank, term.source.state);
+  const auto& list = term.operations();
+  for (std::size_t i = 0; i < list.size(); ++i) {
+    const auto& t = list[i];
+    if (t.kind != TermOp::Kind::powers) {
+      i = apply_fused(where, target, list, i, x, ops, h);
+      continue;
+    }
+    out.values.push_back(x);
+    out.from.push_back(&term);
+    for (const auto& [name, order] : t.filters) {
+      const auto& A = ops.at(where, name);
+      detail::check_fits(where, name, A, x);
+      for (auto& p : powers(A, x, order, t.row_norm, t.norm_from)) {
+        out.values.push_back(p);
+        out.from.push_back(&term);
+      }
+    }
+    x = torch::Tensor();
+  }
+  if (x.defined()) out.add(std::move(x), &term);
+}
+
+TOPOS_INLINE torch::Tensor OperatorNetworkImpl::mix(const std::string& where, const OperatorStep& s,
+                                                    StepTerms& t) {
+  auto& v = t.values;
+  for (std::size_t i = 1; i < v.size(); ++i) {  // what LibTorch would say without the terms
+    if (v[i].dim() != 2 || v[0].dim() != 2) break;
+    if (v[i].size(0) != v[0].size(0))
+      throw ScheduleError(where + ": " + detail::term_str(*t.from[i]) + " gives " +
+                          std::to_string(v[i].size(0)) + " rows, " + detail::term_str(*t.from[0]) +
+                          " gives " + std::to_string(v[0].size(0)) +
+                          ": the terms of a step must give one row per cell of its target");
+    if (v[i].scalar_type() != v[0].scalar_type())
+      throw ScheduleError(where + ": " + detail::term_str(*t.from[i]) + " gives " +
+                          c10::toString(v[i].scalar_type()) + ", " + detail::term_str(*t.from[0]) +
+                          " gives " + c10::toString(v[0].scalar_type()) +
+                          ": give the inputs and operators one dtype (net->to(dtype))");
+  }
+  return detail::naming(where, "mixing the terms", [&]() -> torch::Tensor {
+    const auto cat = [&] { return v.size() == 1 ? v[0] : torch::cat(v, 1); };
+    if (s.mix == OperatorStep::Mix::filter) return combine_terms(v, params_.at(s.filter_path));
+    if (t.W.defined()) {
+      auto update = mlps_.at(s.operations().front().name);
+      if (!t.early.defined()) return update->forward(cat());
+      const auto& W = t.W;
+      const auto Wd = static_cast<std::int64_t>(t.cols.size()) == W.size(1)
+                          ? W
+                          : W.index_select(1, torch::tensor(t.cols, torch::kLong).to(W.device()));
+      auto z = nn::linear(cat(), Wd, update->first_linear()->bias);
+      z.add_(t.early);
+      return update->forward_after_first(z);
+    }
+    if (s.mix == OperatorStep::Mix::concat) return cat();
+    auto y = v[0];
+    for (std::size_t i = 1; i < v.size(); ++i) y = y + v[i];
+    return s.mix == OperatorStep::Mix::mean ? y / static_cast<double>(v.size()) : y;
+  });
+}
+
+namespace detail {
+
+/// A filter step's taps as chains of sparse products (run_filter): per tap its links, whether it
+/// is such a chain (else the general path evaluates it), and the rows they all reach.
+struct FilterTaps {
+  struct Link {
+    const SparseOperator* A;
+    const TermOp* op;
+  };
+  const OperatorStep& s;
+  const Cochains& h;
+  std::vector<std::vector<Link>> chains;
+  std::vector<bool> products;
+  std::int64_t target_rows = -1;
+
+  std::int64_t source_rows(std::size_t k) const {
+    const auto& src = s.terms[k].source;
+    return h.at(src.rank, src.state).size(0);
+  }
+  /// The cache key of tap k's first j products (its source's rows tell batches apart).
+  std::string prefix(std::size_t k, std::size_t j) const {
+    return "filter|" + std::to_string(source_rows(k)) + "|" +
+           prefix_key(s.terms[k].source, s.terms[k].operations(), j);
+  }
+  /// Link j of tap k applied to x.
+  torch::Tensor multiply(const std::string& where, std::size_t k, std::size_t j,
+                         const torch::Tensor& x) const {
+    const auto& link = chains[k][j];
+    return detail::multiply(where, label(*link.op), *link.A, x, link.op->row_norm);
+  }
+  static std::string label(const TermOp& o) {
+    return operator_label(o.name, o.kind == TermOp::Kind::via_transposed);
+  }
+};
+
+/// The sources whose product taps cost less weighted first (x_s Θ_k on the source's rows, then
+/// the chains on the weighted columns) than as written: their taps, by source.
+TOPOS_INLINE std::vector<std::vector<std::size_t>> weighted_first(const FilterTaps& f,
+                                                                  const torch::Tensor& W) {
+  const double c_in = static_cast<double>(W.size(0)), c_out = static_cast<double>(W.size(1));
+  std::map<std::string, std::vector<std::size_t>> by_source;
+  for (std::size_t k = 0; k < f.chains.size(); ++k)
+    if (f.products[k] && !f.chains[k].empty()) by_source[f.s.terms[k].source.str()].push_back(k);
+  std::vector<std::vector<std::size_t>> first;
+  for (const auto& [key, taps] : by_source) {
+    const double n_s = static_cast<double>(f.source_rows(taps[0])),
+                 n_t = static_cast<double>(f.target_rows), m = static_cast<double>(taps.size());
+    double last = m * n_t * c_in * c_out, early = m * n_s * c_in * c_out;
+    std::set<std::string> seen;
+    for (auto k : taps)
+      for (std::size_t j = 0; j < f.chains[k].size(); ++j) {
+        const double nnz = 4.0 * static_cast<double>(f.chains[k][j].A->nnz());
+        early += nnz * c_out;
+        if (seen.insert(f.prefix(k, j + 1)).second) last += nnz * c_in;
+      }
+    if (early < 0.8 * last) first.push_back(taps);
+  }
+  return first;
+}
+
+/// The weighted columns z of the taps `at` (side by side, `cols` each) pushed through their
+/// chains from link `depth` on, a link that several share applied once to all their columns.
+TOPOS_INLINE torch::Tensor push_columns(const std::string& where, const FilterTaps& f,
+                                        const torch::Tensor& z, const std::vector<std::size_t>& at,
+                                        std::size_t depth, std::int64_t cols) {
+  torch::Tensor out;
+  const auto add = [&](const torch::Tensor& t) { out = out.defined() ? out + t : t; };
+  // Each tap's columns, taken apart once (one autograd node) when some go their own way.
+  std::vector<torch::Tensor> pieces;
+  const auto piece = [&](std::size_t p) -> const torch::Tensor& {
+    if (pieces.empty()) pieces = at.size() == 1 ? std::vector<torch::Tensor>{z} : z.split(cols, 1);
+    return pieces[p];
+  };
+  std::vector<std::pair<std::string, std::vector<std::size_t>>> next;  // by next product
+  for (std::size_t p = 0; p < at.size(); ++p) {
+    const auto& chain = f.chains[at[p]];
+    if (chain.size() == depth) {
+      add(piece(p));
+      continue;
+    }
+    const auto& o = *chain[depth].op;
+    const auto key = FilterTaps::label(o) + (o.row_norm ? "~" : "");
+    auto it = std::find_if(next.begin(), next.end(), [&](const auto& n) { return n.first == key; });
+    if (it == next.end()) it = next.insert(next.end(), {key, {}});
+    it->second.push_back(p);
+  }
+  for (const auto& [key, ps] : next) {
+    std::vector<torch::Tensor> parts;
+    std::vector<std::size_t> below;
+    for (auto p : ps) below.push_back(at[p]);
+    torch::Tensor zp = z;  // every tap takes this product: all the columns
+    if (ps.size() < at.size()) {
+      for (auto p : ps) parts.push_back(piece(p));
+      zp = parts.size() == 1 ? parts[0].contiguous() : torch::cat(parts, 1);
+    }
+    add(push_columns(where, f, f.multiply(where, below[0], depth, zp), below, depth + 1, cols));
+  }
+  return out;
+}
+
+/// One source's weighted-first taps: x_s [Θ_a | Θ_b | ...] in one product (taps with the same
+/// chain summed into one block), then pushed through their chains.
+TOPOS_INLINE torch::Tensor weighted_taps(const std::string& where, const FilterTaps& f,
+                                         const std::vector<std::size_t>& taps,
+                                         const torch::Tensor& W) {
+  std::vector<std::size_t> items;  // one tap per distinct chain
+  std::vector<torch::Tensor> blocks;
+  for (auto k : taps) {
+    const auto key = f.prefix(k, f.chains[k].size());
+    std::size_t i = 0;
+    while (i < items.size() && f.prefix(items[i], f.chains[items[i]].size()) != key) ++i;
+    const auto w = W.select(2, static_cast<std::int64_t>(k));
+    if (i == items.size()) {
+      items.push_back(k);
+      blocks.push_back(w);
+    } else {
+      blocks[i] = blocks[i] + w;
+    }
+  }
+  const auto& src = f.s.terms[taps[0]].source;
+  return push_columns(where, f,
+                      linear_act(f.h.at(src.rank, src.state), torch::cat(blocks, 1).t(), {}), items,
+                      0, W.size(1));
+}
+
+}  // namespace detail
+
+// The taps' chains; false where the step is not such a filter (powers, a compact cochain, taps
+// reaching different rows: the general path runs it, or says why).
+TOPOS_INLINE bool OperatorNetworkImpl::filter_chains(const std::string& where,
+                                                     detail::FilterTaps& f, Operators& ops) {
+  const auto K = f.s.terms.size();
+  f.chains.assign(K, {});
+  f.products.assign(K, true);
+  for (std::size_t k = 0; k < K; ++k) {
+    const auto& term = f.s.terms[k];
+    if (f.h.rows(term.source).defined()) return false;
+    auto rows = f.source_rows(k);
+    for (const auto& o : term.operations()) {
+      if (o.kind == TermOp::Kind::powers) return false;
+      const bool product =
+          (o.kind == TermOp::Kind::via || o.kind == TermOp::Kind::via_transposed) && o.role == 0 &&
+          !ops.neighborhood(o.name);
+      const SparseOperator* A = nullptr;
+      if (product)
+        A = o.kind == TermOp::Kind::via_transposed ? &ops.t(where, o.name) : &ops.at(where, o.name);
+      if (A == nullptr || A->cols != rows) {  // the general path applies it, or names the misfit
+        f.products[k] = false;
+        break;
+      }
+      f.chains[k].push_back({A, &o});
+      rows = A->rows;
+    }
+    if (!f.products[k]) continue;
+    if (f.target_rows >= 0 && rows != f.target_rows) return false;
+    f.target_rows = rows;
+  }
+  return true;
 }
 
 // A filter Σ_k T_k Θ_k whose taps are chains of sparse products, T_k = P_k x_s, is linear in
@@ -277,164 +497,56 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_filter(const std::string& wh
   const auto& W = params_.at(s.filter_path);  // in × out × taps
   const auto K = s.terms.size();
   if (W.dim() != 3 || W.size(2) != static_cast<std::int64_t>(K)) return {};  // powers fan out
-  struct Link {
-    const SparseOperator* A;
-    const TermOp* op;
-  };
-  std::vector<std::vector<Link>> chains(K);
-  std::vector<bool> products(K, true);
-  std::int64_t target_rows = -1;
-  for (std::size_t k = 0; k < K; ++k) {
-    const auto& term = s.terms[k];
-    if (h.rows(term.source).defined()) return {};  // a compact cochain: the general path
-    auto rows = h.at(term.source.rank, term.source.state).size(0);
-    for (const auto& o : term.operations()) {
-      if (o.kind == TermOp::Kind::powers) return {};
-      const bool product =
-          (o.kind == TermOp::Kind::via || o.kind == TermOp::Kind::via_transposed) && o.role == 0 &&
-          !ops.neighborhood(o.name);
-      const SparseOperator* A = nullptr;
-      if (product)
-        A = o.kind == TermOp::Kind::via_transposed ? &ops.t(where, o.name) : &ops.at(where, o.name);
-      if (A == nullptr || A->cols != rows) {  // the general path applies it, or names the misfit
-        products[k] = false;
-        break;
-      }
-      chains[k].push_back({A, &o});
-      rows = A->rows;
-    }
-    if (!products[k]) continue;
-    if (target_rows >= 0 && rows != target_rows) return {};  // combine_terms says why
-    target_rows = rows;
+  detail::FilterTaps f{s, h, {}, {}, -1};
+  if (!filter_chains(where, f, ops)) return {};
+  const auto first = detail::weighted_first(f, W);
+  std::vector<bool> is_first(K, false);
+  for (const auto& taps : first)
+    for (auto k : taps) is_first[k] = true;
+  auto y = other_taps(where, f, is_first, W, ops, cache);
+  for (const auto& taps : first) {
+    const auto part = detail::weighted_taps(where, f, taps, W);
+    y = y.defined() ? y + part : part;
   }
-  const auto prefix = [&](std::size_t k, std::size_t j) {
-    const auto& src = s.terms[k].source;
-    return "filter|" + std::to_string(h.at(src.rank, src.state).size(0)) + "|" +
-           detail::prefix_key(src, s.terms[k].operations(), j);
-  };
-  const auto name_of = [](const TermOp& o) {
-    return operator_label(o.name, o.kind == TermOp::Kind::via_transposed);
-  };
-  // Each source's product taps: weighted first when that costs less.
-  const double c_in = static_cast<double>(W.size(0)), c_out = static_cast<double>(W.size(1));
-  std::map<std::string, std::vector<std::size_t>> by_source;
-  for (std::size_t k = 0; k < K; ++k)
-    if (products[k] && !chains[k].empty()) by_source[s.terms[k].source.str()].push_back(k);
-  std::vector<std::vector<std::size_t>> weighted_first;
-  std::vector<bool> first(K, false);
-  for (const auto& [key, taps] : by_source) {
-    const auto& src = s.terms[taps[0]].source;
-    const double n_s = static_cast<double>(h.at(src.rank, src.state).size(0)),
-                 n_t = static_cast<double>(target_rows), m = static_cast<double>(taps.size());
-    double last = m * n_t * c_in * c_out, early = m * n_s * c_in * c_out;
-    std::set<std::string> seen;
-    for (auto k : taps)
-      for (std::size_t j = 0; j < chains[k].size(); ++j) {
-        const double nnz = 4.0 * static_cast<double>(chains[k][j].A->nnz());
-        early += nnz * c_out;
-        if (seen.insert(prefix(k, j + 1)).second) last += nnz * c_in;
-      }
-    if (early < 0.8 * last) {
-      weighted_first.push_back(taps);
-      for (auto k : taps) first[k] = true;
-    }
-  }
-  // The other taps, each distinct prefix once.
+  return y;
+}
+
+// The taps not weighted first, each distinct prefix of products once (in the group's cache),
+// stacked into one product with their slices of W.
+TOPOS_INLINE torch::Tensor OperatorNetworkImpl::other_taps(const std::string& where,
+                                                           const detail::FilterTaps& f,
+                                                           const std::vector<bool>& skip,
+                                                           const torch::Tensor& W, Operators& ops,
+                                                           PrefixCache& cache) {
   std::vector<torch::Tensor> terms;
   std::vector<std::int64_t> slices;
-  for (std::size_t k = 0; k < K; ++k) {
-    if (first[k]) continue;
-    const auto& term = s.terms[k];
-    torch::Tensor x = h.at(term.source.rank, term.source.state);
-    if (products[k]) {
-      std::size_t j = chains[k].size();
+  for (std::size_t k = 0; k < f.chains.size(); ++k) {
+    if (skip[k]) continue;
+    const auto& term = f.s.terms[k];
+    torch::Tensor x = f.h.at(term.source.rank, term.source.state);
+    if (f.products[k]) {
+      std::size_t j = f.chains[k].size();
       for (; j > 0; --j)
-        if (auto it = cache.find(prefix(k, j)); it != cache.end()) {
+        if (auto it = cache.find(f.prefix(k, j)); it != cache.end()) {
           x = it->second;
           break;
         }
-      for (; j < chains[k].size(); ++j) {
-        const auto& link = chains[k][j];
-        x = detail::multiply(where, name_of(*link.op), *link.A, x, link.op->row_norm);
-        cache.emplace(prefix(k, j + 1), x);
+      for (; j < f.chains[k].size(); ++j) {
+        x = f.multiply(where, k, j, x);
+        cache.emplace(f.prefix(k, j + 1), x);
       }
     } else {
       const auto& list = term.operations();
       for (std::size_t i = 0; i < list.size(); ++i)
-        i = apply_fused(where, s.target, list, i, x, ops, h);
+        i = apply_fused(where, f.s.target, list, i, x, ops, f.h);
     }
     terms.push_back(std::move(x));
     slices.push_back(static_cast<std::int64_t>(k));
   }
-  torch::Tensor y;
-  if (!terms.empty())
-    y = combine_terms(
-        terms, terms.size() == K ? W : W.index_select(2, torch::tensor(slices).to(W.device())));
-  // The weighted-first taps: x_s [Θ_a | Θ_b | ...] in one product (taps with the same chain
-  // summed into one block), then each chain's products on its columns, a shared prefix on the
-  // columns of every tap below it.
-  const auto cols = W.size(1);
-  std::function<torch::Tensor(const torch::Tensor&, const std::vector<std::size_t>&, std::size_t)>
-      push = [&](const torch::Tensor& z, const std::vector<std::size_t>& at, std::size_t depth) {
-        torch::Tensor out;
-        const auto add = [&](const torch::Tensor& t) { out = out.defined() ? out + t : t; };
-        // Each tap's columns, taken apart once (one autograd node) when some go their own way.
-        std::vector<torch::Tensor> pieces;
-        const auto piece = [&](std::size_t p) -> const torch::Tensor& {
-          if (pieces.empty())
-            pieces = at.size() == 1 ? std::vector<torch::Tensor>{z} : z.split(cols, 1);
-          return pieces[p];
-        };
-        std::vector<std::pair<std::string, std::vector<std::size_t>>> next;  // by next product
-        for (std::size_t p = 0; p < at.size(); ++p) {
-          const auto& chain = chains[at[p]];
-          if (chain.size() == depth) {
-            add(piece(p));
-            continue;
-          }
-          const auto& o = *chain[depth].op;
-          const auto key = name_of(o) + (o.row_norm ? "~" : "");
-          auto it =
-              std::find_if(next.begin(), next.end(), [&](const auto& n) { return n.first == key; });
-          if (it == next.end()) it = next.insert(next.end(), {key, {}});
-          it->second.push_back(p);
-        }
-        for (const auto& [key, ps] : next) {
-          std::vector<torch::Tensor> parts;
-          std::vector<std::size_t> below;
-          for (auto p : ps) below.push_back(at[p]);
-          torch::Tensor zp = z;  // every tap takes this product: all the columns
-          if (ps.size() < at.size()) {
-            for (auto p : ps) parts.push_back(piece(p));
-            zp = parts.size() == 1 ? parts[0].contiguous() : torch::cat(parts, 1);
-          }
-          const auto& link = chains[below[0]][depth];
-          add(push(detail::multiply(where, name_of(*link.op), *link.A, zp, link.op->row_norm),
-                   below, depth + 1));
-        }
-        return out;
-      };
-  for (const auto& taps : weighted_first) {
-    std::vector<std::size_t> items;  // one tap per distinct chain
-    std::vector<torch::Tensor> blocks;
-    for (auto k : taps) {
-      const auto key = prefix(k, chains[k].size());
-      std::size_t i = 0;
-      while (i < items.size() && prefix(items[i], chains[items[i]].size()) != key) ++i;
-      const auto w = W.select(2, static_cast<std::int64_t>(k));
-      if (i == items.size()) {
-        items.push_back(k);
-        blocks.push_back(w);
-      } else {
-        blocks[i] = blocks[i] + w;
-      }
-    }
-    const auto& src = s.terms[taps[0]].source;
-    const auto part =
-        push(linear_act(h.at(src.rank, src.state), torch::cat(blocks, 1).t(), {}), items, 0);
-    y = y.defined() ? y + part : part;
-  }
-  return y;
+  if (terms.empty()) return {};
+  return combine_terms(terms, terms.size() == f.chains.size()
+                                  ? W
+                                  : W.index_select(2, torch::tensor(slices).to(W.device())));
 }
 
 TOPOS_INLINE torch::Tensor OperatorNetworkImpl::guard(const std::string& where,

@@ -25,6 +25,24 @@ namespace topos::nn {
 namespace detail {
 class NetworkBuildContext;
 class NetworkRunContext;
+struct FilterTaps;
+
+/// A term's operations followed by a step's (a step of one term runs them as one list, so that
+/// a product ending the term fuses with the step's activation), without copying them.
+class OperationSeq {
+ public:
+  OperationSeq(const std::vector<TermOp>& first,  // NOLINT: a list is a sequence
+               const std::vector<TermOp>* then = nullptr)
+      : first_(first), then_(then) {}
+  std::size_t size() const { return first_.size() + (then_ ? then_->size() : 0); }
+  const TermOp& operator[](std::size_t i) const {
+    return i < first_.size() ? first_[i] : (*then_)[i - first_.size()];
+  }
+
+ private:
+  const std::vector<TermOp>& first_;
+  const std::vector<TermOp>* then_;
+};
 }  // namespace detail
 
 /// Runs an OperatorSchedule; its parameters sit at the schedule's dotted paths.
@@ -106,6 +124,9 @@ class OperatorNetworkImpl : public torch::nn::Module {
   std::vector<std::vector<bool>> live_;  // per group and step: read by a later step or an output
   // Steps whose target only aggregations read, by (group, step): the operators they read through.
   std::map<std::pair<std::size_t, std::size_t>, std::vector<std::string>> compact_steps_;
+  // Each Operation of the schedule, by its place: the rank it is applied to and the (rank,
+  // channels) its infer returned, against which its forward's result is checked.
+  std::map<const TermOp*, std::pair<int, TermShape>> inferred_;
   bool fast_ = true;
 
   friend class detail::NetworkBuildContext;
@@ -116,7 +137,7 @@ class OperatorNetworkImpl : public torch::nn::Module {
   // --- the interpreter (interpreter-inl.hpp) -------------------------------------------------
   struct Operators;  // the given operators, their transposes and this forward's dropped ones
   std::size_t apply_fused(const std::string& where, const CochainKey& target,
-                          const std::vector<TermOp>& list, std::size_t i, torch::Tensor& x,
+                          const detail::OperationSeq& list, std::size_t i, torch::Tensor& x,
                           Operators& ops, const Cochains& h);
   torch::Tensor apply(const std::string& where, const CochainKey& target, const TermOp& t,
                       torch::Tensor x, Operators& ops, const Cochains& h);
@@ -128,10 +149,22 @@ class OperatorNetworkImpl : public torch::nn::Module {
                           const Cochains& h, Operators& ops, PrefixCache& cache, bool may_defer);
   torch::Tensor run_step(const OperatorStep& s, const Cochains& h, Operators& ops,
                          PrefixCache& cache);
+  struct StepTerms;  // the values a step mixes
+  /// A term's value(s) added to `out`, or with `out.W` its product by its block of W.
+  void evaluate_into(const std::string& where, const CochainKey& target, const ops::Term& term,
+                     const Cochains& h, Operators& ops, PrefixCache& cache, StepTerms& out);
+  /// The step's terms mixed (with a split mlp, through it).
+  torch::Tensor mix(const std::string& where, const OperatorStep& s, StepTerms& terms);
   /// A filter step whose terms are chains of sparse products, each source's taps weighted on
   /// the side with fewer rows; undefined where the step is not one (the general path runs it).
   torch::Tensor run_filter(const std::string& where, const OperatorStep& s, const Cochains& h,
                            Operators& ops, PrefixCache& cache);
+  /// The filter's taps as chains of sparse products; false where they are not.
+  bool filter_chains(const std::string& where, detail::FilterTaps& f, Operators& ops);
+  /// The taps not `skip`ped, each distinct prefix once, combined with their slices of W.
+  torch::Tensor other_taps(const std::string& where, const detail::FilterTaps& f,
+                           const std::vector<bool>& skip, const torch::Tensor& W, Operators& ops,
+                           PrefixCache& cache);
   /// A compact step (compact_steps_) on the rows its readers aggregate: (value, each row's
   /// compact row or -1), or (undefined, undefined) where it must run on every row.
   std::pair<torch::Tensor, torch::Tensor> run_compact(const OperatorStep& s,
@@ -148,6 +181,7 @@ class OperatorNetworkImpl : public torch::nn::Module {
   void make_module(const std::string& where, const std::string& path,
                    std::shared_ptr<torch::nn::Module> m);
   void make_norm(const std::string& where, const TermOp& t, std::int64_t channels);
+  std::int64_t make_mlp(const std::string& where, const TermOp& t, std::int64_t channels);
   TermShape infer(detail::NetworkBuildContext& ctx, const TermOp& t, TermShape x);
   TermShape infer_attend(detail::NetworkBuildContext& ctx, const TermOp& t, TermShape x);
   void validate_and_create();

@@ -25,6 +25,7 @@
 #pragma once
 
 #include "topos/nn/cochains.hpp"
+#include "topos/nn/functional.hpp"
 #include "topos/nn/schedule_error.hpp"
 #include "topos/nn/sparse_operator.hpp"
 
@@ -32,6 +33,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -142,6 +144,33 @@ class RunContext {
   virtual std::shared_ptr<torch::nn::Module> module_at(const std::string& path) const = 0;
 };
 
+/// What an operation declares about itself so that the network may run it faster with the same
+/// numbers (OperatorNetwork::set_fast_paths). The defaults promise nothing: the operation runs
+/// where it stands, on every row, and may read any cochain.
+struct OperationTraits {
+  /// Each output row is a function of its input row alone, the same whichever rows are given,
+  /// and forward reads neither cochains nor operators. Over a batch's neighbourhoods the network
+  /// may then run it on just the rows an aggregation after it reads, once for the terms of a
+  /// parallel group that start with it, and in a step computed on only the rows its readers
+  /// aggregate.
+  bool row_wise = false;
+  /// forward reads cochains through RunContext::cochain. While an operation of a step may, no
+  /// cochain that step reads is computed on a subset of its rows. (Implied false when row_wise.)
+  bool reads_cochains = true;
+  /// The operators forward applies (RunContext::op): a term that applies an optional operator a
+  /// forward leaves out is skipped (OperatorSchedule::optional_operator), as a via's is.
+  std::vector<std::string> operators;
+  /// The operation is apply_update(x, *activation, negative_slope): a product before it (a via
+  /// without row normalisation, a linear) applies relu or elu in its kernel instead of calling
+  /// forward.
+  std::optional<Update> activation;
+  double negative_slope = 0.01;
+  /// With `str`, tells operations apart: two row-wise operations printed alike and with the same
+  /// identity compute the same, so a prefix of them shared by several terms runs once. Empty:
+  /// the operation object alone is its identity (no sharing between separate objects).
+  std::string identity;
+};
+
 /// An operation written outside topos. Immutable once in a schedule: it holds options (paths,
 /// widths, operator names), while parameters live in the network at their paths.
 class Operation {
@@ -151,8 +180,12 @@ class Operation {
   virtual std::string str(const std::string& x) const = 0;
   /// Build time: the checks, the parameters and the (rank, channels) produced from x's.
   virtual TermShape infer(BuildContext& ctx, TermShape x) const = 0;
-  /// Run time: the operation applied to x (cells × channels).
+  /// Run time: the operation applied to x (cells × channels). The network checks the result
+  /// against what `infer` returned: as many channels, x's dtype and device, and one row per
+  /// cell of the rank (as many as x has when the rank is kept).
   virtual torch::Tensor forward(RunContext& ctx, const torch::Tensor& x) const = 0;
+  /// What the network may assume of it (read once, when the operation is added to a term).
+  virtual OperationTraits traits() const { return {}; }
 };
 
 }  // namespace topos::nn

@@ -39,18 +39,9 @@ TOPOS_INLINE std::string ops_str(std::string x, const std::vector<TermOp>& ops) 
       case TermOp::Kind::linear:
         x = t.name + "(" + x + ")";
         break;
-      case TermOp::Kind::act:
-        x = update_name(t.update) + "(" + x + ")";
-        break;
-      case TermOp::Kind::dropout:
-        x = "dropout(" + x + ")";
-        break;
-      case TermOp::Kind::unit_rows:
-        x = "unit_rows(" + x + ")";
-        break;
       case TermOp::Kind::attend: {
         const auto& a = t.attention;
-        x = "att[" + t.param + (a.heads() > 1 ? " ×" + std::to_string(a.heads()) : "") + "]" +
+        x = "att[" + a.param() + (a.heads() > 1 ? " ×" + std::to_string(a.heads()) : "") + "]" +
             operator_label(t.name, a.transposed()) + "·" + x;
         break;
       }
@@ -64,24 +55,6 @@ TOPOS_INLINE std::string ops_str(std::string x, const std::vector<TermOp>& ops) 
         x = "powers[" + x + ";" + f + "]";
         break;
       }
-      case TermOp::Kind::scale:
-        x = num(t.p) + "·" + x;
-        break;
-      case TermOp::Kind::head_weights:
-        x = x + "·" + t.name + "[×" + std::to_string(t.heads) + "]";
-        break;
-      case TermOp::Kind::bias:
-        x = x + " + " + t.name;
-        break;
-      case TermOp::Kind::learned_scale:
-        x = "(" + num(t.offset) + "+" + t.name + ")·" + x;
-        break;
-      case TermOp::Kind::pow:
-        x = "(" + x + ")^" + num(t.value);
-        break;
-      case TermOp::Kind::normalize:
-        x = (t.per_row ? "normalize_rows(" : "normalize(") + x + ")";
-        break;
       case TermOp::Kind::mlp:
         x = t.name + "(" + x + ")";
         break;

@@ -10,6 +10,7 @@
 #include "topos/nn/operator_schedule/printer-inl.hpp"  // detail::ops_str
 
 #include <algorithm>
+#include <cstdint>
 #include <functional>
 #include <set>
 
@@ -138,14 +139,54 @@ TOPOS_INLINE torch::Tensor compact_rows(const torch::Tensor& used, std::int64_t 
   return row;
 }
 
-/// The cache key of a term's first `k` operations from `source`.
+/// The cache key of a term's first `k` operations from `source`: their printed form, and an
+/// Operation's identity (OperationTraits::identity, else the object's address).
 TOPOS_INLINE std::string prefix_key(const CochainKey& source, const std::vector<TermOp>& list,
                                     std::size_t k) {
   std::string key = ops_str(source.str(), {list.begin(), list.begin() + static_cast<long>(k)});
   for (std::size_t i = 0; i < k; ++i)
-    key += "|" + std::to_string(list[i].slope) + "," + std::to_string(list[i].p) + "," +
-           std::to_string(list[i].value) + "," + std::to_string(list[i].offset);
+    if (list[i].kind == TermOp::Kind::custom) {
+      const auto& id = list[i].traits.identity;
+      key += "|" + (id.empty()
+                        ? std::to_string(reinterpret_cast<std::uintptr_t>(list[i].operation.get()))
+                        : id);
+    }
   return key;
+}
+
+/// A clear error naming the step and the operation when an Operation's forward gives something
+/// else than its `infer` said: (cells × channels) with x's dtype and device, x's rows when the
+/// rank is kept, else the rows of `same_rank` when that is defined.
+TOPOS_INLINE void check_result(const std::string& where, const Operation& op, int rank_in,
+                               TermShape out, const torch::Tensor& x, const torch::Tensor& y,
+                               const torch::Tensor& same_rank) {
+  const auto fail = [&](const std::string& why) {
+    throw ScheduleError(where + ": operation " + op.str("x") + " " + why);
+  };
+  if (!y.defined()) fail("returned an undefined tensor: forward must return (cells × channels)");
+  if (y.dim() != 2 || x.dim() != 2) {
+    if (x.dim() == 2)
+      fail("returned a tensor of shape " + shape_str(y) + ": forward must return (cells × " +
+           std::to_string(out.channels) + ")");
+    return;
+  }
+  if (y.size(1) != out.channels)
+    fail("returned " + std::to_string(y.size(1)) + " channels, but its infer said " +
+         std::to_string(out.channels) + ": return TermShape{" + std::to_string(out.rank) + ", " +
+         std::to_string(y.size(1)) + "} from infer, or " + std::to_string(out.channels) +
+         " columns from forward");
+  if (y.scalar_type() != x.scalar_type())
+    fail(std::string("returned ") + c10::toString(y.scalar_type()) + ", but it was given " +
+         c10::toString(x.scalar_type()) + ": return the operand's dtype (.to(x.scalar_type()))");
+  if (y.device() != x.device())
+    fail("returned a tensor on " + y.device().str() + ", but it was given one on " +
+         x.device().str() + ": return it on x's device (.to(x.device()))");
+  const auto rows = out.rank == rank_in ? x.size(0) : same_rank.defined() ? same_rank.size(0) : -1;
+  if (rows >= 0 && y.size(0) != rows)
+    fail("returned " + std::to_string(y.size(0)) + " rows, but rank " + std::to_string(out.rank) +
+         " has " + std::to_string(rows) + " cells here" +
+         (out.rank == rank_in ? " (as many as the rows it was given)" : "") +
+         ": return one row per cell of the rank its infer returned");
 }
 
 /// A term's operations over a batch neighbourhood: the aggregation, checked against x's rows.
@@ -222,7 +263,7 @@ TOPOS_INLINE torch::Tensor multiply(const std::string& where, const std::string&
 
 TOPOS_INLINE std::size_t OperatorNetworkImpl::apply_fused(const std::string& where,
                                                           const CochainKey& target,
-                                                          const std::vector<TermOp>& list,
+                                                          const detail::OperationSeq& list,
                                                           std::size_t i, torch::Tensor& x,
                                                           Operators& ops, const Cochains& h) {
   const auto& t = list[i];
@@ -263,12 +304,12 @@ TOPOS_INLINE std::size_t OperatorNetworkImpl::apply_fused(const std::string& whe
     }
   }
   const bool product = (is_product(t) && !t.row_norm) || t.kind == TermOp::Kind::linear;
-  if (!product || i + 1 >= list.size() || list[i + 1].kind != TermOp::Kind::act ||
-      !fusable(list[i + 1].update)) {
+  const auto* next_act = i + 1 < list.size() ? &detail::activation_of(list[i + 1]) : nullptr;
+  if (!product || next_act == nullptr || !*next_act || !fusable(**next_act)) {
     x = apply(where, target, t, x, ops, h);
     return i;
   }
-  const auto act = epilogue_of(list[i + 1].update);
+  const auto act = epilogue_of(**next_act);
   if (t.kind == TermOp::Kind::linear) {
     x = linear_act(x, params_.at(t.name + ".weight"),
                    t.bias ? params_.at(t.name + ".bias") : torch::Tensor(), act);
@@ -318,33 +359,22 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::apply(const std::string& where,
       const auto& b = t.bias ? params_.at(t.name + ".bias") : torch::Tensor();
       return linear_act(x, params_.at(t.name + ".weight"), b);
     }
-    case TermOp::Kind::act:
-      return apply_update(x, t.update, t.slope);
-    case TermOp::Kind::dropout:
-      return nn::dropout(x, t.p, is_training());
-    case TermOp::Kind::unit_rows:
-      return unit_rows(x);
     case TermOp::Kind::powers:
       break;  // handled by the caller (it fans out)
-    case TermOp::Kind::scale:
-      return x * t.p;
-    case TermOp::Kind::head_weights: {     // x [W_1 | ... | W_H]: one product, head-major
-      const auto& W = params_.at(t.name);  // heads × in × out
-      return linear_act(x, W.permute({1, 0, 2}).reshape({W.size(1), -1}).t(), {});
-    }
-    case TermOp::Kind::bias:
-      return x + params_.at(t.name).reshape({-1});
-    case TermOp::Kind::learned_scale:
-      return (t.offset + params_.at(t.name)) * x;
-    case TermOp::Kind::pow:
-      return x.pow(t.value);
-    case TermOp::Kind::normalize:
-      return x / (t.per_row ? x.norm(2, 1, true) : x.norm()).clamp_min(1e-12);
     case TermOp::Kind::mlp:
       return mlps_.at(t.name)->forward(x);
     case TermOp::Kind::custom: {
       detail::NetworkRunContext ctx(*this, where, ops, h);
-      return t.operation->forward(ctx, x);
+      auto y = t.operation->forward(ctx, x);
+      if (auto it = inferred_.find(&t); it != inferred_.end()) {
+        const auto& [rank_in, out] = it->second;
+        // The target before the step, whole, has a row per cell of its rank.
+        const bool whole = out.rank == target.rank && h.has(target.rank, target.state) &&
+                           !h.rows(target).defined();
+        detail::check_result(where, *t.operation, rank_in, out, x, y,
+                             whole ? h.at(target.rank, target.state) : torch::Tensor());
+      }
+      return y;
     }
   }
   return x;
