@@ -9,6 +9,7 @@
 #include "topos/nn/operator_schedule.hpp"
 
 #include <atomic>
+#include <functional>
 
 using namespace topos::nn;
 using namespace topos::nn::ops;
@@ -170,6 +171,41 @@ TEST_CASE("a user operation makes submodules, reads cochains and names its step 
   trailing_dot.step(into(0).sum(from(0).apply(Gate("gate."))));
   CHECK_THAT(build_error(trailing_dot),
              Contains("step 0 (into (0)): parameter path 'gate.' is not a dotted name"));
+}
+
+TEST_CASE("a user operation whose output disagrees with its infer is an error naming the step",
+          "[nn][schedule][operation][checks]") {
+  // Infers (rank 0, same channels) but returns what `make` makes of x.
+  struct Liar : Operation {
+    std::function<torch::Tensor(const torch::Tensor&)> make;
+    explicit Liar(std::function<torch::Tensor(const torch::Tensor&)> f) : make(std::move(f)) {}
+    std::string str(const std::string& x) const override { return "liar(" + x + ")"; }
+    TermShape infer(BuildContext&, TermShape x) const override { return x; }
+    torch::Tensor forward(RunContext&, const torch::Tensor& x) const override { return make(x); }
+  };
+  const auto error = [](std::function<torch::Tensor(const torch::Tensor&)> f) {
+    OperatorSchedule s;
+    s.input("x", 0, 3).output("y", 0);
+    s.step(into(0).sum(from(0).apply(Liar(std::move(f)))).named("lie"));
+    OperatorNetwork net(s);
+    try {
+      net->forward({{"x", torch::randn({5, 3})}}, {});
+    } catch (const ScheduleError& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  CHECK(error([](const torch::Tensor& x) { return x * 2; }).empty());
+  const std::string fix =
+      "make forward return that, or infer return the rank and channels forward makes";
+  CHECK_THAT(error([](const torch::Tensor& x) { return x.narrow(1, 0, 2); }),
+             Contains("lie (into (0)): operation liar(x) returns [5, 2] float32, but its infer "
+                      "said rank 0 with 3 channels, so [5, 3] float32: " +
+                      fix));
+  CHECK_THAT(error([](const torch::Tensor& x) { return x.narrow(0, 0, 4); }),
+             Contains("returns [4, 3] float32") && Contains("so [5, 3] float32"));
+  CHECK_THAT(error([](const torch::Tensor& x) { return x.to(torch::kDouble); }),
+             Contains("returns [5, 3] float64") && Contains("so [5, 3] float32"));
 }
 
 TEST_CASE("a user operation's hand-written backward gives autograd's gradients",

@@ -344,7 +344,9 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::apply(const std::string& where,
       return mlps_.at(t.name)->forward(x);
     case TermOp::Kind::custom: {
       detail::NetworkRunContext ctx(*this, where, ops, h);
-      return t.operation->forward(ctx, x);
+      auto y = t.operation->forward(ctx, x);
+      check_operation_output(where, t, x, y, h);
+      return y;
     }
   }
   return x;
