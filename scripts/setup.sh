@@ -14,6 +14,7 @@ packages=(
   libzip-dev  # topos::data: TU and DGCNN datasets read from the zips they are published as
   python3  # scripts/check_torch_file.py: the tests' torch.load compatibility check
   python3-torch  # tests/nn/test_python_interop.cpp: torch.load / torch.save where users are
+  python3-numpy  # tests/cli/tdl_null_argument.py: a case's expected outputs and gradients
   clang-format  # ctest code_style (scripts/check_style.sh): the tree stays as .clang-format says
 )
 # Headless Chromium is only needed for the viewer screenshot test: scripts/test.sh asks for it
