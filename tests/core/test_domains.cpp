@@ -23,19 +23,29 @@ using Dense = Eigen::MatrixXd;
 
 namespace {
 
-// Can `incidence_matrix(rank, x)` (and the adjacencies) be called with an argument of type A?
+// Does `incidence_matrix(1, x)` (or an adjacency) with an argument of type A give an operator? A
+// call that must not compile resolves to a template whose static_assert says what to write.
 template <class D, class A, class = void>
 struct incidence_takes : std::false_type {};
 template <class D, class A>
 struct incidence_takes<
     D, A, std::void_t<decltype(std::declval<const D&>().incidence_matrix(1, std::declval<A>()))>>
-    : std::true_type {};
+    : std::is_same<decltype(std::declval<const D&>().incidence_matrix(1, std::declval<A>())),
+                   SparseMatrix> {};
 template <class D, class A, class = void>
 struct adjacency_takes : std::false_type {};
 template <class D, class A>
 struct adjacency_takes<
     D, A, std::void_t<decltype(std::declval<const D&>().adjacency_matrix(1, std::declval<A>()))>>
-    : std::true_type {};
+    : std::is_same<decltype(std::declval<const D&>().adjacency_matrix(1, std::declval<A>())),
+                   SparseMatrix> {};
+template <class D, class A, class = void>
+struct coadjacency_takes : std::false_type {};
+template <class D, class A>
+struct coadjacency_takes<
+    D, A, std::void_t<decltype(std::declval<const D&>().coadjacency_matrix(2, std::declval<A>()))>>
+    : std::is_same<decltype(std::declval<const D&>().coadjacency_matrix(2, std::declval<A>())),
+                   SparseMatrix> {};
 
 // Triangulated n x m torus: vertex (i, j) = i*m + j, two triangles per square, wrapping around.
 std::vector<std::vector<std::int64_t>> torus_triangles(int n, int m) {
@@ -117,16 +127,30 @@ TEST_CASE("simplicial complex: faces implied, lexicographic order, TopoNetX sign
   REQUIRE(b1(1, 0) == 1.0);
   REQUIRE(Dense(sc.incidence_matrix(2, Signed::no)).cwiseAbs() == b2.cwiseAbs());
   REQUIRE(Dense(sc.incidence_matrix(0)) == Dense::Ones(1, 4));
-  // A sign is Signed, a rank an int: B_1 unsigned is n_0 × n_1, the inclusion (1, 0) is n_1 × n_0,
-  // and a bool, which once meant the sign while an int meant a rank, compiles no more.
+  // A sign is Signed, never an int or a bool: TopoNetX's incidence_matrix(1, 0) is |B_1| (n_0 ×
+  // n_1), while the inclusion of rank 1 in rank 0 is n_1 × n_0, the same size on a complex with as
+  // many edges as nodes (this one). So the int and bool forms do not compile, and the inclusion
+  // and the adjacencies through a rank have names of their own.
   REQUIRE(Dense(sc.incidence_matrix(1, Signed::no)) == b1.cwiseAbs());
-  REQUIRE(Dense(sc.incidence_matrix(1, 0)) == b1.cwiseAbs().transpose());
+  REQUIRE(Dense(sc.inclusion_matrix(1, 0)) == b1.cwiseAbs().transpose());
+  REQUIRE(sc.num_cells(0) == sc.num_cells(1));
+  REQUIRE(Dense(sc.inclusion_matrix(1, 0)) != Dense(sc.incidence_matrix(1, Signed::no)));
   STATIC_REQUIRE_FALSE(incidence_takes<SimplicialComplex, bool>::value);
   STATIC_REQUIRE_FALSE(adjacency_takes<SimplicialComplex, bool>::value);
   STATIC_REQUIRE_FALSE(incidence_takes<CellComplex, bool>::value);
   STATIC_REQUIRE_FALSE(adjacency_takes<CellComplex, bool>::value);
   STATIC_REQUIRE(incidence_takes<SimplicialComplex, Signed>::value);
-  STATIC_REQUIRE(incidence_takes<SimplicialComplex, int>::value);
+  STATIC_REQUIRE(incidence_takes<CellComplex, Signed>::value);
+  STATIC_REQUIRE_FALSE(incidence_takes<SimplicialComplex, int>::value);
+  STATIC_REQUIRE_FALSE(incidence_takes<CellComplex, int>::value);
+  STATIC_REQUIRE_FALSE(adjacency_takes<SimplicialComplex, int>::value);
+  STATIC_REQUIRE_FALSE(adjacency_takes<CellComplex, int>::value);
+  STATIC_REQUIRE_FALSE(coadjacency_takes<SimplicialComplex, int>::value);
+  STATIC_REQUIRE_FALSE(coadjacency_takes<CellComplex, int>::value);
+  STATIC_REQUIRE(coadjacency_takes<SimplicialComplex, Signed>::value);
+  // Where no sign form exists, two ints are two ranks, TopoNetX's meaning there.
+  STATIC_REQUIRE(incidence_takes<CombinatorialComplex<>, int>::value);
+  STATIC_REQUIRE(incidence_takes<Hypergraph, int>::value);
   REQUIRE(sc.faces(2, 0, 0) == std::vector<std::int64_t>{1, 2, 3});
   REQUIRE(sc.cofaces(0, 1, 1) == std::vector<std::int64_t>{0, 1, 2});
   REQUIRE(sc.star(0, 3).size() == 4);  // node 3, edges 13 and 23, triangle 123
@@ -241,7 +265,7 @@ TEST_CASE("Hodge Laplacians equal B^T B + B B^T, unsigned ones |.|, adjacency th
   Dense a1 = b2.cwiseAbs() * b2.cwiseAbs().transpose();
   a1.diagonal().setZero();
   REQUIRE(Dense(cx.adjacency_matrix(1, Signed::yes)) == a1);  // TopoNetX: counts whatever `signed`
-  REQUIRE(Dense(cx.adjacency_matrix(1, 2)) == a1);
+  REQUIRE(Dense(cx.adjacency_matrix_via(1, 2)) == a1);
 }
 
 TEST_CASE("weighted Hodge Laplacian with unit weights is the Hodge Laplacian", "[core][domains]") {

@@ -518,8 +518,10 @@ TEST_CASE("schedules over a batch name their errors: when built, and when run",
   auto inputs = random_inputs(batch, torch::kFloat, 1);
   inputs["x1"] = torch::randn({batch.size(1) + 1, 2});
   CHECK_THROWS_WITH(net->forward(inputs, batch),
-                    Catch::Contains("neighbourhood 'B12' reads") &&
-                        Catch::Contains("source rows but the cochain (1) has"));
+                    Catch::Contains("input 'x1' has " + std::to_string(batch.size(1) + 1) +
+                                    " rows, but the batch has " + std::to_string(batch.size(1)) +
+                                    " cells of rank 1: give one row per cell of rank 1"));
+
   // Only via and an untransposed pattern aggregate over a neighbourhood of the batch.
   const auto misuse = [&](int rank, Term term) -> std::string {
     OperatorSchedule m = s;

@@ -402,7 +402,8 @@ TEST_CASE("a bad operator schedule is an error naming its step", "[nn][schedule]
   CHECK_THROWS_WITH(net->forward({{"x_0", x0}, {"x_1", x1}}, {}),
                     Contains("gather") && Contains("operator 'B' was not given"));
   CHECK_THROWS_WITH(net->forward({{"x_0", x0}, {"x_1", x1.narrow(0, 0, 6)}}, {{"B", B}}),
-                    Contains("gather") && Contains("'B' has 7 columns") && Contains("6 rows"));
+                    Contains("operator 'B' is 5 × 7 and maps rank 1 cochains to rank 0") &&
+                        Contains("input 'x_1' has 6 rows: give a 5 × 6 operator"));
   CHECK_THROWS_WITH(net->forward({{"x_0", x0}, {"x_1", torch::randn({7, 3})}}, {{"B", B}}),
                     Contains("input 'x_1' must be (cells × 2)"));
 }
@@ -865,6 +866,129 @@ TEST_CASE("an optional operator left out skips the terms that apply it", "[nn][s
   skip->to(torch::kDouble);
   const auto one = skip->forward({{"x", x}}, {{"A", A}}).at("y");
   CHECK(torch::allclose(one, A.to_dense().mm(x.mm(skip->parameter("a.weight"))), 1e-5, 1e-6));
+}
+
+TEST_CASE("a forward's inputs and operators are checked against the schedule's declarations",
+          "[nn][schedule][checks]") {
+  // Nodes (4, 3 channels), edges (4, 3 channels): B maps edges to nodes, L nodes to nodes.
+  OperatorSchedule s;
+  s.input("x_0", 0, 3).input("x_1", 1, 3).operator_input("B", 1, 0).optional_operator("L", 0, 0);
+  s.step(into(0).sum(from(1).via("B"), from(0).via("L")).linear("lin", 2).named("update"));
+  s.output("y", 0);
+  OperatorNetwork net(s);
+  torch::manual_seed(5);
+  const auto x0 = torch::randn({4, 3}), x1 = torch::randn({4, 3});
+  const auto B = random_operator(4, 4, 1).to(torch::kFloat),
+             L = random_operator(4, 4, 2).to(torch::kFloat);
+  const auto& W = net->parameter("lin.weight");
+  const auto& b = net->parameter("lin.bias");
+  const auto y = net->forward({{"x_0", x0}, {"x_1", x1}}, {{"B", B}, {"L", L}}).at("y");
+  CHECK(torch::allclose(y, torch::linear(B.to_dense().mm(x1) + L.to_dense().mm(x0), W, b), 1e-5,
+                        1e-6));
+  const auto error = [&](const std::map<std::string, torch::Tensor>& in,
+                         const std::map<std::string, SparseOperator>& ops) {
+    try {
+      net->forward(in, ops);
+    } catch (const ScheduleError& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  // A 5 × 4 operator into 4 nodes: its rows are the target rank's cells (it gave 5 rows).
+  const auto B54 = random_operator(5, 4, 3).to(torch::kFloat);
+  CHECK_THAT(error({{"x_0", x0}, {"x_1", x1}}, {{"B", B54}}),
+             Contains("operator 'B' is 5 × 4 and maps rank 1 cochains to rank 0") &&
+                 Contains("input 'x_0' has 4 rows: give a 4 × 4 operator, or declare the ranks "
+                          "it maps with operator_input(\"B\", source_rank, target_rank)"));
+  // Its columns are the source rank's cells; two operators must agree where no input says.
+  CHECK_THAT(error({{"x_0", x0}, {"x_1", torch::randn({5, 3})}}, {{"B", B}}),
+             Contains("operator 'B' is 4 × 4") && Contains("input 'x_1' has 5 rows"));
+  // A name the schedule does not declare while the optional operator is missing: likely its
+  // misspelling, which would drop its term without a word.
+  CHECK_THAT(error({{"x_0", x0}, {"x_1", x1}}, {{"B", B}, {"l", L}}),
+             Contains("operator 'l' is not one the schedule declares ('B', 'L') and the optional "
+                      "operator 'L' was not given, so its terms would be dropped: give it under "
+                      "its declared name, or declare 'l' with operator_input(\"l\", source_rank, "
+                      "target_rank)"));
+  // Otherwise a warning naming it, once per name (a caller may hold a larger dictionary).
+  struct Warnings : c10::WarningHandler {
+    std::vector<std::string> seen;
+    void process(const c10::SourceLocation&, const std::string& msg, bool) override {
+      seen.push_back(msg);
+    }
+  } warnings;
+  {
+    c10::Warning::WarningHandlerGuard guard(&warnings);
+    for (int i = 0; i < 2; ++i)
+      net->forward({{"x_0", x0}, {"x_1", x1}, {"x_2", x1}}, {{"B", B}, {"L", L}, {"U", L}});
+  }
+  REQUIRE(warnings.seen.size() == 2);
+  CHECK_THAT(warnings.seen[0], Contains("operator 'U' is not one the schedule declares ('B', "
+                                        "'L') and is ignored: give only the declared ones "
+                                        "(net->declared_operators(all))"));
+  CHECK_THAT(warnings.seen[1], Contains("input 'x_2' is not one the schedule declares ('x_0', "
+                                        "'x_1') and is ignored"));
+  CHECK(net->declared_operators({{"B", B}, {"U", L}}).count("U") == 0);
+  // float64 features for a float32 network: the input named, and what to write.
+  CHECK_THAT(error({{"x_0", x0.to(torch::kDouble)}, {"x_1", x1}}, {{"B", B}}),
+             Contains("input 'x_0' is float64, the network's parameters float32: write "
+                      "x.to(torch::kFloat32), or convert the network with "
+                      "net->to(torch::kFloat64)"));
+  // Inputs of one rank in two states must have as many rows.
+  OperatorSchedule states;
+  states.input("x", 0, 3).input("z", 0, 3, "z").output("y", 0);
+  states.step(into(0).sum(from(0), from(0, "z")));
+  CHECK_THROWS_WITH(OperatorNetwork(states)->forward({{"x", x0}, {"z", torch::randn({5, 3})}}, {}),
+                    Contains("input 'z' has 5 rows, but input 'x' has 4 rows: give one row per "
+                             "cell of rank 0"));
+  // An optional operator that no step applies is a misspelt name.
+  OperatorSchedule typo = s;
+  typo.optional_operator("Lup", 0, 0);
+  CHECK_THAT(build_error(typo),
+             Contains("optional operator 'Lup' is applied by no step (they apply 'B', 'L'): "
+                      "write the name a term applies, or remove the optional_operator"));
+}
+
+TEST_CASE("LibTorch's errors inside a step name the step and what it reads",
+          "[nn][schedule][checks]") {
+  // run_layer takes the cochains as they are (a complex may change between layers): a 5 × 4
+  // operator into 4 nodes fails in the sum, and the error names the step, not LibTorch's stack.
+  OperatorSchedule s;
+  s.input("x_0", 0, 3).input("x_1", 1, 3).operator_input("B", 1, 0);
+  s.layer("only").step(into(0).sum(from(0), from(1).via("B")).named("mix"));
+  s.output("y", 0);
+  OperatorNetwork net(s);
+  auto h = net->input_cochains({{"x_0", torch::randn({4, 3})}, {"x_1", torch::randn({4, 3})}});
+  try {
+    net->run_layer(h, {{"B", random_operator(5, 4, 3).to(torch::kFloat)}}, "only");
+    FAIL("a 5-row term summed with a 4-row one ran");
+  } catch (const ScheduleError& e) {
+    const std::string what = e.what();
+    CHECK_THAT(what, Contains("mix (into (0)): The size of tensor a (4) must match the size of "
+                              "tensor b (5)") &&
+                         Contains("the step reads (0) [4, 3], (1) [4, 3]; each operator it "
+                                  "applies needs its target rank's cells as rows"));
+    CHECK(what.find('\n') == std::string::npos);  // no LibTorch stack
+  }
+}
+
+// The internal run_groups is not proposed to a caller: the call resolves to a template whose
+// static_assert says to write run_layer or forward.
+template <class N, class = void>
+struct run_groups_says_what_to_write : std::false_type {};
+template <class N>
+struct run_groups_says_what_to_write<
+    N, std::void_t<decltype(std::declval<N&>().run_groups(
+           std::declval<Cochains&>(), std::declval<const std::map<std::string, SparseOperator>&>(),
+           nullptr, std::size_t{0}, std::size_t{1}, true))>>
+    : std::is_same<decltype(std::declval<N&>().run_groups(
+                       std::declval<Cochains&>(),
+                       std::declval<const std::map<std::string, SparseOperator>&>(), nullptr,
+                       std::size_t{0}, std::size_t{1}, true)),
+                   topos::detail::Unavailable> {};
+
+TEST_CASE("a call to the internal run_groups says what to write instead", "[nn][schedule]") {
+  STATIC_REQUIRE(run_groups_says_what_to_write<OperatorNetworkImpl>::value);
 }
 
 TEST_CASE("features with leading batch dimensions run element by element, as TopoModelX's",

@@ -27,7 +27,7 @@
 
 namespace topos {
 
-class CellComplex {
+class CellComplex : private detail::SignArgument {
  public:
   using Index = std::int64_t;
   using Edge = std::array<Index, 2>;
@@ -184,13 +184,13 @@ class CellComplex {
     return sparse::transpose(incidence_matrix(rank, sign));
   }
   /// Unsigned inclusion between two ranks (n_rank x n_to_rank).
-  SparseMatrix incidence_matrix(int rank, int to_rank) const {
+  SparseMatrix inclusion_matrix(int rank, int to_rank) const {
     if (rank == to_rank)
-      throw ComplexError("incidence_matrix: ranks must differ (got " + std::to_string(rank) +
+      throw ComplexError("inclusion_matrix: ranks must differ (got " + std::to_string(rank) +
                          " twice)");
     const int lo = std::min(rank, to_rank), hi = std::max(rank, to_rank);
     if (lo < 0 || hi > 2)
-      throw ComplexError("incidence_matrix: a cell complex has ranks 0..2, got " +
+      throw ComplexError("inclusion_matrix: a cell complex has ranks 0..2, got " +
                          std::to_string(rank) + " and " + std::to_string(to_rank));
     SparseMatrix m;
     if (hi == lo + 1) {
@@ -244,23 +244,22 @@ class CellComplex {
       throw ComplexError("coadjacency_matrix: rank " + std::to_string(rank) + " must be in [0, 2]");
     return incidence_to_adjacency(incidence_matrix(rank));
   }
-  SparseMatrix adjacency_matrix(int rank, int via_rank) const {
+  SparseMatrix adjacency_matrix_via(int rank, int via_rank) const {
     if (via_rank <= rank)
-      throw ComplexError("adjacency_matrix: via rank " + std::to_string(via_rank) +
+      throw ComplexError("adjacency_matrix_via: via rank " + std::to_string(via_rank) +
                          " must be above rank " + std::to_string(rank));
-    return incidence_to_adjacency(incidence_matrix(via_rank, rank));
+    return incidence_to_adjacency(inclusion_matrix(via_rank, rank));
   }
-  SparseMatrix coadjacency_matrix(int rank, int via_rank) const {
+  SparseMatrix coadjacency_matrix_via(int rank, int via_rank) const {
     if (via_rank >= rank)
-      throw ComplexError("coadjacency_matrix: via rank " + std::to_string(via_rank) +
+      throw ComplexError("coadjacency_matrix_via: via rank " + std::to_string(via_rank) +
                          " must be below rank " + std::to_string(rank));
-    return incidence_to_adjacency(incidence_matrix(via_rank, rank));
+    return incidence_to_adjacency(inclusion_matrix(via_rank, rank));
   }
-  // A bool here was TopoNetX's `signed`, an int a rank: two meanings one conversion apart.
-  // Say Signed::yes or Signed::no; incidence_matrix(r, s) with two ranks is the inclusion.
-  SparseMatrix incidence_matrix(int, bool) const = delete;
-  SparseMatrix adjacency_matrix(int, bool) const = delete;
-  SparseMatrix coadjacency_matrix(int, bool) const = delete;
+  // The sign is Signed::yes or Signed::no, never an int or a bool (detail::SignArgument).
+  using detail::SignArgument::adjacency_matrix;
+  using detail::SignArgument::coadjacency_matrix;
+  using detail::SignArgument::incidence_matrix;
   /// D^{-1/2} L D^{-1/2} of the signed Hodge Laplacian (as SimplicialComplex's).
   SparseMatrix normalized_laplacian_matrix(int rank) const {
     return normalized_laplacian(hodge_laplacian_matrix(rank, true));

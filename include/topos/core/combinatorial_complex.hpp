@@ -475,6 +475,11 @@ class CombinatorialComplex {
       members[static_cast<std::size_t>(fill[static_cast<std::size_t>(p.first)]++)] = p.second;
     return pair_counts(group_offsets, members, size(r));
   }
+  /// The Domain concept's names of the three above (domain.hpp): the simplicial and cell complexes
+  /// answer to these, their incidence_matrix(rank, Signed) being TopoNetX's oriented one.
+  SparseMatrix inclusion_matrix(int r, int s) const { return incidence_matrix(r, s); }
+  SparseMatrix adjacency_matrix_via(int r, int via) const { return adjacency_matrix(r, via); }
+  SparseMatrix coadjacency_matrix_via(int r, int via) const { return coadjacency_matrix(r, via); }
 
  private:
   struct Rank {

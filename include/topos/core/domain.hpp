@@ -8,14 +8,17 @@
 //   Index D::num_cells(int rank) const                   0 for ranks without cells
 //   std::vector<std::vector<Index>> D::skeleton(int r)   the cells of rank r as node lists, id
 //     order
-//   SparseMatrix D::incidence_matrix(int r, int s)       n_r x n_s unsigned inclusion (r != s)
-//   SparseMatrix D::adjacency_matrix(int r, int via)     via > r: off-diagonal |B||B|^T, counts
-//   SparseMatrix D::coadjacency_matrix(int r, int via)   via < r: off-diagonal |B|^T|B|, counts
-// (the neighbourhood functions, TopoNetX's CombinatorialComplex semantics). The simplicial and
-// cell complexes also have TopoNetX's oriented vocabulary: incidence_matrix(rank, Signed), up/down/
+//   SparseMatrix D::inclusion_matrix(int r, int s)           n_r x n_s unsigned inclusion (r != s)
+//   SparseMatrix D::adjacency_matrix_via(int r, int via)     via > r: off-diagonal |B||B|^T, counts
+//   SparseMatrix D::coadjacency_matrix_via(int r, int via)   via < r: off-diagonal |B|^T|B|, counts
+// (the neighbourhood functions, TopoNetX's CombinatorialComplex semantics; the combinatorial
+// complex and the hypergraph also have them under TopoNetX's names, incidence_matrix(r, s),
+// adjacency_matrix(r, via), coadjacency_matrix(r, via)). The simplicial and cell complexes have
+// TopoNetX's oriented vocabulary instead: incidence_matrix(rank, Signed), up/down/
 // hodge_laplacian_matrix(rank, signed), adjacency/coadjacency_matrix(rank, Signed), normalized_
-// laplacian_matrix(rank); `Signed` is a type of its own and the bool forms are deleted, so a sign
-// is never read as a rank or the reverse. Std + Eigen only (C++17: a trait, not a C++20 concept).
+// laplacian_matrix(rank); `Signed` is a type of its own and an int or a bool there does not
+// compile, so a sign is never read as a rank or the reverse. Std + Eigen only (C++17: a trait, not
+// a C++20 concept).
 #pragma once
 
 #include "topos/core/cell_complex.hpp"
@@ -34,15 +37,16 @@ namespace detail {
 template <class D, class = void>
 struct is_domain_impl : std::false_type {};
 template <class D>
-struct is_domain_impl<D, std::void_t<decltype(std::declval<const D&>().dim()),
-                                     decltype(std::declval<const D&>().shape()),
-                                     decltype(std::declval<const D&>().num_cells(0)),
-                                     decltype(std::declval<const D&>().skeleton(0)),
-                                     decltype(std::declval<const D&>().incidence_matrix(0, 1)),
-                                     decltype(std::declval<const D&>().adjacency_matrix(0, 1)),
-                                     decltype(std::declval<const D&>().coadjacency_matrix(1, 0))>>
+struct is_domain_impl<D,
+                      std::void_t<decltype(std::declval<const D&>().dim()),
+                                  decltype(std::declval<const D&>().shape()),
+                                  decltype(std::declval<const D&>().num_cells(0)),
+                                  decltype(std::declval<const D&>().skeleton(0)),
+                                  decltype(std::declval<const D&>().inclusion_matrix(0, 1)),
+                                  decltype(std::declval<const D&>().adjacency_matrix_via(0, 1)),
+                                  decltype(std::declval<const D&>().coadjacency_matrix_via(1, 0))>>
     : std::bool_constant<
-          std::is_convertible_v<decltype(std::declval<const D&>().incidence_matrix(0, 1)),
+          std::is_convertible_v<decltype(std::declval<const D&>().inclusion_matrix(0, 1)),
                                 SparseMatrix> &&
           std::is_convertible_v<decltype(std::declval<const D&>().num_cells(0)), std::int64_t>> {};
 }  // namespace detail

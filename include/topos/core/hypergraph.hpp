@@ -155,6 +155,16 @@ class Hypergraph {
           std::to_string(rank) + " via " + std::to_string(via_rank));
     return incidence_to_adjacency(incidence_matrix(0, 1));
   }
+  /// The Domain concept's names of the three above (domain.hpp).
+  SparseMatrix inclusion_matrix(int rank, int to_rank) const {
+    return incidence_matrix(rank, to_rank);
+  }
+  SparseMatrix adjacency_matrix_via(int rank, int via_rank) const {
+    return adjacency_matrix(rank, via_rank);
+  }
+  SparseMatrix coadjacency_matrix_via(int rank, int via_rank) const {
+    return coadjacency_matrix(rank, via_rank);
+  }
 
  private:
   Index num_nodes_ = 0;

@@ -26,7 +26,7 @@
 
 namespace topos {
 
-class SimplicialComplex {
+class SimplicialComplex : private detail::SignArgument {
  public:
   using Index = std::int64_t;
 
@@ -288,11 +288,11 @@ class SimplicialComplex {
   }
   /// Unsigned inclusion between any two ranks, n_rank x n_to_rank: 1 where one simplex is a
   /// face of the other (the concept's incidence; for to_rank = rank + 1 it is |B_{rank+1}|).
-  SparseMatrix incidence_matrix(int rank, int to_rank) const {
-    require_rank(rank, "incidence_matrix");
-    require_rank(to_rank, "incidence_matrix");
+  SparseMatrix inclusion_matrix(int rank, int to_rank) const {
+    require_rank(rank, "inclusion_matrix");
+    require_rank(to_rank, "inclusion_matrix");
     if (rank == to_rank)
-      throw ComplexError("incidence_matrix: ranks must differ (got " + std::to_string(rank) +
+      throw ComplexError("inclusion_matrix: ranks must differ (got " + std::to_string(rank) +
                          " twice)");
     const int lo = std::min(rank, to_rank), hi = std::max(rank, to_rank);
     SparseMatrix up(num_cells(hi), num_cells(lo));
@@ -359,24 +359,23 @@ class SimplicialComplex {
     return sparse::without_diagonal(down_laplacian_matrix(rank, true), sign == Signed::no);
   }
   /// Concept form: simplices of `rank` sharing a simplex of rank via_rank > rank, entry = count.
-  SparseMatrix adjacency_matrix(int rank, int via_rank) const {
+  SparseMatrix adjacency_matrix_via(int rank, int via_rank) const {
     if (via_rank <= rank)
-      throw ComplexError("adjacency_matrix: via rank " + std::to_string(via_rank) +
+      throw ComplexError("adjacency_matrix_via: via rank " + std::to_string(via_rank) +
                          " must be above rank " + std::to_string(rank));
-    return incidence_to_adjacency(incidence_matrix(via_rank, rank));
+    return incidence_to_adjacency(inclusion_matrix(via_rank, rank));
   }
   /// Concept form: simplices of `rank` sharing a simplex of rank via_rank < rank, entry = count.
-  SparseMatrix coadjacency_matrix(int rank, int via_rank) const {
+  SparseMatrix coadjacency_matrix_via(int rank, int via_rank) const {
     if (via_rank >= rank)
-      throw ComplexError("coadjacency_matrix: via rank " + std::to_string(via_rank) +
+      throw ComplexError("coadjacency_matrix_via: via rank " + std::to_string(via_rank) +
                          " must be below rank " + std::to_string(rank));
-    return incidence_to_adjacency(incidence_matrix(via_rank, rank));
+    return incidence_to_adjacency(inclusion_matrix(via_rank, rank));
   }
-  // A bool here was TopoNetX's `signed`, an int a rank: two meanings one conversion apart.
-  // Say Signed::yes or Signed::no; incidence_matrix(r, s) with two ranks is the inclusion.
-  SparseMatrix incidence_matrix(int, bool) const = delete;
-  SparseMatrix adjacency_matrix(int, bool) const = delete;
-  SparseMatrix coadjacency_matrix(int, bool) const = delete;
+  // The sign is Signed::yes or Signed::no, never an int or a bool (detail::SignArgument).
+  using detail::SignArgument::adjacency_matrix;
+  using detail::SignArgument::coadjacency_matrix;
+  using detail::SignArgument::incidence_matrix;
   /// D^{-1/2} L D^{-1/2}, L the signed Hodge Laplacian, D the row sums of |L|.
   SparseMatrix normalized_laplacian_matrix(int rank) const {
     return normalized_laplacian(hodge_laplacian_matrix(rank, true));

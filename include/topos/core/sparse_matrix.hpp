@@ -16,6 +16,7 @@
 #include <numeric>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -33,8 +34,47 @@ using SparseMatrix = Eigen::SparseMatrix<double, Eigen::RowMajor, std::int64_t>;
 
 /// TopoNetX's `signed` argument of the oriented operators (incidence_matrix(rank, Signed::no)):
 /// a type of its own, so that no call can mean a rank where a sign was meant, or the reverse
-/// (incidence_matrix(r, s) with two ranks is the n_r × n_s inclusion).
+/// (inclusion_matrix(r, s) with two ranks is the n_r × n_s inclusion).
 enum class Signed : bool { no = false, yes = true };
+
+namespace detail {
+/// A call that must not compile picks a template returning Unavailable whose static_assert on
+/// never<...> (false, but only once instantiated) says what to write instead; tests see the
+/// return type.
+template <class...>
+inline constexpr bool never = false;
+struct Unavailable {};
+
+/// The oriented complexes' (SimplicialComplex, CellComplex) TopoNetX operators take a rank and a
+/// Signed; these catch an int or a bool there (TopoNetX's incidence_matrix(1, 0) is |B_1|, while
+/// two ints were once the inclusion between two ranks). A complex brings them in with `using`.
+struct SignArgument {
+  template <class T, class = std::enable_if_t<std::is_arithmetic_v<T>>>
+  Unavailable incidence_matrix(int, T) const {
+    static_assert(never<T>,
+                  "incidence_matrix(rank, sign): write the sign as Signed::yes or Signed::no (not "
+                  "an int or a bool); write inclusion_matrix(rank, to_rank) for the unsigned "
+                  "inclusion between two ranks");
+    return {};
+  }
+  template <class T, class = std::enable_if_t<std::is_arithmetic_v<T>>>
+  Unavailable adjacency_matrix(int, T) const {
+    static_assert(never<T>,
+                  "adjacency_matrix(rank, sign): write the sign as Signed::yes or Signed::no (not "
+                  "an int or a bool); write adjacency_matrix_via(rank, via_rank) for the cells "
+                  "sharing a cell of rank via_rank");
+    return {};
+  }
+  template <class T, class = std::enable_if_t<std::is_arithmetic_v<T>>>
+  Unavailable coadjacency_matrix(int, T) const {
+    static_assert(never<T>,
+                  "coadjacency_matrix(rank, sign): write the sign as Signed::yes or Signed::no "
+                  "(not an int or a bool); write coadjacency_matrix_via(rank, via_rank) for the "
+                  "cells sharing a cell of rank via_rank");
+    return {};
+  }
+};
+}  // namespace detail
 
 namespace sparse {
 

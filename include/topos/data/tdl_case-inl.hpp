@@ -243,7 +243,7 @@ template <class D>
 SparseOp oriented_operator(const D& d, const OpCall& c) {
   const std::string& op = c.op;
   if (op == "incidence_matrix") {
-    if (c.has("to_rank")) return d.incidence_matrix(c.integer("rank"), c.integer("to_rank"));
+    if (c.has("to_rank")) return d.inclusion_matrix(c.integer("rank"), c.integer("to_rank"));
     return d.incidence_matrix(c.integer("rank"), Signed(c.boolean("signed", true)));
   }
   if (op == "coincidence_matrix")
@@ -255,11 +255,12 @@ SparseOp oriented_operator(const D& d, const OpCall& c) {
   if (op == "down_laplacian_matrix")
     return d.down_laplacian_matrix(c.integer("rank"), c.boolean("signed", true));
   if (op == "adjacency_matrix") {
-    if (c.has("via_rank")) return d.adjacency_matrix(c.integer("rank"), c.integer("via_rank"));
+    if (c.has("via_rank")) return d.adjacency_matrix_via(c.integer("rank"), c.integer("via_rank"));
     return d.adjacency_matrix(c.integer("rank"), Signed(c.boolean("signed", false)));
   }
   if (op == "coadjacency_matrix") {
-    if (c.has("via_rank")) return d.coadjacency_matrix(c.integer("rank"), c.integer("via_rank"));
+    if (c.has("via_rank"))
+      return d.coadjacency_matrix_via(c.integer("rank"), c.integer("via_rank"));
     return d.coadjacency_matrix(c.integer("rank"), Signed(c.boolean("signed", false)));
   }
   if (op == "normalized_laplacian_matrix") return d.normalized_laplacian_matrix(c.integer("rank"));

@@ -711,8 +711,9 @@ TEST_CASE("the zoo names unknown models, parameters and bad tensors", "[models][
   args.push_back(ZooArg::of(torch::randn({2, 1}), "x_2"));
   REQUIRE_THROWS_WITH(z.forward(args), Catch::Contains("('x_2') must be an operator"));
   args.back() = L(3);
-  REQUIRE_THROWS_WITH(z.forward(args), Catch::Contains("operator 'laplacian_2' has 3 columns") &&
-                                           Catch::Contains("2 rows"));
+  REQUIRE_THROWS_WITH(z.forward(args),
+                      Catch::Contains("operator 'laplacian_2' is 3 × 3") &&
+                          Catch::Contains("input 'x_2' has 2 rows: give a 2 × 2 operator"));
   std::filesystem::remove_all(tmp);
 }
 

@@ -226,10 +226,12 @@ class CANImpl : public nn::Cloneable<CANImpl, nn::OperatorNetworkImpl> {
       ops["lift_source"] = nn::SparseOperator::selection(adjacency_0.row, x_0.size(0));
       ops["lift_target"] = nn::SparseOperator::selection(adjacency_0.col, x_0.size(0));
     }
-    if (!options.pooling()) return run({{"x_0", x_0}, {"x_1", x_1}}, ops, {"x_1"})[0];
+    std::map<std::string, torch::Tensor> in{{"x_1", x_1}};
+    if (options.att_lift()) in["x_0"] = x_0;  // read by the lift only
+    if (!options.pooling()) return run(in, ops, {"x_1"})[0];
     // With pooling the schedule runs layer by layer: after each layer but the first, the edges of
     // highest score are kept and the Laplacians restricted to them.
-    auto h = input_cochains({{"x_0", x_0}, {"x_1", x_1}});
+    auto h = input_cochains(in);
     auto L_down = down_laplacian_1, L_up = up_laplacian_1;
     for (int l = 0; l < options.n_layers(); ++l) {
       run_layer(h, ops, "layer " + std::to_string(l));

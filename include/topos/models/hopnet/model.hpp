@@ -46,7 +46,10 @@ class HopnetImpl : public nn::Cloneable<HopnetImpl, nn::OperatorNetworkImpl> {
   /// the normalised zero acceleration. Without object cells the test is the node's own type
   /// column (x0[:, 16] with 21 columns), so the floor's virtual node is static too.
   HopnetOutput forward(const HopnetBatch& b, const Normalizer& norm) {
-    auto out = nn::OperatorNetworkImpl::forward(b.inputs, b.complex);
+    // A batch carries x3_plus in every mode; the schedule declares it in native mode only.
+    auto inputs = b.inputs;
+    if (options.mode() != FeatureMode::native) inputs.erase("x3_plus");
+    auto out = nn::OperatorNetworkImpl::forward(inputs, b.complex);
     if (options.architecture() == Architecture::no_object_cells) {
       const auto& x0 = b.inputs.at("x0");
       const auto node_static = x0.select(1, x0.size(1) - 5).lt(0).unsqueeze(1);

@@ -10,6 +10,13 @@
 
 #include "topos/nn/operator_schedule.hpp"
 
+#include <map>
+#include <stdexcept>
+#include <string>
+#include <tuple>
+#include <utility>
+#include <vector>
+
 namespace topos::models {
 
 struct SCNNOptions {
@@ -40,19 +47,23 @@ inline nn::OperatorSchedule scnn_schedule(const SCNNOptions& o) {
     throw std::invalid_argument("SCNN: update_func must be relu, sigmoid or none");
   if (o.n_layers() < 1) throw std::invalid_argument("SCNN: n_layers must be >= 1");
   nn::OperatorSchedule s;
-  s.input("x", 1, o.in_channels())
-      .operator_input("laplacian_down", 1, 1)
-      .operator_input("laplacian_up", 1, 1)
-      .output("x", 1);
+  s.input("x", 1, o.in_channels()).output("x", 1);
+  // A Laplacian of order 0 is neither declared nor applied (TopoModelX takes None for it).
+  std::vector<std::pair<std::string, int>> filters;
+  for (const auto& [name, order] :
+       {std::pair<std::string, int>{"laplacian_down", o.conv_order_down()},
+        std::pair<std::string, int>{"laplacian_up", o.conv_order_up()}})
+    if (order > 0) {
+      s.operator_input(name, 1, 1);
+      filters.emplace_back(name, order);
+    }
   for (int l = 0; l < o.n_layers(); ++l) {
     // TopoModelX's first layer gets neither aggr_norm nor update_func.
     const bool plain = l == 0 && o.topomodelx_compatible();
     const bool norm = o.aggr_norm() && !plain;
     s.step(into(1)
                .filter("layers." + std::to_string(l) + ".weight", o.hidden_channels(),
-                       from(1).powers({{"laplacian_down", o.conv_order_down()},
-                                       {"laplacian_up", o.conv_order_up()}},
-                                      norm, 2))
+                       from(1).powers(filters, norm, 2))
                .act(plain ? nn::Update::none : o.update_func()));
   }
   return s;
@@ -61,11 +72,24 @@ inline nn::OperatorSchedule scnn_schedule(const SCNNOptions& o) {
 class SCNNImpl : public nn::Cloneable<SCNNImpl, nn::OperatorNetworkImpl> {
  public:
   explicit SCNNImpl(const SCNNOptions& o) : Cloneable(scnn_schedule(o)), options(o) {}
-  /// Features of one rank, its lower and upper Laplacians.
+  /// Features of one rank, its lower and upper Laplacians; a Laplacian of order 0 is not used
+  /// and may be left undefined (TopoModelX's None).
   torch::Tensor forward(const torch::Tensor& x, const nn::SparseOperator& laplacian_down,
                         const nn::SparseOperator& laplacian_up) {
-    return run({{"x", x}}, {{"laplacian_down", laplacian_down}, {"laplacian_up", laplacian_up}},
-               {"x"})[0];
+    std::map<std::string, nn::SparseOperator> ops;
+    for (const auto& [name, order, A] :
+         {std::tuple<const char*, int, const nn::SparseOperator*>{
+              "laplacian_down", options.conv_order_down(), &laplacian_down},
+          std::tuple<const char*, int, const nn::SparseOperator*>{
+              "laplacian_up", options.conv_order_up(), &laplacian_up}}) {
+      if (order == 0) continue;
+      if (!A->defined())
+        throw std::invalid_argument(std::string("SCNN: ") + name + " is needed (its order is " +
+                                    std::to_string(order) +
+                                    "); only a Laplacian of order 0 may be left out (None)");
+      ops.emplace(name, *A);
+    }
+    return run({{"x", x}}, ops, {"x"})[0];
   }
   SCNNOptions options;
 };

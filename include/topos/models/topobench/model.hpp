@@ -155,14 +155,14 @@ class TopoBenchModelImpl : public nn::Cloneable<TopoBenchModelImpl> {
                                     "', which the encoder does not give");
       in[port.name] = it->second;
     }
-    const auto out = backbone->forward(in, backbone_operators(b));
+    const auto out = backbone->forward(in, backbone->declared_operators(backbone_operators(b)));
     std::map<std::string, torch::Tensor> head_in;
     for (int r = 0; r < spec.cell_dimensions; ++r) {
       const auto R = std::to_string(r);
       head_in["x_" + R] = out.at("x_" + R);
       head_in["encoded_" + R] = encoded.at("x_" + R);
     }
-    auto x0 = head->forward(head_in, b.operators).at("x_0");
+    auto x0 = head->forward(head_in, head->declared_operators(b.operators)).at("x_0");
     if (options.graph_level()) x0 = nn::segment_sum(x0, b.batch.at(0), b.num_graphs);
     return classifier->forward(x0);
   }

@@ -81,6 +81,10 @@ class Args {
   std::size_t size() const { return a_.size(); }
   torch::Tensor tensor(std::size_t i) const { return tensor_of(at(i), i); }
   const nn::SparseOperator& op(std::size_t i) const { return op_of(at(i), i); }
+  /// An operator, or an undefined one where the argument is None (null in case.json).
+  nn::SparseOperator op_or_none(std::size_t i) const {
+    return is_none(i) ? nn::SparseOperator() : op_of(at(i), i);
+  }
   std::vector<torch::Tensor> tensors(std::size_t i) const {
     std::vector<torch::Tensor> out;
     for (const auto& x : list(i)) out.push_back(tensor_of(x, i));

@@ -38,7 +38,9 @@ inline std::map<std::string, Maker> more_simplicial_and_cell_makers() {
          return wrap<SCNN>(
              "SCNN", net,
              [](SCNN& n, const Args& a) {
-               return std::vector<torch::Tensor>{n->forward(a.tensor(0), a.op(1), a.op(2))};
+               // A Laplacian of order 0 may be None (TopoModelX's SCNN ignores it).
+               return std::vector<torch::Tensor>{
+                   n->forward(a.tensor(0), a.op_or_none(1), a.op_or_none(2))};
              },
              3, 3);
        }},

@@ -25,18 +25,20 @@ class NetworkBuildContext final : public BuildContext {
  public:
   NetworkBuildContext(OperatorNetworkImpl& net, const OperatorStep& step,
                       const std::map<CochainKey, std::int64_t>& width, std::set<CochainKey>& reads,
-                      const std::set<CochainKey>& step_outputs)
+                      const std::set<CochainKey>& step_outputs, std::set<std::string>& applied)
       : net_(net),
         step_(step),
         where_(step.name + " (into " + step.target.str() + ")"),
         width_(width),
         reads_(reads),
-        step_outputs_(step_outputs) {}
+        step_outputs_(step_outputs),
+        applied_(applied) {}
   const std::string& where() const override { return where_; }
   const CochainKey& target() const override { return step_.target; }
   std::pair<int, int> operator_ranks(const std::string& name) const override {
     auto it = net_.schedule_.operators().find(name);
     if (it == net_.schedule_.operators().end()) fail("unknown operator '" + name + "'");
+    applied_.insert(name);
     return it->second;
   }
   std::int64_t cochain_width(const CochainKey& key) override {
@@ -76,6 +78,7 @@ class NetworkBuildContext final : public BuildContext {
   const std::map<CochainKey, std::int64_t>& width_;
   std::set<CochainKey>& reads_;
   const std::set<CochainKey>& step_outputs_;
+  std::set<std::string>& applied_;  // the operators some operation applies or asks about
 };
 
 }  // namespace detail
@@ -257,13 +260,19 @@ TOPOS_INLINE void OperatorNetworkImpl::validate_and_create() {
   // context) and writes, for the liveness below.
   std::vector<std::vector<std::set<CochainKey>>> reads;
   std::set<CochainKey> step_outputs;  // cochains some earlier step wrote
+  std::set<std::string> applied;      // operators that some operation applies
   for (const auto& group : schedule_.groups()) {
     auto next = width;
     std::set<CochainKey> written;
     reads.emplace_back();
     for (const auto& s : group) {
       auto& read = reads.back().emplace_back();
-      detail::NetworkBuildContext ctx(*this, s, width, read, step_outputs);
+      detail::NetworkBuildContext ctx(*this, s, width, read, step_outputs, applied);
+      for (const auto& t : s.operations())
+        for (const auto& name : detail::operators_of(t)) applied.insert(name);
+      for (const auto& term : s.terms)
+        for (const auto& t : term.operations())
+          for (const auto& name : detail::operators_of(t)) applied.insert(name);
       const std::string& where = ctx.where();
       if (!written.insert(s.target).second)
         throw ScheduleError(where + ": another step of the same parallel group writes " +
@@ -351,6 +360,15 @@ TOPOS_INLINE void OperatorNetworkImpl::validate_and_create() {
   for (const auto& o : schedule_.outputs())
     if (!width.count(o.key))
       throw ScheduleError("output '" + o.name + "': no cochain " + o.key.str());
+  // An optional operator no step applies is a typo: a forward without it would drop no term.
+  for (const auto& name : schedule_.optional_operators())
+    if (!applied.count(name)) {
+      std::string names;
+      for (const auto& n : applied) names += (names.empty() ? "'" : ", '") + n + "'";
+      throw ScheduleError("optional operator '" + name + "' is applied by no step (they apply " +
+                          (names.empty() ? "none" : names) +
+                          "): write the name a term applies, or remove the optional_operator");
+    }
   for (const auto& p : schedule_.parameters())
     make_parameter("parameter '" + p.path + "'", p.path, p.shape, ParameterInit::glorot(p.gain));
 

@@ -4,6 +4,7 @@
 // the step's target. Compiled into topos::nn, or inline with TOPOS_HEADER_ONLY (topos/config.hpp).
 #pragma once
 
+#include "topos/nn/operator_schedule/checks-inl.hpp"
 #include "topos/nn/operator_schedule/term-inl.hpp"
 
 #include <algorithm>
@@ -18,8 +19,9 @@ TOPOS_INLINE std::map<std::string, torch::Tensor> OperatorNetworkImpl::forward(
   if (const auto lead = detail::leading_dims(schedule_.inputs(), inputs); !lead.empty())
     return detail::over_leading(schedule_.inputs(), inputs, lead,
                                 [&](const auto& in) { return forward(in, operators); });
+  check_arguments(inputs, operators, nullptr);
   auto h = input_cochains(inputs);
-  run_groups(h, operators, nullptr, 0, schedule_.groups().size(), /*live_only=*/true);
+  run_range(h, operators, nullptr, 0, schedule_.groups().size(), /*live_only=*/true);
   return output_cochains(h);
 }
 
@@ -30,8 +32,9 @@ TOPOS_INLINE std::map<std::string, torch::Tensor> OperatorNetworkImpl::forward_b
     return detail::over_leading(schedule_.inputs(), inputs, lead, [&](const auto& in) {
       return forward_batch(in, batch, operators);
     });
+  check_arguments(inputs, operators, &batch);
   auto h = input_cochains(inputs);
-  run_groups(h, operators, &batch, 0, schedule_.groups().size(), /*live_only=*/true);
+  run_range(h, operators, &batch, 0, schedule_.groups().size(), /*live_only=*/true);
   return output_cochains(h);
 }
 
@@ -54,9 +57,9 @@ TOPOS_INLINE void OperatorNetworkImpl::run_layer(
                         "' in the schedule (layers: " + (known.empty() ? "none" : known) + ")");
   }
   const auto next = std::next(it);
-  run_groups(h, operators, batch, it->second,
-             next == layers.end() ? schedule_.groups().size() : next->second,
-             /*live_only=*/false);
+  run_range(h, operators, batch, it->second,
+            next == layers.end() ? schedule_.groups().size() : next->second,
+            /*live_only=*/false);
 }
 
 TOPOS_INLINE Cochains
@@ -74,7 +77,7 @@ OperatorNetworkImpl::input_cochains(const std::map<std::string, torch::Tensor>& 
   return h;
 }
 
-TOPOS_INLINE void OperatorNetworkImpl::run_groups(
+TOPOS_INLINE void OperatorNetworkImpl::run_range(
     Cochains& h, const std::map<std::string, SparseOperator>& operators, const ComplexBatch* batch,
     std::size_t begin, std::size_t end, bool live_only) {
   Operators ops{&operators, batch, {}, {}, {}};
@@ -94,9 +97,13 @@ TOPOS_INLINE void OperatorNetworkImpl::run_groups(
       if (live_only && !live_[g][i]) continue;
       const auto& s = groups[g][i];
       Update u{s.target, {}, {}};
-      if (auto c = compact_steps_.find({g, i}); c != compact_steps_.end())
-        std::tie(u.value, u.rows) = run_compact(s, c->second, snapshot, ops, cache);
-      if (!u.value.defined()) u.value = run_step(s, snapshot, ops, cache);
+      try {
+        if (auto c = compact_steps_.find({g, i}); c != compact_steps_.end())
+          std::tie(u.value, u.rows) = run_compact(s, c->second, snapshot, ops, cache);
+        if (!u.value.defined()) u.value = run_step(s, snapshot, ops, cache);
+      } catch (const c10::Error& e) {  // LibTorch's message, without its stack, and the step
+        detail::rethrow_in_step(s, snapshot, e);
+      }
       updates.push_back(std::move(u));
     }
     for (auto& u : updates) {

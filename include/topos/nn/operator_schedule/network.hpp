@@ -1,11 +1,12 @@
 // topos/nn/operator_schedule/network.hpp
 // OperatorNetwork: the module that runs an OperatorSchedule. Built from a schedule, it infers
 // every cochain's width, checks each step (build-inl.hpp) and creates the parameters at the
-// schedule's dotted paths (parameters-inl.hpp); its forward interprets the steps
-// (interpreter-inl.hpp).
+// schedule's dotted paths (parameters-inl.hpp); its forward checks its arguments
+// (checks-inl.hpp) and interprets the steps (interpreter-inl.hpp).
 #pragma once
 
 #include "topos/config.hpp"
+#include "topos/core/sparse_matrix.hpp"  // detail::never, detail::Unavailable
 #include "topos/nn/aggregate.hpp"
 #include "topos/nn/complex_batch.hpp"
 #include "topos/nn/operator_schedule/builder.hpp"
@@ -55,11 +56,14 @@ class OperatorNetworkImpl : public torch::nn::Module {
   // unit (a third of a small model's compile time).
   ~OperatorNetworkImpl() override;
 
-  /// Inputs and operators by name -> outputs by name. An operator whose shape does not fit the
-  /// cochains it is applied to is an error naming the step. Inputs may carry leading batch
-  /// dimensions, (..., cells, channels), the same for every input (TopoModelX's SCoNe trains on
-  /// batches of trajectories): each element runs through the network and the outputs come back
-  /// with the same leading dimensions.
+  /// Inputs and operators by name -> outputs by name, checked on entry against the schedule: a
+  /// dtype or device other than the parameters', or an operator whose rows or columns are not the
+  /// cells of its target or source rank, is an error naming the argument; a name the schedule does
+  /// not declare is ignored with a warning (an error where a declared optional operator is then
+  /// missing: likely its misspelling). Inputs may carry leading batch dimensions, (..., cells,
+  /// channels), the same for every input (TopoModelX's SCoNe trains on batches of trajectories):
+  /// each element runs through the network and the outputs come back with the same leading
+  /// dimensions.
   std::map<std::string, torch::Tensor> forward(
       const std::map<std::string, torch::Tensor>& inputs,
       const std::map<std::string, SparseOperator>& operators);
@@ -78,6 +82,11 @@ class OperatorNetworkImpl : public torch::nn::Module {
       const std::map<std::string, torch::Tensor>& inputs, const ComplexBatch& batch,
       const std::map<std::string, SparseOperator>& operators);
 
+  /// The operators of `all` that the schedule declares, for a caller that holds a larger
+  /// dictionary (a dataset's operators for every model).
+  std::map<std::string, SparseOperator> declared_operators(
+      const std::map<std::string, SparseOperator>& all) const;
+
   /// The cochains the inputs give, checked against the schedule's inputs.
   Cochains input_cochains(const std::map<std::string, torch::Tensor>& inputs) const;
 
@@ -89,6 +98,17 @@ class OperatorNetworkImpl : public torch::nn::Module {
                  const std::string& name, const ComplexBatch* batch = nullptr);
 
   std::map<std::string, torch::Tensor> output_cochains(const Cochains& h) const;
+
+  /// Internal now: a layer runs with run_layer, the whole schedule with forward. (A template, so
+  /// that a call says so instead of proposing the private overload.)
+  template <class... Args>
+  topos::detail::Unavailable run_groups(Args&&...) {
+    static_assert(topos::detail::never<Args...>,
+                  "OperatorNetwork::run_groups is internal: write run_layer(h, operators, "
+                  "\"<layer>\", batch) to run one layer, or forward(inputs, operators) to run "
+                  "the whole schedule");
+    return {};
+  }
 
   /// The outputs in the order given (a model's positional return value).
   std::vector<torch::Tensor> run(const std::map<std::string, torch::Tensor>& inputs,
@@ -131,8 +151,17 @@ class OperatorNetworkImpl : public torch::nn::Module {
 
   friend class detail::NetworkBuildContext;
   friend class detail::NetworkRunContext;
-  void run_groups(Cochains& h, const std::map<std::string, SparseOperator>& operators,
-                  const ComplexBatch* batch, std::size_t begin, std::size_t end, bool live_only);
+  void run_range(Cochains& h, const std::map<std::string, SparseOperator>& operators,
+                 const ComplexBatch* batch, std::size_t begin, std::size_t end, bool live_only);
+
+  // --- the checks at the boundaries (checks-inl.hpp) ------------------------------------------
+  /// A forward's arguments against the schedule: names declared, one dtype and device (the
+  /// parameters'), each rank's cells the same in every input and operator (rows: the target
+  /// rank's, columns: the source rank's).
+  void check_arguments(const std::map<std::string, torch::Tensor>& inputs,
+                       const std::map<std::string, SparseOperator>& operators,
+                       const ComplexBatch* batch) const;
+  mutable std::set<std::string> warned_;  // the undeclared names already warned about
 
   // --- the interpreter (interpreter-inl.hpp) -------------------------------------------------
   struct Operators;  // the given operators, their transposes and this forward's dropped ones
@@ -193,5 +222,6 @@ TORCH_MODULE(OperatorNetwork);
 
 #ifdef TOPOS_HEADER_ONLY
 #include "topos/nn/operator_schedule/build-inl.hpp"
+#include "topos/nn/operator_schedule/checks-inl.hpp"
 #include "topos/nn/operator_schedule/interpreter-inl.hpp"
 #endif
