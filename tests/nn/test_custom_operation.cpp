@@ -504,17 +504,17 @@ TEST_CASE("what a step's operations return is checked, and errors in a step name
   // A LibTorch error inside a term: rethrown naming the step and the term.
   CHECK_THAT(error(Liar::Lie::torch_error), Contains("lying (into (0)): the term liar((0)): ") &&
                                                 Contains("cannot be multiplied"));
-  // Summed terms that reach different cells (two operators disagreeing on the edges' count):
-  // named, rather than LibTorch's broadcast error.
+  // Two operators disagreeing on the edges' count: forward's argument check names them before
+  // any step runs (run_layer, which skips that check, meets the step's own row check:
+  // test_operator_schedule.cpp, "LibTorch's errors inside a step ...").
   OperatorSchedule s;
   s.input("x", 0, 4).operator_input("B", 0, 1).operator_input("C", 0, 1).output("y", 1);
   s.step(into(1).sum(from(0).via("B"), from(0).via("C")).named("edges"));
   OperatorNetwork net(s);
   const auto B = random_operator(3, 6, 1), C = random_operator(4, 6, 2);
   CHECK_THROWS_WITH(net->forward({{"x", x}}, {{"B", B}, {"C", C}}),
-                    Contains("edges (into (1)): the term C·(0) gives 4 rows, the term B·(0) "
-                             "gives 3: the terms of a step must give one row per cell of its "
-                             "target"));
+                    Contains("operator 'C' is 4 × 6 and maps rank 0 cochains to rank 1") &&
+                        Contains("but operator 'B' has 3 rows: give a 3 × 6 operator"));
 }
 
 TEST_CASE("the built-in elementwise operations are Operations with declared traits",
