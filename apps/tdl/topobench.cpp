@@ -13,6 +13,7 @@
 #include "topos/io/atomic_file.hpp"
 #include "topos/models/topobench/model.hpp"
 #include "topos/models/topobench/protocol.hpp"
+#include "topos/nn/cloneable.hpp"
 #include "topos/nn/cpu.hpp"
 #include "topos/util/progress.hpp"
 #include "svg_plot.hpp"
@@ -212,7 +213,7 @@ topobench::RunResult train_run(const LiftedDataset& data, const topobench::Model
   double best = -1;
   int best_epoch = 0, wait = 0, epoch = 0;
   bool stop = false;
-  std::vector<torch::Tensor> best_state;
+  topos::nn::StateSnapshot best_state;  // parameters and buffers (BatchNorm's running statistics)
   // A bar per run when runs go one at a time (side by side, the table's bar alone).
   std::unique_ptr<topos::ProgressBar> bar;
   if (progress)
@@ -252,9 +253,7 @@ topobench::RunResult train_run(const LiftedDataset& data, const topobench::Model
       curve.push_back({epoch, loss_sum / std::max<std::int64_t>(steps, 1), v});
       if (v > best) {  // strictly better (Lightning's ModelCheckpoint and EarlyStopping)
         best = v, best_epoch = epoch, wait = 0;
-        torch::NoGradGuard no_grad;
-        best_state.clear();
-        for (const auto& p : net->parameters()) best_state.push_back(p.detach().clone());
+        best_state = topos::nn::StateSnapshot(*net);
       } else if (++wait >= cfg.patience) {
         stop = true;
       }
@@ -268,11 +267,7 @@ topobench::RunResult train_run(const LiftedDataset& data, const topobench::Model
     if (stop && epoch >= min_epochs) break;
   }
   const int epochs = std::min(epoch, max_epochs);
-  if (!best_state.empty()) {
-    torch::NoGradGuard no_grad;
-    auto params = net->parameters();
-    for (std::size_t i = 0; i < params.size(); ++i) params[i].copy_(best_state[i]);
-  }
+  if (!best_state.empty()) best_state.restore(*net);
   topobench::RunResult r;
   r.model = model.name, r.dataset = dataset.name, r.split_seed = seed;
   r.test_accuracy = evaluate(true);

@@ -6,6 +6,7 @@
 
 #include "topos/core/mesh_lifting.hpp"
 #include "topos/mesh/primitives.hpp"
+#include "topos/nn/cloneable.hpp"
 #include "topos/nn/cpu.hpp"
 #include "topos/nn/device.hpp"
 #include "topos/nn/distributed.hpp"
@@ -173,6 +174,46 @@ TEST_CASE("dropout keeps 1 - p of the entries, scaled, repeatably, with its mask
   const auto y = nn::dropout(x, 0.5, true);
   CHECK((y.eq(0) | y.isclose(2 * x)).all().item<bool>());
   CHECK_THROWS_WITH(nn::dropout(x, 1.5, true), Catch::Contains("rate 1.5"));
+}
+
+TEST_CASE("a state snapshot restores parameters and BatchNorm's running statistics",
+          "[nn][snapshot]") {
+  torch::manual_seed(3);
+  torch::nn::Sequential net(torch::nn::Linear(4, 5), torch::nn::BatchNorm1d(5));
+  net->train();
+  for (int i = 0; i < 3; ++i) net->forward(torch::randn({16, 4}));  // running stats move
+  const auto x = torch::randn({7, 4});
+  net->eval();
+  const auto at_best = net->forward(x).detach().clone();
+  const topos::nn::StateSnapshot best(*net);
+  CHECK_FALSE(best.empty());
+  std::vector<torch::Tensor> params_at_best;  // what the TopoBench loop used to keep
+  for (const auto& p : net->parameters()) params_at_best.push_back(p.detach().clone());
+  // Training goes on: the weights and the running statistics change.
+  net->train();
+  torch::optim::SGD opt(net->parameters(), 0.5);
+  for (int i = 0; i < 3; ++i) {
+    opt.zero_grad();
+    net->forward(torch::randn({16, 4}) * 3 + 1).pow(2).sum().backward();
+    opt.step();
+  }
+  net->eval();
+  REQUIRE_FALSE(torch::allclose(net->forward(x), at_best));
+  // Restoring only the parameters (what the TopoBench loop did) leaves the last statistics.
+  {
+    torch::NoGradGuard no_grad;
+    auto params = net->parameters();
+    for (std::size_t k = 0; k < params.size(); ++k) params[k].copy_(params_at_best[k]);
+  }
+  CHECK_FALSE(torch::allclose(net->forward(x), at_best));
+  best.restore(*net);
+  CHECK(torch::equal(net->forward(x), at_best));
+  // A module of another shape is refused by name.
+  torch::nn::Sequential other(torch::nn::Linear(4, 6), torch::nn::BatchNorm1d(6));
+  CHECK_THROWS_WITH(best.restore(*other),
+                    Catch::Matchers::Contains("StateSnapshot::restore: parameters '0.weight' is "
+                                              "missing or has another shape in the copy"));
+  CHECK_THROWS(topos::nn::StateSnapshot().restore(*net));
 }
 
 TEST_CASE("aggregations equal hand-written loops", "[nn][aggregate]") {
