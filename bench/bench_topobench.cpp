@@ -26,7 +26,7 @@
 // Needs TOPOS_DATASETS_DIR (but for BM_dropout). Run with
 //   OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 ./build/bench/bench_topobench
 #include "topos/data/graph_datasets.hpp"
-#include "topos/models/topobench/model.hpp"
+#include "topos/models/topobench/table_models.hpp"
 #include "topos/nn/cpu.hpp"
 
 #include <benchmark/benchmark.h>
@@ -114,7 +114,8 @@ void BM_backbone_epoch(benchmark::State& state, Setting s) {
   const auto& p = prepared(s);
   torch::manual_seed(0);
   TopoBenchModel model(
-      TopoBenchModelOptions(s.model, p.graphs[0].widths, s.hidden, 2).n_layers(s.layers));
+      TopoBenchModelOptions(table_backbone(s.model), p.graphs[0].widths, s.hidden, 2)
+          .n_layers(s.layers));
   auto& backbone = model->backbone;
   // Hidden-width features per rank and a each output summed for the backward.
   std::vector<std::map<std::string, torch::Tensor>> inputs;
@@ -146,11 +147,11 @@ TopoBenchModel make_model(const Setting& s) {
   nn::set_cpu_threads(1, 1);
   const auto& p = prepared(s);
   torch::manual_seed(0);
-  return TopoBenchModel(
-      TopoBenchModelOptions(s.model, p.graphs[0].widths, s.hidden, dataset(s.dataset).num_classes)
-          .n_layers(s.layers)
-          .dropout(0.25)
-          .propagate_signal_down(model_spec(s.model).cell_dimensions > 1));
+  return TopoBenchModel(TopoBenchModelOptions(table_backbone(s.model), p.graphs[0].widths, s.hidden,
+                                              dataset(s.dataset).num_classes)
+                            .n_layers(s.layers)
+                            .dropout(0.25)
+                            .propagate_signal_down(model_spec(s.model).cell_dimensions > 1));
 }
 
 void run_epochs(benchmark::State& state, const Setting& s, bool fast_paths, int warm_up = 0) {

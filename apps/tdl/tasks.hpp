@@ -8,7 +8,7 @@
 #include "topos/core/sparse_matrix.hpp"
 #include "topos/io/atomic_file.hpp"
 #include "topos/util/progress.hpp"
-#include "svg_plot.hpp"
+#include "topos/util/svg_plot.hpp"
 
 #include <filesystem>
 #include <iomanip>

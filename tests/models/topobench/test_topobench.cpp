@@ -6,7 +6,7 @@
 // every model trained a few steps on a tiny batch.
 #include "support/torch_prelude.hpp"
 
-#include "topos/models/topobench/model.hpp"
+#include "topos/models/topobench/table_models.hpp"
 
 #include <random>
 #include <sstream>
@@ -350,7 +350,8 @@ TEST_CASE("Rank-1 Laplacians kept as factors are the formed ones, in a batch and
       std::vector<std::int64_t> in;
       for (const auto& x : ba.x) in.push_back(x.size(1));
       torch::manual_seed(1);
-      TopoBenchModel model(TopoBenchModelOptions(m, in, 8, 2).propagate_signal_down(true));
+      TopoBenchModel model(
+          TopoBenchModelOptions(table_backbone(m), in, 8, 2).propagate_signal_down(true));
       model->eval();
       const auto ya = model->forward(ba), yb = model->forward(bb);
       CHECK(torch::allclose(ya, yb, 1e-5, 1e-5));
@@ -406,15 +407,17 @@ TEST_CASE("Every TopoBench model has the parameter count of TopoBench's construc
     for (int r : spec.encoded_ranks)
       expect += 3 * F[static_cast<std::size_t>(r)] + F[static_cast<std::size_t>(r)] * c.h + c.h;
     if (c.psd) expect += (spec.cell_dimensions - 1) * (3 * c.h * c.h + 3 * c.h);
-    TopoBenchModel m(
-        TopoBenchModelOptions(c.model, F, c.h, C).n_layers(c.L).propagate_signal_down(c.psd));
+    TopoBenchModel m(TopoBenchModelOptions(table_backbone(c.model), F, c.h, C)
+                         .n_layers(c.L)
+                         .propagate_signal_down(c.psd));
     CHECK(count_parameters(*m) == expect);
   }
   // The published MUTAG sizes of TopoBench's table (results/model_sizes at its 2024 commit, with
   // its encoder of then) use another encoder; with today's, SCN on MUTAG (h 32, 3 layers, PSD,
   // features 7, 4, 4) has 16,431 parameters.
-  TopoBenchModel scn(
-      TopoBenchModelOptions("SCN", F, 32, 2).n_layers(3).propagate_signal_down(true));
+  TopoBenchModel scn(TopoBenchModelOptions(table_backbone("SCN"), F, 32, 2)
+                         .n_layers(3)
+                         .propagate_signal_down(true));
   CHECK(count_parameters(*scn) == 16431);
 }
 
@@ -424,7 +427,7 @@ TEST_CASE("Every TopoBench model trains on a batch of lifted graphs", "[topobenc
     const auto gs = lift_tiny(spec.domain, 3);
     const auto b = collate(gs, {0, 1, 2});
     torch::manual_seed(7);
-    TopoBenchModel m(TopoBenchModelOptions(spec.name, gs[0].widths, 8, 2)
+    TopoBenchModel m(TopoBenchModelOptions(table_backbone(spec.name), gs[0].widths, 8, 2)
                          .n_layers(2)
                          .dropout(0.1)
                          .propagate_signal_down(spec.cell_dimensions > 1));
@@ -457,7 +460,8 @@ TEST_CASE("Every TopoBench model clones: same logits, its own parameters, pretty
     INFO(spec.name);
     const auto gs = lift_tiny(spec.domain, 3);
     const auto b = collate(gs, {0, 1, 2});
-    TopoBenchModel m(TopoBenchModelOptions(spec.name, gs[0].widths, 8, 2).n_layers(2));
+    TopoBenchModel m(
+        TopoBenchModelOptions(table_backbone(spec.name), gs[0].widths, 8, 2).n_layers(2));
     m->eval();
     const auto copy = std::dynamic_pointer_cast<TopoBenchModelImpl>(m->clone());
     REQUIRE(copy != nullptr);
@@ -476,11 +480,11 @@ TEST_CASE("Every TopoBench model clones: same logits, its own parameters, pretty
 }
 
 TEST_CASE("A TopoBench model names what is wrong with its options", "[topobench]") {
-  CHECK_THROWS_WITH(TopoBenchModel(TopoBenchModelOptions("SCNN", {3, 3, 3}, 8, 2)),
+  CHECK_THROWS_WITH(TopoBenchModel(TopoBenchModelOptions(table_backbone("SCNN"), {3, 3, 3}, 8, 2)),
                     Catch::Matchers::Contains("unknown TopoBench model 'SCNN'"));
-  CHECK_THROWS_WITH(TopoBenchModel(TopoBenchModelOptions("SCN", {3}, 8, 2)),
+  CHECK_THROWS_WITH(TopoBenchModel(TopoBenchModelOptions(table_backbone("SCN"), {3}, 8, 2)),
                     Catch::Matchers::Contains("encodes rank 1"));
-  CHECK_THROWS_WITH(TopoBenchModel(TopoBenchModelOptions("GCN", {3}, 8, 1)),
+  CHECK_THROWS_WITH(TopoBenchModel(TopoBenchModelOptions(table_backbone("GCN"), {3}, 8, 1)),
                     Catch::Matchers::Contains("classes at least 2"));
 }
 
@@ -584,7 +588,7 @@ TEST_CASE(
   std::vector<std::int64_t> in;
   for (const auto& x : batch.x) in.push_back(x.size(1));
   torch::manual_seed(1);
-  TopoBenchModel model(TopoBenchModelOptions("SCCNN", in, 32, 2).n_layers(2));
+  TopoBenchModel model(TopoBenchModelOptions(table_backbone("SCCNN"), in, 32, 2).n_layers(2));
   model->eval();
   auto run = [&](bool fast) {
     model->backbone->set_fast_paths(fast);

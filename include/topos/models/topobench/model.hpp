@@ -1,46 +1,169 @@
 // topos/models/topobench/model.hpp
-// The ten models of TopoBench's table as TopoBench assembles them: its feature encoder (per
-// rank GraphNorm, Linear to the hidden width, relu, dropout), a backbone (an operator schedule
-// of the zoo: GCN, AllSetTransformer, EDGNN, UniGNN2 = UniGCNII, CWN, CCCN, CCXN, SCN = SCN2,
-// SCCN, SCCNN = TopoBench's SCCNNCustom), its wrapper's residual (x_r <- LayerNorm(backbone's
-// x_r + encoded x_r)), its readout (PropagateSignalDown: per rank i from the top down,
-// x_{i-1} <- Linear([LayerNorm(B_i (x_i W_i)) ‖ x_{i-1}]); or none), then for graph-level tasks
-// the sum of each graph's node rows and a Linear to the classes (per node for node-level tasks).
-// The wrapper and readout are one more schedule ("head"). Batches come from topobench/batch.hpp.
+// A model as TopoBench assembles one around a backbone: its feature encoder (per rank GraphNorm,
+// Linear to the hidden width, relu, dropout), the backbone, its wrapper's residual
+// (x_r <- LayerNorm(backbone's x_r + encoded x_r)), its readout (PropagateSignalDown: per rank i
+// from the top down, x_{i-1} <- Linear([LayerNorm(B_i (x_i W_i)) ‖ x_{i-1}]); or none), then for
+// graph-level tasks the sum of each graph's node rows and a Linear to the classes (per node for
+// node-level tasks). The wrapper and readout are one more schedule ("head"). Batches come from
+// topobench/batch.hpp.
+//
+// The backbone is any `Backbone`: an operator schedule, or any module whose
+// forward(x, operators) maps the encoded cochains {"x_r"} and the batch's operators to x_r for
+// every rank r < cell_dimensions, with its RankLayout (domain, encoded ranks, cell dimensions,
+// operators). The ten backbones of TopoBench's table are `table_backbone(name)`
+// (topobench/table_models.hpp), kept out of this header so that a user's model compiles
+// without them:
+//   topobench::Backbone mine = topobench::Backbone::schedule(
+//       "GIN2", {topobench::Domain::graph, {0}, 1, {"gcn_adjacency"}},
+//       [](const topobench::BackboneContext& c) { return my_schedule(c.hidden, c.n_layers); });
+//   topobench::TopoBenchModel m(topobench::TopoBenchModelOptions(mine, {7}, 32, 2));
 #pragma once
 
-#include "topos/models/cell/cccn.hpp"
-#include "topos/models/cell/ccxn.hpp"
-#include "topos/models/cell/cwn.hpp"
-#include "topos/models/graph/gcn.hpp"
-#include "topos/models/hypergraph/allset_transformer.hpp"
-#include "topos/models/hypergraph/edgnn.hpp"
-#include "topos/models/hypergraph/unigcnii.hpp"
-#include "topos/models/simplicial/sccn.hpp"
-#include "topos/models/simplicial/sccnn_custom.hpp"
-#include "topos/models/simplicial/scn2.hpp"
 #include "topos/models/topobench/batch.hpp"
-#include "topos/models/topobench/protocol.hpp"  // model_spec
-#include "topos/nn/graph_norm.hpp"
+#include "topos/models/topobench/protocol.hpp"  // RankLayout
 #include "topos/nn/cloneable.hpp"
+#include "topos/nn/graph_norm.hpp"
+#include "topos/nn/operator_schedule.hpp"
 
 #include <torch/torch.h>
 
+#include <functional>
 #include <map>
+#include <memory>
 #include <stdexcept>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace topos::models::topobench {
 
+/// Cochains by name ("x_0", "x_1", ...) and a batch's operators by name.
+using NamedCochains = std::map<std::string, torch::Tensor>;
+using NamedOperators = std::map<std::string, nn::SparseOperator>;
+
+/// What a backbone is built for: the model's hidden width (the backbone's input and output
+/// width on every rank) and its TopoBenchModelOptions.
+struct BackboneContext {
+  std::int64_t hidden = 0;
+  int n_layers = 1;
+  bool topobench_compatible = true;
+};
+
+/// A backbone built for one model: the module that holds its parameters (registered as the
+/// model's "backbone"; null when it has none), and its forward.
+struct BuiltBackbone {
+  std::shared_ptr<torch::nn::Module> module;
+  nn::OperatorNetwork network{nullptr};  ///< the same module, when it is an operator schedule
+  std::function<NamedCochains(const NamedCochains&, const NamedOperators&)> forward;
+};
+
+/// A backbone and its rank layout, as a recipe: TopoBenchModel builds it in its constructor,
+/// after the encoder (so that parameters are drawn in TopoBench's order; a clone builds its own).
+class Backbone {
+ public:
+  using Build = std::function<BuiltBackbone(const BackboneContext&)>;
+  using Rename = std::function<NamedOperators(const NamedOperators&, const BackboneContext&)>;
+
+  Backbone(std::string name, RankLayout layout, Build build)
+      : name_(std::move(name)), layout_(std::move(layout)), build_(std::move(build)) {
+    if (name_.empty() || name_.find_first_of(",\"\n") != std::string::npos)
+      throw std::invalid_argument("topobench::Backbone: the name '" + name_ +
+                                  "' must be non-empty, without commas, quotes or newlines "
+                                  "(it is a field of runs.csv)");
+    if (layout_.cell_dimensions < 1 || layout_.encoded_ranks.empty())
+      throw std::invalid_argument(name_ +
+                                  ": a backbone needs cell_dimensions >= 1 and an "
+                                  "encoded rank");
+    for (int r = 0; r < layout_.cell_dimensions; ++r)
+      if (std::find(layout_.encoded_ranks.begin(), layout_.encoded_ranks.end(), r) ==
+          layout_.encoded_ranks.end())
+        throw std::invalid_argument(name_ + ": the wrapper adds the encoded x_" +
+                                    std::to_string(r) +
+                                    " to the backbone's, so encoded_ranks "
+                                    "must hold every rank below cell_dimensions");
+    if (!build_) throw std::invalid_argument(name_ + ": no build function");
+  }
+
+  /// An operator network built by `make` (the table's EDGNN re-draws some of its parameters).
+  static Backbone network(std::string name, RankLayout layout,
+                          std::function<nn::OperatorNetwork(const BackboneContext&)> make) {
+    const std::string who = name;
+    return Backbone(std::move(name), std::move(layout), [make, who](const BackboneContext& c) {
+      BuiltBackbone b;
+      b.network = make(c);
+      b.module = b.network.ptr();
+      b.forward = [net = b.network.ptr(), who](const NamedCochains& x, const NamedOperators& ops) {
+        NamedCochains in;  // the encoded ranks the schedule reads
+        for (const auto& port : net->schedule().inputs()) {
+          auto it = x.find(port.name);
+          if (it == x.end())
+            throw std::invalid_argument(who + ": the backbone reads '" + port.name +
+                                        "', which the encoder does not give (encoded_ranks)");
+          in[port.name] = it->second;
+        }
+        return net->forward(in, net->declared_operators(ops));
+      };
+      return b;
+    });
+  }
+  /// An operator schedule over "x_r" at the hidden width, giving "x_r" (r < cell_dimensions).
+  static Backbone schedule(std::string name, RankLayout layout,
+                           std::function<nn::OperatorSchedule(const BackboneContext&)> make) {
+    return network(std::move(name), std::move(layout),
+                   [make](const BackboneContext& c) { return nn::OperatorNetwork(make(c)); });
+  }
+  /// Any module: `make(context)` returns a module holder (or shared_ptr) whose
+  /// forward(const NamedCochains&, const NamedOperators&) returns NamedCochains.
+  template <class Make>
+  static Backbone module(std::string name, RankLayout layout, Make make) {
+    return Backbone(std::move(name), std::move(layout), [make](const BackboneContext& c) {
+      BuiltBackbone b;
+      auto p = as_shared(make(c));
+      b.module = p;
+      b.forward = [p](const NamedCochains& x, const NamedOperators& ops) {
+        return p->forward(x, ops);
+      };
+      return b;
+    });
+  }
+
+  /// The batch's operators under the names the backbone reads (default: as they are).
+  Backbone& operators(Rename rename) {
+    rename_ = std::move(rename);
+    return *this;
+  }
+
+  const std::string& name() const { return name_; }
+  const RankLayout& layout() const { return layout_; }
+  BuiltBackbone build(const BackboneContext& c) const { return build_(c); }
+  NamedOperators operators_for(const NamedOperators& batch, const BackboneContext& c) const {
+    return rename_ ? rename_(batch, c) : batch;
+  }
+
+ private:
+  template <class T>
+  static std::shared_ptr<T> as_shared(const std::shared_ptr<T>& p) {
+    return p;
+  }
+  template <class T>
+  static std::shared_ptr<T> as_shared(const torch::nn::ModuleHolder<T>& m) {
+    return m.ptr();
+  }
+
+  std::string name_;
+  RankLayout layout_;
+  Build build_;
+  Rename rename_;
+};
+
 struct TopoBenchModelOptions {
-  TopoBenchModelOptions(std::string model, std::vector<std::int64_t> in_channels,
+  TopoBenchModelOptions(Backbone backbone, std::vector<std::int64_t> in_channels,
                         std::int64_t hidden, std::int64_t num_classes)
-      : model_(std::move(model)),
+      : backbone_(std::move(backbone)),
         in_channels_(std::move(in_channels)),
         hidden_(hidden),
         num_classes_(num_classes) {}
-  TORCH_ARG(std::string, model);                      ///< a name of model_specs()
+  TORCH_ARG(Backbone, backbone);                      ///< table_backbone(name) or a user's
   TORCH_ARG(std::vector<std::int64_t>, in_channels);  ///< feature width of each rank of the data
   TORCH_ARG(std::int64_t, hidden);
   TORCH_ARG(std::int64_t, num_classes);
@@ -51,55 +174,27 @@ struct TopoBenchModelOptions {
   /// Reproduce TopoBench's code where it departs from its models' formulas (SCCNN's repeated
   /// filter taps, CCXN's attention targets, UniGCNII's β).
   TORCH_ARG(bool, topobench_compatible) = true;
-};
 
-/// The backbone's schedule; its inputs are x_r at the hidden width, its outputs x_r.
-inline nn::OperatorSchedule backbone_schedule(const TopoBenchModelOptions& o) {
-  const std::string& m = o.model();
-  const auto h = o.hidden();
-  const int L = o.n_layers();
-  if (m == "GCN") return gcn_schedule(GCNOptions(h, h).num_layers(L));
-  if (m == "AllSetTransformer")
-    return allset_transformer_schedule(AllSetTransformerOptions(h, h)
-                                           .n_layers(L)
-                                           .heads(4)
-                                           .dropout(0)
-                                           .mlp_num_layers(1)
-                                           .mlp_dropout(0));
-  if (m == "EDGNN") return edgnn_schedule(EDGNNOptions(h).n_layers(L));
-  if (m == "UniGNN2")
-    return unigcnii_schedule(
-        UniGCNIIOptions(h, h).n_layers(L).input_drop(0).layer_drop(0).topomodelx_compatible(
-            o.topobench_compatible()));
-  if (m == "CWN") return cwn_schedule(CWNOptions(h, h, h, h, L));
-  if (m == "CCCN") return cccn_schedule(CCCNOptions(h).n_layers(L));
-  if (m == "CCXN")
-    return ccxn_schedule(
-        CCXNOptions(h, h, h).n_layers(L).att(true).topomodelx_compatible(o.topobench_compatible()));
-  if (m == "SCN") return scn2_schedule(SCN2Options(h, h, h).n_layers(L));
-  if (m == "SCCN")
-    return sccn_schedule(SCCNOptions(h, 2).n_layers(L).update_func(nn::Update::sigmoid));
-  if (m == "SCCNN")
-    return sccnn_custom_schedule(
-        SCCNNCustomOptions(h).n_layers(L).topobench_compatible(o.topobench_compatible()));
-  model_spec(m);  // throws, listing the names
-  return {};
-}
+ public:
+  /// The model's name (the backbone's): runs.csv's `model`.
+  const std::string& model() const { return backbone_.name(); }
+  BackboneContext context() const { return {hidden_, n_layers_, topobench_compatible_}; }
+};
 
 /// The wrapper's residual and the readout, as one schedule over "x_r" (the backbone's outputs)
 /// and "encoded_r" (the encoder's), giving "x_0".
 inline nn::OperatorSchedule head_schedule(const TopoBenchModelOptions& o) {
   using namespace nn::ops;
-  const auto& spec = model_spec(o.model());
+  const int dims = o.backbone().layout().cell_dimensions;
   const auto h = o.hidden();
   nn::OperatorSchedule s;
-  for (int r = 0; r < spec.cell_dimensions; ++r) {
+  for (int r = 0; r < dims; ++r) {
     const auto R = std::to_string(r);
     s.input("x_" + R, r, h).input("encoded_" + R, r, h, "encoded");
     s.step(into(r).sum(from(r), from(r, "encoded")).layer_norm("wrapper.ln_" + R));
   }
   if (o.propagate_signal_down())
-    for (int i = spec.cell_dimensions - 1; i >= 1; --i) {
+    for (int i = dims - 1; i >= 1; --i) {
       const auto I = std::to_string(i), p = "readout.stage_" + I + ".";
       s.operator_input("incidence_" + I, i, i - 1);
       s.step(into(i - 1)
@@ -114,12 +209,12 @@ inline nn::OperatorSchedule head_schedule(const TopoBenchModelOptions& o) {
 class TopoBenchModelImpl : public nn::Cloneable<TopoBenchModelImpl> {
  public:
   explicit TopoBenchModelImpl(TopoBenchModelOptions o) : options(std::move(o)) {
-    const auto& spec = model_spec(options.model());
+    const auto& layout = options.backbone().layout();
     if (options.hidden() < 1 || options.num_classes() < 2 || options.n_layers() < 1)
       throw std::invalid_argument(options.model() +
                                   ": hidden and n_layers must be positive, classes at least 2");
-    for (int r : spec.encoded_ranks) {
-      if (static_cast<std::size_t>(r) >= options.in_channels().size())
+    for (int r : layout.encoded_ranks) {
+      if (r < 0 || static_cast<std::size_t>(r) >= options.in_channels().size())
         throw std::invalid_argument(options.model() + " encodes rank " + std::to_string(r) +
                                     " but the data has " +
                                     std::to_string(options.in_channels().size()) + " ranks");
@@ -129,8 +224,11 @@ class TopoBenchModelImpl : public nn::Cloneable<TopoBenchModelImpl> {
       linears_.push_back(
           register_module("encoder_linear_" + R, torch::nn::Linear(f, options.hidden())));
     }
-    backbone = register_module("backbone", nn::OperatorNetwork(backbone_schedule(options)));
-    if (options.model() == "EDGNN") reset_edgnn_parameters(*backbone, options.hidden());
+    built_ = options.backbone().build(options.context());
+    if (!built_.forward)
+      throw std::invalid_argument(options.model() + ": the backbone's build gave no forward");
+    if (built_.module) register_module("backbone", built_.module);
+    backbone = built_.network;
     head = register_module("head", nn::OperatorNetwork(head_schedule(options)));
     classifier =
         register_module("classifier", torch::nn::Linear(options.hidden(), options.num_classes()));
@@ -138,28 +236,28 @@ class TopoBenchModelImpl : public nn::Cloneable<TopoBenchModelImpl> {
 
   /// Logits: one row per graph (graph-level) or per node.
   torch::Tensor forward(const Batch& b) {
-    const auto& spec = model_spec(options.model());
-    std::map<std::string, torch::Tensor> encoded;
-    for (std::size_t k = 0; k < spec.encoded_ranks.size(); ++k) {
-      const auto r = static_cast<std::size_t>(spec.encoded_ranks[k]);
+    const auto& layout = options.backbone().layout();
+    NamedCochains encoded;
+    for (std::size_t k = 0; k < layout.encoded_ranks.size(); ++k) {
+      const auto r = static_cast<std::size_t>(layout.encoded_ranks[k]);
+      if (r >= b.x.size())
+        throw std::invalid_argument(options.model() + " encodes rank " + std::to_string(r) +
+                                    " but the batch has " + std::to_string(b.x.size()) + " ranks");
       auto e = torch::relu(
           nn::graph_norm_linear(norms_[k], linears_[k], b.x.at(r), b.batch.at(r), b.num_graphs));
       if (options.dropout() > 0) e = nn::dropout(e, options.dropout(), is_training());
       encoded["x_" + std::to_string(r)] = e;
     }
-    std::map<std::string, torch::Tensor> in;
-    for (const auto& port : backbone->schedule().inputs()) {
-      auto it = encoded.find(port.name);
-      if (it == encoded.end())
-        throw std::invalid_argument(options.model() + ": the backbone reads '" + port.name +
-                                    "', which the encoder does not give");
-      in[port.name] = it->second;
-    }
-    const auto out = backbone->forward(in, backbone->declared_operators(backbone_operators(b)));
-    std::map<std::string, torch::Tensor> head_in;
-    for (int r = 0; r < spec.cell_dimensions; ++r) {
+    const auto out = built_.forward(encoded, backbone_operators(b));
+    NamedCochains head_in;
+    for (int r = 0; r < layout.cell_dimensions; ++r) {
       const auto R = std::to_string(r);
-      head_in["x_" + R] = out.at("x_" + R);
+      const auto it = out.find("x_" + R);
+      if (it == out.end())
+        throw std::invalid_argument(options.model() + ": the backbone gave no x_" + R +
+                                    " (its layout has cell_dimensions " +
+                                    std::to_string(layout.cell_dimensions) + ")");
+      head_in["x_" + R] = it->second;
       head_in["encoded_" + R] = encoded.at("x_" + R);
     }
     auto x0 = head->forward(head_in, head->declared_operators(b.operators)).at("x_0");
@@ -167,36 +265,21 @@ class TopoBenchModelImpl : public nn::Cloneable<TopoBenchModelImpl> {
     return classifier->forward(x0);
   }
 
-  /// The batch's operators under the names the backbone's schedule reads (TopoBench's wrappers
-  /// hand SCN the normalised Hodge Laplacians, SCCN the plain ones as its same-rank operators),
-  /// plus what a backbone derives at batch level: CCXN's attention targets (TopoModelX scores
-  /// 2-cell i with edge i of the whole batch in compatible mode).
-  std::map<std::string, nn::SparseOperator> backbone_operators(const Batch& b) const {
-    const std::string& m = options.model();
-    if (m != "CCXN" && m != "SCN" && m != "SCCN") return b.operators;
-    auto ops = b.operators;
-    for (int r = 0; r < 3 && m != "CCXN"; ++r) {
-      const auto R = std::to_string(r);
-      if (m == "SCN") ops["laplacian_" + R] = ops.at("hodge_laplacian_" + R + "_norm");
-      if (m == "SCCN") ops["adjacency_" + R] = ops.at("hodge_laplacian_" + R);
-    }
-    if (m == "CCXN") {
-      const auto& bt = ops.at("incidence_2_t");
-      ops["incidence_2_t_target"] =
-          options.topobench_compatible()
-              ? nn::SparseOperator::selection(torch::arange(bt.rows), bt.cols, torch::kFloat)
-              : bt;
-    }
-    return ops;
+  /// The batch's operators under the names the backbone reads (Backbone::operators).
+  NamedOperators backbone_operators(const Batch& b) const {
+    return options.backbone().operators_for(b.operators, options.context());
   }
 
   TopoBenchModelOptions options;
-  nn::OperatorNetwork backbone{nullptr}, head{nullptr};
+  /// The backbone's operator network; null when the backbone is another module.
+  nn::OperatorNetwork backbone{nullptr};
+  nn::OperatorNetwork head{nullptr};
   torch::nn::Linear classifier{nullptr};
 
  private:
   std::vector<nn::GraphNorm> norms_;
   std::vector<torch::nn::Linear> linears_;
+  BuiltBackbone built_;
 };
 TORCH_MODULE(TopoBenchModel);
 

@@ -25,6 +25,18 @@
 
 namespace topos::models::topobench {
 
+/// What a backbone works on, the part of a model's spec the pipeline needs (a user's backbone
+/// declares its own; the table's come from ModelSpec): the domain the data is lifted to, the
+/// ranks the encoder reads (x_r at the hidden width), how many ranks the backbone returns and the
+/// wrapper and readout see (x_0 .. x_{cell_dimensions-1}), and the operators (lifting.hpp's
+/// names) it and the readout read, which are all the lifting builds.
+struct RankLayout {
+  Domain domain = Domain::graph;
+  std::vector<int> encoded_ranks = {0};
+  int cell_dimensions = 1;
+  std::set<std::string> operators;
+};
+
 /// The ten rows of TopoBench's table: the table's name, TopoBench's config (domain/name), the
 /// domain it lifts to, the ranks its encoder reads, how many ranks its wrapper and readout see
 /// (TopoBench's num_cell_dimensions: 3 for cells and simplices, see docs/topobench.md), and the
@@ -225,6 +237,9 @@ inline std::vector<RunConfig> read_hparams(const std::filesystem::path& path) {
 inline const ModelSpec& model_spec(const std::string& name) {
   return find_name(model_specs(), name, "TopoBench model");
 }
+inline RankLayout rank_layout(const ModelSpec& m) {
+  return {m.domain, m.encoded_ranks, m.cell_dimensions, m.operators};
+}
 inline const DatasetName& dataset_name(const std::string& name) {
   return find_name(table_datasets(), name, "TopoBench dataset");
 }
@@ -244,6 +259,12 @@ struct RunResult {
   double test_accuracy = 0;  ///< in [0, 1]
   int best_epoch = 0, epochs = 0;
   double seconds = 0;
+};
+
+/// One validation check of a run: its epoch, the mean training loss and the validation accuracy.
+struct Check {
+  int epoch;
+  double loss, val_accuracy;
 };
 
 inline const char* runs_header() {

@@ -1,4 +1,4 @@
-// apps/tdl/svg_plot.hpp
+// topos/util/svg_plot.hpp
 // A small SVG line chart (series against their index: frames, epochs) for the programs' reports,
 // viewable in any browser without a plotting dependency. std only.
 #pragma once
