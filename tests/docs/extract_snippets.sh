@@ -26,14 +26,14 @@ for src in "$@"; do
         }
         /^```cpp/ { inblock = 1; n++; code = ""; next }
         /^```/ && inblock { inblock = 0; emit(); next }
-        inblock && /^#include/ { print > inc; next }
+        inblock && /^#include/ { print >> inc; next }
         inblock { code = code $0 "\n" }' "$src" >>"$body"
       ;;
     *)
       awk -v id="$id" -v src="$src" -v inc="$includes" '
         /^#pragma once/ { exit }
         /^\/\/   / { open = 1; line = substr($0, 3)
-                    if (line ~ /^ *#include/) { sub(/^ */, "", line); print line > inc } else code = code line "\n"
+                    if (line ~ /^ *#include/) { sub(/^ */, "", line); print line >> inc } else code = code line "\n"
                     next }
         open { exit }
         END {

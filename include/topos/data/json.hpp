@@ -4,6 +4,8 @@
 // integer". std + nlohmann-json.
 #pragma once
 
+#include "topos/data/error.hpp"  // DataError, read_text_file
+
 #include <nlohmann/json.hpp>
 
 #include <cstdint>
@@ -16,11 +18,6 @@
 #include <type_traits>
 
 namespace topos::data {
-
-class DataError : public std::runtime_error {
- public:
-  using std::runtime_error::runtime_error;
-};
 
 /// Whether `v` is a JSON integer that fits an int64 (nlohmann keeps integers above INT64_MAX as
 /// unsigned; get<std::int64_t> would wrap them).
@@ -46,13 +43,6 @@ T get_integer(const Json& v, const std::string& what) {
   throw DataError(what + ": expected an integer in [" +
                   std::to_string(std::numeric_limits<T>::min()) + ", " +
                   std::to_string(std::numeric_limits<T>::max()) + "], got " + v.dump());
-}
-
-/// The whole file as text; a file that cannot be opened is a DataError naming it.
-inline std::string read_text_file(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw DataError(path.string() + ": cannot open file");
-  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
 }
 
 /// Parses JSON text; a syntax error is a DataError naming `source`.

@@ -6,7 +6,7 @@
 // record of finished runs with the table's summary (mean and std over the splits).
 #pragma once
 
-#include "topos/data/json.hpp"                 // DataError, read_text_file
+#include "topos/data/error.hpp"                // DataError, read_text_file
 #include "topos/models/topobench/lifting.hpp"  // Domain
 #include "topos/models/topobench/split.hpp"
 #include "topos/io/atomic_file.hpp"
