@@ -1,19 +1,12 @@
-# The custom backbone example (examples/custom_backbone.cpp: a user's LibTorch module trained
+# The custom backbone example (examples/custom_backbone.cpp: a user's GIN schedule trained
 # through TopoBench's pipeline): bad input is a clear error; without data it says it skipped; with
 # TOPOS_DATASETS_DIR, two MUTAG splits write the runs folder as tdl topobench does, and a second
 # start on the same folder skips them.
-execute_process(COMMAND ${EXE} --data-dir ${WORK}/missing --out ${WORK}/o
-  RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
-if(NOT rc OR NOT err MATCHES "MUTAG not found")
-  message(FATAL_ERROR "a missing dataset folder should fail naming it (rc ${rc}): ${out}${err}")
-endif()
-foreach(bad "--epochs;x;expects a number in \\[1, 100000\\], got 'x'" "--bogus;1;unknown option '--bogus'")
-  list(POP_BACK bad expected)
-  execute_process(COMMAND ${EXE} ${bad} RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
-  if(NOT rc OR NOT err MATCHES "${expected}")
-    message(FATAL_ERROR "'${bad}' should fail with '${expected}' (rc ${rc}): ${out}${err}")
-  endif()
-endforeach()
+set(PROGRAM ${EXE})
+include(${CMAKE_CURRENT_LIST_DIR}/run_program.cmake)
+expect_failure("missing dataset folder" "MUTAG not found" --data-dir ${WORK}/missing --out ${WORK}/o)
+expect_failure("bad --epochs" "expects a number in [1, 100000], got 'x'" --epochs x)
+expect_failure("unknown option" "unknown option '--bogus'" --bogus 1)
 if(NOT DEFINED ENV{TOPOS_DATASETS_DIR} OR "$ENV{TOPOS_DATASETS_DIR}" STREQUAL "")
   execute_process(COMMAND ${EXE} --out ${WORK}/o RESULT_VARIABLE rc OUTPUT_VARIABLE out)
   if(rc OR NOT out MATCHES "SKIPPED: give --data-dir or set TOPOS_DATASETS_DIR")
@@ -23,12 +16,8 @@ if(NOT DEFINED ENV{TOPOS_DATASETS_DIR} OR "$ENV{TOPOS_DATASETS_DIR}" STREQUAL ""
   return()
 endif()
 file(REMOVE_RECURSE ${WORK}/runs)
-execute_process(COMMAND ${EXE} --out ${WORK}/runs --epochs 8 --splits 0,3
-  RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
-message("${out}${err}")
-if(rc)
-  message(FATAL_ERROR "custom_backbone failed (${rc})")
-endif()
+expect_success("two MUTAG splits" --out ${WORK}/runs --epochs 8 --splits 0,3)
+message("${LAST_OUTPUT}")
 foreach(f runs.csv curves.csv summary.csv index.html table.md)
   if(NOT EXISTS ${WORK}/runs/${f})
     message(FATAL_ERROR "custom_backbone did not write ${f}")
@@ -43,8 +32,7 @@ file(STRINGS ${WORK}/runs/curves.csv checks REGEX "^GIN,MUTAG,0,[0-9]+,")
 if(NOT checks)
   message(FATAL_ERROR "curves.csv has no validation checks of GIN on split 0")
 endif()
-execute_process(COMMAND ${EXE} --out ${WORK}/runs --epochs 8 --splits 0,3
-  RESULT_VARIABLE rc OUTPUT_VARIABLE again ERROR_VARIABLE err)
-if(rc OR again MATCHES "test accuracy")
-  message(FATAL_ERROR "a second start should skip the finished splits (rc ${rc}): ${again}${err}")
+expect_success("a second start" --out ${WORK}/runs --epochs 8 --splits 0,3)
+if(LAST_OUTPUT MATCHES "test accuracy")
+  message(FATAL_ERROR "a second start should skip the finished splits: ${LAST_OUTPUT}")
 endif()

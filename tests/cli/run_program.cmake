@@ -1,7 +1,7 @@
 # Helpers of the command-line tests (hopnet_cli, hopnet_pipeline, tdl_zoo_cli, tdl_lift_cli,
-# tdl_topobench_cli): run PROGRAM and require success, or a failure whose output names the
-# problem. With FAILED_RUN_LEAVES_NO set to a path, a failed run must not leave that file behind
-# (nothing half-written). Needs PROGRAM.
+# tdl_topobench_cli, example_custom_backbone): run PROGRAM and require success, or a failure
+# whose output names the problem. With FAILED_RUN_LEAVES_NO set to a path, a failed run must not
+# leave that file behind (nothing half-written). Needs PROGRAM.
 
 function(expect_success name)
   execute_process(COMMAND ${PROGRAM} ${ARGN} RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
