@@ -24,7 +24,8 @@
 
 namespace topos::python {
 
-void bind_hopnet(py::module_& m);  // hopnet.cpp
+void bind_hopnet(py::module_& m);    // hopnet.cpp
+void bind_schedule(py::module_& m);  // schedule.cpp
 
 // ----- conversions (convert.hpp) ------------------------------------------------------------
 
@@ -938,4 +939,5 @@ PYBIND11_MODULE(_C, m) {
   tp::bind_liftings(m);
   tp::bind_normalization(m);
   tp::bind_hopnet(m);
+  tp::bind_schedule(m);
 }

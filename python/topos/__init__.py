@@ -15,6 +15,7 @@ from ._C import (  # noqa: F401
     CombinatorialComplex,
     ComplexError,
     DataError,
+    ScheduleError,
     Hypergraph,
     SimplicialComplex,
     __version__,
@@ -28,4 +29,4 @@ from ._C import (  # noqa: F401
     to_combinatorial_complex,
     to_hypergraph,
 )
-from . import hopnet, normalization  # noqa: F401,E402
+from . import hopnet, nn, normalization  # noqa: F401,E402

@@ -1,0 +1,162 @@
+"""The operator schedule from Python: build a schedule with C++'s vocabulary, run it as a module.
+
+    from topos.nn import OperatorSchedule, OperatorNetwork, into, from_, Update
+
+    s = OperatorSchedule()
+    s.input("x_0", 0, 4).input("x_1", 1, 3).operator_input("incidence_1", 1, 0)
+    s.step(into(0).sum(from_(1).conv("conv", 8).via("incidence_1").act(Update.relu),
+                       from_(0).linear("self", 8)))
+    s.output("x_0", 0)
+    net = OperatorNetwork(s)                   # a torch.nn.Module; checked here
+    y = net({"x_0": x0, "x_1": x1}, {"incidence_1": B1})["x_0"]
+
+``from_`` is C++'s ``from`` (a Python keyword). The network is built once and run by the C++
+engine with the GIL released; its parameters are the C++ network's own tensors, registered as
+``torch.nn.Parameter`` at the schedule's dotted paths, so ``state_dict``, ``.to()``, optimizers,
+``train()`` / ``eval()`` and autograd work as for any module. An operation written in Python
+(``Operation``: ``infer`` and ``forward``) is applied with ``.apply(op)`` like a built-in one.
+See docs/python.md, "Schedules and operations in Python".
+"""
+
+import torch
+
+from ._C import ScheduleError  # noqa: F401
+from ._C.nn import (  # noqa: F401
+    Aggr,
+    AttentionNorm,
+    BuildContext,
+    MlpOptions,
+    OperationTraits,
+    OperatorSchedule,
+    OperatorStep,
+    ParameterInit,
+    RunContext,
+    SparseOperator,
+    Term,
+    TermShape,
+    Update,
+    _Network,
+    from_,
+    into,
+)
+
+
+class Operation:
+    """An operation written in Python, applied in a term or a step with ``.apply(op)``.
+
+    Subclass it (or write any object with the same methods):
+
+    - ``infer(ctx, x)``: once, when the network is built. ``x`` is the operand's ``TermShape``
+      (``rank``, ``channels``); create parameters with ``ctx.parameter(path, shape, init)``,
+      check with ``ctx.fail(why)`` (a ``ScheduleError`` naming the step), and return the
+      ``TermShape`` produced (``x`` when both are kept).
+    - ``forward(ctx, x)``: at every forward, in torch (autograd flows through it). ``x`` is
+      cells × channels; ``ctx.parameter(path)`` is the module's own Parameter, ``ctx.op(name)``
+      an operator as a torch sparse COO tensor, ``ctx.cochain(key)`` a cochain before the step,
+      ``ctx.is_training()``. The result is checked against ``infer``'s.
+    - ``str(x)`` (optional): its printed form applied to ``x``.
+    - ``traits()`` (optional): an ``OperationTraits`` for the network's fast paths; the default
+      promises nothing.
+
+    The context is valid during the call only. The C++ engine takes the GIL to call these.
+    """
+
+    def str(self, x):
+        return f"{type(self).__name__}({x})"
+
+    def infer(self, ctx, x):
+        raise NotImplementedError(f"{type(self).__name__}.infer(ctx, x) is not written")
+
+    def forward(self, ctx, x):
+        raise NotImplementedError(f"{type(self).__name__}.forward(ctx, x) is not written")
+
+    def traits(self):
+        return None
+
+
+def _owner(root, path):
+    """The submodule that holds `path`'s last part, made (as an empty Module) where missing."""
+    *parents, leaf = path.split(".")
+    m = root
+    for p in parents:
+        child = m._modules.get(p)
+        if child is None:
+            child = torch.nn.Module()
+            try:
+                m.add_module(p, child)
+            except KeyError as e:
+                raise ScheduleError(f"path '{path}': '{p}' cannot name a submodule ({e})") from None
+        m = child
+    return m, leaf
+
+
+class OperatorNetwork(torch.nn.Module):
+    """Runs an ``OperatorSchedule``: ``net(inputs, operators)`` -> outputs by name.
+
+    ``inputs``: name -> tensor (cells × channels, optionally with leading batch dimensions);
+    ``operators``: name -> torch sparse COO or CSR tensor, scipy.sparse matrix, or a
+    ``SparseOperator`` (converted once: reuse it across forwards). Parameters and buffers sit at
+    the schedule's dotted paths, as in C++ (TopoModelX's ``state_dict`` names).
+    """
+
+    def __init__(self, schedule):
+        super().__init__()
+        if not isinstance(schedule, OperatorSchedule):
+            raise TypeError(
+                f"OperatorNetwork(schedule): expected a topos.nn.OperatorSchedule, got {type(schedule).__name__}"
+            )
+        net = _Network(schedule)  # checks every step; a ScheduleError names the faulty one
+        self._network = net
+        self._shared = []  # (path, module, name, the C++ network's tensor, is_buffer)
+        for path, t, is_buffer in net.tensors():
+            owner, leaf = _owner(self, path)
+            if leaf in owner.__dict__ or hasattr(type(owner), leaf):
+                raise ScheduleError(f"path '{path}': '{leaf}' is an attribute of torch.nn.Module")
+            if is_buffer:
+                owner.register_buffer(leaf, t)
+            else:
+                # The very tensor the C++ engine reads, now of class Parameter (not a copy):
+                # gradients, .to() and load_state_dict reach both sides.
+                t.__class__ = torch.nn.Parameter
+                owner.register_parameter(leaf, t)
+            self._shared.append((path, owner, leaf, t, is_buffer))
+
+    @property
+    def schedule(self):
+        return self._network.schedule
+
+    def set_fast_paths(self, on):
+        """Off: every operation runs on every row (the same numbers; for checking traits)."""
+        self._network.set_fast_paths(on)
+
+    def forward(self, inputs, operators=None):
+        self._check_shared()
+        return self._network.forward(inputs, {} if operators is None else operators, self.training)
+
+    def _check_shared(self):
+        for path, owner, leaf, t, is_buffer in self._shared:
+            current = (owner._buffers if is_buffer else owner._parameters).get(leaf)
+            if current is not t:
+                what = "buffer" if is_buffer else "parameter"
+                raise ScheduleError(
+                    f"{what} '{path}' of the OperatorNetwork was replaced by another tensor, which "
+                    f"the C++ network does not see: copy into it instead (with torch.no_grad(): "
+                    f"p.copy_(value)), or use load_state_dict"
+                )
+
+    def _apply(self, fn):
+        # torch.nn.Module._apply converts a parameter in place (param.data = ...) but replaces a
+        # buffer (and a parameter, with torch.__future__'s overwrite flag) by a new tensor: put the
+        # converted value into the network's own tensor and register that one again.
+        super()._apply(fn)
+        for _, owner, leaf, t, is_buffer in self._shared:
+            table = owner._buffers if is_buffer else owner._parameters
+            new = table.get(leaf)
+            if new is not None and new is not t:
+                with torch.no_grad():
+                    t.data = new.data if not is_buffer else new
+                table[leaf] = t
+        return self
+
+    def extra_repr(self):
+        return "\n".join(self._network.schedule.str().splitlines())
