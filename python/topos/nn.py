@@ -159,4 +159,5 @@ class OperatorNetwork(torch.nn.Module):
         return self
 
     def extra_repr(self):
-        return "\n".join(self._network.schedule.str().splitlines())
+        net = self.__dict__.get("_network")  # absent while __init__ fails
+        return net.schedule.str().rstrip("\n") if net is not None else ""
