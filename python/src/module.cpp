@@ -1,8 +1,8 @@
 // python/src/module.cpp
 // The extension topos._C: the four domains with TopoNetX's names and conventions, their
 // operators (as torch sparse tensors, or scipy.sparse on request), the graph liftings, TopoNetX's
-// normalisations, the exceptions, and (hopnet.cpp) HOPNet. Operators are computed with the GIL
-// released. python/topos/ is the package around it.
+// normalisations, the exceptions, (hopnet.cpp) HOPNet and (schedule.cpp) the operator schedule.
+// Operators are computed with the GIL released. python/topos/ is the package around it.
 #include "convert.hpp"
 
 #include "topos/core/domain_lifting.hpp"
