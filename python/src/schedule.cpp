@@ -160,7 +160,10 @@ class PythonOperation final : public Operation {
 
   std::string str(const std::string& x) const override {
     py::gil_scoped_acquire gil;
-    if (py::hasattr(op_, "str")) return py::str(op_.attr("str")(x));
+    try {  // also called while an error message is written: never raises
+      if (py::hasattr(op_, "str")) return py::str(op_.attr("str")(x));
+    } catch (py::error_already_set&) {
+    }
     return name_ + "(" + x + ")";
   }
 
@@ -642,6 +645,27 @@ void bind_operation_api(py::module_& m) {
 
 // ----- the network ---------------------------------------------------------------------------
 
+/// A ScheduleError's advice in Python's spelling: its messages say what to write in C++
+/// ("x.to(torch::kFloat32), or convert the network with net->to(torch::kFloat64)").
+template <class F>
+auto python_spelling(F&& f) -> decltype(f()) {
+  try {
+    return f();
+  } catch (const ScheduleError& e) {
+    std::string m = e.what();
+    for (const auto& [cpp, py] :
+         {std::pair<std::string, std::string>{"torch::kFloat32", "torch.float32"},
+          {"torch::kFloat64", "torch.float64"},
+          {"torch::kHalf", "torch.float16"},
+          {"torch::kBFloat16", "torch.bfloat16"},
+          {"torch::Device(", "torch.device("},
+          {"net->", "net."}})
+      for (auto at = m.find(cpp); at != std::string::npos; at = m.find(cpp, at + py.size()))
+        m.replace(at, cpp.size(), py);
+    throw ScheduleError(m);
+  }
+}
+
 /// The dtype the network computes in: its first floating parameter's (float32 without any).
 at::ScalarType network_dtype(OperatorNetworkImpl& net) {
   for (const auto& p : net.parameters())
@@ -672,7 +696,9 @@ void bind_network(py::module_& m) {
   py::class_<Net, std::shared_ptr<Net>>(m, "_Network",
                                         "The C++ OperatorNetwork (topos.nn.OperatorNetwork wraps "
                                         "it in a torch.nn.Module).")
-      .def(py::init([](const OperatorSchedule& s) { return std::make_shared<Net>(s); }),
+      .def(py::init([](const OperatorSchedule& s) {
+             return python_spelling([&] { return std::make_shared<Net>(s); });
+           }),
            py::arg("schedule"))
       .def(
           "tensors",
@@ -716,7 +742,7 @@ void bind_network(py::module_& m) {
             {
               py::gil_scoped_release release;  // a Python operation takes it back
               net.train(training);
-              y = net.forward(x, a);
+              y = python_spelling([&] { return net.forward(x, a); });
             }
             return y;
           },

@@ -317,7 +317,11 @@ def test_errors_name_the_argument_or_step(complex_):
     assert issubclass(ScheduleError, ValueError) and topos.ScheduleError is ScheduleError
     with pytest.raises(ScheduleError, match=r"layer 0.*incidence_1"):
         net(inputs, {"adjacency_0": A0})  # a missing operator
-    with pytest.raises(ScheduleError, match=r"input 'x_1' is float64, the network's parameters float32"):
+    with pytest.raises(
+        ScheduleError,
+        match=r"input 'x_1' is float64, the network's parameters float32: write x.to\(torch.float32\), "
+        r"or convert the network with net.to\(torch.float64\)",
+    ):
         net({"x_0": x0, "x_1": x1.double()}, ops(complex_))
     with pytest.raises(TypeError, match=r"operators\['incidence_1'\]: expected a sparse operator, got a dense"):
         net(inputs, {"incidence_1": B1.to_dense(), "adjacency_0": A0})
