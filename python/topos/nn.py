@@ -18,6 +18,8 @@ engine with the GIL released; its parameters are the C++ network's own tensors, 
 See docs/python.md, "Schedules and operations in Python".
 """
 
+import collections.abc
+
 import torch
 
 from ._C import ScheduleError  # noqa: F401
@@ -131,7 +133,13 @@ class OperatorNetwork(torch.nn.Module):
 
     def forward(self, inputs, operators=None):
         self._check_shared()
-        return self._network.forward(inputs, {} if operators is None else operators, self.training)
+        operators = {} if operators is None else operators
+        for name, arg in (("inputs", inputs), ("operators", operators)):
+            if not isinstance(arg, collections.abc.Mapping):
+                raise TypeError(
+                    f"OperatorNetwork: {name} must be a dict of name -> tensor, got {type(arg).__name__}"
+                )
+        return self._network.forward(dict(inputs), dict(operators), self.training)
 
     def _check_shared(self):
         for path, owner, leaf, t, is_buffer in self._shared:

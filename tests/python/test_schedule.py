@@ -327,6 +327,8 @@ def test_errors_name_the_argument_or_step(complex_):
         net(inputs, {"incidence_1": B1.to_dense(), "adjacency_0": A0})
     with pytest.raises(TypeError, match=r"inputs\['x_0'\]: expected a torch.Tensor, got a list"):
         net({"x_0": [[1.0]], "x_1": x1}, ops(complex_))
+    with pytest.raises(TypeError, match=r"inputs must be a dict of name -> tensor, got list"):
+        net([x0, x1], ops(complex_))
     with pytest.raises(ScheduleError, match=r"input 'x_1' was not given"):
         net({"x_0": x0}, ops(complex_))
     with pytest.raises(ScheduleError, match=r"operator 'adjacency_0' is 4 × 4"):
