@@ -42,6 +42,27 @@ from ._C.nn import (  # noqa: F401
     into,
 )
 
+__all__ = [
+    "Aggr",
+    "AttentionNorm",
+    "BuildContext",
+    "MlpOptions",
+    "Operation",
+    "OperationTraits",
+    "OperatorNetwork",
+    "OperatorSchedule",
+    "OperatorStep",
+    "ParameterInit",
+    "RunContext",
+    "ScheduleError",
+    "SparseOperator",
+    "Term",
+    "TermShape",
+    "Update",
+    "from_",
+    "into",
+]
+
 
 class Operation:
     """An operation written in Python, applied in a term or a step with ``.apply(op)``.

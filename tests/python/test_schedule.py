@@ -290,10 +290,12 @@ def test_schedule_vocabulary():
             into(1, "b").sum([from_(1).scale(2.0), from_(1).via("extra")]),
         ]
     )
-    s.step(
-        into(1).filter("filter.weight", 4, from_(1).powers([("laplacian_down", 2), ("laplacian_up", 1)])).act(Update.elu)
+    taps = from_(1).powers([("laplacian_down", 2), ("laplacian_up", 1)])
+    s.step(into(1).filter("filter.weight", 4, taps).act(Update.elu))
+    att = from_(1).attend(
+        "laplacian_up", "att", Update.leaky_relu, heads=2, norm=topos.nn.AttentionNorm.softmax, queries=1
     )
-    s.step(into(1, "h").sum(from_(1).attend("laplacian_up", "att", Update.leaky_relu, heads=2, norm=topos.nn.AttentionNorm.softmax, queries=1)))
+    s.step(into(1, "h").sum(att))
     s.output("x", 1)
     text = str(s)
     assert "filter" in text and "layer 0" in text
