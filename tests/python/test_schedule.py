@@ -2,6 +2,7 @@
 # the very same parameters (outputs and gradients); the module's state (state_dict, .to(),
 # train/eval); operations written in Python; bad input as Python exceptions naming the argument
 # or the step.
+import sys
 import threading
 
 import numpy as np
@@ -421,3 +422,58 @@ def test_python_operation_from_threads(complex_):
     assert len(got) == 60
     for g in got:
         torch.testing.assert_close(g, want)
+
+
+def test_gradients_reach_operator_values(complex_):
+    # A coalesced COO operator's values tensor is the operator's: learned edge weights train.
+    A = complex_["adjacency_0"].coalesce()
+    vals = A.values().clone().requires_grad_(True)
+    s = OperatorSchedule()
+    s.input("x_0", 0, 3).operator_input("A", 0, 0)
+    s.step(into(0).sum(from_(0).via("A")))
+    s.output("y", 0)
+    x = torch.randn(complex_["n0"], 3)
+    learned = torch.sparse_coo_tensor(A.indices(), vals, A.shape).coalesce()
+    y = OperatorNetwork(s)({"x_0": x}, {"A": learned})["y"]
+    y.square().sum().backward()
+    v = vals.detach().clone().requires_grad_(True)
+    torch.sparse.mm(torch.sparse_coo_tensor(A.indices(), v, A.shape), x).square().sum().backward()
+    torch.testing.assert_close(vals.grad, v.grad)
+
+
+def test_forward_releases_the_gil():
+    # With a 100 s switch interval the main thread never hands the GIL over by itself: the other
+    # thread, woken before the forward, runs during it only if the forward releases the GIL.
+    n = 30
+    tri = []
+    for i in range(n):
+        for j in range(n):
+            a = i * (n + 1) + j
+            tri += [[a, a + 1, a + n + 2], [a, a + n + 2, a + n + 1]]
+    sc = topos.SimplicialComplex(tri)
+    net = OperatorNetwork(two_rank_schedule())
+    x = {"x_0": torch.randn(64, sc.shape[0], 4), "x_1": torch.randn(64, sc.shape[1], 3)}
+    operators = {
+        "incidence_1": SparseOperator(sc.incidence_matrix(1)),
+        "adjacency_0": SparseOperator(sc.adjacency_matrix(0)),
+    }
+    gate, counter = threading.Lock(), [0]
+
+    def count():
+        with gate:  # blocks until the main thread lets it go; then it needs the GIL
+            for _ in range(1000):
+                counter[0] += 1
+
+    gate.acquire()
+    t = threading.Thread(target=count)
+    t.start()
+    old = sys.getswitchinterval()
+    sys.setswitchinterval(100)
+    try:
+        gate.release()  # does not release the GIL
+        net(x, operators)  # 64 forwards in one call
+        seen = counter[0]
+    finally:
+        sys.setswitchinterval(old)
+    t.join(timeout=60)
+    assert seen == 1000
