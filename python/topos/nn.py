@@ -130,6 +130,7 @@ class OperatorNetwork(torch.nn.Module):
             )
         net = _Network(schedule)  # checks every step; a ScheduleError names the faulty one
         self._network = net
+        self._fast_paths = True
         self._shared = []  # (path, module, name, the C++ network's tensor, is_buffer)
         for path, t, is_buffer in net.tensors():
             owner, leaf = _owner(self, path)
@@ -151,6 +152,20 @@ class OperatorNetwork(torch.nn.Module):
     def set_fast_paths(self, on):
         """Off: every operation runs on every row (the same numbers; for checking traits)."""
         self._network.set_fast_paths(on)
+        self._fast_paths = bool(on)
+
+    def __deepcopy__(self, memo):
+        # A new C++ network from the same schedule (its operations are options, shared), then
+        # this one's dtype, state and mode: a snapshot such as early stopping keeps.
+        other = type(self)(self.schedule)
+        floating = [t for t in self.state_dict().values() if t.is_floating_point()]
+        if floating:
+            other.to(floating[0].dtype)
+        other.load_state_dict(self.state_dict())
+        other.train(self.training)
+        other.set_fast_paths(self._fast_paths)
+        memo[id(self)] = other
+        return other
 
     def forward(self, inputs, operators=None):
         self._check_shared()

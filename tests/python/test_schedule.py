@@ -156,6 +156,21 @@ def test_state_dict_round_trip_and_to(complex_):
         b(inputs, operators)
 
 
+def test_deepcopy_is_an_independent_network(complex_):
+    import copy
+
+    net = OperatorNetwork(two_rank_schedule()).double()
+    net.eval()
+    twin = copy.deepcopy(net)
+    assert not twin.training and all(p.dtype == torch.float64 for p in twin.parameters())
+    x0, x1 = features(complex_, torch.float64)
+    inputs, operators = {"x_0": x0, "x_1": x1}, ops(complex_)
+    torch.testing.assert_close(twin(inputs, operators)["x_0"], net(inputs, operators)["x_0"])
+    with torch.no_grad():
+        twin.update.bias.add_(1.0)  # the copy's C++ network reads its own tensors
+    assert not torch.allclose(twin(inputs, operators)["x_0"], net(inputs, operators)["x_0"])
+
+
 def test_batch_norm_buffers_follow_the_module(complex_):
     s = OperatorSchedule()
     s.input("x_0", 0, 4)
