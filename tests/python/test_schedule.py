@@ -347,6 +347,8 @@ def test_errors_name_the_argument_or_step(complex_):
         net({"x_0": [[1.0]], "x_1": x1}, ops(complex_))
     with pytest.raises(TypeError, match=r"inputs must be a dict of name -> tensor, got list"):
         net([x0, x1], ops(complex_))
+    with pytest.raises(ScheduleError, match=r"input 'x_0' must be \(cells × 4"):
+        net({"x_0": torch.randn(complex_["n0"], 5), "x_1": x1}, ops(complex_))
     with pytest.raises(ScheduleError, match=r"input 'x_1' was not given"):
         net({"x_0": x0}, ops(complex_))
     with pytest.raises(ScheduleError, match=r"operator 'adjacency_0' is 4 × 4"):
