@@ -6,6 +6,7 @@
 // every model trained a few steps on a tiny batch.
 #include "support/torch_prelude.hpp"
 
+#include "support/topobench.hpp"
 #include "topos/models/topobench/model.hpp"
 
 #include <random>
@@ -56,13 +57,7 @@ std::vector<LiftedGraph> lift_tiny(Domain d, std::int64_t features) {
   return out;
 }
 
-torch::Tensor dense(const Triplets& t) {
-  auto d = torch::zeros({t.rows, t.cols});
-  for (std::int64_t k = 0; k < t.nnz(); ++k)
-    d[t.row[static_cast<std::size_t>(k)]][t.col[static_cast<std::size_t>(k)]] =
-        t.value[static_cast<std::size_t>(k)];
-  return d;
-}
+using topos::testing::dense;
 
 // The dense block diagonal of the graphs' own matrices.
 torch::Tensor block_diagonal(const std::vector<LiftedGraph>& gs, const std::string& name) {
