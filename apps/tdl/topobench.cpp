@@ -766,7 +766,7 @@ void register_topobench(CLI::App& app, Run& run) {
       ->required();
   cmd->add_option("--models", *models,
                   "comma-separated: GCN, AllSetTransformer, EDGNN, UniGNN2, "
-                  "CWN, CCCN, CCXN, SCN, SCCN, SCCNN")
+                  "CWN, CCCN, CCXN, SCN, SCCN, SCCNN, GCCN (TopoTune)")
       ->required();
   cmd->add_option("--datasets", *datasets,
                   "comma-separated: MUTAG, PROTEINS, NCI1, NCI109, "
