@@ -339,3 +339,24 @@ TEST_CASE("GCCN's batch norm over a union updates its running statistics once pe
   REQUIRE(mean.defined());
   CHECK(torch::allclose(mean, 0.1 * h.mean(0), 1e-5, 1e-6));
 }
+
+TEST_CASE("gcn and a batch norm over a union name what is wrong with them", "[gccn]") {
+  using namespace nn::ops;
+  using Catch::Matchers::Contains;
+  nn::OperatorSchedule s;
+  s.input("x_0", 0, 3).operator_input("B", 0, 1).output("x_1", 1);
+  s.step(into(1).sum(from(0).gcn("B")));
+  CHECK_THROWS_WITH(nn::OperatorNetwork(s), Contains("needs a square operator"));
+  nn::OperatorSchedule t;
+  t.input("x_0", 0, 3).operator_input("B", 0, 1).output("x_1", 1);
+  t.step(into(1).sum(from(0).gcn("B", nn::GcnPart::union_targets)));
+  CHECK_THROWS_WITH(nn::OperatorNetwork(t), Contains("reads rank 1 cochains, not rank 0"));
+  nn::OperatorSchedule u;
+  u.input("x_0", 0, 3).input("x_1", 1, 4).output("x_0", 0);
+  u.step(into(0).sum(from(0).batch_norm("bn", {{0, ""}, {1, ""}}, 0)));
+  CHECK_THROWS_WITH(nn::OperatorNetwork(u), Contains("(1) has 4 channels, the operand 3"));
+  nn::OperatorSchedule v;
+  v.input("x_0", 0, 3).input("x_1", 1, 3).output("x_0", 0);
+  v.step(into(0).sum(from(0).batch_norm("bn", {{1, ""}, {0, ""}}, 0)));
+  CHECK_THROWS_WITH(nn::OperatorNetwork(v), Contains("part 0 is (1) but the operand has rank 0"));
+}
