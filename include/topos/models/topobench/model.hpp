@@ -1,17 +1,19 @@
 // topos/models/topobench/model.hpp
-// The ten models of TopoBench's table as TopoBench assembles them: its feature encoder (per
-// rank GraphNorm, Linear to the hidden width, relu, dropout), a backbone (an operator schedule
-// of the zoo: GCN, AllSetTransformer, EDGNN, UniGNN2 = UniGCNII, CWN, CCCN, CCXN, SCN = SCN2,
-// SCCN, SCCNN = TopoBench's SCCNNCustom), its wrapper's residual (x_r <- LayerNorm(backbone's
-// x_r + encoded x_r)), its readout (PropagateSignalDown: per rank i from the top down,
-// x_{i-1} <- Linear([LayerNorm(B_i (x_i W_i)) ‖ x_{i-1}]); or none), then for graph-level tasks
-// the sum of each graph's node rows and a Linear to the classes (per node for node-level tasks).
-// The wrapper and readout are one more schedule ("head"). Batches come from topobench/batch.hpp.
+// The ten models of TopoBench's table, and TopoTune's GCCN, as TopoBench assembles them: its
+// feature encoder (per rank GraphNorm, Linear to the hidden width, relu, dropout), a backbone (an
+// operator schedule of the zoo: GCN, AllSetTransformer, EDGNN, UniGNN2 = UniGCNII, CWN, CCCN,
+// CCXN, SCN = SCN2, SCCN, SCCNN = TopoBench's SCCNNCustom, GCCN), its wrapper's residual
+// (x_r <- LayerNorm(backbone's x_r + encoded x_r)), its readout (PropagateSignalDown: per rank i
+// from the top down, x_{i-1} <- Linear([LayerNorm(B_i (x_i W_i)) ‖ x_{i-1}]); or none), then for
+// graph-level tasks the sum of each graph's node rows and a Linear to the classes (per node for
+// node-level tasks). The wrapper and readout are one more schedule ("head"). Batches come from
+// topobench/batch.hpp.
 #pragma once
 
 #include "topos/models/cell/cccn.hpp"
 #include "topos/models/cell/ccxn.hpp"
 #include "topos/models/cell/cwn.hpp"
+#include "topos/models/combinatorial/gccn.hpp"
 #include "topos/models/graph/gcn.hpp"
 #include "topos/models/hypergraph/allset_transformer.hpp"
 #include "topos/models/hypergraph/edgnn.hpp"
@@ -82,6 +84,7 @@ inline nn::OperatorSchedule backbone_schedule(const TopoBenchModelOptions& o) {
   if (m == "SCCNN")
     return sccnn_custom_schedule(
         SCCNNCustomOptions(h).n_layers(L).topobench_compatible(o.topobench_compatible()));
+  if (m == "GCCN") return gccn_schedule(GCCNOptions(h, topotune_cell_neighborhoods()).n_layers(L));
   model_spec(m);  // throws, listing the names
   return {};
 }
