@@ -137,9 +137,10 @@ std::map<std::string, torch::Tensor> random_inputs(const ComplexBatch& b, torch:
 
 TEST_CASE("dropout keeps 1 - p of the entries, scaled, repeatably, with its mask as gradient",
           "[nn][dropout]") {
-  for (double p : {0.1, 0.5, 0.75}) {
+  // 0.5 and 0.75 take 8 bits an element (8 a draw), 1/1024 16 bits, 0.1 32 bits.
+  for (double p : {0.1, 0.5, 0.75, 1.0 / 1024}) {
     INFO("p = " << p);
-    const std::int64_t n = 1'000'001;  // odd: the last element takes half a draw
+    const std::int64_t n = 1'000'003;  // not a multiple of 8: the last elements take part of a draw
     const auto x = torch::ones({n}, torch::kFloat).requires_grad_(true);
     torch::manual_seed(7);
     const auto y = nn::dropout(x, p, true);
@@ -148,9 +149,9 @@ TEST_CASE("dropout keeps 1 - p of the entries, scaled, repeatably, with its mask
     const double frac = kept.to(torch::kDouble).mean().item<double>();
     CHECK(std::abs(frac - (1 - p)) < 5 * std::sqrt(p * (1 - p) / static_cast<double>(n)));
     CHECK(torch::allclose(y.masked_select(kept), torch::full({1}, 1 / (1 - p))));
-    // Neighbouring draws (the two halves of one 64-bit draw, and consecutive pairs) independent.
+    // Neighbouring elements (lanes of one 64-bit draw, and of consecutive draws) independent.
     const auto k = kept.to(torch::kDouble);
-    for (std::int64_t lag : {1, 2, 3}) {
+    for (std::int64_t lag : {1, 2, 3, 4, 5, 7, 8, 9}) {
       const auto a = k.slice(0, 0, n - lag) - (1 - p), b = k.slice(0, lag) - (1 - p);
       CHECK(std::abs((a * b).mean().item<double>()) < 5 * p * (1 - p) / std::sqrt(double(n)));
     }
@@ -174,6 +175,20 @@ TEST_CASE("dropout keeps 1 - p of the entries, scaled, repeatably, with its mask
   const auto y = nn::dropout(x, 0.5, true);
   CHECK((y.eq(0) | y.isclose(2 * x)).all().item<bool>());
   CHECK_THROWS_WITH(nn::dropout(x, 1.5, true), Catch::Contains("rate 1.5"));
+  // A transposed (non-contiguous) input: the backward draws the same mask again, so the
+  // gradient of <y, g> is g where y kept x (scaled), 0 elsewhere; and differentiates again.
+  const auto xt = torch::randn({40, 30}, torch::kFloat).t().requires_grad_(true);
+  const auto g = torch::randn({30, 40});
+  const auto yt = nn::dropout(xt, 0.25, true);
+  const auto kept_t = yt.detach().ne(0);
+  CHECK(torch::allclose(yt.detach(), torch::where(kept_t, xt.detach() / 0.75, torch::zeros({}))));
+  const auto dx = torch::autograd::grad({(yt * g).sum()}, {xt}, {}, true, true)[0];
+  CHECK(torch::allclose(dx, torch::where(kept_t, g / 0.75, torch::zeros({}))));
+  const auto z = nn::dropout(xt * xt, 0.25, true);  // d²<z, g>/dx² summed: 2 g where kept
+  const auto kept_z = z.detach().ne(0);
+  const auto dz = torch::autograd::grad({(z * g).sum()}, {xt}, {}, true, true)[0];
+  const auto ddz = torch::autograd::grad({dz.sum()}, {xt})[0];
+  CHECK(torch::allclose(ddz, torch::where(kept_z, 2 * g / 0.75, torch::zeros({}))));
 }
 
 TEST_CASE("a state snapshot restores parameters and BatchNorm's running statistics",
