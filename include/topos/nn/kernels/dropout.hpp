@@ -59,11 +59,11 @@ TOPOS_INLINE_KERNEL void dropout_draws(const T* x, T* y, std::int64_t first, std
   }
 }
 
-#define TOPOS_DROPOUT_VARIANT(NAME, ATTR, BITS)                                                \
-  [[maybe_unused]] ATTR static void NAME(const float* x, float* y, std::int64_t first,         \
-                                         std::int64_t n, std::uint64_t seed,                   \
-                                         std::uint32_t threshold, float scale) {               \
-    dropout_draws<BITS, float>(x, y, first, n, seed, threshold, scale);                        \
+#define TOPOS_DROPOUT_VARIANT(NAME, ATTR, BITS)                                        \
+  [[maybe_unused]] ATTR static void NAME(const float* x, float* y, std::int64_t first, \
+                                         std::int64_t n, std::uint64_t seed,           \
+                                         std::uint32_t threshold, float scale) {       \
+    dropout_draws<BITS, float>(x, y, first, n, seed, threshold, scale);                \
   }
 TOPOS_DROPOUT_VARIANT(dropout_float_8, TOPOS_SIMD_CLONES, 8)
 TOPOS_DROPOUT_VARIANT(dropout_float_16, TOPOS_SIMD_CLONES, 16)
