@@ -41,20 +41,28 @@ struct DropoutRate {
   int per_draw() const { return 64 / bits; }
 };
 
-// y[j] = x[j]·scale where element j's lane is at least `threshold`, else 0, for the elements of
-// draws [first, first + n): y and x point at the first of them (x null: y is the mask).
+// Elements go by blocks of 64 draws: element j·64 + i of a block takes lane j of the block's
+// draw i, so each lane is a contiguous run of 64 elements and every loop below vectorises.
+constexpr std::int64_t kDropoutBlockDraws = 64;
+
+// y = x·scale where the element's lane is at least `threshold`, else 0, for blocks [first,
+// first + n) (x and y at the first block's first element).
 template <int Bits, class T>
-TOPOS_INLINE_KERNEL void dropout_draws(const T* x, T* y, std::int64_t first, std::int64_t n,
-                                       std::uint64_t seed, std::uint32_t threshold, T scale) {
+TOPOS_INLINE_KERNEL void dropout_blocks(const T* x, T* y, std::int64_t first, std::int64_t n,
+                                        std::uint64_t seed, std::uint32_t threshold, T scale) {
   constexpr int per = 64 / Bits;
+  constexpr std::int64_t B = kDropoutBlockDraws;
   constexpr std::uint64_t lane = Bits == 32 ? 0xFFFFFFFFull : (1ull << Bits) - 1;
-  for (std::int64_t i = 0; i < n; ++i) {
-    const std::uint64_t z =
-        splitmix64(seed + static_cast<std::uint64_t>(first + i) * 0x9E3779B97F4A7C15ull);
+  for (std::int64_t b = 0; b < n; ++b) {
+    std::uint64_t z[B];
+    const auto d0 = static_cast<std::uint64_t>((first + b) * B);
+    for (std::int64_t i = 0; i < B; ++i)
+      z[i] = splitmix64(seed + (d0 + static_cast<std::uint64_t>(i)) * 0x9E3779B97F4A7C15ull);
     for (int j = 0; j < per; ++j) {
-      const bool keep = ((z >> (Bits * j)) & lane) >= threshold;
-      const T v = x ? x[per * i + j] * scale : scale;
-      y[per * i + j] = keep ? v : T(0);
+      const T* xs = x + (b * per + j) * B;
+      T* ys = y + (b * per + j) * B;
+      for (std::int64_t i = 0; i < B; ++i)
+        ys[i] = ((z[i] >> (Bits * j)) & lane) >= threshold ? xs[i] * scale : T(0);
     }
   }
 }
@@ -63,7 +71,7 @@ TOPOS_INLINE_KERNEL void dropout_draws(const T* x, T* y, std::int64_t first, std
   [[maybe_unused]] ATTR static void NAME(const float* x, float* y, std::int64_t first, \
                                          std::int64_t n, std::uint64_t seed,           \
                                          std::uint32_t threshold, float scale) {       \
-    dropout_draws<BITS, float>(x, y, first, n, seed, threshold, scale);                \
+    dropout_blocks<BITS, float>(x, y, first, n, seed, threshold, scale);               \
   }
 TOPOS_DROPOUT_VARIANT(dropout_float_8, TOPOS_SIMD_CLONES, 8)
 TOPOS_DROPOUT_VARIANT(dropout_float_16, TOPOS_SIMD_CLONES, 16)
@@ -76,8 +84,8 @@ TOPOS_DROPOUT_VARIANT(dropout_float_32_v4, TOPOS_V4, 32)
 #undef TOPOS_DROPOUT_VARIANT
 
 template <int Bits, class T>
-void dropout_range(const T* x, T* y, std::int64_t first, std::int64_t n, std::uint64_t seed,
-                   std::uint32_t threshold, T scale) {
+void dropout_block_range(const T* x, T* y, std::int64_t first, std::int64_t n, std::uint64_t seed,
+                         std::uint32_t threshold, T scale) {
   if constexpr (std::is_same_v<T, float>) {
 #if defined(TOPOS_HAVE_V4)
     if (cpu_has_v4()) {
@@ -90,30 +98,32 @@ void dropout_range(const T* x, T* y, std::int64_t first, std::int64_t n, std::ui
     if constexpr (Bits == 16) return dropout_float_16(x, y, first, n, seed, threshold, scale);
     if constexpr (Bits == 32) return dropout_float_32(x, y, first, n, seed, threshold, scale);
   } else {
-    dropout_draws<Bits, T>(x, y, first, n, seed, threshold, scale);
+    dropout_blocks<Bits, T>(x, y, first, n, seed, threshold, scale);
   }
 }
 
 template <int Bits, class T>
 void dropout_elements(const T* x, T* y, std::int64_t count, std::uint64_t seed,
                       std::uint32_t threshold, T scale) {
-  constexpr std::int64_t per = 64 / Bits;
-  const std::int64_t draws = count / per;
-  at::parallel_for(0, draws, (1 << 15) / per, [&](std::int64_t begin, std::int64_t end) {
-    dropout_range<Bits, T>(x ? x + per * begin : nullptr, y + per * begin, begin, end - begin, seed,
-                           threshold, scale);
+  constexpr std::int64_t B = kDropoutBlockDraws, block = B * (64 / Bits);
+  constexpr std::uint64_t lane = Bits == 32 ? 0xFFFFFFFFull : (1ull << Bits) - 1;
+  const std::int64_t blocks = count / block;
+  at::parallel_for(0, blocks, (1 << 15) / block, [&](std::int64_t begin, std::int64_t end) {
+    dropout_block_range<Bits, T>(x + block * begin, y + block * begin, begin, end - begin, seed,
+                                 threshold, scale);
   });
-  if (const auto rest = count % per) {  // the last elements: the first lanes of one more draw
-    T in[per] = {}, out[per];
-    if (x)
-      for (std::int64_t j = 0; j < rest; ++j) in[j] = x[per * draws + j];
-    dropout_draws<Bits, T>(x ? in : nullptr, out, draws, 1, seed, threshold, scale);
-    for (std::int64_t j = 0; j < rest; ++j) y[per * draws + j] = out[j];
+  // The last, partial block: element o takes lane o / B of the block's draw o % B, as in a whole one.
+  const auto d0 = static_cast<std::uint64_t>(blocks * B);
+  for (std::int64_t o = 0; o < count - blocks * block; ++o) {
+    const std::uint64_t z =
+        splitmix64(seed + (d0 + static_cast<std::uint64_t>(o % B)) * 0x9E3779B97F4A7C15ull);
+    const auto k = blocks * block + o;
+    y[k] = ((z >> (Bits * (o / B))) & lane) >= threshold ? x[k] * scale : T(0);
   }
 }
 
-/// y = x·mask·scale for the `count` elements of stream `seed` (x null: y = the mask itself,
-/// 0 or scale), each kept unless its lane is below `rate.threshold`.
+/// y = x·scale, each of the `count` elements kept unless its lane of stream `seed` is below
+/// `rate.threshold`, else 0.
 template <class T>
 void dropout_apply(const T* x, T* y, std::int64_t count, std::uint64_t seed, DropoutRate rate,
                    T scale) {
