@@ -6,7 +6,8 @@
 // run time). This header holds linear_act, act(x Wᵀ + b) as one autograd node over the dense
 // kernels; the kernels are in kernels/: the activations and the dispatch (epilogue.hpp), the row
 // loop over a CSR matrix under spmm (csr.hpp; sparse_operator.hpp), and the register-blocked
-// dense product for narrow maps (n × K by K × N, N up to 64) with its backward (dense.hpp).
+// dense product for narrow maps (n × K by K × N, N up to 64) with its backward (dense.hpp), and
+// oneDNN's sgemm for wide float32 maps when chosen (gemm.hpp, CpuGemm).
 #pragma once
 
 #include "topos/nn/kernels/csr.hpp"
@@ -115,7 +116,8 @@ using detail::Epilogue;
 
 /// act(x Wᵀ + b) (torch::nn::functional::linear, then relu or elu) as one autograd node on the
 /// CPU: for up to 64 outputs a register-blocked kernel with the bias and the activation applied
-/// before the store, otherwise BLAS then one vectorised pass; the backward needs no exponential.
+/// before the store, otherwise BLAS (or oneDNN: set_cpu_gemm) then one vectorised pass; the
+/// backward needs no exponential.
 /// Any other device, dtype or shape takes torch's ops.
 inline torch::Tensor linear_act(const torch::Tensor& x, const torch::Tensor& W,
                                 const torch::Tensor& b, Epilogue act = Epilogue::none) {
