@@ -350,6 +350,47 @@ TEST_CASE("Mlp follows the reference layout and parameter count", "[nn][mlp]") {
   REQUIRE_THROWS_AS(update_from_string("swish"), std::invalid_argument);
 }
 
+TEST_CASE("cpu gemm onednn: an Mlp's products through oneDNN, float32 sums in another order",
+          "[nn][mlp]") {
+  if (!onednn_gemm_available()) {
+    WARN("this LibTorch has no oneDNN: nothing to compare");
+    return;
+  }
+  torch::manual_seed(4);
+  // 96 and 80 outputs take oneDNN; the last Linear (3 outputs) keeps its own kernel.
+  Mlp m(MlpOptions(24, 96, 80).layers(3));
+  Mlp dec(MlpOptions(80, 96, 3).final_activation(false).layer_norm(false));
+  const auto x = torch::randn({700, 24}).requires_grad_();
+  const auto W = torch::randn({96, 50}), b = torch::randn({96});
+  const auto z = torch::randn({300, 60}).narrow(1, 5, 50);  // strided rows: passed, not copied
+  const auto run = [&](CpuGemm g) {
+    struct Restore {  // the setting is process-wide: back to BLAS even if this throws
+      ~Restore() { set_cpu_gemm(CpuGemm::blas); }
+    } restore;
+    set_cpu_gemm(g);
+    m->zero_grad(), dec->zero_grad(), x.mutable_grad() = torch::Tensor();
+    const auto y = dec->forward(m->forward(x));
+    (y * torch::linspace(-1, 1, 3)).sum().backward();
+    std::vector<torch::Tensor> out{y.detach(), x.grad().clone(), nn::linear(z, W, b)};
+    for (const auto& p : m->parameters()) out.push_back(p.grad().clone());
+    for (const auto& p : dec->parameters()) out.push_back(p.grad().clone());
+    return out;
+  };
+  const auto blas = run(CpuGemm::blas), onednn = run(CpuGemm::onednn);
+  REQUIRE(blas.size() == onednn.size());
+  bool differs = false;
+  for (std::size_t i = 0; i < blas.size(); ++i) {
+    INFO("tensor " << i);
+    REQUIRE(onednn[i].sizes() == blas[i].sizes());
+    CHECK(((onednn[i] - blas[i]).norm() / blas[i].norm()).item<double>() < 1e-5);
+    differs = differs || !torch::equal(onednn[i], blas[i]);
+  }
+  CHECK(differs);  // oneDNN did multiply
+  REQUIRE(get_cpu_gemm() == CpuGemm::blas);
+  REQUIRE(cpu_gemm_from_string("onednn") == CpuGemm::onednn);
+  REQUIRE_THROWS_WITH(cpu_gemm_from_string("mkl"), Catch::Contains("unknown cpu gemm 'mkl'"));
+}
+
 TEST_CASE("medium matmul precision: bfloat16 products, float32 out, close to highest",
           "[nn][mlp]") {
   torch::manual_seed(3);
