@@ -58,8 +58,8 @@ Update update_arg(const py::handle& obj, const std::string& arg) {
                        type_name(obj));
 }
 
-/// A 2-d sparse matrix as a SparseOperator: torch sparse COO (coalesced: its values tensor is
-/// used as is) or CSR, scipy.sparse (float64, then `dtype`), or a prepared SparseOperator.
+}  // namespace
+
 SparseOperator operator_arg(const py::handle& obj, const std::string& arg, at::ScalarType dtype) {
   if (py::isinstance<SparseOperator>(obj)) return obj.cast<SparseOperator>();
   if (THPVariable_Check(obj.ptr())) {
@@ -95,6 +95,8 @@ SparseOperator operator_arg(const py::handle& obj, const std::string& arg, at::S
   throw py::type_error(arg + ": expected a sparse operator (a torch sparse COO or CSR tensor, a " +
                        "scipy.sparse matrix or a topos.nn.SparseOperator), got " + type_name(obj));
 }
+
+namespace {
 
 /// A SparseOperator as a torch sparse COO tensor (coalesced; its values tensor, so gradients
 /// through it reach the operator's values).

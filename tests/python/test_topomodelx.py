@@ -1,0 +1,263 @@
+"""topos.topomodelx, the TopoModelX drop-in, against TopoModelX's golden cases (tdl-golden).
+
+For every model case: the model built under the case's torch.manual_seed has TopoModelX's initial
+parameters bit for bit (the case's state_dict is the one TopoModelX's constructor made); with the
+case's weights loaded, the outputs and the gradients of Σ out·R match TopoModelX's within the C++
+zoo's parity tolerance. The arguments are passed as a TopoModelX user passes them: features as
+dense tensors, operators as ``to_sparse()`` of the case's matrices (dense where the case says).
+Plus a tutorial-style training loop run through the drop-in unchanged.
+"""
+
+import importlib
+import json
+
+import numpy as np
+import pytest
+import torch
+
+topomodelx = pytest.importorskip("topos.topomodelx")
+
+
+def _cases(reference_dir):
+    root = reference_dir / "tdl-golden" / "cases"
+    if not root.is_dir():
+        pytest.skip(f"{root} is missing (the TDL golden cases)")
+    out = []
+    for d in sorted(root.iterdir()):
+        spec = json.loads((d / "case.json").read_text())
+        if spec.get("model"):
+            out.append((d, spec))
+    return out
+
+
+def _case_names():
+    # Parametrised by name; the directory is found at run time (TOPOS_REFERENCE_DIR).
+    return [
+        "allset-hg15", "allset-transformer-hg15", "can-cell-grid", "ccxn-cell-grid",
+        "cwn-cell-grid", "dist2cycle-rgg20", "hmc-cc-torus", "hmpnn-hg15", "hnhn-hg15",
+        "hsn-rgg20", "hypergat-hg12", "hypersage-hg15", "san-rgg20", "sca-cmps-rgg20",
+        "sccn-rgg20", "sccnn-rgg20", "scconv-rgg20", "scn2-rgg20", "scnn-rgg20", "scone-rgg20",
+        "unigcn-hg15", "unigcnii-hg15", "unigin-hg15", "unisage-hg15",
+    ]  # fmt: skip
+
+
+@pytest.fixture
+def case(request, reference_dir):
+    d = reference_dir / "tdl-golden" / "cases" / request.param
+    if not d.is_dir():
+        pytest.skip(f"{d} is missing (the TDL golden cases)")
+    return d, json.loads((d / "case.json").read_text())
+
+
+def _model_class(spec):
+    module, cls = spec["module"].rsplit(".", 1)
+    assert module.startswith("topomodelx.")
+    return getattr(importlib.import_module("topos." + module), cls)
+
+
+def _config(spec):
+    """case.json's config as TopoModelX's constructor received it ("torch.nn.X": the class)."""
+    out = {}
+    for k, v in spec["config"].items():
+        if isinstance(v, str) and v.startswith("torch.nn."):
+            v = getattr(torch.nn, v[len("torch.nn.") :])
+        out[k] = v
+    return out
+
+
+def _npy(path, dtype):
+    return torch.from_numpy(np.load(path)).to(dtype)
+
+
+def _argument(e, d, dtype):
+    if e is None:
+        return None
+    for kind, make in (("tuple", tuple), ("list", list)):
+        if kind in e:
+            return make(_argument(x, d, dtype) for x in e[kind])
+    if "dict" in e:
+        return {k: _argument(x, d, dtype) for k, x in e["dict"].items()}
+    t = _npy(d / e["from"] / (e["name"] + ".npy"), dtype)
+    if e["from"] == "operators" and not e.get("dense", False):
+        t = t.to_sparse()
+    return t
+
+
+def _outputs(out):
+    if isinstance(out, torch.Tensor):
+        return [out]
+    if isinstance(out, dict):
+        return list(out.values())
+    return list(out)
+
+
+def _built(d, spec, dtype):
+    """The model with the case's weights, in eval mode, and its arguments."""
+    torch.manual_seed(spec["seed"])
+    model = _model_class(spec)(**_config(spec))
+    state = {k: _npy(d / "state_dict" / (k + ".npy"), torch.float32) for k in model.state_dict()}
+    model.load_state_dict(state)
+    model.to(dtype).eval()
+    args = [_argument(e, d, dtype) for e in spec["forward"]]
+    return model, args
+
+
+# TopoModelX's float32 rounding, documented in docs/models.md ("Parity"; the C++ zoo test's
+# known_mismatches): SCCNN's in_linear_0.bias gradient cancels exactly, and the golden value keeps
+# 5.7e-4 (relative) of TopoModelX's rounding, which its own code in float64 does not have. Checked
+# here within 1e-3 of its largest value, and strictly by the xfail test below.
+KNOWN_MISMATCHES = {"SCCNN": {"in_linear_0.bias"}}
+
+
+def _close(a, b):
+    """The C++ zoo's parity tolerance: max |a - b| within 1e-5, or 1e-4 of the largest |b|."""
+    err = (a - b).abs().max().item() if a.numel() else 0.0
+    scale = b.abs().max().item() if b.numel() else 0.0
+    return err <= 1e-5 or err <= 1e-4 * scale, err
+
+
+@pytest.mark.parametrize("case", _case_names(), indirect=True)
+def test_initial_parameters_are_topomodelx(case):
+    d, spec = case
+    names = [k for k, _ in json.loads((d / "state_dict.json").read_text())]
+    torch.manual_seed(spec["seed"])
+    model = _model_class(spec)(**_config(spec))
+    state = model.state_dict()
+    assert list(state) == names  # TopoModelX's names, in its order
+    for k in names:
+        golden = torch.from_numpy(np.load(d / "state_dict" / (k + ".npy")))
+        # The same draws from the same generator in float32: equal to the bit.
+        assert torch.equal(state[k], golden), f"{spec['name']}: {k} differs from TopoModelX's"
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32], ids=["float64", "float32"])
+@pytest.mark.parametrize("case", _case_names(), indirect=True)
+def test_outputs_and_gradients_are_topomodelx(case, dtype):
+    d, spec = case
+    model, args = _built(d, spec, dtype)
+    out = _outputs(model(*args))
+    assert len(out) == len(spec["outputs"])
+    loss = 0
+    for name, y in zip(spec["outputs"], out):
+        golden = _npy(d / "outputs" / (name + ".npy"), dtype)
+        assert y.shape == golden.shape, f"{name}: shape {tuple(y.shape)}"
+        ok, err = _close(y.detach(), golden)
+        assert ok, f"{spec['name']} {name}: max error {err:.3g}"
+        loss = loss + (y * _npy(d / "grads" / f"_R_{name}.npy", dtype)).sum()
+    loss.backward()
+    for k, p in model.named_parameters():
+        golden = _npy(d / "grads" / (k + ".npy"), dtype)
+        g = p.grad if p.grad is not None else torch.zeros_like(p)
+        ok, err = _close(g, golden)
+        if k in KNOWN_MISMATCHES.get(spec["model"], ()):
+            ok = err <= 1e-3 * golden.abs().max().item()
+        assert ok, f"{spec['name']} grad {k}: max error {err:.3g}"
+
+
+@pytest.mark.xfail(reason="TopoModelX's float32 rounding in the golden value (KNOWN_MISMATCHES)")
+@pytest.mark.parametrize("case", ["sccnn-rgg20"], indirect=True)
+def test_known_mismatch_sccnn_in_linear_0_bias(case):
+    d, spec = case
+    model, args = _built(d, spec, torch.float64)
+    out = _outputs(model(*args))
+    sum((y * _npy(d / "grads" / f"_R_{n}.npy", torch.float64)).sum()
+        for n, y in zip(spec["outputs"], out)).backward()  # fmt: skip
+    golden = _npy(d / "grads" / "in_linear_0.bias.npy", torch.float64)
+    assert _close(model.in_linear_0.bias.grad, golden)[0]
+
+
+@pytest.mark.parametrize("case", ["scn2-rgg20"], indirect=True)
+def test_a_tutorial_training_loop_runs_unchanged(case):
+    """TopoModelX's tutorial loop (seed, model, Adam, a few epochs), only the import changed;
+    the drop-in's run equals the same loop on a copy of its parameters in plain torch."""
+    from topos.topomodelx.nn.simplicial.scn2 import SCN2
+
+    d, spec = case
+    args = [_argument(e, d, torch.float32) for e in spec["forward"]]
+    x_0, x_1, x_2, lap_0, lap_1, lap_2 = args
+    y = (x_0.sum(dim=1) > 0).long()
+
+    torch.manual_seed(0)
+    model = SCN2(in_channels_0=4, in_channels_1=3, in_channels_2=2, n_layers=2)
+    head = torch.nn.Linear(4, 2)
+    opt = torch.optim.Adam(list(model.parameters()) + list(head.parameters()), lr=0.1)
+    reference = {k: v.clone() for k, v in model.state_dict().items()}
+    losses = []
+    for _ in range(5):
+        model.train()
+        opt.zero_grad()
+        out_0, _, _ = model(x_0, x_1, x_2, lap_0, lap_1, lap_2)
+        loss = torch.nn.functional.cross_entropy(head(out_0), y)
+        loss.backward()
+        opt.step()
+        losses.append(loss.item())
+    assert all(np.isfinite(losses)) and losses[-1] < losses[0]
+    assert any(not torch.equal(reference[k], v) for k, v in model.state_dict().items())
+
+    # The same loop by hand: SCN2 is x_r <- relu(L_r x_r W_r) per layer and rank (TopoModelX's
+    # SCN2Layer: a Conv, then relu).
+    torch.manual_seed(0)
+    SCN2(in_channels_0=4, in_channels_1=3, in_channels_2=2, n_layers=2)  # the same draws
+    head_ref = torch.nn.Linear(4, 2)
+    w = {k: v.clone().requires_grad_() for k, v in reference.items()}
+    opt_ref = torch.optim.Adam(list(w.values()) + list(head_ref.parameters()), lr=0.1)
+    for step in range(5):
+        opt_ref.zero_grad()
+        h = x_0
+        for i in range(2):
+            h = torch.relu(torch.sparse.mm(lap_0, h @ w[f"layers.{i}.conv_0_to_0.weight"]))
+        loss = torch.nn.functional.cross_entropy(head_ref(h), y)
+        loss.backward()
+        opt_ref.step()
+        assert abs(loss.item() - losses[step]) <= 1e-5 * max(1.0, abs(losses[step]))
+
+
+def test_from_sparse_is_topomodelx():
+    scipy_sparse = pytest.importorskip("scipy.sparse")
+    from topos.topomodelx.utils.sparse import from_sparse
+
+    a = scipy_sparse.csc_matrix(np.array([[0.0, 2.5, 0.0], [1.0, 0.0, -3.0]]))
+    t = from_sparse(a)
+    assert t.layout == torch.sparse_coo and t.is_coalesced() and t.dtype == torch.float32
+    assert torch.equal(t.to_dense(), torch.tensor([[0.0, 2.5, 0.0], [1.0, 0.0, -3.0]]))
+    with pytest.raises(TypeError, match="expected a scipy.sparse matrix"):
+        from_sparse(np.eye(2))
+
+
+def test_every_topomodelx_model_path_is_there():
+    from topos._C.zoo import model_names
+
+    paths = {
+        "simplicial": ["dist2cycle", "hsn", "san", "sca_cmps", "sccn", "sccnn", "scconv", "scn2",
+                       "scnn", "scone"],
+        "cell": ["can", "ccxn", "cwn"],
+        "combinatorial": ["hmc"],
+        "hypergraph": ["allset", "allset_transformer", "hmpnn", "hnhn", "hypergat", "hypersage",
+                       "unigcn", "unigcnii", "unigin", "unisage"],
+    }  # fmt: skip
+    found = set()
+    for domain, files in paths.items():
+        for f in files:
+            m = importlib.import_module(f"topos.topomodelx.nn.{domain}.{f}")
+            (cls,) = m.__all__
+            found.add(cls)
+            assert issubclass(getattr(m, cls), torch.nn.Module)
+    assert found <= set(model_names())
+    assert len(found) == 24
+
+
+def test_bad_arguments_are_named():
+    from topos.topomodelx.nn.simplicial.scn2 import SCN2
+
+    with pytest.raises(TypeError, match="n_layer"):
+        SCN2(4, 3, 2, n_layer=2)  # SCN2 takes no **kwargs, as in TopoModelX
+    from topos.topomodelx.nn.hypergraph.hnhn import HNHN
+
+    with pytest.raises(topomodelx.ZooError, match="bias_int"):
+        HNHN(4, 5, None, bias_int="xavier_normal")  # a **kwargs the zoo does not read is named
+    with pytest.raises(TypeError):
+        SCN2(4, 3)  # in_channels_2 missing, as in TopoModelX
+    m = SCN2(4, 3, 2)
+    lap = torch.eye(3).to_sparse()
+    with pytest.raises(ValueError, match="operator 'laplacian_0' is 3 × 3 .* 'x_0' has 5 rows"):
+        m(torch.ones(5, 4), torch.ones(3, 3), torch.ones(3, 2), lap, lap, lap)
