@@ -9,6 +9,7 @@ Plus a tutorial-style training loop run through the drop-in unchanged.
 """
 
 import importlib
+import importlib.util
 import json
 
 import numpy as np
@@ -261,3 +262,83 @@ def test_bad_arguments_are_named():
     lap = torch.eye(3).to_sparse()
     with pytest.raises(ValueError, match="operator 'laplacian_0' is 3 × 3 .* 'x_0' has 5 rows"):
         m(torch.ones(5, 4), torch.ones(3, 3), torch.ones(3, 2), lap, lap, lap)
+
+
+R, L = torch.nn.ReLU, torch.nn.LayerNorm
+INIT_CASES = [  # (module under nn., config): options the golden cases do not cover
+ ("simplicial.scn2.SCN2", dict(in_channels_0=5, in_channels_1=2, in_channels_2=7, n_layers=3)),
+ ("simplicial.hsn.HSN", dict(channels=6, n_layers=3)),
+ ("simplicial.scconv.SCConv", dict(node_channels=4, n_layers=2)),
+ ("simplicial.scconv.SCConv", dict(node_channels=4, edge_channels=3, face_channels=5, n_layers=3)),
+ ("simplicial.sccn.SCCN", dict(channels=3, max_rank=2, n_layers=1)),
+ ("simplicial.scnn.SCNN", dict(in_channels=3, hidden_channels=6, conv_order_down=1, conv_order_up=3, n_layers=3)),
+ ("simplicial.sccnn.SCCNN", dict(in_channels_all=[3,4,5], hidden_channels_all=[6,6,6], conv_order=1, sc_order=3, n_layers=1)),
+ ("simplicial.scone.SCoNe", dict(in_channels=2, hidden_channels=7, n_layers=3)),
+ ("simplicial.san.SAN", dict(in_channels=3, hidden_channels=5, n_layers=1)),
+ ("simplicial.san.SAN", dict(in_channels=3, hidden_channels=5, out_channels=2, n_filters=3, n_layers=3)),
+ ("simplicial.dist2cycle.Dist2Cycle", dict(channels=9, n_layers=3)),
+ ("cell.cwn.CWN", dict(in_channels_0=2, in_channels_1=3, in_channels_2=4, hid_channels=5, n_layers=3)),
+ ("cell.ccxn.CCXN", dict(in_channels_0=4, in_channels_1=3, in_channels_2=5, n_layers=3, att=True)),
+ ("cell.can.CAN", dict(in_channels_0=3, in_channels_1=4, out_channels=4, heads=2, n_layers=3)),
+ ("cell.can.CAN", dict(in_channels_0=3, in_channels_1=4, out_channels=6, heads=3, n_layers=3, att_lift=False, pooling=True)),
+ ("cell.can.CAN", dict(in_channels_0=3, in_channels_1=4, out_channels=4, heads=1, n_layers=1, skip_connection=False, att_lift=False)),
+ ("combinatorial.hmc.HMC", dict(channels_per_layer=[[[3,4,2],[4,3,5],[2,4,3]], [[2,4,3],[5,5,5],[1,2,3]]])),
+ ("hypergraph.allset.AllSet", dict(in_channels=4, hidden_channels=5, n_layers=3, mlp_num_layers=3, mlp_activation=R, mlp_norm=L)),
+ ("hypergraph.allset_transformer.AllSetTransformer", dict(in_channels=4, hidden_channels=6, n_layers=2, heads=3, mlp_num_layers=1)),
+ ("hypergraph.allset_transformer.AllSetTransformer", dict(in_channels=4, hidden_channels=8, n_layers=1, heads=4, mlp_num_layers=3)),
+ ("hypergraph.hmpnn.HMPNN", dict(in_channels=4, hidden_channels=5, n_layers=3)),
+ ("hypergraph.hnhn.HNHN", dict(in_channels=4, hidden_channels=5, incidence_1=None, n_layers=3)),
+ ("hypergraph.hnhn.HNHN", dict(in_channels=4, hidden_channels=5, incidence_1=None, n_layers=2, bias_init="xavier_normal", bias_gain=0.7)),
+ ("hypergraph.hnhn.HNHN", dict(in_channels=4, hidden_channels=5, incidence_1=None, use_bias=False)),
+ ("hypergraph.hypergat.HyperGAT", dict(in_channels=4, hidden_channels=5, n_layers=3)),
+ ("hypergraph.hypersage.HyperSAGE", dict(in_channels=4, hidden_channels=5, n_layers=3)),
+ ("hypergraph.unigcn.UniGCN", dict(in_channels=5, hidden_channels=5, n_layers=2)),
+ ("hypergraph.unigcn.UniGCN", dict(in_channels=4, hidden_channels=5, n_layers=3, use_bn=True)),
+ ("hypergraph.unigcnii.UniGCNII", dict(in_channels=4, hidden_channels=5, n_layers=4, use_norm=True)),
+ ("hypergraph.unigin.UniGIN", dict(in_channels=4, hidden_channels=5, n_layers=3, train_eps=True, eps=0.3)),
+ ("hypergraph.unigin.UniGIN", dict(in_channels=4, hidden_channels=5, n_layers=2)),
+ ("hypergraph.unisage.UniSAGE", dict(in_channels=4, hidden_channels=5, n_layers=3, e_aggr="mean")),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("path,config", INIT_CASES)
+def test_initial_parameters_equal_topomodelx_own(path, config):
+    """Against TopoModelX itself where it is installed: the same seed gives the same state_dict
+    (names, order, values) and leaves the generator in the same state."""
+    if importlib.util.find_spec("topomodelx") is None:
+        pytest.skip("TopoModelX is not installed (the golden cases check its default options)")
+    module, cls = path.rsplit(".", 1)
+    theirs = getattr(importlib.import_module("topomodelx.nn." + module), cls)
+    ours = getattr(importlib.import_module("topos.topomodelx.nn." + module), cls)
+    torch.manual_seed(7)
+    t = theirs(**config).state_dict()
+    t_next = torch.rand(1)
+    torch.manual_seed(7)
+    d = ours(**config).state_dict()
+    d_next = torch.rand(1)
+    assert list(d) == list(t)
+    for k in t:
+        assert torch.equal(d[k], t[k]), k
+    assert torch.equal(d_next, t_next)
+
+
+@pytest.mark.parametrize("case", ["unigcnii-hg15"], indirect=True)
+def test_the_papers_model_is_one_argument_away(case):
+    """UniGCNII: TopoModelX ignores beta (layer i uses log(alpha / (i + 1) + 1)); with
+    topomodelx_compatible=False, beta is GCNII's. Equal where beta = alpha, apart where not."""
+    from topos.topomodelx.nn.hypergraph.unigcnii import UniGCNII
+
+    d, spec = case
+    x, incidence = [_argument(e, d, torch.float64) for e in spec["forward"]]
+    names = [k for k, _ in json.loads((d / "state_dict.json").read_text())]
+    state = {k: _npy(d / "state_dict" / (k + ".npy"), torch.float64) for k in names}
+    golden = _npy(d / "outputs" / "out_x_0.npy", torch.float64)
+
+    def run(beta, compatible):
+        m = UniGCNII(4, 5, n_layers=2, alpha=0.5, beta=beta, topomodelx_compatible=compatible)
+        m.double().load_state_dict(state)
+        return m.eval()(x, incidence)[0].detach()
+
+    assert _close(run(0.9, True), golden)[0]  # beta ignored, as in TopoModelX
+    assert torch.allclose(run(0.5, False), run(0.5, True), atol=1e-12)
+    assert (run(0.9, False) - golden).abs().max() > 1e-3

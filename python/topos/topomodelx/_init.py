@@ -263,6 +263,7 @@ def _unigcn(p, a):
     for i in range(a["n_layers"]):
         _conv(p, f"layers.{i}.conv_level1_0_to_1")
         _conv(p, f"layers.{i}.conv_level2_1_to_0")
+        _declare(p, *(k for k in list(p) if k.startswith(f"layers.{i}.bn.")))  # use_bn
 
 
 def _linears(first, per_layer):
