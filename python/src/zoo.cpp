@@ -86,6 +86,9 @@ void bind_zoo(py::module_& parent) {
           },
           "(path, tensor, is_buffer) for every parameter and buffer: the module's own tensors.")
       .def(
+          "clone", [](const ZooModel& z) { return z.clone(); },
+          "A deep copy: the same options, parameters, buffers and mode.")
+      .def(
           "forward",
           [](ZooModel& z, const py::sequence& args, bool training) {
             const at::ScalarType dtype = model_dtype(*z.module);

@@ -233,8 +233,8 @@ def test_every_topomodelx_model_path_is_there():
                        "scnn", "scone"],
         "cell": ["can", "ccxn", "cwn"],
         "combinatorial": ["hmc"],
-        "hypergraph": ["allset", "allset_transformer", "hmpnn", "hnhn", "hypergat", "hypersage",
-                       "unigcn", "unigcnii", "unigin", "unisage"],
+        "hypergraph": ["allset", "allset_transformer", "dhgcn", "hmpnn", "hnhn", "hypergat",
+                       "hypersage", "unigcn", "unigcnii", "unigin", "unisage"],
     }  # fmt: skip
     found = set()
     for domain, files in paths.items():
@@ -243,8 +243,8 @@ def test_every_topomodelx_model_path_is_there():
             (cls,) = m.__all__
             found.add(cls)
             assert issubclass(getattr(m, cls), torch.nn.Module)
-    assert found <= set(model_names())
-    assert len(found) == 24
+    assert found - {"DHGCN"} <= set(model_names())  # DHGCN is written in torch
+    assert len(found) == 25
 
 
 def test_bad_arguments_are_named():
@@ -266,38 +266,60 @@ def test_bad_arguments_are_named():
 
 R, L = torch.nn.ReLU, torch.nn.LayerNorm
 INIT_CASES = [  # (module under nn., config): options the golden cases do not cover
- ("simplicial.scn2.SCN2", dict(in_channels_0=5, in_channels_1=2, in_channels_2=7, n_layers=3)),
- ("simplicial.hsn.HSN", dict(channels=6, n_layers=3)),
- ("simplicial.scconv.SCConv", dict(node_channels=4, n_layers=2)),
- ("simplicial.scconv.SCConv", dict(node_channels=4, edge_channels=3, face_channels=5, n_layers=3)),
- ("simplicial.sccn.SCCN", dict(channels=3, max_rank=2, n_layers=1)),
- ("simplicial.scnn.SCNN", dict(in_channels=3, hidden_channels=6, conv_order_down=1, conv_order_up=3, n_layers=3)),
- ("simplicial.sccnn.SCCNN", dict(in_channels_all=[3,4,5], hidden_channels_all=[6,6,6], conv_order=1, sc_order=3, n_layers=1)),
- ("simplicial.scone.SCoNe", dict(in_channels=2, hidden_channels=7, n_layers=3)),
- ("simplicial.san.SAN", dict(in_channels=3, hidden_channels=5, n_layers=1)),
- ("simplicial.san.SAN", dict(in_channels=3, hidden_channels=5, out_channels=2, n_filters=3, n_layers=3)),
- ("simplicial.dist2cycle.Dist2Cycle", dict(channels=9, n_layers=3)),
- ("cell.cwn.CWN", dict(in_channels_0=2, in_channels_1=3, in_channels_2=4, hid_channels=5, n_layers=3)),
- ("cell.ccxn.CCXN", dict(in_channels_0=4, in_channels_1=3, in_channels_2=5, n_layers=3, att=True)),
- ("cell.can.CAN", dict(in_channels_0=3, in_channels_1=4, out_channels=4, heads=2, n_layers=3)),
- ("cell.can.CAN", dict(in_channels_0=3, in_channels_1=4, out_channels=6, heads=3, n_layers=3, att_lift=False, pooling=True)),
- ("cell.can.CAN", dict(in_channels_0=3, in_channels_1=4, out_channels=4, heads=1, n_layers=1, skip_connection=False, att_lift=False)),
- ("combinatorial.hmc.HMC", dict(channels_per_layer=[[[3,4,2],[4,3,5],[2,4,3]], [[2,4,3],[5,5,5],[1,2,3]]])),
- ("hypergraph.allset.AllSet", dict(in_channels=4, hidden_channels=5, n_layers=3, mlp_num_layers=3, mlp_activation=R, mlp_norm=L)),
- ("hypergraph.allset_transformer.AllSetTransformer", dict(in_channels=4, hidden_channels=6, n_layers=2, heads=3, mlp_num_layers=1)),
- ("hypergraph.allset_transformer.AllSetTransformer", dict(in_channels=4, hidden_channels=8, n_layers=1, heads=4, mlp_num_layers=3)),
- ("hypergraph.hmpnn.HMPNN", dict(in_channels=4, hidden_channels=5, n_layers=3)),
- ("hypergraph.hnhn.HNHN", dict(in_channels=4, hidden_channels=5, incidence_1=None, n_layers=3)),
- ("hypergraph.hnhn.HNHN", dict(in_channels=4, hidden_channels=5, incidence_1=None, n_layers=2, bias_init="xavier_normal", bias_gain=0.7)),
- ("hypergraph.hnhn.HNHN", dict(in_channels=4, hidden_channels=5, incidence_1=None, use_bias=False)),
- ("hypergraph.hypergat.HyperGAT", dict(in_channels=4, hidden_channels=5, n_layers=3)),
- ("hypergraph.hypersage.HyperSAGE", dict(in_channels=4, hidden_channels=5, n_layers=3)),
- ("hypergraph.unigcn.UniGCN", dict(in_channels=5, hidden_channels=5, n_layers=2)),
- ("hypergraph.unigcn.UniGCN", dict(in_channels=4, hidden_channels=5, n_layers=3, use_bn=True)),
- ("hypergraph.unigcnii.UniGCNII", dict(in_channels=4, hidden_channels=5, n_layers=4, use_norm=True)),
- ("hypergraph.unigin.UniGIN", dict(in_channels=4, hidden_channels=5, n_layers=3, train_eps=True, eps=0.3)),
- ("hypergraph.unigin.UniGIN", dict(in_channels=4, hidden_channels=5, n_layers=2)),
- ("hypergraph.unisage.UniSAGE", dict(in_channels=4, hidden_channels=5, n_layers=3, e_aggr="mean")),
+    ("simplicial.scn2.SCN2", dict(in_channels_0=5, in_channels_1=2, in_channels_2=7, n_layers=3)),
+    ("simplicial.hsn.HSN", dict(channels=6, n_layers=3)),
+    ("simplicial.scconv.SCConv", dict(node_channels=4, n_layers=2)),
+    ("simplicial.scconv.SCConv",
+     dict(node_channels=4, edge_channels=3, face_channels=5, n_layers=3)),
+    ("simplicial.sccn.SCCN", dict(channels=3, max_rank=2, n_layers=1)),
+    ("simplicial.scnn.SCNN",
+     dict(in_channels=3, hidden_channels=6, conv_order_down=1, conv_order_up=3, n_layers=3)),
+    ("simplicial.sccnn.SCCNN",
+     dict(in_channels_all=[3,4,5], hidden_channels_all=[6,6,6], conv_order=1, sc_order=3,
+          n_layers=1)),
+    ("simplicial.scone.SCoNe", dict(in_channels=2, hidden_channels=7, n_layers=3)),
+    ("simplicial.san.SAN", dict(in_channels=3, hidden_channels=5, n_layers=1)),
+    ("simplicial.san.SAN",
+     dict(in_channels=3, hidden_channels=5, out_channels=2, n_filters=3, n_layers=3)),
+    ("simplicial.dist2cycle.Dist2Cycle", dict(channels=9, n_layers=3)),
+    ("cell.cwn.CWN",
+     dict(in_channels_0=2, in_channels_1=3, in_channels_2=4, hid_channels=5, n_layers=3)),
+    ("cell.ccxn.CCXN",
+     dict(in_channels_0=4, in_channels_1=3, in_channels_2=5, n_layers=3, att=True)),
+    ("cell.can.CAN", dict(in_channels_0=3, in_channels_1=4, out_channels=4, heads=2, n_layers=3)),
+    ("cell.can.CAN",
+     dict(in_channels_0=3, in_channels_1=4, out_channels=6, heads=3, n_layers=3, att_lift=False,
+          pooling=True)),
+    ("cell.can.CAN",
+     dict(in_channels_0=3, in_channels_1=4, out_channels=4, heads=1, n_layers=1,
+          skip_connection=False, att_lift=False)),
+    ("combinatorial.hmc.HMC",
+     dict(channels_per_layer=[[[3,4,2],[4,3,5],[2,4,3]], [[2,4,3],[5,5,5],[1,2,3]]])),
+    ("hypergraph.allset.AllSet",
+     dict(in_channels=4, hidden_channels=5, n_layers=3, mlp_num_layers=3, mlp_activation=R,
+          mlp_norm=L)),
+    ("hypergraph.allset_transformer.AllSetTransformer",
+     dict(in_channels=4, hidden_channels=6, n_layers=2, heads=3, mlp_num_layers=1)),
+    ("hypergraph.allset_transformer.AllSetTransformer",
+     dict(in_channels=4, hidden_channels=8, n_layers=1, heads=4, mlp_num_layers=3)),
+    ("hypergraph.hmpnn.HMPNN", dict(in_channels=4, hidden_channels=5, n_layers=3)),
+    ("hypergraph.hnhn.HNHN", dict(in_channels=4, hidden_channels=5, incidence_1=None, n_layers=3)),
+    ("hypergraph.hnhn.HNHN",
+     dict(in_channels=4, hidden_channels=5, incidence_1=None, n_layers=2,
+          bias_init="xavier_normal", bias_gain=0.7)),
+    ("hypergraph.hnhn.HNHN",
+     dict(in_channels=4, hidden_channels=5, incidence_1=None, use_bias=False)),
+    ("hypergraph.hypergat.HyperGAT", dict(in_channels=4, hidden_channels=5, n_layers=3)),
+    ("hypergraph.hypersage.HyperSAGE", dict(in_channels=4, hidden_channels=5, n_layers=3)),
+    ("hypergraph.unigcn.UniGCN", dict(in_channels=5, hidden_channels=5, n_layers=2)),
+    ("hypergraph.unigcn.UniGCN", dict(in_channels=4, hidden_channels=5, n_layers=3, use_bn=True)),
+    ("hypergraph.unigcnii.UniGCNII",
+     dict(in_channels=4, hidden_channels=5, n_layers=4, use_norm=True)),
+    ("hypergraph.unigin.UniGIN",
+     dict(in_channels=4, hidden_channels=5, n_layers=3, train_eps=True, eps=0.3)),
+    ("hypergraph.unigin.UniGIN", dict(in_channels=4, hidden_channels=5, n_layers=2)),
+    ("hypergraph.unisage.UniSAGE",
+     dict(in_channels=4, hidden_channels=5, n_layers=3, e_aggr="mean")),
 ]  # fmt: skip
 
 
@@ -342,3 +364,95 @@ def test_the_papers_model_is_one_argument_away(case):
     assert _close(run(0.9, True), golden)[0]  # beta ignored, as in TopoModelX
     assert torch.allclose(run(0.5, False), run(0.5, True), atol=1e-12)
     assert (run(0.9, False) - golden).abs().max() > 1e-3
+
+
+@pytest.mark.parametrize("case", ["cwn-cell-grid"], indirect=True)
+def test_operators_are_converted_once_and_changes_are_seen(case):
+    """The same operator tensors at every forward are converted once (a TopoModelX script passes
+    them every epoch); a change to one in place is still seen, sparse or dense."""
+    d, spec = case
+    model, args = _built(d, spec, torch.float32)
+    first = [y.detach().clone() for y in model(*args)]
+    again = model(*args)
+    assert all(torch.equal(a, b) for a, b in zip(first, again))
+    assert len(model._operator_cache._entries) == 3
+    x_0, x_1, x_2, adjacency_0, incidence_2, incidence_1_t = args
+    with torch.no_grad():
+        incidence_2.mul_(2.0)  # sparse, in place
+    doubled = model(*args)
+    fresh = model(x_0, x_1, x_2, adjacency_0, incidence_2.coalesce().clone(), incidence_1_t)
+    assert torch.equal(doubled[1], fresh[1]) and not torch.equal(doubled[1], first[1])
+    dense = incidence_1_t.to_dense()
+    y = model(x_0, x_1, x_2, adjacency_0, incidence_2, dense)[1].detach().clone()
+    with torch.no_grad():
+        dense.mul_(0.5)
+    y_half = model(x_0, x_1, x_2, adjacency_0, incidence_2, dense)[1]
+    expected = model(x_0, x_1, x_2, adjacency_0, incidence_2, dense.to_sparse())[1]
+    assert torch.equal(y_half, expected) and not torch.equal(y_half, y)
+
+
+@pytest.mark.parametrize("case", ["hmc-cc-torus"], indirect=True)
+def test_deepcopy_is_an_independent_model(case):
+    """copy.deepcopy (an early-stopping snapshot): the same outputs, its own parameters, no
+    random draws."""
+    import copy
+
+    d, spec = case
+    model, args = _built(d, spec, torch.float64)
+    before = torch.get_rng_state()
+    snapshot = copy.deepcopy(model)
+    assert torch.equal(torch.get_rng_state(), before)
+    assert list(snapshot.state_dict()) == list(model.state_dict())
+    assert not snapshot.training
+    for a, b in zip(model(*args), snapshot(*args)):
+        assert torch.equal(a, b)
+    with torch.no_grad():
+        next(model.parameters()).add_(1.0)
+    assert not torch.equal(model(*args)[0], snapshot(*args)[0])
+
+
+def test_dhgcn():
+    """DHGCN (written in torch): TopoModelX's parameters under a seed (against TopoModelX itself
+    where installed), its hypergraph (each node's k nearest other nodes by brute force; every node
+    in one k-means cluster) and its forward from that hypergraph."""
+    from topos.topomodelx.nn.hypergraph.dhgcn import DHGCN
+
+    torch.manual_seed(3)
+    model = DHGCN(in_channels=4, hidden_channels=5, n_layers=1, k_neighbours=3, k_centroids=4)
+    names = ["layers.0.fc_layer.weight", "layers.0.fc_layer.bias",
+             "layers.0.conv_dt_level0_0_to_1.weight", "layers.0.conv_dt_level0_1_to_0.weight"]  # fmt: skip
+    assert list(model.state_dict()) == names
+    torch.manual_seed(3)
+    w = torch.empty(5, 4)
+    torch.nn.init.kaiming_uniform_(w, a=5**0.5)
+    assert torch.equal(model.layers[0].fc_layer.weight, w)
+
+    x = torch.randn(15, 4)
+    layer = model.layers[0]
+    h = layer.fc_layer(x)
+    torch.manual_seed(11)
+    H = layer.get_dynamic_topology(h).to_dense()
+    assert H.shape == (15, 19)
+    for i in range(15):
+        d = [((h[i] - h[j]).norm().item(), j) for j in range(15) if j != i]
+        nearest = {j for _, j in sorted(d)[:3]}
+        assert {j for j in range(15) if H[j, i] == 1} == nearest
+    assert torch.equal(H[:, 15:].sum(dim=1), torch.ones(15))
+
+    torch.manual_seed(11)
+    y_0, y_1 = model(x)
+    W1 = layer.conv_dt_level0_0_to_1.weight
+    W2 = layer.conv_dt_level0_1_to_0.weight
+    assert torch.allclose(y_1, H.t() @ (h @ W1), atol=1e-5)
+    assert torch.allclose(y_0, H @ (y_1 @ W2), atol=1e-5)
+
+    if importlib.util.find_spec("topomodelx") is not None:
+        from topomodelx.nn.hypergraph.dhgcn import DHGCN as Theirs
+
+        torch.manual_seed(3)
+        theirs = Theirs(in_channels=4, hidden_channels=5, k_neighbours=3, k_centroids=4)
+        for k, v in theirs.state_dict().items():
+            assert torch.equal(v, model.state_dict()[k]), k
+        torch.manual_seed(11)
+        for a, b in zip(theirs(x), (y_0, y_1)):
+            assert torch.allclose(a, b, atol=1e-6)

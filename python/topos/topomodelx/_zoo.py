@@ -9,11 +9,12 @@ initialises it, draw for draw from torch's default generator (``_init.py``), so 
 
 import inspect
 import json
+import weakref
 
 import torch
 
 from topos._C.zoo import ZooError, _ZooModel
-from topos.nn import _SharedTensors
+from topos.nn import SparseOperator, _SharedTensors
 
 from . import _init
 
@@ -89,17 +90,21 @@ class ZooModule(_SharedTensors):
 
     def _forward(self, args):
         self._check_shared()
-        names = list(inspect.signature(self.forward).parameters)
+        cls = type(self)
+        if "_operator_positions" not in cls.__dict__:
+            names = list(inspect.signature(cls.forward).parameters)[1:]
+            cls._operator_positions = [i for i, n in enumerate(names) if n in cls._operators]
         args = list(args)
-        for i, name in enumerate(names):
-            if name in self._operators:
-                args[i] = _sparse(args[i])
+        cache = self.__dict__.setdefault("_operator_cache", _OperatorCache())
+        dtype = self._shared[0][3].dtype if self._shared else torch.get_default_dtype()
+        for i in cls._operator_positions:
+            args[i] = cache.convert(args[i], dtype)
         if self._model == "HNHN" and args[1] is None:
             if self._incidence_1 is None:
                 raise ZooError(
                     "HNHN.forward: no incidence_1 (pass it to forward or to the constructor)"
                 )
-            args[1] = _sparse(self._incidence_1)
+            args[1] = cache.convert(self._incidence_1, dtype)
         out = self._zoo.forward(args, self.training)
         if self._returns == "single":
             return out[0]
@@ -114,17 +119,56 @@ class ZooModule(_SharedTensors):
             return list(out)
         return tuple(out)
 
+    def __deepcopy__(self, memo):
+        # A copy of the C++ module (its clone), its tensors registered as here; the generator is
+        # left as it was and the operator cache starts empty.
+        other = type(self).__new__(type(self))
+        _SharedTensors.__init__(other)
+        for k in ("_model", "_config", "_incidence_1"):
+            setattr(other, k, getattr(self, k))
+        rng = torch.get_rng_state()  # the C++ clone builds its modules anew, drawing
+        other._zoo = self._zoo.clone()
+        torch.set_rng_state(rng)
+        tensors = {path: (t, is_buffer) for path, t, is_buffer in other._zoo.tensors()}
+        other._share([(path, *tensors[path]) for path, *_ in self._shared])
+        for (_, _, _, t, _), (_, _, _, u, _) in zip(self._shared, other._shared):
+            u.requires_grad_(t.requires_grad)
+        other.train(self.training)
+        memo[id(self)] = other
+        return other
+
     def extra_repr(self):
         return f"{self._model}({json.dumps(self.__dict__.get('_config', {}))[1:-1]})"
 
 
-def _sparse(a):
-    """An operator argument: a dense tensor as its nonzero entries (recursively in lists, tuples
-    and dicts); sparse tensors, scipy matrices and None as they are."""
-    if isinstance(a, torch.Tensor) and a.layout == torch.strided:
-        return a.to_sparse()
-    if isinstance(a, (list, tuple)):
-        return type(a)(_sparse(x) for x in a)
-    if isinstance(a, dict):
-        return {k: _sparse(x) for k, x in a.items()}
-    return a
+class _OperatorCache:
+    """Operators converted once: a TopoModelX script passes the same operator tensors at every
+    forward, and converting them (CSR and its transpose) costs as much as a layer. A tensor is
+    looked up by identity, alive (weakly referenced) and unchanged (its version counter): a
+    sparse one keeps its values tensor in the converted operator, so a change to its values is
+    seen; a dense one (used by its nonzero entries, ``x.to_sparse()``) is converted again after
+    an in-place change. Lists, tuples and dicts are converted item by item; other arguments
+    (scipy matrices, None, SparseOperator) pass as they are."""
+
+    def __init__(self):
+        self._entries = {}
+
+    def convert(self, a, dtype):
+        if isinstance(a, (list, tuple)):
+            return type(a)(self.convert(x, dtype) for x in a)
+        if isinstance(a, dict):
+            return {k: self.convert(x, dtype) for k, x in a.items()}
+        if not isinstance(a, torch.Tensor):
+            return a
+        key = id(a)
+        entry = self._entries.get(key)
+        if entry is not None and entry[0]() is a and entry[1] == (a._version, dtype):
+            return entry[2]
+        s = a.to_sparse() if a.layout == torch.strided else a
+        if s.dtype != dtype or a.requires_grad or (s.layout == torch.sparse_coo and not s.is_coalesced()):
+            return s  # converted (a copy) at each call, as the zoo does
+        op = SparseOperator(s)
+        entries = self._entries
+        ref = weakref.ref(a, lambda _, k=key: entries.pop(k, None))
+        entries[key] = (ref, (a._version, dtype), op)
+        return op

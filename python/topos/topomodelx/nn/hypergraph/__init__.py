@@ -2,6 +2,7 @@
 
 from .allset import AllSet
 from .allset_transformer import AllSetTransformer
+from .dhgcn import DHGCN
 from .hmpnn import HMPNN
 from .hnhn import HNHN
 from .hypergat import HyperGAT
@@ -14,6 +15,7 @@ from .unisage import UniSAGE
 __all__ = [
     "AllSet",
     "AllSetTransformer",
+    "DHGCN",
     "HMPNN",
     "HNHN",
     "HyperGAT",
