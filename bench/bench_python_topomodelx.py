@@ -10,7 +10,9 @@ two layers, one thread, the same operators (SCN2: rescaled Hodge Laplacians, CWN
 adjacency pattern, B2 and B1ᵀ, UniGCNII: the triangles and self loops as hyperedges), passed as
 a TopoModelX user passes them (torch sparse COO, converted by the drop-in at every call), and
 forward + backward of Σ out·R (R fixed). Per case, the median over `--repeat` rounds of the mean
-time per call (wall and this process's CPU time).
+time per call (wall and this process's CPU time). `--allocator cache` (the default, as
+bench_zoo's TOPOS_BENCH_ALLOCATOR) calls topos.nn.use_caching_cpu_allocator() first; `system`
+keeps glibc's (bench_zoo's TOPOS_BENCH_ALLOCATOR=system).
 """
 
 import argparse
@@ -21,6 +23,7 @@ import numpy as np
 import scipy.sparse as sp
 import torch
 
+import topos.nn
 from topos.topomodelx.nn.cell.cwn import CWN
 from topos.topomodelx.nn.hypergraph.unigcnii import UniGCNII
 from topos.topomodelx.nn.simplicial.scn2 import SCN2
@@ -95,8 +98,11 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--calls", type=int, default=20)
+    ap.add_argument("--allocator", choices=("cache", "system"), default="cache")
     args = ap.parse_args()
     torch.set_num_threads(1)
+    if args.allocator == "cache":
+        topos.nn.use_caching_cpu_allocator()
     for name, (model, inputs) in cases().items():
         model.eval()
         with torch.no_grad():

@@ -7,6 +7,7 @@
 // come in as torch sparse COO / CSR tensors, scipy.sparse matrices or prepared SparseOperators.
 #include "convert.hpp"
 
+#include "topos/nn/cpu.hpp"
 #include "topos/nn/operator_schedule.hpp"
 
 #include <ATen/ops/_sparse_coo_tensor_unsafe.h>
@@ -766,6 +767,16 @@ void bind_schedule(py::module_& parent) {
   bind_builder(m);
   bind_operation_api(m);
   bind_network(m);
+  // The C++ programs' allocator settings (topos/nn/cpu.hpp), for a Python process that runs
+  // many large forwards: glibc gives large freed blocks back and faults them in again.
+  m.def("use_caching_cpu_allocator", &use_caching_cpu_allocator,
+        py::arg("max_cached_bytes") = std::size_t(1) << 30,
+        "Allocates CPU tensors (torch's too) through a size-class cache: freed blocks of 1 MB or "
+        "more are kept (at most max_cached_bytes) and reused, as bench_zoo and the hopnet trainer "
+        "do. Tensors allocated before keep their allocator.");
+  m.def("cached_cpu_bytes", &cached_cpu_bytes, "Bytes the CPU cache holds on its free lists.");
+  m.def("release_cached_cpu_memory", &release_cached_cpu_memory,
+        "Gives the CPU cache's free blocks back to the system.");
 }
 
 }  // namespace topos::python

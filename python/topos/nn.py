@@ -38,8 +38,11 @@ from ._C.nn import (  # noqa: F401
     TermShape,
     Update,
     _Network,
+    cached_cpu_bytes,
     from_,
     into,
+    release_cached_cpu_memory,
+    use_caching_cpu_allocator,
 )
 
 __all__ = [
@@ -59,8 +62,11 @@ __all__ = [
     "Term",
     "TermShape",
     "Update",
+    "cached_cpu_bytes",
     "from_",
     "into",
+    "release_cached_cpu_memory",
+    "use_caching_cpu_allocator",
 ]
 
 
