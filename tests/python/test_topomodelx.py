@@ -19,18 +19,6 @@ import torch
 topomodelx = pytest.importorskip("topos.topomodelx")
 
 
-def _cases(reference_dir):
-    root = reference_dir / "tdl-golden" / "cases"
-    if not root.is_dir():
-        pytest.skip(f"{root} is missing (the TDL golden cases)")
-    out = []
-    for d in sorted(root.iterdir()):
-        spec = json.loads((d / "case.json").read_text())
-        if spec.get("model"):
-            out.append((d, spec))
-    return out
-
-
 def _case_names():
     # Parametrised by name; the directory is found at run time (TOPOS_REFERENCE_DIR).
     return [

@@ -1,4 +1,4 @@
-"""A drop-in for TopoModelX: its models at its module paths, run by topos's C++ model zoo.
+"""A drop-in for TopoModelX: its 25 models at its module paths, run by topos's C++ model zoo.
 
     from topos.topomodelx.nn.simplicial.scn2 import SCN2   # was: from topomodelx.nn...
 
@@ -6,8 +6,8 @@ Every model takes TopoModelX's constructor and forward arguments, returns its ou
 ``state_dict`` names and, under the same ``torch.manual_seed``, its initial parameters; a
 training script runs unchanged but for the import. Where TopoModelX's numbers differ from the
 model's paper (docs/models.md lists where), the drop-in gives TopoModelX's;
-``topomodelx_compatible=False`` gives the paper's. See docs/python.md, "TopoModelX drop-in".
-DHGCN (its k-NN and k-means hypergraph built in forward) is not in the zoo yet.
+``topomodelx_compatible=False`` gives the paper's. DHGCN, whose hypergraph is rebuilt from the
+features at every forward, is written in torch. See docs/python.md, "TopoModelX drop-in".
 """
 
 from . import nn, utils  # noqa: F401
