@@ -26,6 +26,7 @@ namespace topos::python {
 
 void bind_hopnet(py::module_& m);    // hopnet.cpp
 void bind_schedule(py::module_& m);  // schedule.cpp
+void bind_zoo(py::module_& m);       // zoo.cpp
 
 // ----- conversions (convert.hpp) ------------------------------------------------------------
 
@@ -940,4 +941,5 @@ PYBIND11_MODULE(_C, m) {
   tp::bind_normalization(m);
   tp::bind_hopnet(m);
   tp::bind_schedule(m);
+  tp::bind_zoo(m);
 }

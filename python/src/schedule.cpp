@@ -7,6 +7,7 @@
 // come in as torch sparse COO / CSR tensors, scipy.sparse matrices or prepared SparseOperators.
 #include "convert.hpp"
 
+#include "topos/nn/cpu.hpp"
 #include "topos/nn/operator_schedule.hpp"
 
 #include <ATen/ops/_sparse_coo_tensor_unsafe.h>
@@ -58,8 +59,8 @@ Update update_arg(const py::handle& obj, const std::string& arg) {
                        type_name(obj));
 }
 
-/// A 2-d sparse matrix as a SparseOperator: torch sparse COO (coalesced: its values tensor is
-/// used as is) or CSR, scipy.sparse (float64, then `dtype`), or a prepared SparseOperator.
+}  // namespace
+
 SparseOperator operator_arg(const py::handle& obj, const std::string& arg, at::ScalarType dtype) {
   if (py::isinstance<SparseOperator>(obj)) return obj.cast<SparseOperator>();
   if (THPVariable_Check(obj.ptr())) {
@@ -95,6 +96,8 @@ SparseOperator operator_arg(const py::handle& obj, const std::string& arg, at::S
   throw py::type_error(arg + ": expected a sparse operator (a torch sparse COO or CSR tensor, a " +
                        "scipy.sparse matrix or a topos.nn.SparseOperator), got " + type_name(obj));
 }
+
+namespace {
 
 /// A SparseOperator as a torch sparse COO tensor (coalesced; its values tensor, so gradients
 /// through it reach the operator's values).
@@ -764,6 +767,16 @@ void bind_schedule(py::module_& parent) {
   bind_builder(m);
   bind_operation_api(m);
   bind_network(m);
+  // The C++ programs' allocator settings (topos/nn/cpu.hpp), for a Python process that runs
+  // many large forwards: glibc gives large freed blocks back and faults them in again.
+  m.def("use_caching_cpu_allocator", &use_caching_cpu_allocator,
+        py::arg("max_cached_bytes") = std::size_t(1) << 30,
+        "Allocates CPU tensors (torch's too) through a size-class cache: freed blocks of 1 MB or "
+        "more are kept (at most max_cached_bytes) and reused, as bench_zoo and the hopnet trainer "
+        "do. Tensors allocated before keep their allocator.");
+  m.def("cached_cpu_bytes", &cached_cpu_bytes, "Bytes the CPU cache holds on its free lists.");
+  m.def("release_cached_cpu_memory", &release_cached_cpu_memory,
+        "Gives the CPU cache's free blocks back to the system.");
 }
 
 }  // namespace topos::python

@@ -38,8 +38,11 @@ from ._C.nn import (  # noqa: F401
     TermShape,
     Update,
     _Network,
+    cached_cpu_bytes,
     from_,
     into,
+    release_cached_cpu_memory,
+    use_caching_cpu_allocator,
 )
 
 __all__ = [
@@ -59,8 +62,11 @@ __all__ = [
     "Term",
     "TermShape",
     "Update",
+    "cached_cpu_bytes",
     "from_",
     "into",
+    "release_cached_cpu_memory",
+    "use_caching_cpu_allocator",
 ]
 
 
@@ -113,7 +119,55 @@ def _owner(root, path):
     return m, leaf
 
 
-class OperatorNetwork(torch.nn.Module):
+class _SharedTensors(torch.nn.Module):
+    """A module whose parameters and buffers are a C++ module's own tensors, registered (not
+    copied) at their dotted paths: OperatorNetwork and topos.topomodelx's models."""
+
+    _error = ScheduleError  # what a bad path or a replaced tensor raises
+
+    def _share(self, tensors):
+        """Registers (path, tensor, is_buffer) triples: the C++ module's own tensors."""
+        self._shared = []  # (path, module, name, the C++ module's tensor, is_buffer)
+        for path, t, is_buffer in tensors:
+            owner, leaf = _owner(self, path)
+            if leaf in owner.__dict__ or hasattr(type(owner), leaf):
+                raise self._error(f"path '{path}': '{leaf}' is an attribute of torch.nn.Module")
+            if is_buffer:
+                owner.register_buffer(leaf, t)
+            else:
+                # The very tensor the C++ engine reads, now of class Parameter (not a copy):
+                # gradients, .to() and load_state_dict reach both sides.
+                t.__class__ = torch.nn.Parameter
+                owner.register_parameter(leaf, t)
+            self._shared.append((path, owner, leaf, t, is_buffer))
+
+    def _check_shared(self):
+        for path, owner, leaf, t, is_buffer in self._shared:
+            current = (owner._buffers if is_buffer else owner._parameters).get(leaf)
+            if current is not t:
+                what = "buffer" if is_buffer else "parameter"
+                raise self._error(
+                    f"{what} '{path}' of the {type(self).__name__} was replaced by another tensor, "
+                    f"which the C++ module does not see: copy into it instead (with torch.no_grad(): "
+                    f"p.copy_(value)), or use load_state_dict"
+                )
+
+    def _apply(self, fn):
+        # torch.nn.Module._apply converts a parameter in place (param.data = ...) but replaces a
+        # buffer (and a parameter, with torch.__future__'s overwrite flag) by a new tensor: put the
+        # converted value into the network's own tensor and register that one again.
+        super()._apply(fn)
+        for _, owner, leaf, t, is_buffer in self._shared:
+            table = owner._buffers if is_buffer else owner._parameters
+            new = table.get(leaf)
+            if new is not None and new is not t:
+                with torch.no_grad():
+                    t.data = new.data if not is_buffer else new
+                table[leaf] = t
+        return self
+
+
+class OperatorNetwork(_SharedTensors):
     """Runs an ``OperatorSchedule``: ``net(inputs, operators)`` -> outputs by name.
 
     ``inputs``: name -> tensor (cells × channels, optionally with leading batch dimensions);
@@ -131,19 +185,7 @@ class OperatorNetwork(torch.nn.Module):
         net = _Network(schedule)  # checks every step; a ScheduleError names the faulty one
         self._network = net
         self._fast_paths = True
-        self._shared = []  # (path, module, name, the C++ network's tensor, is_buffer)
-        for path, t, is_buffer in net.tensors():
-            owner, leaf = _owner(self, path)
-            if leaf in owner.__dict__ or hasattr(type(owner), leaf):
-                raise ScheduleError(f"path '{path}': '{leaf}' is an attribute of torch.nn.Module")
-            if is_buffer:
-                owner.register_buffer(leaf, t)
-            else:
-                # The very tensor the C++ engine reads, now of class Parameter (not a copy):
-                # gradients, .to() and load_state_dict reach both sides.
-                t.__class__ = torch.nn.Parameter
-                owner.register_parameter(leaf, t)
-            self._shared.append((path, owner, leaf, t, is_buffer))
+        self._share(net.tensors())
 
     @property
     def schedule(self):
@@ -176,31 +218,6 @@ class OperatorNetwork(torch.nn.Module):
                     f"OperatorNetwork: {name} must be a dict of name -> tensor, got {type(arg).__name__}"
                 )
         return self._network.forward(dict(inputs), dict(operators), self.training)
-
-    def _check_shared(self):
-        for path, owner, leaf, t, is_buffer in self._shared:
-            current = (owner._buffers if is_buffer else owner._parameters).get(leaf)
-            if current is not t:
-                what = "buffer" if is_buffer else "parameter"
-                raise ScheduleError(
-                    f"{what} '{path}' of the OperatorNetwork was replaced by another tensor, which "
-                    f"the C++ network does not see: copy into it instead (with torch.no_grad(): "
-                    f"p.copy_(value)), or use load_state_dict"
-                )
-
-    def _apply(self, fn):
-        # torch.nn.Module._apply converts a parameter in place (param.data = ...) but replaces a
-        # buffer (and a parameter, with torch.__future__'s overwrite flag) by a new tensor: put the
-        # converted value into the network's own tensor and register that one again.
-        super()._apply(fn)
-        for _, owner, leaf, t, is_buffer in self._shared:
-            table = owner._buffers if is_buffer else owner._parameters
-            new = table.get(leaf)
-            if new is not None and new is not t:
-                with torch.no_grad():
-                    t.data = new.data if not is_buffer else new
-                table[leaf] = t
-        return self
 
     def extra_repr(self):
         net = self.__dict__.get("_network")  # absent while __init__ fails

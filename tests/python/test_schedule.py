@@ -494,3 +494,22 @@ def test_forward_releases_the_gil():
         sys.setswitchinterval(old)
     t.join(timeout=60)
     assert seen == 1000
+
+
+def test_caching_cpu_allocator_keeps_and_releases_blocks():
+    """topos.nn.use_caching_cpu_allocator (a fresh process: it is process-wide): a freed large
+    torch tensor's block is kept and handed out again; release gives it back."""
+    import subprocess
+    import sys
+
+    code = (
+        "import torch, topos.nn as n\n"
+        "n.use_caching_cpu_allocator()\n"
+        "a = torch.empty(1 << 22); p = a.data_ptr(); del a\n"
+        "kept = n.cached_cpu_bytes()\n"
+        "b = torch.empty(1 << 22); same = b.data_ptr() == p; del b\n"
+        "n.release_cached_cpu_memory()\n"
+        "print(kept >= 16 << 20, same, n.cached_cpu_bytes())\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["True", "True", "0"], out.stdout + out.stderr
