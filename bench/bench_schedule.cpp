@@ -2,11 +2,14 @@
 // HOPNet-sized complex (two meshes of ~180 nodes and ~520 edges, 26 faces in contact, 13 contact
 // cells, 128 channels): the HOPNet collision block (faces <- nodes, edges; contacts <- faces by
 // role; faces <- contacts by role) and the node/object exchange. Forward, and forward+backward.
+// BM_CwnLayer: CWN's layer (16 channels) on an n × n grid of triangles, the case that
+// bench/bench_python_schedule.py runs from Python (the same schedule, complex and thread count).
 #include <benchmark/benchmark.h>
 
 #include <torch/torch.h>
 
 #include "topos/core/mesh_lifting.hpp"
+#include "topos/core/simplicial_complex.hpp"
 #include "topos/mesh/primitives.hpp"
 #include "topos/nn/operator_schedule.hpp"
 
@@ -160,6 +163,55 @@ static void BM_ForwardBackward_Direct(benchmark::State& state) {
     (out.at("a0").sum() + out.at("a4").sum()).backward();
   }
 }
+/// CWN's layer on the n × n grid of triangles, with grad enabled (as a Python forward runs).
+struct CwnGrid {
+  OperatorNetwork net{nullptr};
+  std::map<std::string, torch::Tensor> inputs;
+  std::map<std::string, SparseOperator> operators;
+
+  explicit CwnGrid(std::int64_t n) {
+    at::set_num_threads(1);
+    std::vector<std::vector<std::int64_t>> t;
+    for (std::int64_t i = 0; i < n; ++i)
+      for (std::int64_t j = 0; j < n; ++j) {
+        const std::int64_t a = i * (n + 1) + j;
+        t.push_back({a, a + 1, a + n + 2});
+        t.push_back({a, a + n + 2, a + n + 1});
+      }
+    const auto sc = SimplicialComplex::from_simplices(t);
+    operators = {{"adjacency_1", SparseOperator::from_eigen(sc.adjacency_matrix(1))},
+                 {"incidence_2", SparseOperator::from_eigen(sc.incidence_matrix(2))},
+                 {"incidence_1", SparseOperator::from_eigen(sc.incidence_matrix(1))}};
+    constexpr std::int64_t C = 16;
+    OperatorSchedule s;
+    s.input("x_0", 0, C).input("x_1", 1, C).input("x_2", 2, C);
+    s.operator_input("adjacency_1", 1, 1)
+        .operator_input("incidence_2", 2, 1)
+        .operator_input("incidence_1", 1, 0);
+    s.step(into(1)
+               .sum(from(1).conv("conv_1_to_1", C).via("adjacency_1").act(Update::elu),
+                    from(2).conv("conv_2_to_1", C).via("incidence_2").act(Update::elu),
+                    from(0).conv("conv_0_to_1", C).via_t("incidence_1").act(Update::elu))
+               .linear("update_fn.transform", C)
+               .act(Update::elu));
+    s.output("x_1", 1);
+    net = OperatorNetwork(s);
+    for (int r = 0; r < 3; ++r)
+      inputs["x_" + std::to_string(r)] = torch::randn({sc.num_cells(r), C});
+  }
+};
+
+static void BM_CwnLayer_Forward(benchmark::State& state) {
+  CwnGrid f(state.range(0));
+  for (auto _ : state)
+    benchmark::DoNotOptimize(f.net->forward(f.inputs, f.operators).at("x_1").data_ptr());
+}
+static void BM_CwnLayer_ForwardBackward(benchmark::State& state) {
+  CwnGrid f(state.range(0));
+  for (auto _ : state) f.net->forward(f.inputs, f.operators).at("x_1").square().sum().backward();
+}
+BENCHMARK(BM_CwnLayer_Forward)->Arg(2)->Arg(60)->Unit(benchmark::kMicrosecond)->MinTime(1);
+BENCHMARK(BM_CwnLayer_ForwardBackward)->Arg(2)->Arg(60)->Unit(benchmark::kMicrosecond)->MinTime(1);
 BENCHMARK(BM_Forward_DSL)->Unit(benchmark::kMicrosecond)->MinTime(2);
 BENCHMARK(BM_Forward_Direct)->Unit(benchmark::kMicrosecond)->MinTime(2);
 BENCHMARK(BM_ForwardBackward_DSL)->Unit(benchmark::kMicrosecond)->MinTime(2);

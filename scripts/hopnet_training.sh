@@ -57,6 +57,15 @@ case "$cmd" in
       echo "hopnet_training: $REF/data/kubasic is missing; set TOPOS_REFERENCE_DIR" >&2
       exit 1
     fi
+    # Where the kernel shares the CPU between sessions first (autogroups), nice alone is not
+    # enough: the run would take a full share beside a build, and lowering the caller's group
+    # would lower the caller's own work with it. So the run takes a session of its own, whose
+    # group it lowers to the least share.
+    if [ -e /proc/self/autogroup ] && [ -z "${TOPOS_TRAINING_OWN_SESSION:-}" ]; then
+      export TOPOS_TRAINING_OWN_SESSION=1
+      exec setsid -w bash "$root/scripts/$(basename "$0")" "$@"
+    fi
+    if [ -w /proc/self/autogroup ]; then echo 19 >/proc/self/autogroup 2>/dev/null || true; fi
     H=$(hopnet_binary)
     mkdir -p "$WORK"
     nice -n 19 "$H" generate --dataset movi-a --seeds 1-1200 --assets "$REF/data/kubasic" \

@@ -21,6 +21,7 @@
 #include <torch/torch.h>
 
 #include <algorithm>
+#include <deque>
 #include <atomic>
 #include <chrono>
 #include <filesystem>
@@ -130,10 +131,11 @@ int run_topobench(const TopoBenchOptions& o) {
       if (!again) not_run.push_back({m, d, reason});
     }
   }
-  std::map<std::string, std::int64_t> pairs;  // per dataset, computed when a model needs it
+  std::map<std::string, std::int64_t> pairs;      // per dataset, computed when a model needs it
+  std::deque<topobench::RunConfig> cell_configs;  // the jobs point here (find_config may build one)
   for (auto* d : datasets)
     for (auto* m : models) {
-      const auto& cfg = topobench::find_config(configs, *m, *d);
+      const auto& cfg = cell_configs.emplace_back(topobench::find_config(configs, *m, *d));
       if (o.splits.empty() && cfg.data_seeds.empty())
         throw std::invalid_argument(cfg.source +
                                     ": no dataset.split_params.data_seed (give --splits)");
@@ -354,7 +356,7 @@ void register_topobench(CLI::App& app, Run& run) {
       ->required();
   cmd->add_option("--models", *models,
                   "comma-separated: GCN, AllSetTransformer, EDGNN, UniGNN2, "
-                  "CWN, CCCN, CCXN, SCN, SCCN, SCCNN")
+                  "CWN, CCCN, CCXN, SCN, SCCN, SCCNN, GCCN (TopoTune)")
       ->required();
   cmd->add_option("--datasets", *datasets,
                   "comma-separated: MUTAG, PROTEINS, NCI1, NCI109, "

@@ -7,6 +7,7 @@
 #pragma once
 
 #include "topos/core/sparse_matrix.hpp"
+#include "topos/nn/sparse_operator.hpp"
 
 #include <torch/csrc/Dtype.h>
 #include <torch/csrc/autograd/python_variable.h>
@@ -54,6 +55,12 @@ std::vector<Index> cell_arg(const py::handle& obj, const std::string& arg);
 Edges edges_arg(const py::handle& obj, const std::string& arg);
 /// A real vector (tensor, array or list of numbers) of `expected` entries (-1: any).
 Eigen::VectorXd vector_arg(const py::handle& obj, const std::string& arg, Index expected = -1);
+
+/// An operator argument as a SparseOperator: torch sparse COO (coalesced: its values tensor is
+/// used as is) or CSR, scipy.sparse (float64, then `dtype`), or a prepared topos.nn.SparseOperator
+/// (schedule.cpp).
+nn::SparseOperator operator_arg(const py::handle& obj, const std::string& arg,
+                                at::ScalarType dtype);
 
 /// TopoNetX's `signed`: exactly True or False (an int there is a rank passed by mistake).
 Signed signed_arg(const py::handle& obj, const std::string& where);

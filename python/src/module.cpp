@@ -1,8 +1,8 @@
 // python/src/module.cpp
 // The extension topos._C: the four domains with TopoNetX's names and conventions, their
 // operators (as torch sparse tensors, or scipy.sparse on request), the graph liftings, TopoNetX's
-// normalisations, the exceptions, and (hopnet.cpp) HOPNet. Operators are computed with the GIL
-// released. python/topos/ is the package around it.
+// normalisations, the exceptions, (hopnet.cpp) HOPNet and (schedule.cpp) the operator schedule.
+// Operators are computed with the GIL released. python/topos/ is the package around it.
 #include "convert.hpp"
 
 #include "topos/core/domain_lifting.hpp"
@@ -24,7 +24,9 @@
 
 namespace topos::python {
 
-void bind_hopnet(py::module_& m);  // hopnet.cpp
+void bind_hopnet(py::module_& m);    // hopnet.cpp
+void bind_schedule(py::module_& m);  // schedule.cpp
+void bind_zoo(py::module_& m);       // zoo.cpp
 
 // ----- conversions (convert.hpp) ------------------------------------------------------------
 
@@ -938,4 +940,6 @@ PYBIND11_MODULE(_C, m) {
   tp::bind_liftings(m);
   tp::bind_normalization(m);
   tp::bind_hopnet(m);
+  tp::bind_schedule(m);
+  tp::bind_zoo(m);
 }

@@ -1,11 +1,11 @@
-"""topos from Python: topological domains, their operators and liftings, and HOPNet.
+"""topos from Python: topological domains, their operators and liftings, schedules, HOPNet.
 
 The C++ library topos (header-only, on LibTorch) through its extension ``topos._C``. Tensors
 cross without copies (torch's own pybind11 casters); operators come back as torch sparse COO
 tensors by default (``format="csr"``, ``"dense"`` or ``"scipy"`` for the others). Names and
 conventions are TopoNetX's: ``sc.incidence_matrix(rank, signed=True)``,
-``sc.hodge_laplacian_matrix(rank)``, ``cc.adjacency_matrix(rank, via_rank)``, ... See
-docs/python.md.
+``sc.hodge_laplacian_matrix(rank)``, ``cc.adjacency_matrix(rank, via_rank)``, ...
+``topos.nn`` builds operator schedules and runs them as torch modules. See docs/python.md.
 """
 
 import torch  # noqa: F401  (first: the extension's tensors are torch's)
@@ -15,6 +15,7 @@ from ._C import (  # noqa: F401
     CombinatorialComplex,
     ComplexError,
     DataError,
+    ScheduleError,
     Hypergraph,
     SimplicialComplex,
     __version__,
@@ -28,4 +29,4 @@ from ._C import (  # noqa: F401
     to_combinatorial_complex,
     to_hypergraph,
 )
-from . import hopnet, normalization  # noqa: F401,E402
+from . import hopnet, nn, normalization  # noqa: F401,E402

@@ -123,6 +123,15 @@ if(NOT rc EQUAL 0 OR said EQUAL -1 OR how EQUAL -1 OR NOT n EQUAL 2)
 endif()
 message(STATUS "ok: factored rank-1 Laplacians")
 
+# GCCN has no line of its own: it runs with MUTAG's CWN line (its own width, layers, readout).
+execute_process(COMMAND ${TDL} topobench --data-dir ${data} --models GCCN --datasets MUTAG --splits 0
+  --max-epochs 5 --out ${WORK}/gccn RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+file(STRINGS ${WORK}/gccn/runs.csv rows REGEX "^GCCN,MUTAG,0,")
+if(NOT rc EQUAL 0 OR NOT rows)
+  message(FATAL_ERROR "GCCN on MUTAG (CWN's line) did not run:\n${out}${err}")
+endif()
+message(STATUS "ok: GCCN with CWN's line")
+
 # A run that fails (here: CWN 3,000,000 wide cannot allocate its weights) marks its cell failed in
 # not_run.csv with the error, the other cells still run, and the exit status is 1.
 file(WRITE ${WORK}/fail/hparams.txt

@@ -137,9 +137,10 @@ std::map<std::string, torch::Tensor> random_inputs(const ComplexBatch& b, torch:
 
 TEST_CASE("dropout keeps 1 - p of the entries, scaled, repeatably, with its mask as gradient",
           "[nn][dropout]") {
-  for (double p : {0.1, 0.5, 0.75}) {
+  // 0.5 and 0.75 take 8 bits an element (8 a draw), 1/1024 16 bits, 0.1 32 bits.
+  for (double p : {0.1, 0.5, 0.75, 1.0 / 1024}) {
     INFO("p = " << p);
-    const std::int64_t n = 1'000'001;  // odd: the last element takes half a draw
+    const std::int64_t n = 1'000'003;  // not a multiple of 8: the last elements take part of a draw
     const auto x = torch::ones({n}, torch::kFloat).requires_grad_(true);
     torch::manual_seed(7);
     const auto y = nn::dropout(x, p, true);
@@ -148,9 +149,9 @@ TEST_CASE("dropout keeps 1 - p of the entries, scaled, repeatably, with its mask
     const double frac = kept.to(torch::kDouble).mean().item<double>();
     CHECK(std::abs(frac - (1 - p)) < 5 * std::sqrt(p * (1 - p) / static_cast<double>(n)));
     CHECK(torch::allclose(y.masked_select(kept), torch::full({1}, 1 / (1 - p))));
-    // Neighbouring draws (the two halves of one 64-bit draw, and consecutive pairs) independent.
+    // Neighbouring elements (lanes of one 64-bit draw, and of consecutive draws) independent.
     const auto k = kept.to(torch::kDouble);
-    for (std::int64_t lag : {1, 2, 3}) {
+    for (std::int64_t lag : {1, 2, 3, 4, 5, 7, 8, 9}) {
       const auto a = k.slice(0, 0, n - lag) - (1 - p), b = k.slice(0, lag) - (1 - p);
       CHECK(std::abs((a * b).mean().item<double>()) < 5 * p * (1 - p) / std::sqrt(double(n)));
     }
@@ -174,6 +175,20 @@ TEST_CASE("dropout keeps 1 - p of the entries, scaled, repeatably, with its mask
   const auto y = nn::dropout(x, 0.5, true);
   CHECK((y.eq(0) | y.isclose(2 * x)).all().item<bool>());
   CHECK_THROWS_WITH(nn::dropout(x, 1.5, true), Catch::Contains("rate 1.5"));
+  // A transposed (non-contiguous) input: the backward draws the same mask again, so the
+  // gradient of <y, g> is g where y kept x (scaled), 0 elsewhere; and differentiates again.
+  const auto xt = torch::randn({40, 30}, torch::kFloat).t().requires_grad_(true);
+  const auto g = torch::randn({30, 40});
+  const auto yt = nn::dropout(xt, 0.25, true);
+  const auto kept_t = yt.detach().ne(0);
+  CHECK(torch::allclose(yt.detach(), torch::where(kept_t, xt.detach() / 0.75, torch::zeros({}))));
+  const auto dx = torch::autograd::grad({(yt * g).sum()}, {xt}, {}, true, true)[0];
+  CHECK(torch::allclose(dx, torch::where(kept_t, g / 0.75, torch::zeros({}))));
+  const auto z = nn::dropout(xt * xt, 0.25, true);  // d²<z, g>/dx² summed: 2 g where kept
+  const auto kept_z = z.detach().ne(0);
+  const auto dz = torch::autograd::grad({(z * g).sum()}, {xt}, {}, true, true)[0];
+  const auto ddz = torch::autograd::grad({dz.sum()}, {xt})[0];
+  CHECK(torch::allclose(ddz, torch::where(kept_z, 2 * g / 0.75, torch::zeros({}))));
 }
 
 TEST_CASE("a state snapshot restores parameters and BatchNorm's running statistics",
@@ -333,6 +348,47 @@ TEST_CASE("Mlp follows the reference layout and parameter count", "[nn][mlp]") {
   REQUIRE(one->named_parameters().size() == 2);  // L = 1: no LayerNorm
   REQUIRE(one->forward(torch::zeros({2, 4})).sizes() == std::vector<std::int64_t>{2, 5});
   REQUIRE_THROWS_AS(update_from_string("swish"), std::invalid_argument);
+}
+
+TEST_CASE("cpu gemm onednn: an Mlp's products through oneDNN, float32 sums in another order",
+          "[nn][mlp]") {
+  if (!onednn_gemm_available()) {
+    WARN("this LibTorch has no oneDNN: nothing to compare");
+    return;
+  }
+  torch::manual_seed(4);
+  // 96 and 80 outputs take oneDNN; the last Linear (3 outputs) keeps its own kernel.
+  Mlp m(MlpOptions(24, 96, 80).layers(3));
+  Mlp dec(MlpOptions(80, 96, 3).final_activation(false).layer_norm(false));
+  const auto x = torch::randn({700, 24}).requires_grad_();
+  const auto W = torch::randn({96, 50}), b = torch::randn({96});
+  const auto z = torch::randn({300, 60}).narrow(1, 5, 50);  // strided rows: passed, not copied
+  const auto run = [&](CpuGemm g) {
+    struct Restore {  // the setting is process-wide: back to BLAS even if this throws
+      ~Restore() { set_cpu_gemm(CpuGemm::blas); }
+    } restore;
+    set_cpu_gemm(g);
+    m->zero_grad(), dec->zero_grad(), x.mutable_grad() = torch::Tensor();
+    const auto y = dec->forward(m->forward(x));
+    (y * torch::linspace(-1, 1, 3)).sum().backward();
+    std::vector<torch::Tensor> out{y.detach(), x.grad().clone(), nn::linear(z, W, b)};
+    for (const auto& p : m->parameters()) out.push_back(p.grad().clone());
+    for (const auto& p : dec->parameters()) out.push_back(p.grad().clone());
+    return out;
+  };
+  const auto blas = run(CpuGemm::blas), onednn = run(CpuGemm::onednn);
+  REQUIRE(blas.size() == onednn.size());
+  bool differs = false;
+  for (std::size_t i = 0; i < blas.size(); ++i) {
+    INFO("tensor " << i);
+    REQUIRE(onednn[i].sizes() == blas[i].sizes());
+    CHECK(((onednn[i] - blas[i]).norm() / blas[i].norm()).item<double>() < 1e-5);
+    differs = differs || !torch::equal(onednn[i], blas[i]);
+  }
+  CHECK(differs);  // oneDNN did multiply
+  REQUIRE(get_cpu_gemm() == CpuGemm::blas);
+  REQUIRE(cpu_gemm_from_string("onednn") == CpuGemm::onednn);
+  REQUIRE_THROWS_WITH(cpu_gemm_from_string("mkl"), Catch::Contains("unknown cpu gemm 'mkl'"));
 }
 
 TEST_CASE("medium matmul precision: bfloat16 products, float32 out, close to highest",

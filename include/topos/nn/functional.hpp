@@ -140,6 +140,33 @@ inline torch::Tensor pattern_aggregate(const SparseOperator& A, const torch::Ten
   return y;
 }
 
+namespace detail {
+// Dropout whose mask is drawn again in the backward from its seed (kernels/dropout.hpp): one pass
+// each way, nothing stored. The backward is this function again, so it differentiates too.
+struct DropoutFunction : public torch::autograd::Function<DropoutFunction> {
+  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& x,
+                               std::int64_t seed, double p) {
+    ctx->saved_data["seed"] = seed, ctx->saved_data["p"] = p;
+    return run(x, static_cast<std::uint64_t>(seed), p);
+  }
+  static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx,
+                                               torch::autograd::tensor_list grads) {
+    const auto seed = ctx->saved_data["seed"].toInt();
+    const auto p = ctx->saved_data["p"].toDouble();
+    return {DropoutFunction::apply(grads[0], seed, p), torch::Tensor(), torch::Tensor()};
+  }
+  static torch::Tensor run(const torch::Tensor& x, std::uint64_t seed, double p) {
+    const auto in = x.contiguous();
+    auto y = torch::empty_like(in, at::MemoryFormat::Contiguous);
+    AT_DISPATCH_FLOATING_TYPES(in.scalar_type(), "topos_dropout", [&] {
+      dropout_apply<scalar_t>(in.data_ptr<scalar_t>(), y.data_ptr<scalar_t>(), in.numel(), seed,
+                              DropoutRate::of(p), static_cast<scalar_t>(1.0 / (1.0 - p)));
+    });
+    return y;
+  }
+};
+}  // namespace detail
+
 /// torch::dropout's semantics (in training each element is zeroed with probability p and the
 /// others scaled by 1 / (1 - p); the identity otherwise), differentiable in x. On the CPU the mask
 /// comes from kernels/dropout.hpp, seeded by one draw of torch's default generator (so
@@ -156,14 +183,7 @@ inline torch::Tensor dropout(const torch::Tensor& x, double p, bool training) {
     std::lock_guard<std::mutex> lock(gen.mutex());
     seed = at::check_generator<at::CPUGeneratorImpl>(gen)->random64();
   }
-  const auto threshold =
-      static_cast<std::uint32_t>(std::min<long long>(std::llround(p * 4294967296.0), 4294967295LL));
-  auto mask = torch::empty(x.sizes(), x.options().requires_grad(false));
-  AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "topos_dropout", [&] {
-    detail::dropout_mask<scalar_t>(mask.data_ptr<scalar_t>(), mask.numel(), seed, threshold,
-                                   static_cast<scalar_t>(1.0 / (1.0 - p)));
-  });
-  return x * mask;
+  return detail::DropoutFunction::apply(x, static_cast<std::int64_t>(seed), p);
 }
 
 /// Each row divided by its L2 norm, the norm a constant for autograd; rows of norm 0 stay 0

@@ -42,6 +42,13 @@ inline std::int64_t padded_rows(std::int64_t m) {
   return (m + step - 1) / step * step;
 }
 
+/// Whether x·Wᵀ goes to oneDNN's sgemm through linear_act (set_cpu_gemm): 2-D float32 on the
+/// CPU, more than 64 outputs (narrower maps keep their own kernels).
+inline bool onednn_linear(const torch::Tensor& x, const torch::Tensor& weight) {
+  return x.dim() == 2 && weight.dim() == 2 && weight.size(0) > 64 &&
+         weight.scalar_type() == torch::kFloat && use_onednn(x);
+}
+
 /// A cache that holds every padded shape a run meets (a few thousand), so nothing is evicted.
 inline void grow_onednn_cache() {
   using Setter = int (*)(int);
@@ -66,10 +73,13 @@ inline const char* to_string(MatmulPrecision p) {
 }
 
 /// x·Wᵀ + b (b may be undefined) at `precision`: float32 in and out either way, so everything
-/// around the product (activations, LayerNorm, gathers, the loss) stays float32.
+/// around the product (activations, LayerNorm, gathers, the loss) stays float32. At `highest`,
+/// a 2-D product of more than 64 outputs goes to oneDNN when set_cpu_gemm chose it.
 inline torch::Tensor linear(const torch::Tensor& x, const torch::Tensor& weight,
                             const torch::Tensor& bias = {},
                             MatmulPrecision precision = get_float32_matmul_precision()) {
+  if (precision == MatmulPrecision::highest && detail::onednn_linear(x, weight))
+    return linear_act(x, weight, bias);
   if (weight.scalar_type() != torch::kFloat || precision == MatmulPrecision::highest)
     return torch::linear(x, weight, bias);
   auto xb = x.to(torch::kBFloat16);
@@ -171,7 +181,15 @@ class MlpImpl : public torch::nn::Module {
       if (layers_[i].ptr()->as<torch::nn::LinearImpl>()) last_linear = i;
     for (std::size_t i = first; i < layers_.size(); ++i) {
       const auto* l = layers_[i].ptr()->as<torch::nn::LinearImpl>();
-      if (l && bf16 && i < last_linear) {
+      if (l && !bf16 && precision == MatmulPrecision::highest &&
+          detail::onednn_linear(x, l->weight)) {
+        // oneDNN's product with the bias and a following ReLU in one pass over its output (the
+        // ReLU module is skipped: the same values).
+        const bool relu =
+            i + 1 < layers_.size() && layers_[i + 1].ptr()->as<torch::nn::ReLUImpl>() != nullptr;
+        x = linear_act(x, l->weight, l->bias, relu ? Epilogue::relu : Epilogue::none);
+        if (relu) ++i;
+      } else if (l && bf16 && i < last_linear) {
         // Padded once to a repeating row count (detail::padded_rows); the rows go at the end.
         auto xb = x.to(torch::kBFloat16);
         if (x.dim() == 2 && x.size(0) == rows && padded != rows)

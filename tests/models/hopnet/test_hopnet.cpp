@@ -812,6 +812,51 @@ TEST_CASE(
   }
 }
 
+TEST_CASE(
+    "oneDNN's products (hopnet train's cpu gemm) give the reference's loss and gradient on two "
+    "workers (train-golden)",
+    "[hopnet][reference][training]") {
+  if (!nn::onednn_gemm_available()) {
+    WARN("this LibTorch has no oneDNN: nothing to compare");
+    return;
+  }
+  const auto ref = test::reference_dir("hopnet training parity");
+  struct Restore {  // the setting is process-wide: back to BLAS even if this throws
+    ~Restore() { nn::set_cpu_gemm(nn::CpuGemm::blas); }
+  } restore;
+  for (const auto& c : TrainGolden::all(ref)) {
+    INFO("case " << c.name);
+    const TrainSetup S(ref, c);
+    auto model = load_hopnet(c.checkpoint.string(), FeatureMode::reference);
+    model->train();
+    const auto chunks = make_training_chunks(S.g, S.tf, S.norm, 120);
+    const auto grads = [&](nn::CpuGemm gemm) {
+      nn::set_cpu_gemm(gemm);
+      model->zero_grad();
+      const double loss = backward_trajectory(*model, chunks, S.norm, nullptr, 2);
+      std::map<std::string, torch::Tensor> out;
+      for (const auto& p : model->named_parameters())
+        out[p.key()] = p.value().grad().to(torch::kDouble);
+      return std::make_pair(loss, out);
+    };
+    const auto [loss_blas, g_blas] = grads(nn::CpuGemm::blas);
+    const auto [loss, g] = grads(nn::CpuGemm::onednn);
+    // The same sums in another float32 order: as close to the golden values as BLAS's.
+    const double want_total = c.tensor("loss_total.npy").item<double>();
+    CHECK(std::abs(loss - want_total) <= 1e-5 * want_total);
+    const auto want_g = c.params(*model, "grads");
+    bool differs = false;
+    for (const auto& [k, w] : want_g) {
+      INFO(reference_parameter_name(k));
+      const double n = w.norm().item<double>();
+      CHECK((g.at(k) - w).norm().item<double>() <= 1e-4 * n);
+      differs = differs || !torch::equal(g.at(k), g_blas.at(k));
+    }
+    CHECK(differs);  // oneDNN did multiply
+    CHECK(std::abs(loss - loss_blas) <= 1e-6 * std::abs(loss_blas));
+  }
+}
+
 TEST_CASE("LibTorch's Adam fed the reference's gradients reproduces its three steps (train-golden)",
           "[hopnet][reference][training]") {
   const auto ref = test::reference_dir("hopnet Adam parity");

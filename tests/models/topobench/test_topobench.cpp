@@ -7,6 +7,7 @@
 #include "support/torch_prelude.hpp"
 
 #include "topos/models/topobench/table_models.hpp"
+#include "support/topobench.hpp"
 
 #include <random>
 #include <sstream>
@@ -43,26 +44,25 @@ std::vector<TinyGraph> tiny_graphs() {
           {3, {{0, 1}}}};  // node 2 isolated
 }
 
-std::vector<LiftedGraph> lift_tiny(Domain d, std::int64_t features) {
+// `operators`: those to build (default: every one of the domain; TopoTune's neighbourhoods only
+// when named).
+std::vector<LiftedGraph> lift_tiny(Domain d, std::int64_t features,
+                                   std::set<std::string> operators = {}) {
+  LiftingOptions o;
+  o.operators = std::move(operators);
   std::vector<LiftedGraph> out;
   torch::manual_seed(3);
   int label = 0;
   for (const auto& g : tiny_graphs()) {
     const auto x = torch::rand({g.n, features});
     std::vector<float> xv(x.data_ptr<float>(), x.data_ptr<float>() + x.numel());
-    out.push_back(lift_graph(g.n, g.edges, xv, features, {}, d, LiftingOptions()));
+    out.push_back(lift_graph(g.n, g.edges, xv, features, {}, d, o));
     out.back().label = label++ % 2;
   }
   return out;
 }
 
-torch::Tensor dense(const Triplets& t) {
-  auto d = torch::zeros({t.rows, t.cols});
-  for (std::int64_t k = 0; k < t.nnz(); ++k)
-    d[t.row[static_cast<std::size_t>(k)]][t.col[static_cast<std::size_t>(k)]] =
-        t.value[static_cast<std::size_t>(k)];
-  return d;
-}
+using topos::testing::dense;
 
 // The dense block diagonal of the graphs' own matrices.
 torch::Tensor block_diagonal(const std::vector<LiftedGraph>& gs, const std::string& name) {
@@ -397,7 +397,9 @@ TEST_CASE("Every TopoBench model has the parameter count of TopoBench's construc
                                    {"CCXN", h, 2, true, 2 * (2 * h * h + 4 * h)},
                                    {"SCN", h, 3, true, 3 * 3 * h * h},
                                    {"SCCN", h, 2, false, 7 * 2 * h * h},
-                                   {"SCCNN", h, 2, true, 3 * (h * h + h) + 19 * 2 * h * h}};
+                                   {"SCCNN", h, 2, true, 3 * (h * h + h) + 19 * 2 * h * h},
+                                   // 2 layers × 4 routes × PyG's GCN (2 GCNConv, 1 BatchNorm)
+                                   {"GCCN", h, 2, true, 2 * 4 * (2 * (h * h + h) + 2 * h)}};
   const std::vector<std::int64_t> F = {7, 4, 4};
   const std::int64_t C = 2;
   for (const auto& c : cases) {
@@ -424,7 +426,7 @@ TEST_CASE("Every TopoBench model has the parameter count of TopoBench's construc
 TEST_CASE("Every TopoBench model trains on a batch of lifted graphs", "[topobench]") {
   for (const auto& spec : model_specs()) {
     INFO(spec.name);
-    const auto gs = lift_tiny(spec.domain, 3);
+    const auto gs = lift_tiny(spec.domain, 3, spec.operators);
     const auto b = collate(gs, {0, 1, 2});
     torch::manual_seed(7);
     TopoBenchModel m(TopoBenchModelOptions(table_backbone(spec.name), gs[0].widths, 8, 2)
@@ -458,7 +460,7 @@ TEST_CASE("Every TopoBench model clones: same logits, its own parameters, pretty
           "[topobench]") {
   for (const auto& spec : model_specs()) {
     INFO(spec.name);
-    const auto gs = lift_tiny(spec.domain, 3);
+    const auto gs = lift_tiny(spec.domain, 3, spec.operators);
     const auto b = collate(gs, {0, 1, 2});
     TopoBenchModel m(
         TopoBenchModelOptions(table_backbone(spec.name), gs[0].widths, 8, 2).n_layers(2));
@@ -527,7 +529,13 @@ TEST_CASE("TopoBench's hyperparameter lines are parsed, and bad ones named by li
   CHECK(c[0].data_seeds == std::vector<std::int64_t>{0, 3, 5, 7, 9});
   CHECK(c[0].val_every == 5);
   CHECK(c[0].patience == 10);
-  CHECK(&find_config(c, model_spec("CWN"), dataset_name("MUTAG")) == &c[0]);
+  CHECK(find_config(c, model_spec("CWN"), dataset_name("MUTAG")).source == c[0].source);
+  // GCCN has no line: CWN's, with topotune.yaml's width, layers and readout.
+  const auto gccn = find_config(c, model_spec("GCCN"), dataset_name("MUTAG"));
+  CHECK(gccn.model_config == "cell/topotune");
+  CHECK((gccn.hidden == 32 && gccn.layers == 2 && gccn.readout == "PropagateSignalDown"));
+  CHECK((gccn.lr == c[0].lr && gccn.batch_size == 32 && gccn.dropout == c[0].dropout));
+  CHECK_THAT(gccn.source, Catch::Matchers::Contains("cell/cwn's line"));
   CHECK_THROWS_WITH(find_config(c, model_spec("SCN"), dataset_name("MUTAG")),
                     Catch::Matchers::Contains("no hyperparameters for SCN"));
   CHECK_THROWS_WITH(parse_hparams("\ncell/cwn MUTAG lr=x\n", "h.txt"),

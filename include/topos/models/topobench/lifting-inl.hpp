@@ -4,6 +4,7 @@
 #pragma once
 
 #include "topos/core/domain_lifting.hpp"
+#include "topos/core/sparse_matrix.hpp"
 #include "topos/models/topobench/lifting.hpp"
 
 #include <algorithm>
@@ -70,6 +71,35 @@ inline FactoredTriplets factored(const sparse::ProductTerms& terms,
   return f;
 }
 
+/// TopoTune's neighbourhood `name` (topobench/routes.hpp) from the signed incidences b[1..3] (a
+/// cell complex's B_3 empty): target × source, every value 1.
+inline Triplets neighborhood(const std::vector<SparseMatrix>& b, const std::string& name,
+                             int max_rank) {
+  using Kind = NeighborhoodRoute::Kind;
+  const NeighborhoodRoute r = neighborhood_route(name);
+  const int lo = r.up ? r.rank : r.rank - r.hops, hi = r.up ? r.rank + r.hops : r.rank;
+  if (std::max(r.source_rank(), r.target_rank()) > max_rank || hi > 3)
+    throw std::invalid_argument("lift_graph: neighbourhood '" + name + "' reaches rank " +
+                                std::to_string(std::max(r.target_rank(), hi)) +
+                                ", above the lifted ranks (cells of 0.." +
+                                std::to_string(max_rank) + ", incidences up to B_3)");
+  // M = |B_{lo+1}| ⋯ |B_hi|: rank lo × rank hi, the cells of rank hi above each cell of rank lo.
+  SparseMatrix m = sparse::abs(b[static_cast<std::size_t>(lo + 1)]);
+  for (int k = lo + 2; k <= hi; ++k)
+    m = sparse::multiply(m, sparse::abs(b[static_cast<std::size_t>(k)]));
+  const SparseMatrix mt = sparse::transpose(m);
+  SparseMatrix out;
+  if (r.kind == Kind::incidence)
+    out = r.up ? mt : m;
+  else {
+    out = r.up ? sparse::multiply(m, mt) : sparse::multiply(mt, m);
+    if (r.kind == Kind::adjacency) out = sparse::without_diagonal(out);
+  }
+  Triplets t = to_triplets(out);
+  std::fill(t.value.begin(), t.value.end(), 1.0f);
+  return t;
+}
+
 }  // namespace detail
 
 /// Lifts one graph (nodes 0..n-1, undirected edges u < v, unique) with node features `x`
@@ -105,6 +135,14 @@ TOPOS_INLINE LiftedGraph lift_graph(std::int64_t num_nodes,
                                   "' cannot be kept as factors in the " + domain_name(domain) +
                                   " domain" +
                                   (o.signed_incidence ? "" : " without signed incidences"));
+  for (const auto& name : o.operators)
+    if (is_neighborhood_name(name)) {
+      neighborhood_route(name);  // a malformed name is an error here, listing the valid forms
+      if (domain == Domain::graph || domain == Domain::hypergraph)
+        throw std::invalid_argument("lift_graph: neighbourhood '" + name +
+                                    "' needs the cell or simplicial domain, not the " +
+                                    domain_name(domain) + " one");
+    }
   if (domain == Domain::graph) {
     // Â = D̂^-1/2 (A + I) D̂^-1/2, D̂ the degrees plus one (the self-loop GCNConv adds).
     std::vector<Eigen::Triplet<double, std::int64_t>> t;
@@ -141,6 +179,7 @@ TOPOS_INLINE LiftedGraph lift_graph(std::int64_t num_nodes,
     const CellComplex cc = cycle_lifting(num_nodes, edges, o.max_cell_length);
     for (int k = 1; k <= 2; ++k)
       b[static_cast<std::size_t>(k)] = detail::incidence_or_empty(cc, k, true);
+    b[3] = SparseMatrix(b[2].cols(), 0);  // no 3-cells
     for (std::int64_t e = 0; e < cc.num_edges(); ++e) complex_edges.push_back(cc.edge(e));
   } else {
     const SimplicialComplex sc = clique_lifting(num_nodes, edges, o.complex_dim);
@@ -178,6 +217,8 @@ TOPOS_INLINE LiftedGraph lift_graph(std::int64_t num_nodes,
     }
   }
   const SparseMatrix &b1 = b[1], &b2 = b[2], &b3 = b[3];
+  for (const auto& name : o.operators)
+    if (is_neighborhood_name(name)) ops[name] = detail::neighborhood(b, name, o.max_rank);
   const SparseMatrix b1t = transpose(b1), b2t = transpose(b2), b3t = transpose(b3);
   if (domain == Domain::cell) {
     const SparseMatrix a1 = abs(b1), a2 = abs(b2), a1t = abs(b1t), a2t = abs(b2t);

@@ -21,6 +21,9 @@
 //   simplicial  incidence_1, incidence_2 B_1, B_2 (signed, or |B| when not `signed_incidence`)
 //               hodge_laplacian_r (r = 0..2), down_laplacian_r (1, 2), up_laplacian_r (1, 2)
 //               hodge_laplacian_r_norm   D^-1/2 L_r D^-1/2, D the row sums of |L_r| (SCN)
+//   cell and simplicial: TopoTune's neighbourhoods (up_adjacency-1, down_incidence-2,
+//               2-up_adjacency-0, ...: topobench/routes.hpp), patterns with every value 1, for
+//               ranks up to `max_rank`
 //
 // The rank-1 Laplacians pair every two edges that share a node: Σ_v deg(v)² entries, 372 million
 // over REDDIT-BINARY. Named in `LiftingOptions::factored`, they are kept as their factors
@@ -30,6 +33,7 @@
 #pragma once
 
 #include "topos/config.hpp"
+#include "topos/models/topobench/routes.hpp"
 
 #include <algorithm>
 #include <array>

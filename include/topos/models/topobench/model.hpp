@@ -10,9 +10,9 @@
 // The backbone is any `Backbone`: an operator schedule, or any module whose
 // forward(x, operators) maps the encoded cochains {"x_r"} and the batch's operators to x_r for
 // every rank r < cell_dimensions, with its RankLayout (domain, encoded ranks, cell dimensions,
-// operators). The ten backbones of TopoBench's table are `table_backbone(name)`
-// (topobench/table_models.hpp), kept out of this header so that a user's model compiles
-// without them:
+// operators). The ten backbones of TopoBench's table and TopoTune's GCCN are
+// `table_backbone(name)` (topobench/table_models.hpp), kept out of this header so that a user's
+// model compiles without them:
 //   topobench::Backbone mine = topobench::Backbone::schedule(
 //       "GIN2", {topobench::Domain::graph, {0}, 1, {"gcn_adjacency"}},
 //       [](const topobench::BackboneContext& c) { return my_schedule(c.hidden, c.n_layers); });

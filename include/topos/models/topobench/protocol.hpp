@@ -37,10 +37,11 @@ struct RankLayout {
   std::set<std::string> operators;
 };
 
-/// The ten rows of TopoBench's table: the table's name, TopoBench's config (domain/name), the
-/// domain it lifts to, the ranks its encoder reads, how many ranks its wrapper and readout see
-/// (TopoBench's num_cell_dimensions: 3 for cells and simplices, see docs/topobench.md), and the
-/// operators (topobench/lifting.hpp's names) its backbone and readout use.
+/// The ten rows of TopoBench's table and GCCN: the table's name, TopoBench's config
+/// (domain/name), the domain it lifts to, the ranks its encoder reads, how many ranks its wrapper
+/// and readout see (TopoBench's num_cell_dimensions: 3 for cells and simplices, see
+/// docs/topobench.md), and the operators (topobench/lifting.hpp's names) its backbone and
+/// readout use.
 struct ModelSpec {
   const char* name;
   const char* config;
@@ -49,6 +50,13 @@ struct ModelSpec {
   int cell_dimensions;
   std::set<std::string> operators;
 };
+/// TopoTune's cell routes (TopoBench's configs/model/cell/topotune.yaml, `neighborhoods`).
+inline const std::vector<std::string>& topotune_cell_neighborhoods() {
+  static const std::vector<std::string> n = {"up_adjacency-1", "up_incidence-0", "down_incidence-2",
+                                             "2-up_adjacency-0"};
+  return n;
+}
+
 inline const std::vector<ModelSpec>& model_specs() {
   static const std::vector<ModelSpec> specs = {
       {"GCN", "graph/gcn", Domain::graph, {0}, 1, {"gcn_adjacency"}},
@@ -103,7 +111,14 @@ inline const std::vector<ModelSpec>& model_specs() {
        {0, 1, 2},
        3,
        {"incidence_1", "incidence_2", "hodge_laplacian_0", "down_laplacian_1", "up_laplacian_1",
-        "down_laplacian_2", "up_laplacian_2"}}};
+        "down_laplacian_2", "up_laplacian_2"}},
+      // GCCN (TopoTune) with topotune.yaml's cell routes; incidence_r for the readout.
+      {"GCCN", "cell/topotune", Domain::cell, {0, 1, 2}, 3, [] {
+         std::set<std::string> ops(topotune_cell_neighborhoods().begin(),
+                                   topotune_cell_neighborhoods().end());
+         ops.insert({"incidence_1", "incidence_2"});
+         return ops;
+       }()}};
   return specs;
 }
 
@@ -244,10 +259,38 @@ inline const DatasetName& dataset_name(const std::string& name) {
   return find_name(table_datasets(), name, "TopoBench dataset");
 }
 
-inline const RunConfig& find_config(const std::vector<RunConfig>& all, const ModelSpec& model,
-                                    const DatasetName& dataset) {
+/// A model whose config has no line in reproduce-hparams.txt (TopoBench's reproduce script has
+/// none for TopoTune) runs with another model's line per dataset (the lifting, lr, batch size,
+/// encoder dropout, epochs, patience, seeds) and what its own config fixes.
+struct BorrowedProtocol {
+  const char* config;  ///< the model's config
+  const char* from;    ///< the config whose lines it takes
+  std::int64_t hidden, layers;
+  const char* readout;
+};
+inline const std::vector<BorrowedProtocol>& borrowed_protocols() {
+  // topotune.yaml: feature_encoder.out_channels 32, backbone.layers 2, PropagateSignalDown.
+  static const std::vector<BorrowedProtocol> b = {
+      {"cell/topotune", "cell/cwn", 32, 2, "PropagateSignalDown"}};
+  return b;
+}
+
+inline RunConfig find_config(const std::vector<RunConfig>& all, const ModelSpec& model,
+                             const DatasetName& dataset) {
   for (const auto& c : all)
     if (c.model_config == model.config && c.dataset_config == dataset.config) return c;
+  for (const auto& b : borrowed_protocols())
+    if (model.config == std::string(b.config))
+      for (const auto& c : all)
+        if (c.model_config == b.from && c.dataset_config == dataset.config) {
+          RunConfig own = c;
+          own.model_config = b.config;
+          own.hidden = b.hidden, own.layers = b.layers, own.readout = b.readout;
+          own.source += std::string(" (") + b.from + "'s line; " + b.config +
+                        ": hid=" + std::to_string(b.hidden) + " L=" + std::to_string(b.layers) +
+                        " readout=" + b.readout + ")";
+          return own;
+        }
   throw std::invalid_argument(std::string("no hyperparameters for ") + model.name + " (" +
                               model.config + ") on " + dataset.name + " (" + dataset.config + ")");
 }

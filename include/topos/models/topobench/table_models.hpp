@@ -1,9 +1,9 @@
 // topos/models/topobench/table_models.hpp
 // The backbones of TopoBench's table by name, as TopoBenchModel's backbones (topobench/model.hpp):
 // GCN, AllSetTransformer, EDGNN, UniGNN2 = UniGCNII, CWN, CCCN, CCXN, SCN = SCN2, SCCN,
-// SCCNN = TopoBench's SCCNNCustom, each an operator schedule of the zoo with its rank layout
-// from model_specs() (protocol.hpp). This header includes the ten models; a file that trains its
-// own backbone includes model.hpp and trainer.hpp alone.
+// SCCNN = TopoBench's SCCNNCustom, and TopoTune's GCCN, each an operator schedule of the zoo with
+// its rank layout from model_specs() (protocol.hpp). This header includes the eleven models; a
+// file that trains its own backbone includes model.hpp and trainer.hpp alone.
 //   TopoBenchModel m(TopoBenchModelOptions(table_backbone("CWN"), {7, 4, 4}, 32, 2));
 // Adding a backbone to the table: its ModelSpec row in protocol.hpp and its entry in
 // table_backbones() below.
@@ -12,6 +12,7 @@
 #include "topos/models/cell/cccn.hpp"
 #include "topos/models/cell/ccxn.hpp"
 #include "topos/models/cell/cwn.hpp"
+#include "topos/models/combinatorial/gccn.hpp"
 #include "topos/models/graph/gcn.hpp"
 #include "topos/models/hypergraph/allset_transformer.hpp"
 #include "topos/models/hypergraph/edgnn.hpp"
@@ -121,11 +122,16 @@ inline const std::vector<TableBackbone>& table_backbones() {
            ops["adjacency_" + std::to_string(r)] = ops.at("hodge_laplacian_" + std::to_string(r));
          return ops;
        }},
-      {"SCCNN", [](C c) {
+      {"SCCNN",
+       [](C c) {
          return nn::OperatorNetwork(
              sccnn_custom_schedule(SCCNNCustomOptions(c.hidden)
                                        .n_layers(c.n_layers)
                                        .topobench_compatible(c.topobench_compatible)));
+       }},
+      {"GCCN", [](C c) {
+         return nn::OperatorNetwork(gccn_schedule(
+             GCCNOptions(c.hidden, topotune_cell_neighborhoods()).n_layers(c.n_layers)));
        }}};
   return all;
 }

@@ -103,6 +103,16 @@ TOPOS_INLINE std::map<std::string, torch::Tensor> case_gradients(ZooCase& c) {
   return g;
 }
 
+TOPOS_INLINE ZooModel make_compiled_zoo_model(const std::string& model,
+                                              const nlohmann::json& config,
+                                              bool topomodelx_compatible) {
+  return make_zoo_model(model, config, topomodelx_compatible);
+}
+
+TOPOS_INLINE std::vector<std::string> compiled_zoo_model_names() {
+  return zoo_model_names();
+}
+
 TOPOS_INLINE std::map<std::string, nn::SparseOperator> case_operators(
     const std::filesystem::path& dir) {
   const tdl::Operators built = tdl::compute_operators(dir);

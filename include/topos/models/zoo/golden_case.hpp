@@ -61,6 +61,13 @@ std::map<std::string, torch::Tensor> run_case(ZooCase& c);
 /// name; a parameter the outputs do not depend on gets zeros.
 std::map<std::string, torch::Tensor> case_gradients(ZooCase& c);
 
+/// make_zoo_model and zoo_model_names (topos/models/zoo.hpp) compiled once in topos::zoo: a
+/// translation unit that calls these compiles none of the zoo's models (the Python binding's
+/// topos.topomodelx does).
+ZooModel make_compiled_zoo_model(const std::string& model, const nlohmann::json& config,
+                                 bool topomodelx_compatible = true);
+std::vector<std::string> compiled_zoo_model_names();
+
 /// The operators of a case, built from DIR/complex.json and DIR/operators.json's op/args
 /// (topos/data/tdl_case.hpp; never DIR/operators/), as float32 like the tensors TopoModelX got
 /// (its operators were saved as float32 and passed as their nonzero entries).

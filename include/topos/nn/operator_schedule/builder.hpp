@@ -9,6 +9,7 @@
 #include "topos/nn/functional.hpp"
 #include "topos/nn/mlp.hpp"
 #include "topos/nn/operator_schedule/elementwise.hpp"
+#include "topos/nn/operator_schedule/gnn.hpp"
 #include "topos/nn/operator_schedule/operation.hpp"
 #include "topos/nn/schedule_error.hpp"
 
@@ -161,6 +162,17 @@ class Chain : public detail::OperationList {
   /// torch.nn.BatchNorm1d over the channels at `path` (weight, bias, running statistics).
   Derived& batch_norm(std::string path) {
     return add(TermOp(TermOp::Kind::batch_norm, std::move(path)));
+  }
+  /// torch.nn.BatchNorm1d at `path` whose batch statistics are those of the rows of the cochains
+  /// `union_of` together, x being their part `part` (a GNN's norm on the union graph of an
+  /// inter-rank neighbourhood; gnn.hpp). Apply it to every part.
+  Derived& batch_norm(std::string path, std::vector<CochainKey> union_of, std::size_t part) {
+    return apply(builtin::UnionBatchNorm(std::move(path), std::move(union_of), part));
+  }
+  /// PyG's GCNConv propagation over `op`'s pattern with self-loops: over one rank's graph, or one
+  /// side of the union graph of an inter-rank neighbourhood (GcnPart, gnn.hpp).
+  Derived& gcn(std::string op, GcnPart part = GcnPart::graph) {
+    return apply(builtin::GcnPropagation(std::move(op), part));
   }
   /// torch.nn.LayerNorm over the channels at `path`.
   Derived& layer_norm(std::string path) {

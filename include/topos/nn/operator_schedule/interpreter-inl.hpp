@@ -589,7 +589,8 @@ TOPOS_INLINE std::pair<torch::Tensor, torch::Tensor> OperatorNetworkImpl::run_co
     if (n == nullptr || n->num_source != x.size(0)) return {};  // the readers will say why
     sources.push_back(n->source);
   }
-  const auto used = std::get<0>(torch::_unique(torch::cat(sources), /*sorted=*/true));
+  const auto used =
+      detail::used_rows(sources.size() == 1 ? sources[0] : torch::cat(sources), x.size(0));
   if (used.size(0) >= x.size(0)) return {};
   Cochains rows = h;
   rows.set(src.rank, src.state, x.index_select(0, used));

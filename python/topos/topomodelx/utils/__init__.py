@@ -1,0 +1,1 @@
+"""topos's drop-in for ``topomodelx.utils``."""
