@@ -119,7 +119,7 @@ TEST_CASE("fuzz regressions replay: checkpoint files written in code") {
       {"memo_index", zip_archive({{"archive/data.pkl", "\x80\x02}r\xff\xff\xff\x7f."}}),
        "out of sequence"},
       {"string_length", zip_archive({{"archive/data.pkl", "\x80\x02X\xff\xff\xff\x7f"}}),
-       "pickle truncated"},
+       "truncated pickle"},
       // sizes (2^40), strides (1): 2^40 elements of a two-float storage, the sizes as 6-byte
       // LONG1 integers, which LibTorch's unpickler refuses before any tensor is made
       {"elements_2pow40",

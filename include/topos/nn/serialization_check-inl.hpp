@@ -2,7 +2,10 @@
 // What makes an untrusted torch file safe for LibTorch's unpickler (parse_tensor_dict): its zip
 // members checked (torch_zip_records), its pickle walked opcode by opcode (check_pickle), and
 // what Python's torch.save writes that LibTorch cannot read rewritten (pickle_for_libtorch).
+// The opcodes are decoded by io/pickle.hpp, which the Planetoid reader shares.
 #pragma once
+
+#include "topos/io/pickle.hpp"
 
 #include <algorithm>
 #include <cstddef>
@@ -25,15 +28,8 @@ struct ZipRecord {
   std::size_t offset = 0, size = 0;
 };
 
-inline std::uint32_t le32(const char* p) {
-  std::uint32_t v = 0;
-  for (int i = 3; i >= 0; --i) v = (v << 8) | static_cast<unsigned char>(p[i]);
-  return v;
-}
-inline std::uint16_t le16(const char* p) {
-  return static_cast<std::uint16_t>(static_cast<unsigned char>(p[0]) |
-                                    (static_cast<unsigned char>(p[1]) << 8));
-}
+using io::pickle::le16;
+using io::pickle::le32;
 
 /// The members of a torch.save zip archive, checked before anything is read from them: every
 /// member stored uncompressed (as torch.save writes them) and lying inside the file, so no read
@@ -83,107 +79,10 @@ inline std::map<std::string, ZipRecord> torch_zip_records(const char* data, std:
   return out;
 }
 
-/// One opcode of the protocol-2 subset torch files use, decoded: its length with its argument
-/// and its effect on the unpickler's stack (pop to the top mark first when `to_mark`, then pop
-/// `pops` items, then push `pushes`).
-struct PickleOp {
-  unsigned char code = 0;
-  std::size_t length = 0;
-  bool to_mark = false;
-  std::size_t pops = 0, pushes = 0;
-};
-
-/// Decodes the opcode at `p` (< n) of the pickle `d` of `n` bytes from the one opcode table
-/// behind both walks below. `fail` (which throws) gets why when the argument runs past the
-/// end, a GLOBAL line is unterminated within 256 bytes, an integer is wider than 64 bits or the
-/// opcode is outside the subset.
+/// Decodes the opcode at `p` of the pickle `d` of `n` bytes in the subset torch files use.
 template <class Fail>
-PickleOp decode_pickle_op(const char* d, std::size_t n, std::size_t p, const Fail& fail) {
-  // arg: the argument's bytes, or how it is sized: kLen1/kLen4 a 1- or 4-byte length prefix
-  // (LONG1's at most 8), kLines GLOBAL's two lines.
-  enum : int { kLen1 = -1, kLen4 = -4, kLines = -2 };
-  struct Row {
-    unsigned char code;
-    int arg;
-    bool to_mark;
-    unsigned char pops, pushes;
-  };
-  static constexpr Row kTable[] = {
-      {0x80, 1, false, 0, 0},      // PROTO
-      {0x95, 8, false, 0, 0},      // FRAME
-      {'.', 0, false, 0, 0},       // STOP
-      {'(', 0, false, 0, 0},       // MARK
-      {'q', 1, false, 0, 0},       // BINPUT
-      {'r', 4, false, 0, 0},       // LONG_BINPUT
-      {0x94, 0, false, 0, 0},      // MEMOIZE
-      {'0', 0, false, 1, 0},       // POP
-      {'1', 0, true, 0, 0},        // POP_MARK
-      {'N', 0, false, 0, 1},       // NONE
-      {0x88, 0, false, 0, 1},      // NEWTRUE
-      {0x89, 0, false, 0, 1},      // NEWFALSE
-      {')', 0, false, 0, 1},       // EMPTY_TUPLE
-      {']', 0, false, 0, 1},       // EMPTY_LIST
-      {'}', 0, false, 0, 1},       // EMPTY_DICT
-      {'K', 1, false, 0, 1},       // BININT1
-      {'M', 2, false, 0, 1},       // BININT2
-      {'J', 4, false, 0, 1},       // BININT
-      {'G', 8, false, 0, 1},       // BINFLOAT
-      {0x8a, kLen1, false, 0, 1},  // LONG1
-      {0x8c, kLen1, false, 0, 1},  // SHORT_BINUNICODE
-      {'U', kLen1, false, 0, 1},   // SHORT_BINSTRING
-      {'C', kLen1, false, 0, 1},   // SHORT_BINBYTES
-      {'X', kLen4, false, 0, 1},   // BINUNICODE
-      {'B', kLen4, false, 0, 1},   // BINBYTES
-      {'c', kLines, false, 0, 1},  // GLOBAL
-      {'h', 1, false, 0, 1},       // BINGET
-      {'j', 4, false, 0, 1},       // LONG_BINGET
-      {'t', 0, true, 0, 1},        // TUPLE
-      {'l', 0, true, 0, 1},        // LIST
-      {'d', 0, true, 0, 1},        // DICT
-      {'e', 0, true, 1, 1},        // APPENDS
-      {'u', 0, true, 1, 1},        // SETITEMS
-      {0x85, 0, false, 1, 1},      // TUPLE1
-      {0x86, 0, false, 2, 1},      // TUPLE2
-      {0x87, 0, false, 3, 1},      // TUPLE3
-      {'a', 0, false, 2, 1},       // APPEND
-      {'s', 0, false, 3, 1},       // SETITEM
-      {'R', 0, false, 2, 1},       // REDUCE
-      {0x81, 0, false, 2, 1},      // NEWOBJ
-      {'b', 0, false, 2, 1},       // BUILD
-      {'Q', 0, false, 1, 1},       // BINPERSID
-  };
-  const unsigned char code = static_cast<unsigned char>(d[p]);
-  const Row* row = std::find_if(std::begin(kTable), std::end(kTable),
-                                [&](const Row& r) { return r.code == code; });
-  if (row == std::end(kTable)) {
-    char hex[8];
-    std::snprintf(hex, sizeof hex, "0x%02x", code);
-    fail(std::string("unsupported pickle opcode ") + hex);
-  }
-  const std::size_t left = n - p - 1;  // bytes after the opcode
-  const auto need = [&](std::size_t k) {
-    if (left < k) fail("pickle truncated");
-  };
-  std::size_t arg = 0;
-  if (row->arg >= 0) {
-    arg = static_cast<std::size_t>(row->arg);
-  } else if (row->arg == kLen1) {
-    need(1);
-    arg = 1 + static_cast<unsigned char>(d[p + 1]);
-    if (code == 0x8a && arg > 9) fail("pickle integer wider than 64 bits");
-  } else if (row->arg == kLen4) {
-    need(4);
-    arg = std::size_t{4} + le32(d + p + 1);
-  } else {  // GLOBAL: module and name, each on its own line
-    for (int line = 0; line < 2; ++line) {
-      const auto* nl = static_cast<const char*>(
-          std::memchr(d + p + 1 + arg, '\n', std::min<std::size_t>(left - arg, 256)));
-      if (!nl) fail("pickle GLOBAL name unterminated or too long");
-      arg = static_cast<std::size_t>(nl - (d + p));
-    }
-  }
-  need(arg);
-  return PickleOp{code, 1 + arg, row->to_mark, row->pops, row->pushes};
+io::pickle::Op decode_pickle_op(const char* d, std::size_t n, std::size_t p, const Fail& fail) {
+  return io::pickle::decode(d, n, p, io::pickle::kTorch, fail);
 }
 
 /// Walks a pickle before LibTorch's unpickler sees it, refusing what that unpickler trusts:
@@ -197,8 +96,8 @@ inline void check_pickle(const char* d, std::size_t n, const std::string& source
   std::size_t p = 0, depth = 0, memo = 0;
   std::vector<std::size_t> marks;
   while (true) {
-    if (p >= n) fail("pickle truncated");
-    const PickleOp op = decode_pickle_op(d, n, p, fail);
+    if (p >= n) fail("truncated pickle: no STOP opcode");
+    const io::pickle::Op op = decode_pickle_op(d, n, p, fail);
     const char* arg = d + p + 1;
     p += op.length;
     if (op.code == '.') {
@@ -267,7 +166,7 @@ inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::
   };
   std::size_t p = 0;
   while (p < n) {
-    const PickleOp op = decode_pickle_op(d, n, p, fail);
+    const io::pickle::Op op = decode_pickle_op(d, n, p, fail);
     const std::size_t at = out.size();
     std::size_t q = p + op.length;
     bool ordered_dict = op.code == 'c' && std::string(d + p + 1, op.length - 1) == kOrderedDict;
