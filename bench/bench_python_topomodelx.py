@@ -13,10 +13,22 @@ forward + backward of Σ out·R (R fixed). Per case, the median over `--repeat` 
 time per call (wall and this process's CPU time). `--allocator cache` (the default, as
 bench_zoo's TOPOS_BENCH_ALLOCATOR) calls topos.nn.use_caching_cpu_allocator() first; `system`
 keeps glibc's (bench_zoo's TOPOS_BENCH_ALLOCATOR=system).
+
+`--topomodelx DIR` also times TopoModelX itself (its source folder, e.g. a checkout at a1f9a0f;
+it needs only torch for these models) in the same process, on the same inputs, with the same
+weights (the drop-in's state_dict loaded by name), rounds interleaved with the drop-in's, after
+checking that both give the same outputs. UniGCNII is left out for TopoModelX by default: its
+layer densifies the grid's incidence (519 s per forward, 7.6 GB). Give TopoModelX OpenBLAS's
+best kernels: unset OPENBLAS_CORETYPE and OPENBLAS_L2_SIZE for the command; the kernels OpenBLAS
+picked are printed.
 """
 
 import argparse
+import ctypes
+import importlib
+import os
 import statistics
+import sys
 import time
 
 import numpy as np
@@ -94,35 +106,96 @@ def timed(f, calls):
     return (time.perf_counter() - w0) / calls, (time.process_time() - c0) / calls
 
 
+def openblas_kernels():
+    """The kernel set OpenBLAS chose in this process (what torch's products run on)."""
+    for lib in ("libopenblas.so.0", "libopenblasp.so.0", "libblas.so.3"):
+        try:
+            f = ctypes.CDLL(lib).openblas_get_corename
+        except (OSError, AttributeError):
+            continue
+        f.restype = ctypes.c_char_p
+        return f().decode()
+    return "unknown"
+
+
+def topomodelx_twin(src, name, model):
+    """TopoModelX's own model of `name`, with `model`'s (the drop-in's) weights."""
+    if src not in sys.path:
+        sys.path.insert(0, src)
+    module, cls = {
+        "scn2": ("topomodelx.nn.simplicial.scn2", "SCN2"),
+        "cwn": ("topomodelx.nn.cell.cwn", "CWN"),
+        "unigcnii": ("topomodelx.nn.hypergraph.unigcnii", "UniGCNII"),
+    }[name]
+    twin_cls = getattr(importlib.import_module(module), cls)
+    if not twin_cls.__module__.startswith("topomodelx"):
+        raise SystemExit(f"--topomodelx {src}: {module} did not come from TopoModelX's source")
+    args = {"scn2": (C, C, C), "cwn": (C, C, C, C), "unigcnii": (C, C)}[name]
+    kwargs = {"n_layers": 2}
+    twin = twin_cls(*args, **kwargs)
+    twin.load_state_dict(model.state_dict())
+    return twin
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--calls", type=int, default=20)
     ap.add_argument("--allocator", choices=("cache", "system"), default="cache")
+    ap.add_argument("--topomodelx", metavar="DIR", help="TopoModelX's source folder: time it too")
+    ap.add_argument("--topomodelx-models", default="scn2,cwn")
+    ap.add_argument("--models", default="scn2,cwn,unigcnii")
     args = ap.parse_args()
     torch.set_num_threads(1)
     if args.allocator == "cache":
         topos.nn.use_caching_cpu_allocator()
+    print(
+        f"torch threads 1, OPENBLAS_CORETYPE={os.environ.get('OPENBLAS_CORETYPE', '(unset)')}, "
+        f"OpenBLAS kernels {openblas_kernels()}, allocator {args.allocator}",
+        flush=True,
+    )
+    wanted = args.models.split(",")
+    peers = args.topomodelx_models.split(",") if args.topomodelx else []
     for name, (model, inputs) in cases().items():
+        if name not in wanted:
+            continue
         model.eval()
+        sides = [("topos", model)]
+        if name in peers:
+            twin = topomodelx_twin(args.topomodelx, name, model)
+            twin.eval()
+            with torch.no_grad():
+                a, b = model(*inputs), twin(*inputs)
+            err = max((x - y).abs().max().item() for x, y in zip(a, b))
+            scale = max(y.abs().max().item() for y in b)
+            if err > 1e-4 * max(1.0, scale):
+                raise SystemExit(f"{name}: topos and TopoModelX differ by {err} (scale {scale})")
+            sides.append(("topomodelx", twin))
         with torch.no_grad():
             R = [torch.randn_like(y) for y in model(*inputs)]
 
-        def forward():
+        def forward(m):
             with torch.no_grad():
-                model(*inputs)
+                m(*inputs)
 
-        def forward_backward():
-            model.zero_grad()
-            out = model(*inputs)
+        def forward_backward(m):
+            m.zero_grad()
+            out = m(*inputs)
             sum((y * r).sum() for y, r in zip(out, R)).backward()
 
         for what, f in (("forward", forward), ("forward_backward", forward_backward)):
-            f()  # warm up
-            runs = [timed(f, args.calls) for _ in range(args.repeat)]
-            wall = statistics.median(r[0] for r in runs) * 1e3
-            cpu = statistics.median(r[1] for r in runs) * 1e3
-            print(f"{name}/grid101/{what}: {wall:.2f} ms wall, {cpu:.2f} ms CPU", flush=True)
+            runs = {side: [] for side, _ in sides}
+            for side, m in sides:
+                f(m)  # warm up
+            for _ in range(args.repeat):  # rounds interleaved between the sides
+                for side, m in sides:
+                    runs[side].append(timed(lambda: f(m), args.calls))
+            for side, _ in sides:
+                wall = statistics.median(r[0] for r in runs[side]) * 1e3
+                cpu = statistics.median(r[1] for r in runs[side]) * 1e3
+                label = "" if side == "topos" else " [TopoModelX]"
+                print(f"{name}/grid101/{what}{label}: {wall:.2f} ms wall, {cpu:.2f} ms CPU",
+                      flush=True)
 
 
 if __name__ == "__main__":
