@@ -19,3 +19,12 @@ def pytest_report_header(config):
     import topos
 
     return f"topos {topos.__version__} from {pathlib.Path(topos.__file__).parent}"
+
+
+@pytest.fixture(scope="session")
+def datasets_dir():
+    """TOPOS_DATASETS_DIR (the raw benchmark datasets); the test is skipped, saying so, without."""
+    d = os.environ.get("TOPOS_DATASETS_DIR")
+    if not d:
+        pytest.skip("TOPOS_DATASETS_DIR is not set (the raw datasets: tu/, topobench/reproduce-hparams.txt)")
+    return pathlib.Path(d)
