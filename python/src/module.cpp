@@ -24,10 +24,10 @@
 
 namespace topos::python {
 
-void bind_hopnet(py::module_& m);    // hopnet.cpp
-void bind_schedule(py::module_& m);  // schedule.cpp
-void bind_zoo(py::module_& m);       // zoo.cpp
-void bind_topobench(py::module_& m); // topobench.cpp
+void bind_hopnet(py::module_& m);     // hopnet.cpp
+void bind_schedule(py::module_& m);   // schedule.cpp
+void bind_zoo(py::module_& m);        // zoo.cpp
+void bind_topobench(py::module_& m);  // topobench.cpp
 
 // ----- conversions (convert.hpp) ------------------------------------------------------------
 

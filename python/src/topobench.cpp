@@ -64,7 +64,8 @@ fs::path root_arg(const std::optional<fs::path>& root) {
 }
 
 tb::Domain domain_arg(const std::string& d) {
-  for (auto x : {tb::Domain::graph, tb::Domain::hypergraph, tb::Domain::cell, tb::Domain::simplicial})
+  for (auto x :
+       {tb::Domain::graph, tb::Domain::hypergraph, tb::Domain::cell, tb::Domain::simplicial})
     if (d == tb::domain_name(x)) return x;
   throw py::value_error("domain: '" + d + "' is not one of 'graph', 'hypergraph', 'cell', " +
                         "'simplicial'");
@@ -79,7 +80,7 @@ at::Tensor edge_index(const std::vector<std::array<std::int64_t, 2>>& edges) {
   auto a = t.accessor<std::int64_t, 2>();
   for (std::size_t e = 0; e < edges.size(); ++e)
     a[0][static_cast<std::int64_t>(e)] = edges[e][0],
-                                  a[1][static_cast<std::int64_t>(e)] = edges[e][1];
+    a[1][static_cast<std::int64_t>(e)] = edges[e][1];
   return t;
 }
 
@@ -121,10 +122,11 @@ std::vector<std::size_t> indices_arg(const py::handle& obj, std::int64_t size,
 /// COO operators under the GIL.
 class PyBackboneImpl : public torch::nn::Module {
  public:
-  PyBackboneImpl(PyRef module, std::string name) : module_(std::move(module)), name_(std::move(name)) {
+  PyBackboneImpl(PyRef module, std::string name)
+      : module_(std::move(module)), name_(std::move(name)) {
     py::gil_scoped_acquire gil;
-    for (const auto& [kind, method] : {std::pair<bool, const char*>{false, "named_parameters"},
-                                       {true, "named_buffers"}})
+    for (const auto& [kind, method] :
+         {std::pair<bool, const char*>{false, "named_parameters"}, {true, "named_buffers"}})
       for (const auto& item : module_->attr(method)()) {
         const auto pair = item.cast<py::tuple>();
         const auto path = pair[0].cast<std::string>();
@@ -168,9 +170,8 @@ class PyBackboneImpl : public torch::nn::Module {
     tb::NamedCochains y;
     for (const auto& [k, v] : out.cast<py::dict>()) {
       if (!py::isinstance<py::str>(k) || !THPVariable_Check(v.ptr()))
-        throw py::type_error(name_ + ": the backbone's forward returned an entry " +
-                             type_name(k) + " -> " + type_name(v) +
-                             "; expected name ('x_0', ...) -> tensor");
+        throw py::type_error(name_ + ": the backbone's forward returned an entry " + type_name(k) +
+                             " -> " + type_name(v) + "; expected name ('x_0', ...) -> tensor");
       y.emplace(k.cast<std::string>(), py::cast<at::Tensor>(v));
     }
     return y;
@@ -189,10 +190,10 @@ class PyBackboneImpl : public torch::nn::Module {
     for (const auto& s : shared_) {
       const auto it = now.find(s.path);
       if (it == now.end() || it->second != s.impl)
-        throw py::value_error(name_ + ": the backbone's " + (s.buffer ? "buffer" : "parameter") +
-                              " '" + s.path +
-                              "' was replaced by another tensor during training, which the "
-                              "trainer does not see; update it in place (x.copy_(...), x.add_(...))");
+        throw py::value_error(
+            name_ + ": the backbone's " + (s.buffer ? "buffer" : "parameter") + " '" + s.path +
+            "' was replaced by another tensor during training, which the "
+            "trainer does not see; update it in place (x.copy_(...), x.add_(...))");
     }
     if (now.size() != shared_.size())
       throw py::value_error(name_ +
@@ -223,22 +224,22 @@ tb::Backbone backbone_arg(const std::string& name, const tb::RankLayout& layout,
     const py::module_ nn_mod = py::module_::import("topos.nn");
     if (py::isinstance<nn::OperatorSchedule>(made) ||
         py::isinstance(made, nn_mod.attr("OperatorNetwork"))) {
-      nn::OperatorNetwork net = py::isinstance<nn::OperatorSchedule>(made)
-                                    ? nn::OperatorNetwork(made.cast<nn::OperatorSchedule>())
-                                    : nn::OperatorNetwork(made.attr("_network")
-                                                              .cast<std::shared_ptr<nn::OperatorNetworkImpl>>());
-      return tb::Backbone::network(name, layout, [net](const tb::BackboneContext&) {
-               return net;
-             }).build(c);
+      nn::OperatorNetwork net =
+          py::isinstance<nn::OperatorSchedule>(made)
+              ? nn::OperatorNetwork(made.cast<nn::OperatorSchedule>())
+              : nn::OperatorNetwork(
+                    made.attr("_network").cast<std::shared_ptr<nn::OperatorNetworkImpl>>());
+      return tb::Backbone::network(name, layout, [net](const tb::BackboneContext&) { return net; })
+          .build(c);
     }
     if (!py::isinstance(made, py::module_::import("torch").attr("nn").attr("Module")))
       throw py::type_error(name + ": make(ctx) returned a " + type_name(made) +
                            "; expected a topos.nn.OperatorSchedule, a topos.nn.OperatorNetwork or "
                            "a torch.nn.Module whose forward(x, operators) returns a dict");
     PyBackbone module(hold(made), name);
-    return tb::Backbone::module(name, layout, [module](const tb::BackboneContext&) {
-             return module;
-           }).build(c);
+    return tb::Backbone::module(name, layout,
+                                [module](const tb::BackboneContext&) { return module; })
+        .build(c);
   });
 }
 
@@ -282,8 +283,9 @@ void bind_protocol(py::module_& m) {
       .def_readonly("cell_dimensions", &tb::RankLayout::cell_dimensions)
       .def_readonly("operators", &tb::RankLayout::operators)
       .def("__repr__", [](const tb::RankLayout& l) {
-        return py::str("RankLayout(domain={!r}, encoded_ranks={}, cell_dimensions={}, "
-                       "operators={})")
+        return py::str(
+                   "RankLayout(domain={!r}, encoded_ranks={}, cell_dimensions={}, "
+                   "operators={})")
             .format(tb::domain_name(l.domain), py::cast(l.encoded_ranks), l.cell_dimensions,
                     py::cast(l.operators));
       });
@@ -299,7 +301,8 @@ void bind_protocol(py::module_& m) {
     return n;
   });
   m.def(
-      "model_layout", [](const std::string& model) { return tb::rank_layout(tb::model_spec(model)); },
+      "model_layout",
+      [](const std::string& model) { return tb::rank_layout(tb::model_spec(model)); },
       py::arg("model"), "The RankLayout of one of the table's models (CWN, SCN, ...).");
 
   py::class_<tb::RunConfig>(m, "RunConfig",
@@ -362,8 +365,9 @@ void bind_protocol(py::module_& m) {
       .def_readonly("epochs", &tb::RunResult::epochs)
       .def_readonly("seconds", &tb::RunResult::seconds)
       .def("__repr__", [](const tb::RunResult& r) {
-        return py::str("RunResult({} {} split {}: test_accuracy={:.4f}, best_epoch={}, "
-                       "epochs={})")
+        return py::str(
+                   "RunResult({} {} split {}: test_accuracy={:.4f}, best_epoch={}, "
+                   "epochs={})")
             .format(r.model, r.dataset, r.split_seed, r.test_accuracy, r.best_epoch, r.epochs);
       });
   py::class_<tb::Check>(m, "Check", "One validation check: epoch, mean training loss, accuracy.")
@@ -388,8 +392,7 @@ void bind_protocol(py::module_& m) {
             f.add(r, curve);
           },
           py::arg("result"), py::arg("curve"))
-      .def(
-          "write_reports", [](const tb::RunsFolder& f) { f.write_reports(); });
+      .def("write_reports", [](const tb::RunsFolder& f) { f.write_reports(); });
 }
 
 void bind_data(py::module_& m) {
@@ -451,8 +454,7 @@ void bind_data(py::module_& m) {
       .def_readonly("layout", &Lifted::layout)
       .def_property_readonly("num_classes", [](const Lifted& l) { return l.data->num_classes; })
       .def_property_readonly("node_level", [](const Lifted& l) { return l.data->node_level; })
-      .def_property_readonly("num_graphs",
-                             [](const Lifted& l) { return l.data->graphs.size(); })
+      .def_property_readonly("num_graphs", [](const Lifted& l) { return l.data->graphs.size(); })
       .def_property_readonly("seconds", [](const Lifted& l) { return l.data->seconds; })
       .def_property_readonly("in_channels",
                              [](const Lifted& l) { return l.data->graphs.at(0).widths; })
@@ -475,9 +477,8 @@ void bind_data(py::module_& m) {
       .def(
           "batch",
           [](const Lifted& l, const py::object& indices) {
-            const auto which =
-                indices_arg(indices, static_cast<std::int64_t>(l.data->graphs.size()),
-                            "batch(indices)");
+            const auto which = indices_arg(
+                indices, static_cast<std::int64_t>(l.data->graphs.size()), "batch(indices)");
             py::gil_scoped_release release;
             return tb::collate(l.data->graphs, which);
           },
@@ -496,14 +497,15 @@ void bind_data(py::module_& m) {
         const fs::path dir = root_arg(root);
         // The lifting builds the names it knows and skips others: name one it does not know.
         tb::LiftingOptions all;  // no operators named: every one of the domain
-        const auto known = tb::lift_graph(3, {{0, 1}, {0, 2}, {1, 2}}, {1, 1, 1}, 1, {},
-                                          layout.domain, all);
+        const auto known =
+            tb::lift_graph(3, {{0, 1}, {0, 2}, {1, 2}}, {1, 1, 1}, 1, {}, layout.domain, all);
         for (const auto& op : layout.operators)
           if (!known.operators.count(op)) {
             std::string names;
             for (const auto& [name, _] : known.operators)
               names += (names.empty() ? "" : ", ") + name;
-            throw py::value_error("lift(layout): the " + std::string(tb::domain_name(layout.domain)) +
+            throw py::value_error("lift(layout): the " +
+                                  std::string(tb::domain_name(layout.domain)) +
                                   " lifting has no operator '" + op + "' (it has: " + names + ")");
           }
         Lifted l{nullptr, d.name, layout};
@@ -544,16 +546,16 @@ void bind_training(py::module_& m) {
       .def("eval", [](Model& net) { net.eval(); })
       .def_property_readonly("training", [](const Model& net) { return net.is_training(); })
       .def_property_readonly("name", [](const Model& net) { return net.options.model(); })
-      .def_property_readonly("backbone",
-                             [](Model& net) -> py::object {
-                               for (const auto& c : net.named_children())
-                                 if (c.key() == "backbone")
-                                   if (auto p =
-                                           std::dynamic_pointer_cast<PyBackboneImpl>(c.value()))
-                                     return p->module();
-                               return py::none();
-                             },
-                             "The Python backbone module (None for a schedule's).")
+      .def_property_readonly(
+          "backbone",
+          [](Model& net) -> py::object {
+            for (const auto& c : net.named_children())
+              if (c.key() == "backbone")
+                if (auto p = std::dynamic_pointer_cast<PyBackboneImpl>(c.value()))
+                  return p->module();
+            return py::none();
+          },
+          "The Python backbone module (None for a schedule's).")
       .def(
           "accuracy",
           [](Model& net, const Lifted& data, const py::object& indices, std::size_t batch_size) {
@@ -567,9 +569,9 @@ void bind_training(py::module_& m) {
 
   m.def(
       "train_run",
-      [](const Lifted& data, const std::string& name, const tb::RankLayout& layout,
-         py::object make, const tb::RunConfig& cfg, std::int64_t seed, int max_epochs,
-         bool progress, py::object on_check) {
+      [](const Lifted& data, const std::string& name, const tb::RankLayout& layout, py::object make,
+         const tb::RunConfig& cfg, std::int64_t seed, int max_epochs, bool progress,
+         py::object on_check) {
         const tb::Backbone backbone = backbone_arg(name, layout, std::move(make));
         tb::TrainOptions o;
         o.max_epochs = max_epochs;
