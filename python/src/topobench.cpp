@@ -568,6 +568,13 @@ void bind_training(py::module_& m) {
           "Accuracy on graphs (or nodes) `indices` of `data`, in eval mode.");
 
   m.def(
+      "check_backbone",
+      [](const std::string& name, const tb::RankLayout& layout) {
+        tb::Backbone(name, layout, [](const tb::BackboneContext&) { return tb::BuiltBackbone{}; });
+      },
+      py::arg("name"), py::arg("layout"),
+      "Raises ValueError where topobench::Backbone refuses the name or the layout.");
+  m.def(
       "train_run",
       [](const Lifted& data, const std::string& name, const tb::RankLayout& layout, py::object make,
          const tb::RunConfig& cfg, std::int64_t seed, int max_epochs, bool progress,

@@ -78,23 +78,13 @@ class Backbone:
     ``OperatorNetwork`` or a ``torch.nn.Module``."""
 
     def __init__(self, name, layout, make):
-        if not isinstance(name, str) or not name or any(c in name for c in ',"\n'):
-            raise ValueError(
-                f"Backbone(name): {name!r} must be a non-empty str without commas, quotes or "
-                "newlines (it is a field of runs.csv)"
-            )
         if not isinstance(layout, RankLayout):
             raise TypeError(
                 f"Backbone(layout): expected a topos.topobench.RankLayout, got {type(layout).__name__}"
             )
         if not callable(make):
             raise TypeError(f"Backbone(make): expected a callable make(ctx), got {type(make).__name__}")
-        missing = [r for r in range(layout.cell_dimensions) if r not in layout.encoded_ranks]
-        if missing:
-            raise ValueError(
-                f"Backbone(layout): the wrapper adds the encoded x_{missing[0]} to the backbone's, "
-                f"so encoded_ranks must hold every rank below cell_dimensions ({layout.cell_dimensions})"
-            )
+        _tb.check_backbone(name, layout)  # the name (a field of runs.csv) and the encoded ranks
         self.name, self.layout, self.make = name, layout, make
 
     def __repr__(self):

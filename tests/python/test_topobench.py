@@ -217,6 +217,31 @@ def test_torch_module_backbone_trains(mutag, config):
     assert again.result.test_accuracy == run.result.test_accuracy
 
 
+class GraphConv(torch.nn.Module):
+    def __init__(self, h):
+        super().__init__()
+        self.lin = torch.nn.Linear(h, h)
+
+    def forward(self, x, operators):
+        return {"x_0": torch.relu(self.lin(torch.sparse.mm(operators["gcn_adjacency"], x["x_0"])))}
+
+
+def test_node_level(datasets_dir):
+    cora = topobench.read_dataset("Cora", root=datasets_dir)
+    # The datasets README: 2,708 nodes, 5,278 edges, 1,433 features, 7 classes.
+    assert (cora["num_nodes"], cora["edge_index"].shape[1], cora["num_node_features"], cora["num_classes"]) == (2708, 5278, 1433, 7)
+    layout = RankLayout("graph", [0], 1, {"gcn_adjacency"})
+    config = topobench.find_config("GCN", "Cora", root=datasets_dir)
+    assert (config.dataset_config, config.val_every, config.patience) == ("cocitation_cora", 1, 50)
+    data = topobench.lift("Cora", layout, config, root=datasets_dir)
+    assert data.node_level and len(data) == 2708 and data.num_graphs == 1
+    run = topobench.train_run(data, Backbone("GraphConv", layout, lambda ctx: GraphConv(ctx.hidden)), config, 0, max_epochs=10)
+    assert [c.epoch for c in run.curve] == list(range(1, 11))
+    assert run.result.test_accuracy > data.majority_accuracy(0) + 0.2
+    _, val_idx, test_idx = topobench.split(2708, 0)
+    assert run.model.accuracy(data, test_idx) == run.result.test_accuracy
+
+
 def test_runner_folder(datasets_dir, config, tmp_path):
     backbone = Backbone("TorchCell", LAYOUT, lambda ctx: TorchCell(ctx.hidden))
     runs = topobench.run(backbone, "MUTAG", config, seeds=[0, 3], out=tmp_path, root=datasets_dir, max_epochs=5)
