@@ -62,6 +62,10 @@ Eigen::VectorXd vector_arg(const py::handle& obj, const std::string& arg, Index 
 nn::SparseOperator operator_arg(const py::handle& obj, const std::string& arg,
                                 at::ScalarType dtype);
 
+/// A SparseOperator as a torch sparse COO tensor (coalesced; its values tensor, so gradients
+/// through it reach the operator's values); `who` names it when it is held as factors only.
+at::Tensor operator_out(const nn::SparseOperator& a, const std::string& who);
+
 /// TopoNetX's `signed`: exactly True or False (an int there is a rank passed by mistake).
 Signed signed_arg(const py::handle& obj, const std::string& where);
 

@@ -24,9 +24,10 @@
 
 namespace topos::python {
 
-void bind_hopnet(py::module_& m);    // hopnet.cpp
-void bind_schedule(py::module_& m);  // schedule.cpp
-void bind_zoo(py::module_& m);       // zoo.cpp
+void bind_hopnet(py::module_& m);     // hopnet.cpp
+void bind_schedule(py::module_& m);   // schedule.cpp
+void bind_zoo(py::module_& m);        // zoo.cpp
+void bind_topobench(py::module_& m);  // topobench.cpp
 
 // ----- conversions (convert.hpp) ------------------------------------------------------------
 
@@ -942,4 +943,5 @@ PYBIND11_MODULE(_C, m) {
   tp::bind_hopnet(m);
   tp::bind_schedule(m);
   tp::bind_zoo(m);
+  tp::bind_topobench(m);
 }

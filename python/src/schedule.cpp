@@ -97,10 +97,6 @@ SparseOperator operator_arg(const py::handle& obj, const std::string& arg, at::S
                        "scipy.sparse matrix or a topos.nn.SparseOperator), got " + type_name(obj));
 }
 
-namespace {
-
-/// A SparseOperator as a torch sparse COO tensor (coalesced; its values tensor, so gradients
-/// through it reach the operator's values).
 at::Tensor operator_out(const SparseOperator& a, const std::string& who) {
   a.require_entries(who);
   const at::Tensor idx = at::stack({a.row, a.col});
@@ -109,6 +105,8 @@ at::Tensor operator_out(const SparseOperator& a, const std::string& who) {
   t._coalesced_(true);
   return t;
 }
+
+namespace {
 
 // ----- operations written in Python ----------------------------------------------------------
 

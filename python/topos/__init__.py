@@ -5,7 +5,8 @@ cross without copies (torch's own pybind11 casters); operators come back as torc
 tensors by default (``format="csr"``, ``"dense"`` or ``"scipy"`` for the others). Names and
 conventions are TopoNetX's: ``sc.incidence_matrix(rank, signed=True)``,
 ``sc.hodge_laplacian_matrix(rank)``, ``cc.adjacency_matrix(rank, via_rank)``, ...
-``topos.nn`` builds operator schedules and runs them as torch modules. See docs/python.md.
+``topos.nn`` builds operator schedules and runs them as torch modules; ``topos.topobench`` trains
+any backbone in TopoBench's pipeline. See docs/python.md.
 """
 
 import torch  # noqa: F401  (first: the extension's tensors are torch's)
@@ -29,4 +30,4 @@ from ._C import (  # noqa: F401
     to_combinatorial_complex,
     to_hypergraph,
 )
-from . import hopnet, nn, normalization  # noqa: F401,E402
+from . import hopnet, nn, normalization, topobench  # noqa: F401,E402

@@ -6,13 +6,23 @@ import pathlib
 import pytest
 
 
+def _env_dir(var, what):
+    d = os.environ.get(var)
+    if not d:
+        pytest.skip(f"{var} is not set ({what})")
+    return pathlib.Path(d)
+
+
 @pytest.fixture(scope="session")
 def reference_dir():
     """TOPOS_REFERENCE_DIR (the shared reference data); the test is skipped, saying so, without."""
-    d = os.environ.get("TOPOS_REFERENCE_DIR")
-    if not d:
-        pytest.skip("TOPOS_REFERENCE_DIR is not set (the reference data: golden cases, checkpoints)")
-    return pathlib.Path(d)
+    return _env_dir("TOPOS_REFERENCE_DIR", "the reference data: golden cases, checkpoints")
+
+
+@pytest.fixture(scope="session")
+def datasets_dir():
+    """TOPOS_DATASETS_DIR (the raw benchmark datasets); the test is skipped, saying so, without."""
+    return _env_dir("TOPOS_DATASETS_DIR", "the raw datasets: tu/, topobench/reproduce-hparams.txt")
 
 
 def pytest_report_header(config):

@@ -1,6 +1,7 @@
 # The Python examples of docs/python.md, run: each ```python block in a fresh namespace, and
 # what its print() calls write compared with the comment that follows each call (on its line,
-# or alone on the next line). A block that reads TOPOS_REFERENCE_DIR is skipped without it.
+# or alone on the next line). A block that reads TOPOS_REFERENCE_DIR or TOPOS_DATASETS_DIR is
+# skipped without it.
 import contextlib
 import io
 import os
@@ -35,8 +36,9 @@ def expected_prints(code):
 
 @pytest.mark.parametrize("code", blocks())
 def test_doc_example(code):
-    if "TOPOS_REFERENCE_DIR" in code and not os.environ.get("TOPOS_REFERENCE_DIR"):
-        pytest.skip("TOPOS_REFERENCE_DIR is not set")
+    for var in ("TOPOS_REFERENCE_DIR", "TOPOS_DATASETS_DIR"):
+        if var in code and not os.environ.get(var):
+            pytest.skip(f"{var} is not set")
     buf = io.StringIO()
     with contextlib.redirect_stdout(buf):
         exec(compile(code, str(DOC), "exec"), {"__name__": "docs_python"})
