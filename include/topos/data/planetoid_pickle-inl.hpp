@@ -1,10 +1,11 @@
 // topos/data/planetoid_pickle-inl.hpp
-// Part of graph_datasets-inl.hpp (included by it after graph_io, not by users): the object
-// reader behind read_planetoid_pickle. It runs the opcodes that io/pickle.hpp decodes (the Python-2 subset)
+// Part of graph_datasets-inl.hpp (included by it, not by users): the object reader behind
+// read_planetoid_pickle. It runs the opcodes that io/pickle.hpp decodes (the Python-2 subset)
 // and builds only what Planetoid's files hold: scipy.sparse.csr_matrix, numpy.ndarray and a
 // defaultdict(list) of int lists.
 #pragma once
 
+#include "topos/data/graph_io-inl.hpp"
 #include "topos/io/pickle.hpp"
 
 #include <algorithm>
