@@ -43,9 +43,9 @@ struct RolloutResult {
   std::int64_t num_frames() const { return static_cast<std::int64_t>(poses.size()); }
 };
 
-/// The autoregressive loop every rigid-body model shares (HOPNet's, FIGNet's, MeshGraphNet's): ground-truth
-/// frames 0..3, then opt.steps frames, each `step(t, result)` -> the poses at t+1 from the poses
-/// so far (result.poses[0..t]); a non-finite position is an error naming the frame.
+/// The autoregressive loop every rigid-body model shares (HOPNet's, FIGNet's, MeshGraphNet's):
+/// ground-truth frames 0..3, then opt.steps frames, each `step(t, result)` -> the poses at t+1
+/// from the poses so far (result.poses[0..t]); a non-finite position is an error naming the frame.
 template <class Step>
 RolloutResult rollout_loop(const Scene& scene, const RolloutOptions& opt, Step&& step) {
   if (scene.num_frames < 4)
