@@ -1,8 +1,8 @@
-// The paper's baselines in the hopnet program (`--config fignet|mgn|mgn-large-radius`, or a
-// checkpoint of one): info, train, rollout and the per-scene rollouts of evaluate. Training
-// follows the FIGNet reimplementation: batches of random (scene, t) timesteps of the training
-// split, Adam, the loss on the dynamic nodes' normalised accelerations; statistics come from the
-// training split only and are saved inside the checkpoint.
+// The paper's baselines' training in the hopnet program (`train --config fignet|mgn|...`; info,
+// rollout and evaluate run them as any model, through sim::open_model). Training follows the
+// FIGNet reimplementation: batches of random (scene, t) timesteps of the training split, Adam,
+// the loss on the dynamic nodes' normalised accelerations; statistics come from the training
+// split only and are saved inside the checkpoint.
 #include "commands.hpp"
 #include "topos/models/baselines.hpp"
 #include "topos/nn/distributed.hpp"
@@ -13,62 +13,6 @@
 #include <random>
 
 namespace hopnet_cli {
-
-bool is_baseline_config(const std::string& config) {
-  return !config.empty() && baselines::is_baseline_model(config_model(config));
-}
-
-bool is_baseline_checkpoint(const std::string& path) {
-  return baselines::is_baseline_model(
-      baselines::checkpoint_config(nn::read_tensor_dict(path), path).value("model", "hopnet"));
-}
-
-namespace {
-
-void print_modules(const baselines::Baseline& b) {
-  // Parameters per top-level module (encoders, each block's functions, decoders).
-  std::map<std::string, std::pair<std::int64_t, int>> per;
-  std::vector<std::string> order;
-  for (const auto& p : b.net->named_parameters()) {
-    std::string key = p.key().substr(p.key().find('.') + 1);
-    const auto block = key.find("gnn_stacks.");
-    key = block != std::string::npos ? "_processor.gnn_stacks.*." +
-                                           key.substr(key.find('.', block + 11) + 1,
-                                                      key.find('.', key.find('.', block + 11) + 1) -
-                                                          key.find('.', block + 11) - 1)
-                                     : key.substr(0, key.find('.'));
-    if (!per.count(key)) order.push_back(key);
-    per[key].first += p.value().numel();
-    per[key].second += 1;
-  }
-  std::printf("%-40s %12s %8s\n", "module", "parameters", "tensors");
-  for (const auto& k : order)
-    std::printf("%-40s %12lld %8d\n", k.c_str(), static_cast<long long>(per[k].first),
-                per[k].second);
-}
-
-}  // namespace
-
-int run_baseline_info(const std::string& config, const std::string& checkpoint) {
-  std::optional<baselines::Baseline> b;
-  if (!checkpoint.empty()) {
-    const auto dict = nn::read_tensor_dict(checkpoint);
-    b.emplace(baselines::load_baseline(
-                  dict, checkpoint,
-                  config.empty() ? "" : baselines::parse_baseline_config(config).model())
-                  .model);
-    std::cout << "checkpoint: " << checkpoint << "\nformat: topos\n";
-  } else {
-    b.emplace(baselines::parse_baseline_config(config));
-  }
-  std::cout << "model: " << b->config.model() << "\nvariant: " << b->config.name()
-            << "\nconfiguration: " << b->config.to_json().dump()
-            << "\nparameters: " << b->num_parameters()
-            << "\ntensors: " << b->net->named_parameters().size() << "\n";
-  print_modules(*b);
-  std::cout << "schedule:\n" << b->net->network->schedule().str();
-  return 0;
-}
 
 int run_baseline_train(const BaselineTrainArgs& a) {
   namespace fs = std::filesystem;
@@ -318,26 +262,6 @@ int run_baseline_train(const BaselineTrainArgs& a) {
       static_cast<long long>(step), trained_seconds, out_of_time ? " (--max-seconds reached)" : "",
       ckpt.c_str(), stats_path.c_str());
   return 0;
-}
-
-/// Loads a baseline checkpoint once for a rollout driver.
-BaselineRunner::BaselineRunner(const std::string& path) : path_(path) {
-  dict_ = nn::read_tensor_dict(path);
-  auto loaded = baselines::load_baseline(dict_, path);
-  name_ = loaded.model.config.name();
-}
-
-std::string BaselineRunner::name() const {
-  return name_;
-}
-
-std::function<RolloutResult(const Scene&, RolloutOptions)> BaselineRunner::roller() const {
-  auto loaded = std::make_shared<baselines::LoadedBaseline>(baselines::load_baseline(dict_, path_));
-  loaded->model.net->eval();
-  return [loaded](const Scene& scene, RolloutOptions opt) {
-    const baselines::SceneGraphs graphs(loaded->model.config, scene);
-    return baselines::rollout(loaded->model, loaded->stats, scene, graphs, opt);
-  };
 }
 
 }  // namespace hopnet_cli

@@ -11,6 +11,7 @@
 #include "topos/models/hopnet/training.hpp"
 #include "topos/models/hopnet/variants.hpp"
 #include "topos/nn/cpu.hpp"
+#include "topos/sim/open_model.hpp"
 #include "topos/util/csv_log.hpp"
 #include "topos/util/progress.hpp"
 
@@ -76,72 +77,37 @@ inline HopnetOptions variant_options(const VariantArgs& v, const HopnetOptions& 
   return o;
 }
 
-/// What --activation and --collision-radius change in a loaded checkpoint. A reference state
-/// dict does not record its activation: without --activation, a file named after one by the
-/// reference's convention ("gelu_seed0_e39.pt": the name's first '_'-separated word) runs with
-/// it, and says so; otherwise ReLU, the reference's default.
-inline CheckpointOverrides checkpoint_overrides(const VariantArgs& v,
-                                                const std::map<std::string, torch::Tensor>& dict,
-                                                const std::string& path,
-                                                std::optional<FeatureMode> mode) {
-  CheckpointOverrides ov;
-  ov.mode = mode;
-  if (v.collision_radius > 0) ov.collision_radius = v.collision_radius;
-  if (!v.activation.empty()) {
-    ov.activation = nn::update_from_string(v.activation);
-  } else if (is_reference_checkpoint(dict)) {
-    ov.activation = activation_from_reference_name(path);
-    if (ov.activation) {
-      const std::string a = nn::update_name(*ov.activation);
-      std::cerr << "note: " << path << " is a reference checkpoint named after activation " << a
-                << "; running it with " << a << " (--activation overrides)\n";
-    }
-  }
-  return ov;
+/// The options a model is opened with: the variant's --activation and --collision-radius
+/// (HOPNet's), the feature mode, and --stats.
+inline sim::OpenOptions open_options(const VariantArgs& v, const std::string& stats_path,
+                                     std::optional<FeatureMode> mode) {
+  sim::OpenOptions o;
+  o.stats = stats_path;
+  o.mode = mode;
+  if (!v.activation.empty()) o.activation = nn::update_from_string(v.activation);
+  if (v.collision_radius > 0) o.collision_radius = v.collision_radius;
+  return o;
 }
 
-/// A checkpoint opened the one way every subcommand that runs a model opens it (rollout,
-/// evaluate, grad): the state dict read once, the variant's overrides (--activation,
-/// --collision-radius) and the feature mode applied, and, given statistics, the normaliser,
-/// checked against the model first. The model's own options (lifting, collision radius, widths)
-/// are the checkpoint's, never a subcommand's defaults.
-struct OpenedCheckpoint {
-  std::string path;
-  std::map<std::string, torch::Tensor> dict;
-  CheckpointOverrides overrides;
-  Hopnet net{nullptr};  ///< the model, on the CPU (loading it checked the checkpoint)
-  Normalizer norm;
-  const HopnetOptions& options() const { return net->options; }
-  /// Another model with the checkpoint's weights, on `device` (evaluate makes one per worker).
-  Hopnet another(torch::Device device) const {
-    auto net = load_hopnet(dict, path, overrides);
-    net->to(device);
-    return net;
-  }
-};
+/// A checkpoint opened the one way every subcommand opens one (sim::open_model: read once, its
+/// format detected), its notes said on stderr. The model's own options (lifting,
+/// collision radius, widths) are the checkpoint's, never a subcommand's defaults.
+inline sim::OpenedModel open_checkpoint(const std::string& path, const sim::OpenOptions& o) {
+  auto m = sim::open_model(path, o);
+  for (const auto& note : m.notes) std::cerr << "note: " << note << "\n";
+  return m;
+}
 
-inline OpenedCheckpoint open_checkpoint(const std::string& path, const std::string& stats_path,
-                                        const VariantArgs& variant, FeatureMode mode) {
-  OpenedCheckpoint c;
-  c.path = path;
-  c.dict = nn::read_tensor_dict(path);
-  c.overrides = checkpoint_overrides(variant, c.dict, path, mode);
-  c.net = load_hopnet(c.dict, path, c.overrides);  // a bad checkpoint fails here
-  if (!stats_path.empty()) {
-    const auto stats = read_stats_json(stats_path);
-    check_stats_fit(c.options(), stats, stats_path);
-    c.norm = Normalizer(stats);
-  }
-  return c;
+/// The HOPNet model of an opened checkpoint, for what only HOPNet does (`what`: the subcommand).
+inline HopnetSimulator& hopnet_model(const sim::OpenedModel& m, const std::string& what) {
+  auto* h = dynamic_cast<HopnetSimulator*>(m.simulator.get());
+  if (!h)
+    throw std::invalid_argument(m.path + ": a " + m.simulator->name() + " checkpoint; " + what +
+                                " works on HOPNet checkpoints only");
+  return *h;
 }
 
 // ---- the paper's baselines, FIGNet and MeshGraphNet (baselines.cpp) ----------------------------
-/// Whether --config names a baseline (fignet, mgn, mgn-large-radius, or a file with such a model).
-bool is_baseline_config(const std::string& config);
-/// Whether a checkpoint records a baseline model in its topos.config.
-bool is_baseline_checkpoint(const std::string& path);
-int run_baseline_info(const std::string& config, const std::string& checkpoint);
-
 struct BaselineTrainArgs {
   std::string data, out, assets, split_file, config, init, lr_schedule = "constant";
   std::int64_t max_steps = -1;
@@ -153,20 +119,6 @@ struct BaselineTrainArgs {
   bool resume = false;
 };
 int run_baseline_train(const BaselineTrainArgs& a);
-
-/// A baseline checkpoint read once; roller() makes a model of its own (one per worker) and
-/// returns the function that rolls out a scene (RolloutOptions' steps and on_step; the
-/// collision radius is the checkpoint's).
-class BaselineRunner {
- public:
-  explicit BaselineRunner(const std::string& path);
-  std::string name() const;
-  std::function<RolloutResult(const Scene&, RolloutOptions)> roller() const;
-
- private:
-  std::string path_, name_;
-  std::map<std::string, torch::Tensor> dict_;
-};
 
 /// A dataset opened for training: its train and val scenes by the reference split (or a split
 /// file); no training scene is an error.

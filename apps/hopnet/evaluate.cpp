@@ -50,42 +50,19 @@ int run_evaluate(const EvaluateArgs& a) {
   namespace fs = std::filesystem;
   const FeatureMode mode = feature_mode_from_string(a.mode);
   const torch::Device device = nn::device_from_string(a.device);
-  // Every checkpoint is read and checked once here; each worker thread below makes its own model
-  // from it: HOPNet (with --stats) or a baseline (its statistics inside the checkpoint).
-  using Roller = std::function<RolloutResult(const Scene&, RolloutOptions)>;
+  // Every checkpoint is read and checked once here (sim::open_model); each worker thread below
+  // rolls out with its own copy of each model (Simulator::clone), on --device.
   struct Model {
     std::string name, variant, checkpoint;
-    std::function<Roller()> make;
+    sim::OpenedModel opened;
   };
   std::vector<Model> models;
-  std::vector<std::unique_ptr<OpenedCheckpoint>> opened;
-  std::vector<std::unique_ptr<BaselineRunner>> runners;
   for (const auto& path : a.checkpoints) {
     Model m;
     m.checkpoint = path;
-    if (is_baseline_checkpoint(path)) {
-      runners.push_back(std::make_unique<BaselineRunner>(path));
-      const BaselineRunner* runner = runners.back().get();
-      m.name = m.variant = runner->name();
-      m.make = [runner] { return runner->roller(); };
-    } else {
-      if (a.stats.empty())
-        throw std::invalid_argument(path + " is a HOPNet checkpoint: --stats is required");
-      opened.push_back(
-          std::make_unique<OpenedCheckpoint>(open_checkpoint(path, a.stats, a.variant, mode)));
-      const OpenedCheckpoint* c = opened.back().get();
-      m.name = "hopnet";
-      m.variant = variant_name(c->options());
-      m.make = [c, device]() -> Roller {
-        auto net = c->another(device);
-        net->eval();
-        return [net, c](const Scene& scene, RolloutOptions opt) mutable {
-          const auto g = make_geometry(scene, c->options().lifting());
-          opt.collision_radius = c->options().collision_radius();
-          return rollout(*net, c->norm, scene, g, opt);
-        };
-      };
-    }
+    m.opened = open_checkpoint(path, open_options(a.variant, a.stats, mode));
+    m.name = m.opened.simulator->name();
+    m.variant = m.opened.simulator->variant();
     // Two checkpoints of one model: their variants tell them apart, then their order.
     for (const auto& other : models)
       if (other.name == m.name) m.name += " (" + m.variant + ", " + path + ")";
@@ -121,8 +98,11 @@ int run_evaluate(const EvaluateArgs& a) {
   std::string error;
   const auto work = [&] {
     try {
-      std::vector<Roller> rollers;
-      for (const auto& m : models) rollers.push_back(m.make());
+      std::vector<std::unique_ptr<sim::Simulator>> own;
+      for (const auto& m : models) {
+        own.push_back(m.opened.simulator->clone());
+        own.back()->to(device);
+      }
       MeshLibrary lib(a.assets);
       for (std::size_t i = next++; i < chosen.size() && !failed; i = next++) {
         Scene scene = make_scene(dataset.scene(chosen[i]), lib);
@@ -130,8 +110,8 @@ int run_evaluate(const EvaluateArgs& a) {
         opt.steps = static_cast<int>(std::min<std::int64_t>(a.steps, scene.num_frames - 4));
         auto& out = results[i];
         std::vector<Poses> first;
-        for (auto& roll : rollers) {
-          auto r = roll(scene, opt);
+        for (auto& model : own) {
+          auto r = sim::rollout(*model, scene, opt);
           out.models.push_back(rollout_metrics(r.poses, scene));
           out.seconds += r.seconds;
           if (first.empty()) first = std::move(r.poses);

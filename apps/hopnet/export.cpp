@@ -14,7 +14,10 @@ struct ExportArgs {
 int run_export(const ExportArgs& a) {
   if (a.names != "reference" && a.names != "topos")
     throw std::invalid_argument("unknown --names '" + a.names + "' (reference, topos)");
-  auto model = load_hopnet(a.checkpoint);
+  sim::OpenOptions how;
+  how.require_statistics = false;  // --stats, when given, is exported as it is
+  const auto checkpoint = open_checkpoint(a.checkpoint, how);
+  auto model = hopnet_model(checkpoint, "export").net();
   c10::Dict<std::string, torch::Tensor> state;
   for (const auto& p : model->named_parameters())
     state.insert(a.names == "reference"

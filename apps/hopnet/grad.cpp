@@ -17,20 +17,21 @@ struct GradArgs {
 int run_grad(const GradArgs& a) {
   namespace fs = std::filesystem;
   const FeatureMode mode = feature_mode_from_string(a.mode);
-  const auto opened = open_checkpoint(a.checkpoint, a.stats, a.variant, mode);
-  auto model = opened.net;
+  const auto opened = open_checkpoint(a.checkpoint, open_options(a.variant, a.stats, mode));
+  const auto& hop = hopnet_model(opened, "grad");
+  auto model = hop.net();
   model->train();
-  const Normalizer& norm = opened.norm;
+  const Normalizer& norm = *hop.normalizer();
   MeshLibrary lib(a.assets);
   const auto kubric = data::read_kubric_metadata(a.scene);
   const Scene scene = make_scene(kubric, lib);
-  const auto g = make_geometry(scene, opened.options().lifting());
+  const auto g = make_geometry(scene, model->options.lifting());
   std::optional<ContactsByFrame> given;
   const auto coll = a.collisions.empty() && mode == FeatureMode::reference && !a.no_collisions_json
                         ? collisions_beside(kubric)
                         : a.collisions;
   if (!coll.empty()) given = read_collisions_json(coll);
-  const auto tf = trajectory_frames(scene, g, opened.options().collision_radius(), 0.0, 2, -1,
+  const auto tf = trajectory_frames(scene, g, model->options.collision_radius(), 0.0, 2, -1,
                                     given ? &*given : nullptr);
   const auto chunk = a.chunk > 0 ? a.chunk
                                  : auto_chunk(g, tf, model->options.hidden(),

@@ -1,5 +1,5 @@
-// hopnet info: a checkpoint's or a configuration's variant, parameter count and schedule (for
-// the baselines also the parameters per module).
+// hopnet info: a checkpoint's or a configuration's variant, parameter count and schedule
+// (Simulator::describe; for the baselines also the parameters per module).
 #include "commands.hpp"
 
 namespace hopnet_cli {
@@ -14,32 +14,17 @@ int run_info(const InfoArgs& a) {
   if (a.checkpoint.empty() == a.variant.config.empty())
     throw std::invalid_argument(
         "info: give either --checkpoint FILE or --config PRESET[,PRESET...]");
-  if (a.checkpoint.empty() ? is_baseline_config(a.variant.config)
-                           : is_baseline_checkpoint(a.checkpoint))
-    return run_baseline_info(a.variant.config, a.checkpoint);
-  Hopnet model(nullptr);
+  auto o = open_options(a.variant, "", std::nullopt);
+  o.require_statistics = false;
+  std::unique_ptr<sim::Simulator> model;
   if (!a.checkpoint.empty()) {
-    const auto dict = nn::read_tensor_dict(a.checkpoint);
-    model = load_hopnet(dict, a.checkpoint,
-                        checkpoint_overrides(a.variant, dict, a.checkpoint, std::nullopt));
-    std::cout << "checkpoint: " << a.checkpoint << "\n";
-    if (const auto arch = reference_architecture(dict))
-      std::cout << "format: reference (HOPNet authors' state dict, class " << reference_class(*arch)
-                << ", " << dict.size() << " tensors)\n"
-                << "variant: " << variant_name(model->options) << " (recognised from the '_"
-                << reference_class(*arch)
-                << "__' tensor names and shapes; the activation is not recorded)\n";
-    else
-      std::cout << "format: topos\n"
-                << "variant: " << variant_name(model->options) << "\n";
+    auto opened = open_checkpoint(a.checkpoint, o);
+    std::cout << "checkpoint: " << a.checkpoint << "\nformat: " << opened.format << "\n";
+    model = std::move(opened.simulator);
   } else {
-    model = Hopnet(variant_options(a.variant));
-    std::cout << "variant: " << variant_name(model->options) << "\n";
+    model = sim::make_model(a.variant.config, o);
   }
-  std::cout << "configuration: " << model->options.to_json().dump() << "\n"
-            << "parameters: " << model->num_parameters() << "\n"
-            << "schedule:\n"
-            << model->schedule().str();
+  model->describe(std::cout);
   return 0;
 }
 

@@ -13,7 +13,7 @@
 
 #include "topos/data/dataset.hpp"
 #include "topos/io/atomic_file.hpp"
-#include "topos/models/hopnet/rollout.hpp"
+#include "topos/sim/rollout.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -263,8 +263,8 @@ inline std::string infer_movi_kind(const std::vector<topos::data::KubricScene>& 
 struct SceneResult {
   std::int64_t seed = 0;
   int objects = 0;
-  std::vector<topos::hopnet::RolloutMetrics> models;  ///< per model (model_names' order)
-  topos::hopnet::RolloutMetrics baseline;             ///< constant velocity
+  std::vector<topos::sim::RolloutMetrics> models;  ///< per model (model_names' order)
+  topos::sim::RolloutMetrics baseline;             ///< constant velocity
   int viewer_index = -1;  ///< its place in viewer.html, -1 when not shown there
 };
 
@@ -305,7 +305,7 @@ inline FrameStats frame_stats(const std::vector<const std::vector<double>*>& cur
 }
 
 inline nlohmann::json evaluation_json(const EvaluationReport& r) {
-  using RM = topos::hopnet::RolloutMetrics;
+  using RM = topos::sim::RolloutMetrics;
   nlohmann::json models = nlohmann::json::object();
   std::vector<std::pair<std::string, std::function<const RM&(const SceneResult&)>>> picks;
   for (std::size_t k = 0; k < r.model_names.size(); ++k)

@@ -14,24 +14,23 @@ struct RolloutArgs {
   VariantArgs variant;
 };
 
-// HOPNet's rollout of the scene (a baseline's is BaselineRunner's).
-RolloutResult hopnet_rollout(const RolloutArgs& a, const Scene& scene,
-                             const data::KubricScene& kubric, std::string& variant) {
+int run_rollout(const RolloutArgs& a) {
   const FeatureMode mode = feature_mode_from_string(a.mode);
-  const torch::Device device = nn::device_from_string(a.device);
-  if (a.stats.empty())
-    throw std::invalid_argument(a.checkpoint + " is a HOPNet checkpoint: --stats is required");
-  const auto opened = open_checkpoint(a.checkpoint, a.stats, a.variant, mode);
-  auto net = opened.net;
-  net->eval();
-  net->to(device);
-  variant = variant_name(net->options);
-  const auto geometry = make_geometry(scene, net->options.lifting());
+  if (!a.viewer.empty()) hopnet_web::require_js_libraries();
+  MeshLibrary lib(a.assets);
+  const auto kubric = data::read_kubric_metadata(a.scene);
+  const Scene scene = make_scene(kubric, lib);
+  if (scene.num_frames < a.steps + 4)
+    std::cerr << "note: the scene has " << scene.num_frames << " frames; metrics cover the first "
+              << scene.num_frames << "\n";
+  const auto opened = open_checkpoint(a.checkpoint, open_options(a.variant, a.stats, mode));
+  sim::Simulator& model = *opened.simulator;
+  model.to(nn::device_from_string(a.device));
+  const std::string variant = model.variant();
   RolloutOptions opt;
   opt.steps = a.steps;
-  opt.collision_radius = net->options.collision_radius();
   // Reference mode takes the first step's contacts from collisions.json beside the scene, as the
-  // reference does.
+  // reference does (a model that detects no contacts ignores them).
   const std::string coll =
       a.collisions.empty() && mode == FeatureMode::reference && !a.no_collisions_json
           ? collisions_beside(kubric)
@@ -44,33 +43,8 @@ RolloutResult hopnet_rollout(const RolloutArgs& a, const Scene& scene,
   }
   ProgressBar bar("rollout", opt.steps, "steps");
   opt.on_step = [&](int, int) { bar.update(); };
-  auto r = rollout(*net, opened.norm, scene, geometry, opt);
+  const RolloutResult r = sim::rollout(model, scene, opt);
   bar.finish();
-  return r;
-}
-
-int run_rollout(const RolloutArgs& a) {
-  const FeatureMode mode = feature_mode_from_string(a.mode);
-  if (!a.viewer.empty()) hopnet_web::require_js_libraries();
-  MeshLibrary lib(a.assets);
-  const auto kubric = data::read_kubric_metadata(a.scene);
-  const Scene scene = make_scene(kubric, lib);
-  if (scene.num_frames < a.steps + 4)
-    std::cerr << "note: the scene has " << scene.num_frames << " frames; metrics cover the first "
-              << scene.num_frames << "\n";
-  std::string variant;
-  const RolloutResult r = [&] {
-    if (!is_baseline_checkpoint(a.checkpoint)) return hopnet_rollout(a, scene, kubric, variant);
-    const BaselineRunner runner(a.checkpoint);
-    variant = runner.name();
-    RolloutOptions opt;
-    opt.steps = a.steps;
-    ProgressBar bar("rollout", opt.steps, "steps");
-    opt.on_step = [&](int, int) { bar.update(); };
-    auto r = runner.roller()(scene, opt);
-    bar.finish();
-    return r;
-  }();
   const auto m = rollout_metrics(r.poses, scene);
   nlohmann::json j;
   j["scene"] = kubric.source;
@@ -103,9 +77,8 @@ int run_rollout(const RolloutArgs& a) {
   if (!a.viewer.empty())
     hopnet_viewer::write_viewer_html(
         a.viewer,
-        (variant.rfind("fignet", 0) == 0 || variant.rfind("mgn", 0) == 0 ? variant
-                                                                         : std::string("HOPNet")) +
-            " rollout (" + std::string(to_string(mode)) + " mode): " + kubric.source,
+        (model.name() == "hopnet" ? std::string("HOPNet") : model.name()) + " rollout (" +
+            std::string(to_string(mode)) + " mode): " + kubric.source,
         {{kubric.source, &scene, r.poses, {{"prediction", m.pos_rmse}}}});
   std::printf("rollout: %s, %d steps in %.3f s (%.2f ms/step), mode %s\n", variant.c_str(), a.steps,
               r.seconds, 1e3 * r.seconds / a.steps, to_string(mode));

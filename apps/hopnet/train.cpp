@@ -80,7 +80,8 @@ std::vector<LoadedScene> load_scenes(const data::Dataset& dataset,
 
 int run_train(const TrainArgs& a) {
   namespace fs = std::filesystem;
-  if (is_baseline_config(a.variant.config)) {
+  // Each model family trains with its own loop: HOPNet's below, the baselines' in baselines.cpp.
+  if (!a.variant.config.empty() && config_model(a.variant.config) != "hopnet") {
     if (a.nproc > 1 || a.hidden > 0 || a.mlp_layers > 0 || a.num_layers > 0 || a.chunk > 0 ||
         !a.stats.empty() || !a.variant.activation.empty() || a.variant.collision_radius > 0)
       throw std::invalid_argument(

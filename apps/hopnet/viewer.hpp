@@ -29,9 +29,9 @@ struct ErrorCurve {
 
 struct ViewerScene {
   std::string name;
-  const topos::hopnet::Scene* scene = nullptr;
-  std::vector<topos::hopnet::Poses> predicted;  ///< rollout poses, frame 0 onwards
-  std::vector<ErrorCurve> errors;               ///< the first is the prediction's position RMSE
+  const topos::sim::Scene* scene = nullptr;
+  std::vector<topos::sim::Poses> predicted;  ///< rollout poses, frame 0 onwards
+  std::vector<ErrorCurve> errors;            ///< the first is the prediction's position RMSE
 };
 
 inline nlohmann::json viewer_scene_json(const ViewerScene& v) {

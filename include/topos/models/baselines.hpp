@@ -5,17 +5,21 @@
 // naming both), and the rollout that turns predicted node accelerations into rigid poses: the
 // vertices integrated (x_{t+1} = a + 2x_t - x_{t-1}) and each moving object fitted by HOPNet's
 // shape matching, so every model is scored through the same pose update and metrics. Frames 0..3
-// are ground truth, as for HOPNet (models/hopnet/rollout.hpp).
+// are ground truth, as for HOPNet (the shared loop: topos/sim/rollout.hpp).
 #pragma once
 
 #include "topos/models/fignet/features.hpp"
 #include "topos/models/fignet/model.hpp"
-#include "topos/models/hopnet/rollout.hpp"
 #include "topos/models/hopnet/variants.hpp"
 #include "topos/models/mgn/features.hpp"
 #include "topos/models/mgn/model.hpp"
 #include "topos/nn/serialization.hpp"
+#include "topos/sim/simulator.hpp"
 
+#include <cstdio>
+#include <map>
+#include <memory>
+#include <optional>
 #include <variant>
 
 namespace topos::baselines {
@@ -71,15 +75,15 @@ inline BaselineConfig parse_baseline_config(const std::string& text) {
 /// A scene's static graph data for one baseline, and its timesteps' graphs.
 class SceneGraphs {
  public:
-  SceneGraphs(const BaselineConfig& config, const hopnet::Scene& scene) : config_(config) {
+  SceneGraphs(const BaselineConfig& config, const sim::Scene& scene) : config_(config) {
     if (config.is_fignet())
       geometry_ = fignet::make_fignet_geometry(scene);
     else
       geometry_ = mgn::make_mgn_geometry(scene);
   }
   /// The graph of the step from poses at t-2, t-1, t (`next`: t+1, for a training target).
-  gns::GraphFrame frame(const hopnet::Poses& p2, const hopnet::Poses& p1, const hopnet::Poses& pt,
-                        const hopnet::Poses* next = nullptr) const {
+  gns::GraphFrame frame(const sim::Poses& p2, const sim::Poses& p1, const sim::Poses& pt,
+                        const sim::Poses* next = nullptr) const {
     if (config_.is_fignet()) {
       fignet::FignetFeatureOptions o;
       o.collision_radius = config_.fignet().collision_radius;
@@ -91,15 +95,15 @@ class SceneGraphs {
     return mgn::mgn_frame(std::get<mgn::MgnGeometry>(geometry_), p2, p1, pt, next, o);
   }
   /// The graph of frame t's step in a ground-truth scene (t >= 2; with its target when t+1 exists).
-  gns::GraphFrame frame(const hopnet::Scene& scene, std::int64_t t) const {
+  gns::GraphFrame frame(const sim::Scene& scene, std::int64_t t) const {
     const auto next = t + 1 < scene.num_frames
-                          ? std::optional<hopnet::Poses>(hopnet::scene_poses(scene, t + 1))
+                          ? std::optional<sim::Poses>(sim::scene_poses(scene, t + 1))
                           : std::nullopt;
-    return frame(hopnet::scene_poses(scene, t - 2), hopnet::scene_poses(scene, t - 1),
-                 hopnet::scene_poses(scene, t), next ? &*next : nullptr);
+    return frame(sim::scene_poses(scene, t - 2), sim::scene_poses(scene, t - 1),
+                 sim::scene_poses(scene, t), next ? &*next : nullptr);
   }
-  const fignet::SceneMeshes& meshes() const {
-    return std::visit([](const auto& g) -> const fignet::SceneMeshes& { return g; }, geometry_);
+  const sim::SceneMeshes& meshes() const {
+    return std::visit([](const auto& g) -> const sim::SceneMeshes& { return g; }, geometry_);
   }
 
  private:
@@ -200,9 +204,8 @@ inline LoadedBaseline load_baseline(const std::map<std::string, torch::Tensor>& 
 }
 
 /// One step: the poses at t+1 predicted from poses at t-2, t-1, t.
-inline hopnet::Poses predict_next(Baseline& b, const gns::Statistics& stats,
-                                  const SceneGraphs& graphs, const hopnet::Poses& p2,
-                                  const hopnet::Poses& p1, const hopnet::Poses& pt) {
+inline sim::Poses predict_next(Baseline& b, const gns::Statistics& stats, const SceneGraphs& graphs,
+                               const sim::Poses& p2, const sim::Poses& p1, const sim::Poses& pt) {
   const auto frame = graphs.frame(p2, p1, pt);
   const auto batch = gns::collate(b.net->spec(), {&frame}, stats);
   torch::NoGradGuard no_grad;
@@ -211,19 +214,18 @@ inline hopnet::Poses predict_next(Baseline& b, const gns::Statistics& stats,
   const auto& mean = stats.mean.at("acceleration");
   const auto& sd = stats.std.at("acceleration");
   const auto* a = out.data_ptr<double>();
-  const auto now = fignet::detail::pose_meshes(g, pt, "pose at t"),
-             before = fignet::detail::pose_meshes(g, p1, "pose at t-1");
-  hopnet::Poses next = pt;
+  const auto now = sim::pose_meshes(g, pt, "pose at t"),
+             before = sim::pose_meshes(g, p1, "pose at t-1");
+  sim::Poses next = pt;
   for (std::int64_t o = 0; o < g.num_objects(); ++o) {
     if (g.is_static(o)) continue;
     const auto& obj = g.objects[static_cast<std::size_t>(o)];
     const auto k = static_cast<std::size_t>(o);
-    Vertices x = 2.0 * now[k].vertices - before[k].vertices;
-    for (Eigen::Index v = 0; v < x.rows(); ++v)
-      for (int c = 0; c < 3; ++c)
-        x(v, c) += a[3 * (g.node_offset[k] + v) + c] * sd[static_cast<std::size_t>(c)] +
-                   mean[static_cast<std::size_t>(c)];
-    const RigidPose r = shape_match(obj.mesh.vertices, obj.center_of_mass, x, obj.mesh.faces);
+    const RigidPose r =
+        sim::integrate_object(obj, now[k].vertices, before[k].vertices, [&](Eigen::Index v, int c) {
+          return a[3 * (g.node_offset[k] + v) + c] * sd[static_cast<std::size_t>(c)] +
+                 mean[static_cast<std::size_t>(c)];
+        });
     next.positions.row(o) = r.position.transpose();
     next.quaternions.row(o) = r.wxyz.transpose();
   }
@@ -231,12 +233,98 @@ inline hopnet::Poses predict_next(Baseline& b, const gns::Statistics& stats,
 }
 
 /// Rolls out from GT frames 0..3 of `scene` for opt.steps frames (HOPNet's loop and result).
-inline hopnet::RolloutResult rollout(Baseline& b, const gns::Statistics& stats,
-                                     const hopnet::Scene& scene, const SceneGraphs& graphs,
-                                     const hopnet::RolloutOptions& opt = {}) {
-  return hopnet::rollout_loop(scene, opt, [&](std::size_t t, hopnet::RolloutResult& r) {
+inline sim::RolloutResult rollout(Baseline& b, const gns::Statistics& stats,
+                                  const sim::Scene& scene, const SceneGraphs& graphs,
+                                  const sim::RolloutOptions& opt = {}) {
+  return sim::rollout_loop(scene, opt, [&](std::size_t t, sim::RolloutResult& r) {
     return predict_next(b, stats, graphs, r.poses[t - 2], r.poses[t - 1], r.poses[t]);
   });
 }
+
+/// A baseline (FIGNet or MeshGraphNet) as a sim::Simulator: the network and its statistics;
+/// reset() builds the scene's graph data (SceneGraphs), predict() is predict_next. It runs on the
+/// CPU: to() leaves it there.
+class BaselineSimulator : public sim::Simulator {
+ public:
+  using TensorDict = std::map<std::string, torch::Tensor>;
+
+  /// The baseline of a checkpoint already read (load_baseline; `source` names it in errors).
+  BaselineSimulator(std::shared_ptr<const TensorDict> dict, std::string source)
+      : dict_(std::move(dict)), source_(std::move(source)) {
+    auto loaded = load_baseline(*dict_, source_);
+    model_ = std::make_shared<Baseline>(std::move(loaded.model));
+    stats_ = std::move(loaded.stats);
+    model_->net->eval();
+  }
+  /// A fresh (untrained) baseline, without statistics: it describes itself, it cannot predict.
+  explicit BaselineSimulator(const BaselineConfig& config)
+      : source_("a new " + config.name() + " model"), model_(std::make_shared<Baseline>(config)) {
+    model_->net->eval();
+  }
+
+  std::string name() const override { return model_->config.name(); }
+  std::string variant() const override { return model_->config.name(); }
+  nlohmann::json config() const override { return model_->config.to_json(); }
+  std::int64_t num_parameters() const override { return model_->num_parameters(); }
+  /// Also the parameters per top-level module (encoders, each block's functions, decoders).
+  void describe(std::ostream& out) const override {
+    const auto named = model_->net->named_parameters();
+    out << "model: " << model_->config.model() << "\nvariant: " << variant()
+        << "\nconfiguration: " << config().dump() << "\nparameters: " << num_parameters()
+        << "\ntensors: " << named.size() << "\n";
+    std::map<std::string, std::pair<std::int64_t, int>> per;
+    std::vector<std::string> order;
+    for (const auto& p : named) {
+      std::string key = p.key().substr(p.key().find('.') + 1);
+      const auto block = key.find("gnn_stacks.");
+      if (block != std::string::npos) {
+        const auto a = key.find('.', block + 11) + 1;
+        key = "_processor.gnn_stacks.*." + key.substr(a, key.find('.', a) - a);
+      } else {
+        key = key.substr(0, key.find('.'));
+      }
+      if (!per.count(key)) order.push_back(key);
+      per[key].first += p.value().numel();
+      per[key].second += 1;
+    }
+    char line[128];
+    std::snprintf(line, sizeof line, "%-40s %12s %8s\n", "module", "parameters", "tensors");
+    out << line;
+    for (const auto& k : order) {
+      std::snprintf(line, sizeof line, "%-40s %12lld %8d\n", k.c_str(),
+                    static_cast<long long>(per[k].first), per[k].second);
+      out << line;
+    }
+    out << "schedule:\n" << model_->net->network->schedule().str();
+  }
+  void reset(const sim::Scene& scene) override { graphs_.emplace(model_->config, scene); }
+  sim::Prediction predict(const std::vector<sim::Poses>& poses,
+                          const sim::RolloutOptions&) override {
+    if (!stats_)
+      throw std::invalid_argument(source_ +
+                                  " has no normalisation statistics (an untrained model)");
+    if (!graphs_) throw std::logic_error("BaselineSimulator::predict before reset");
+    const std::size_t t = poses.size() - 1;
+    return {predict_next(*model_, *stats_, *graphs_, poses[t - 2], poses[t - 1], poses[t]), 0.0};
+  }
+  void to(torch::Device) override {}
+  std::unique_ptr<sim::Simulator> clone() const override {
+    if (dict_) return std::make_unique<BaselineSimulator>(dict_, source_);
+    auto copy = std::make_unique<BaselineSimulator>(model_->config);
+    torch::NoGradGuard no_grad;
+    auto from = model_->net->named_parameters();
+    for (auto& p : copy->model_->net->named_parameters()) p.value().copy_(from[p.key()]);
+    return copy;
+  }
+
+  const Baseline& model() const { return *model_; }
+
+ private:
+  std::shared_ptr<const TensorDict> dict_;  ///< the checkpoint as read (clone loads from it)
+  std::string source_;
+  std::shared_ptr<Baseline> model_;
+  std::optional<gns::Statistics> stats_;
+  std::optional<SceneGraphs> graphs_;  ///< the scene of the last reset
+};
 
 }  // namespace topos::baselines

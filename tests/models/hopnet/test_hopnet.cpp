@@ -6,6 +6,7 @@
 #include "support/torch_prelude.hpp"
 
 #include "support/reference.hpp"
+#include "support/scenes.hpp"
 #include "topos/data/npy.hpp"
 #include "topos/models/hopnet/training.hpp"
 #include "topos/models/hopnet/variants.hpp"
@@ -248,38 +249,6 @@ TEST_CASE("the 102-step reference rollout of MOVi-A scene 8 lands within 2% of t
 }
 
 namespace {
-// A built-in scene (no reference data): a cube resting on the floor, a sphere falling onto it.
-// With `cube_drop` > 0 the cube starts that much higher and falls onto the floor, so the first
-// timesteps have no contact.
-Scene builtin_scene(std::int64_t frames = 12, double cube_drop = 0.0) {
-  data::KubricScene k;
-  k.num_frames = frames;
-  k.source = "builtin";
-  const char* shapes[] = {"cube", "sphere"};
-  for (int i = 0; i < 2; ++i) {
-    data::KubricInstance in;
-    in.asset_id = in.shape = shapes[i];
-    in.size = 1.0;
-    in.mass = 1.0 + i;
-    in.friction = 0.5;
-    in.restitution = 0.5;
-    in.positions.resize(frames, 3);
-    in.quaternions.resize(frames, 4);
-    for (std::int64_t t = 0; t < frames; ++t) {
-      const double z = i == 0
-                           ? std::max(0.53, 0.53 + cube_drop - 0.0025 * static_cast<double>(t * t))
-                           : 2.9 - 0.5 * 1.7e-4 * static_cast<double>(t * t) *
-                                       40;  // cube (±0.5) 3 cm above the floor
-      in.positions.row(t) << 0.1 * i, 0.05 * i, z;
-      const double a = 0.01 * static_cast<double>(t) * i;
-      in.quaternions.row(t) << std::cos(a), 0, std::sin(a), 0;
-    }
-    k.instances.push_back(in);
-  }
-  MeshLibrary lib;
-  return make_scene(k, lib);
-}
-
 NormalizationStats unit_stats() {
   NormalizationStats s;
   for (const auto& [k, n] : NormalizationStats::layout())
@@ -378,7 +347,7 @@ TEST_CASE(
     "the role-mixing buffer: a face that is face0 in one contact and face1 in another feeds both "
     "halves",
     "[hopnet]") {
-  const Scene scene = builtin_scene();
+  const Scene scene = testing::cube_and_sphere();
   for (auto mode : {FeatureMode::reference, FeatureMode::native}) {
     const auto g = make_geometry(scene, mode);
     HopnetFrame f;
@@ -406,7 +375,7 @@ TEST_CASE(
     "input",
     "[hopnet]") {
   torch::manual_seed(3);
-  const Scene scene = builtin_scene();
+  const Scene scene = testing::cube_and_sphere();
   const Normalizer norm(unit_stats());
   for (auto mode : {FeatureMode::reference, FeatureMode::native}) {
     INFO(to_string(mode));
@@ -500,7 +469,7 @@ TEST_CASE("the training loss equals the reference's per-step losses on MOVi-A sc
 TEST_CASE("one batched backward over a trajectory equals the sum of per-timestep gradients",
           "[hopnet][training]") {
   torch::manual_seed(11);
-  const Scene scene = builtin_scene(12);
+  const Scene scene = testing::cube_and_sphere(12);
   const Normalizer norm(unit_stats());
   Hopnet net(HopnetOptions().hidden(16).mode(FeatureMode::native));
   const auto g = make_geometry(scene, FeatureMode::native);
@@ -536,7 +505,7 @@ TEST_CASE("chunked training steps give the unchunked gradient", "[hopnet][traini
   torch::manual_seed(5);
   // The cube falls onto the floor: the chunk of timesteps 4..7 starts without contacts and has
   // some later (its batch must keep the contact neighbourhoods' values and roles).
-  const Scene scene = builtin_scene(16, 0.2);
+  const Scene scene = testing::cube_and_sphere(16, 0.2);
   const Normalizer norm(unit_stats());
   for (const auto mode : {FeatureMode::native, FeatureMode::reference}) {
     INFO(to_string(mode));
@@ -1157,7 +1126,7 @@ TEST_CASE(
     "variants on built-in shapes: batching, rollout, training, statistics and topos checkpoints",
     "[hopnet][variants]") {
   torch::manual_seed(5);
-  const Scene scene = builtin_scene();
+  const Scene scene = testing::cube_and_sphere();
   for (const char* config :
        {"nox4", "noseq,hidden64", "no-cm-distance", "mp2", "nox4,no-cm-distance"}) {
     INFO(config);
@@ -1227,7 +1196,7 @@ TEST_CASE("on CUDA, a training step and a rollout step equal the CPU ones", "[ho
     std::exit(TOPOS_SKIP_CODE);
   }
   torch::manual_seed(11);
-  const Scene scene = builtin_scene(12);
+  const Scene scene = testing::cube_and_sphere(12);
   const Normalizer norm(unit_stats());
   const auto g = make_geometry(scene, FeatureMode::native);
   const auto item = make_training_item(g, trajectory_frames(scene, g, 0.1, 0.0), norm);

@@ -11,15 +11,15 @@
 // read as (w, x, y, z); face pairs are every exact pair within the radius, with no broad-phase
 // restriction to overlapping object boxes; intersecting pairs get one common point (d_rs = 0).
 //
-// SceneMeshes and the detail helpers are shared with MeshGraphNet (models/mgn/features.hpp),
-// whose node and mesh-edge columns are FIGNet's.
+// The mesh helpers (sim::SceneMeshes, sim::pose_meshes, ...) and the mesh-node and mesh-edge
+// columns (sim/mesh_graph.hpp) are shared with MeshGraphNet (models/mgn/features.hpp).
 #pragma once
 
 #include "topos/core/mesh_lifting.hpp"
 #include "topos/geometry/contacts.hpp"
 #include "topos/models/gns/graph.hpp"
-#include "topos/models/hopnet/features.hpp"
-#include "topos/models/hopnet/scene.hpp"
+#include "topos/models/hopnet/scene.hpp"  // the deprecated hopnet:: names of the scene
+#include "topos/sim/mesh_graph.hpp"
 
 #include <algorithm>
 #include <array>
@@ -34,21 +34,11 @@ using gns::GraphFrame;
 using gns::RowMatrix;
 
 /// Feature widths: nodes (both sets) 12, mesh-object and mesh-mesh edges 8, face-face 34.
-inline constexpr int kNodeWidth = 12, kEdgeWidth = 8, kFaceEdgeWidth = 34;
+inline constexpr int kNodeWidth = sim::kMeshNodeWidth, kEdgeWidth = sim::kMeshEdgeWidth,
+                     kFaceEdgeWidth = 34;
 
-/// A scene's objects with their global mesh-node numbering: what a graph of mesh nodes needs
-/// that does not change over a trajectory. The floor (is_floor) is the one static object.
-struct SceneMeshes {
-  std::vector<hopnet::SceneObject> objects;  ///< scene order: canonical mesh X, centre of mass
-  std::vector<std::int64_t> node_offset;     ///< O+1: object o owns nodes [off[o], off[o+1])
-  std::vector<std::int64_t> node_object;     ///< object of each mesh node
-  std::vector<std::array<std::int64_t, 2>> edges;  ///< unique mesh edges, global ids, first seen
-  std::int64_t floor = -1;                         ///< the floor object, -1 when there is none
-
-  std::int64_t num_nodes() const { return node_offset.back(); }
-  std::int64_t num_objects() const { return static_cast<std::int64_t>(objects.size()); }
-  bool is_static(std::int64_t o) const { return objects[static_cast<std::size_t>(o)].is_floor; }
-};
+/// Deprecated alias: the mesh numbering moved to topos/sim/meshes.hpp; write sim::SceneMeshes.
+using SceneMeshes = sim::SceneMeshes;
 
 struct FignetGeometry : SceneMeshes {};
 
@@ -73,150 +63,18 @@ inline TriangleMesh floor_box_mesh() {
 
 namespace detail {
 
-/// Validates the objects' meshes and fills the node numbering and unique edges of `g.objects`.
-inline void index_meshes(SceneMeshes& g, const std::string& who) {
-  std::vector<TriangleMesh> meshes;
-  for (std::size_t o = 0; o < g.objects.size(); ++o) {
-    const auto& obj = g.objects[o];
-    const std::string name = "object " + std::to_string(o) + " ('" + obj.shape + "')";
-    if (obj.mesh.faces.rows() == 0)
-      throw std::invalid_argument(who + ": " + name + " has no faces");
-    try {
-      obj.mesh.validate();
-    } catch (const MeshError& e) {
-      throw std::invalid_argument(who + ": " + name + ": " + e.what());
-    }
-    if (!obj.center_of_mass.allFinite())
-      throw std::invalid_argument(who + ": " + name + " has a non-finite centre of mass");
-    if (obj.is_floor) {
-      if (g.floor >= 0) throw std::invalid_argument(who + ": more than one floor object");
-      g.floor = static_cast<std::int64_t>(o);
-    }
-    meshes.push_back(obj.mesh);
-  }
-  const auto lifted = lift_meshes(meshes, LiftOptions().with_faces(false).with_object_rank(0));
-  g.node_offset.assign(lifted.node_offset.begin(), lifted.node_offset.end());
-  g.node_object.assign(lifted.node_object.begin(), lifted.node_object.end());
-  for (const auto& e : lifted.edges) g.edges.push_back({e[0], e[1]});
-}
-
-inline void check_radius(double r, bool positive, const std::string& who) {
-  if (!std::isfinite(r) || r < 0 || (positive && r == 0))
-    throw std::invalid_argument(who + " must be " + (positive ? "positive" : "non-negative") +
-                                " and finite, got " + std::to_string(r));
-}
-
-/// World vertices of every object for one set of poses; the floor keeps its canonical vertices.
-/// Throws std::invalid_argument naming `label` (which frame) and the object for bad poses.
-inline std::vector<PosedObject> pose_meshes(const SceneMeshes& g, const hopnet::Poses& p,
-                                            const std::string& label) {
-  const auto O = static_cast<Eigen::Index>(g.objects.size());
-  if (p.positions.rows() != O || p.positions.cols() != 3 || p.quaternions.rows() != O ||
-      p.quaternions.cols() != 4)
-    throw std::invalid_argument(label + ": " + std::to_string(p.positions.rows()) + "x" +
-                                std::to_string(p.positions.cols()) + " positions and " +
-                                std::to_string(p.quaternions.rows()) + "x" +
-                                std::to_string(p.quaternions.cols()) + " quaternions for " +
-                                std::to_string(O) + " objects (expected " + std::to_string(O) +
-                                "x3 and " + std::to_string(O) + "x4)");
-  std::vector<PosedObject> out(g.objects.size());
-  for (Eigen::Index o = 0; o < O; ++o) {
-    const auto& obj = g.objects[static_cast<std::size_t>(o)];
-    const Eigen::Vector3d position = p.positions.row(o).transpose();
-    const Eigen::Vector4d q = p.quaternions.row(o).transpose();
-    if (!position.allFinite() || !q.allFinite())
-      throw std::invalid_argument(label + ": the pose of object " + std::to_string(o) +
-                                  " is not finite");
-    if (!(q.norm() > 0))
-      throw std::invalid_argument(label + ": the quaternion of object " + std::to_string(o) +
-                                  " is zero");
-    out[static_cast<std::size_t>(o)].faces = &obj.mesh.faces;
-    out[static_cast<std::size_t>(o)].vertices =
-        obj.is_floor ? obj.mesh.vertices : pose_vertices(obj.mesh.vertices, position, q);
-  }
-  return out;
-}
-
-/// The posed objects' vertices stacked in global node order (N x 3).
-inline RowMatrix stack_vertices(const SceneMeshes& g, const std::vector<PosedObject>& posed) {
-  RowMatrix x(g.num_nodes(), 3);
-  for (std::size_t o = 0; o < posed.size(); ++o)
-    x.middleRows(g.node_offset[o], posed[o].vertices.rows()) = posed[o].vertices;
-  return x;
-}
-
-/// Each object's centre of mass in the world (O x 3); the floor's stays where it is.
-inline RowMatrix centers_of_mass(const SceneMeshes& g, const hopnet::Poses& p) {
-  RowMatrix c(g.num_objects(), 3);
-  for (std::int64_t o = 0; o < g.num_objects(); ++o) {
-    const auto& obj = g.objects[static_cast<std::size_t>(o)];
-    Eigen::Vector3d x = obj.center_of_mass;
-    if (!obj.is_floor)
-      x = rotation_from_wxyz(p.quaternions.row(o).transpose()) * x + p.positions.row(o).transpose();
-    c.row(o) = x.transpose();
-  }
-  return c;
-}
-
-/// One node row: [v_{t-1}, v_t, restitution, friction x3, mass, kinematic (1 dynamic, 0 static)].
-inline void put_node(RowMatrix& m, Eigen::Index r, const Eigen::Vector3d& v_prev,
-                     const Eigen::Vector3d& v_now, const hopnet::SceneObject& obj, bool moving) {
-  m.block<1, 3>(r, 0) = v_prev.transpose();
-  m.block<1, 3>(r, 3) = v_now.transpose();
-  m(r, 6) = obj.restitution;
-  m(r, 7) = m(r, 8) = m(r, 9) = obj.friction;
-  m(r, 10) = obj.mass;
-  m(r, 11) = moving ? 1.0 : 0.0;
-}
-
-/// (v, |v|) into columns c..c+3.
-inline void put_vector(RowMatrix& m, Eigen::Index r, Eigen::Index c, const Eigen::Vector3d& v) {
-  m.block<1, 3>(r, c) = v.transpose();
-  m(r, c + 3) = v.norm();
-}
-
-/// Mesh nodes' rows: the three frames' world positions give the two velocities, oldest first.
-inline RowMatrix mesh_node_features(const SceneMeshes& g, const RowMatrix& x2, const RowMatrix& x1,
-                                    const RowMatrix& xt) {
-  RowMatrix m(g.num_nodes(), kNodeWidth);
-  for (std::int64_t n = 0; n < g.num_nodes(); ++n) {
-    const auto o = g.node_object[static_cast<std::size_t>(n)];
-    put_node(m, n, (x1.row(n) - x2.row(n)).transpose(), (xt.row(n) - x1.row(n)).transpose(),
-             g.objects[static_cast<std::size_t>(o)], !g.is_static(o));
-  }
-  return m;
-}
-
-/// Unique mesh edges in both directions (edge 2i: a -> b, 2i + 1: b -> a), features
-/// [x_s - x_r, |.|, X_s - X_r, |.|] with X the canonical (body-frame) vertices.
-inline gns::EdgeSetData mesh_edge_set(const SceneMeshes& g, const RowMatrix& xt) {
-  const auto E = static_cast<Eigen::Index>(g.edges.size());
-  gns::EdgeSetData s;
-  s.features.resize(2 * E, kEdgeWidth);
-  s.senders.resize(2 * E, 1);
-  s.receivers.resize(2 * E, 1);
-  const auto canonical = [&](std::int64_t n) -> Eigen::Vector3d {
-    const auto o = static_cast<std::size_t>(g.node_object[static_cast<std::size_t>(n)]);
-    return g.objects[o].mesh.vertices.row(n - g.node_offset[o]).transpose();
-  };
-  for (Eigen::Index e = 0; e < E; ++e) {
-    const auto [a, b] = g.edges[static_cast<std::size_t>(e)];
-    for (int dir = 0; dir < 2; ++dir) {
-      const std::int64_t snd = dir == 0 ? a : b, rcv = dir == 0 ? b : a;
-      const Eigen::Index r = 2 * e + dir;
-      put_vector(s.features, r, 0, (xt.row(snd) - xt.row(rcv)).transpose());
-      put_vector(s.features, r, 4, canonical(snd) - canonical(rcv));
-      s.senders(r, 0) = snd;
-      s.receivers(r, 0) = rcv;
-    }
-  }
-  return s;
-}
-
-/// Targets x_{t+1} - 2 x_t + x_{t-1} per mesh node (N x 3).
-inline RowMatrix accelerations(const RowMatrix& x1, const RowMatrix& xt, const RowMatrix& xn) {
-  return xn - 2.0 * xt + x1;
-}
+// Deprecated aliases: these helpers moved to topos/sim/meshes.hpp and topos/sim/mesh_graph.hpp
+// (namespace topos::sim), shared by every simulator; call them as sim::NAME.
+using sim::accelerations;
+using sim::centers_of_mass;
+using sim::check_radius;
+using sim::index_meshes;
+using sim::mesh_edge_set;
+using sim::mesh_node_features;
+using sim::pose_meshes;
+using sim::put_node;
+using sim::put_vector;
+using sim::stack_vertices;
 
 /// The unit normal of a triangle as oriented ((b - a) x (c - a)); zero when degenerate.
 inline Eigen::Vector3d unit_normal(const std::array<Eigen::Vector3d, 3>& t) {
@@ -242,7 +100,7 @@ inline std::array<int, 3> order_by_distance(const std::array<Eigen::Vector3d, 3>
 
 /// The scene's objects in scene order, the floor's quad replaced by the floor box (centre of mass
 /// (0, 0, -0.25); the scene floor's mass, friction and restitution kept).
-inline FignetGeometry make_fignet_geometry(const hopnet::Scene& scene) {
+inline FignetGeometry make_fignet_geometry(const sim::Scene& scene) {
   FignetGeometry g;
   g.objects = scene.objects;
   for (auto& obj : g.objects)
@@ -250,7 +108,7 @@ inline FignetGeometry make_fignet_geometry(const hopnet::Scene& scene) {
       obj.mesh = floor_box_mesh();
       obj.center_of_mass = Eigen::Vector3d(0, 0, -0.25);
     }
-  detail::index_meshes(g, "make_fignet_geometry");
+  sim::index_meshes(g, "make_fignet_geometry");
   return g;
 }
 
@@ -264,27 +122,26 @@ inline FignetGeometry make_fignet_geometry(const hopnet::Scene& scene) {
 /// Features [d_rs, |d_rs|, sender rows (12), receiver rows (12), n_s, n_r] with d_rs = p_r - p_s
 /// (p the closest points) and a face's rows (v - p, |v - p|) for its vertices sorted by that
 /// distance; slot k of senders/receivers is the global node of the k-th row.
-inline GraphFrame fignet_frame(const FignetGeometry& g, const hopnet::Poses& p2,
-                               const hopnet::Poses& p1, const hopnet::Poses& pt,
-                               const hopnet::Poses* next, const FignetFeatureOptions& o = {}) {
-  detail::check_radius(o.collision_radius, false, "fignet_frame: collision_radius");
-  const auto posed2 = detail::pose_meshes(g, p2, "fignet_frame: poses at t-2");
-  const auto posed1 = detail::pose_meshes(g, p1, "fignet_frame: poses at t-1");
-  const auto posedt = detail::pose_meshes(g, pt, "fignet_frame: poses at t");
-  const RowMatrix x2 = detail::stack_vertices(g, posed2), x1 = detail::stack_vertices(g, posed1),
-                  xt = detail::stack_vertices(g, posedt);
+inline GraphFrame fignet_frame(const FignetGeometry& g, const sim::Poses& p2, const sim::Poses& p1,
+                               const sim::Poses& pt, const sim::Poses* next,
+                               const FignetFeatureOptions& o = {}) {
+  sim::check_radius(o.collision_radius, false, "fignet_frame: collision_radius");
+  const auto posed2 = sim::pose_meshes(g, p2, "fignet_frame: poses at t-2");
+  const auto posed1 = sim::pose_meshes(g, p1, "fignet_frame: poses at t-1");
+  const auto posedt = sim::pose_meshes(g, pt, "fignet_frame: poses at t");
+  const RowMatrix x2 = sim::stack_vertices(g, posed2), x1 = sim::stack_vertices(g, posed1),
+                  xt = sim::stack_vertices(g, posedt);
   const std::int64_t N = g.num_nodes(), O = g.num_objects();
   GraphFrame f;
-  f.nodes["mesh"].features = detail::mesh_node_features(g, x2, x1, xt);
+  f.nodes["mesh"].features = sim::mesh_node_features(g, x2, x1, xt);
 
-  const RowMatrix c2 = detail::centers_of_mass(g, p2), c1 = detail::centers_of_mass(g, p1),
-                  ct = detail::centers_of_mass(g, pt);
+  const RowMatrix c2 = sim::centers_of_mass(g, p2), c1 = sim::centers_of_mass(g, p1),
+                  ct = sim::centers_of_mass(g, pt);
   RowMatrix& obj = f.nodes["object"].features;
   obj.resize(O, kNodeWidth);
   for (std::int64_t k = 0; k < O; ++k)
-    detail::put_node(obj, k, (c1.row(k) - c2.row(k)).transpose(),
-                     (ct.row(k) - c1.row(k)).transpose(), g.objects[static_cast<std::size_t>(k)],
-                     !g.is_static(k));
+    sim::put_node(obj, k, (c1.row(k) - c2.row(k)).transpose(), (ct.row(k) - c1.row(k)).transpose(),
+                  g.objects[static_cast<std::size_t>(k)], !g.is_static(k));
 
   // Mesh-object edges: d = x - x_com (world), d_ref = X - X_com (body frame); om negates both.
   gns::EdgeSetData& mo = f.edges["mo"];
@@ -301,14 +158,14 @@ inline GraphFrame fignet_frame(const FignetGeometry& g, const hopnet::Poses& p2,
     const Eigen::Vector3d d_ref =
         ob.mesh.vertices.row(n - g.node_offset[static_cast<std::size_t>(k)]).transpose() -
         ob.center_of_mass;
-    detail::put_vector(mo.features, n, 0, d);
-    detail::put_vector(mo.features, n, 4, d_ref);
-    detail::put_vector(om.features, n, 0, -d);
-    detail::put_vector(om.features, n, 4, -d_ref);
+    sim::put_vector(mo.features, n, 0, d);
+    sim::put_vector(mo.features, n, 4, d_ref);
+    sim::put_vector(om.features, n, 0, -d);
+    sim::put_vector(om.features, n, 4, -d_ref);
     mo.senders(n, 0) = om.receivers(n, 0) = n;
     mo.receivers(n, 0) = om.senders(n, 0) = k;
   }
-  if (o.mesh_edges) f.edges["mm"] = detail::mesh_edge_set(g, xt);
+  if (o.mesh_edges) f.edges["mm"] = sim::mesh_edge_set(g, xt);
 
   // Face-face hyperedges, both directions of every pair.
   const auto contacts = find_contacts(posedt, o.collision_radius);
@@ -339,14 +196,14 @@ inline GraphFrame fignet_frame(const FignetGeometry& g, const hopnet::Poses& p2,
       const Side& snd = side[dir];
       const Side& rcv = side[1 - dir];
       const auto r = static_cast<Eigen::Index>(2 * c) + dir;
-      detail::put_vector(ff.features, r, 0, rcv.p - snd.p);
+      sim::put_vector(ff.features, r, 0, rcv.p - snd.p);
       const auto ks = detail::order_by_distance(snd.t, snd.p);
       const auto kr = detail::order_by_distance(rcv.t, rcv.p);
       for (int k = 0; k < 3; ++k) {
         const auto is = static_cast<std::size_t>(ks[static_cast<std::size_t>(k)]);
         const auto ir = static_cast<std::size_t>(kr[static_cast<std::size_t>(k)]);
-        detail::put_vector(ff.features, r, 4 + 4 * k, snd.t[is] - snd.p);
-        detail::put_vector(ff.features, r, 16 + 4 * k, rcv.t[ir] - rcv.p);
+        sim::put_vector(ff.features, r, 4 + 4 * k, snd.t[is] - snd.p);
+        sim::put_vector(ff.features, r, 16 + 4 * k, rcv.t[ir] - rcv.p);
         ff.senders(r, k) = snd.node[is];
         ff.receivers(r, k) = rcv.node[ir];
       }
@@ -361,8 +218,8 @@ inline GraphFrame fignet_frame(const FignetGeometry& g, const hopnet::Poses& p2,
     f.dynamic[static_cast<std::size_t>(n)] =
         !g.is_static(g.node_object[static_cast<std::size_t>(n)]);
   if (next) {
-    const auto posedn = detail::pose_meshes(g, *next, "fignet_frame: poses at t+1");
-    f.target = detail::accelerations(x1, xt, detail::stack_vertices(g, posedn));
+    const auto posedn = sim::pose_meshes(g, *next, "fignet_frame: poses at t+1");
+    f.target = sim::accelerations(x1, xt, sim::stack_vertices(g, posedn));
   }
   return f;
 }

@@ -22,10 +22,9 @@
 
 namespace topos::hopnet {
 
-/// A candidate contact: local face ids of two objects (obj0's face is "face0", role -1).
-struct ContactCandidate {
-  std::int64_t obj0, face0, obj1, face1;
-};
+/// A candidate contact: local face ids of two objects (obj0's face is "face0", role -1); the
+/// type lives in topos/sim/scene.hpp, this alias is kept for HOPNet's code and its users.
+using sim::ContactCandidate;
 
 /// Contacts at one frame: reference mode runs the reference detector; native mode the exact one.
 inline std::vector<ContactCandidate> detect_contacts(const HopnetGeometry& g,

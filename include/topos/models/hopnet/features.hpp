@@ -16,8 +16,9 @@
 //    the pair's own role.
 //
 // The pieces: lifting_options.hpp (FeatureMode, Architecture, LiftingOptions), geometry.hpp
-// (HopnetGeometry, poses), contact_cells.hpp (contact candidates and their geometry), frame.hpp
-// (build_frame, HopnetFrame) and neighborhoods.hpp (hopnet_neighborhoods).
+// (HopnetGeometry, pose_objects; the scene and its poses are sim/scene.hpp's), contact_cells.hpp
+// (contact candidates and their geometry), frame.hpp (build_frame, HopnetFrame) and
+// neighborhoods.hpp (hopnet_neighborhoods).
 #pragma once
 
 #include "topos/models/hopnet/contact_cells.hpp"

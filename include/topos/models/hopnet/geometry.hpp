@@ -1,6 +1,6 @@
 // topos/models/hopnet/geometry.hpp
 // The static part of a scene's HOPNet complex (HopnetGeometry: node, edge and face numbering,
-// make_geometry) and the objects posed at one frame (Poses, scene_poses, pose_objects).
+// make_geometry) and the objects posed at one frame as HOPNet poses them (pose_objects).
 #pragma once
 
 #include "topos/core/mesh_lifting.hpp"
@@ -34,8 +34,6 @@ inline bool frozenset_a_first(std::int64_t a, std::int64_t b) {
   }
   return ia < i;
 }
-
-using RowMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
 
 /// The static part of a scene's complex.
 struct HopnetGeometry {
@@ -125,26 +123,6 @@ inline HopnetGeometry make_geometry(const Scene& scene, const LiftingOptions& li
     }
   }
   return g;
-}
-
-/// Object poses at one frame: positions O×3, quaternions O×4 (w x y z).
-struct Poses {
-  RowMatrix positions, quaternions;
-};
-
-inline Poses scene_poses(const Scene& s, std::int64_t t) {
-  if (t < 0 || t >= s.num_frames)
-    throw std::out_of_range("scene_poses: frame " + std::to_string(t) + " outside 0.." +
-                            std::to_string(s.num_frames - 1));
-  const auto O = static_cast<Eigen::Index>(s.num_objects());
-  Poses p;
-  p.positions.resize(O, 3);
-  p.quaternions.resize(O, 4);
-  for (Eigen::Index o = 0; o < O; ++o) {
-    p.positions.row(o) = s.position(t, static_cast<std::size_t>(o)).transpose();
-    p.quaternions.row(o) = s.quaternion(t, static_cast<std::size_t>(o)).transpose();
-  }
-  return p;
 }
 
 /// World vertices of every object for one set of poses (static objects stay as they are).

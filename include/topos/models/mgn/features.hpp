@@ -11,7 +11,7 @@
 // floor would give, without 10^5 nodes.
 #pragma once
 
-#include "topos/models/fignet/features.hpp"
+#include "topos/sim/mesh_graph.hpp"
 
 #include <algorithm>
 #include <array>
@@ -27,11 +27,11 @@ using gns::GraphFrame;
 using gns::RowMatrix;
 
 /// Feature widths: nodes 12, mesh edges 8, world edges 4.
-inline constexpr int kNodeWidth = fignet::kNodeWidth, kMeshEdgeWidth = fignet::kEdgeWidth,
+inline constexpr int kNodeWidth = sim::kMeshNodeWidth, kMeshEdgeWidth = sim::kMeshEdgeWidth,
                      kWorldEdgeWidth = 4;
 
 /// The scene's objects as they are, HOPNet's floor quad included (static nodes).
-struct MgnGeometry : fignet::SceneMeshes {};
+struct MgnGeometry : sim::SceneMeshes {};
 
 struct MgnFeatureOptions {
   double world_edge_radius = 0.1;  ///< node pairs within this distance get world edges
@@ -84,10 +84,10 @@ inline std::vector<std::array<std::int64_t, 2>> radius_pairs(const RowMatrix& x,
 
 }  // namespace detail
 
-inline MgnGeometry make_mgn_geometry(const hopnet::Scene& scene) {
+inline MgnGeometry make_mgn_geometry(const sim::Scene& scene) {
   MgnGeometry g;
   g.objects = scene.objects;
-  fignet::detail::index_meshes(g, "make_mgn_geometry");
+  sim::index_meshes(g, "make_mgn_geometry");
   return g;
 }
 
@@ -98,15 +98,14 @@ inline MgnGeometry make_mgn_geometry(const hopnet::Scene& scene) {
 /// Edge sets "mesh_edges" (unique mesh edges, 2i: a -> b, 2i + 1: b -> a) and "world_edges":
 /// the node pairs ordered by (sender, receiver), then per virtual node (vertex -> virtual,
 /// virtual -> vertex). A scene without a floor object gets no virtual nodes.
-inline GraphFrame mgn_frame(const MgnGeometry& g, const hopnet::Poses& p2, const hopnet::Poses& p1,
-                            const hopnet::Poses& pt, const hopnet::Poses* next,
+inline GraphFrame mgn_frame(const MgnGeometry& g, const sim::Poses& p2, const sim::Poses& p1,
+                            const sim::Poses& pt, const sim::Poses* next,
                             const MgnFeatureOptions& o = {}) {
   const double r = o.world_edge_radius;
-  fignet::detail::check_radius(r, true, "mgn_frame: world_edge_radius");
-  namespace fd = fignet::detail;
-  const RowMatrix x2 = fd::stack_vertices(g, fd::pose_meshes(g, p2, "mgn_frame: poses at t-2")),
-                  x1 = fd::stack_vertices(g, fd::pose_meshes(g, p1, "mgn_frame: poses at t-1")),
-                  xt = fd::stack_vertices(g, fd::pose_meshes(g, pt, "mgn_frame: poses at t"));
+  sim::check_radius(r, true, "mgn_frame: world_edge_radius");
+  const RowMatrix x2 = sim::stack_vertices(g, sim::pose_meshes(g, p2, "mgn_frame: poses at t-2")),
+                  x1 = sim::stack_vertices(g, sim::pose_meshes(g, p1, "mgn_frame: poses at t-1")),
+                  xt = sim::stack_vertices(g, sim::pose_meshes(g, pt, "mgn_frame: poses at t"));
   const std::int64_t N = g.num_nodes();
 
   std::vector<std::int64_t> near_floor;  // vertex of each virtual node
@@ -124,12 +123,12 @@ inline GraphFrame mgn_frame(const MgnGeometry& g, const hopnet::Poses& p2, const
   GraphFrame f;
   RowMatrix& mesh = f.nodes["mesh"].features;
   mesh.resize(N + V, kNodeWidth);
-  mesh.topRows(N) = fd::mesh_node_features(g, x2, x1, xt);
+  mesh.topRows(N) = sim::mesh_node_features(g, x2, x1, xt);
   for (std::int64_t v = 0; v < V; ++v)
-    fd::put_node(mesh, N + v, Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(),
-                 g.objects[static_cast<std::size_t>(g.floor)], false);
+    sim::put_node(mesh, N + v, Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(),
+                  g.objects[static_cast<std::size_t>(g.floor)], false);
 
-  f.edges["mesh_edges"] = fd::mesh_edge_set(g, xt);
+  f.edges["mesh_edges"] = sim::mesh_edge_set(g, xt);
 
   std::vector<std::array<std::int64_t, 2>> world;
   for (const auto& [i, j] : detail::radius_pairs(xt, g.node_object, r)) {
@@ -148,7 +147,7 @@ inline GraphFrame mgn_frame(const MgnGeometry& g, const hopnet::Poses& p2, const
   we.receivers.resize(E, 1);
   for (Eigen::Index e = 0; e < E; ++e) {
     const auto [s, d] = world[static_cast<std::size_t>(e)];
-    fd::put_vector(we.features, e, 0, (pos.row(s) - pos.row(d)).transpose());
+    sim::put_vector(we.features, e, 0, (pos.row(s) - pos.row(d)).transpose());
     we.senders(e, 0) = s;
     we.receivers(e, 0) = d;
   }
@@ -161,9 +160,9 @@ inline GraphFrame mgn_frame(const MgnGeometry& g, const hopnet::Poses& p2, const
         !g.is_static(g.node_object[static_cast<std::size_t>(n)]);
   if (next) {
     const RowMatrix xn =
-        fd::stack_vertices(g, fd::pose_meshes(g, *next, "mgn_frame: poses at t+1"));
+        sim::stack_vertices(g, sim::pose_meshes(g, *next, "mgn_frame: poses at t+1"));
     f.target.setZero(N + V, 3);
-    f.target.topRows(N) = fd::accelerations(x1, xt, xn);
+    f.target.topRows(N) = sim::accelerations(x1, xt, xn);
   }
   return f;
 }
