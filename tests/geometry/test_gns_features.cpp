@@ -507,7 +507,7 @@ TEST_CASE("FIGNet node, object and mesh-object features on an analytic motion", 
   }
 }
 
-TEST_CASE("MGN world edges equal a brute-force search; virtual floor nodes below the radius",
+TEST_CASE("MGN world edges equal a brute-force search, with virtual floor nodes below the radius",
           "[gns][mgn]") {
   std::mt19937 rng(20240607);
   std::uniform_real_distribution<double> U(0.0, 1.0);
@@ -603,7 +603,7 @@ TEST_CASE("MGN world edges equal a brute-force search; virtual floor nodes below
   }
 }
 
-TEST_CASE("MGN node columns are FIGNet's; virtual floor nodes on a cube's bottom face",
+TEST_CASE("MGN node columns are FIGNet's, with virtual floor nodes on a cube's bottom face",
           "[gns][mgn]") {
   const Scene scene = scene_of({builtin("cube", 1.0, 2.0), builtin("sphere", 0.5)});
   const auto g = mgn::make_mgn_geometry(scene);

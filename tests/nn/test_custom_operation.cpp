@@ -196,7 +196,7 @@ TEST_CASE("a user operation's hand-written backward gives autograd's gradients",
   CHECK(grads[1].abs().item<double>() > 0);
 }
 
-TEST_CASE("forward runs only the steps an output needs; run_layer runs a named layer whole",
+TEST_CASE("forward runs only the steps an output needs, and run_layer runs a named layer whole",
           "[nn][schedule]") {
   Count live, dead, query;
   OperatorSchedule s;

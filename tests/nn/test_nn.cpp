@@ -917,8 +917,8 @@ TEST_CASE(
 }
 
 TEST_CASE(
-    "pickles Python writes (OrderedDict, SETITEM) reach the dict checks; a malformed OrderedDict "
-    "is an error",
+    "pickles Python writes (OrderedDict, SETITEM) reach the dict checks, and a malformed "
+    "OrderedDict is an error",
     "[nn][serialization]") {
   // A torch file around a hand-written pickle (protocol 2).
   const auto torch_file = [](const std::string& pickle) {

@@ -77,7 +77,7 @@ TEST_CASE("an operator schedule computes its terms, mix and tail as written", "[
   CHECK_THAT(s.str(), Contains("mix: (0) = "));
 }
 
-TEST_CASE("a parallel group reads one snapshot; a path used twice is one parameter",
+TEST_CASE("a parallel group reads one snapshot, and a path used twice is one parameter",
           "[nn][schedule]") {
   const auto A = random_operator(4, 4, 5);
   torch::manual_seed(6);
@@ -597,8 +597,9 @@ TEST_CASE("SCA-CMPS's IntraAggregate weights each cell by its agreement with the
   CHECK_THAT(s.str(), Contains("intra(A·(1))"));
 }
 
-TEST_CASE("HMC's attention: offsets read the vector cyclically; mirrored rows swap a row's weights",
-          "[nn][schedule][attention]") {
+TEST_CASE(
+    "HMC's attention: offsets read the vector cyclically, and mirrored rows swap a row's weights",
+    "[nn][schedule][attention]") {
   const auto A = random_operator(5, 7, 31);  // cells of rank 1 (7) -> rank 0 (5)
   torch::manual_seed(32);
   const auto k = torch::randn({7, 3}, torch::kDouble), q = torch::randn({5, 2}, torch::kDouble);

@@ -856,8 +856,8 @@ TEST_CASE("LibTorch's Adam fed the reference's gradients reproduces its three st
 // ---- the HOPNet family (docs/hopnet.md) ----------------------------------------------------
 
 TEST_CASE(
-    "HOPNet variants: presets compose into the reference's parameter counts; bad configurations "
-    "are errors",
+    "HOPNet variants: presets compose into the reference's parameter counts, and bad "
+    "configurations are errors",
     "[hopnet][variants]") {
   // Counts of the reference classes' constructions (docs/hopnet.md, the HOPNet family).
   for (const auto& [config, want] :
@@ -1075,8 +1075,8 @@ TEST_CASE(
 }
 
 TEST_CASE(
-    "the published variant checkpoints are recognised from their keys; a dict of no variant is an "
-    "error",
+    "the published variant checkpoints are recognised from their keys, and a dict of no variant is "
+    "an error",
     "[hopnet][variants][reference]") {
   Golden G("hopnet variant checkpoints");
   const auto ckpt = [&](const char* f) { return (G.ref / "data" / "checkpoints" / f).string(); };
