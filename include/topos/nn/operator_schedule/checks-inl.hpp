@@ -8,6 +8,7 @@
 
 #include "topos/nn/operator_schedule/network.hpp"
 #include "topos/nn/operator_schedule/parameters-inl.hpp"  // detail::shape_str
+#include "topos/nn/operator_schedule/printer-inl.hpp"     // detail::ops_str
 
 #include <algorithm>
 #include <map>
@@ -54,22 +55,49 @@ std::string quoted(const Range& r, Name name) {
   return s.empty() ? "none" : s;
 }
 
-/// A LibTorch error raised while a step ran, rethrown with the step and the shapes it reads.
-[[noreturn]] TOPOS_INLINE void rethrow_in_step(const OperatorStep& s, const Cochains& h,
-                                               const c10::Error& e) {
-  std::string what = e.what_without_backtrace();
-  what = what.substr(0, what.find('\n'));
+/// A term as errors name it: "the term conv·A·(1)".
+inline std::string term_str(const ops::Term& t) {
+  return "the term " + ops_str(t.source.str(), t.operations());
+}
+
+/// The cochains a step reads, with their shapes: what a LibTorch error outside any one term
+/// (a compact step's rows, the guard) is described by.
+struct StepReads {
+  const OperatorStep& s;
+  const Cochains& h;
+};
+
+inline std::string describe(const char* what) {
+  return what;
+}
+inline std::string describe(const ops::Term* term) {
+  return term_str(*term);
+}
+inline std::string describe(const StepReads& r) {
   std::string reads;
-  for (const auto& term : s.terms) {
-    if (!h.has(term.source.rank, term.source.state)) continue;
+  for (const auto& term : r.s.terms) {
+    if (!r.h.has(term.source.rank, term.source.state)) continue;
     const auto piece =
-        term.source.str() + " " + shape_str(h.at(term.source.rank, term.source.state));
+        term.source.str() + " " + shape_str(r.h.at(term.source.rank, term.source.state));
     if (reads.find(piece) == std::string::npos) reads += (reads.empty() ? "" : ", ") + piece;
   }
-  throw ScheduleError(s.name + " (into " + s.target.str() + "): " + what + " (the step reads " +
-                      reads +
-                      "; each operator it applies needs its target rank's cells as rows and its "
-                      "source rank's as columns, each weight the channels it is given)");
+  return "the step, reading " + reads +
+         " (each operator it applies needs its target rank's cells as rows and its source "
+         "rank's as columns, each weight the channels it is given)";
+}
+
+/// `f()`, a LibTorch error in it (the first line of its message, without the stack) rethrown as
+/// a ScheduleError naming the step (`where`) and `what` (a term, the mix, the step: describe),
+/// described only then.
+template <class What, class F>
+auto naming(const std::string& where, const What& what, F&& f) -> decltype(f()) {
+  try {
+    return f();
+  } catch (const c10::Error& e) {
+    std::string message = e.what_without_backtrace();
+    message = message.substr(0, message.find('\n'));
+    throw ScheduleError(where + ": " + describe(what) + ": " + message);
+  }
 }
 
 }  // namespace detail
