@@ -327,6 +327,7 @@ TOPOS_INLINE std::pair<std::int64_t, std::int64_t> OperatorNetworkImpl::infer_te
       throw ScheduleError(where + ": source " + term.source.str() +
                           " has no cochain (no input or earlier step produces it)");
     TermShape x{term.source.rank, *w};
+    term_width_[&term] = *w;
     std::int64_t fanned = 1;
     const auto& list = term.operations();
     for (std::size_t i = 0; i < list.size(); ++i) {
@@ -336,7 +337,7 @@ TOPOS_INLINE std::pair<std::int64_t, std::int64_t> OperatorNetworkImpl::infer_te
         fanned = 1;
         for (const auto& f : list[i].filters) fanned += f.second;
       }
-      x = infer(ctx, list[i], x);
+      x = shapes_[&list[i]] = infer(ctx, list[i], x);
     }
     if (x.rank != s.target.rank)
       throw ScheduleError(where + ": the term from " + term.source.str() + " ends on rank " +
@@ -363,6 +364,7 @@ TOPOS_INLINE std::int64_t OperatorNetworkImpl::infer_step(detail::NetworkBuildCo
   if (s.terms.empty()) throw ScheduleError(where + ": a step needs at least one term");
   check_optional_uses(where, s);
   const auto [channels, count] = infer_terms(ctx, s);
+  mix_width_[&s] = channels;
   TermShape y{s.target.rank, channels};
   if (s.mix == OperatorStep::Mix::filter) {
     make_parameter(where, s.filter_path, {channels, s.filter_out, count},
@@ -374,7 +376,7 @@ TOPOS_INLINE std::int64_t OperatorNetworkImpl::infer_step(detail::NetworkBuildCo
   for (const auto& t : s.operations()) {
     if (t.kind == TermOp::Kind::powers)
       throw ScheduleError(where + ": powers apply to terms, not to a step");
-    y = infer(ctx, t, y);
+    y = shapes_[&t] = infer(ctx, t, y);
   }
   if (y.rank != s.target.rank)
     throw ScheduleError(where + ": the step's operations end on rank " + std::to_string(y.rank) +

@@ -178,6 +178,15 @@ class OperatorNetworkImpl : public torch::nn::Module {
                                  const std::map<std::string, SparseOperator>& operators,
                                  const std::vector<std::string>& names);
 
+  /// What forward(inputs, operators) will run, step by step: each live step's terms (a term
+  /// that applies an optional operator left out is skipped) and operations, each with its FLOPs
+  /// on this complex: a product by a sparse operator (via, attention's messages, each power of a
+  /// polynomial filter) 2·nnz·width, a dense product (weight, linear, each Linear of an mlp, a
+  /// filter's taps) 2·rows·in·out; other operations are listed without. The plain order (with
+  /// the fast paths off: reorder_products may run a product on the other side).
+  std::string plan_str(const std::map<std::string, torch::Tensor>& inputs,
+                       const std::map<std::string, SparseOperator>& operators) const;
+
   const OperatorSchedule& schedule() const { return schedule_; }
   /// The parameter (or buffer) at a schedule path.
   const torch::Tensor& parameter(const std::string& path) const;
@@ -205,6 +214,11 @@ class OperatorNetworkImpl : public torch::nn::Module {
   // Each Operation of the schedule, by its place: the rank it is applied to and the (rank,
   // channels) its infer returned, against which its forward's result is checked.
   std::map<const TermOp*, std::pair<int, TermShape>> inferred_;
+  // For plan_str: each operation's result, each term's source width, each step's mixed width.
+  std::map<const TermOp*, TermShape> shapes_;
+  std::map<const ops::Term*, std::int64_t> term_width_;
+  std::map<const OperatorStep*, std::int64_t> mix_width_;
+  std::int64_t dense_flops(const std::string& mlp_path, std::int64_t rows) const;
   FastPaths fast_;
 
   friend class detail::NetworkBuildContext;
@@ -289,5 +303,6 @@ TORCH_MODULE(OperatorNetwork);
 #ifdef TOPOS_HEADER_ONLY
 #include "topos/nn/operator_schedule/build-inl.hpp"
 #include "topos/nn/operator_schedule/checks-inl.hpp"
+#include "topos/nn/operator_schedule/cost-inl.hpp"
 #include "topos/nn/operator_schedule/interpreter-inl.hpp"
 #endif
