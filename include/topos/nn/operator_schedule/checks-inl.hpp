@@ -105,6 +105,14 @@ auto naming(const std::string& where, const What& what, F&& f) -> decltype(f()) 
 TOPOS_INLINE void OperatorNetworkImpl::check_arguments(
     const std::map<std::string, torch::Tensor>& inputs,
     const std::map<std::string, SparseOperator>& operators, const ComplexBatch* batch) const {
+  check_names(inputs, operators, batch);
+  check_dtypes(inputs, operators);
+  check_cells(inputs, operators, batch);
+}
+
+TOPOS_INLINE void OperatorNetworkImpl::check_names(
+    const std::map<std::string, torch::Tensor>& inputs,
+    const std::map<std::string, SparseOperator>& operators, const ComplexBatch* batch) const {
   const auto& ports = schedule_.inputs();
   const auto& declared = schedule_.operators();
   // A name the schedule does not declare is ignored: an error where a declared optional operator
@@ -148,8 +156,14 @@ TOPOS_INLINE void OperatorNetworkImpl::check_arguments(
                  "with input(\"",
                  name, "\", rank, channels)");
   }
+}
 
-  // One dtype and device: the parameters' (or, without any, the first input's).
+// One dtype and device: the parameters' (or, without any, the first input's).
+TOPOS_INLINE void OperatorNetworkImpl::check_dtypes(
+    const std::map<std::string, torch::Tensor>& inputs,
+    const std::map<std::string, SparseOperator>& operators) const {
+  const auto& ports = schedule_.inputs();
+  const auto& declared = schedule_.operators();
   const torch::Tensor* reference = nullptr;
   std::string reference_name = "the network's parameters";
   for (const auto& [path, p] : params_)
@@ -196,9 +210,15 @@ TOPOS_INLINE void OperatorNetworkImpl::check_arguments(
                           ": move it with A.to(torch::Device(\"" + reference->device().str() +
                           "\"))");
   }
+}
 
-  // Each rank's cells, as the batch, the inputs' rows and the operators' rows (target rank) and
-  // columns (source rank) give them: all must agree.
+// Each rank's cells, as the batch, the inputs' rows and the operators' rows (target rank) and
+// columns (source rank) give them: all must agree.
+TOPOS_INLINE void OperatorNetworkImpl::check_cells(
+    const std::map<std::string, torch::Tensor>& inputs,
+    const std::map<std::string, SparseOperator>& operators, const ComplexBatch* batch) const {
+  const auto& ports = schedule_.inputs();
+  const auto& declared = schedule_.operators();
   struct Count {
     std::int64_t cells;
     const char* kind;  // "batch", "input", "operator rows", "operator columns"

@@ -42,6 +42,43 @@ TOPOS_INLINE std::int64_t OperatorNetworkImpl::dense_flops(const std::string& pa
   return f;
 }
 
+// One operation's line: a sparse product 2·nnz·width, a dense one 2·rows·in·out; `x`: its
+// operand's (rank, channels), `cells`: each rank's cells.
+TOPOS_INLINE detail::CostLine OperatorNetworkImpl::op_cost(
+    const TermOp& t, TermShape x, const std::map<int, std::int64_t>& cells,
+    const std::map<std::string, SparseOperator>& operators) const {
+  const auto rows = [&](int rank) { return cells.count(rank) ? cells.at(rank) : 0; };
+  const auto nnz = [&](const std::string& name) {
+    auto it = operators.find(name);
+    return it == operators.end() ? std::int64_t(0) : it->second.nnz();
+  };
+  const auto label = detail::ops_str("x", {t});
+  const auto shape = shapes_.find(&t);
+  const auto out = shape == shapes_.end() ? x : shape->second;
+  switch (t.kind) {
+    case TermOp::Kind::via:
+    case TermOp::Kind::via_transposed:
+    case TermOp::Kind::attend:
+      return {
+          label + "  sparse 2·" + std::to_string(nnz(t.name)) + "·" + std::to_string(x.channels),
+          2 * nnz(t.name) * x.channels};
+    case TermOp::Kind::weight:
+    case TermOp::Kind::linear:
+      return {label + "  dense 2·" + std::to_string(rows(x.rank)) + "·" +
+                  std::to_string(x.channels) + "·" + std::to_string(out.channels),
+              2 * rows(x.rank) * x.channels * out.channels};
+    case TermOp::Kind::mlp:
+      return {label + "  dense", dense_flops(t.name, rows(x.rank))};
+    case TermOp::Kind::powers: {
+      std::int64_t f = 0;
+      for (const auto& [name, order] : t.filters) f += 2 * order * nnz(name) * x.channels;
+      return {label + "  sparse", f};
+    }
+    default:
+      return {label, -1};
+  }
+}
+
 TOPOS_INLINE std::string OperatorNetworkImpl::plan_str(
     const std::map<std::string, torch::Tensor>& inputs,
     const std::map<std::string, SparseOperator>& operators) const {
@@ -54,38 +91,7 @@ TOPOS_INLINE std::string OperatorNetworkImpl::plan_str(
       cells[ranks.second] = it->second.rows;
     }
   const auto rows = [&](int rank) { return cells.count(rank) ? cells.at(rank) : 0; };
-  const auto nnz = [&](const std::string& name) {
-    auto it = operators.find(name);
-    return it == operators.end() ? std::int64_t(0) : it->second.nnz();
-  };
-  // One operation's line; `x`: its operand's (rank, channels).
-  const auto cost = [&](const TermOp& t, TermShape x) -> detail::CostLine {
-    const auto label = detail::ops_str("x", {t});
-    const auto shape = shapes_.find(&t);
-    const auto out = shape == shapes_.end() ? x : shape->second;
-    switch (t.kind) {
-      case TermOp::Kind::via:
-      case TermOp::Kind::via_transposed:
-      case TermOp::Kind::attend:
-        return {
-            label + "  sparse 2·" + std::to_string(nnz(t.name)) + "·" + std::to_string(x.channels),
-            2 * nnz(t.name) * x.channels};
-      case TermOp::Kind::weight:
-      case TermOp::Kind::linear:
-        return {label + "  dense 2·" + std::to_string(rows(x.rank)) + "·" +
-                    std::to_string(x.channels) + "·" + std::to_string(out.channels),
-                2 * rows(x.rank) * x.channels * out.channels};
-      case TermOp::Kind::mlp:
-        return {label + "  dense", dense_flops(t.name, rows(x.rank))};
-      case TermOp::Kind::powers: {
-        std::int64_t f = 0;
-        for (const auto& [name, order] : t.filters) f += 2 * order * nnz(name) * x.channels;
-        return {label + "  sparse", f};
-      }
-      default:
-        return {label, -1};
-    }
-  };
+  const auto cost = [&](const TermOp& t, TermShape x) { return op_cost(t, x, cells, operators); };
   std::ostringstream o;
   std::int64_t total = 0;
   const auto line = [&](const std::string& indent, const detail::CostLine& c) {

@@ -28,6 +28,7 @@ namespace detail {
 class NetworkBuildContext;
 class NetworkRunContext;
 struct FilterTaps;
+struct CostLine;
 
 /// A term's operations followed by a step's (a step of one term runs them as one list, so that
 /// a product ending the term fuses with the step's activation), without copying them.
@@ -219,6 +220,8 @@ class OperatorNetworkImpl : public torch::nn::Module {
   std::map<const ops::Term*, std::int64_t> term_width_;
   std::map<const OperatorStep*, std::int64_t> mix_width_;
   std::int64_t dense_flops(const std::string& mlp_path, std::int64_t rows) const;
+  detail::CostLine op_cost(const TermOp& t, TermShape x, const std::map<int, std::int64_t>& cells,
+                           const std::map<std::string, SparseOperator>& operators) const;
   FastPaths fast_;
 
   friend class detail::NetworkBuildContext;
@@ -233,6 +236,15 @@ class OperatorNetworkImpl : public torch::nn::Module {
   void check_arguments(const std::map<std::string, torch::Tensor>& inputs,
                        const std::map<std::string, SparseOperator>& operators,
                        const ComplexBatch* batch) const;
+  /// Undeclared names: a warning, or an error where a declared optional operator is missing.
+  void check_names(const std::map<std::string, torch::Tensor>& inputs,
+                   const std::map<std::string, SparseOperator>& operators,
+                   const ComplexBatch* batch) const;
+  void check_dtypes(const std::map<std::string, torch::Tensor>& inputs,
+                    const std::map<std::string, SparseOperator>& operators) const;
+  void check_cells(const std::map<std::string, torch::Tensor>& inputs,
+                   const std::map<std::string, SparseOperator>& operators,
+                   const ComplexBatch* batch) const;
   mutable std::set<std::string> warned_;  // the undeclared names already warned about
 
   // --- the interpreter (interpreter-inl.hpp) -------------------------------------------------
