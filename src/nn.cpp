@@ -10,6 +10,7 @@
 #include "topos/nn/operator_schedule/build-inl.hpp"
 #include "topos/nn/operator_schedule/builder-inl.hpp"
 #include "topos/nn/operator_schedule/checks-inl.hpp"
+#include "topos/nn/operator_schedule/cost-inl.hpp"
 #include "topos/nn/operator_schedule/elementwise-inl.hpp"
 #include "topos/nn/operator_schedule/interpreter-inl.hpp"
 #include "topos/nn/operator_schedule/printer-inl.hpp"

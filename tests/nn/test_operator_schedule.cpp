@@ -1080,3 +1080,75 @@ TEST_CASE("a filter's taps weighted on their source's rows: the sums and gradien
   // The fast path ran: its sums are taken in another order.
   CHECK_FALSE(torch::equal(fast[0], plain[0]));
 }
+
+TEST_CASE("plan_str lists what forward runs with its FLOPs, counted by hand",
+          "[nn][schedule][plan]") {
+  // Nodes (5, 3 channels), edges (7, 2 channels); B: nodes × edges, L: nodes × nodes, T: edges ×
+  // edges, each with a known pattern.
+  const auto pattern = [](std::int64_t r, std::int64_t c, int k) {
+    auto d = torch::zeros({r, c}, torch::kDouble);
+    for (std::int64_t i = 0; i < r; ++i)
+      for (std::int64_t j = 0; j < c; ++j)
+        if ((i + 2 * j) % k == 0) d[i][j] = 1.0 + static_cast<double>(i + j);
+    return d;
+  };
+  const auto Bd = pattern(5, 7, 3), Ld = pattern(5, 5, 2), Td = pattern(7, 7, 4);
+  const auto nnz = [](const torch::Tensor& d) { return (d != 0).sum().item<std::int64_t>(); };
+  OperatorSchedule s;
+  s.input("x_0", 0, 3).input("x_1", 1, 2).operator_input("B", 1, 0).operator_input("L", 0, 0);
+  s.operator_input("T", 1, 1).optional_operator("U", 0, 0);
+  s.step(into(0)
+             .sum(from(0).conv("a", 4).via("L").act(Update::relu), from(1).via("B").linear("b", 4),
+                  from(0).via("U").conv("u", 4))
+             .weight("c", 2, 1.0)
+             .act(Update::tanh)
+             .named("mix"));
+  s.step(into(1).filter("f", 3, from(0).via_t("B"), from(1).powers({{"T", 2}})).named("filter"));
+  s.step(into(1, "unused").sum(from(1).conv("dead", 5)).named("dead"));
+  s.output("y_1", 1);
+  OperatorNetwork net(s);
+  net->to(torch::kDouble);
+  const std::map<std::string, torch::Tensor> x{{"x_0", torch::randn({5, 3}, torch::kDouble)},
+                                               {"x_1", torch::randn({7, 2}, torch::kDouble)}};
+  const std::map<std::string, SparseOperator> ops{{"B", SparseOperator::from_dense(Bd)},
+                                                  {"L", SparseOperator::from_dense(Ld)},
+                                                  {"T", SparseOperator::from_dense(Td)}};
+  const auto plan = net->plan_str(x, ops);
+  INFO(plan);
+  // mix: x_0·a (5 × 3 · 3 × 4), L·, B· on 2 channels, b (2 -> 4 on 5 rows), ·c (4 -> 2); the
+  // term through the optional U, not given, is skipped. filter: Bᵀ· on 2 channels, T· twice on
+  // 2, the taps (7 rows, 2 channels × 4 taps, 3 out). The dead step does not run.
+  const std::int64_t mix = 2 * 5 * 3 * 4 + 2 * nnz(Ld) * 4 + 2 * nnz(Bd) * 2 + 2 * 5 * 2 * 4 +
+                           2 * 5 * 4 * 2,
+                     filter = 2 * nnz(Bd) * 2 + 2 * 2 * nnz(Td) * 2 + 2 * 7 * (2 * 4) * 3;
+  CHECK_THAT(plan, Contains("step mix (into (0)"));
+  CHECK_THAT(plan, Contains("dense 2·5·3·4  120 FLOPs"));
+  CHECK_THAT(plan, Contains("sparse 2·" + std::to_string(nnz(Ld)) + "·4  " +
+                            std::to_string(2 * nnz(Ld) * 4) + " FLOPs"));
+  CHECK_THAT(plan, Contains("filter f  dense 2·7·8·3  336 FLOPs"));
+  CHECK(plan.find("U·") == std::string::npos);
+  CHECK(plan.find("dead") == std::string::npos);
+  auto total = plan.substr(plan.rfind("total ") + 6);
+  total.erase(std::remove(total.begin(), total.end(), ','), total.end());
+  CHECK(std::stoll(total) == mix + filter);
+}
+
+TEST_CASE("FastPaths: each fast path by name, all and none", "[nn][schedule][fast_paths]") {
+  CHECK(FastPaths::names().size() == 7);
+  for (const auto& name : FastPaths::names()) {
+    CHECK(FastPaths().get(name));
+    CHECK_FALSE(FastPaths::none().get(name));
+    CHECK(FastPaths::none().set(name, true).get(name));
+  }
+  CHECK_FALSE(FastPaths().prefix_cache(false).prefix_cache());
+  REQUIRE_THROWS_WITH(FastPaths().set("prefix", true),
+                      Contains("no fast path 'prefix'") && Contains("prefix_cache"));
+  OperatorSchedule s;
+  s.input("x", 0, 2).operator_input("A", 0, 0).step(into(0).sum(from(0).via("A"))).output("y", 0);
+  OperatorNetwork net(s);
+  net->fast_paths().fuse_activations(false);
+  CHECK_FALSE(net->fast_paths().fuse_activations());
+  CHECK(net->fast_paths().row_subset());
+  net->set_fast_paths(false);
+  CHECK_FALSE(net->fast_paths().row_subset());
+}

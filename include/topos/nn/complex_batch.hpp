@@ -65,6 +65,10 @@ class ComplexBatch {
   ComplexBatch to(const torch::Device& device) const;
 
  private:
+  void collate_counts(const std::vector<ComplexView>& complexes, int max_rank);
+  TensorNeighborhood collate_neighborhood(const std::vector<ComplexView>& complexes,
+                                          const std::string& name, const Neighborhood& first) const;
+
   std::int64_t num_complexes_ = 0;
   std::vector<std::vector<std::int64_t>> counts_, ptr_;
   std::vector<torch::Tensor> batch_;

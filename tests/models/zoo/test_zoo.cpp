@@ -4,6 +4,7 @@
 // clear errors for unknown models, parameters and mis-shaped or missing tensors.
 #include "support/torch_prelude.hpp"
 
+#include "support/fast_paths.hpp"
 #include "support/reference.hpp"
 #include "topos/models/zoo.hpp"
 #include "topos/models/zoo/golden_case.hpp"
@@ -637,6 +638,40 @@ TEST_CASE("every zoo model clones: the copy of a golden case's model gives its o
     ++cloned;
   }
   REQUIRE(cloned >= 6);
+}
+
+TEST_CASE(
+    "every zoo model gives all-off's outputs and gradients with each fast path on alone and all on",
+    "[models][zoo][reference][fast_paths]") {
+  std::vector<std::string> unsupported;
+  int models = 0, checked = 0;
+  std::string report;
+  for (const auto& [dir, model] : zoo_cases(unsupported, models)) {
+    INFO("case " << dir.filename().string());
+    ZooCase c = load_case(dir, case_operators(dir));  // float64
+    const auto run = [&] {
+      const auto out = run_case(c);
+      std::vector<torch::Tensor> r;
+      torch::Tensor loss = torch::zeros({}, torch::kDouble);
+      for (const auto& name : c.outputs) {
+        const auto& y = out.at(name);
+        r.push_back(y);
+        // A fixed weighting of the entries, so that every one reaches the gradients.
+        loss = loss + (y * torch::arange(y.numel(), y.options()).reshape(y.sizes()).cos()).sum();
+      }
+      std::vector<torch::Tensor> params;
+      for (const auto& p : c.model.module->parameters())
+        if (p.requires_grad()) params.push_back(p);
+      const auto g = torch::autograd::grad({loss}, params, {}, false, false, /*allow_unused=*/true);
+      r.insert(r.end(), g.begin(), g.end());
+      return r;
+    };
+    const auto changed = test::check_fast_paths(*c.model.module, run, 1e-10, 1e-12);
+    report += " " + model + " (" + test::joined(changed) + ")";
+    ++checked;
+  }
+  WARN("fast paths that changed some bit, per zoo model:" << report);
+  REQUIRE(checked >= 6);
 }
 
 TEST_CASE("known TopoModelX mismatches (docs/models.md): still differ",

@@ -38,7 +38,6 @@ struct DropoutRate {
     return {32, static_cast<std::uint32_t>(
                     std::min<long long>(std::llround(p * 4294967296.0), 4294967295LL))};
   }
-  int per_draw() const { return 64 / bits; }
 };
 
 // Elements go by blocks of 64 draws: element j·64 + i of a block takes lane j of the block's

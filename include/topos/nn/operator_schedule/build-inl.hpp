@@ -240,24 +240,13 @@ TOPOS_INLINE TermShape OperatorNetworkImpl::infer_attend(detail::NetworkBuildCon
   return {dst, o.concat() ? x.channels : x.channels / H};
 }
 
+// The schedule checked step by step (each error names the step), its parameters created, and
+// which steps run on compact rows (find_compact_steps) and which forward() runs at all
+// (find_live_steps).
 TOPOS_INLINE void OperatorNetworkImpl::validate_and_create() {
-  std::map<CochainKey, std::int64_t> width;
-  std::set<std::string> names;
-  for (const auto& in : schedule_.inputs()) {
-    if (!names.insert(in.name).second)
-      throw ScheduleError("input '" + in.name + "' is declared twice");
-    if (in.channels <= 0)
-      throw ScheduleError("input '" + in.name + "' needs a positive number of channels");
-    width[in.key] = in.channels;
-  }
-  std::set<std::string> layer_names;
-  for (const auto& [name, group] : schedule_.layers()) {
-    if (!layer_names.insert(name).second)
-      throw ScheduleError("layer '" + name + "' is declared twice");
-    (void)group;
-  }
+  auto width = declared_widths();
   // What each step reads (its terms' sources, and what its operations read through the build
-  // context) and writes, for the liveness below.
+  // context) and writes, for the liveness.
   std::vector<std::vector<std::set<CochainKey>>> reads;
   std::set<CochainKey> step_outputs;  // cochains some earlier step wrote
   std::set<std::string> applied;      // operators that some operation applies
@@ -273,94 +262,145 @@ TOPOS_INLINE void OperatorNetworkImpl::validate_and_create() {
       for (const auto& term : s.terms)
         for (const auto& t : term.operations())
           for (const auto& name : detail::operators_of(t)) applied.insert(name);
-      const std::string& where = ctx.where();
       if (!written.insert(s.target).second)
-        throw ScheduleError(where + ": another step of the same parallel group writes " +
+        throw ScheduleError(ctx.where() + ": another step of the same parallel group writes " +
                             s.target.str());
-      if (s.terms.empty()) throw ScheduleError(where + ": a step needs at least one term");
-      for (const auto& term : s.terms)
-        for (const auto& t : term.operations())
-          for (const auto& name : detail::operators_of(t))
-            if (schedule_.optional_operators().count(name) && s.mix != OperatorStep::Mix::sum &&
-                s.mix != OperatorStep::Mix::mean)
-              throw ScheduleError(where + ": the term from " + term.source.str() +
-                                  " applies the optional operator '" + name +
-                                  "', which only a step that sums or averages its terms can skip");
-      for (const auto& t : s.operations())
-        for (const auto& name : detail::operators_of(t))
-          if (schedule_.optional_operators().count(name))
-            throw ScheduleError(where +
-                                ": the step's own operations apply the optional operator '" + name +
-                                "', which cannot be skipped there");
-      std::int64_t channels = -1, count = 0;
-      for (const auto& term : s.terms) {
-        const auto w = ctx.find_width(term.source);
-        if (!w)
-          throw ScheduleError(where + ": source " + term.source.str() +
-                              " has no cochain (no input or earlier step produces it)");
-        TermShape x{term.source.rank, *w};
-        std::int64_t fanned = 1;
-        const auto& list = term.operations();
-        for (std::size_t i = 0; i < list.size(); ++i) {
-          if (list[i].kind == TermOp::Kind::powers) {
-            if (i + 1 != list.size())
-              throw ScheduleError(where + ": powers must be a term's last operation");
-            fanned = 1;
-            for (const auto& f : list[i].filters) fanned += f.second;
-          }
-          x = infer(ctx, list[i], x);
-        }
-        if (x.rank != s.target.rank)
-          throw ScheduleError(where + ": the term from " + term.source.str() + " ends on rank " +
-                              std::to_string(x.rank) + ", the target is rank " +
-                              std::to_string(s.target.rank));
-        if (s.mix == OperatorStep::Mix::concat) {  // widths add up
-          channels = std::max<std::int64_t>(channels, 0) + x.channels;
-        } else {
-          if (channels >= 0 && x.channels != channels)
-            throw ScheduleError(where + ": the term from " + term.source.str() + " has " +
-                                std::to_string(x.channels) + " channels, the one before has " +
-                                std::to_string(channels));
-          channels = x.channels;
-        }
-        count += fanned;
-      }
-      TermShape y{s.target.rank, channels};
-      if (s.mix == OperatorStep::Mix::filter) {
-        make_parameter(where, s.filter_path, {channels, s.filter_out, count},
-                       ParameterInit::glorot(1.414));
-        y.channels = s.filter_out;
-      } else if (count != static_cast<std::int64_t>(s.terms.size())) {
-        throw ScheduleError(where + ": polynomial filter terms need a filter weight to mix them");
-      }
-      for (const auto& t : s.operations()) {
-        if (t.kind == TermOp::Kind::powers)
-          throw ScheduleError(where + ": powers apply to terms, not to a step");
-        y = infer(ctx, t, y);
-      }
-      if (y.rank != s.target.rank)
-        throw ScheduleError(where + ": the step's operations end on rank " +
-                            std::to_string(y.rank) + ", the target is rank " +
-                            std::to_string(s.target.rank));
-      if (s.guard_rank >= 0) {
-        const auto before = ctx.find_width(s.target);
-        if (!before)
-          throw ScheduleError(where + ": when_nonempty keeps the target's value elsewhere, but " +
-                              s.target.str() + " has none before the step");
-        if (*before != y.channels)
-          throw ScheduleError(where + ": when_nonempty must keep the target's width (" +
-                              std::to_string(*before) + "), the step gives " +
-                              std::to_string(y.channels));
-      }
-      next[s.target] = y.channels;
+      next[s.target] = infer_step(ctx, s);
     }
     width = std::move(next);
     for (const auto& s : group) step_outputs.insert(s.target);
   }
+  check_outputs(width, applied);
+  for (const auto& p : schedule_.parameters())
+    make_parameter("parameter '" + p.path + "'", p.path, p.shape, ParameterInit::glorot(p.gain));
+  find_compact_steps(reads);
+  find_live_steps(reads);
+}
+
+// The inputs' widths; an input or a layer declared twice is an error.
+TOPOS_INLINE std::map<CochainKey, std::int64_t> OperatorNetworkImpl::declared_widths() const {
+  std::map<CochainKey, std::int64_t> width;
+  std::set<std::string> names;
+  for (const auto& in : schedule_.inputs()) {
+    if (!names.insert(in.name).second)
+      throw ScheduleError("input '" + in.name + "' is declared twice");
+    if (in.channels <= 0)
+      throw ScheduleError("input '" + in.name + "' needs a positive number of channels");
+    width[in.key] = in.channels;
+  }
+  std::set<std::string> layer_names;
+  for (const auto& layer : schedule_.layers())
+    if (!layer_names.insert(layer.first).second)
+      throw ScheduleError("layer '" + layer.first + "' is declared twice");
+  return width;
+}
+
+// An optional operator is skipped by dropping the terms that apply it: only a step that sums or
+// averages its terms can drop one, and never its own operations.
+TOPOS_INLINE void OperatorNetworkImpl::check_optional_uses(const std::string& where,
+                                                           const OperatorStep& s) const {
+  const auto& optional = schedule_.optional_operators();
+  for (const auto& term : s.terms)
+    for (const auto& t : term.operations())
+      for (const auto& name : detail::operators_of(t))
+        if (optional.count(name) && s.mix != OperatorStep::Mix::sum &&
+            s.mix != OperatorStep::Mix::mean)
+          throw ScheduleError(where + ": the term from " + term.source.str() +
+                              " applies the optional operator '" + name +
+                              "', which only a step that sums or averages its terms can skip");
+  for (const auto& t : s.operations())
+    for (const auto& name : detail::operators_of(t))
+      if (optional.count(name))
+        throw ScheduleError(where + ": the step's own operations apply the optional operator '" +
+                            name + "', which cannot be skipped there");
+}
+
+// The width the step's terms give its mix (their sum for a concatenation), and how many values
+// they give (a polynomial filter's powers fan out); each term must end on the target's rank.
+TOPOS_INLINE std::pair<std::int64_t, std::int64_t> OperatorNetworkImpl::infer_terms(
+    detail::NetworkBuildContext& ctx, const OperatorStep& s) {
+  const std::string& where = ctx.where();
+  std::int64_t channels = -1, count = 0;
+  for (const auto& term : s.terms) {
+    const auto w = ctx.find_width(term.source);
+    if (!w)
+      throw ScheduleError(where + ": source " + term.source.str() +
+                          " has no cochain (no input or earlier step produces it)");
+    TermShape x{term.source.rank, *w};
+    term_width_[&term] = *w;
+    std::int64_t fanned = 1;
+    const auto& list = term.operations();
+    for (std::size_t i = 0; i < list.size(); ++i) {
+      if (list[i].kind == TermOp::Kind::powers) {
+        if (i + 1 != list.size())
+          throw ScheduleError(where + ": powers must be a term's last operation");
+        fanned = 1;
+        for (const auto& f : list[i].filters) fanned += f.second;
+      }
+      x = shapes_[&list[i]] = infer(ctx, list[i], x);
+    }
+    if (x.rank != s.target.rank)
+      throw ScheduleError(where + ": the term from " + term.source.str() + " ends on rank " +
+                          std::to_string(x.rank) + ", the target is rank " +
+                          std::to_string(s.target.rank));
+    if (s.mix == OperatorStep::Mix::concat) {  // widths add up
+      channels = std::max<std::int64_t>(channels, 0) + x.channels;
+    } else {
+      if (channels >= 0 && x.channels != channels)
+        throw ScheduleError(where + ": the term from " + term.source.str() + " has " +
+                            std::to_string(x.channels) + " channels, the one before has " +
+                            std::to_string(channels));
+      channels = x.channels;
+    }
+    count += fanned;
+  }
+  return {channels, count};
+}
+
+// A step checked and its parameters created: the width it writes.
+TOPOS_INLINE std::int64_t OperatorNetworkImpl::infer_step(detail::NetworkBuildContext& ctx,
+                                                          const OperatorStep& s) {
+  const std::string& where = ctx.where();
+  if (s.terms.empty()) throw ScheduleError(where + ": a step needs at least one term");
+  check_optional_uses(where, s);
+  const auto [channels, count] = infer_terms(ctx, s);
+  mix_width_[&s] = channels;
+  TermShape y{s.target.rank, channels};
+  if (s.mix == OperatorStep::Mix::filter) {
+    make_parameter(where, s.filter_path, {channels, s.filter_out, count},
+                   ParameterInit::glorot(1.414));
+    y.channels = s.filter_out;
+  } else if (count != static_cast<std::int64_t>(s.terms.size())) {
+    throw ScheduleError(where + ": polynomial filter terms need a filter weight to mix them");
+  }
+  for (const auto& t : s.operations()) {
+    if (t.kind == TermOp::Kind::powers)
+      throw ScheduleError(where + ": powers apply to terms, not to a step");
+    y = shapes_[&t] = infer(ctx, t, y);
+  }
+  if (y.rank != s.target.rank)
+    throw ScheduleError(where + ": the step's operations end on rank " + std::to_string(y.rank) +
+                        ", the target is rank " + std::to_string(s.target.rank));
+  if (s.guard_rank >= 0) {
+    const auto before = ctx.find_width(s.target);
+    if (!before)
+      throw ScheduleError(where + ": when_nonempty keeps the target's value elsewhere, but " +
+                          s.target.str() + " has none before the step");
+    if (*before != y.channels)
+      throw ScheduleError(where + ": when_nonempty must keep the target's width (" +
+                          std::to_string(*before) + "), the step gives " +
+                          std::to_string(y.channels));
+  }
+  return y.channels;
+}
+
+// Every output names a cochain; every optional operator is applied by some step (else it is a
+// typo: a forward without it would drop no term).
+TOPOS_INLINE void OperatorNetworkImpl::check_outputs(
+    const std::map<CochainKey, std::int64_t>& width, const std::set<std::string>& applied) const {
   for (const auto& o : schedule_.outputs())
     if (!width.count(o.key))
       throw ScheduleError("output '" + o.name + "': no cochain " + o.key.str());
-  // An optional operator no step applies is a typo: a forward without it would drop no term.
   for (const auto& name : schedule_.optional_operators())
     if (!applied.count(name)) {
       std::string names;
@@ -369,14 +409,13 @@ TOPOS_INLINE void OperatorNetworkImpl::validate_and_create() {
                           (names.empty() ? "none" : names) +
                           "): write the name a term applies, or remove the optional_operator");
     }
-  for (const auto& p : schedule_.parameters())
-    make_parameter("parameter '" + p.path + "'", p.path, p.shape, ParameterInit::glorot(p.gain));
+}
 
-  find_compact_steps(reads);
-
-  // Liveness, from the outputs back: a step is run by forward() only when a later step or an
-  // output reads what it writes. A group reads one snapshot, so its live steps' targets leave
-  // the needed set before their reads join it.
+// Liveness, from the outputs back: a step is run by forward() only when a later step or an
+// output reads what it writes. A group reads one snapshot, so its live steps' targets leave the
+// needed set before their reads join it.
+TOPOS_INLINE void OperatorNetworkImpl::find_live_steps(
+    const std::vector<std::vector<std::set<CochainKey>>>& reads) {
   std::set<CochainKey> needed;
   for (const auto& o : schedule_.outputs()) needed.insert(o.key);
   const auto& groups = schedule_.groups();

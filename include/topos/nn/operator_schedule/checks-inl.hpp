@@ -8,6 +8,7 @@
 
 #include "topos/nn/operator_schedule/network.hpp"
 #include "topos/nn/operator_schedule/parameters-inl.hpp"  // detail::shape_str
+#include "topos/nn/operator_schedule/printer-inl.hpp"     // detail::ops_str
 
 #include <algorithm>
 #include <map>
@@ -54,27 +55,62 @@ std::string quoted(const Range& r, Name name) {
   return s.empty() ? "none" : s;
 }
 
-/// A LibTorch error raised while a step ran, rethrown with the step and the shapes it reads.
-[[noreturn]] TOPOS_INLINE void rethrow_in_step(const OperatorStep& s, const Cochains& h,
-                                               const c10::Error& e) {
-  std::string what = e.what_without_backtrace();
-  what = what.substr(0, what.find('\n'));
+/// A term as errors name it: "the term conv·A·(1)".
+inline std::string term_str(const ops::Term& t) {
+  return "the term " + ops_str(t.source.str(), t.operations());
+}
+
+/// The cochains a step reads, with their shapes: what a LibTorch error outside any one term
+/// (a compact step's rows, the guard) is described by.
+struct StepReads {
+  const OperatorStep& s;
+  const Cochains& h;
+};
+
+inline std::string describe(const char* what) {
+  return what;
+}
+inline std::string describe(const ops::Term* term) {
+  return term_str(*term);
+}
+inline std::string describe(const StepReads& r) {
   std::string reads;
-  for (const auto& term : s.terms) {
-    if (!h.has(term.source.rank, term.source.state)) continue;
+  for (const auto& term : r.s.terms) {
+    if (!r.h.has(term.source.rank, term.source.state)) continue;
     const auto piece =
-        term.source.str() + " " + shape_str(h.at(term.source.rank, term.source.state));
+        term.source.str() + " " + shape_str(r.h.at(term.source.rank, term.source.state));
     if (reads.find(piece) == std::string::npos) reads += (reads.empty() ? "" : ", ") + piece;
   }
-  throw ScheduleError(s.name + " (into " + s.target.str() + "): " + what + " (the step reads " +
-                      reads +
-                      "; each operator it applies needs its target rank's cells as rows and its "
-                      "source rank's as columns, each weight the channels it is given)");
+  return "the step, reading " + reads +
+         " (each operator it applies needs its target rank's cells as rows and its source "
+         "rank's as columns, each weight the channels it is given)";
+}
+
+/// `f()`, a LibTorch error in it (the first line of its message, without the stack) rethrown as
+/// a ScheduleError naming the step (`where`) and `what` (a term, the mix, the step: describe),
+/// described only then.
+template <class What, class F>
+auto naming(const std::string& where, const What& what, F&& f) -> decltype(f()) {
+  try {
+    return f();
+  } catch (const c10::Error& e) {
+    std::string message = e.what_without_backtrace();
+    message = message.substr(0, message.find('\n'));
+    throw ScheduleError(where + ": " + describe(what) + ": " + message);
+  }
 }
 
 }  // namespace detail
 
 TOPOS_INLINE void OperatorNetworkImpl::check_arguments(
+    const std::map<std::string, torch::Tensor>& inputs,
+    const std::map<std::string, SparseOperator>& operators, const ComplexBatch* batch) const {
+  check_names(inputs, operators, batch);
+  check_dtypes(inputs, operators);
+  check_cells(inputs, operators, batch);
+}
+
+TOPOS_INLINE void OperatorNetworkImpl::check_names(
     const std::map<std::string, torch::Tensor>& inputs,
     const std::map<std::string, SparseOperator>& operators, const ComplexBatch* batch) const {
   const auto& ports = schedule_.inputs();
@@ -120,8 +156,14 @@ TOPOS_INLINE void OperatorNetworkImpl::check_arguments(
                  "with input(\"",
                  name, "\", rank, channels)");
   }
+}
 
-  // One dtype and device: the parameters' (or, without any, the first input's).
+// One dtype and device: the parameters' (or, without any, the first input's).
+TOPOS_INLINE void OperatorNetworkImpl::check_dtypes(
+    const std::map<std::string, torch::Tensor>& inputs,
+    const std::map<std::string, SparseOperator>& operators) const {
+  const auto& ports = schedule_.inputs();
+  const auto& declared = schedule_.operators();
   const torch::Tensor* reference = nullptr;
   std::string reference_name = "the network's parameters";
   for (const auto& [path, p] : params_)
@@ -168,9 +210,15 @@ TOPOS_INLINE void OperatorNetworkImpl::check_arguments(
                           ": move it with A.to(torch::Device(\"" + reference->device().str() +
                           "\"))");
   }
+}
 
-  // Each rank's cells, as the batch, the inputs' rows and the operators' rows (target rank) and
-  // columns (source rank) give them: all must agree.
+// Each rank's cells, as the batch, the inputs' rows and the operators' rows (target rank) and
+// columns (source rank) give them: all must agree.
+TOPOS_INLINE void OperatorNetworkImpl::check_cells(
+    const std::map<std::string, torch::Tensor>& inputs,
+    const std::map<std::string, SparseOperator>& operators, const ComplexBatch* batch) const {
+  const auto& ports = schedule_.inputs();
+  const auto& declared = schedule_.operators();
   struct Count {
     std::int64_t cells;
     const char* kind;  // "batch", "input", "operator rows", "operator columns"

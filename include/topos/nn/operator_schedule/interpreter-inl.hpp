@@ -97,13 +97,12 @@ TOPOS_INLINE void OperatorNetworkImpl::run_range(
       if (live_only && !live_[g][i]) continue;
       const auto& s = groups[g][i];
       Update u{s.target, {}, {}};
-      try {
+      const std::string where = s.name + " (into " + s.target.str() + ")";
+      detail::naming(where, detail::StepReads{s, snapshot}, [&] {
         if (auto c = compact_steps_.find({g, i}); c != compact_steps_.end())
           std::tie(u.value, u.rows) = run_compact(s, c->second, snapshot, ops, cache);
         if (!u.value.defined()) u.value = run_step(s, snapshot, ops, cache);
-      } catch (const c10::Error& e) {  // LibTorch's message, without its stack, and the step
-        detail::rethrow_in_step(s, snapshot, e);
-      }
+      });
       updates.push_back(std::move(u));
     }
     for (auto& u : updates) {
@@ -132,29 +131,6 @@ TOPOS_INLINE std::vector<torch::Tensor> OperatorNetworkImpl::run(
 }
 
 namespace detail {
-
-/// A term as errors name it: "the term conv·A·(1)".
-inline std::string term_str(const ops::Term& t) {
-  return "the term " + ops_str(t.source.str(), t.operations());
-}
-
-inline std::string describe(const char* what) {
-  return what;
-}
-inline std::string describe(const ops::Term* term) {
-  return term_str(*term);
-}
-
-/// `f()`, a LibTorch error in it rethrown as a ScheduleError naming the step and `what` (a term,
-/// the mix, the step's operations), described only then.
-template <class What, class F>
-auto naming(const std::string& where, What what, F&& f) -> decltype(f()) {
-  try {
-    return f();
-  } catch (const c10::Error& e) {
-    throw ScheduleError(where + ": " + describe(what) + ": " + e.what_without_backtrace());
-  }
-}
 
 /// Does the term apply an optional operator that this forward left out?
 inline bool applies_absent(const ops::Term& term, const std::set<std::string>& absent) {
@@ -223,15 +199,15 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_step(const OperatorStep& s, 
   }
   torch::Tensor y;
   std::size_t first = 0;  // the first of the step's operations left to apply
-  if (fast_ && s.mix == OperatorStep::Mix::filter)
+  if (fast_.filter_taps() && s.mix == OperatorStep::Mix::filter)
     y = detail::naming(where, "the filter", [&] { return run_filter(where, s, h, ops, cache); });
   if (!y.defined()) {
     // A concatenation into an mlp over a batch: a term summed from fewer rows than the target
     // has is multiplied by its block of the mlp's first weight before the sum (W Σ x = Σ W x):
     // HOPNet's object-to-node message then costs a product over the objects, not the nodes.
     StepTerms values;
-    if (fast_ && ops.batch != nullptr && s.mix == OperatorStep::Mix::concat && !tail.empty() &&
-        tail.front().kind == TermOp::Kind::mlp) {
+    if (fast_.split_first_layer() && ops.batch != nullptr && s.mix == OperatorStep::Mix::concat &&
+        !tail.empty() && tail.front().kind == TermOp::Kind::mlp) {
       values.W = mlps_.at(tail.front().name)->first_linear()->weight;
       first = 1;  // mix applies the mlp
     }
@@ -581,7 +557,7 @@ TOPOS_INLINE std::pair<torch::Tensor, torch::Tensor> OperatorNetworkImpl::run_co
     const OperatorStep& s, const std::vector<std::string>& readers, const Cochains& h,
     Operators& ops, PrefixCache& cache) {
   const auto& src = s.terms[0].source;
-  if (!fast_ || ops.batch == nullptr || h.rows(src).defined()) return {};
+  if (!fast_.compact_cochains() || ops.batch == nullptr || h.rows(src).defined()) return {};
   const auto& x = h.at(src.rank, src.state);
   std::vector<torch::Tensor> sources;
   for (const auto& name : readers) {

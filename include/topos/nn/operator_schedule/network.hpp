@@ -16,6 +16,7 @@
 #include <cstdint>
 #include <map>
 #include <set>
+#include <stdexcept>
 #include <string>
 #include <type_traits>
 #include <utility>
@@ -27,6 +28,7 @@ namespace detail {
 class NetworkBuildContext;
 class NetworkRunContext;
 struct FilterTaps;
+struct CostLine;
 
 /// A term's operations followed by a step's (a step of one term runs them as one list, so that
 /// a product ending the term fuses with the step's activation), without copying them.
@@ -45,6 +47,68 @@ class OperationSeq {
   const std::vector<TermOp>* then_;
 };
 }  // namespace detail
+
+/// The interpreter's fast paths, each switchable (all on by default). Each gives the plain
+/// version's numbers up to float rounding (sums in another order); a test runs every zoo model
+/// and HOPNet with each on alone against all off, outputs and gradients.
+struct FastPaths {
+  /// Over a batch's neighbourhoods: a term's row-wise prefix (mlp, linear, activations, ...)
+  /// before an aggregation runs on the source rows the neighbourhood reads only.
+  TORCH_ARG(bool, row_subset) = true;
+  /// Over a batch's neighbourhoods: a term's row-wise prefix that several steps of a parallel
+  /// group share is computed once.
+  TORCH_ARG(bool, prefix_cache) = true;
+  /// Over a batch: a cochain only ever aggregated is computed on the rows aggregations read
+  /// (HOPNet's edges reach it only through contacts).
+  TORCH_ARG(bool, compact_cochains) = true;
+  /// Over a batch: a concatenating step into an mlp applies the first Linear layer's block to a
+  /// term before its sum over a neighbourhood when the term has fewer rows than the target
+  /// (W Σ x = Σ W x: the aggregation deferred past the product).
+  TORCH_ARG(bool, split_first_layer) = true;
+  /// Over sparse operators: a filter's taps share their chains' prefixes within a group, and a
+  /// source's taps are multiplied by their weights before the chains when that costs less.
+  TORCH_ARG(bool, filter_taps) = true;
+  /// Over sparse operators: a weight next to a sparse product runs on the side with fewer rows
+  /// (A (x W) = (A x) W) when that costs less.
+  TORCH_ARG(bool, reorder_products) = true;
+  /// A sparse product or linear layer and the activation after it run as one kernel.
+  TORCH_ARG(bool, fuse_activations) = true;
+
+ public:
+  static FastPaths all() { return {}; }
+  static FastPaths none() {
+    FastPaths f;
+    for (const auto& name : names()) f.set(name, false);
+    return f;
+  }
+  /// The fast paths' names, as the setters spell them.
+  static const std::vector<std::string>& names() {
+    static const std::vector<std::string> n{"row_subset",        "prefix_cache", "compact_cochains",
+                                            "split_first_layer", "filter_taps",  "reorder_products",
+                                            "fuse_activations"};
+    return n;
+  }
+  /// Sets the fast path `name` (one of names(); another is an error listing them).
+  FastPaths& set(const std::string& name, bool on) {
+    flag(name) = on;
+    return *this;
+  }
+  bool get(const std::string& name) const { return FastPaths(*this).flag(name); }
+
+ private:
+  bool& flag(const std::string& name) {
+    if (name == "row_subset") return row_subset_;
+    if (name == "prefix_cache") return prefix_cache_;
+    if (name == "compact_cochains") return compact_cochains_;
+    if (name == "split_first_layer") return split_first_layer_;
+    if (name == "filter_taps") return filter_taps_;
+    if (name == "reorder_products") return reorder_products_;
+    if (name == "fuse_activations") return fuse_activations_;
+    std::string known;
+    for (const auto& n : names()) known += (known.empty() ? "" : ", ") + n;
+    throw std::invalid_argument("no fast path '" + name + "' (fast paths: " + known + ")");
+  }
+};
 
 /// Runs an OperatorSchedule; its parameters sit at the schedule's dotted paths.
 class OperatorNetworkImpl : public torch::nn::Module {
@@ -115,23 +179,27 @@ class OperatorNetworkImpl : public torch::nn::Module {
                                  const std::map<std::string, SparseOperator>& operators,
                                  const std::vector<std::string>& names);
 
+  /// What forward(inputs, operators) will run, step by step: each live step's terms (a term
+  /// that applies an optional operator left out is skipped) and operations, each with its FLOPs
+  /// on this complex: a product by a sparse operator (via, attention's messages, each power of a
+  /// polynomial filter) 2·nnz·width, a dense product (weight, linear, each Linear of an mlp, a
+  /// filter's taps) 2·rows·in·out; other operations are listed without. The plain order (with
+  /// the fast paths off: reorder_products may run a product on the other side).
+  std::string plan_str(const std::map<std::string, torch::Tensor>& inputs,
+                       const std::map<std::string, SparseOperator>& operators) const;
+
   const OperatorSchedule& schedule() const { return schedule_; }
   /// The parameter (or buffer) at a schedule path.
   const torch::Tensor& parameter(const std::string& path) const;
   /// The MLP at a schedule path (OperatorSchedule's mlp).
   Mlp mlp(const std::string& path) const;
 
-  /// Off: every operation runs on every row, no term prefix is shared within a parallel group and
-  /// no update is split by blocks; the same numbers up to float rounding, slower (for checking
-  /// the fast paths). On, over a batch's neighbourhoods: (1) a row-wise prefix of a term (mlp,
-  /// linear, activations, ...) before an aggregation runs on the source rows the neighbourhood
-  /// reads, or once per group for all terms that share it; (2) a cochain only ever aggregated is
-  /// computed on the rows aggregations read (HOPNet's edges reach it only through contacts); (3) a
-  /// concatenating step into an mlp applies the first Linear layer's block to a term before its
-  /// sum over a neighbourhood when the term has fewer rows than the target. Over sparse
-  /// operators: (4) a filter's taps share their chains' prefixes within a group, and a source's
-  /// taps are multiplied by their weights before the chains when that costs less (run_filter).
-  void set_fast_paths(bool on) { fast_ = on; }
+  /// All the fast paths on or off (FastPaths::all / none); off runs the plain version, the
+  /// same numbers up to float rounding, slower (for checking the fast paths).
+  void set_fast_paths(bool on) { fast_ = on ? FastPaths::all() : FastPaths::none(); }
+  /// Each fast path on its own (FastPaths): `net->fast_paths().prefix_cache(false)`.
+  FastPaths& fast_paths() { return fast_; }
+  const FastPaths& fast_paths() const { return fast_; }
 
  private:
   OperatorSchedule schedule_;
@@ -147,7 +215,14 @@ class OperatorNetworkImpl : public torch::nn::Module {
   // Each Operation of the schedule, by its place: the rank it is applied to and the (rank,
   // channels) its infer returned, against which its forward's result is checked.
   std::map<const TermOp*, std::pair<int, TermShape>> inferred_;
-  bool fast_ = true;
+  // For plan_str: each operation's result, each term's source width, each step's mixed width.
+  std::map<const TermOp*, TermShape> shapes_;
+  std::map<const ops::Term*, std::int64_t> term_width_;
+  std::map<const OperatorStep*, std::int64_t> mix_width_;
+  std::int64_t dense_flops(const std::string& mlp_path, std::int64_t rows) const;
+  detail::CostLine op_cost(const TermOp& t, TermShape x, const std::map<int, std::int64_t>& cells,
+                           const std::map<std::string, SparseOperator>& operators) const;
+  FastPaths fast_;
 
   friend class detail::NetworkBuildContext;
   friend class detail::NetworkRunContext;
@@ -161,6 +236,15 @@ class OperatorNetworkImpl : public torch::nn::Module {
   void check_arguments(const std::map<std::string, torch::Tensor>& inputs,
                        const std::map<std::string, SparseOperator>& operators,
                        const ComplexBatch* batch) const;
+  /// Undeclared names: a warning, or an error where a declared optional operator is missing.
+  void check_names(const std::map<std::string, torch::Tensor>& inputs,
+                   const std::map<std::string, SparseOperator>& operators,
+                   const ComplexBatch* batch) const;
+  void check_dtypes(const std::map<std::string, torch::Tensor>& inputs,
+                    const std::map<std::string, SparseOperator>& operators) const;
+  void check_cells(const std::map<std::string, torch::Tensor>& inputs,
+                   const std::map<std::string, SparseOperator>& operators,
+                   const ComplexBatch* batch) const;
   mutable std::set<std::string> warned_;  // the undeclared names already warned about
 
   // --- the interpreter (interpreter-inl.hpp) -------------------------------------------------
@@ -214,7 +298,15 @@ class OperatorNetworkImpl : public torch::nn::Module {
   TermShape infer(detail::NetworkBuildContext& ctx, const TermOp& t, TermShape x);
   TermShape infer_attend(detail::NetworkBuildContext& ctx, const TermOp& t, TermShape x);
   void validate_and_create();
+  std::map<CochainKey, std::int64_t> declared_widths() const;
+  void check_optional_uses(const std::string& where, const OperatorStep& s) const;
+  std::pair<std::int64_t, std::int64_t> infer_terms(detail::NetworkBuildContext& ctx,
+                                                    const OperatorStep& s);
+  std::int64_t infer_step(detail::NetworkBuildContext& ctx, const OperatorStep& s);
+  void check_outputs(const std::map<CochainKey, std::int64_t>& width,
+                     const std::set<std::string>& applied) const;
   void find_compact_steps(const std::vector<std::vector<std::set<CochainKey>>>& reads);
+  void find_live_steps(const std::vector<std::vector<std::set<CochainKey>>>& reads);
 };
 TORCH_MODULE(OperatorNetwork);
 
@@ -223,5 +315,6 @@ TORCH_MODULE(OperatorNetwork);
 #ifdef TOPOS_HEADER_ONLY
 #include "topos/nn/operator_schedule/build-inl.hpp"
 #include "topos/nn/operator_schedule/checks-inl.hpp"
+#include "topos/nn/operator_schedule/cost-inl.hpp"
 #include "topos/nn/operator_schedule/interpreter-inl.hpp"
 #endif

@@ -282,7 +282,7 @@ TOPOS_INLINE std::size_t OperatorNetworkImpl::apply_fused(const std::string& whe
   // A weight next to a sparse product: A (x W) = (A x) W, so the dense product runs on the side
   // with fewer rows (SCCN's tetrahedra to triangles: the weight after the sum, on a quarter of
   // the rows). Sparse entries are weighted as 4 dense multiply-adds (their gather is slower).
-  if (fast_ && i + 1 < list.size() && x.dim() == 2) {
+  if (fast_.reorder_products() && i + 1 < list.size() && x.dim() == 2) {
     const bool weight_first = t.kind == TermOp::Kind::weight && is_product(list[i + 1]);
     const bool via_first = is_product(t) && list[i + 1].kind == TermOp::Kind::weight;
     const auto& p = weight_first ? list[i + 1] : t;
@@ -313,7 +313,8 @@ TOPOS_INLINE std::size_t OperatorNetworkImpl::apply_fused(const std::string& whe
   }
   const bool product = (is_product(t) && !t.row_norm) || t.kind == TermOp::Kind::linear;
   const auto* next_act = i + 1 < list.size() ? &detail::activation_of(list[i + 1]) : nullptr;
-  if (!product || next_act == nullptr || !*next_act || !fusable(**next_act)) {
+  if (!fast_.fuse_activations() || !product || next_act == nullptr || !*next_act ||
+      !fusable(**next_act)) {
     x = apply(where, target, t, x, ops, h);
     return i;
   }
@@ -445,10 +446,11 @@ TOPOS_INLINE OperatorNetworkImpl::TermValue OperatorNetworkImpl::evaluate_term(
     n.num_source = x.size(0);
   }
   if (k > 0) {
-    const auto key = fast_ ? detail::prefix_key(term.source, list, k) : std::string();
-    const auto cached = fast_ ? cache.find(key) : cache.end();
+    const bool share = fast_.prefix_cache();
+    const auto key = share ? detail::prefix_key(term.source, list, k) : std::string();
+    const auto cached = share ? cache.find(key) : cache.end();
     torch::Tensor used;
-    if (cached == cache.end() && fast_) {
+    if (cached == cache.end() && fast_.row_subset()) {
       used = detail::used_rows(n.source, x.size(0));
       if (used.size(0) >= x.size(0)) used = torch::Tensor();
     }
@@ -463,7 +465,7 @@ TOPOS_INLINE OperatorNetworkImpl::TermValue OperatorNetworkImpl::evaluate_term(
       n.num_source = used.size(0);
     } else {
       for (std::size_t i = 0; i < k; ++i) i = apply_fused(where, target, list, i, x, ops, h);
-      if (fast_) cache.emplace(key, x);
+      if (share) cache.emplace(key, x);
     }
   }
   v.agg = detail::aggregate_options(list[k]);

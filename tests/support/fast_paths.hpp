@@ -1,0 +1,73 @@
+// Checking OperatorNetwork's fast paths (nn::FastPaths) on a model: its outputs and gradients
+// with every fast path off, against each fast path on alone and all on.
+#pragma once
+
+#include "support/torch_prelude.hpp"
+#include "topos/nn/operator_schedule.hpp"
+
+#include <algorithm>
+#include <functional>
+#include <string>
+#include <vector>
+
+namespace topos::test {
+
+/// Every OperatorNetwork in `m`, `m` included.
+inline std::vector<nn::OperatorNetworkImpl*> networks_in(torch::nn::Module& m) {
+  std::vector<nn::OperatorNetworkImpl*> out;
+  if (auto* n = dynamic_cast<nn::OperatorNetworkImpl*>(&m)) out.push_back(n);
+  for (const auto& sub : m.modules(/*include_self=*/false))
+    if (auto* n = dynamic_cast<nn::OperatorNetworkImpl*>(sub.get())) out.push_back(n);
+  return out;
+}
+
+/// `run` (the outputs and gradients it returns, in one order every time) with every fast path of
+/// `m`'s networks off, then with each on alone and with all on: each tensor within
+/// atol + rtol · (its largest entry with all off) of all off. Returns the configurations whose
+/// numbers differ from all off in some bit ("all" for all on), which the caller may report.
+inline std::vector<std::string> check_fast_paths(
+    torch::nn::Module& m, const std::function<std::vector<torch::Tensor>()>& run, double rtol,
+    double atol) {
+  const auto networks = networks_in(m);
+  REQUIRE(!networks.empty());
+  const auto with = [&](const nn::FastPaths& f) {
+    for (auto* n : networks) n->fast_paths() = f;
+    auto r = run();
+    for (auto& t : r) t = t.defined() ? t.detach().clone() : t;
+    return r;
+  };
+  const auto plain = with(nn::FastPaths::none());
+  std::vector<std::string> changed;
+  auto configurations = nn::FastPaths::names();
+  configurations.push_back("all");
+  for (const auto& name : configurations) {
+    const auto f = name == "all" ? nn::FastPaths::all() : nn::FastPaths::none().set(name, true);
+    const auto fast = with(f);
+    REQUIRE(fast.size() == plain.size());
+    bool same = true;
+    for (std::size_t k = 0; k < fast.size(); ++k) {
+      REQUIRE(fast[k].defined() == plain[k].defined());
+      if (!plain[k].defined()) continue;
+      REQUIRE(fast[k].sizes() == plain[k].sizes());
+      if (plain[k].numel() == 0) continue;
+      const double err = (fast[k] - plain[k]).abs().max().item<double>(),
+                   scale = plain[k].abs().max().item<double>();
+      INFO("fast path " << name << ", tensor " << k << ": max error " << err << ", largest "
+                        << scale);
+      CHECK(err <= atol + rtol * scale);
+      same = same && torch::equal(fast[k], plain[k]);
+    }
+    if (!same) changed.push_back(name);
+  }
+  for (auto* n : networks) n->fast_paths() = nn::FastPaths::all();
+  return changed;
+}
+
+/// The names, separated by spaces ("none" when empty), for a report.
+inline std::string joined(const std::vector<std::string>& names) {
+  std::string s;
+  for (const auto& n : names) s += (s.empty() ? "" : " ") + n;
+  return s.empty() ? "none" : s;
+}
+
+}  // namespace topos::test
