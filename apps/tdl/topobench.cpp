@@ -217,10 +217,10 @@ void register_topobench(CLI::App& app, Run& run) {
   cmd->add_option("--data-dir", o->data_dir, "the raw datasets (../shared/datasets)")->required();
   cmd->add_option("--out", o->out, "output folder: runs.csv, summary.csv, index.html, curves.csv")
       ->required();
-  cmd->add_option("--models", *models,
-                  "comma-separated: GCN, AllSetTransformer, EDGNN, UniGNN2, "
-                  "CWN, CCCN, CCXN, SCN, SCCN, SCCNN, GCCN (TopoTune)")
-      ->required();
+  std::string model_names;  // the table's registry (table_models.hpp)
+  for (const auto& m : topobench::table_model_names())
+    model_names += (model_names.empty() ? "" : ", ") + m;
+  cmd->add_option("--models", *models, "comma-separated: " + model_names)->required();
   cmd->add_option("--datasets", *datasets,
                   "comma-separated: MUTAG, PROTEINS, NCI1, NCI109, "
                   "IMDB-BINARY, IMDB-MULTI, REDDIT-BINARY, Cora, Citeseer")

@@ -1,9 +1,9 @@
 // topos/models/topobench/protocol.hpp
 // TopoBench's protocol as data (std only): the hyperparameters of every (model, dataset) pair
 // parsed from the one-run-per-line file `reproduce-hparams.txt` (TopoBench's
-// scripts/reproduce.sh, see ../shared/datasets/topobench/), the table's model and dataset names,
-// its random splits (split.hpp), and runs.csv, the runner's resumable
-// record of finished runs with the table's summary (mean and std over the splits).
+// scripts/reproduce.sh, see ../shared/datasets/topobench/), the table's dataset names, what a
+// table model declares (ModelSpec; table_models.hpp registers them), its random splits, runs.csv,
+// the runner's resumable record of finished runs, and the summary (mean and std over splits).
 #pragma once
 
 #include "topos/data/error.hpp"                // DataError, read_text_file
