@@ -5,8 +5,9 @@
 // table_models.hpp), tested at the best validation check. Finished runs go to OUT/runs.csv at
 // once (topobench/report.hpp: rewritten atomically); a runner started again on the same OUT skips
 // them, so a table is completed over several sittings. OUT/summary.csv and OUT/index.html (the
-// table, the learning curves, the time per cell) are rewritten after every run. This file adds
-// the jobs side by side, the cells too large to run, and the majority baselines.
+// table, the learning curves, the time per cell) are rewritten after every run. This file picks
+// the jobs and the cells too large to run; the library runs them side by side
+// (topobench::run_table) with the majority baselines.
 #include "commands.hpp"
 
 #include "topos/data/graph_datasets.hpp"
@@ -16,27 +17,23 @@
 #include "topos/models/topobench/table_models.hpp"
 #include "topos/models/topobench/trainer.hpp"
 #include "topos/nn/cpu.hpp"
-#include "topos/util/progress.hpp"
 
 #include <torch/torch.h>
 
 #include <algorithm>
 #include <deque>
-#include <atomic>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
 #include <iostream>
 #include <memory>
-#include <mutex>
 #include <numeric>
 #include <random>
 #include <limits>
 #include <map>
 #include <set>
 #include <sstream>
-#include <thread>
 #include <tuple>
 
 namespace tdl_cli {
@@ -56,12 +53,6 @@ struct TopoBenchOptions {
   /// Σ_v deg(v)² over a dataset above which its rank-1 pair operators are kept as factors.
   std::int64_t factor_above = 100'000'000;
 };
-
-std::string operator_names(const topobench::ModelSpec& m) {
-  std::string s;
-  for (const auto& op : m.operators) s += (s.empty() ? "" : ",") + op;
-  return s;
-}
 
 /// Entries of the rank-1 operators that pair edges through a shared node (the down Laplacian,
 /// and the Hodge Laplacian that contains it): Σ_v deg(v)² over every graph of a dataset.
@@ -96,16 +87,9 @@ int run_topobench(const TopoBenchOptions& o) {
   for (auto* d : datasets)
     for (auto* m : models) topobench::find_config(configs, *m, *d);
 
-  topobench::RunsFolder folder(out);  // what an earlier start left, checked
+  topobench::RunsFolder folder(out, topobench::table_model_names());  // an earlier start's, checked
 
-  struct Job {
-    const topobench::ModelSpec* model;
-    const topobench::DatasetName* dataset;
-    const topobench::RunConfig* cfg;
-    std::int64_t seed;
-    bool factored;  ///< rank-1 pair operators kept as factors
-  };
-  std::vector<Job> jobs;
+  std::vector<tb::TableJob> jobs;
   std::size_t skipped = 0;
   // Cells that cannot run here, with the measured reason (not_run.csv; the table shows them).
   topobench::NotRun not_run;
@@ -182,145 +166,24 @@ int run_topobench(const TopoBenchOptions& o) {
     return csv.str();
   };
   topos::write_file_atomic((out / "not_run.csv").string(), not_run_csv());
-  std::set<std::pair<std::string, std::string>> failed_cells;
 
   // Threads: one intra-op thread and one BLAS thread per run; `--jobs` runs side by side are the
   // parallelism. TopoBench's batches are small: with two OpenMP threads per run, 83 % of a MUTAG
   // run's time went to libgomp's spin-waits on a busy two-core machine.
-  const int workers = std::max(1, std::min<int>(o.jobs, static_cast<int>(jobs.size())));
   topos::nn::set_cpu_threads(1, 1);
   // Freed memory kept in the heap: glibc hands every block over 32 MB back to the kernel, and an
   // IMDB batch's rank-3 cochains (200k tetrahedra × 128 channels) were faulted in afresh at every
   // operation (docs/benchmarks.md: BM_epoch_options).
   topos::nn::keep_freed_memory();
 
-  // The majority classifier per (dataset, split), beside the runs (baselines.csv).
-  std::map<std::pair<std::string, std::int64_t>, double> baselines;
-  const auto baselines_csv = [&] {
-    std::ostringstream o;
-    o << "dataset,split_seed,majority_test_accuracy\n" << std::fixed << std::setprecision(6);
-    for (const auto& [k, v] : baselines) o << k.first << "," << k.second << "," << v << "\n";
-    return o.str();
+  tb::TableRunOptions run;
+  run.jobs = o.jobs;
+  run.max_epochs = o.max_epochs;
+  run.backbone = [](const tb::ModelSpec& m) { return tb::table_backbone(m.name); };
+  run.on_not_run = [&](const tb::NotRun&) {
+    topos::write_file_atomic((out / "not_run.csv").string(), not_run_csv());
   };
-  if (const auto path = out / "baselines.csv"; fs::exists(path)) {
-    std::istringstream in(topos::data::read_text_file(path));
-    std::string line;
-    for (int n = 1; std::getline(in, line); ++n) {
-      if (n == 1 || line.empty()) continue;
-      std::istringstream f(line);
-      std::string d, seed, v;
-      std::size_t a = 0, b = 0;
-      try {
-        if (!std::getline(f, d, ',') || !std::getline(f, seed, ',') || !std::getline(f, v))
-          throw std::invalid_argument("fields");
-        baselines[{d, std::stoll(seed, &a)}] = std::stod(v, &b);
-        if (a != seed.size() || b != v.size()) throw std::invalid_argument("trailing");
-      } catch (const std::exception&) {
-        throw topos::data::DataError(path.string() + ":" + std::to_string(n) +
-                                     ": expected dataset,split_seed,majority_test_accuracy");
-      }
-    }
-  }
-
-  std::mutex mutex;  // guards runs, the lifted cache, the files and the bar
-  // Each dataset is lifted once per domain and kept while runs that need it remain.
-  const auto lifting_key = [](const Job& j) {
-    return std::string(j.dataset->name) + "/" + tb::domain_name(j.model->domain) + "/" +
-           (j.cfg->signed_incidence ? "signed" : "unsigned") + "/" +
-           std::to_string(j.cfg->max_cell_length) + "/" + operator_names(*j.model) +
-           (j.factored ? "/factored" : "");
-  };
-  std::map<std::string, std::shared_ptr<const tb::LiftedDataset>> lifted;
-  std::map<std::string, std::shared_ptr<std::mutex>> lifting;
-  std::map<std::string, std::size_t> remaining;  // runs not yet started, per lifting
-  for (const auto& j : jobs) ++remaining[lifting_key(j)];
-  const auto get_lifted = [&](const Job& j) {
-    const std::string key = lifting_key(j);
-    std::shared_ptr<std::mutex> m;
-    {
-      std::lock_guard<std::mutex> lock(mutex);
-      --remaining[key];
-      for (auto it = lifted.begin(); it != lifted.end();)  // running runs hold their own
-        it = remaining[it->first] == 0 && it->first != key ? lifted.erase(it) : std::next(it);
-      if (auto it = lifted.find(key); it != lifted.end()) return it->second;
-      auto& slot = lifting[key];
-      if (!slot) slot = std::make_shared<std::mutex>();
-      m = slot;
-    }
-    std::lock_guard<std::mutex> one(*m);  // one thread lifts, the others wait for it
-    {
-      std::lock_guard<std::mutex> lock(mutex);
-      if (auto it = lifted.find(key); it != lifted.end()) return it->second;
-    }
-    auto d = std::make_shared<const tb::LiftedDataset>(
-        tb::lift_dataset(root, *j.dataset, tb::rank_layout(*j.model), *j.cfg, j.factored));
-    std::lock_guard<std::mutex> lock(mutex);
-    std::cerr << "lifted " << key << " in " << std::fixed << std::setprecision(2) << d->seconds
-              << " s\n";
-    lifted[key] = d;
-    return std::shared_ptr<const tb::LiftedDataset>(d);
-  };
-
-  topos::ProgressBar bar("topobench", static_cast<std::int64_t>(jobs.size()), "run");
-  std::atomic<std::size_t> next{0};
-  std::exception_ptr failure;
-  const auto worker = [&] {
-    for (;;) {
-      const std::size_t k = next++;
-      if (k >= jobs.size()) return;
-      const Job& j = jobs[k];
-      {
-        std::lock_guard<std::mutex> lock(mutex);
-        if (failed_cells.count({j.model->name, j.dataset->name})) {  // its cell failed already
-          bar.update(1);
-          continue;
-        }
-      }
-      try {
-        const auto data = get_lifted(j);
-        tb::TrainOptions train;
-        train.max_epochs = o.max_epochs;
-        train.progress = workers == 1;
-        const auto run = tb::train_run(*data, tb::table_backbone(j.model->name), j.dataset->name,
-                                       *j.cfg, j.seed, train);
-        const auto& r = run.result;
-        const double majority = tb::majority_accuracy(*data, j.seed);
-        std::lock_guard<std::mutex> lock(mutex);
-        baselines[{j.dataset->name, j.seed}] = majority;
-        topos::write_file_atomic((out / "baselines.csv").string(), baselines_csv());
-        folder.add(r, run.curve, not_run);
-        std::ostringstream status;
-        status << r.model << " " << r.dataset << " split " << r.split_seed << ": " << std::fixed
-               << std::setprecision(1) << 100 * r.test_accuracy << "% (" << r.epochs << " epochs, "
-               << std::setprecision(0) << r.seconds << " s)";
-        bar.update(1, status.str());
-      } catch (const std::exception& e) {
-        // A run that fails (e.g. out of memory) marks its cell not run, with the error, and the
-        // table goes on; the runner then exits with status 1, naming the failed cells.
-        std::lock_guard<std::mutex> lock(mutex);
-        failed_cells.insert({j.model->name, j.dataset->name});
-        std::string what = e.what();  // LibTorch's errors carry a backtrace after the first line
-        what = what.substr(0, what.find('\n'));
-        not_run.push_back({j.model->name, j.dataset->name,
-                           "split " + std::to_string(j.seed) + " failed: " + what});
-        topos::write_file_atomic((out / "not_run.csv").string(), not_run_csv());
-        std::cerr << "\nfailed: " << j.model->name << " on " << j.dataset->name << " split "
-                  << j.seed << ": " << what << "\n";
-        bar.update(1);
-      } catch (...) {
-        std::lock_guard<std::mutex> lock(mutex);
-        if (!failure) failure = std::current_exception();
-        next = jobs.size();  // stop handing out work; finished runs are saved
-        return;
-      }
-    }
-  };
-  std::vector<std::thread> threads;
-  for (int w = 1; w < workers; ++w) threads.emplace_back(worker);
-  worker();
-  for (auto& t : threads) t.join();
-  bar.finish();
-  if (failure) std::rethrow_exception(failure);
+  const auto failed_cells = tb::run_table(root, jobs, folder, not_run, run);
   if (!failed_cells.empty()) {
     std::cerr << "tdl topobench: " << failed_cells.size() << " cell(s) failed; see not_run.csv:";
     for (const auto& [m, d] : failed_cells) std::cerr << " " << m << "/" << d;
@@ -354,10 +217,10 @@ void register_topobench(CLI::App& app, Run& run) {
   cmd->add_option("--data-dir", o->data_dir, "the raw datasets (../shared/datasets)")->required();
   cmd->add_option("--out", o->out, "output folder: runs.csv, summary.csv, index.html, curves.csv")
       ->required();
-  cmd->add_option("--models", *models,
-                  "comma-separated: GCN, AllSetTransformer, EDGNN, UniGNN2, "
-                  "CWN, CCCN, CCXN, SCN, SCCN, SCCNN, GCCN (TopoTune)")
-      ->required();
+  std::string model_names;  // the table's registry (table_models.hpp)
+  for (const auto& m : topobench::table_model_names())
+    model_names += (model_names.empty() ? "" : ", ") + m;
+  cmd->add_option("--models", *models, "comma-separated: " + model_names)->required();
   cmd->add_option("--datasets", *datasets,
                   "comma-separated: MUTAG, PROTEINS, NCI1, NCI109, "
                   "IMDB-BINARY, IMDB-MULTI, REDDIT-BINARY, Cora, Citeseer")

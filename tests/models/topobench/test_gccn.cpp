@@ -1,14 +1,16 @@
 // Tests of TopoTune's neighbourhood vocabulary on lifted graphs (topobench/routes.hpp,
 // lifting.hpp) and of GCCN (models/combinatorial/gccn.hpp): every neighbourhood of a square and a
 // triangle sharing an edge, counted by hand and recomputed densely from the incidences; batches;
-// bad names; and GCCN's outputs and gradients against PyG's GCN, GIN and GraphSAGE written out
-// densely on the route graphs and the inter-rank union graphs, with the network's parameters.
+// bad names; GCCN's outputs and gradients against PyG's GCN, GIN, GraphSAGE and GAT written out
+// densely on the route graphs and the inter-rank union graphs, with the network's parameters; and
+// its initialisation against PyG's.
 #include "support/torch_prelude.hpp"
 
 #include "topos/models/combinatorial/gccn.hpp"
 #include "topos/models/topobench/batch.hpp"
 #include "support/topobench.hpp"
 
+#include <cmath>
 #include <map>
 #include <string>
 #include <vector>
@@ -171,6 +173,13 @@ TEST_CASE("A bad neighbourhood name is an error listing the valid forms", "[gccn
   throws_with("up_adjacency-0", "cell or simplicial domain", Domain::graph);
   CHECK_THROWS_WITH(gccn_schedule(GCCNOptions(4, {"up_adjacency-1", "upadjacency-0"})),
                     Catch::Matchers::Contains("valid forms"));
+  CHECK_THROWS_WITH(
+      gccn_gnn("GATv2"),
+      Catch::Matchers::Contains("unknown GNN 'GATv2' (known: GCN, GIN, GraphSAGE, GAT)"));
+  CHECK(gccn_gnn("GAT") == GccnGnn::gat);
+  CHECK_THROWS_WITH(
+      gccn_schedule(GCCNOptions(4, {"up_adjacency-1"}).gnn(GccnGnn::gat).gat_heads(3)),
+      Catch::Matchers::Contains("GAT's 3 heads must divide the 4 channels"));
 }
 
 namespace {
@@ -189,8 +198,22 @@ torch::Tensor batch_norm(const Params& p, const std::string& path, const torch::
   return (x - mean) / (var + 1e-5).sqrt() * p.at(path + ".weight") + p.at(path + ".bias");
 }
 torch::Tensor conv(GccnGnn gnn, const Params& p, const std::string& path, const torch::Tensor& e,
-                   const torch::Tensor& x) {
+                   const torch::Tensor& x, bool last = false, std::int64_t heads = 1) {
   switch (gnn) {
+    case GccnGnn::gat: {  // remove_self_loops, add_self_loops; per head h and edge j → i:
+      // α = softmax_j LeakyReLU_0.2(a_src·W x_j + a_dst·W x_i), Σ_j α W x_j; heads concatenated
+      // (hidden) or averaged (last); + b.
+      const auto n = e.size(0);
+      const auto eye = torch::eye(n);
+      const auto es = (e * (1 - eye) + eye) > 0;
+      const auto xw = linear(p, path + ".lin", x, false).view({n, heads, -1});
+      const auto as = (xw * p.at(path + ".att_src")).sum(-1);  // n × heads
+      const auto ad = (xw * p.at(path + ".att_dst")).sum(-1);
+      const auto score = torch::leaky_relu(ad.unsqueeze(1) + as.unsqueeze(0), 0.2)
+                             .masked_fill(~es.unsqueeze(2), -INFINITY);  // i × j × heads
+      const auto out = torch::einsum("ijh,jhc->ihc", {torch::softmax(score, 1), xw});
+      return (last ? out.mean(1) : out.reshape({n, -1})) + p.at(path + ".bias");
+    }
     case GccnGnn::gcn: {  // add_remaining_self_loops, in-degrees, D^-1/2 Ê D^-1/2 (x Θ) + b
       const auto es = ((e + torch::eye(e.size(0))) > 0).to(torch::kFloat);
       const auto d = es.sum(1).rsqrt();
@@ -211,9 +234,9 @@ torch::Tensor conv(GccnGnn gnn, const Params& p, const std::string& path, const 
 }
 // PyG's BasicGNN: conv, then BatchNorm, relu (dropout 0) between the convolutions.
 torch::Tensor basic_gnn(GccnGnn gnn, const Params& p, const std::string& prefix, int layers,
-                        const torch::Tensor& e, torch::Tensor x) {
+                        const torch::Tensor& e, torch::Tensor x, std::int64_t heads) {
   for (int j = 0; j < layers; ++j) {
-    x = conv(gnn, p, prefix + "convs." + std::to_string(j), e, x);
+    x = conv(gnn, p, prefix + "convs." + std::to_string(j), e, x, j == layers - 1, heads);
     if (j < layers - 1)
       x = torch::relu(batch_norm(p, prefix + "norms." + std::to_string(j) + ".module", x));
   }
@@ -225,8 +248,8 @@ torch::Tensor basic_gnn(GccnGnn gnn, const Params& p, const std::string& prefix,
 std::vector<torch::Tensor> gccn_reference(GccnGnn gnn, const Params& p,
                                           const std::vector<std::string>& names,
                                           const std::map<std::string, torch::Tensor>& ops,
-                                          std::vector<torch::Tensor> x, int layers,
-                                          int gnn_layers) {
+                                          std::vector<torch::Tensor> x, int layers, int gnn_layers,
+                                          std::int64_t heads) {
   for (int l = 0; l < layers; ++l) {
     std::map<int, torch::Tensor> sum;
     for (std::size_t i = 0; i < names.size(); ++i) {
@@ -237,14 +260,15 @@ std::vector<torch::Tensor> gccn_reference(GccnGnn gnn, const Params& p,
           "graph_routes." + std::to_string(l) + "." + std::to_string(i) + ".";
       torch::Tensor out;
       if (s == d) {
-        out = basic_gnn(gnn, p, prefix, gnn_layers, pattern(a), x[static_cast<std::size_t>(s)]);
+        out = basic_gnn(gnn, p, prefix, gnn_layers, pattern(a), x[static_cast<std::size_t>(s)],
+                        heads);
       } else {
         const auto nd = a.size(0), ns = a.size(1);
         auto e = torch::zeros({nd + ns, nd + ns});
         e.slice(0, 0, nd).slice(1, nd).copy_(pattern(a));
         const auto xs = x[static_cast<std::size_t>(s)];
         out = basic_gnn(gnn, p, prefix, gnn_layers, e,
-                        torch::cat({torch::zeros({nd, xs.size(1)}), xs}))
+                        torch::cat({torch::zeros({nd, xs.size(1)}), xs}), heads)
                   .slice(0, 0, nd);
       }
       sum[d] = sum.count(d) ? sum[d] + out : out;
@@ -256,7 +280,7 @@ std::vector<torch::Tensor> gccn_reference(GccnGnn gnn, const Params& p,
 
 }  // namespace
 
-TEST_CASE("GCCN is TopoTune's forward with PyG's GCN, GIN and GraphSAGE, gradients included",
+TEST_CASE("GCCN is TopoTune's forward with PyG's GCN, GIN, GraphSAGE and GAT, gradients included",
           "[gccn]") {
   // topotune.yaml's cell routes.
   const std::vector<std::string> names = {"up_adjacency-1", "up_incidence-0", "down_incidence-2",
@@ -268,10 +292,18 @@ TEST_CASE("GCCN is TopoTune's forward with PyG's GCN, GIN and GraphSAGE, gradien
   std::map<std::string, torch::Tensor> dense_ops;
   for (const auto& n : names) dense_ops[n] = b.operators.at(n).to_dense();
   const std::int64_t c = 4;
-  for (const auto gnn : {GccnGnn::gcn, GccnGnn::gin, GccnGnn::sage}) {
-    INFO("gnn " << static_cast<int>(gnn));
+  // GAT with one head (TopoTune's) and with two: concatenated in the hidden convolution, averaged
+  // in the last.
+  const std::vector<std::pair<GccnGnn, std::int64_t>> cases = {{GccnGnn::gcn, 1},
+                                                               {GccnGnn::gin, 1},
+                                                               {GccnGnn::sage, 1},
+                                                               {GccnGnn::gat, 1},
+                                                               {GccnGnn::gat, 2}};
+  for (const auto& [gnn, heads] : cases) {
+    INFO("gnn " << static_cast<int>(gnn) << ", heads " << heads);
     torch::manual_seed(11);
-    nn::OperatorNetwork net(gccn_schedule(GCCNOptions(c, names).gnn(gnn).n_layers(2)));
+    nn::OperatorNetwork net(
+        gccn_schedule(GCCNOptions(c, names).gnn(gnn).n_layers(2).gat_heads(heads)));
     Params p;
     {
       torch::NoGradGuard no_grad;
@@ -281,7 +313,10 @@ TEST_CASE("GCCN is TopoTune's forward with PyG's GCN, GIN and GraphSAGE, gradien
       }
     }
     // Every conv and norm of TopoTune's model is there under PyG's names, and nothing else.
-    const std::size_t per_conv = gnn == GccnGnn::gcn ? 2 : gnn == GccnGnn::gin ? 6 : 3;
+    const std::size_t per_conv = gnn == GccnGnn::gcn   ? 2
+                                 : gnn == GccnGnn::gin ? 6
+                                 : gnn == GccnGnn::gat ? 4
+                                                       : 3;
     CHECK(p.size() == 2 * names.size() * (2 * per_conv + 2));
     std::vector<torch::Tensor> x;
     std::map<std::string, torch::Tensor> in;
@@ -292,7 +327,7 @@ TEST_CASE("GCCN is TopoTune's forward with PyG's GCN, GIN and GraphSAGE, gradien
     std::vector<torch::Tensor> xr;
     for (auto& t : x) xr.push_back(t.clone().requires_grad_(true));
     const auto out = net->forward(in, net->declared_operators(b.operators));
-    const auto want = gccn_reference(gnn, p, names, dense_ops, xr, 2, 2);
+    const auto want = gccn_reference(gnn, p, names, dense_ops, xr, 2, 2, heads);
     torch::Tensor loss = torch::zeros({}), ref_loss = torch::zeros({});
     for (int r = 0; r < 3; ++r) {
       const auto R = std::to_string(r);
@@ -359,4 +394,51 @@ TEST_CASE("gcn and a batch norm over a union name what is wrong with them", "[gc
   v.input("x_0", 0, 3).input("x_1", 1, 3).output("x_0", 0);
   v.step(into(0).sum(from(0).batch_norm("bn", {{1, ""}, {0, ""}}, 0)));
   CHECK_THROWS_WITH(nn::OperatorNetwork(v), Contains("part 0 is (1) but the operand has rank 0"));
+}
+
+TEST_CASE("GCCN's convolutions start from PyG's initialisation", "[gccn]") {
+  // Wide enough that the bounds tell the schemes apart: Glorot √(6 / (64 + 64)) ≈ 0.217,
+  // torch.nn.Linear's 1/√64 = 0.125; a uniform draw of 4096 entries reaches 0.9 of its bound.
+  const std::int64_t c = 64;
+  const std::vector<std::string> names = {"up_adjacency-1", "up_incidence-0"};
+  const auto spread = [](const torch::Tensor& t, double bound) {
+    const auto m = t.abs().max().item<double>();
+    CHECK(m <= bound * (1 + 1e-6));
+    CHECK(m > 0.8 * bound);
+  };
+  const double glorot = std::sqrt(6.0 / (c + c)), torch_bound = 1 / std::sqrt(double(c));
+  for (const auto gnn : {GccnGnn::gcn, GccnGnn::gin, GccnGnn::sage, GccnGnn::gat}) {
+    INFO("gnn " << static_cast<int>(gnn));
+    torch::manual_seed(3);
+    const std::int64_t heads = 2;
+    nn::OperatorNetwork net(
+        gccn_schedule(GCCNOptions(c, names).gnn(gnn).gat_heads(heads).n_layers(1)));
+    std::size_t seen = 0;
+    for (auto& kv : net->named_parameters()) {
+      const std::string& k = kv.key();
+      const auto& v = kv.value();
+      INFO(k);
+      const bool last = k.find("convs.1.") != std::string::npos;
+      if (k.find("norms") != std::string::npos) continue;  // BatchNorm: γ = 1, β = 0
+      ++seen;
+      if (gnn == GccnGnn::gcn || gnn == GccnGnn::gat) {
+        if (k.size() > 5 && k.compare(k.size() - 5, 5, ".bias") == 0) {
+          CHECK(torch::equal(v, torch::zeros_like(v)));
+        } else if (k.find(".lin.weight") != std::string::npos) {  // GAT's last: heads × c out
+          CHECK(v.size(1) == c);
+          spread(v, std::sqrt(6.0 / double(v.size(0) + v.size(1))));
+          if (gnn == GccnGnn::gcn || !last) spread(v, glorot);
+        } else {  // GAT's att_src, att_dst: 1 × heads × C, PyG's glorot √(6 / (heads + C))
+          REQUIRE(gnn == GccnGnn::gat);
+          const std::int64_t C = last ? c : c / heads;
+          CHECK(v.sizes() == torch::IntArrayRef({1, heads, C}));
+          spread(v, std::sqrt(6.0 / double(heads + C)));
+        }
+      } else {  // GIN's MLP and SAGEConv's lins: torch.nn.Linear's ±1/√in, weight and bias
+        CHECK(v.dim() <= 2);
+        spread(v, torch_bound);
+      }
+    }
+    CHECK(seen > 0);
+  }
 }

@@ -4,7 +4,7 @@
 // reproduces that check's validation accuracy exactly; a schedule given as a Backbone is the
 // table's own backbone of that schedule; a backbone whose layout the data cannot serve is an
 // error naming the rank or operator; the runs folder writes a user's model into its table and
-// resumes from its files.
+// resumes from its files; run_table runs jobs side by side, a failing cell marked not run.
 #include "support/torch_prelude.hpp"
 
 #include "topos/models/graph/gcn.hpp"
@@ -12,8 +12,11 @@
 #include "topos/models/topobench/table_models.hpp"
 #include "topos/models/topobench/trainer.hpp"
 
+#include <atomic>
 #include <filesystem>
 #include <random>
+#include <set>
+#include <stdexcept>
 
 using namespace topos;
 using namespace topos::models;
@@ -208,7 +211,7 @@ TEST_CASE("A runs folder tables a user's model beside the table's and resumes", 
   std::filesystem::remove_all(dir);
   RunResult mine{"Tiny", "MUTAG", 0, 0.75, 4, 10, 1.5}, table{"CWN", "MUTAG", 0, 0.5, 2, 8, 2.0};
   {
-    RunsFolder folder(dir);
+    RunsFolder folder(dir, table_model_names());
     CHECK(folder.runs().empty());
     folder.add(mine, {{2, 0.6, 0.5}, {4, 0.4, 0.7}});
     folder.add(table, {{2, 0.7, 0.4}});
@@ -219,10 +222,13 @@ TEST_CASE("A runs folder tables a user's model beside the table's and resumes", 
   CHECK_FALSE(again.done("Tiny", "MUTAG", 3));
   CHECK(again.runs()[0].test_accuracy == 0.75);
   const auto md = data::read_text_file(dir / "table.md");
-  // The table's model first, then the user's.
+  // The table's model first, then the user's; with no order, as they first appear.
   CHECK(md ==
         "| model | MUTAG |\n|---|---|\n| CWN | 50.00 ± 0.00 (1 runs) |\n"
         "| Tiny | 75.00 ± 0.00 (1 runs) |\n");
+  CHECK(table_markdown(again.runs(), {}) ==
+        "| model | MUTAG |\n|---|---|\n| Tiny | 75.00 ± 0.00 (1 runs) |\n"
+        "| CWN | 50.00 ± 0.00 (1 runs) |\n");
   CHECK(data::read_text_file(dir / "curves.csv") ==
         std::string(curves_header()) +
             "Tiny,MUTAG,0,2,0.6,0.5\nTiny,MUTAG,0,4,0.4,0.7\n"
@@ -231,5 +237,67 @@ TEST_CASE("A runs folder tables a user's model beside the table's and resumes", 
   // A malformed curves.csv is named before anything runs.
   write_file_atomic((dir / "curves.csv").string(), std::string(curves_header()) + "x\n");
   CHECK_THROWS_WITH(RunsFolder(dir), Catch::Matchers::Contains("curves.csv:2: malformed row 'x'"));
+  std::filesystem::remove_all(dir);
+}
+
+TEST_CASE("run_table runs a table's jobs side by side into a runs folder, a failing cell not run",
+          "[topobench]") {
+  const auto dir = std::filesystem::temp_directory_path() / "topos_test_run_table";
+  std::filesystem::remove_all(dir);
+  const auto data = synthetic_graphs();
+  const auto cfg = tiny_config();
+  const ModelSpec good{"Tiny", "graph/tiny", Domain::graph, {0}, 1, {"gcn_adjacency"}};
+  const ModelSpec bad{"Broken", "graph/broken", Domain::graph, {0}, 1, {"gcn_adjacency"}};
+  const DatasetName synthetic{"synthetic", "synthetic", false};
+  std::vector<TableJob> jobs;
+  for (std::int64_t s : {0, 3}) jobs.push_back({&good, &synthetic, &cfg, s});
+  for (std::int64_t s : {5, 7}) jobs.push_back({&bad, &synthetic, &cfg, s});
+  std::atomic<int> lifts{0}, reported{0};
+  TableRunOptions o;
+  o.jobs = 2;
+  o.max_epochs = 4;
+  o.lift = [&](const TableJob&) {
+    ++lifts;
+    return data;
+  };
+  o.backbone = [](const ModelSpec& m) {
+    if (std::string(m.name) == "Broken") throw std::runtime_error("no backbone here\nbacktrace");
+    return tiny_backbone();
+  };
+  o.on_not_run = [&](const NotRun&) { ++reported; };
+  NotRun not_run;
+  {
+    RunsFolder folder(dir);
+    const auto failed = run_table("unused", jobs, folder, not_run, o);
+    CHECK(failed == std::set<std::pair<std::string, std::string>>{{"Broken", "synthetic"}});
+    CHECK(lifts == 1);  // both models read the same lifting
+    REQUIRE(folder.runs().size() == 2);
+    CHECK(folder.done("Tiny", "synthetic", 0));
+    CHECK(folder.done("Tiny", "synthetic", 3));
+    for (const auto& r : folder.runs()) CHECK(r.epochs == 4);
+    // The failed split or both (the second may have started before the first failed).
+    REQUIRE(!not_run.empty());
+    CHECK(static_cast<std::size_t>(reported) == not_run.size());
+    for (const auto& n : not_run) {
+      CHECK(n[0] == "Broken");
+      CHECK_THAT(n[2], Catch::Matchers::EndsWith(" failed: no backbone here"));
+    }
+  }
+  // The majority baselines of the splits that ran, read back from baselines.csv.
+  RunsFolder again(dir);
+  REQUIRE(again.baselines().size() == 2);
+  for (std::int64_t s : {0, 3})
+    CHECK(again.baselines().at({"synthetic", s}) ==
+          Approx(majority_accuracy(data, s)).margin(1e-6));
+  write_file_atomic((dir / "baselines.csv").string(),
+                    "dataset,split_seed,majority_test_accuracy\nsynthetic,x,0.5\n");
+  CHECK_THROWS_WITH(RunsFolder(dir), Catch::Matchers::Contains("baselines.csv:2: expected "
+                                                               "dataset,split_seed,"));
+  // Anything but a std::exception stops the runner and is rethrown.
+  o.backbone = [](const ModelSpec&) -> Backbone { throw 7; };
+  std::filesystem::remove_all(dir);
+  RunsFolder folder(dir);
+  CHECK_THROWS_AS(run_table("unused", {jobs[0]}, folder, not_run, o), int);
+  CHECK(folder.runs().empty());
   std::filesystem::remove_all(dir);
 }

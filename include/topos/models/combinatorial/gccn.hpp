@@ -1,7 +1,7 @@
 // topos/models/combinatorial/gccn.hpp
 // GCCN (TopoTune's generalized combinatorial complex network): per layer, one GNN per route
 // (a neighbourhood of TopoTune's vocabulary, topobench/routes.hpp), each PyG's BasicGNN of
-// `gnn_layers` convolutions (GCN, GIN or GraphSAGE) with BatchNorm, relu and dropout between
+// `gnn_layers` convolutions (GCN, GIN, GraphSAGE or GAT) with BatchNorm, relu and dropout between
 // them; the routes into a rank summed, then the activation: x_r <- act(Σ_{routes into r} GNN(...)).
 // A rank no route reaches keeps its features.
 //
@@ -12,7 +12,9 @@
 // interrank_expand and interrank_gnn_forward; its BatchNorm's statistics are those of the union's
 // rows, the schedule's batch_norm over a union). The operators are the lifted graph's of the
 // neighbourhoods' names (topobench/lifting.hpp), target × source. Parameters are named as the
-// PyTorch model's state_dict: graph_routes.<layer>.<route>.convs.<j>.lin.weight, ... (PyG).
+// PyTorch model's state_dict: graph_routes.<layer>.<route>.convs.<j>.lin.weight, ... (PyG), and
+// initialised as PyG initialises them (GCNConv's and GATConv's `lin` Glorot, their biases zero;
+// GIN's MLP and SAGEConv's lins torch.nn.Linear's).
 // Written as an operator schedule (gccn_schedule).
 #pragma once
 
@@ -20,6 +22,7 @@
 #include "topos/nn/operator_schedule.hpp"
 
 #include <algorithm>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -27,14 +30,18 @@
 namespace topos::models {
 
 /// The GNN each route runs: PyG's GCN (GCNConv), GIN (GINConv, ε = 0, MLP of two Linear layers
-/// with the norm between them) or GraphSAGE (SAGEConv, mean aggregation, root weight).
-enum class GccnGnn { gcn, gin, sage };
+/// with the norm between them), GraphSAGE (SAGEConv, mean aggregation, root weight) or GAT
+/// (GATConv: `gat_heads` heads, concatenated in the hidden convolutions of channels / heads each,
+/// averaged in the last of `channels` each, as BasicGNN's GAT with out_channels; self-loops,
+/// LeakyReLU 0.2, attention dropout `gnn_dropout` as BasicGNN passes its dropout).
+enum class GccnGnn { gcn, gin, sage, gat };
 
 inline GccnGnn gccn_gnn(const std::string& name) {
   if (name == "GCN") return GccnGnn::gcn;
   if (name == "GIN") return GccnGnn::gin;
   if (name == "GraphSAGE" || name == "SAGE") return GccnGnn::sage;
-  throw std::invalid_argument("GCCN: unknown GNN '" + name + "' (known: GCN, GIN, GraphSAGE)");
+  if (name == "GAT") return GccnGnn::gat;
+  throw std::invalid_argument("GCCN: unknown GNN '" + name + "' (known: GCN, GIN, GraphSAGE, GAT)");
 }
 
 struct GCCNOptions {
@@ -43,10 +50,11 @@ struct GCCNOptions {
   TORCH_ARG(std::int64_t, channels);  ///< every width (TopoTune: in = hidden = out)
   TORCH_ARG(std::vector<std::string>, neighborhoods);  ///< the routes, in order
   TORCH_ARG(GccnGnn, gnn) = GccnGnn::gcn;
-  TORCH_ARG(int, gnn_layers) = 2;      ///< convolutions per GNN (PyG's num_layers)
-  TORCH_ARG(int, n_layers) = 2;        ///< GCCN layers (TopoTune's `layers`)
-  TORCH_ARG(bool, batch_norm) = true;  ///< PyG's norm="BatchNorm" (else no norm)
-  TORCH_ARG(double, gnn_dropout) = 0;  ///< PyG's dropout after each inner convolution
+  TORCH_ARG(int, gnn_layers) = 2;          ///< convolutions per GNN (PyG's num_layers)
+  TORCH_ARG(int, n_layers) = 2;            ///< GCCN layers (TopoTune's `layers`)
+  TORCH_ARG(bool, batch_norm) = true;      ///< PyG's norm="BatchNorm" (else no norm)
+  TORCH_ARG(double, gnn_dropout) = 0;      ///< PyG's dropout after each inner convolution
+  TORCH_ARG(std::int64_t, gat_heads) = 1;  ///< GAT's heads (PyG's `heads`)
   TORCH_ARG(nn::Update, activation) = nn::Update::relu;
 };
 
@@ -67,6 +75,24 @@ namespace detail {
 struct GccnConv {
   const GCCNOptions& o;
   std::string op, p;  // operator, parameter prefix of convolution j
+  bool last;          // the GNN's last convolution (GAT: heads averaged)
+  /// GCNConv's or GATConv's `lin` (Glorot, no bias) on a term: GAT's last convolution maps to
+  /// heads × channels, its hidden ones to channels (heads × channels / heads).
+  nn::ops::Term lin(nn::ops::Term t) const {
+    const auto w = o.gnn() == GccnGnn::gat && last ? o.gat_heads() * o.channels() : o.channels();
+    return std::move(t.linear(p + "lin", w, false, nn::LinearInit::glorot));
+  }
+  nn::ops::Term gat(nn::ops::Term t, nn::GatPart part,
+                    std::optional<nn::CochainKey> targets = std::nullopt) const {
+    return std::move(lin(std::move(t))
+                         .gat(op, p.substr(0, p.size() - 1),
+                              nn::GatOptions()
+                                  .heads(o.gat_heads())
+                                  .concat(!last)
+                                  .dropout(o.gnn_dropout())
+                                  .part(part)
+                                  .targets(std::move(targets))));
+  }
   /// An intra-rank convolution of `prev` over the pattern of `op`.
   nn::OperatorStep intra(const nn::CochainKey& into_key, const nn::CochainKey& prev) const {
     using namespace nn::ops;
@@ -75,7 +101,9 @@ struct GccnConv {
     auto s = into(into_key.rank, into_key.state);
     switch (o.gnn()) {
       case GccnGnn::gcn:
-        return s.sum(from_prev().linear(p + "lin", c, false).gcn(op)).bias(p + "bias");
+        return s.sum(lin(from_prev()).gcn(op)).bias(p + "bias");
+      case GccnGnn::gat:
+        return s.sum(gat(from_prev(), nn::GatPart::graph)).bias(p + "bias");
       case GccnGnn::gin:  // GINConv's sum over the neighbours plus (1 + ε) x, ε = 0
         return s.sum(from_prev().pattern(op), from_prev());
       case GccnGnn::sage:
@@ -84,7 +112,8 @@ struct GccnConv {
     }
     return s;
   }
-  /// The union graph's target part (`first`: its features are zero, the term left out).
+  /// The union graph's target part (`first`: its features are zero, the term left out). GAT's
+  /// `t` is GATConv's lin of the targets' features, which its attention reads.
   nn::OperatorStep targets(const nn::CochainKey& into_key, const nn::CochainKey& t,
                            const nn::CochainKey& src, bool first) const {
     using namespace nn::ops;
@@ -93,14 +122,14 @@ struct GccnConv {
     auto s = into(into_key.rank, into_key.state);
     switch (o.gnn()) {
       case GccnGnn::gcn:
-        terms.push_back(from(src.rank, src.state)
-                            .linear(p + "lin", c, false)
-                            .gcn(op, nn::GcnPart::union_sources));
-        if (!first)
-          terms.push_back(from(t.rank, t.state)
-                              .linear(p + "lin", c, false)
-                              .gcn(op, nn::GcnPart::union_targets));
+        terms.push_back(lin(from(src.rank, src.state)).gcn(op, nn::GcnPart::union_sources));
+        if (!first) terms.push_back(lin(from(t.rank, t.state)).gcn(op, nn::GcnPart::union_targets));
         return s.sum(std::move(terms)).bias(p + "bias");
+      case GccnGnn::gat:
+        return s
+            .sum(gat(from(src.rank, src.state), nn::GatPart::union_targets,
+                     first ? std::nullopt : std::optional<nn::CochainKey>(t)))
+            .bias(p + "bias");
       case GccnGnn::gin:
         terms.push_back(from(src.rank, src.state).pattern(op));
         if (!first) terms.push_back(from(t.rank, t.state));
@@ -120,7 +149,9 @@ struct GccnConv {
     auto s = into(into_key.rank, into_key.state);
     switch (o.gnn()) {
       case GccnGnn::gcn:
-        return s.sum(from(src.rank, src.state).linear(p + "lin", c, false)).bias(p + "bias");
+        return s.sum(lin(from(src.rank, src.state))).bias(p + "bias");
+      case GccnGnn::gat:  // its self-loop alone: weight 1 (dropped out in training)
+        return s.sum(gat(from(src.rank, src.state), nn::GatPart::union_sources)).bias(p + "bias");
       case GccnGnn::gin:
         return s.sum(from(src.rank, src.state));
       case GccnGnn::sage:  // lin_l of an empty mean (0): its bias
@@ -141,6 +172,10 @@ inline nn::OperatorSchedule gccn_schedule(const GCCNOptions& o) {
   if (o.neighborhoods().empty()) throw std::invalid_argument("GCCN: no neighbourhoods");
   if (c < 1 || J < 1 || o.n_layers() < 1)
     throw std::invalid_argument("GCCN: channels, gnn_layers and n_layers must be positive");
+  if (o.gnn() == GccnGnn::gat && (o.gat_heads() < 1 || c % o.gat_heads()))
+    throw std::invalid_argument("GCCN: GAT's " + std::to_string(o.gat_heads()) +
+                                " heads must divide the " + std::to_string(c) +
+                                " channels (PyG's BasicGNN GAT splits them among the heads)");
   const int top = gccn_max_rank(o);
   nn::OperatorSchedule s;
   for (int r = 0; r <= top; ++r) s.input("x_" + std::to_string(r), r, c);
@@ -194,7 +229,7 @@ inline nn::OperatorSchedule gccn_schedule(const GCCNOptions& o) {
         CochainKey prev{src, ""};
         for (int j = 0; j < J; ++j) {
           const std::string p = g + "convs." + std::to_string(j) + ".";
-          const detail::GccnConv conv{o, op, p};
+          const detail::GccnConv conv{o, op, p, j == J - 1};
           const bool gin = o.gnn() == GccnGnn::gin;
           CochainKey pre = key(src, "pre", j);
           s.step(conv.intra(gin ? key(src, "gin", j) : pre, prev));
@@ -217,8 +252,8 @@ inline nn::OperatorSchedule gccn_schedule(const GCCNOptions& o) {
         CochainKey t{dst, ""}, sc{src, ""};  // t unused while the targets are zero (j = 0)
         for (int j = 0; j < J; ++j) {
           const std::string p = g + "convs." + std::to_string(j) + ".";
-          const detail::GccnConv conv{o, op, p};
           const bool last = j == J - 1;
+          const detail::GccnConv conv{o, op, p, last};
           const CochainKey pt = key(dst, "pt", j), ps = key(src, "ps", j);
           if (o.gnn() == GccnGnn::gin) {
             // Sum, then the MLP's first Linear on both parts, its norm over the union.
@@ -230,6 +265,11 @@ inline nn::OperatorSchedule gccn_schedule(const GCCNOptions& o) {
             s.step(into(ls.rank, ls.state).sum(from(ss.rank, ss.state)).linear(p + "nn.lins.0", c));
             gin_mlp(s, p, lt, {lt, ls}, 0, pt);
             if (!last) gin_mlp(s, p, ls, {lt, ls}, 1, ps);
+          } else if (o.gnn() == GccnGnn::gat) {
+            const CochainKey lt = key(dst, "lt", j);  // lin of the targets, for their scores
+            if (j > 0) s.step(into(lt.rank, lt.state).sum(conv.lin(from(t.rank, t.state))));
+            s.step(conv.targets(pt, lt, sc, j == 0));
+            if (!last) s.step(conv.sources(ps, sc));
           } else {
             s.step(conv.targets(pt, t, sc, j == 0));
             if (!last) s.step(conv.sources(ps, sc));

@@ -1,9 +1,9 @@
 // topos/models/topobench/protocol.hpp
 // TopoBench's protocol as data (std only): the hyperparameters of every (model, dataset) pair
 // parsed from the one-run-per-line file `reproduce-hparams.txt` (TopoBench's
-// scripts/reproduce.sh, see ../shared/datasets/topobench/), the table's model and dataset names,
-// its random splits (split.hpp), and runs.csv, the runner's resumable
-// record of finished runs with the table's summary (mean and std over the splits).
+// scripts/reproduce.sh, see ../shared/datasets/topobench/), the table's dataset names, what a
+// table model declares (ModelSpec; table_models.hpp registers them), its random splits, runs.csv,
+// the runner's resumable record of finished runs, and the summary (mean and std over splits).
 #pragma once
 
 #include "topos/data/error.hpp"                // DataError, read_text_file
@@ -37,11 +37,12 @@ struct RankLayout {
   std::set<std::string> operators;
 };
 
-/// The ten rows of TopoBench's table and GCCN: the table's name, TopoBench's config
-/// (domain/name), the domain it lifts to, the ranks its encoder reads, how many ranks its wrapper
-/// and readout see (TopoBench's num_cell_dimensions: 3 for cells and simplices, see
+/// What the pipeline needs of a table model, besides its backbone: the table's name, TopoBench's
+/// config (domain/name), the domain it lifts to, the ranks its encoder reads, how many ranks its
+/// wrapper and readout see (TopoBench's num_cell_dimensions: 3 for cells and simplices, see
 /// docs/topobench.md), and the operators (topobench/lifting.hpp's names) its backbone and
-/// readout use.
+/// readout use. The table's rows are table_models.hpp's (`model_specs()`, `model_spec(name)`),
+/// each registered there once with its backbone.
 struct ModelSpec {
   const char* name;
   const char* config;
@@ -55,71 +56,6 @@ inline const std::vector<std::string>& topotune_cell_neighborhoods() {
   static const std::vector<std::string> n = {"up_adjacency-1", "up_incidence-0", "down_incidence-2",
                                              "2-up_adjacency-0"};
   return n;
-}
-
-inline const std::vector<ModelSpec>& model_specs() {
-  static const std::vector<ModelSpec> specs = {
-      {"GCN", "graph/gcn", Domain::graph, {0}, 1, {"gcn_adjacency"}},
-      {"AllSetTransformer",
-       "hypergraph/allsettransformer",
-       Domain::hypergraph,
-       {0},
-       1,
-       {"incidence_1"}},
-      {"EDGNN", "hypergraph/edgnn", Domain::hypergraph, {0}, 1, {"incidence_1", "node_degree"}},
-      {"UniGNN2",
-       "hypergraph/unignn2",
-       Domain::hypergraph,
-       {0},
-       1,
-       {"incidence_1", "incidence_1_norm"}},
-      {"CWN",
-       "cell/cwn",
-       Domain::cell,
-       {0, 1, 2},
-       3,
-       {"adjacency_1", "incidence_1", "incidence_2", "incidence_1_t"}},
-      {"CCCN",
-       "cell/cccn",
-       Domain::cell,
-       {0, 1},
-       2,
-       {"incidence_1", "up_laplacian_1_gcn", "down_laplacian_1_gcn"}},
-      {"CCXN",
-       "cell/ccxn",
-       Domain::cell,
-       {0, 1, 2},
-       3,
-       {"adjacency_0", "incidence_1", "incidence_2", "incidence_2_t"}},
-      {"SCN",
-       "simplicial/scn",
-       Domain::simplicial,
-       {0, 1, 2},
-       3,
-       {"incidence_1", "incidence_2", "hodge_laplacian_0_norm", "hodge_laplacian_1_norm",
-        "hodge_laplacian_2_norm"}},
-      {"SCCN",
-       "simplicial/sccn",
-       Domain::simplicial,
-       {0, 1, 2},
-       3,
-       {"incidence_1", "incidence_2", "hodge_laplacian_0", "hodge_laplacian_1",
-        "hodge_laplacian_2"}},
-      {"SCCNN",
-       "simplicial/sccnn_custom",
-       Domain::simplicial,
-       {0, 1, 2},
-       3,
-       {"incidence_1", "incidence_2", "hodge_laplacian_0", "down_laplacian_1", "up_laplacian_1",
-        "down_laplacian_2", "up_laplacian_2"}},
-      // GCCN (TopoTune) with topotune.yaml's cell routes; incidence_r for the readout.
-      {"GCCN", "cell/topotune", Domain::cell, {0, 1, 2}, 3, [] {
-         std::set<std::string> ops(topotune_cell_neighborhoods().begin(),
-                                   topotune_cell_neighborhoods().end());
-         ops.insert({"incidence_1", "incidence_2"});
-         return ops;
-       }()}};
-  return specs;
 }
 
 /// The table's datasets and the names TopoBench's configs give them.
@@ -249,9 +185,6 @@ inline std::vector<RunConfig> read_hparams(const std::filesystem::path& path) {
   return parse_hparams(topos::data::read_text_file(path), path.string());
 }
 
-inline const ModelSpec& model_spec(const std::string& name) {
-  return find_name(model_specs(), name, "TopoBench model");
-}
 inline RankLayout rank_layout(const ModelSpec& m) {
   return {m.domain, m.encoded_ranks, m.cell_dimensions, m.operators};
 }

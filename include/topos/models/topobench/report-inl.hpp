@@ -57,10 +57,12 @@ TOPOS_INLINE std::string html_escape(const std::string& s) {
 }
 
 namespace detail {
-/// The table's rows (models) and columns (datasets) that have a cell or a not-run entry: the
-/// table's own in its order, then others (a user's backbone or dataset) as they first appear.
+/// The table's rows (models) and columns (datasets) that have a cell or a not-run entry: those of
+/// `model_order` and the table's datasets in their order, then others (a user's backbone or
+/// dataset) as they first appear.
 inline std::pair<std::vector<std::string>, std::vector<std::string>> table_axes(
-    const std::vector<CellSummary>& cells, const NotRun& not_run) {
+    const std::vector<CellSummary>& cells, const NotRun& not_run,
+    const std::vector<std::string>& model_order) {
   std::vector<std::string> models, datasets;
   const auto add = [](std::vector<std::string>& v, const std::string& x) {
     if (std::find(v.begin(), v.end(), x) == v.end()) v.push_back(x);
@@ -71,8 +73,8 @@ inline std::pair<std::vector<std::string>, std::vector<std::string>> table_axes(
            std::any_of(not_run.begin(), not_run.end(),
                        [&](const auto& n) { return n[model ? 0 : 1] == x; });
   };
-  for (const auto& m : model_specs())
-    if (seen(m.name, true)) models.push_back(m.name);
+  for (const auto& m : model_order)
+    if (seen(m, true)) add(models, m);
   for (const auto& d : table_datasets())
     if (seen(d.name, false)) datasets.push_back(d.name);
   for (const auto& c : cells) add(models, c.model), add(datasets, c.dataset);
@@ -96,9 +98,10 @@ inline TableCell table_cell(const std::vector<CellSummary>& cells, const NotRun&
 }
 }  // namespace detail
 
-TOPOS_INLINE std::string table_markdown(const std::vector<RunResult>& runs, const NotRun& not_run) {
+TOPOS_INLINE std::string table_markdown(const std::vector<RunResult>& runs, const NotRun& not_run,
+                                        const std::vector<std::string>& model_order) {
   const auto cells = summarize(runs);
-  const auto [models, datasets] = detail::table_axes(cells, not_run);
+  const auto [models, datasets] = detail::table_axes(cells, not_run, model_order);
   std::ostringstream o;
   o << "| model |";
   for (const auto& d : datasets) o << " " << d << " |";
@@ -124,9 +127,10 @@ TOPOS_INLINE std::string table_markdown(const std::vector<RunResult>& runs, cons
 }
 
 TOPOS_INLINE std::string report_html(const std::vector<RunResult>& runs, const NotRun& not_run,
-                                     const std::string& curves, const std::string& curves_file) {
+                                     const std::string& curves, const std::string& curves_file,
+                                     const std::vector<std::string>& model_order) {
   const auto cells = summarize(runs);
-  const auto [models, datasets] = detail::table_axes(cells, not_run);
+  const auto [models, datasets] = detail::table_axes(cells, not_run, model_order);
   double total = 0;
   for (const auto& r : runs) total += r.seconds;
   std::ostringstream h;
@@ -185,7 +189,8 @@ TOPOS_INLINE std::string report_html(const std::vector<RunResult>& runs, const N
   return h.str();
 }
 
-TOPOS_INLINE RunsFolder::RunsFolder(std::filesystem::path out) : out_(std::move(out)) {
+TOPOS_INLINE RunsFolder::RunsFolder(std::filesystem::path out, std::vector<std::string> model_order)
+    : out_(std::move(out)), model_order_(std::move(model_order)) {
   std::filesystem::create_directories(out_);
   curves_ = curves_header();
   if (const auto file = out_ / "curves.csv"; std::filesystem::exists(file)) {
@@ -194,6 +199,34 @@ TOPOS_INLINE RunsFolder::RunsFolder(std::filesystem::path out) : out_(std::move(
   }
   if (const auto file = out_ / "runs.csv"; std::filesystem::exists(file))
     runs_ = parse_runs(data::read_text_file(file), file.string());
+  if (const auto file = out_ / "baselines.csv"; std::filesystem::exists(file)) {
+    std::istringstream in(data::read_text_file(file));
+    std::string line;
+    for (int n = 1; std::getline(in, line); ++n) {
+      if (n == 1 || line.empty()) continue;
+      std::istringstream f(line);
+      std::string d, seed, v;
+      std::size_t a = 0, b = 0;
+      try {
+        if (!std::getline(f, d, ',') || !std::getline(f, seed, ',') || !std::getline(f, v))
+          throw std::invalid_argument("fields");
+        baselines_[{d, std::stoll(seed, &a)}] = std::stod(v, &b);
+        if (a != seed.size() || b != v.size()) throw std::invalid_argument("trailing");
+      } catch (const std::exception&) {
+        throw data::DataError(file.string() + ":" + std::to_string(n) +
+                              ": expected dataset,split_seed,majority_test_accuracy");
+      }
+    }
+  }
+}
+
+TOPOS_INLINE void RunsFolder::add_baseline(const std::string& dataset, std::int64_t seed,
+                                           double accuracy) {
+  baselines_[{dataset, seed}] = accuracy;
+  std::ostringstream o;
+  o << "dataset,split_seed,majority_test_accuracy\n" << std::fixed << std::setprecision(6);
+  for (const auto& [k, v] : baselines_) o << k.first << "," << k.second << "," << v << "\n";
+  write_file_atomic((out_ / "baselines.csv").string(), o.str());
 }
 
 TOPOS_INLINE void RunsFolder::add(const RunResult& run, const std::vector<Check>& curve,
@@ -207,9 +240,10 @@ TOPOS_INLINE void RunsFolder::add(const RunResult& run, const std::vector<Check>
 
 TOPOS_INLINE void RunsFolder::write_reports(const NotRun& not_run) const {
   write_file_atomic((out_ / "summary.csv").string(), format_summary(summarize(runs_)));
-  write_file_atomic((out_ / "index.html").string(),
-                    report_html(runs_, not_run, curves_, (out_ / "curves.csv").string()));
-  write_file_atomic((out_ / "table.md").string(), table_markdown(runs_, not_run));
+  write_file_atomic(
+      (out_ / "index.html").string(),
+      report_html(runs_, not_run, curves_, (out_ / "curves.csv").string(), model_order_));
+  write_file_atomic((out_ / "table.md").string(), table_markdown(runs_, not_run, model_order_));
 }
 
 }  // namespace topos::models::topobench

@@ -2,8 +2,10 @@
 // A folder of TopoBench runs (std only): runs.csv (one row per finished run, resumable: a runner
 // started again on the same folder skips the runs it holds), curves.csv (every run's validation
 // checks), summary.csv (mean and std per cell), index.html (the table, the time per cell and the
-// learning curves) and table.md (the table in Markdown), each rewritten atomically after every
-// run. Cells are (model, dataset); the table's models and datasets come first, in its order.
+// learning curves), table.md (the table in Markdown) and baselines.csv (the majority classifier
+// per dataset and split), each rewritten atomically after every run. Cells are (model, dataset);
+// the models named first (the table's: table_model_names() of table_models.hpp) and the table's
+// datasets come first, in their order, others after them.
 //   RunsFolder folder("out");
 //   if (!folder.done("GIN2", "MUTAG", 0)) folder.add(run.result, run.curve);
 #pragma once
@@ -47,19 +49,23 @@ Curves parse_curves(const std::string& text, const std::string& file);
 std::string html_escape(const std::string& s);
 
 /// table.md: the table in Markdown (models as rows, datasets as columns, mean ± std and the
-/// number of runs where fewer than five), for docs/topobench.md.
-std::string table_markdown(const std::vector<RunResult>& runs, const NotRun& not_run);
+/// number of runs where fewer than five), for docs/topobench.md. Rows: the models of
+/// `model_order` that have a cell, in that order, then the others as they first appear.
+std::string table_markdown(const std::vector<RunResult>& runs, const NotRun& not_run,
+                           const std::vector<std::string>& model_order = {});
 
 /// index.html: the table (mean ± std over the splits, runs, time per cell) and, per cell, the
 /// validation accuracy of every split against the check (`curves`: curves.csv's text).
 std::string report_html(const std::vector<RunResult>& runs, const NotRun& not_run,
-                        const std::string& curves, const std::string& curves_file);
+                        const std::string& curves, const std::string& curves_file,
+                        const std::vector<std::string>& model_order = {});
 
 /// A runs folder: what an earlier start left (checked: a malformed runs.csv or curves.csv is an
 /// error naming it), and every finished run added at once, all files rewritten atomically.
 class RunsFolder {
  public:
-  explicit RunsFolder(std::filesystem::path out);
+  /// The reports' rows start with the models of `model_order` (table_markdown).
+  explicit RunsFolder(std::filesystem::path out, std::vector<std::string> model_order = {});
 
   const std::filesystem::path& path() const { return out_; }
   const std::vector<RunResult>& runs() const { return runs_; }
@@ -75,10 +81,19 @@ class RunsFolder {
   /// summary.csv, index.html and table.md of the runs so far.
   void write_reports(const NotRun& not_run = {}) const;
 
+  /// The majority classifier's test accuracy per (dataset, split seed): baselines.csv.
+  const std::map<std::pair<std::string, std::int64_t>, double>& baselines() const {
+    return baselines_;
+  }
+  /// A split's majority baseline (majority_accuracy): baselines.csv rewritten.
+  void add_baseline(const std::string& dataset, std::int64_t seed, double accuracy);
+
  private:
   std::filesystem::path out_;
+  std::vector<std::string> model_order_;
   std::vector<RunResult> runs_;
   std::string curves_;
+  std::map<std::pair<std::string, std::int64_t>, double> baselines_;
 };
 
 }  // namespace topos::models::topobench

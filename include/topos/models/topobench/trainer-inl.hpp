@@ -9,11 +9,17 @@
 #include "topos/util/progress.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
+#include <exception>
 #include <iomanip>
+#include <iostream>
+#include <map>
+#include <mutex>
 #include <random>
 #include <sstream>
+#include <thread>
 
 namespace topos::models::topobench {
 
@@ -216,6 +222,118 @@ TOPOS_INLINE TrainedRun train_run(const LiftedDataset& data, const Backbone& bac
   run.best_val_accuracy = std::max(best, 0.0);
   run.model = net;
   return run;
+}
+
+TOPOS_INLINE std::set<std::pair<std::string, std::string>> run_table(
+    const std::filesystem::path& root, const std::vector<TableJob>& jobs, RunsFolder& folder,
+    NotRun& not_run, const TableRunOptions& options) {
+  if (!options.backbone) throw std::invalid_argument("run_table: no TableRunOptions::backbone");
+  for (const auto& j : jobs)
+    if (!j.model || !j.dataset || !j.cfg)
+      throw std::invalid_argument("run_table: a job without its model, dataset or config");
+  const int workers = std::max(1, std::min<int>(options.jobs, static_cast<int>(jobs.size())));
+  std::set<std::pair<std::string, std::string>> failed_cells;
+  std::mutex mutex;  // guards the lifted cache, the folder, not_run and the bar
+  // Each dataset is lifted once per domain, settings and operators, and kept while runs need it.
+  const auto lifting_key = [](const TableJob& j) {
+    std::string ops;
+    for (const auto& op : j.model->operators) ops += (ops.empty() ? "" : ",") + op;
+    return std::string(j.dataset->name) + "/" + domain_name(j.model->domain) + "/" +
+           (j.cfg->signed_incidence ? "signed" : "unsigned") + "/" +
+           std::to_string(j.cfg->max_cell_length) + "/" + ops + (j.factored ? "/factored" : "");
+  };
+  std::map<std::string, std::shared_ptr<const LiftedDataset>> lifted;
+  std::map<std::string, std::shared_ptr<std::mutex>> lifting;
+  std::map<std::string, std::size_t> remaining;  // runs not yet started, per lifting
+  for (const auto& j : jobs) ++remaining[lifting_key(j)];
+  const auto get_lifted = [&](const TableJob& j) {
+    const std::string key = lifting_key(j);
+    std::shared_ptr<std::mutex> m;
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      --remaining[key];
+      for (auto it = lifted.begin(); it != lifted.end();)  // running runs hold their own
+        it = remaining[it->first] == 0 && it->first != key ? lifted.erase(it) : std::next(it);
+      if (auto it = lifted.find(key); it != lifted.end()) return it->second;
+      auto& slot = lifting[key];
+      if (!slot) slot = std::make_shared<std::mutex>();
+      m = slot;
+    }
+    std::lock_guard<std::mutex> one(*m);  // one thread lifts, the others wait for it
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      if (auto it = lifted.find(key); it != lifted.end()) return it->second;
+    }
+    auto d = std::make_shared<const LiftedDataset>(
+        options.lift ? options.lift(j)
+                     : lift_dataset(root, *j.dataset, rank_layout(*j.model), *j.cfg, j.factored));
+    std::lock_guard<std::mutex> lock(mutex);
+    std::cerr << "lifted " << key << " in " << std::fixed << std::setprecision(2) << d->seconds
+              << " s\n";
+    lifted[key] = d;
+    return std::shared_ptr<const LiftedDataset>(d);
+  };
+
+  ProgressBar bar("topobench", static_cast<std::int64_t>(jobs.size()), "run");
+  std::atomic<std::size_t> next{0};
+  std::exception_ptr failure;
+  const auto worker = [&] {
+    for (;;) {
+      const std::size_t k = next++;
+      if (k >= jobs.size()) return;
+      const TableJob& j = jobs[k];
+      {
+        std::lock_guard<std::mutex> lock(mutex);
+        if (failed_cells.count({j.model->name, j.dataset->name})) {  // its cell failed already
+          bar.update(1);
+          continue;
+        }
+      }
+      try {
+        const auto data = get_lifted(j);
+        TrainOptions train;
+        train.max_epochs = options.max_epochs;
+        train.progress = workers == 1;
+        const auto run =
+            train_run(*data, options.backbone(*j.model), j.dataset->name, *j.cfg, j.seed, train);
+        const auto& r = run.result;
+        const double majority = majority_accuracy(*data, j.seed);
+        std::lock_guard<std::mutex> lock(mutex);
+        folder.add_baseline(j.dataset->name, j.seed, majority);
+        folder.add(r, run.curve, not_run);
+        std::ostringstream status;
+        status << r.model << " " << r.dataset << " split " << r.split_seed << ": " << std::fixed
+               << std::setprecision(1) << 100 * r.test_accuracy << "% (" << r.epochs << " epochs, "
+               << std::setprecision(0) << r.seconds << " s)";
+        bar.update(1, status.str());
+      } catch (const std::exception& e) {
+        // A run that fails (e.g. out of memory) marks its cell not run, with the error, and the
+        // table goes on.
+        std::lock_guard<std::mutex> lock(mutex);
+        failed_cells.insert({j.model->name, j.dataset->name});
+        std::string what = e.what();  // LibTorch's errors carry a backtrace after the first line
+        what = what.substr(0, what.find('\n'));
+        not_run.push_back({j.model->name, j.dataset->name,
+                           "split " + std::to_string(j.seed) + " failed: " + what});
+        if (options.on_not_run) options.on_not_run(not_run);
+        std::cerr << "\nfailed: " << j.model->name << " on " << j.dataset->name << " split "
+                  << j.seed << ": " << what << "\n";
+        bar.update(1);
+      } catch (...) {
+        std::lock_guard<std::mutex> lock(mutex);
+        if (!failure) failure = std::current_exception();
+        next = jobs.size();  // stop handing out work; finished runs are saved
+        return;
+      }
+    }
+  };
+  std::vector<std::thread> threads;
+  for (int w = 1; w < workers; ++w) threads.emplace_back(worker);
+  worker();
+  for (auto& t : threads) t.join();
+  bar.finish();
+  if (failure) std::rethrow_exception(failure);
+  return failed_cells;
 }
 
 }  // namespace topos::models::topobench

@@ -5,7 +5,8 @@
 // shuffled every epoch, Adam with StepLR (step 50, gamma 0.5), a validation check every
 // `val_every` epochs, early stopping after `patience` checks without a strictly better
 // validation accuracy (not before `min_epochs`), the best check's parameters and buffers put
-// back, and the test accuracy there. topobench/report.hpp writes the runs' files.
+// back, and the test accuracy there. topobench/report.hpp writes the runs' files; run_table runs
+// many (model, dataset, split) jobs side by side into a runs folder (tdl topobench).
 //   const auto data = lift_dataset(root, dataset_name("MUTAG"), mine.layout(), cfg);
 //   const auto run = train_run(data, mine, "MUTAG", cfg, /*split seed*/ 0);
 #pragma once
@@ -14,6 +15,7 @@
 #include "topos/models/topobench/batch.hpp"
 #include "topos/models/topobench/model.hpp"
 #include "topos/models/topobench/protocol.hpp"
+#include "topos/models/topobench/report.hpp"
 
 #include <torch/torch.h>
 
@@ -22,6 +24,7 @@
 #include <memory>
 #include <set>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace topos::models::topobench {
@@ -98,6 +101,42 @@ struct TrainedRun {
 TrainedRun train_run(const LiftedDataset& data, const Backbone& backbone,
                      const std::string& dataset, const RunConfig& cfg, std::int64_t seed,
                      const TrainOptions& options = {});
+
+/// One run of a table: `model` on split `seed` of `dataset` with the hyperparameters `cfg`
+/// (find_config), its rank-1 pair operators kept as factors where `factored` (lift_dataset).
+struct TableJob {
+  const ModelSpec* model = nullptr;
+  const DatasetName* dataset = nullptr;
+  const RunConfig* cfg = nullptr;
+  std::int64_t seed = 0;
+  bool factored = false;
+};
+
+struct TableRunOptions {
+  /// Runs side by side, one thread each (the caller sets the intra-op threads: one per run where
+  /// the runs fill the cores, nn::set_cpu_threads).
+  int jobs = 1;
+  int max_epochs = 0;  ///< TrainOptions::max_epochs
+  /// The backbone a job's model trains (required; tdl topobench: table_backbone(model.name)).
+  std::function<Backbone(const ModelSpec&)> backbone;
+  /// A job's dataset, lifted (default: lift_dataset from run_table's `root` with the model's
+  /// layout). Each lifting is made once and dropped when no job left needs it.
+  std::function<LiftedDataset(const TableJob&)> lift;
+  /// Called when a run failed and its cell joined `not_run` (tdl: not_run.csv rewritten).
+  std::function<void(const NotRun&)> on_not_run;
+};
+
+/// Runs `jobs` over `options.jobs` threads: each job's dataset lifted (shared by the jobs of the
+/// same lifting), its backbone trained (train_run, a progress bar per run when one thread runs),
+/// the run added to `folder` (its reports written with `not_run`) and the majority baseline of its
+/// split to the folder's baselines.csv; a progress bar over the jobs on stderr. A run that throws
+/// a std::exception puts its cell in `not_run` with the error ("split S failed: ...") and the
+/// cell's remaining jobs are skipped; anything else stops handing out jobs, lets the running ones
+/// finish, and is rethrown. Returns the cells (model, dataset) that failed.
+std::set<std::pair<std::string, std::string>> run_table(const std::filesystem::path& root,
+                                                        const std::vector<TableJob>& jobs,
+                                                        RunsFolder& folder, NotRun& not_run,
+                                                        const TableRunOptions& options);
 }  // namespace topos::models::topobench
 
 #ifdef TOPOS_HEADER_ONLY

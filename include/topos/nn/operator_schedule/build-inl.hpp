@@ -122,7 +122,8 @@ TOPOS_INLINE TermShape OperatorNetworkImpl::infer(detail::NetworkBuildContext& c
       return {x.rank, t.out};
     case TermOp::Kind::linear:
       make_parameter(where, t.name + ".weight", {t.out, x.channels},
-                     ParameterInit::linear_weight());
+                     t.linear_init == LinearInit::glorot ? ParameterInit::glorot(1.0)
+                                                         : ParameterInit::linear_weight());
       if (t.bias)
         make_parameter(where, t.name + ".bias", {t.out}, ParameterInit::linear_bias(x.channels));
       return {x.rank, t.out};

@@ -55,6 +55,11 @@ struct AttendOptions {
   TORCH_ARG(bool, transposed) = false;  ///< attend over Aᵀ
 };
 
+/// How `linear` initialises a new weight: torch.nn.Linear's Kaiming uniform (a = √5, bound
+/// 1/√in), or PyG's weight_initializer='glorot' (Xavier uniform, bound √(6 / (in + out)), as
+/// GCNConv's and GATConv's `lin`). The bias is torch.nn.Linear's (±1/√in) either way, as PyG's.
+enum class LinearInit { torch, glorot };
+
 /// One operation of a term or of a step's tail: one of the built-in kinds that the interpreter
 /// still handles itself, or an Operation (`custom`: the elementwise built-ins of elementwise.hpp
 /// and a user's), whose declared traits the network reads.
@@ -88,6 +93,7 @@ struct TermOp {
   std::int64_t out = 0;
   bool bias = true;
   double gain = 1.414;
+  LinearInit linear_init = LinearInit::torch;        ///< linear: its weight's
   std::vector<std::pair<std::string, int>> filters;  ///< powers: (operator, order)
   int norm_from = 1;
   AttendOptions attention{""};  ///< attend: its options
@@ -147,11 +153,14 @@ class Chain : public detail::OperationList {
   }
   /// TopoModelX's Conv weight: weight(path + ".weight", out).
   Derived& conv(const std::string& path, std::int64_t out) { return weight(path + ".weight", out); }
-  /// torch.nn.Linear at `path`: parameters path.weight (out × in) and path.bias.
-  Derived& linear(std::string path, std::int64_t out, bool bias = true) {
+  /// torch.nn.Linear at `path`: parameters path.weight (out × in) and path.bias, initialised as
+  /// `init` says (LinearInit).
+  Derived& linear(std::string path, std::int64_t out, bool bias = true,
+                  LinearInit init = LinearInit::torch) {
     TermOp t(TermOp::Kind::linear, std::move(path));
     t.out = out;
     t.bias = bias;
+    t.linear_init = init;
     return add(std::move(t));
   }
   Derived& act(Update u, double negative_slope = 0.01) {
@@ -173,6 +182,12 @@ class Chain : public detail::OperationList {
   /// side of the union graph of an inter-rank neighbourhood (GcnPart, gnn.hpp).
   Derived& gcn(std::string op, GcnPart part = GcnPart::graph) {
     return apply(builtin::GcnPropagation(std::move(op), part));
+  }
+  /// PyG's GATConv attention (after its `lin`) over `op`'s pattern with self-loops: over one
+  /// rank's graph, or the targets or sources of the union graph of an inter-rank neighbourhood;
+  /// its vectors at `path`.att_src and `path`.att_dst (GatOptions, gnn.hpp).
+  Derived& gat(std::string op, std::string path, GatOptions o = {}) {
+    return apply(builtin::GatAttention(std::move(op), std::move(path), std::move(o)));
   }
   /// torch.nn.LayerNorm over the channels at `path`.
   Derived& layer_norm(std::string path) {
