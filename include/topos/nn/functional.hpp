@@ -167,10 +167,39 @@ struct DropoutFunction : public torch::autograd::Function<DropoutFunction> {
 };
 }  // namespace detail
 
+namespace detail {
+/// The calling thread's dropout stream (ScopedDropoutStream), or null.
+inline std::uint64_t*& thread_dropout_stream() {
+  thread_local std::uint64_t* stream = nullptr;
+  return stream;
+}
+}  // namespace detail
+
+/// While alive, the calling thread's dropout masks (nn::dropout on the CPU) are seeded from a
+/// stream of its own, started at `seed`, instead of torch's default generator. torch's generator
+/// is one per process: runs trained on several threads at once would otherwise take each other's
+/// draws, and their results would depend on how the threads interleave. Scopes nest; the stream
+/// is the innermost one's.
+class ScopedDropoutStream {
+ public:
+  explicit ScopedDropoutStream(std::uint64_t seed)
+      : state_(seed), outer_(detail::thread_dropout_stream()) {
+    detail::thread_dropout_stream() = &state_;
+  }
+  ~ScopedDropoutStream() { detail::thread_dropout_stream() = outer_; }
+  ScopedDropoutStream(const ScopedDropoutStream&) = delete;
+  ScopedDropoutStream& operator=(const ScopedDropoutStream&) = delete;
+
+ private:
+  std::uint64_t state_;
+  std::uint64_t* outer_;
+};
+
 /// torch::dropout's semantics (in training each element is zeroed with probability p and the
 /// others scaled by 1 / (1 - p); the identity otherwise), differentiable in x. On the CPU the mask
 /// comes from kernels/dropout.hpp, seeded by one draw of torch's default generator (so
-/// torch::manual_seed repeats it); elsewhere torch draws it.
+/// torch::manual_seed repeats it), or of the thread's ScopedDropoutStream; elsewhere torch draws
+/// it.
 inline torch::Tensor dropout(const torch::Tensor& x, double p, bool training) {
   if (!(p >= 0 && p <= 1))
     throw std::invalid_argument("dropout: rate " + std::to_string(p) + " outside [0, 1]");
@@ -178,7 +207,9 @@ inline torch::Tensor dropout(const torch::Tensor& x, double p, bool training) {
   const bool floating = x.scalar_type() == torch::kFloat || x.scalar_type() == torch::kDouble;
   if (p == 1 || !x.device().is_cpu() || !floating) return torch::dropout(x, p, training);
   std::uint64_t seed = 0;
-  {
+  if (std::uint64_t* stream = detail::thread_dropout_stream()) {
+    seed = detail::splitmix64(*stream += 0x9E3779B97F4A7C15ull);
+  } else {
     auto gen = at::detail::getDefaultCPUGenerator();
     std::lock_guard<std::mutex> lock(gen.mutex());
     seed = at::check_generator<at::CPUGeneratorImpl>(gen)->random64();

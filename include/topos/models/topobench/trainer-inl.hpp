@@ -5,7 +5,8 @@
 
 #include "topos/data/graph_datasets.hpp"
 #include "topos/models/topobench/trainer.hpp"
-#include "topos/nn/cloneable.hpp"  // StateSnapshot
+#include "topos/nn/cloneable.hpp"   // StateSnapshot
+#include "topos/nn/functional.hpp"  // ScopedDropoutStream
 #include "topos/util/progress.hpp"
 
 #include <algorithm>
@@ -15,6 +16,7 @@
 #include <exception>
 #include <iomanip>
 #include <iostream>
+#include <limits>
 #include <map>
 #include <mutex>
 #include <random>
@@ -136,6 +138,11 @@ TOPOS_INLINE TrainedRun train_run(const LiftedDataset& data, const Backbone& bac
       throw std::invalid_argument(backbone.name() + " needs the operator '" + op + "', which " +
                                   dataset + " lifted to " + domain_name(layout.domain) +
                                   " does not have");
+  // torch's generator is one per process. So that runs on several threads (run_table's jobs)
+  // draw what they would draw alone, a run seeds it and builds its model under one lock, takes
+  // one more draw to start its own dropout stream, and draws nothing from it afterwards.
+  static std::mutex torch_generator;
+  std::unique_lock<std::mutex> seeding(torch_generator);
   torch::manual_seed(42);  // TopoBench seeds every run with 42
   TrainedRun run;
   TopoBenchModel net(TopoBenchModelOptions(backbone, g0.widths, cfg.hidden, data.num_classes)
@@ -143,6 +150,10 @@ TOPOS_INLINE TrainedRun train_run(const LiftedDataset& data, const Backbone& bac
                          .dropout(cfg.dropout)
                          .propagate_signal_down(cfg.readout == "PropagateSignalDown")
                          .graph_level(!data.node_level));
+  const nn::ScopedDropoutStream dropout_stream(static_cast<std::uint64_t>(
+      torch::randint(std::numeric_limits<std::int64_t>::max(), {1}, torch::kLong)
+          .item<std::int64_t>()));
+  seeding.unlock();
   torch::optim::Adam opt(net->parameters(), torch::optim::AdamOptions(cfg.lr));
   const int max_epochs =
       options.max_epochs > 0 ? std::min(cfg.max_epochs, options.max_epochs) : cfg.max_epochs;
