@@ -12,6 +12,7 @@
 
 #include "topos/data/graph_datasets.hpp"
 #include "topos/models/topobench/report.hpp"
+#include "topos/models/topobench/table_models.hpp"  // model_specs, model_spec
 #include "topos/models/topobench/trainer.hpp"
 
 #include <pybind11/stl.h>

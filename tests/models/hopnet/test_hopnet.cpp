@@ -1233,7 +1233,7 @@ TEST_CASE("on CUDA, a training step and a rollout step equal the CPU ones", "[ho
 TEST_CASE("HOPNet gives all-off's loss and gradients with each fast path on alone and all on",
           "[hopnet][training][fast_paths]") {
   torch::manual_seed(11);
-  const Scene scene = builtin_scene(12);
+  const Scene scene = testing::cube_and_sphere(12);
   const Normalizer norm(unit_stats());
   Hopnet net(HopnetOptions().hidden(16).mode(FeatureMode::native));
   const auto g = make_geometry(scene, FeatureMode::native);
