@@ -75,33 +75,32 @@ TOPOS_INLINE void save_parameters(const torch::nn::Module& m, const std::string&
   write_tensor_dict(dict, path);
 }
 
-/// Parses the bytes of a torch file holding a dict of tensors (save_parameters,
-/// torch.save(state_dict)); `source` names it in errors. Untrusted input: the archive and the
-/// pickle are checked first (detail::torch_zip_records, detail::check_pickle), storages are
-/// the archive's members at their real sizes (whatever element count the pickle claims), and
-/// every tensor must lie inside its storage, so a forged file is an error naming it, never a
-/// read out of bounds or an allocation larger than the file.
-TOPOS_INLINE std::map<std::string, torch::Tensor> parse_tensor_dict(const char* data,
-                                                                    std::size_t size,
-                                                                    const std::string& source) {
-  const auto fail = [&](const std::string& why) -> void {
-    throw std::runtime_error(source + ": " + why);
-  };
-  const auto records = detail::torch_zip_records(data, size, source);
+namespace detail {
+
+/// The folder of the archive's one `<folder>/data.pkl` (torch.save names it after the file).
+inline std::string torch_archive_prefix(const std::map<std::string, ZipRecord>& records,
+                                        const std::string& source) {
   std::string prefix;
   for (const auto& [name, r] : records) {
     const auto slash = name.find('/');
     if (slash != std::string::npos && name.compare(slash, std::string::npos, "/data.pkl") == 0) {
-      if (!prefix.empty()) fail("not a readable torch file: two data.pkl members");
+      if (!prefix.empty())
+        throw std::runtime_error(source + ": not a readable torch file: two data.pkl members");
       prefix = name.substr(0, slash + 1);
     }
   }
-  if (prefix.empty()) fail("not a readable torch file: no data.pkl (not a torch.save file)");
-  const detail::ZipRecord pkl = records.at(prefix + "data.pkl");
-  detail::check_pickle(data + pkl.offset, pkl.size, source);
-  const std::string pickle = detail::pickle_for_libtorch(data + pkl.offset, pkl.size, source);
+  if (prefix.empty())
+    throw std::runtime_error(source +
+                             ": not a readable torch file: no data.pkl (not a torch.save file)");
+  return prefix;
+}
 
-  // Storages: every member under data/, copied out at its real size.
+/// LibTorch's unpickler over `pickle` (checked and rewritten), its storages the members under
+/// `<prefix>data/`, each copied out at its real size; no types, objects or other storages.
+inline c10::IValue unpickle_torch_file(const char* data,
+                                       const std::map<std::string, ZipRecord>& records,
+                                       const std::string& prefix, const std::string& pickle,
+                                       const std::string& source) {
   auto storages = std::make_shared<torch::jit::DeserializationStorageContext>();
   for (const auto& [name, r] : records) {
     if (name.compare(0, prefix.size() + 5, prefix + "data/") != 0) continue;
@@ -118,7 +117,6 @@ TOPOS_INLINE std::map<std::string, torch::Tensor> parse_tensor_dict(const char* 
     pos += k;
     return k;
   };
-  c10::IValue v;
   try {
     torch::jit::Unpickler unpickler(
         reader,
@@ -133,40 +131,67 @@ TOPOS_INLINE std::map<std::string, torch::Tensor> parse_tensor_dict(const char* 
           throw std::runtime_error("no storage member data/" + key);
         },
         c10::Device(c10::kCPU), false, torch::jit::Unpickler::defaultTypeParser, storages);
-    v = unpickler.parse_ivalue();
+    return unpickler.parse_ivalue();
   } catch (const c10::Error& e) {
-    fail(std::string("not a readable torch file: ") + e.what_without_backtrace());
+    throw std::runtime_error(source + ": not a readable torch file: " + e.what_without_backtrace());
   } catch (const std::exception& e) {
-    fail(std::string("not a readable torch file: ") + e.what());
+    throw std::runtime_error(source + ": not a readable torch file: " + e.what());
   }
-  if (!v.isGenericDict()) fail("does not hold a dict of tensors");
+}
+
+/// Refuses a tensor whose elements do not all lie inside its storage (the pickle sets sizes,
+/// strides and offsets freely), or that is not a dense CPU tensor.
+inline void check_tensor_in_storage(const std::string& name, const torch::Tensor& t,
+                                    const std::string& source) {
+  const auto fail = [&](const std::string& why) -> void {
+    throw std::runtime_error(source + ": tensor '" + name + "' " + why);
+  };
+  if (!t.defined() || t.layout() != torch::kStrided || !t.device().is_cpu() || !t.has_storage())
+    fail("is not a dense CPU tensor");
+  if (t.dim() > 64) fail("has more than 64 dimensions");
+  __extension__ typedef unsigned __int128 u128;  // sizes × strides cannot overflow it
+  u128 last = 0;
+  bool empty = false;
+  for (int64_t d = 0; d < t.dim(); ++d) {
+    if (t.size(d) < 0 || t.stride(d) < 0) fail("has a negative size or stride");
+    if (t.size(d) == 0)
+      empty = true;
+    else
+      last += static_cast<u128>(t.size(d) - 1) * static_cast<u128>(t.stride(d));
+  }
+  if (t.storage_offset() < 0) fail("has a negative storage offset");
+  if (!empty) {
+    const u128 end =
+        (last + 1 + static_cast<u128>(t.storage_offset())) * static_cast<u128>(t.element_size());
+    if (end > t.storage().nbytes()) fail("extends past its storage");
+  }
+}
+
+}  // namespace detail
+
+/// Parses the bytes of a torch file holding a dict of tensors (save_parameters,
+/// torch.save(state_dict)); `source` names it in errors. Untrusted input: the archive and the
+/// pickle are checked first (detail::torch_zip_records, detail::check_pickle), storages are
+/// the archive's members at their real sizes (whatever element count the pickle claims), and
+/// every tensor must lie inside its storage, so a forged file is an error naming it, never a
+/// read out of bounds or an allocation larger than the file.
+TOPOS_INLINE std::map<std::string, torch::Tensor> parse_tensor_dict(const char* data,
+                                                                    std::size_t size,
+                                                                    const std::string& source) {
+  const auto records = detail::torch_zip_records(data, size, source);
+  const std::string prefix = detail::torch_archive_prefix(records, source);
+  const detail::ZipRecord pkl = records.at(prefix + "data.pkl");
+  detail::check_pickle(data + pkl.offset, pkl.size, source);
+  const std::string pickle = detail::pickle_for_libtorch(data + pkl.offset, pkl.size, source);
+  const c10::IValue v = detail::unpickle_torch_file(data, records, prefix, pickle, source);
+  if (!v.isGenericDict()) throw std::runtime_error(source + ": does not hold a dict of tensors");
   std::map<std::string, torch::Tensor> out;
   for (const auto& kv : v.toGenericDict()) {
     if (!kv.key().isString() || !kv.value().isTensor())
-      fail("an entry is not a (name, tensor) pair");
+      throw std::runtime_error(source + ": an entry is not a (name, tensor) pair");
     const std::string& name = kv.key().toStringRef();
     const torch::Tensor t = kv.value().toTensor();
-    // The tensor's elements must lie inside its storage (the pickle sets sizes and strides freely).
-    if (!t.defined() || t.layout() != torch::kStrided || !t.device().is_cpu() || !t.has_storage())
-      fail("tensor '" + name + "' is not a dense CPU tensor");
-    if (t.dim() > 64) fail("tensor '" + name + "' has more than 64 dimensions");
-    __extension__ typedef unsigned __int128 u128;  // sizes × strides cannot overflow it
-    u128 last = 0;
-    bool empty = false;
-    for (int64_t d = 0; d < t.dim(); ++d) {
-      if (t.size(d) < 0 || t.stride(d) < 0)
-        fail("tensor '" + name + "' has a negative size or stride");
-      if (t.size(d) == 0)
-        empty = true;
-      else
-        last += static_cast<u128>(t.size(d) - 1) * static_cast<u128>(t.stride(d));
-    }
-    if (t.storage_offset() < 0) fail("tensor '" + name + "' has a negative storage offset");
-    if (!empty) {
-      const u128 end =
-          (last + 1 + static_cast<u128>(t.storage_offset())) * static_cast<u128>(t.element_size());
-      if (end > t.storage().nbytes()) fail("tensor '" + name + "' extends past its storage");
-    }
+    detail::check_tensor_in_storage(name, t, source);
     out[name] = t;
   }
   return out;
