@@ -13,5 +13,7 @@
 #include "topos/nn/operator_schedule/cost-inl.hpp"
 #include "topos/nn/operator_schedule/elementwise-inl.hpp"
 #include "topos/nn/operator_schedule/interpreter-inl.hpp"
+#include "topos/nn/operator_schedule/layers-inl.hpp"
 #include "topos/nn/operator_schedule/printer-inl.hpp"
+#include "topos/nn/operator_schedule/products-inl.hpp"
 #include "topos/nn/serialization-inl.hpp"

@@ -547,7 +547,8 @@ void bind_operation_api(py::module_& m) {
   py::class_<OperationTraits>(m, "OperationTraits",
                               "What an operation promises, for the network's fast paths.")
       .def(py::init([](bool row_wise, bool reads_cochains, std::vector<std::string> operators,
-                       const py::object& activation, double negative_slope, std::string identity) {
+                       const py::object& activation, double negative_slope, std::string identity,
+                       std::string right_factor) {
              OperationTraits t;
              t.row_wise = row_wise;
              t.reads_cochains = reads_cochains;
@@ -556,16 +557,18 @@ void bind_operation_api(py::module_& m) {
                t.activation = update_arg(activation, "OperationTraits(activation)");
              t.negative_slope = negative_slope;
              t.identity = std::move(identity);
+             t.right_factor = std::move(right_factor);
              return t;
            }),
            py::kw_only(), py::arg("row_wise") = false, py::arg("reads_cochains") = true,
            py::arg("operators") = std::vector<std::string>{}, py::arg("activation") = py::none(),
-           py::arg("negative_slope") = 0.01, py::arg("identity") = "")
+           py::arg("negative_slope") = 0.01, py::arg("identity") = "", py::arg("right_factor") = "")
       .def_readwrite("row_wise", &OperationTraits::row_wise)
       .def_readwrite("reads_cochains", &OperationTraits::reads_cochains)
       .def_readwrite("operators", &OperationTraits::operators)
       .def_readwrite("negative_slope", &OperationTraits::negative_slope)
-      .def_readwrite("identity", &OperationTraits::identity);
+      .def_readwrite("identity", &OperationTraits::identity)
+      .def_readwrite("right_factor", &OperationTraits::right_factor);
 
   py::class_<BuildRef, std::shared_ptr<BuildRef>>(
       m, "BuildContext", "What infer sees: the step, its operators and cochains, new parameters.")
@@ -606,6 +609,7 @@ void bind_operation_api(py::module_& m) {
   py::class_<RunRef, std::shared_ptr<RunRef>>(
       m, "RunContext", "What forward sees: operators, parameters, cochains before the step.")
       .def_property_readonly("where", [](const RunRef& r) { return r.get().where(); })
+      .def_property_readonly("target", [](const RunRef& r) { return key_out(r.get().target()); })
       .def(
           "fail", [](const RunRef& r, const std::string& why) { r.get().fail(why); },
           py::arg("why"))

@@ -559,3 +559,246 @@ TEST_CASE("the built-in elementwise operations are Operations with declared trai
   CHECK(builtin::Scale(2).traits().identity != builtin::Scale(2.0000001).traits().identity);
   CHECK(builtin::LearnedScale("s", 0, true, 1).traits().row_wise);
 }
+
+TEST_CASE("the built-in learned maps and norms are Operations with declared traits",
+          "[nn][schedule][operation]") {
+  torch::manual_seed(14);
+  const auto x = torch::randn({5, 4}, torch::kDouble);
+  OperatorSchedule by_builder, by_hand;
+  by_builder.input("x", 0, 4).output("y", 0);
+  by_hand.input("x", 0, 4).output("y", 0);
+  const auto mlp = MlpOptions(3, 8, 2).layers(3);
+  by_builder.step(into(0).sum(
+      from(0).weight("w", 3).linear("l", 3).layer_norm("n").batch_norm("b").mlp("m", mlp)));
+  by_hand.step(into(0).sum(from(0)
+                               .apply(builtin::Weight("w", 3, 1.414))
+                               .apply(builtin::Linear("l", 3, true, LinearInit::torch))
+                               .apply(builtin::ChannelNorm("n", false))
+                               .apply(builtin::ChannelNorm("b", true))
+                               .apply(builtin::MlpBlock("m", mlp))));
+  CHECK(by_builder.str() == by_hand.str());
+  CHECK_THAT(by_builder.str(), Contains("m(b(n(l((0)·w))))"));
+  torch::manual_seed(15);
+  OperatorNetwork a(by_builder);
+  torch::manual_seed(15);
+  OperatorNetwork b(by_hand);
+  a->to(torch::kDouble), b->to(torch::kDouble);
+  const auto ya = a->forward({{"x", x}}, {}).at("y"), yb = b->forward({{"x", x}}, {}).at("y");
+  CHECK(torch::allclose(ya, yb, 0, 0));
+  // Written out with LibTorch's modules at the same paths (the state_dict names are torch's).
+  auto named = a->named_parameters();
+  for (const char* p : {"w", "l.weight", "l.bias", "n.weight", "b.weight", "m.0.weight",
+                        "m.4.weight", "m.6.weight"})
+    CHECK(named.contains(p));
+  CHECK(a->named_buffers().contains("b.running_mean"));
+  auto h = torch::linear(x.matmul(named["w"]), named["l.weight"], named["l.bias"]);
+  h = torch::layer_norm(h, {3}, named["n.weight"], named["n.bias"]);
+  h = torch::batch_norm(h, named["b.weight"], named["b.bias"], {}, {}, true, 0.1, 1e-5, false);
+  CHECK(torch::allclose(ya, a->mlp("m")->forward(h), 1e-12, 1e-12));
+  // A path shared with other options, or another width, is refused when built.
+  OperatorSchedule clash;
+  clash.input("x", 0, 4).output("y", 0);
+  clash.step(into(0).sum(from(0).mlp("m", MlpOptions(4, 8, 4)),
+                         from(0).mlp("m", MlpOptions(4, 8, 4).layers(3))));
+  CHECK_THAT(build_error(clash), Contains("mlp 'm' is used again with other options"));
+  OperatorSchedule widths;
+  widths.input("x", 0, 4).output("y", 0);
+  widths.step(into(0).sum(from(0).layer_norm("n").weight("w", 2).layer_norm("n").weight("v", 4)));
+  CHECK_THAT(build_error(widths), Contains("normalisation 'n' of 4 channels applied to 2"));
+  OperatorSchedule taken;
+  taken.input("x", 0, 4).output("y", 0);
+  taken.step(into(0).sum(from(0).linear("p", 4).batch_norm("p")));
+  CHECK_THAT(build_error(taken), Contains("'p' already holds the parameter 'p."));
+  // Their traits.
+  CHECK(builtin::Weight("w", 3, 1).traits().right_factor == "w");
+  CHECK(builtin::Weight("w", 3, 1).traits().row_wise);
+  CHECK(builtin::Linear("l", 3, true, LinearInit::torch).traits().fuses_activation);
+  CHECK(builtin::MlpBlock("m", mlp).traits().leading_linear);
+  CHECK(builtin::ChannelNorm("n", false).traits().row_wise);
+  CHECK_FALSE(builtin::ChannelNorm("b", true).traits().row_wise);  // batch statistics
+  CostContext c;
+  c.rows = 10, c.x = {0, 3}, c.y = {0, 2};
+  CHECK(builtin::MlpBlock("m", mlp).cost(c).flops == 2 * 10 * (3 * 8 + 8 * 8 + 8 * 2));
+}
+
+namespace {
+
+// x · P with P at `path`, declaring it as its right factor; counts its forwards.
+struct RightWeight : Operation {
+  std::string path;
+  std::shared_ptr<std::atomic<int>> calls = std::make_shared<std::atomic<int>>(0);
+  explicit RightWeight(std::string p) : path(std::move(p)) {}
+  std::string str(const std::string& x) const override { return x + "·my[" + path + "]"; }
+  TermShape infer(BuildContext& ctx, TermShape x) const override {
+    ctx.parameter(path, {x.channels, 8});
+    return {x.rank, 8};
+  }
+  torch::Tensor forward(RunContext& ctx, const torch::Tensor& x) const override {
+    ++*calls;
+    return x.matmul(ctx.parameter(path));
+  }
+  OperationTraits traits() const override {
+    OperationTraits t;
+    t.row_wise = true;
+    t.reads_cochains = false;
+    t.right_factor = path;
+    return t;
+  }
+  OperationCost cost(const CostContext& c) const override {
+    return {2 * c.rows * c.x.channels * c.y.channels, "mine"};
+  }
+};
+
+// x Wᵀ + b through a torch::nn::Linear at `path`, with a fused kernel for a following activation
+// (counting which of its forwards ran).
+struct FusingLinear : Operation {
+  std::string path;
+  std::shared_ptr<std::atomic<int>> plain = std::make_shared<std::atomic<int>>(0),
+                                    fused = std::make_shared<std::atomic<int>>(0);
+  explicit FusingLinear(std::string p) : path(std::move(p)) {}
+  std::string str(const std::string& x) const override { return "fl(" + x + ")"; }
+  TermShape infer(BuildContext& ctx, TermShape x) const override {
+    ctx.module(path, torch::nn::Linear(x.channels, 3).ptr());
+    return {x.rank, 3};
+  }
+  torch::Tensor forward(RunContext& ctx, const torch::Tensor& x) const override {
+    ++*plain;
+    return ctx.module<torch::nn::LinearImpl>(path).forward(x);
+  }
+  torch::Tensor forward_activated(RunContext& ctx, const torch::Tensor& x, Update activation,
+                                  double) const override {
+    ++*fused;
+    CHECK(activation == Update::elu);
+    return torch::elu(ctx.module<torch::nn::LinearImpl>(path).forward(x));
+  }
+  OperationTraits traits() const override {
+    OperationTraits t;
+    t.row_wise = true;
+    t.reads_cochains = false;
+    t.fuses_activation = true;
+    return t;
+  }
+};
+
+// tanh(x W₁ᵀ + b₁) W₂ᵀ: a two-layer map declaring its leading Linear layer (path.first).
+struct TwoLayer : Operation {
+  std::string path;
+  std::shared_ptr<std::atomic<int>> whole = std::make_shared<std::atomic<int>>(0),
+                                    after_first = std::make_shared<std::atomic<int>>(0);
+  explicit TwoLayer(std::string p) : path(std::move(p)) {}
+  std::string str(const std::string& x) const override { return "two(" + x + ")"; }
+  TermShape infer(BuildContext& ctx, TermShape x) const override {
+    ctx.module(path + ".first", torch::nn::Linear(x.channels, 5).ptr());
+    ctx.parameter(path + ".second", {2, 5});
+    return {x.rank, 2};
+  }
+  torch::Tensor rest(RunContext& ctx, const torch::Tensor& z) const {
+    return torch::tanh(z).matmul(ctx.parameter(path + ".second").t());
+  }
+  torch::Tensor forward(RunContext& ctx, const torch::Tensor& x) const override {
+    ++*whole;
+    return rest(ctx, first_linear(ctx)->forward(x));
+  }
+  std::shared_ptr<torch::nn::LinearImpl> first_linear(RunContext& ctx) const override {
+    return std::dynamic_pointer_cast<torch::nn::LinearImpl>(
+        ctx.module<torch::nn::LinearImpl>(path + ".first").shared_from_this());
+  }
+  torch::Tensor forward_after_first(RunContext& ctx, const torch::Tensor& z) const override {
+    ++*after_first;
+    return rest(ctx, z);
+  }
+  OperationTraits traits() const override {
+    OperationTraits t;
+    t.row_wise = true;
+    t.reads_cochains = false;
+    t.leading_linear = true;
+    return t;
+  }
+};
+
+}  // namespace
+
+TEST_CASE(
+    "a user operation declaring a right factor, a fused activation or a leading Linear "
+    "layer takes those fast paths, with the same numbers",
+    "[nn][schedule][operation]") {
+  torch::manual_seed(16);
+  // A right factor: B maps 40 nodes to 2 cells, so (B x) P is far cheaper than B (x P).
+  torch::Tensor dense = torch::zeros({2, 40}, torch::kDouble);
+  dense.index_put_({0, torch::indexing::Slice(0, 20)}, 1.0);
+  dense.index_put_({1, torch::indexing::Slice(20, 40)}, 0.5);
+  const auto B = SparseOperator::from_dense(dense);
+  const auto x = torch::randn({40, 8}, torch::kDouble);
+  struct Out {
+    torch::Tensor y, grad;
+    int calls;
+  };
+  const auto reorder = [&](bool fast) {
+    RightWeight w("p");
+    OperatorSchedule s;
+    s.input("x", 0, 8).operator_input("B", 0, 1).output("y", 1);
+    s.step(into(1).sum(from(0).apply(w).via("B")));
+    torch::manual_seed(17);
+    OperatorNetwork net(s);
+    net->to(torch::kDouble);
+    net->set_fast_paths(fast);
+    const auto y = net->forward({{"x", x}}, {{"B", B}}).at("y");
+    y.pow(2).sum().backward();
+    if (fast) CHECK_THAT(net->plan_str({{"x", x}}, {{"B", B}}), Contains("mine  5,120 FLOPs"));
+    return Out{y.detach(), net->parameter("p").grad().clone(), *w.calls};
+  };
+  const auto plain = reorder(false), fast = reorder(true);
+  CHECK(plain.calls == 1);
+  CHECK(fast.calls == 0);  // the network multiplied (B x) by P itself
+  CHECK(torch::allclose(fast.y, plain.y, 1e-12, 1e-12));
+  CHECK(torch::allclose(fast.grad, plain.grad, 1e-12, 1e-12));
+
+  // A fused activation: forward_activated instead of forward and the activation.
+  for (bool fast_on : {true, false}) {
+    FusingLinear fl("fl");
+    OperatorSchedule s;
+    s.input("x", 0, 8).output("y", 0);
+    s.step(into(0).sum(from(0).apply(fl).act(Update::elu)));
+    torch::manual_seed(18);
+    OperatorNetwork net(s);
+    net->to(torch::kDouble);
+    net->set_fast_paths(fast_on);
+    const auto y = net->forward({{"x", x}}, {}).at("y");
+    auto& lin = *net->named_modules()["fl"]->as<torch::nn::LinearImpl>();
+    CHECK(torch::allclose(y, torch::elu(lin.forward(x)), 1e-12, 1e-12));
+    CHECK(*fl.fused == (fast_on ? 1 : 0));
+    CHECK(*fl.plain == (fast_on ? 0 : 1));
+  }
+
+  // A leading Linear layer: an object's message concatenated into it is multiplied by its block
+  // of W on the 2 objects before it reaches the 6 nodes.
+  ComplexView v;
+  v.sizes = {6, 1, 2};
+  topos::Neighborhood n20;
+  n20.name = "N20", n20.source_rank = 2, n20.target_rank = 0;
+  n20.source = {0, 0, 0, 1, 1, 1}, n20.target = {0, 1, 2, 3, 4, 5};
+  n20.num_source = 2, n20.num_target = 6;
+  v.neighborhoods = {{"N20", n20}};
+  const auto batch = ComplexBatch::collate({v}, 2);
+  const auto nodes = torch::randn({6, 3}, torch::kDouble),
+             objects = torch::randn({2, 4}, torch::kDouble);
+  const auto split = [&](bool fast_on) {
+    TwoLayer two("u");
+    OperatorSchedule s;
+    s.input("n", 0, 3).input("o", 2, 4).operator_input("N20", 2, 0).output("y", 0);
+    s.step(into(0).concat(from(0), from(2).pattern("N20")).apply(two));
+    torch::manual_seed(19);
+    OperatorNetwork net(s);
+    net->to(torch::kDouble);
+    net->set_fast_paths(fast_on);
+    const auto y = net->forward({{"n", nodes}, {"o", objects}}, batch).at("y");
+    y.pow(2).sum().backward();
+    CHECK(*two.after_first == (fast_on ? 1 : 0));
+    CHECK(*two.whole == (fast_on ? 0 : 1));
+    return Out{y.detach(), net->parameter("u.second").grad().clone(), 0};
+  };
+  const auto whole = split(false), parts = split(true);
+  CHECK(torch::allclose(parts.y, whole.y, 1e-12, 1e-12));
+  CHECK(torch::allclose(parts.grad, whole.grad, 1e-12, 1e-12));
+  CHECK(whole.grad.abs().sum().item<double>() > 0);
+}

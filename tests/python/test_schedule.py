@@ -295,6 +295,48 @@ def test_python_operation_context(complex_):
     torch.testing.assert_close(y, 2 * torch.sparse.mm(A0, x @ torch.ones(4, 2)) + x.sum())
 
 
+class RightWeight(Operation):
+    """x P, declaring P as its right factor: next to a product the engine multiplies by P itself."""
+
+    def __init__(self):
+        self.calls = 0
+        self.targets = []
+
+    def infer(self, ctx, x):
+        ctx.parameter("p", [x.channels, 8])
+        return TermShape(x.rank, 8)
+
+    def forward(self, ctx, x):
+        self.calls += 1
+        self.targets.append(ctx.target)
+        return x @ ctx.parameter("p")
+
+    def traits(self):
+        return OperationTraits(row_wise=True, reads_cochains=False, right_factor="p")
+
+
+def test_python_operation_right_factor_is_reordered():
+    # B maps 40 cells to 2: (B x) P costs far less than B (x P); the engine runs that order.
+    B = torch.zeros(2, 40, dtype=torch.float64)
+    B[0, :20], B[1, 20:] = 1.0, 0.5
+    x = torch.randn(40, 8, dtype=torch.float64)
+    out = {}
+    for fast in (True, False):
+        op = RightWeight()
+        s = OperatorSchedule()
+        s.input("x", 0, 8).operator_input("B", 0, 1).output("y", 1)
+        s.step(into(1).sum(from_(0).apply(op).via("B")))
+        torch.manual_seed(3)
+        net = OperatorNetwork(s).double()
+        net.set_fast_paths(fast)
+        y = net({"x": x}, {"B": B.to_sparse()})["y"]
+        torch.testing.assert_close(y, B @ (x @ net.state_dict()["p"]))
+        out[fast] = (y, op.calls, op.targets)
+    assert out[True][1] == 0 and out[False][1] == 1
+    assert out[False][2] == [(1, "")]  # ctx.target: the cochain the step writes
+    torch.testing.assert_close(out[True][0], out[False][0])
+
+
 def test_schedule_vocabulary():
     s = OperatorSchedule()
     s.input("x_1", 1, 6).operator_input("laplacian_down", 1, 1).operator_input("laplacian_up", 1, 1)

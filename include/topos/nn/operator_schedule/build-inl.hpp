@@ -46,19 +46,21 @@ class NetworkBuildContext final : public BuildContext {
     fail("cochain " + key.str() + " is read, but no input or earlier step produces it");
   }
   /// The width of `key` before the step, if a cochain is there (and then it counts as read).
-  std::optional<std::int64_t> find_width(const CochainKey& key) {
+  std::optional<std::int64_t> find_width(const CochainKey& key) override {
     auto it = width_.find(key);
     if (it == width_.end()) return std::nullopt;
     reads_.insert(key);
     return it->second;
   }
   /// Does one of the step's terms start at `key`?
-  bool step_reads(const CochainKey& key) const {
+  bool step_reads(const CochainKey& key) const override {
     return std::any_of(step_.terms.begin(), step_.terms.end(),
                        [&](const ops::Term& t) { return t.source == key; });
   }
   /// Was `key` written by an earlier step (rather than given as an input)?
-  bool written_by_a_step(const CochainKey& key) const { return step_outputs_.count(key) > 0; }
+  bool written_by_a_step(const CochainKey& key) const override {
+    return step_outputs_.count(key) > 0;
+  }
   void parameter(const std::string& path, const std::vector<std::int64_t>& shape,
                  ParameterInit init) override {
     net_.make_parameter(where_, path, shape, init, true);
@@ -67,8 +69,13 @@ class NetworkBuildContext final : public BuildContext {
               double value) override {
     net_.make_parameter(where_, path, shape, ParameterInit::constant(value), false);
   }
-  void module(const std::string& path, std::shared_ptr<torch::nn::Module> m) override {
-    net_.make_module(where_, path, std::move(m));
+  std::shared_ptr<torch::nn::Module> module(const std::string& path,
+                                            std::shared_ptr<torch::nn::Module> m) override {
+    return net_.make_module(where_, path, std::move(m));
+  }
+  std::shared_ptr<torch::nn::Module> find_module(const std::string& path) const override {
+    auto it = net_.modules_.find(path);
+    return it == net_.modules_.end() ? nullptr : it->second;
   }
 
  private:
@@ -92,153 +99,15 @@ TOPOS_INLINE OperatorNetworkImpl::~OperatorNetworkImpl() = default;
 TOPOS_INLINE TermShape OperatorNetworkImpl::infer(detail::NetworkBuildContext& ctx, const TermOp& t,
                                                   TermShape x) {
   const std::string& where = ctx.where();
-  const auto& sig = schedule_.operators();
-  auto op = [&](const std::string& name) {
-    auto it = sig.find(name);
-    if (it == sig.end()) throw ScheduleError(where + ": unknown operator '" + name + "'");
-    return it->second;
-  };
-  auto rank_error = [&](const std::string& name, int expected) {
-    return ScheduleError(where + ": operator '" + name + "' applies to rank " +
-                         std::to_string(expected) + " cochains, not rank " +
-                         std::to_string(x.rank));
-  };
-  switch (t.kind) {
-    case TermOp::Kind::via:
-    case TermOp::Kind::pattern: {
-      const auto [src, dst] = op(t.name);
-      if (src != x.rank) throw rank_error(t.name, src);
-      return {dst, x.channels};
-    }
-    case TermOp::Kind::attend:
-      return infer_attend(ctx, t, x);
-    case TermOp::Kind::via_transposed: {
-      const auto [src, dst] = op(t.name);
-      if (dst != x.rank) throw rank_error(operator_label(t.name, true), dst);
-      return {src, x.channels};
-    }
-    case TermOp::Kind::weight:
-      make_parameter(where, t.name, {x.channels, t.out}, ParameterInit::glorot(t.gain));
-      return {x.rank, t.out};
-    case TermOp::Kind::linear:
-      make_parameter(where, t.name + ".weight", {t.out, x.channels},
-                     t.linear_init == LinearInit::glorot ? ParameterInit::glorot(1.0)
-                                                         : ParameterInit::linear_weight());
-      if (t.bias)
-        make_parameter(where, t.name + ".bias", {t.out}, ParameterInit::linear_bias(x.channels));
-      return {x.rank, t.out};
-    case TermOp::Kind::powers:
-      for (const auto& [name, order] : t.filters) {
-        const auto [src, dst] = op(name);
-        if (src != x.rank || dst != x.rank)
-          throw ScheduleError(where + ": filter operator '" + name + "' must map rank " +
-                              std::to_string(x.rank) + " to itself");
-        if (order < 0) throw ScheduleError(where + ": filter order of '" + name + "' is negative");
-      }
-      return x;
-    case TermOp::Kind::batch_norm:
-    case TermOp::Kind::layer_norm:
-      make_norm(where, t, x.channels);
-      return x;
-    case TermOp::Kind::mlp:
-      return {x.rank, make_mlp(where, t, x.channels)};
-    case TermOp::Kind::custom: {
-      if (!t.operation) throw ScheduleError(where + ": a custom operation is null");
-      const auto y = t.operation->infer(ctx, x);
-      if (y.channels <= 0)
-        throw ScheduleError(where + ": operation " + t.operation->str("x") + " gives " +
-                            std::to_string(y.channels) + " channels");
-      inferred_[&t] = {x.rank, y};  // forward's result is checked against it
-      return y;
-    }
-  }
-  return x;
-}
-
-// An mlp's module at its path, made once and shared by the operations naming the path (which
-// must then give the same options); its output width.
-TOPOS_INLINE std::int64_t OperatorNetworkImpl::make_mlp(const std::string& where, const TermOp& t,
-                                                        std::int64_t channels) {
-  const auto& o = *t.mlp_options;
-  if (o.in() != channels)
-    throw ScheduleError(where + ": mlp '" + t.name + "' takes " + std::to_string(o.in()) +
-                        " channels but gets " + std::to_string(channels));
-  if (auto it = mlps_.find(t.name); it != mlps_.end()) {
-    const auto& p = it->second->options;
-    if (p.in() != o.in() || p.hidden() != o.hidden() || p.out() != o.out() ||
-        p.layers() != o.layers() || p.activation() != o.activation() ||
-        p.final_activation() != o.final_activation() || p.layer_norm() != o.layer_norm())
-      throw ScheduleError(where + ": mlp '" + t.name +
-                          "' is used again with other options (shared by its path)");
-  } else {
-    std::shared_ptr<MlpImpl> m;
-    try {
-      m = std::make_shared<MlpImpl>(o);
-    } catch (const std::exception& e) {
-      throw ScheduleError(where + ": mlp '" + t.name + "': " + e.what());
-    }
-    make_module(where, t.name, m);
-    mlps_.emplace(t.name, Mlp(m));
-  }
-  return o.out();
-}
-
-TOPOS_INLINE TermShape OperatorNetworkImpl::infer_attend(detail::NetworkBuildContext& ctx,
-                                                         const TermOp& t, TermShape x) {
-  const std::string& where = ctx.where();
-  const CochainKey& target = ctx.target();
-  const auto& o = t.attention;
-  auto it = schedule_.operators().find(t.name);
-  if (it == schedule_.operators().end())
-    throw ScheduleError(where + ": unknown operator '" + t.name + "'");
-  auto [src, dst] = it->second;
-  if (o.transposed()) std::swap(src, dst);
-  const auto name = operator_label(t.name, o.transposed());
-  const auto fail = [&](const std::string& why) {
-    return ScheduleError(where + ": attention over '" + name + "' " + why);
-  };
-  if (src != x.rank)
-    throw ScheduleError(where + ": operator '" + name + "' applies to rank " + std::to_string(src) +
-                        " cochains, not rank " + std::to_string(x.rank));
-  std::int64_t ck = x.channels, cq = 0;
-  if (o.keys()) {
-    const auto w = o.keys()->rank == src ? ctx.find_width(*o.keys()) : std::nullopt;
-    if (!w)
-      throw fail("takes its keys from " + o.keys()->str() + ", which needs a cochain of rank " +
-                 std::to_string(src) + " before the step");
-    ck = *w;
-  }
-  if (!o.source_only()) {
-    const auto key = o.queries() ? *o.queries() : target;
-    const auto w = key.rank == dst ? ctx.find_width(key) : std::nullopt;
-    if (!w)
-      throw fail("scores against " + std::string(o.queries() ? "" : "the target ") + key.str() +
-                 ", which needs a cochain of rank " + std::to_string(dst) + " before the step");
-    // The target before the step is the rank's features this step replaces (TopoModelX's
-    // x_target), or an input given for it. A target in a named state that an earlier step wrote
-    // and this step does not read is a scratch cochain: before the step it holds whatever an
-    // earlier layer left there (a wrong model, and no error).
-    if (!o.queries() && !target.state.empty() && ctx.written_by_a_step(target) &&
-        !ctx.step_reads(target))
-      throw fail("scores against the target " + target.str() +
-                 " as it was before the step, but no term of the step reads it: name the "
-                 "queries (AttendOptions::queries)");
-    cq = *w;
-  }
-  const auto H = o.heads();
-  if (H < 1 || x.channels % H || ck % H || cq % H)
-    throw fail("with " + std::to_string(H) + " heads: the messages (" + std::to_string(x.channels) +
-               "), keys (" + std::to_string(ck) + ") and queries (" + std::to_string(cq) +
-               ") need channels divisible by the heads");
-  if (!(o.dropout() >= 0 && o.dropout() <= 1)) throw fail("needs a dropout rate in [0, 1]");
-  const auto n = ck + cq;  // a_s, then a_t (none with source_only)
-  auto shape = o.shape().empty() ? std::vector<std::int64_t>{n} : o.shape();
-  if (torch::empty(shape).numel() != n)
-    throw fail("needs " + std::to_string(n) + " entries in '" + o.param() + "', its shape " +
-               detail::shape_str(torch::empty(shape)) + " has " +
-               std::to_string(torch::empty(shape).numel()));
-  make_parameter(where, o.param(), shape, ParameterInit::glorot(o.gain()));
-  return {dst, o.concat() ? x.channels : x.channels / H};
+  if (!t.operation) throw ScheduleError(where + ": a custom operation is null");
+  const auto y = t.operation->infer(ctx, x);
+  if (y.channels <= 0)
+    throw ScheduleError(where + ": operation " + t.operation->str("x") + " gives " +
+                        std::to_string(y.channels) + " channels");
+  // Forward's result is checked against it; a product's rows are its operator's, which the
+  // step's mix checks against its other terms, naming both.
+  if (!t.traits.product) inferred_[&t] = {x.rank, y};
+  return y;
 }
 
 // The schedule checked step by step (each error names the step), its parameters created, and
@@ -332,11 +201,11 @@ TOPOS_INLINE std::pair<std::int64_t, std::int64_t> OperatorNetworkImpl::infer_te
     std::int64_t fanned = 1;
     const auto& list = term.operations();
     for (std::size_t i = 0; i < list.size(); ++i) {
-      if (list[i].kind == TermOp::Kind::powers) {
+      if (list[i].traits.fans_out) {
         if (i + 1 != list.size())
-          throw ScheduleError(where + ": powers must be a term's last operation");
-        fanned = 1;
-        for (const auto& f : list[i].filters) fanned += f.second;
+          throw ScheduleError(where + ": " + list[i].operation->str("x") +
+                              " fans out into several terms: it must be a term's last operation");
+        fanned = list[i].traits.terms;
       }
       x = shapes_[&list[i]] = infer(ctx, list[i], x);
     }
@@ -375,8 +244,9 @@ TOPOS_INLINE std::int64_t OperatorNetworkImpl::infer_step(detail::NetworkBuildCo
     throw ScheduleError(where + ": polynomial filter terms need a filter weight to mix them");
   }
   for (const auto& t : s.operations()) {
-    if (t.kind == TermOp::Kind::powers)
-      throw ScheduleError(where + ": powers apply to terms, not to a step");
+    if (t.traits.fans_out)
+      throw ScheduleError(where + ": " + t.operation->str("x") +
+                          " fans out into several terms: it applies to terms, not to a step");
     y = shapes_[&t] = infer(ctx, t, y);
   }
   if (y.rank != s.target.rank)
@@ -472,7 +342,7 @@ TOPOS_INLINE void OperatorNetworkImpl::find_compact_steps(
             if (k == list.size() || !detail::aggregation(list[k]))
               compact = false;
             else
-              readers.push_back(list[k].name);
+              readers.push_back(detail::product_of(list[k])->op);
           }
         }
       if (compact && !readers.empty()) compact_steps_[{g, i}] = std::move(readers);

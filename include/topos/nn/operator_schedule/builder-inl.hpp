@@ -8,7 +8,7 @@
 
 namespace topos::nn {
 
-TOPOS_INLINE TermOp::TermOp(Kind k, std::string n) : kind(k), name(std::move(n)) {}
+TOPOS_INLINE TermOp::TermOp() = default;
 TOPOS_INLINE TermOp::TermOp(const TermOp&) = default;
 TOPOS_INLINE TermOp::TermOp(TermOp&&) noexcept = default;
 TOPOS_INLINE TermOp& TermOp::operator=(const TermOp&) = default;
@@ -26,7 +26,7 @@ TOPOS_INLINE void OperationList::push(TermOp t) {
   ops_.push_back(std::move(t));
 }
 TOPOS_INLINE void OperationList::push_operation(std::shared_ptr<const Operation> op) {
-  TermOp t(TermOp::Kind::custom);
+  TermOp t;  // a null operation is refused when the network is built, naming the step
   if (op) t.traits = op->traits();
   t.operation = std::move(op);
   ops_.push_back(std::move(t));

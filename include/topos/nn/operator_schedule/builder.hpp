@@ -10,7 +10,9 @@
 #include "topos/nn/mlp.hpp"
 #include "topos/nn/operator_schedule/elementwise.hpp"
 #include "topos/nn/operator_schedule/gnn.hpp"
+#include "topos/nn/operator_schedule/layers.hpp"
 #include "topos/nn/operator_schedule/operation.hpp"
+#include "topos/nn/operator_schedule/products.hpp"
 #include "topos/nn/schedule_error.hpp"
 
 #include <torch/torch.h>
@@ -28,56 +30,11 @@
 
 namespace topos::nn {
 
-/// How `attend` scores and weighs a term's messages; the defaults are TopoModelX Conv's attention
-/// (one head, one (2·C) vector). Per head, scores from keys k (the term's features, or a cochain
-/// of the source rank) and queries q (the step's target before the step, or a cochain of the
-/// target rank): GAT's act(a_s·k_j + a_t·q_i), or act(a_s·k_j) (`source_only`); then the
-/// per-target norm, dropout (training only), times A's values (nn::attention_operator). Head h's
-/// messages are its slice of the term's features; the heads are concatenated or averaged
-/// (nn::multi_head_attention). Attention that one model alone needs is an Operation of that
-/// model's (models::HmcAttention, models::CanAttention, models::SanFilterAttention).
-struct AttendOptions {
-  explicit AttendOptions(std::string param) : param_(std::move(param)) {}
-  /// The source part a_s then the target part a_t, in one parameter.
-  TORCH_ARG(std::string, param);
-  /// The parameter's shape (default: a vector); only its element count is fixed (heads-major).
-  TORCH_ARG(std::vector<std::int64_t>, shape);
-  TORCH_ARG(double, gain) = 1.414;  ///< Glorot gain of the parameter
-  TORCH_ARG(Update, activation) = Update::elu;
-  TORCH_ARG(double, negative_slope) = 0.2;
-  TORCH_ARG(AttentionNorm, norm) = AttentionNorm::none;
-  TORCH_ARG(std::optional<CochainKey>, keys);     ///< default: the term's features
-  TORCH_ARG(std::optional<CochainKey>, queries);  ///< default: the step's target
-  TORCH_ARG(bool, source_only) = false;           ///< no queries and no a_t
-  TORCH_ARG(std::int64_t, heads) = 1;
-  TORCH_ARG(bool, concat) = true;       ///< the heads side by side, or their mean
-  TORCH_ARG(double, dropout) = 0;       ///< on the weights
-  TORCH_ARG(bool, transposed) = false;  ///< attend over Aᵀ
-};
-
-/// How `linear` initialises a new weight: torch.nn.Linear's Kaiming uniform (a = √5, bound
-/// 1/√in), or PyG's weight_initializer='glorot' (Xavier uniform, bound √(6 / (in + out)), as
-/// GCNConv's and GATConv's `lin`). The bias is torch.nn.Linear's (±1/√in) either way, as PyG's.
-enum class LinearInit { torch, glorot };
-
-/// One operation of a term or of a step's tail: one of the built-in kinds that the interpreter
-/// still handles itself, or an Operation (`custom`: the elementwise built-ins of elementwise.hpp
-/// and a user's), whose declared traits the network reads.
+/// One operation of a term or of a step's tail: an Operation (the built-ins of products.hpp,
+/// layers.hpp, elementwise.hpp and gnn.hpp, or a user's) and its traits, read once, which the
+/// network's fast paths consult.
 struct TermOp {
-  enum class Kind {
-    via,             ///< A · x
-    via_transposed,  ///< Aᵀ · x
-    pattern,         ///< pattern(A) · x, summed or averaged (A's values ignored)
-    weight,          ///< x · W, W (in × out) at `name`
-    linear,          ///< torch.nn.Linear at `name` (weight out × in, optional bias)
-    batch_norm,      ///< torch.nn.BatchNorm1d at `name`
-    layer_norm,      ///< torch.nn.LayerNorm at `name`
-    attend,          ///< A · x with A's values times attention weights (`attention`)
-    powers,  ///< [y, A₁y..A₁^K₁y, A₂y..A₂^K₂y, ...]: fans the term out, last only
-    mlp,     ///< nn::Mlp at `name` (`mlp_options`), shared by every op naming the path
-    custom   ///< an Operation (`operation`, its `traits`)
-  };
-  explicit TermOp(Kind k, std::string n = {});
+  TermOp();
   // The special members are compiled once (builder-inl.hpp): steps copy and move their
   // operations, and a user's translation unit would otherwise generate that code for every one
   // of these members (a third of a small model's compile time).
@@ -86,21 +43,8 @@ struct TermOp {
   TermOp& operator=(const TermOp&);
   TermOp& operator=(TermOp&&) noexcept;
   ~TermOp();
-  Kind kind;
-  std::string name;       ///< operator or parameter path
-  bool row_norm = false;  ///< via: divide by the operator's row sums; powers: from `norm_from`
-  Aggr aggr = Aggr::sum;
-  std::int64_t out = 0;
-  bool bias = true;
-  double gain = 1.414;
-  LinearInit linear_init = LinearInit::torch;        ///< linear: its weight's
-  std::vector<std::pair<std::string, int>> filters;  ///< powers: (operator, order)
-  int norm_from = 1;
-  AttendOptions attention{""};  ///< attend: its options
-  int role = 0;  ///< via, pattern over a batch neighbourhood: only its pairs of this role (0: all)
-  std::optional<MlpOptions> mlp_options;       ///< mlp
-  std::shared_ptr<const Operation> operation;  ///< custom: the operation
-  OperationTraits traits;                      ///< custom: operation->traits(), read once
+  std::shared_ptr<const Operation> operation;
+  OperationTraits traits;  ///< operation->traits()
 };
 
 namespace detail {
@@ -132,24 +76,30 @@ class Chain : public detail::OperationList {
  public:
   /// A · x, optionally divided by A's row sums (TopoModelX Conv's aggr_norm).
   Derived& via(std::string op, bool row_norm = false) {
-    return add(TermOp(TermOp::Kind::via, std::move(op))).row_norm_last(row_norm);
+    OperatorProduct p;
+    p.op = std::move(op);
+    p.row_norm = row_norm;
+    return apply(builtin::Product(std::move(p)));
   }
   /// Aᵀ · x (the transpose is made once per forward), optionally divided by Aᵀ's row sums.
   Derived& via_t(std::string op, bool row_norm = false) {
-    return add(TermOp(TermOp::Kind::via_transposed, std::move(op))).row_norm_last(row_norm);
+    OperatorProduct p;
+    p.op = std::move(op);
+    p.transposed = true;
+    p.row_norm = row_norm;
+    return apply(builtin::Product(std::move(p)));
   }
   /// Sum (or mean) over A's sparsity pattern, its values ignored (torch_scatter's messages).
   Derived& pattern(std::string op, Aggr aggr = Aggr::sum) {
-    TermOp t(TermOp::Kind::pattern, std::move(op));
-    t.aggr = aggr;
-    return add(std::move(t));
+    OperatorProduct p;
+    p.op = std::move(op);
+    p.weighted = false;
+    p.reduce = aggr;
+    return apply(builtin::Product(std::move(p)));
   }
   /// x · W with W (in × out) at `path` (Glorot-initialised with `gain`).
   Derived& weight(std::string path, std::int64_t out, double gain = 1.414) {
-    TermOp t(TermOp::Kind::weight, std::move(path));
-    t.out = out;
-    t.gain = gain;
-    return add(std::move(t));
+    return apply(builtin::Weight(std::move(path), out, gain));
   }
   /// TopoModelX's Conv weight: weight(path + ".weight", out).
   Derived& conv(const std::string& path, std::int64_t out) { return weight(path + ".weight", out); }
@@ -157,11 +107,7 @@ class Chain : public detail::OperationList {
   /// `init` says (LinearInit).
   Derived& linear(std::string path, std::int64_t out, bool bias = true,
                   LinearInit init = LinearInit::torch) {
-    TermOp t(TermOp::Kind::linear, std::move(path));
-    t.out = out;
-    t.bias = bias;
-    t.linear_init = init;
-    return add(std::move(t));
+    return apply(builtin::Linear(std::move(path), out, bias, init));
   }
   Derived& act(Update u, double negative_slope = 0.01) {
     return apply(builtin::Activation(u, negative_slope));
@@ -170,7 +116,7 @@ class Chain : public detail::OperationList {
   Derived& unit_rows() { return apply(builtin::UnitRows()); }
   /// torch.nn.BatchNorm1d over the channels at `path` (weight, bias, running statistics).
   Derived& batch_norm(std::string path) {
-    return add(TermOp(TermOp::Kind::batch_norm, std::move(path)));
+    return apply(builtin::ChannelNorm(std::move(path), /*batch_norm=*/true));
   }
   /// torch.nn.BatchNorm1d at `path` whose batch statistics are those of the rows of the cochains
   /// `union_of` together, x being their part `part` (a GNN's norm on the union graph of an
@@ -191,7 +137,7 @@ class Chain : public detail::OperationList {
   }
   /// torch.nn.LayerNorm over the channels at `path`.
   Derived& layer_norm(std::string path) {
-    return add(TermOp(TermOp::Kind::layer_norm, std::move(path)));
+    return apply(builtin::ChannelNorm(std::move(path), /*batch_norm=*/false));
   }
   /// x · factor (CAN's skip connection scales its linear map by 1 + 1e-6).
   Derived& scale(double factor) { return apply(builtin::Scale(factor)); }
@@ -221,20 +167,21 @@ class Chain : public detail::OperationList {
   /// nothing but a concatenating step's mix, its first Linear layer is applied per term where that
   /// is cheaper (W [x; Σ y] = W_x x + Σ W_y y): HOPNet's updates.
   Derived& mlp(std::string path, MlpOptions options) {
-    TermOp t(TermOp::Kind::mlp, std::move(path));
-    t.mlp_options = std::move(options);
-    return add(std::move(t));
+    return apply(builtin::MlpBlock(std::move(path), std::move(options)));
   }
   /// Keeps only the pairs of one role of the `via` or `pattern` before it: a batch neighbourhood's
   /// roles (ComplexBatch; HOPNet's contact cells reach a face as its side +1 or -1).
   Derived& only(int role) {
-    if (ops_.empty() ||
-        (ops_.back().kind != TermOp::Kind::via && ops_.back().kind != TermOp::Kind::pattern))
+    const auto* p =
+        ops_.empty() || !ops_.back().traits.product ? nullptr : &*ops_.back().traits.product;
+    if (p == nullptr || p->transposed)
       throw ScheduleError("only(" + std::to_string(role) + ") must follow a via or a pattern");
-    ops_.back().role = role;
-    return static_cast<Derived&>(*this);
+    auto q = *p;
+    q.role = role;
+    ops_.pop_back();
+    return apply(builtin::Product(std::move(q)));
   }
-  /// A user-defined operation (operation.hpp), applied like the built-in ones.
+  /// An operation (operation.hpp): a user's, or a built-in one.
   template <class Op, class = std::enable_if_t<std::is_base_of_v<Operation, std::decay_t<Op>>>>
   Derived& apply(Op&& op) {
     return apply(
@@ -246,14 +193,6 @@ class Chain : public detail::OperationList {
   }
 
  protected:
-  Derived& add(TermOp t) {
-    push(std::move(t));
-    return static_cast<Derived&>(*this);
-  }
-  Derived& row_norm_last(bool on) {
-    ops_.back().row_norm = on;
-    return static_cast<Derived&>(*this);
-  }
 };
 
 /// A term: a cochain and what is done to it.
@@ -276,19 +215,13 @@ class Term : public Chain<Term> {
   /// Attention with its options: heads, keys and queries from other cochains, source-only
   /// scores, dropout, Aᵀ (AttendOptions).
   Term& attend(std::string op, AttendOptions o) {
-    TermOp t(TermOp::Kind::attend, std::move(op));
-    t.attention = std::move(o);
-    return add(std::move(t));
+    return apply(builtin::Attend(std::move(op), std::move(o)));
   }
   /// Polynomial filter terms [y, A₁y, ..., A₁^K₁y, A₂y, ...] (identity once); with row_norm each
   /// power from `norm_from` on is divided by its operator's row sums (0 where they are 0).
   Term& powers(std::vector<std::pair<std::string, int>> filters, bool row_norm = false,
                int norm_from = 1) {
-    TermOp t(TermOp::Kind::powers);
-    t.filters = std::move(filters);
-    t.row_norm = row_norm;
-    t.norm_from = norm_from;
-    return add(std::move(t));
+    return apply(builtin::Powers(std::move(filters), row_norm, norm_from));
   }
   CochainKey source;
 };
@@ -378,56 +311,33 @@ namespace detail {
 /// Operations that map each row on its own, the same whichever rows they are given (so that
 /// they can run on the rows an aggregation reads, or once for several terms).
 inline bool row_wise(const TermOp& t) {
-  switch (t.kind) {
-    case TermOp::Kind::mlp:
-    case TermOp::Kind::linear:
-    case TermOp::Kind::weight:
-    case TermOp::Kind::layer_norm:
-      return true;
-    case TermOp::Kind::custom:
-      return t.traits.row_wise;
-    default:
-      return false;
-  }
+  return t.traits.row_wise;
 }
 
-/// Operations that may read a cochain other than their operand: attention, and an operation
-/// that does not declare otherwise.
+/// Operations that may read a cochain other than their operand.
 inline bool reads_cochains(const TermOp& t) {
-  return t.kind == TermOp::Kind::attend ||
-         (t.kind == TermOp::Kind::custom && !t.traits.row_wise && t.traits.reads_cochains);
+  return !t.traits.row_wise && t.traits.reads_cochains;
 }
 
 /// The activation an operation is (OperationTraits::activation), for a product to fuse.
 inline const std::optional<Update>& activation_of(const TermOp& t) {
-  static const std::optional<Update> none;
-  return t.kind == TermOp::Kind::custom ? t.traits.activation : none;
+  return t.traits.activation;
+}
+
+/// The product by an operator an operation is, or null.
+inline const OperatorProduct* product_of(const TermOp& t) {
+  return t.traits.product ? &*t.traits.product : nullptr;
 }
 
 /// An operation that can aggregate over a batch neighbourhood: via (its values, summed) and a
 /// pattern (sum, mean or max).
 inline bool aggregation(const TermOp& t) {
-  return (t.kind == TermOp::Kind::via && !t.row_norm) || t.kind == TermOp::Kind::pattern;
+  return t.traits.product && t.traits.product->aggregation();
 }
 
 /// The operators an operation applies (none for most).
-inline std::vector<std::string> operators_of(const TermOp& t) {
-  switch (t.kind) {
-    case TermOp::Kind::via:
-    case TermOp::Kind::via_transposed:
-    case TermOp::Kind::pattern:
-    case TermOp::Kind::attend:
-      return {t.name};
-    case TermOp::Kind::powers: {
-      std::vector<std::string> names;
-      for (const auto& f : t.filters) names.push_back(f.first);
-      return names;
-    }
-    case TermOp::Kind::custom:
-      return t.traits.operators;
-    default:
-      return {};
-  }
+inline const std::vector<std::string>& operators_of(const TermOp& t) {
+  return t.traits.operators;
 }
 
 }  // namespace detail
@@ -502,5 +412,7 @@ class OperatorSchedule {
 #ifdef TOPOS_HEADER_ONLY
 #include "topos/nn/operator_schedule/builder-inl.hpp"
 #include "topos/nn/operator_schedule/elementwise-inl.hpp"
+#include "topos/nn/operator_schedule/layers-inl.hpp"
 #include "topos/nn/operator_schedule/printer-inl.hpp"
+#include "topos/nn/operator_schedule/products-inl.hpp"
 #endif

@@ -34,14 +34,6 @@ struct CostLine {
 
 }  // namespace detail
 
-TOPOS_INLINE std::int64_t OperatorNetworkImpl::dense_flops(const std::string& path,
-                                                           std::int64_t rows) const {
-  std::int64_t f = 0;  // an mlp: each of its Linear layers' weights (out × in)
-  for (const auto& p : mlps_.at(path)->named_parameters())
-    if (p.value().dim() == 2) f += 2 * rows * p.value().size(0) * p.value().size(1);
-  return f;
-}
-
 // One operation's line: a sparse product 2·nnz·width, a dense one 2·rows·in·out; `x`: its
 // operand's (rank, channels), `cells`: each rank's cells.
 TOPOS_INLINE detail::CostLine OperatorNetworkImpl::op_cost(
@@ -55,28 +47,12 @@ TOPOS_INLINE detail::CostLine OperatorNetworkImpl::op_cost(
   const auto label = detail::ops_str("x", {t});
   const auto shape = shapes_.find(&t);
   const auto out = shape == shapes_.end() ? x : shape->second;
-  switch (t.kind) {
-    case TermOp::Kind::via:
-    case TermOp::Kind::via_transposed:
-    case TermOp::Kind::attend:
-      return {
-          label + "  sparse 2·" + std::to_string(nnz(t.name)) + "·" + std::to_string(x.channels),
-          2 * nnz(t.name) * x.channels};
-    case TermOp::Kind::weight:
-    case TermOp::Kind::linear:
-      return {label + "  dense 2·" + std::to_string(rows(x.rank)) + "·" +
-                  std::to_string(x.channels) + "·" + std::to_string(out.channels),
-              2 * rows(x.rank) * x.channels * out.channels};
-    case TermOp::Kind::mlp:
-      return {label + "  dense", dense_flops(t.name, rows(x.rank))};
-    case TermOp::Kind::powers: {
-      std::int64_t f = 0;
-      for (const auto& [name, order] : t.filters) f += 2 * order * nnz(name) * x.channels;
-      return {label + "  sparse", f};
-    }
-    default:
-      return {label, -1};
-  }
+  if (!t.operation) return {label, -1};
+  CostContext c;
+  c.rows = rows(x.rank), c.x = x, c.y = out;
+  c.nnz = nnz;
+  const auto cost = t.operation->cost(c);
+  return {cost.formula.empty() ? label : label + "  " + cost.formula, cost.flops};
 }
 
 TOPOS_INLINE std::string OperatorNetworkImpl::plan_str(

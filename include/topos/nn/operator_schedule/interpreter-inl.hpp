@@ -39,9 +39,10 @@ TOPOS_INLINE std::map<std::string, torch::Tensor> OperatorNetworkImpl::forward_b
 }
 
 TOPOS_INLINE Mlp OperatorNetworkImpl::mlp(const std::string& path) const {
-  auto it = mlps_.find(path);
-  if (it == mlps_.end()) throw ScheduleError("no mlp '" + path + "' in the schedule");
-  return it->second;
+  auto it = modules_.find(path);
+  auto m = it == modules_.end() ? nullptr : std::dynamic_pointer_cast<MlpImpl>(it->second);
+  if (!m) throw ScheduleError("no mlp '" + path + "' in the schedule");
+  return Mlp(m);
 }
 
 TOPOS_INLINE void OperatorNetworkImpl::run_layer(
@@ -144,11 +145,14 @@ inline bool applies_absent(const ops::Term& term, const std::set<std::string>& a
 }  // namespace detail
 
 /// The values a step mixes, each with the term it comes from (a polynomial filter's several);
-/// for a concatenation into an mlp over a batch (`split`), the terms already multiplied by their
-/// block of the mlp's first weight W, summed, and the columns of W of the values left.
+/// for a concatenation into an operation with a leading Linear layer over a batch (`first`: an
+/// mlp; split_first_layer), the terms already multiplied by their block of that layer's weight W,
+/// summed, and the columns of W of the values left.
 struct OperatorNetworkImpl::StepTerms {
   std::vector<torch::Tensor> values;
   std::vector<const ops::Term*> from;
+  const Operation* first = nullptr;
+  std::shared_ptr<torch::nn::LinearImpl> linear;
   torch::Tensor W, early;
   std::vector<std::int64_t> cols;
   std::int64_t col = 0;  // the next term's first column of W
@@ -175,11 +179,11 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_step(const OperatorStep& s, 
   }
   const auto& tail = s.operations();
   const auto over_batch_or_powers = [&](const ops::Term& t) {
-    for (const auto& o : t.operations())
-      if (o.kind == TermOp::Kind::powers ||
-          ((o.kind == TermOp::Kind::via || o.kind == TermOp::Kind::pattern) &&
-           ops.neighborhood(o.name)))
+    for (const auto& o : t.operations()) {
+      const auto* p = detail::product_of(o);
+      if (o.traits.fans_out || (p != nullptr && !p->transposed && ops.neighborhood(p->op)))
         return true;
+    }
     return false;
   };
   const bool single =
@@ -207,14 +211,17 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_step(const OperatorStep& s, 
     // HOPNet's object-to-node message then costs a product over the objects, not the nodes.
     StepTerms values;
     if (fast_.split_first_layer() && ops.batch != nullptr && s.mix == OperatorStep::Mix::concat &&
-        !tail.empty() && tail.front().kind == TermOp::Kind::mlp) {
-      values.W = mlps_.at(tail.front().name)->first_linear()->weight;
-      first = 1;  // mix applies the mlp
+        !tail.empty() && tail.front().traits.leading_linear) {
+      detail::NetworkRunContext ctx(*this, where, s.target, ops, h);
+      values.first = tail.front().operation.get();
+      values.linear = values.first->first_linear(ctx);
+      values.W = values.linear->weight;
+      first = 1;  // mix applies the operation
     }
     for (const auto* term : terms)
       detail::naming(where, term,
                      [&] { evaluate_into(where, s.target, *term, h, ops, cache, values); });
-    y = mix(where, s, values);
+    y = mix(where, s, values, h, ops);
   }
   y = detail::naming(where, "the step's operations", [&] {
     for (std::size_t i = first; i < tail.size(); ++i)
@@ -251,19 +258,14 @@ TOPOS_INLINE void OperatorNetworkImpl::evaluate_into(const std::string& where,
   const auto& list = term.operations();
   for (std::size_t i = 0; i < list.size(); ++i) {
     const auto& t = list[i];
-    if (t.kind != TermOp::Kind::powers) {
+    if (!t.traits.fans_out) {
       i = apply_fused(where, target, list, i, x, ops, h);
       continue;
     }
-    out.values.push_back(x);
-    out.from.push_back(&term);
-    for (const auto& [name, order] : t.filters) {
-      const auto& A = ops.at(where, name);
-      detail::check_fits(where, name, A, x);
-      for (auto& p : powers(A, x, order, t.row_norm, t.norm_from)) {
-        out.values.push_back(p);
-        out.from.push_back(&term);
-      }
+    detail::NetworkRunContext ctx(*this, where, target, ops, h);
+    for (auto& value : t.operation->forward_terms(ctx, x)) {
+      out.values.push_back(std::move(value));
+      out.from.push_back(&term);
     }
     x = torch::Tensor();
   }
@@ -271,7 +273,8 @@ TOPOS_INLINE void OperatorNetworkImpl::evaluate_into(const std::string& where,
 }
 
 TOPOS_INLINE torch::Tensor OperatorNetworkImpl::mix(const std::string& where, const OperatorStep& s,
-                                                    StepTerms& t) {
+                                                    StepTerms& t, const Cochains& h,
+                                                    Operators& ops) {
   auto& v = t.values;
   for (std::size_t i = 1; i < v.size(); ++i) {  // what LibTorch would say without the terms
     if (v[i].dim() != 2 || v[0].dim() != 2) break;
@@ -290,15 +293,15 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::mix(const std::string& where, co
     const auto cat = [&] { return v.size() == 1 ? v[0] : torch::cat(v, 1); };
     if (s.mix == OperatorStep::Mix::filter) return combine_terms(v, params_.at(s.filter_path));
     if (t.W.defined()) {
-      auto update = mlps_.at(s.operations().front().name);
-      if (!t.early.defined()) return update->forward(cat());
+      detail::NetworkRunContext ctx(*this, where, s.target, ops, h);
+      if (!t.early.defined()) return t.first->forward(ctx, cat());
       const auto& W = t.W;
       const auto Wd = static_cast<std::int64_t>(t.cols.size()) == W.size(1)
                           ? W
                           : W.index_select(1, torch::tensor(t.cols, torch::kLong).to(W.device()));
-      auto z = nn::linear(cat(), Wd, update->first_linear()->bias);
+      auto z = nn::linear(cat(), Wd, t.linear->bias);
       z.add_(t.early);
-      return update->forward_after_first(z);
+      return t.first->forward_after_first(ctx, z);
     }
     if (s.mix == OperatorStep::Mix::concat) return cat();
     auto y = v[0];
@@ -314,7 +317,7 @@ namespace detail {
 struct FilterTaps {
   struct Link {
     const SparseOperator* A;
-    const TermOp* op;
+    const OperatorProduct* op;
   };
   const OperatorStep& s;
   const Cochains& h;
@@ -337,9 +340,7 @@ struct FilterTaps {
     const auto& link = chains[k][j];
     return detail::multiply(where, label(*link.op), *link.A, x, link.op->row_norm);
   }
-  static std::string label(const TermOp& o) {
-    return operator_label(o.name, o.kind == TermOp::Kind::via_transposed);
-  }
+  static std::string label(const OperatorProduct& o) { return operator_label(o.op, o.transposed); }
 };
 
 /// The sources whose product taps cost less weighted first (x_s Θ_k on the source's rows, then
@@ -446,18 +447,16 @@ TOPOS_INLINE bool OperatorNetworkImpl::filter_chains(const std::string& where,
     if (f.h.rows(term.source).defined()) return false;
     auto rows = f.source_rows(k);
     for (const auto& o : term.operations()) {
-      if (o.kind == TermOp::Kind::powers) return false;
-      const bool product =
-          (o.kind == TermOp::Kind::via || o.kind == TermOp::Kind::via_transposed) && o.role == 0 &&
-          !ops.neighborhood(o.name);
+      if (o.traits.fans_out) return false;
+      const auto* p = detail::product_of(o);
+      const bool product = p != nullptr && p->weighted && p->role == 0 && !ops.neighborhood(p->op);
       const SparseOperator* A = nullptr;
-      if (product)
-        A = o.kind == TermOp::Kind::via_transposed ? &ops.t(where, o.name) : &ops.at(where, o.name);
+      if (product) A = p->transposed ? &ops.t(where, p->op) : &ops.at(where, p->op);
       if (A == nullptr || A->cols != rows) {  // the general path applies it, or names the misfit
         f.products[k] = false;
         break;
       }
-      f.chains[k].push_back({A, &o});
+      f.chains[k].push_back({A, p});
       rows = A->rows;
     }
     if (!f.products[k]) continue;

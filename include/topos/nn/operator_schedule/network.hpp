@@ -205,10 +205,7 @@ class OperatorNetworkImpl : public torch::nn::Module {
   OperatorSchedule schedule_;
   std::map<std::string, torch::Tensor> params_;  // parameters and buffers by path
   std::set<std::string> buffers_;                // the paths of params_ that are buffers
-  std::map<std::string, torch::nn::BatchNorm1d> batch_norms_;
-  std::map<std::string, torch::nn::LayerNorm> layer_norms_;
-  std::map<std::string, std::shared_ptr<torch::nn::Module>> modules_;  // user operations' modules
-  std::map<std::string, Mlp> mlps_;
+  std::map<std::string, std::shared_ptr<torch::nn::Module>> modules_;  // operations' modules
   std::vector<std::vector<bool>> live_;  // per group and step: read by a later step or an output
   // Steps whose target only aggregations read, by (group, step): the operators they read through.
   std::map<std::pair<std::size_t, std::size_t>, std::vector<std::string>> compact_steps_;
@@ -219,7 +216,6 @@ class OperatorNetworkImpl : public torch::nn::Module {
   std::map<const TermOp*, TermShape> shapes_;
   std::map<const ops::Term*, std::int64_t> term_width_;
   std::map<const OperatorStep*, std::int64_t> mix_width_;
-  std::int64_t dense_flops(const std::string& mlp_path, std::int64_t rows) const;
   detail::CostLine op_cost(const TermOp& t, TermShape x, const std::map<int, std::int64_t>& cells,
                            const std::map<std::string, SparseOperator>& operators) const;
   FastPaths fast_;
@@ -254,8 +250,9 @@ class OperatorNetworkImpl : public torch::nn::Module {
                           Operators& ops, const Cochains& h);
   torch::Tensor apply(const std::string& where, const CochainKey& target, const TermOp& t,
                       torch::Tensor x, Operators& ops, const Cochains& h);
-  torch::Tensor attend(const std::string& where, const CochainKey& target, const TermOp& t,
-                       const torch::Tensor& x, Operators& ops, const Cochains& h);
+  torch::Tensor run_operation(const std::string& where, const CochainKey& target, const TermOp& t,
+                              const torch::Tensor& x, Operators& ops, const Cochains& h,
+                              const TermOp* activation);
   struct TermValue;  // a term's value, or its rows and the aggregation still to apply
   using PrefixCache = std::map<std::string, torch::Tensor>;  // per group: shared term prefixes
   TermValue evaluate_term(const std::string& where, const CochainKey& target, const ops::Term& t,
@@ -266,8 +263,9 @@ class OperatorNetworkImpl : public torch::nn::Module {
   /// A term's value(s) added to `out`, or with `out.W` its product by its block of W.
   void evaluate_into(const std::string& where, const CochainKey& target, const ops::Term& term,
                      const Cochains& h, Operators& ops, PrefixCache& cache, StepTerms& out);
-  /// The step's terms mixed (with a split mlp, through it).
-  torch::Tensor mix(const std::string& where, const OperatorStep& s, StepTerms& terms);
+  /// The step's terms mixed (with a split leading Linear layer, through its operation).
+  torch::Tensor mix(const std::string& where, const OperatorStep& s, StepTerms& terms,
+                    const Cochains& h, Operators& ops);
   /// A filter step whose terms are chains of sparse products, each source's taps weighted on
   /// the side with fewer rows; undefined where the step is not one (the general path runs it).
   torch::Tensor run_filter(const std::string& where, const OperatorStep& s, const Cochains& h,
@@ -291,12 +289,9 @@ class OperatorNetworkImpl : public torch::nn::Module {
   std::pair<torch::nn::Module*, std::string> owner_of(const std::string& path);
   void make_parameter(const std::string& where, const std::string& path,
                       std::vector<std::int64_t> shape, ParameterInit init, bool trainable = true);
-  void make_module(const std::string& where, const std::string& path,
-                   std::shared_ptr<torch::nn::Module> m);
-  void make_norm(const std::string& where, const TermOp& t, std::int64_t channels);
-  std::int64_t make_mlp(const std::string& where, const TermOp& t, std::int64_t channels);
+  std::shared_ptr<torch::nn::Module> make_module(const std::string& where, const std::string& path,
+                                                 std::shared_ptr<torch::nn::Module> m);
   TermShape infer(detail::NetworkBuildContext& ctx, const TermOp& t, TermShape x);
-  TermShape infer_attend(detail::NetworkBuildContext& ctx, const TermOp& t, TermShape x);
   void validate_and_create();
   std::map<CochainKey, std::int64_t> declared_widths() const;
   void check_optional_uses(const std::string& where, const OperatorStep& s) const;

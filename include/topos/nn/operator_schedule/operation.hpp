@@ -32,6 +32,7 @@
 #include <torch/torch.h>
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -99,6 +100,12 @@ class BuildContext {
   /// The width of a cochain as the step reads it (before the step); fails when no input or
   /// earlier step produces it. The network keeps the steps that produce what is read here.
   virtual std::int64_t cochain_width(const CochainKey& key) = 0;
+  /// The same, or nothing when no input or earlier step produces it (then it is not read).
+  virtual std::optional<std::int64_t> find_width(const CochainKey& key) = 0;
+  /// Does one of the step's terms start at `key`?
+  virtual bool step_reads(const CochainKey& key) const = 0;
+  /// Was `key` written by an earlier step (rather than given as an input)?
+  virtual bool written_by_a_step(const CochainKey& key) const = 0;
   /// A parameter at a dotted path, created with `init`; a path used again must have the same
   /// shape and is the same parameter (shared weights).
   virtual void parameter(const std::string& path, const std::vector<std::int64_t>& shape,
@@ -107,8 +114,14 @@ class BuildContext {
   virtual void buffer(const std::string& path, const std::vector<std::int64_t>& shape,
                       double value) = 0;
   /// A submodule at a dotted path (a torch::nn::Linear, an Mlp, ...), registered the first time
-  /// and shared by every operation that names the same path.
-  virtual void module(const std::string& path, std::shared_ptr<torch::nn::Module> m) = 0;
+  /// and shared by every operation that names the same path (of the same type, else an error).
+  /// Returns the registered one: `m`, or the module an earlier operation made at the path, whose
+  /// options the caller checks against its own.
+  virtual std::shared_ptr<torch::nn::Module> module(const std::string& path,
+                                                    std::shared_ptr<torch::nn::Module> m) = 0;
+  /// The module an earlier operation made at `path`, or null: an operation sharing a module
+  /// makes a new one (which may draw random initial values) only when there is none.
+  virtual std::shared_ptr<torch::nn::Module> find_module(const std::string& path) const = 0;
 };
 
 /// What an operation sees while the network runs.
@@ -119,6 +132,8 @@ class RunContext {
   [[noreturn]] void fail(const std::string& why) const {
     throw ScheduleError(where() + ": " + why);
   }
+  /// The cochain the step writes (its value before the step: cochain(target())).
+  virtual const CochainKey& target() const = 0;
   /// A given operator by name, and its transpose (computed once per forward).
   virtual const SparseOperator& op(const std::string& name) = 0;
   virtual const SparseOperator& op_transposed(const std::string& name) = 0;
@@ -142,6 +157,22 @@ class RunContext {
 
  protected:
   virtual std::shared_ptr<torch::nn::Module> module_at(const std::string& path) const = 0;
+};
+
+/// A product by an operator (OperationTraits::product): A·x with A's values (`weighted`), or the
+/// sum, mean or max of x over A's pattern (its values ignored); over Aᵀ (`transposed`); divided
+/// by the operator's row sums (`row_norm`); over a batch neighbourhood, only its pairs of one
+/// role (`role`, 0: all).
+struct OperatorProduct {
+  std::string op;
+  bool transposed = false;
+  bool weighted = true;
+  Aggr reduce = Aggr::sum;
+  bool row_norm = false;
+  int role = 0;
+  /// An aggregation over a neighbourhood: a weighted sum without row sums, or a pattern's
+  /// sum, mean or max; what a batch neighbourhood can run.
+  bool aggregation() const { return !transposed && (!weighted || !row_norm); }
 };
 
 /// What an operation declares about itself so that the network may run it faster with the same
@@ -169,6 +200,42 @@ struct OperationTraits {
   /// identity compute the same, so a prefix of them shared by several terms runs once. Empty:
   /// the operation object alone is its identity (no sharing between separate objects).
   std::string identity;
+  /// forward(x) is x · P for the 2-D parameter P (in × out) at this path: next to a sparse
+  /// product the network may run the two in the cheaper order, A (x P) = (A x) P
+  /// (FastPaths::reorder_products).
+  std::string right_factor;
+  /// forward_activated is a fused kernel: the network calls it for this operation followed by an
+  /// activation operation (FastPaths::fuse_activations).
+  bool fuses_activation = false;
+  /// forward(x) = forward_after_first(x · Wᵀ + b) for the Linear layer first_linear() returns:
+  /// in a concatenating step the network may multiply each term by its block of W before the
+  /// terms are summed over a neighbourhood (W [x; Σ y] = W x + Σ W y;
+  /// FastPaths::split_first_layer).
+  bool leading_linear = false;
+  /// forward(x) is this product by an operator: over a batch's neighbourhood the network runs
+  /// it as an aggregation (and may defer it, or run what precedes it on the rows it reads), and
+  /// next to a right factor or an activation it may reorder or fuse it. builtin::Product.
+  std::optional<OperatorProduct> product;
+  /// forward_terms gives several values, each a term of the step (a polynomial filter's powers,
+  /// builtin::Powers): `terms` of them, mixed by the step's filter weight; it must be a term's
+  /// last operation.
+  bool fans_out = false;
+  std::int64_t terms = 1;
+};
+
+/// What an operation's cost is counted on (plan_str): the operand's rows, its and the result's
+/// shapes, and the nonzeros of an operator by name (0 when not given).
+struct CostContext {
+  std::int64_t rows = 0;
+  TermShape x, y;
+  std::function<std::int64_t(const std::string&)> nnz;
+};
+
+/// What forward costs on given rows (OperatorNetwork::plan_str): its FLOPs and how they were
+/// counted ("dense 2·5·3·4"); flops -1 when the operation does not say.
+struct OperationCost {
+  std::int64_t flops = -1;
+  std::string formula;
 };
 
 /// An operation written outside topos. Immutable once in a schedule: it holds options (paths,
@@ -186,6 +253,30 @@ class Operation {
   virtual torch::Tensor forward(RunContext& ctx, const torch::Tensor& x) const = 0;
   /// What the network may assume of it (read once, when the operation is added to a term).
   virtual OperationTraits traits() const { return {}; }
+  /// Its cost (plan_str): the default says nothing.
+  virtual OperationCost cost(const CostContext& c) const {
+    (void)c;
+    return {};
+  }
+  /// With traits().fans_out: the values it gives, each a term of the step.
+  virtual std::vector<torch::Tensor> forward_terms(RunContext& ctx, const torch::Tensor& x) const {
+    return {forward(ctx, x)};
+  }
+  /// With traits().fuses_activation: apply_update(forward(x), activation, negative_slope) in one
+  /// kernel; called only with a fusable activation (nn::fusable).
+  virtual torch::Tensor forward_activated(RunContext& ctx, const torch::Tensor& x,
+                                          Update activation, double negative_slope) const {
+    return apply_update(forward(ctx, x), activation, negative_slope);
+  }
+  /// With traits().leading_linear: the Linear layer forward starts with, and the rest of forward
+  /// applied to that layer's output.
+  virtual std::shared_ptr<torch::nn::LinearImpl> first_linear(RunContext& ctx) const {
+    ctx.fail("operation " + str("x") + " declares no leading Linear layer");
+  }
+  virtual torch::Tensor forward_after_first(RunContext& ctx, const torch::Tensor& z) const {
+    (void)z;
+    ctx.fail("operation " + str("x") + " declares no leading Linear layer");
+  }
 };
 
 }  // namespace topos::nn

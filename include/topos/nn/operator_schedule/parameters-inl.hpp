@@ -1,5 +1,5 @@
 // topos/nn/operator_schedule/parameters-inl.hpp
-// OperatorNetwork's parameters, buffers, modules and normalisations at their dotted paths
+// OperatorNetwork's parameters, buffers and modules at their dotted paths
 // (created once, checked when met again), apart from the shape inference that asks for them
 // (build-inl.hpp). Compiled into topos::nn, or inline with TOPOS_HEADER_ONLY (topos/config.hpp).
 #pragma once
@@ -105,9 +105,8 @@ TOPOS_INLINE void OperatorNetworkImpl::make_parameter(const std::string& where,
   params_.emplace(path, p);
 }
 
-TOPOS_INLINE void OperatorNetworkImpl::make_module(const std::string& where,
-                                                   const std::string& path,
-                                                   std::shared_ptr<torch::nn::Module> m) {
+TOPOS_INLINE std::shared_ptr<torch::nn::Module> OperatorNetworkImpl::make_module(
+    const std::string& where, const std::string& path, std::shared_ptr<torch::nn::Module> m) {
   if (!m) throw ScheduleError(where + ": module '" + path + "' is null");
   detail::check_dotted_path(where, "module", path);
   if (auto it = modules_.find(path); it != modules_.end()) {
@@ -116,34 +115,16 @@ TOPOS_INLINE void OperatorNetworkImpl::make_module(const std::string& where,
     if (typeid(a) != typeid(b))
       throw ScheduleError(where + ": module '" + path + "' was made " + a.name() + ", not " +
                           b.name());
-    return;  // shared by name: the first one stays
+    return it->second;  // shared by name: the first one stays
   }
-  if (params_.count(path) || batch_norms_.count(path) || layer_norms_.count(path))
-    throw ScheduleError(where + ": '" + path + "' is already a parameter or a normalisation");
+  if (params_.count(path)) throw ScheduleError(where + ": '" + path + "' is already a parameter");
+  // Parameters under the path ("p.weight" of a linear at "p") hang from a plain module there.
+  for (const auto& [name, tensor] : params_)
+    if (name.compare(0, path.size() + 1, path + ".") == 0)
+      throw ScheduleError(where + ": '" + path + "' already holds the parameter '" + name +
+                          "': give the module another path");
   auto [owner, leaf] = owner_of(path);
-  modules_.emplace(path, owner->register_module(leaf, std::move(m)));
+  return modules_.emplace(path, owner->register_module(leaf, std::move(m))).first->second;
 }
 
-TOPOS_INLINE void OperatorNetworkImpl::make_norm(const std::string& where, const TermOp& t,
-                                                 std::int64_t channels) {
-  const bool batch = t.kind == TermOp::Kind::batch_norm;
-  auto same_width = [&](std::int64_t c) {
-    if (c != channels)
-      throw ScheduleError(where + ": normalisation '" + t.name + "' of " + std::to_string(c) +
-                          " channels applied to " + std::to_string(channels));
-  };
-  if (batch && batch_norms_.count(t.name))
-    return same_width(batch_norms_.at(t.name)->options.num_features());
-  if (!batch && layer_norms_.count(t.name))
-    return same_width(layer_norms_.at(t.name)->options.normalized_shape()[0]);
-  if (params_.count(t.name + ".weight") || batch_norms_.count(t.name) || layer_norms_.count(t.name))
-    throw ScheduleError(where + ": '" + t.name + "' is already another kind of module");
-  auto [owner, leaf] = owner_of(t.name);
-  if (batch)
-    batch_norms_.emplace(t.name, owner->register_module(leaf, torch::nn::BatchNorm1d(channels)));
-  else
-    layer_norms_.emplace(t.name,
-                         owner->register_module(
-                             leaf, torch::nn::LayerNorm(torch::nn::LayerNormOptions({channels}))));
-}
 }  // namespace topos::nn

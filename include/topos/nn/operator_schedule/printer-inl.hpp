@@ -17,52 +17,8 @@ TOPOS_INLINE std::string num(double v) {
   return o.str();
 }
 
-TOPOS_INLINE std::string role_str(const TermOp& t) {
-  return t.role == 0 ? "" : "[role " + std::to_string(t.role) + "]";
-}
-
 TOPOS_INLINE std::string ops_str(std::string x, const std::vector<TermOp>& ops) {
-  for (const auto& t : ops) {
-    switch (t.kind) {
-      case TermOp::Kind::via:
-        x = t.name + (t.row_norm ? "~" : "") + role_str(t) + "·" + x;
-        break;
-      case TermOp::Kind::via_transposed:
-        x = operator_label(t.name, true) + (t.row_norm ? "~" : "") + "·" + x;
-        break;
-      case TermOp::Kind::pattern:
-        x = std::string(aggr_name(t.aggr)) + "|" + t.name + role_str(t) + "|·" + x;
-        break;
-      case TermOp::Kind::weight:
-        x = x + "·" + t.name;
-        break;
-      case TermOp::Kind::linear:
-        x = t.name + "(" + x + ")";
-        break;
-      case TermOp::Kind::attend: {
-        const auto& a = t.attention;
-        x = "att[" + a.param() + (a.heads() > 1 ? " ×" + std::to_string(a.heads()) : "") + "]" +
-            operator_label(t.name, a.transposed()) + "·" + x;
-        break;
-      }
-      case TermOp::Kind::batch_norm:
-      case TermOp::Kind::layer_norm:
-        x = t.name + "(" + x + ")";
-        break;
-      case TermOp::Kind::powers: {
-        std::string f;
-        for (const auto& [op, k] : t.filters) f += " " + op + "^1.." + std::to_string(k);
-        x = "powers[" + x + ";" + f + "]";
-        break;
-      }
-      case TermOp::Kind::mlp:
-        x = t.name + "(" + x + ")";
-        break;
-      case TermOp::Kind::custom:
-        x = t.operation ? t.operation->str(x) : "null(" + x + ")";
-        break;
-    }
-  }
+  for (const auto& t : ops) x = t.operation ? t.operation->str(x) : "null(" + x + ")";
   return x;
 }
 

@@ -7,7 +7,8 @@
 
 #include "topos/nn/operator_schedule/parameters-inl.hpp"  // detail::shape_str
 #include "topos/nn/operator_schedule/network.hpp"
-#include "topos/nn/operator_schedule/printer-inl.hpp"  // detail::ops_str
+#include "topos/nn/operator_schedule/printer-inl.hpp"   // detail::ops_str
+#include "topos/nn/operator_schedule/products-inl.hpp"  // detail::check_fits, multiply
 
 #include <algorithm>
 #include <cstdint>
@@ -81,10 +82,11 @@ namespace detail {
 /// What a user operation sees of a running step (operation.hpp).
 class NetworkRunContext final : public RunContext {
  public:
-  NetworkRunContext(OperatorNetworkImpl& net, const std::string& where,
+  NetworkRunContext(OperatorNetworkImpl& net, const std::string& where, const CochainKey& target,
                     OperatorNetworkImpl::Operators& ops, const Cochains& h)
-      : net_(net), where_(where), ops_(ops), h_(h) {}
+      : net_(net), where_(where), target_(target), ops_(ops), h_(h) {}
   const std::string& where() const override { return where_; }
+  const CochainKey& target() const override { return target_; }
   const SparseOperator& op(const std::string& name) override { return ops_.at(where_, name); }
   const SparseOperator& op_transposed(const std::string& name) override {
     return ops_.t(where_, name);
@@ -111,24 +113,16 @@ class NetworkRunContext final : public RunContext {
  private:
   OperatorNetworkImpl& net_;
   const std::string& where_;
+  const CochainKey& target_;
   OperatorNetworkImpl::Operators& ops_;
   const Cochains& h_;
 };
 
-/// A clear error naming the step and the operator when A cannot be applied to x.
-TOPOS_INLINE void check_fits(const std::string& where, const std::string& name,
-                             const SparseOperator& A, const torch::Tensor& x) {
-  if (A.cols != x.size(0))
-    throw ScheduleError(where + ": operator '" + name + "' has " + std::to_string(A.cols) +
-                        " columns but the cochain it is applied to has " +
-                        std::to_string(x.size(0)) + " rows");
-}
-
-TOPOS_INLINE AggregateOptions aggregate_options(const TermOp& t) {
+TOPOS_INLINE AggregateOptions aggregate_options(const OperatorProduct& p) {
   AggregateOptions o;
-  o.role = t.role;
-  o.weighted = t.kind == TermOp::Kind::via;
-  o.reduce = t.kind == TermOp::Kind::via ? Aggr::sum : t.aggr;
+  o.role = p.role;
+  o.weighted = p.weighted;
+  o.reduce = p.weighted ? Aggr::sum : p.reduce;
   return o;
 }
 
@@ -152,13 +146,12 @@ TOPOS_INLINE torch::Tensor compact_rows(const torch::Tensor& used, std::int64_t 
 TOPOS_INLINE std::string prefix_key(const CochainKey& source, const std::vector<TermOp>& list,
                                     std::size_t k) {
   std::string key = ops_str(source.str(), {list.begin(), list.begin() + static_cast<long>(k)});
-  for (std::size_t i = 0; i < k; ++i)
-    if (list[i].kind == TermOp::Kind::custom) {
-      const auto& id = list[i].traits.identity;
-      key += "|" + (id.empty()
-                        ? std::to_string(reinterpret_cast<std::uintptr_t>(list[i].operation.get()))
-                        : id);
-    }
+  for (std::size_t i = 0; i < k; ++i) {
+    const auto& id = list[i].traits.identity;
+    key += "|" + (id.empty()
+                      ? std::to_string(reinterpret_cast<std::uintptr_t>(list[i].operation.get()))
+                      : id);
+  }
   return key;
 }
 
@@ -198,11 +191,11 @@ TOPOS_INLINE void check_result(const std::string& where, const Operation& op, in
 }
 
 /// A term's operations over a batch neighbourhood: the aggregation, checked against x's rows.
-TOPOS_INLINE torch::Tensor aggregate_over(const std::string& where, const TermOp& t,
+TOPOS_INLINE torch::Tensor aggregate_over(const std::string& where, const OperatorProduct& p,
                                           const TensorNeighborhood& n, const torch::Tensor& x) {
-  if (!aggregation(t)) not_an_aggregation(where, t.name);
-  check_reads(where, t.name, n.num_source, x.size(0));
-  return aggregate(x, n, aggregate_options(t));
+  if (!p.aggregation()) not_an_aggregation(where, p.op);
+  check_reads(where, p.op, n.num_source, x.size(0));
+  return aggregate(x, n, aggregate_options(p));
 }
 
 /// The leading dimensions of inputs given as (..., cells, channels): the same for every input of
@@ -258,15 +251,6 @@ TOPOS_INLINE std::map<std::string, torch::Tensor> over_leading(
   return out;
 }
 
-/// A · x, divided by A's row sums with `row_norm` (0 where a row sums to 0).
-TOPOS_INLINE torch::Tensor multiply(const std::string& where, const std::string& name,
-                                    const SparseOperator& A, const torch::Tensor& x,
-                                    bool row_norm) {
-  detail::check_fits(where, name, A, x);
-  const auto y = spmm(A, x);
-  return row_norm ? divide_by_row_sums(A, y) : y;
-}
-
 }  // namespace detail
 
 TOPOS_INLINE std::size_t OperatorNetworkImpl::apply_fused(const std::string& where,
@@ -275,22 +259,22 @@ TOPOS_INLINE std::size_t OperatorNetworkImpl::apply_fused(const std::string& whe
                                                           std::size_t i, torch::Tensor& x,
                                                           Operators& ops, const Cochains& h) {
   const auto& t = list[i];
-  const auto is_product = [&](const TermOp& o) {
-    return (o.kind == TermOp::Kind::via || o.kind == TermOp::Kind::via_transposed) && o.role == 0 &&
-           !ops.neighborhood(o.name);
+  // A weighted product by a sparse operator (not a batch's neighbourhood).
+  const auto sparse_product = [&](const TermOp& o) -> const OperatorProduct* {
+    const auto* p = detail::product_of(o);
+    return p != nullptr && p->weighted && p->role == 0 && !ops.neighborhood(p->op) ? p : nullptr;
   };
-  // A weight next to a sparse product: A (x W) = (A x) W, so the dense product runs on the side
-  // with fewer rows (SCCN's tetrahedra to triangles: the weight after the sum, on a quarter of
-  // the rows). Sparse entries are weighted as 4 dense multiply-adds (their gather is slower).
+  // A right factor next to a sparse product: A (x W) = (A x) W, so the dense product runs on the
+  // side with fewer rows (SCCN's tetrahedra to triangles: the weight after the sum, on a quarter
+  // of the rows). Sparse entries are weighted as 4 dense multiply-adds (their gather is slower).
   if (fast_.reorder_products() && i + 1 < list.size() && x.dim() == 2) {
-    const bool weight_first = t.kind == TermOp::Kind::weight && is_product(list[i + 1]);
-    const bool via_first = is_product(t) && list[i + 1].kind == TermOp::Kind::weight;
-    const auto& p = weight_first ? list[i + 1] : t;
-    const auto& w = weight_first ? t : list[i + 1];
+    const auto& next = list[i + 1];
+    const bool weight_first = !t.traits.right_factor.empty() && sparse_product(next);
+    const bool via_first = sparse_product(t) && !next.traits.right_factor.empty();
     if (weight_first || via_first) {
-      const auto& W = params_.at(w.name);
-      const bool transposed = p.kind == TermOp::Kind::via_transposed;
-      const auto& A = transposed ? ops.t(where, p.name) : ops.at(where, p.name);
+      const auto& p = *sparse_product(weight_first ? next : t);
+      const auto& W = params_.at((weight_first ? t : next).traits.right_factor);
+      const auto& A = p.transposed ? ops.t(where, p.op) : ops.at(where, p.op);
       if (W.dim() == 2 && A.cols == x.size(0)) {
         const double n = static_cast<double>(x.size(0)), m = static_cast<double>(A.rows),
                      nnz = 4.0 * static_cast<double>(A.nnz()),
@@ -299,7 +283,7 @@ TOPOS_INLINE std::size_t OperatorNetworkImpl::apply_fused(const std::string& whe
                      cost_via_first = nnz * c_in + m * c_in * c_out;
         if (weight_first ? cost_via_first < 0.8 * cost_weight_first
                          : cost_weight_first < 0.8 * cost_via_first) {
-          const auto name = operator_label(p.name, transposed);
+          const auto name = operator_label(p.op, p.transposed);
           if (weight_first) {
             x = detail::multiply(where, name, A, x, p.row_norm);
             x = linear_act(x, W.t(), {});
@@ -311,22 +295,22 @@ TOPOS_INLINE std::size_t OperatorNetworkImpl::apply_fused(const std::string& whe
       }
     }
   }
-  const bool product = (is_product(t) && !t.row_norm) || t.kind == TermOp::Kind::linear;
+  // A product and the activation after it in one kernel: a sparse product without row sums, or
+  // an operation whose traits say it fuses one.
+  const auto* product = sparse_product(t);
+  const bool fuses = t.traits.fuses_activation || (product != nullptr && !product->row_norm);
   const auto* next_act = i + 1 < list.size() ? &detail::activation_of(list[i + 1]) : nullptr;
-  if (!fast_.fuse_activations() || !product || next_act == nullptr || !*next_act ||
+  if (!fast_.fuse_activations() || !fuses || next_act == nullptr || !*next_act ||
       !fusable(**next_act)) {
     x = apply(where, target, t, x, ops, h);
     return i;
   }
-  const auto act = epilogue_of(**next_act);
-  if (t.kind == TermOp::Kind::linear) {
-    x = linear_act(x, params_.at(t.name + ".weight"),
-                   t.bias ? params_.at(t.name + ".bias") : torch::Tensor(), act);
+  if (product == nullptr) {
+    x = run_operation(where, target, t, x, ops, h, &list[i + 1]);
   } else {
-    const bool transposed = t.kind == TermOp::Kind::via_transposed;
-    const auto& A = transposed ? ops.t(where, t.name) : ops.at(where, t.name);
-    detail::check_fits(where, operator_label(t.name, transposed), A, x);
-    x = spmm(A, x, act);
+    const auto& A = product->transposed ? ops.t(where, product->op) : ops.at(where, product->op);
+    x = detail::multiply(where, operator_label(product->op, product->transposed), A, x, false,
+                         epilogue_of(**next_act));
   }
   return i + 1;
 }
@@ -335,94 +319,30 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::apply(const std::string& where,
                                                       const CochainKey& target, const TermOp& t,
                                                       torch::Tensor x, Operators& ops,
                                                       const Cochains& h) {
-  if (t.kind == TermOp::Kind::via || t.kind == TermOp::Kind::pattern) {
-    if (const auto* n = ops.neighborhood(t.name)) return detail::aggregate_over(where, t, *n, x);
-    if (t.role != 0)
-      throw ScheduleError(where + ": only(" + std::to_string(t.role) + ") needs a neighbourhood " +
-                          "with roles, and operator '" + t.name + "' is a sparse operator");
-  }
-  switch (t.kind) {
-    case TermOp::Kind::via: {
-      return detail::multiply(where, t.name, ops.at(where, t.name), x, t.row_norm);
-    }
-    case TermOp::Kind::via_transposed: {
-      return detail::multiply(where, operator_label(t.name, true), ops.t(where, t.name), x,
-                              t.row_norm);
-    }
-    case TermOp::Kind::attend:
-      return attend(where, target, t, x, ops, h);
-    case TermOp::Kind::batch_norm:
-      return batch_norms_.at(t.name)->forward(x);
-    case TermOp::Kind::layer_norm:
-      return layer_norms_.at(t.name)->forward(x);
-    case TermOp::Kind::pattern: {
-      const auto& A = ops.at(where, t.name);
-      detail::check_fits(where, t.name, A, x);
-      return pattern_aggregate(A, x, t.aggr);
-    }
-    case TermOp::Kind::weight: {
-      const auto& W = params_.at(t.name);
-      return x.dim() == 2 && W.dim() == 2 ? linear_act(x, W.t(), {}) : x.matmul(W);
-    }
-    case TermOp::Kind::linear: {
-      const auto& b = t.bias ? params_.at(t.name + ".bias") : torch::Tensor();
-      return linear_act(x, params_.at(t.name + ".weight"), b);
-    }
-    case TermOp::Kind::powers:
-      break;  // handled by the caller (it fans out)
-    case TermOp::Kind::mlp:
-      return mlps_.at(t.name)->forward(x);
-    case TermOp::Kind::custom: {
-      detail::NetworkRunContext ctx(*this, where, ops, h);
-      auto y = t.operation->forward(ctx, x);
-      if (auto it = inferred_.find(&t); it != inferred_.end()) {
-        const auto& [rank_in, out] = it->second;
-        // The target before the step, whole, has a row per cell of its rank.
-        const bool whole = out.rank == target.rank && h.has(target.rank, target.state) &&
-                           !h.rows(target).defined();
-        detail::check_result(where, *t.operation, rank_in, out, x, y,
-                             whole ? h.at(target.rank, target.state) : torch::Tensor());
-      }
-      return y;
-    }
-  }
-  return x;
+  if (const auto* p = detail::product_of(t))
+    if (const auto* n = ops.neighborhood(p->op)) return detail::aggregate_over(where, *p, *n, x);
+  return run_operation(where, target, t, x, ops, h, nullptr);
 }
 
-TOPOS_INLINE torch::Tensor OperatorNetworkImpl::attend(const std::string& where,
-                                                       const CochainKey& target, const TermOp& t,
-                                                       const torch::Tensor& x, Operators& ops,
-                                                       const Cochains& h) {
-  const auto& o = t.attention;
-  const auto& A = o.transposed() ? ops.t(where, t.name) : ops.at(where, t.name);
-  const auto name = operator_label(t.name, o.transposed());
-  detail::check_fits(where, name, A, x);
-  A.require_entries(where + ": attention over operator '" + name + "'");
-  auto k = x;
-  if (o.keys()) {
-    k = h.at(o.keys()->rank, o.keys()->state);
-    detail::check_fits(where, name, A, k);
+// An Operation's forward, or with `activation` (an activation operation after it, which its
+// traits say it fuses) its forward_activated; the result checked against what its infer said.
+TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_operation(
+    const std::string& where, const CochainKey& target, const TermOp& t, const torch::Tensor& x,
+    Operators& ops, const Cochains& h, const TermOp* activation) {
+  detail::NetworkRunContext ctx(*this, where, target, ops, h);
+  auto y = activation == nullptr
+               ? t.operation->forward(ctx, x)
+               : t.operation->forward_activated(ctx, x, *activation->traits.activation,
+                                                activation->traits.negative_slope);
+  if (auto it = inferred_.find(&t); it != inferred_.end()) {
+    const auto& [rank_in, out] = it->second;
+    // The target before the step, whole, has a row per cell of its rank.
+    const bool whole =
+        out.rank == target.rank && h.has(target.rank, target.state) && !h.rows(target).defined();
+    detail::check_result(where, *t.operation, rank_in, out, x, y,
+                         whole ? h.at(target.rank, target.state) : torch::Tensor());
   }
-  torch::Tensor q;
-  if (!o.source_only()) {
-    const auto& key = o.queries() ? *o.queries() : target;
-    q = h.at(key.rank, key.state);
-    if (A.rows != q.size(0))
-      throw ScheduleError(where + ": operator '" + name + "' has " + std::to_string(A.rows) +
-                          " rows but the " +
-                          (o.queries() ? "query cochain " + key.str() : "target cochain") +
-                          " has " + std::to_string(q.size(0)));
-  }
-  // The parameter's parts a_s and a_t (heads-major), per cell and head <f_h, a_h>, per entry
-  // a_s·k_j (+ a_t·q_i); then the weights and each head's messages (functional.hpp).
-  const auto H = o.heads();
-  const auto a = params_.at(o.param()).reshape({-1});
-  const auto ck = k.size(1);
-  const auto raw = q.defined() ? entry_scores(A, head_scores(k, a.narrow(0, 0, ck), H),
-                                              head_scores(q, a.narrow(0, ck, a.size(0) - ck), H))
-                               : head_scores(k, a, H).index_select(0, A.col.to(x.device()));
-  return multi_head_attention(A, raw, x, o.concat(), o.activation(), o.negative_slope(), o.norm(),
-                              o.dropout(), is_training());
+  return y;
 }
 
 TOPOS_INLINE OperatorNetworkImpl::TermValue OperatorNetworkImpl::evaluate_term(
@@ -432,14 +352,16 @@ TOPOS_INLINE OperatorNetworkImpl::TermValue OperatorNetworkImpl::evaluate_term(
   const auto& list = term.operations();
   std::size_t k = 0;  // the first operation that is not row-wise
   while (k < list.size() && detail::row_wise(list[k])) ++k;
-  const TensorNeighborhood* nb =
-      k < list.size() && detail::aggregation(list[k]) ? ops.neighborhood(list[k].name) : nullptr;
+  const TensorNeighborhood* nb = k < list.size() && detail::aggregation(list[k])
+                                     ? ops.neighborhood(detail::product_of(list[k])->op)
+                                     : nullptr;
   if (nb == nullptr) return v;  // not handled here
   v.handled = true;
   torch::Tensor x = h.at(term.source.rank, term.source.state);
   TensorNeighborhood n = *nb;
   const auto rows = h.rows(term.source);  // defined for a compact cochain: each cell's row
-  detail::check_reads(where, list[k].name, n.num_source, rows.defined() ? rows.size(0) : x.size(0),
+  const auto& product = *detail::product_of(list[k]);
+  detail::check_reads(where, product.op, n.num_source, rows.defined() ? rows.size(0) : x.size(0),
                       term.source.str());
   if (rows.defined()) {
     n.source = rows.index_select(0, n.source);
@@ -468,7 +390,7 @@ TOPOS_INLINE OperatorNetworkImpl::TermValue OperatorNetworkImpl::evaluate_term(
       if (share) cache.emplace(key, x);
     }
   }
-  v.agg = detail::aggregate_options(list[k]);
+  v.agg = detail::aggregate_options(product);
   if (may_defer && k + 1 == list.size()) {
     v.deferred = true;
     v.x = std::move(x);
