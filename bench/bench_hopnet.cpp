@@ -4,7 +4,10 @@
 // Issue bars (2 cores): forward <= 3 ms, step <= 5 ms, rollout <= 0.6 s; the Python reference
 // takes 8-10 ms, 181 ms and 18.5 s. Threads: 1 intra-op thread (set below), the fastest here.
 // And one training step on the whole trajectory (below), for the standard model and for every
-// variant preset (BM_train_step_variant, freshly initialised, native mode).
+// variant preset (BM_train_step_variant, freshly initialised, native mode). Native mode also with
+// bfloat16 products (bf16: 1, `hopnet rollout --mode native --matmul-precision medium`). The
+// roofline's counters (docs/benchmarks.md): each forward's FLOPs by the network's plan, GFLOP/s,
+// and the dense kernel alone on HOPNet's shapes (BM_dense_kernel).
 #include <benchmark/benchmark.h>
 
 #include "topos/models/hopnet/training.hpp"
@@ -12,8 +15,10 @@
 #include "topos/nn/cpu.hpp"
 #include "topos/util/memory.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cstdlib>
+#include <iostream>
 
 using namespace topos;
 using namespace topos::hopnet;
@@ -57,24 +62,87 @@ Case make_case(const benchmark::State& state) {
   return {mode, setup().model(mode), make_geometry(setup().scene, mode)};
 }
 
-void BM_forward(benchmark::State& state) {
-  auto [mode, net, g] = make_case(state);
+// The matmul precision of a benchmark's second argument (bf16: 1, medium) while it runs;
+// highest again afterwards, for the benchmarks that follow in the process.
+struct Precision {
+  explicit Precision(bool bf16) {
+    nn::set_float32_matmul_precision(bf16 ? nn::MatmulPrecision::medium
+                                          : nn::MatmulPrecision::highest);
+  }
+  ~Precision() { nn::set_float32_matmul_precision(nn::MatmulPrecision::highest); }
+};
+
+// The FLOPs of one forward over `b` as the network's plan counts them (OperatorNetwork::plan_str:
+// dense products 2·rows·in·out, sparse ones 2·nnz·width; in the plain order, so messages for every
+// source cell, where the fast paths compute only those with a receiver). The batch's neighbourhoods
+// are given as operators of their pattern (the counts need only their nonzeros).
+std::int64_t plan_flops(const Hopnet& net, const HopnetBatch& b, bool print = false) {
+  std::map<std::string, nn::SparseOperator> ops;
+  for (const auto& [name, n] : b.complex.neighborhoods()) {
+    const auto t = n.target.to(torch::kCPU).contiguous(),
+               src = n.source.to(torch::kCPU).contiguous();
+    const std::vector<std::int64_t> r(t.data_ptr<std::int64_t>(),
+                                      t.data_ptr<std::int64_t>() + t.numel()),
+        c(src.data_ptr<std::int64_t>(), src.data_ptr<std::int64_t>() + src.numel());
+    ops[name] = nn::SparseOperator::from_triplets(n.num_target, n.num_source, r, c,
+                                                  std::vector<double>(r.size(), 1.0));
+  }
+  auto inputs = b.inputs;
+  if (net->options.mode() != FeatureMode::native) inputs.erase("x3_plus");
+  const auto plan = net->plan_str(inputs, net->declared_operators(ops));
+  if (print) std::cerr << plan;
+  auto total = plan.substr(plan.rfind("total ") + 6);
+  total.erase(std::remove(total.begin(), total.end(), ','), total.end());
+  return std::stoll(total);
+}
+
+// The frame at t = 100 (47 faces, 49 contacts in reference mode) as one batch.
+HopnetBatch frame_100(const HopnetGeometry& g) {
   const auto& S = setup();
-  // The frame at t = 100 (47 faces, 49 contacts in reference mode).
   const auto frame =
       build_frame(g, scene_poses(S.scene, 0), scene_poses(S.scene, 98), scene_poses(S.scene, 99),
                   scene_poses(S.scene, 100),
                   detect_contacts(g, pose_objects(g, scene_poses(S.scene, 100)), 0.1));
-  const auto batch = make_batch({{&g, &frame}}, S.norm);
+  return make_batch({{&g, &frame}}, S.norm);
+}
+
+void BM_forward(benchmark::State& state) {
+  auto [mode, net, g] = make_case(state);
+  const Precision precision(state.range(1) != 0);
+  const auto& S = setup();
+  const auto batch = frame_100(g);
+  // TOPOS_PRINT_PLAN=1: the plan, operation by operation with its FLOPs, on stderr (once).
+  static bool printed = false;
+  const bool print = std::getenv("TOPOS_PRINT_PLAN") && !printed;
+  printed = printed || print;
+  const auto flops = static_cast<double>(plan_flops(net, batch, print));
+  // plain: 1 runs the plan as printed, every fast path off (messages from every source cell),
+  // so its GFLOP/s is the rate reached on the plan's FLOPs.
+  if (state.range(2)) net->set_fast_paths(false);
   torch::NoGradGuard ng;
   for (auto _ : state) benchmark::DoNotOptimize(net->forward(batch, S.norm).a0);
-  state.counters["faces"] = static_cast<double>(frame.num_faces());
-  state.counters["contacts"] = static_cast<double>(frame.num_contacts());
+  state.counters["faces"] = static_cast<double>(batch.complex.size(2));
+  state.counters["contacts"] = static_cast<double>(batch.complex.size(3));
+  state.counters["MFLOP"] = flops / 1e6;
+  state.counters["GFLOP/s"] =
+      benchmark::Counter(flops / 1e9, benchmark::Counter::kIsIterationInvariantRate);
 }
-BENCHMARK(BM_forward)->Arg(0)->Arg(1)->ArgName("native")->Unit(benchmark::kMillisecond);
+// Native mode with float32 and bfloat16 products; reference mode in float32 only.
+void precision_args(benchmark::internal::Benchmark* b) {
+  b->Args({0, 0})->Args({1, 0})->Args({1, 1})->ArgNames({"native", "bf16"});
+}
+BENCHMARK(BM_forward)
+    ->Args({0, 0, 0})
+    ->Args({1, 0, 0})
+    ->Args({1, 1, 0})
+    ->Args({0, 0, 1})
+    ->Args({1, 0, 1})
+    ->ArgNames({"native", "bf16", "plain"})
+    ->Unit(benchmark::kMillisecond);
 
 void BM_rollout_step(benchmark::State& state) {
   auto [mode, net, g] = make_case(state);
+  const Precision precision(state.range(1) != 0);
   const auto& S = setup();
   const Poses p0 = scene_poses(S.scene, 0), p98 = scene_poses(S.scene, 98),
               p99 = scene_poses(S.scene, 99), p100 = scene_poses(S.scene, 100);
@@ -83,11 +151,16 @@ void BM_rollout_step(benchmark::State& state) {
     benchmark::DoNotOptimize(
         predict_next(*net, S.norm, g, p0, p98, p99, p100, contacts).positions.data());
   }
+  const auto flops = static_cast<double>(plan_flops(net, frame_100(g)));
+  state.counters["MFLOP"] = flops / 1e6;
+  state.counters["GFLOP/s"] =
+      benchmark::Counter(flops / 1e9, benchmark::Counter::kIsIterationInvariantRate);
 }
-BENCHMARK(BM_rollout_step)->Arg(0)->Arg(1)->ArgName("native")->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_rollout_step)->Apply(precision_args)->Unit(benchmark::kMillisecond);
 
 void BM_rollout_102(benchmark::State& state) {
   auto [mode, net, g] = make_case(state);
+  const Precision precision(state.range(1) != 0);
   const auto& S = setup();
   RolloutOptions opt;
   if (mode == FeatureMode::reference) opt.first_contacts = S.first;
@@ -96,12 +169,34 @@ void BM_rollout_102(benchmark::State& state) {
     pos100 = rollout_metrics(rollout(*net, S.norm, S.scene, g, opt).poses, S.scene).pos_rmse[100];
   state.counters["pos_rmse_100"] = pos100;
 }
-BENCHMARK(BM_rollout_102)
-    ->Arg(0)
-    ->Arg(1)
-    ->ArgName("native")
-    ->Unit(benchmark::kMillisecond)
-    ->MinTime(2.0);
+BENCHMARK(BM_rollout_102)->Apply(precision_args)->Unit(benchmark::kMillisecond)->MinTime(2.0);
+
+// The dense kernel alone on HOPNet's shapes, one thread: x Wᵀ + b, as the MLPs' Linear layers
+// run (rows × in -> 128). Rows as in scene 8's forward at frame 100: 64 (its 47-50 faces and
+// 49-119 contacts; bfloat16 pads to 64 rows anyway), 192 (its 183 nodes), 512 (its 524 edges),
+// and 87,296 (a whole training trajectory's nodes, 477 timesteps); in: 128 (a message MLP's
+// layers), 256 and 512 (the updates' first layers over concatenated states). bf16: 0 is
+// nn::linear_act, the float32 path of a rollout; 1 the bfloat16 product of nn::linear at medium
+// precision (the casts, oneDNN's bfloat16 kernel) as the MLPs run it.
+void BM_dense_kernel(benchmark::State& state) {
+  nn::set_cpu_threads(1, 1);
+  const std::int64_t rows = state.range(0), in = state.range(1), out = 128;
+  const bool bf16 = state.range(2) != 0;
+  torch::manual_seed(0);
+  const auto x = torch::randn({rows, in}), W = torch::randn({out, in}) / 16,
+             b = torch::randn({out});
+  const Precision precision(bf16);
+  torch::NoGradGuard ng;
+  for (auto _ : state)
+    benchmark::DoNotOptimize(bf16 ? nn::linear(x, W, b) : nn::linear_act(x, W, b));
+  state.counters["GFLOP/s"] = benchmark::Counter(2.0 * static_cast<double>(rows * in * out) / 1e9,
+                                                 benchmark::Counter::kIsIterationInvariantRate);
+}
+BENCHMARK(BM_dense_kernel)
+    ->ArgsProduct({{64, 192, 512, 87296}, {128, 256, 512}, {0, 1}})
+    ->ArgNames({"rows", "in", "bf16"})
+    ->Unit(benchmark::kMicrosecond)
+    ->MinTime(0.5);
 
 // One optimizer step on the whole trajectory (t = 2..478: 477 timesteps), forward, backward and
 // Adam (train_step, as `hopnet train`). Arguments: chunk, timesteps per forward/backward (0: the
@@ -134,6 +229,14 @@ void BM_train_step(benchmark::State& state) {
   nn::set_cpu_threads(1, 1);
   nn::set_float32_matmul_precision(nn::MatmulPrecision::highest);
   state.counters["peak_rss_mb"] = peak_rss_mb();
+  // The step's FLOPs: the forward's by the plan, chunk by chunk, and the backward's twice that
+  // (each product's input and weight gradients; the encoders' inputs need none, a few per cent
+  // less).
+  double forward = 0;
+  for (const auto& c : chunks) forward += static_cast<double>(plan_flops(net, c.batch));
+  state.counters["GFLOP"] = 3 * forward / 1e9;
+  state.counters["GFLOP/s"] =
+      benchmark::Counter(3 * forward / 1e9, benchmark::Counter::kIsIterationInvariantRate);
   state.counters["timesteps"] = static_cast<double>(tf.frames.size());
   state.counters["timesteps_per_s"] = benchmark::Counter(
       static_cast<double>(tf.frames.size()), benchmark::Counter::kIsIterationInvariantRate);

@@ -77,6 +77,29 @@ inline HopnetOptions variant_options(const VariantArgs& v, const HopnetOptions& 
   return o;
 }
 
+/// --matmul-precision of the subcommands that roll out (rollout, evaluate).
+inline void add_rollout_precision_option(CLI::App* app, std::string& precision) {
+  app->add_option("--matmul-precision", precision,
+                  "float32 products: highest (float32) or medium (bfloat16 inputs, float32 "
+                  "accumulation; --mode native only: reference mode reproduces the published "
+                  "model in float32)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"highest", "medium"}));
+}
+
+/// Sets the process's matmul precision for rollouts in `mode`: medium with any mode but native
+/// is an error saying what to write instead (reference mode stays the published model's numbers).
+inline void set_rollout_precision(const std::string& precision, FeatureMode mode) {
+  const auto p = nn::matmul_precision_from_string(precision);
+  if (p != nn::MatmulPrecision::highest && mode != FeatureMode::native)
+    throw std::invalid_argument(
+        "--matmul-precision " + precision + " needs --mode native: " + to_string(mode) +
+        " mode reproduces the published model and runs in float32 only; write --mode native "
+        "--matmul-precision " +
+        precision + ", or leave --matmul-precision at highest");
+  nn::set_float32_matmul_precision(p);
+}
+
 /// The options a model is opened with: the variant's --activation and --collision-radius
 /// (HOPNet's), the feature mode, and --stats.
 inline sim::OpenOptions open_options(const VariantArgs& v, const std::string& stats_path,

@@ -18,7 +18,7 @@ namespace {
 struct EvaluateArgs {
   std::vector<std::string> checkpoints;
   std::string stats, data, assets, split = "test", split_file, mode = "reference", out,
-                                   device = "cpu";
+                                   device = "cpu", matmul_precision = "highest";
   int steps = 102, viewer_scenes = 6, jobs = 0;
   VariantArgs variant;
   bool no_report = false;
@@ -49,6 +49,7 @@ std::vector<Poses> constant_velocity(const Scene& s, int frames) {
 int run_evaluate(const EvaluateArgs& a) {
   namespace fs = std::filesystem;
   const FeatureMode mode = feature_mode_from_string(a.mode);
+  set_rollout_precision(a.matmul_precision, mode);  // every worker's rollouts
   const torch::Device device = nn::device_from_string(a.device);
   // Every checkpoint is read and checked once here (sim::open_model); each worker thread below
   // rolls out with its own copy of each model (Simulator::clone), on --device.
@@ -230,6 +231,7 @@ int run_evaluate(const EvaluateArgs& a) {
   top["baseline_constant_velocity"] = metrics["constant_velocity"];
   top["scenes"] = chosen;
   top["mode"] = to_string(mode);
+  top["matmul_precision"] = a.matmul_precision;
   top["model"] = model_name;
   top["variant"] = models.front().variant;
   top["models"] = metrics;  // every checkpoint's and constant velocity's, by name
@@ -260,7 +262,9 @@ int run_evaluate(const EvaluateArgs& a) {
   {
     std::ostringstream t;
     t << "# " << label << " rollout errors (" << chosen.size() << " scenes, " << a.split
-      << " split, " << to_string(mode) << " mode)\n\n"
+      << " split, " << to_string(mode) << " mode"
+      << (a.matmul_precision == "highest" ? "" : ", matmul precision " + a.matmul_precision)
+      << ")\n\n"
       << md.str();
     write_file_atomic((fs::path(a.out) / "table.md").string(), t.str());
   }
@@ -326,6 +330,7 @@ Command add_evaluate(CLI::App& app) {
         "custom split JSON {train, val, test} (default: the reference split of the scenes present)")
       ->check(CLI::ExistingFile);
   ce->add_option("--mode", ev.mode, "reference or native")->capture_default_str();
+  add_rollout_precision_option(ce, ev.matmul_precision);
   ce->add_option("--steps", ev.steps, "rollout steps")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);

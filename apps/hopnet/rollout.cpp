@@ -8,7 +8,7 @@ namespace {
 
 struct RolloutArgs {
   std::string checkpoint, stats, scene, assets, mode = "reference", out, collisions, viewer,
-                                                device = "cpu";
+                                                device = "cpu", matmul_precision = "highest";
   int steps = 102;
   bool no_collisions_json = false;
   VariantArgs variant;
@@ -16,6 +16,7 @@ struct RolloutArgs {
 
 int run_rollout(const RolloutArgs& a) {
   const FeatureMode mode = feature_mode_from_string(a.mode);
+  set_rollout_precision(a.matmul_precision, mode);
   if (!a.viewer.empty()) hopnet_web::require_js_libraries();
   MeshLibrary lib(a.assets);
   const auto kubric = data::read_kubric_metadata(a.scene);
@@ -49,6 +50,7 @@ int run_rollout(const RolloutArgs& a) {
   nlohmann::json j;
   j["scene"] = kubric.source;
   j["mode"] = to_string(mode);
+  j["matmul_precision"] = a.matmul_precision;
   j["checkpoint"] = a.checkpoint;
   j["variant"] = variant;
   j["frames"] = r.num_frames();
@@ -80,8 +82,9 @@ int run_rollout(const RolloutArgs& a) {
         (model.name() == "hopnet" ? std::string("HOPNet") : model.name()) + " rollout (" +
             std::string(to_string(mode)) + " mode): " + kubric.source,
         {{kubric.source, &scene, r.poses, {{"prediction", m.pos_rmse}}}});
-  std::printf("rollout: %s, %d steps in %.3f s (%.2f ms/step), mode %s\n", variant.c_str(), a.steps,
-              r.seconds, 1e3 * r.seconds / a.steps, to_string(mode));
+  std::printf("rollout: %s, %d steps in %.3f s (%.2f ms/step), mode %s, matmul precision %s\n",
+              variant.c_str(), a.steps, r.seconds, 1e3 * r.seconds / a.steps, to_string(mode),
+              a.matmul_precision.c_str());
   std::printf("%6s %10s %10s %10s %10s\n", "frame", "pos_rmse", "pos_mae", "ori_rmse", "ori_mae");
   for (int f : {4, 25, 50, 75, 100})
     if (f < static_cast<int>(m.pos_rmse.size()))
@@ -113,6 +116,7 @@ Command add_rollout(CLI::App& app) {
                  "when omitted");
   cr->add_option("--mode", ro.mode, "reference (the published model's inputs) or native")
       ->capture_default_str();
+  add_rollout_precision_option(cr, ro.matmul_precision);
   cr->add_option("--steps", ro.steps, "frames to predict")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);

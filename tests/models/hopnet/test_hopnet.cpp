@@ -1,7 +1,8 @@
 // Tests of topos/models/hopnet: the frozenset edge direction, features, incidences and outputs
 // of the first two rollout steps against the reference's golden arrays (MOVi-A scene 8,
-// modela_seed2_e39), the 102-step rollout's metrics, native mode, normalisation statistics,
-// checkpoints (import, topos save/load, every error), the role-mixing buffer, and training:
+// modela_seed2_e39), the 102-step rollout's metrics, native mode (with bfloat16 products too),
+// normalisation statistics, checkpoints (import, topos save/load, every error), the role-mixing
+// buffer, and training:
 // chunked gradients, and the reference's loss, gradient and Adam steps (train-golden).
 #include "support/torch_prelude.hpp"
 
@@ -247,6 +248,42 @@ TEST_CASE("the 102-step reference rollout of MOVi-A scene 8 lands within 2% of t
   }
   // Frames 0..3 are the ground truth.
   for (int f = 0; f < 4; ++f) REQUIRE(m.pos_rmse[static_cast<std::size_t>(f)] == 0.0);
+}
+
+TEST_CASE("native rollouts may multiply in bfloat16, close to float32; reference mode may not",
+          "[hopnet][rollout][precision]") {
+  Golden G("hopnet bfloat16 rollout");
+  const auto norm = G.normalizer();
+  struct Restore {  // the setting is process-wide: back to highest even if this throws
+    ~Restore() { nn::set_float32_matmul_precision(nn::MatmulPrecision::highest); }
+  } restore;
+  auto native = load_hopnet(G.checkpoint(), FeatureMode::native);
+  native->eval();
+  const auto g = make_geometry(G.scene, FeatureMode::native);
+  RolloutOptions opt;
+  opt.steps = 22;  // frames 4..25
+  const auto hi = rollout(*native, norm, G.scene, g, opt);
+  nn::set_float32_matmul_precision(nn::MatmulPrecision::medium);
+  const auto md = rollout(*native, norm, G.scene, g, opt);
+  // Frame 4, one step from the ground truth: it did multiply in bfloat16, and the predicted
+  // positions moved by far less than a millimetre (bfloat16 keeps 8 significant bits of a
+  // normalised acceleration, which the integration scales by 1/240² s²).
+  const auto frame_gap = [&](std::size_t f) {
+    return (md.poses[f].positions - hi.poses[f].positions).cwiseAbs().maxCoeff();
+  };
+  CHECK(frame_gap(4) > 0);
+  CHECK(frame_gap(4) < 1e-4);
+  // Frame 25: errors compound over 22 steps, the metrics stay within a few per cent.
+  const auto m_hi = rollout_metrics(hi.poses, G.scene), m_md = rollout_metrics(md.poses, G.scene);
+  INFO("frame 25 pos RMSE: highest " << m_hi.pos_rmse[25] << ", medium " << m_md.pos_rmse[25]
+                                     << "; largest position gap " << frame_gap(25) << " m");
+  CHECK(std::abs(m_md.pos_rmse[25] / m_hi.pos_rmse[25] - 1) < 0.05);
+  CHECK(frame_gap(25) < 5e-3);
+  // Reference mode stays the published model's float32 numbers.
+  auto reference = G.model();
+  const auto gr = make_geometry(G.scene, FeatureMode::reference);
+  REQUIRE_THROWS_WITH(rollout(*reference, norm, G.scene, gr, opt),
+                      Catch::Contains("reference mode runs in float32 only"));
 }
 
 namespace {

@@ -4,14 +4,18 @@
 // (the first step may take given contacts, as the reference takes collisions.json["3"]),
 // builds the features from the poses at t-2, t-1, t and GT frame 0, runs the model, integrates
 // the node accelerations (x_{t+1} = a + 2x_t − x_{t−1}) and re-rigidifies every object by
-// shape matching on its volumetric centre of mass. Static objects keep their pose.
+// shape matching on its volumetric centre of mass. Static objects keep their pose. Native mode
+// may multiply in bfloat16 (nn::set_float32_matmul_precision(medium)); reference mode runs in
+// float32 only, so that it stays the published model's numbers.
 #pragma once
 
 #include "topos/models/hopnet/model.hpp"
+#include "topos/nn/mlp.hpp"
 #include "topos/sim/meshes.hpp"
 #include "topos/sim/rollout.hpp"
 
 #include <optional>
+#include <stdexcept>
 
 namespace topos::hopnet {
 
@@ -24,11 +28,24 @@ using sim::RolloutMetrics;
 using sim::RolloutOptions;
 using sim::RolloutResult;
 
-/// One model step: the predicted poses at t+1 from poses at t-2, t-1, t.
+/// Reference mode reproduces the published model, in float32: bfloat16 products
+/// (MatmulPrecision::medium) are for native mode only.
+inline void check_rollout_precision(const HopnetImpl& model) {
+  if (model.options.mode() == FeatureMode::reference &&
+      nn::get_float32_matmul_precision() != nn::MatmulPrecision::highest)
+    throw std::invalid_argument(
+        "HOPNet's reference mode runs in float32 only (it reproduces the published model): "
+        "roll out in native mode for bfloat16 products (matmul precision medium), or set the "
+        "precision to highest");
+}
+
+/// One model step: the predicted poses at t+1 from poses at t-2, t-1, t (at the process's
+/// matmul precision; reference mode: highest only, check_rollout_precision).
 inline Poses predict_next(HopnetImpl& model, const Normalizer& norm, const HopnetGeometry& g,
                           const Poses& first, const Poses& p2, const Poses& p1, const Poses& pt,
                           const std::vector<ContactCandidate>& contacts,
                           HopnetFrame* frame_out = nullptr) {
+  check_rollout_precision(model);
   HopnetFrame frame = build_frame(g, first, p2, p1, pt, contacts);
   // The model's device decides where it runs (CPU or GPU); the pose update stays on the host.
   const auto params = model.parameters();
