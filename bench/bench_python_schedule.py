@@ -22,7 +22,7 @@ import torch
 import torch.nn.functional as F
 
 import topos
-from topos.nn import OperatorNetwork, OperatorSchedule, SparseOperator, Update, from_, into
+from topos.nn import OperatorNetwork, OperatorSchedule, SparseOperator, Activation, from_, into
 
 C = 16
 
@@ -43,12 +43,12 @@ def schedule():
     s.step(
         into(1)
         .sum(
-            from_(1).conv("conv_1_to_1", C).via("adjacency_1").act(Update.elu),
-            from_(2).conv("conv_2_to_1", C).via("incidence_2").act(Update.elu),
-            from_(0).conv("conv_0_to_1", C).via_t("incidence_1").act(Update.elu),
+            from_(1).conv("conv_1_to_1", C).via("adjacency_1").act(Activation.elu),
+            from_(2).conv("conv_2_to_1", C).via("incidence_2").act(Activation.elu),
+            from_(0).conv("conv_0_to_1", C).via_t("incidence_1").act(Activation.elu),
         )
         .linear("update_fn.transform", C)
-        .act(Update.elu)
+        .act(Activation.elu)
     )
     s.output("x_1", 1)
     return s

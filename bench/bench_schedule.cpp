@@ -189,11 +189,11 @@ struct CwnGrid {
         .operator_input("incidence_2", 2, 1)
         .operator_input("incidence_1", 1, 0);
     s.step(into(1)
-               .sum(from(1).conv("conv_1_to_1", C).via("adjacency_1").act(Update::elu),
-                    from(2).conv("conv_2_to_1", C).via("incidence_2").act(Update::elu),
-                    from(0).conv("conv_0_to_1", C).via_t("incidence_1").act(Update::elu))
+               .sum(from(1).conv("conv_1_to_1", C).via("adjacency_1").act(Activation::elu),
+                    from(2).conv("conv_2_to_1", C).via("incidence_2").act(Activation::elu),
+                    from(0).conv("conv_0_to_1", C).via_t("incidence_1").act(Activation::elu))
                .linear("update_fn.transform", C)
-               .act(Update::elu));
+               .act(Activation::elu));
     s.output("x_1", 1);
     net = OperatorNetwork(s);
     for (int r = 0; r < 3; ++r)

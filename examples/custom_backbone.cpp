@@ -37,9 +37,9 @@ topos::nn::OperatorSchedule gin_schedule(std::int64_t hidden, int layers) {
     auto step = into(0).sum(from(0), from(0).via("gcn_adjacency"));
     step.linear(p + "lin_0", hidden)
         .batch_norm(p + "norm")
-        .act(topos::nn::Update::relu)
+        .act(topos::nn::Activation::relu)
         .linear(p + "lin_1", hidden);
-    if (l + 1 < layers) step.act(topos::nn::Update::relu);
+    if (l + 1 < layers) step.act(topos::nn::Activation::relu);
     s.step(std::move(step));
   }
   return s;

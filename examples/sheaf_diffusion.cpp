@@ -110,7 +110,7 @@ topos::nn::OperatorSchedule sheaf_diffusion_schedule(std::int64_t in, std::int64
   topos::nn::OperatorSchedule s;
   s.input("x", 0, in).operator_input("incidence_1", 1, 0);
   s.step(into(0, "h").sum(
-      from(0).dropout(dropout).linear("encoder", d * f).act(topos::nn::Update::elu)));
+      from(0).dropout(dropout).linear("encoder", d * f).act(topos::nn::Activation::elu)));
   for (int l = 0; l < layers; ++l) {
     const auto p = "layers." + std::to_string(l);
     s.layer(p).step(
@@ -118,7 +118,7 @@ topos::nn::OperatorSchedule sheaf_diffusion_schedule(std::int64_t in, std::int64
                                            .dropout(dropout)
                                            .apply(StalkLinear(p, d))
                                            .apply(SheafLaplacian(p, "incidence_1", {0, "h"}, d))
-                                           .act(topos::nn::Update::elu)
+                                           .act(topos::nn::Activation::elu)
                                            .scale(-1.0)));
   }
   s.step(into(0, "logits").sum(from(0, "h").dropout(dropout).linear("decoder", classes)));

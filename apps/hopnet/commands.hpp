@@ -71,7 +71,7 @@ inline void add_variant_options(CLI::App* app, VariantArgs& v, bool with_config)
 /// top.
 inline HopnetOptions variant_options(const VariantArgs& v, const HopnetOptions& base = {}) {
   HopnetOptions o = v.config.empty() ? base : parse_config(v.config, base);
-  if (!v.activation.empty()) o.activation(nn::update_from_string(v.activation));
+  if (!v.activation.empty()) o.activation(nn::activation_from_string(v.activation));
   if (v.collision_radius > 0) o.collision_radius(v.collision_radius);
   o.validate();
   return o;
@@ -107,7 +107,7 @@ inline sim::OpenOptions open_options(const VariantArgs& v, const std::string& st
   sim::OpenOptions o;
   o.stats = stats_path;
   o.mode = mode;
-  if (!v.activation.empty()) o.activation = nn::update_from_string(v.activation);
+  if (!v.activation.empty()) o.activation = nn::activation_from_string(v.activation);
   if (v.collision_radius > 0) o.collision_radius = v.collision_radius;
   return o;
 }

@@ -29,7 +29,7 @@ int run_export(const ExportArgs& a) {
   config.insert("hidden", o.hidden());
   config.insert("mlp_layers", static_cast<std::int64_t>(o.mlp_layers()));
   config.insert("num_layers", static_cast<std::int64_t>(o.num_layers()));
-  config.insert("activation", nn::update_name(o.activation()));
+  config.insert("activation", nn::activation_name(o.activation()));
   config.insert("mode", std::string(to_string(o.mode())));
   config.insert("architecture", std::string(to_string(o.architecture())));
   config.insert("center_mass_distance", o.center_mass_distance());

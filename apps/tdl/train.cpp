@@ -77,7 +77,7 @@ Classifier make_classifier(const std::string& name, const Graph& g, const TrainO
           // No aggr_norm: the filters are normalised already, and dividing by row sums would
           // blow up the signed edge filters' rows that sum to nearly zero.
           models::SCCNN(models::SCCNNOptions({n, 1, 1}, {o.hidden, o.hidden, o.hidden}, 1, 2)
-                            .update_func(nn::Update::relu)));
+                            .update_func(nn::Activation::relu)));
       auto head = root->register_module("head", torch::nn::Linear(o.hidden, classes));
       const std::vector<nn::SparseOperator> L{op(low_pass_filter(sc.hodge_laplacian_matrix(0))),
                                               op(low_pass_filter(sc.down_laplacian_matrix(1))),

@@ -158,7 +158,7 @@ void bind_hopnet(py::module_& parent) {
              const auto dict = nn::read_tensor_dict(c->path);
              if (!activation.is_none()) {
                py::gil_scoped_acquire gil;
-               ov.activation = nn::update_from_string(activation.cast<std::string>());
+               ov.activation = nn::activation_from_string(activation.cast<std::string>());
              } else if (is_reference_checkpoint(dict)) {
                ov.activation = activation_from_reference_name(c->path);
              }
@@ -184,7 +184,7 @@ void bind_hopnet(py::module_& parent) {
           "mode", [](const Checkpoint& c) { return std::string(to_string(c.net->options.mode())); })
       .def_property_readonly(
           "activation",
-          [](const Checkpoint& c) { return nn::update_name(c.net->options.activation()); })
+          [](const Checkpoint& c) { return nn::activation_name(c.net->options.activation()); })
       .def_property_readonly("collision_radius",
                              [](const Checkpoint& c) { return c.net->options.collision_radius(); })
       .def_property_readonly(

@@ -45,17 +45,18 @@ py::tuple key_out(const CochainKey& k) {
   return py::make_tuple(k.rank, k.state);
 }
 
-/// An activation: topos.nn.Update.relu, or its name ("relu", "elu", ..., "none").
-Update update_arg(const py::handle& obj, const std::string& arg) {
-  if (py::isinstance<Update>(obj)) return obj.cast<Update>();
+/// An activation: topos.nn.Activation.relu, or its name ("relu", "elu", ..., "none").
+Activation activation_arg(const py::handle& obj, const std::string& arg) {
+  if (py::isinstance<Activation>(obj)) return obj.cast<Activation>();
   if (py::isinstance<py::str>(obj)) {
     try {
-      return update_from_string(obj.cast<std::string>());
+      return activation_from_string(obj.cast<std::string>());
     } catch (const std::invalid_argument& e) {
       throw py::value_error(arg + ": " + e.what());
     }
   }
-  throw py::type_error(arg + ": expected a topos.nn.Update or its name ('relu', 'elu', ...), got " +
+  throw py::type_error(arg +
+                       ": expected a topos.nn.Activation or its name ('relu', 'elu', ...), got " +
                        type_name(obj));
 }
 
@@ -287,10 +288,10 @@ void bind_chain(py::class_<D>& c) {
       .def(
           "act",
           [](D& d, const py::object& u, double slope) -> D& {
-            return d.act(update_arg(u, "act(activation)"), slope);
+            return d.act(activation_arg(u, "act(activation)"), slope);
           },
           py::arg("activation"), py::arg("negative_slope") = 0.01, self_ref,
-          "An activation: Update.relu or its name.")
+          "An activation: Activation.relu or its name.")
       .def(
           "dropout", [](D& d, double p) -> D& { return d.dropout(p); }, py::arg("p"), self_ref)
       .def(
@@ -351,15 +352,16 @@ void bind_chain(py::class_<D>& c) {
 }
 
 void bind_builder(py::module_& m) {
-  py::enum_<Update>(m, "Update", "An activation (a name works too: 'relu').")
-      .value("none", Update::none)
-      .value("relu", Update::relu)
-      .value("sigmoid", Update::sigmoid)
-      .value("tanh", Update::tanh)
-      .value("elu", Update::elu)
-      .value("leaky_relu", Update::leaky_relu)
-      .value("gelu", Update::gelu)
-      .value("selu", Update::selu);
+  py::enum_<Activation>(m, "Activation", "An activation (a name works too: 'relu').")
+      .value("none", Activation::none)
+      .value("relu", Activation::relu)
+      .value("sigmoid", Activation::sigmoid)
+      .value("tanh", Activation::tanh)
+      .value("elu", Activation::elu)
+      .value("leaky_relu", Activation::leaky_relu)
+      .value("gelu", Activation::gelu)
+      .value("selu", Activation::selu);
+  m.attr("Update") = m.attr("Activation");  // deprecated: the earlier name
   py::enum_<Aggr>(m, "Aggr")
       .value("sum", Aggr::sum)
       .value("mean", Aggr::mean)
@@ -374,12 +376,12 @@ void bind_builder(py::module_& m) {
                        const py::object& activation, bool final_activation, bool layer_norm) {
              return MlpOptions(in, hidden, out)
                  .layers(layers)
-                 .activation(update_arg(activation, "MlpOptions(activation)"))
+                 .activation(activation_arg(activation, "MlpOptions(activation)"))
                  .final_activation(final_activation)
                  .layer_norm(layer_norm);
            }),
            py::arg("in_channels"), py::arg("hidden"), py::arg("out"), py::kw_only(),
-           py::arg("layers") = 2, py::arg("activation") = Update::relu,
+           py::arg("layers") = 2, py::arg("activation") = Activation::relu,
            py::arg("final_activation") = true, py::arg("layer_norm") = true);
 
   py::class_<ops::Term> term(m, "Term", "A term: a cochain and the operations applied to it.");
@@ -391,7 +393,7 @@ void bind_builder(py::module_& m) {
              double gain, const py::object& keys, const py::object& queries, bool source_only,
              std::int64_t heads, bool concat, double dropout, bool transposed) -> ops::Term& {
             AttendOptions o(std::move(param));
-            o.activation(update_arg(activation, "attend(activation)"))
+            o.activation(activation_arg(activation, "attend(activation)"))
                 .norm(norm)
                 .negative_slope(slope)
                 .gain(gain)
@@ -405,7 +407,7 @@ void bind_builder(py::module_& m) {
             if (!queries.is_none()) o.queries(key_arg(queries, "attend(queries)"));
             return t.attend(std::move(op), std::move(o));
           },
-          py::arg("op"), py::arg("param"), py::arg("activation") = Update::elu,
+          py::arg("op"), py::arg("param"), py::arg("activation") = Activation::elu,
           py::arg("norm") = AttentionNorm::none, py::arg("negative_slope") = 0.2, py::kw_only(),
           py::arg("shape") = py::none(), py::arg("gain") = 1.414, py::arg("keys") = py::none(),
           py::arg("queries") = py::none(), py::arg("source_only") = false, py::arg("heads") = 1,
@@ -554,7 +556,7 @@ void bind_operation_api(py::module_& m) {
              t.reads_cochains = reads_cochains;
              t.operators = std::move(operators);
              if (!activation.is_none())
-               t.activation = update_arg(activation, "OperationTraits(activation)");
+               t.activation = activation_arg(activation, "OperationTraits(activation)");
              t.negative_slope = negative_slope;
              t.identity = std::move(identity);
              t.right_factor = std::move(right_factor);

@@ -1,10 +1,10 @@
 """The operator schedule from Python: build a schedule with C++'s vocabulary, run it as a module.
 
-    from topos.nn import OperatorSchedule, OperatorNetwork, into, from_, Update
+    from topos.nn import OperatorSchedule, OperatorNetwork, into, from_, Activation
 
     s = OperatorSchedule()
     s.input("x_0", 0, 4).input("x_1", 1, 3).operator_input("incidence_1", 1, 0)
-    s.step(into(0).sum(from_(1).conv("conv", 8).via("incidence_1").act(Update.relu),
+    s.step(into(0).sum(from_(1).conv("conv", 8).via("incidence_1").act(Activation.relu),
                        from_(0).linear("self", 8)))
     s.output("x_0", 0)
     net = OperatorNetwork(s)                   # a torch.nn.Module; checked here
@@ -24,6 +24,7 @@ import torch
 
 from ._C import ScheduleError  # noqa: F401
 from ._C.nn import (  # noqa: F401
+    Activation,
     Aggr,
     AttentionNorm,
     BuildContext,
@@ -36,7 +37,7 @@ from ._C.nn import (  # noqa: F401
     SparseOperator,
     Term,
     TermShape,
-    Update,
+    Update,  # deprecated: Activation's earlier name
     _Network,
     cached_cpu_bytes,
     from_,
@@ -46,6 +47,7 @@ from ._C.nn import (  # noqa: F401
 )
 
 __all__ = [
+    "Activation",
     "Aggr",
     "AttentionNorm",
     "BuildContext",
@@ -61,7 +63,6 @@ __all__ = [
     "SparseOperator",
     "Term",
     "TermShape",
-    "Update",
     "cached_cpu_bytes",
     "from_",
     "into",

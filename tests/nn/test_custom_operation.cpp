@@ -256,7 +256,7 @@ TEST_CASE("attention that would score against a stale target is an error when bu
 TEST_CASE("a schedule prints activations by name", "[nn][schedule]") {
   OperatorSchedule s;
   s.input("x", 0, 2).output("y", 0);
-  s.step(into(0).sum(from(0).act(Update::relu)).act(Update::leaky_relu));
+  s.step(into(0).sum(from(0).act(Activation::relu)).act(Activation::leaky_relu));
   const auto text = s.str();
   CHECK_THAT(text, Contains("leaky_relu(sum[relu((0))])"));
   CHECK(text.find("act") == std::string::npos);
@@ -399,7 +399,7 @@ struct CountedRelu : Operation {
   OperationTraits traits() const override {
     OperationTraits t;
     t.row_wise = true;
-    t.activation = Update::relu;
+    t.activation = Activation::relu;
     return t;
   }
 };
@@ -525,10 +525,15 @@ TEST_CASE("the built-in elementwise operations are Operations with declared trai
   OperatorSchedule by_builder, by_hand;
   by_builder.input("x", 0, 4).output("y", 0);
   by_hand.input("x", 0, 4).output("y", 0);
-  by_builder.step(into(0).sum(
-      from(0).act(Update::elu).scale(0.5).pow(2).bias("b").head_weights("h", 2, 3).unit_rows()));
+  by_builder.step(into(0).sum(from(0)
+                                  .act(Activation::elu)
+                                  .scale(0.5)
+                                  .pow(2)
+                                  .bias("b")
+                                  .head_weights("h", 2, 3)
+                                  .unit_rows()));
   by_hand.step(into(0).sum(from(0)
-                               .apply(builtin::Activation(Update::elu))
+                               .apply(builtin::Activate(Activation::elu))
                                .apply(builtin::Scale(0.5))
                                .apply(builtin::Pow(2))
                                .apply(builtin::Bias("b", {}, 0))
@@ -550,8 +555,12 @@ TEST_CASE("the built-in elementwise operations are Operations with declared trai
       {(0.5 * torch::elu(x)).pow(2).matmul(H[0]), (0.5 * torch::elu(x)).pow(2).matmul(H[1])}, 1);
   CHECK(torch::allclose(ya, z / z.norm(2, 1, true), 1e-12, 1e-12));
   // Their traits: what the fast paths may assume.
-  CHECK(builtin::Activation(Update::relu).traits().activation == Update::relu);
-  CHECK(builtin::Activation(Update::relu).traits().row_wise);
+  CHECK(builtin::Activate(Activation::relu).traits().activation == Activation::relu);
+  // The enum's deprecated earlier names still compile and mean the same.
+  static_assert(std::is_same_v<Update, Activation>);
+  CHECK(update_from_string("elu") == Activation::elu);
+  CHECK(update_name(Activation::gelu) == activation_name(Activation::gelu));
+  CHECK(builtin::Activate(Activation::relu).traits().row_wise);
   CHECK_FALSE(builtin::Dropout(0.5).traits().row_wise);  // a fresh mask per entry
   CHECK_FALSE(builtin::Dropout(0.5).traits().reads_cochains);
   CHECK(builtin::Normalize(true).traits().row_wise);
@@ -665,10 +674,10 @@ struct FusingLinear : Operation {
     ++*plain;
     return ctx.module<torch::nn::LinearImpl>(path).forward(x);
   }
-  torch::Tensor forward_activated(RunContext& ctx, const torch::Tensor& x, Update activation,
+  torch::Tensor forward_activated(RunContext& ctx, const torch::Tensor& x, Activation activation,
                                   double) const override {
     ++*fused;
-    CHECK(activation == Update::elu);
+    CHECK(activation == Activation::elu);
     return torch::elu(ctx.module<torch::nn::LinearImpl>(path).forward(x));
   }
   OperationTraits traits() const override {
@@ -758,7 +767,7 @@ TEST_CASE(
     FusingLinear fl("fl");
     OperatorSchedule s;
     s.input("x", 0, 8).output("y", 0);
-    s.step(into(0).sum(from(0).apply(fl).act(Update::elu)));
+    s.step(into(0).sum(from(0).apply(fl).act(Activation::elu)));
     torch::manual_seed(18);
     OperatorNetwork net(s);
     net->to(torch::kDouble);

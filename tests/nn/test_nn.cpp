@@ -84,7 +84,10 @@ struct SwapView : Operation {
 // parallel group; hidden width D.
 OperatorSchedule test_schedule(std::int64_t D) {
   const auto m = [&](std::int64_t in, std::int64_t out, bool last = true) {
-    return MlpOptions(in, D, out).final_activation(last).layer_norm(last).activation(Update::gelu);
+    return MlpOptions(in, D, out)
+        .final_activation(last)
+        .layer_norm(last)
+        .activation(Activation::gelu);
   };
   OperatorSchedule s;
   for (auto [name, rank, width] : std::vector<std::tuple<std::string, int, int>>{
@@ -347,7 +350,7 @@ TEST_CASE("Mlp follows the reference layout and parameter count", "[nn][mlp]") {
   Mlp one(MlpOptions(4, 8, 5).layers(1));
   REQUIRE(one->named_parameters().size() == 2);  // L = 1: no LayerNorm
   REQUIRE(one->forward(torch::zeros({2, 4})).sizes() == std::vector<std::int64_t>{2, 5});
-  REQUIRE_THROWS_AS(update_from_string("swish"), std::invalid_argument);
+  REQUIRE_THROWS_AS(activation_from_string("swish"), std::invalid_argument);
 }
 
 TEST_CASE("cpu gemm onednn: an Mlp's products through oneDNN, float32 sums in another order",

@@ -43,10 +43,10 @@ TEST_CASE("an operator schedule computes its terms, mix and tail as written", "[
   OperatorSchedule s;
   s.input("x_0", 0, 3).input("x_1", 1, 2).operator_input("B", 1, 0).operator_input("L", 0, 0);
   s.step(into(0)
-             .sum(from(0).conv("layer.a", 4).via("L").act(Update::relu),
+             .sum(from(0).conv("layer.a", 4).via("L").act(Activation::relu),
                   from(1).via("B").linear("layer.b", 4))
              .weight("layer.c", 2, 1.0)
-             .act(Update::tanh)
+             .act(Activation::tanh)
              .named("mix"));
   s.step(into(1).filter("layer.filter", 3, from(0).via_t("B").powers({{"S", 0}}),
                         from(1).powers({{"T", 2}})));
@@ -106,7 +106,7 @@ TEST_CASE("attention in a schedule: TopoModelX's Conv with att, and a per-target
   s.operator_input("A", 1, 0);
   s.step(into(0).sum(from(1).attend("A", "conv.att_weight").conv("conv", 3)));
   s.step(into(0, "soft").sum(
-      from(1).attend("A", "att", Update::leaky_relu, AttentionNorm::softmax, 0.2)));
+      from(1).attend("A", "att", Activation::leaky_relu, AttentionNorm::softmax, 0.2)));
   s.output("y", 0).output("soft", 0, "soft");
   OperatorNetwork net(s);
   net->to(torch::kDouble);
@@ -140,7 +140,7 @@ TEST_CASE("multi-head attention: per-head GAT scores, concatenated or averaged h
     models::CanAttention a("A", path, CochainKey{0, ""}, 2);
     a.concat = concat;
     a.dropout = dropout;
-    a.activation = Update::leaky_relu;
+    a.activation = Activation::leaky_relu;
     a.negative_slope = 0.2;
     return a;
   };
@@ -153,7 +153,7 @@ TEST_CASE("multi-head attention: per-head GAT scores, concatenated or averaged h
               into(0, "one").sum(from(0).attend("A", AttendOptions("one")
                                                          .heads(2)
                                                          .queries(CochainKey{0, ""})
-                                                         .activation(Update::leaky_relu)
+                                                         .activation(Activation::leaky_relu)
                                                          .negative_slope(0.2)
                                                          .norm(AttentionNorm::softmax)))});
   s.output("cat", 0, "cat").output("mean", 0, "mean").output("drop", 0, "drop");
@@ -201,7 +201,7 @@ TEST_CASE("GATv2 attention (CAN's): one vector after the activation of keys plus
   s.input("x", 0, 4).input("d", 0, 4, "dst").operator_input("A", 0, 0);
   models::CanAttention v2("A", "att", CochainKey{0, "dst"}, 2);
   v2.v2 = true;
-  v2.activation = Update::leaky_relu;
+  v2.activation = Activation::leaky_relu;
   v2.negative_slope = 0.2;
   s.step(into(0, "y").sum(from(0).apply(v2)));
   s.output("y", 0, "y");
@@ -234,12 +234,12 @@ TEST_CASE(
   s.input("x_0", 0, 4).input("x_1", 1, 4).input("k", 1, 3, "keys").input("q", 0, 2, "queries");
   s.operator_input("B", 1, 0);
   // HyperGAT's scores a·leaky_relu(x): the activated features as the keys, messages x itself.
-  s.step(into(0, "activated").sum(from(0).act(Update::leaky_relu)));
+  s.step(into(0, "activated").sum(from(0).act(Activation::leaky_relu)));
   s.step(into(1, "src").sum(from(0).attend("B", AttendOptions("a1")
                                                     .transposed(true)
                                                     .source_only(true)
                                                     .keys(CochainKey{0, "activated"})
-                                                    .activation(Update::none)
+                                                    .activation(Activation::none)
                                                     .norm(AttentionNorm::softmax))));
   s.step(into(0, "kq").sum(from(1).attend("B", AttendOptions("a2")
                                                    .shape({5, 1})
@@ -578,7 +578,7 @@ TEST_CASE("SCA-CMPS's IntraAggregate weights each cell by its agreement with the
   s.input("x", 1, 3).operator_input("A", 1, 0);
   s.step(into(0)
              .mean(from(1).via("A").apply(models::IntraAggregate()), from(1).via("A"))
-             .act(Update::relu));
+             .act(Activation::relu));
   s.output("y", 0);
   OperatorNetwork net(s);
   const auto y = net->forward({{"x", x}}, {{"A", A}}).at("y");
@@ -1036,9 +1036,9 @@ TEST_CASE("a filter's taps weighted on their source's rows: the sums and gradien
   s.step(into(1)
              .filter("w", c, from(0).via_t("B1"), from(0).via_t("B1").via("Ld"),
                      from(0).via_t("B1").via("Lu", true), from(1), from(1).via("Ld"),
-                     from(1).via("Ld"), from(1).via("Lu").act(Update::tanh), from(2).via("B2"),
+                     from(1).via("Ld"), from(1).via("Lu").act(Activation::tanh), from(2).via("B2"),
                      from(2).via("B2").via("Ld"), from(2).via("B2").via("Ld"))
-             .act(Update::sigmoid));
+             .act(Activation::sigmoid));
   s.output("y", 1);
   OperatorNetwork net(s);
   net->to(torch::kDouble);
@@ -1098,10 +1098,10 @@ TEST_CASE("plan_str lists what forward runs with its FLOPs, counted by hand",
   s.input("x_0", 0, 3).input("x_1", 1, 2).operator_input("B", 1, 0).operator_input("L", 0, 0);
   s.operator_input("T", 1, 1).optional_operator("U", 0, 0);
   s.step(into(0)
-             .sum(from(0).conv("a", 4).via("L").act(Update::relu), from(1).via("B").linear("b", 4),
-                  from(0).via("U").conv("u", 4))
+             .sum(from(0).conv("a", 4).via("L").act(Activation::relu),
+                  from(1).via("B").linear("b", 4), from(0).via("U").conv("u", 4))
              .weight("c", 2, 1.0)
-             .act(Update::tanh)
+             .act(Activation::tanh)
              .named("mix"));
   s.step(into(1).filter("f", 3, from(0).via_t("B"), from(1).powers({{"T", 2}})).named("filter"));
   s.step(into(1, "unused").sum(from(1).conv("dead", 5)).named("dead"));

@@ -22,7 +22,7 @@ from topos.nn import (
     ScheduleError,
     SparseOperator,
     TermShape,
-    Update,
+    Activation,
     from_,
     into,
 )
@@ -45,7 +45,7 @@ def two_rank_schedule(dropout=0.0):
     s.input("x_0", 0, 4).input("x_1", 1, 3)
     s.operator_input("incidence_1", 1, 0).operator_input("adjacency_0", 0, 0)
     step = into(0).sum(
-        from_(1).conv("conv_1_to_0", 8).via("incidence_1").act(Update.relu),
+        from_(1).conv("conv_1_to_0", 8).via("incidence_1").act(Activation.relu),
         from_(0).conv("conv_0_to_0", 8).via("adjacency_0"),
     )
     step.linear("update", 5).act("relu")
@@ -337,6 +337,15 @@ def test_python_operation_right_factor_is_reordered():
     torch.testing.assert_close(out[True][0], out[False][0])
 
 
+def test_update_is_activations_deprecated_name():
+    assert topos.nn.Update is topos.nn.Activation
+    s = OperatorSchedule()
+    s.input("x", 0, 3).output("y", 0)
+    s.step(into(0).sum(from_(0)).act(topos.nn.Update.relu))
+    x = torch.randn(4, 3)
+    torch.testing.assert_close(OperatorNetwork(s)({"x": x}, {})["y"], torch.relu(x))
+
+
 def test_schedule_vocabulary():
     s = OperatorSchedule()
     s.input("x_1", 1, 6).operator_input("laplacian_down", 1, 1).operator_input("laplacian_up", 1, 1)
@@ -349,9 +358,9 @@ def test_schedule_vocabulary():
         ]
     )
     taps = from_(1).powers([("laplacian_down", 2), ("laplacian_up", 1)])
-    s.step(into(1).filter("filter.weight", 4, taps).act(Update.elu))
+    s.step(into(1).filter("filter.weight", 4, taps).act(Activation.elu))
     att = from_(1).attend(
-        "laplacian_up", "att", Update.leaky_relu, heads=2, norm=topos.nn.AttentionNorm.softmax, queries=1
+        "laplacian_up", "att", Activation.leaky_relu, heads=2, norm=topos.nn.AttentionNorm.softmax, queries=1
     )
     s.step(into(1, "h").sum(att))
     s.output("x", 1)

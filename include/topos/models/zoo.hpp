@@ -52,7 +52,7 @@ inline const std::map<std::string, Maker>& makers() {
                                   c.need<std::vector<std::int64_t>>("hidden_channels_all"),
                                   c.need<int>("conv_order"), c.need<int>("sc_order"))
                          .aggr_norm(c.get("aggr_norm", false))
-                         .update_func(c.update("update_func", nn::Update::none))
+                         .update_func(c.update("update_func", nn::Activation::none))
                          .n_layers(c.get("n_layers", 2)));
            return wrap<SCCNN>(
                "SCCNN", net,
@@ -109,8 +109,9 @@ inline const std::map<std::string, Maker>& makers() {
            HMC net(
                HMCOptions(c.need<HMCChannels>("channels_per_layer"))
                    .negative_slope(c.get("negative_slope", 0.2))
-                   .update_func_attention(c.update("update_func_attention", nn::Update::relu))
-                   .update_func_aggregation(c.update("update_func_aggregation", nn::Update::relu))
+                   .update_func_attention(c.update("update_func_attention", nn::Activation::relu))
+                   .update_func_aggregation(
+                       c.update("update_func_aggregation", nn::Activation::relu))
                    .topomodelx_compatible(compatible));
            return wrap<HMC>(
                "HMC", net,

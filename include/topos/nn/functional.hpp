@@ -28,72 +28,88 @@ namespace topos::nn {
 
 /// The activation functions of every model: TopoModelX's update functions and the MLPs' (HOPNet's
 /// gelu and selu); `none` is the identity.
-enum class Update { none, relu, sigmoid, tanh, elu, leaky_relu, gelu, selu };
+enum class Activation { none, relu, sigmoid, tanh, elu, leaky_relu, gelu, selu };
 
-inline Update update_from_string(const std::string& s) {
-  if (s.empty() || s == "none" || s == "None" || s == "null") return Update::none;
-  if (s == "relu") return Update::relu;
-  if (s == "sigmoid") return Update::sigmoid;
-  if (s == "tanh") return Update::tanh;
-  if (s == "elu") return Update::elu;
-  if (s == "leaky_relu") return Update::leaky_relu;
-  if (s == "gelu") return Update::gelu;
-  if (s == "selu") return Update::selu;
+inline Activation activation_from_string(const std::string& s) {
+  if (s.empty() || s == "none" || s == "None" || s == "null") return Activation::none;
+  if (s == "relu") return Activation::relu;
+  if (s == "sigmoid") return Activation::sigmoid;
+  if (s == "tanh") return Activation::tanh;
+  if (s == "elu") return Activation::elu;
+  if (s == "leaky_relu") return Activation::leaky_relu;
+  if (s == "gelu") return Activation::gelu;
+  if (s == "selu") return Activation::selu;
   throw std::invalid_argument("unknown activation '" + s +
                               "' (relu, sigmoid, tanh, elu, leaky_relu, gelu, selu, none)");
 }
 
-/// The name update_from_string reads back ("none" for the identity).
-inline std::string update_name(Update u) {
+/// The name activation_from_string reads back ("none" for the identity).
+inline std::string activation_name(Activation u) {
   switch (u) {
-    case Update::relu:
+    case Activation::relu:
       return "relu";
-    case Update::sigmoid:
+    case Activation::sigmoid:
       return "sigmoid";
-    case Update::tanh:
+    case Activation::tanh:
       return "tanh";
-    case Update::elu:
+    case Activation::elu:
       return "elu";
-    case Update::leaky_relu:
+    case Activation::leaky_relu:
       return "leaky_relu";
-    case Update::gelu:
+    case Activation::gelu:
       return "gelu";
-    case Update::selu:
+    case Activation::selu:
       return "selu";
     default:
       return "none";
   }
 }
 
-inline torch::Tensor apply_update(const torch::Tensor& x, Update u, double negative_slope = 0.01) {
+inline torch::Tensor apply_activation(const torch::Tensor& x, Activation u,
+                                      double negative_slope = 0.01) {
   switch (u) {
-    case Update::relu:
+    case Activation::relu:
       return torch::relu(x);
-    case Update::sigmoid:
+    case Activation::sigmoid:
       return torch::sigmoid(x);
-    case Update::tanh:
+    case Activation::tanh:
       return torch::tanh(x);
-    case Update::elu:  // on the CPU, the vectorised expm1 of the product kernels' epilogue
+    case Activation::elu:  // on the CPU, the vectorised expm1 of the product kernels' epilogue
       return x.device().is_cpu() && x.is_floating_point() && x.numel() > 0
                  ? detail::EluFunction::apply(x)
                  : torch::elu(x);
-    case Update::leaky_relu:
+    case Activation::leaky_relu:
       return torch::leaky_relu(x, negative_slope);
-    case Update::gelu:
+    case Activation::gelu:
       return torch::gelu(x);
-    case Update::selu:
+    case Activation::selu:
       return torch::selu(x);
     default:
       return x;
   }
 }
 
-/// The activations the product kernels apply in their row loop (spmm, linear_act), or none.
-inline bool fusable(Update u) {
-  return u == Update::none || u == Update::relu || u == Update::elu;
+/// Deprecated: the earlier names of the activation enum and its functions.
+using Update = Activation;
+inline Activation update_from_string(const std::string& s) {
+  return activation_from_string(s);
 }
-inline Epilogue epilogue_of(Update u) {
-  return u == Update::relu ? Epilogue::relu : u == Update::elu ? Epilogue::elu : Epilogue::none;
+inline std::string update_name(Activation u) {
+  return activation_name(u);
+}
+inline torch::Tensor apply_update(const torch::Tensor& x, Activation u,
+                                  double negative_slope = 0.01) {
+  return apply_activation(x, u, negative_slope);
+}
+
+/// The activations the product kernels apply in their row loop (spmm, linear_act), or none.
+inline bool fusable(Activation u) {
+  return u == Activation::none || u == Activation::relu || u == Activation::elu;
+}
+inline Epilogue epilogue_of(Activation u) {
+  return u == Activation::relu  ? Epilogue::relu
+         : u == Activation::elu ? Epilogue::elu
+                                : Epilogue::none;
 }
 
 /// How messages reaching one target are combined. `max` only over a batch's neighbourhoods
@@ -264,9 +280,9 @@ inline torch::Tensor pair_scores(const SparseOperator& A, const torch::Tensor& x
 enum class AttentionNorm { softmax, row_sum, none };
 
 inline torch::Tensor attention_weights(const SparseOperator& A, const torch::Tensor& raw,
-                                       Update activation, double negative_slope,
+                                       Activation activation, double negative_slope,
                                        AttentionNorm norm) {
-  const auto s = apply_update(raw, activation, negative_slope);
+  const auto s = apply_activation(raw, activation, negative_slope);
   if (norm == AttentionNorm::softmax) return row_softmax(A, s);
   if (norm == AttentionNorm::row_sum) return row_normalize(A, s);
   return s;
@@ -287,7 +303,7 @@ inline torch::Tensor head_scores(const torch::Tensor& f, const torch::Tensor& a,
 /// rows, SparseOperator::row_mirror), then dropped out at rate `dropout` in training. The one
 /// place every attention (the schedule's `attend`, HMC's, CAN's, SAN's operations) weighs A.
 inline SparseOperator attention_operator(const SparseOperator& A, const torch::Tensor& raw,
-                                         Update activation, double negative_slope,
+                                         Activation activation, double negative_slope,
                                          AttentionNorm norm, double dropout = 0,
                                          bool training = false, const torch::Tensor& order = {}) {
   auto w = attention_weights(A, raw, activation, negative_slope, norm);
@@ -300,9 +316,10 @@ inline SparseOperator attention_operator(const SparseOperator& A, const torch::T
 /// h's block multiplied by attention_operator(A, its raw scores) (`raw`: one score per entry for
 /// one head, or nnz × heads), the heads side by side (`concat`) or averaged.
 inline torch::Tensor multi_head_attention(const SparseOperator& A, const torch::Tensor& raw,
-                                          const torch::Tensor& x, bool concat, Update activation,
-                                          double negative_slope, AttentionNorm norm,
-                                          double dropout = 0, bool training = false) {
+                                          const torch::Tensor& x, bool concat,
+                                          Activation activation, double negative_slope,
+                                          AttentionNorm norm, double dropout = 0,
+                                          bool training = false) {
   const auto H = raw.dim() == 1 ? 1 : raw.size(1);
   if (x.size(1) % H)
     throw std::invalid_argument("multi_head_attention: " + std::to_string(x.size(1)) +

@@ -6,7 +6,7 @@
 // names ("0.weight", "2.bias", "4.weight") match the reference's checkpoints.
 #pragma once
 
-#include "topos/nn/functional.hpp"  // Update
+#include "topos/nn/functional.hpp"  // Activation
 
 #include <torch/torch.h>
 
@@ -98,7 +98,7 @@ struct MlpOptions {
   TORCH_ARG(std::int64_t, hidden);
   TORCH_ARG(std::int64_t, out);
   TORCH_ARG(int, layers) = 2;
-  TORCH_ARG(Update, activation) = Update::relu;  ///< none: no activation module
+  TORCH_ARG(Activation, activation) = Activation::relu;  ///< none: no activation module
   TORCH_ARG(bool, final_activation) = true;
   TORCH_ARG(bool, layer_norm) = true;
 };
@@ -116,27 +116,27 @@ class MlpImpl : public torch::nn::Module {
     auto add_linear = [&](std::int64_t i, std::int64_t out) { add(torch::nn::Linear(i, out)); };
     auto add_act = [&] {
       switch (o.activation()) {
-        case Update::none:
+        case Activation::none:
           break;
-        case Update::relu:
+        case Activation::relu:
           add(torch::nn::ReLU(torch::nn::ReLUOptions().inplace(true)));
           break;
-        case Update::gelu:
+        case Activation::gelu:
           add(torch::nn::GELU());
           break;
-        case Update::elu:
+        case Activation::elu:
           add(torch::nn::ELU());
           break;
-        case Update::selu:
+        case Activation::selu:
           add(torch::nn::SELU());
           break;
-        case Update::sigmoid:
+        case Activation::sigmoid:
           add(torch::nn::Sigmoid());
           break;
-        case Update::tanh:
+        case Activation::tanh:
           add(torch::nn::Tanh());
           break;
-        case Update::leaky_relu:
+        case Activation::leaky_relu:
           add(torch::nn::LeakyReLU());
           break;
       }
@@ -173,7 +173,7 @@ class MlpImpl : public torch::nn::Module {
     // cannot split an MLP between the two.
     const MatmulPrecision precision = get_float32_matmul_precision();
     const bool bf16 = x.scalar_type() == torch::kFloat && precision == MatmulPrecision::medium &&
-                      options.activation() == Update::relu;
+                      options.activation() == Activation::relu;
     const std::int64_t rows = x.dim() == 2 ? x.size(0) : -1;
     const std::int64_t padded = bf16 ? detail::padded_rows(rows) : rows;
     std::size_t last_linear = 0;

@@ -9,9 +9,9 @@
 //   s.input("x_0", 0, 8).input("x_1", 1, 4)                  // cochains fed by name
 //    .operator_input("adjacency_1", 1, 1)                     // source rank -> target rank
 //    .operator_input("incidence_1", 1, 0);                    // B_1: nodes × edges, 1 -> 0
-//   s.step(into(1).sum(from(1).conv("conv_1_to_1", 16).via("adjacency_1").act(Update::elu),
+//   s.step(into(1).sum(from(1).conv("conv_1_to_1", 16).via("adjacency_1").act(Activation::elu),
 //                      from(0).conv("conv_0_to_1", 16).via_t("incidence_1"))
-//                 .linear("update", 16).act(Update::relu));   // after the messages are mixed
+//                 .linear("update", 16).act(Activation::relu));   // after the messages are mixed
 //   s.step(into(1).filter("weight", 16,                       // Σ_k T_k W[:, :, k] over the terms
 //                         from(1).powers({{"laplacian_down_1", 2}, {"laplacian_up_1", 2}})));
 //   s.output("x_1", 1);

@@ -32,7 +32,7 @@ struct OpenOptions {
   std::optional<hopnet::FeatureMode> mode;  ///< the feature mode HOPNet runs in
   /// HOPNet's activation (a reference state dict does not record it; without one, a reference
   /// file named after an activation, "gelu_seed0_e39.pt", runs with it and a note says so).
-  std::optional<nn::Update> activation;
+  std::optional<nn::Activation> activation;
   std::optional<double> collision_radius;  ///< HOPNet's d_c (default: the checkpoint's)
 };
 
@@ -75,7 +75,7 @@ inline OpenedModel open_model(const std::string& path, const OpenOptions& o = {}
   if (!ov.activation && reference) {
     ov.activation = hopnet::activation_from_reference_name(path);
     if (ov.activation) {
-      const std::string a = nn::update_name(*ov.activation);
+      const std::string a = nn::activation_name(*ov.activation);
       m.notes.push_back(path + " is a reference checkpoint named after activation " + a +
                         "; running it with " + a + " (--activation overrides)");
     }

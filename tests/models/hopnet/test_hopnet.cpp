@@ -918,11 +918,11 @@ TEST_CASE(
             o.to_json());  // the name is a configuration
   }
   for (const char* act : {"relu", "gelu", "elu", "selu"})
-    REQUIRE(Hopnet(parse_config("standard").activation(nn::update_from_string(act)))
+    REQUIRE(Hopnet(parse_config("standard").activation(nn::activation_from_string(act)))
                 ->num_parameters() == 707078);
   REQUIRE(parse_config("noseq").hidden() == 64);
   REQUIRE(parse_config("noseq").num_layers() == 3);
-  REQUIRE(variant_name(parse_config("nox4").activation(nn::Update::gelu)) ==
+  REQUIRE(variant_name(parse_config("nox4").activation(nn::Activation::gelu)) ==
           "nox4 (activation gelu)");
   // The NoObjectCells encoder reads 21 node columns; no-cm-distance 8.
   REQUIRE(Hopnet(parse_config("nox4"))->mlp("modules.encoder_0")->options.in() == 21);
@@ -944,7 +944,7 @@ TEST_CASE(
   }
   const auto o = parse_config(file + ",no-cm-distance");
   REQUIRE(o.mlp_layers() == 3);
-  REQUIRE(o.activation() == nn::Update::gelu);
+  REQUIRE(o.activation() == nn::Activation::gelu);
   REQUIRE(o.collision_radius() == 0.05);
   REQUIRE(Hopnet(o)->num_parameters() == 1036294);
   { std::ofstream(file) << R"({"hiden": 64})"; }
@@ -1141,9 +1141,9 @@ TEST_CASE(
   }
   // The activation is not in a reference file: an override applies; a topos file records it.
   CheckpointOverrides gelu;
-  gelu.activation = nn::Update::gelu;
+  gelu.activation = nn::Activation::gelu;
   const auto dict = nn::read_tensor_dict(ckpt("gelu_seed0_e39.pt"));
-  REQUIRE(load_hopnet(dict, "gelu", gelu)->options.activation() == nn::Update::gelu);
+  REQUIRE(load_hopnet(dict, "gelu", gelu)->options.activation() == nn::Activation::gelu);
   // A state dict whose names belong to no variant, and one whose class is known but whose
   // tensors are not the class's.
   std::map<std::string, torch::Tensor> renamed;
@@ -1219,7 +1219,7 @@ TEST_CASE(
       auto back = load_hopnet(ck);
       REQUIRE(back->options.to_json() == net->options.to_json());
       CheckpointOverrides other;
-      other.activation = nn::Update::selu;
+      other.activation = nn::Activation::selu;
       REQUIRE_THROWS_WITH(load_hopnet(nn::read_tensor_dict(ck), ck, other),
                           Catch::Contains("trained with activation relu, not selu"));
       fs::remove(ck);

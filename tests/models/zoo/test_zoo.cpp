@@ -406,10 +406,10 @@ TEST_CASE("compatible and intended modes: where they agree and where they differ
   // SCNN: TopoModelX's first layer skips aggr_norm and the update; the intended one does not.
   SCNN a(SCNNOptions(3, 3, 2, 1)
              .aggr_norm(true)
-             .update_func(Update::relu)
+             .update_func(Activation::relu)
              .n_layers(1)
              .topomodelx_compatible(true)),
-      b(SCNNOptions(3, 3, 2, 1).aggr_norm(true).update_func(Update::relu).n_layers(1));
+      b(SCNNOptions(3, 3, 2, 1).aggr_norm(true).update_func(Activation::relu).n_layers(1));
   a->to(torch::kDouble), b->to(torch::kDouble);
   b->parameters()[0].copy_(a->parameters()[0]);
   const auto Ld = random_operator(9, 9, 0.4, torch::kDouble, 14).abs(),
@@ -812,7 +812,7 @@ TEST_CASE("HyperGAT's attention is a softmax per hyperedge and per node",
   REQUIRE(torch::allclose(out[1], x1.expand({5, 4}), 1e-5, 1e-6));
   REQUIRE(torch::allclose(out[0], x0.expand({7, 4}), 1e-5, 1e-6));
   // Scores that differ: each hyperedge's weights still sum to one (a convex mix of its nodes).
-  HyperGAT net2(HyperGATOptions(3, 3).n_layers(1).update_func(nn::Update::none));
+  HyperGAT net2(HyperGATOptions(3, 3).n_layers(1).update_func(nn::Activation::none));
   {
     torch::NoGradGuard g;
     net2->named_parameters()["layers.0.weight1"].copy_(torch::eye(3));

@@ -45,7 +45,7 @@ struct CanAttention : nn::Operation {
   bool concat = true;
   bool v2 = false;
   double dropout = 0;
-  nn::Update activation = nn::Update::leaky_relu;
+  nn::Activation activation = nn::Activation::leaky_relu;
   double negative_slope = 0.2;
 
   std::string str(const std::string& x) const override {
@@ -81,7 +81,7 @@ struct CanAttention : nn::Operation {
     torch::Tensor raw;  // nnz × heads, or nnz with one head (v1)
     if (v2) {
       const auto a = ctx.parameter(path + ".att_weight").reshape({-1});
-      const auto e = nn::apply_update(
+      const auto e = nn::apply_activation(
           x.index_select(0, A.col.to(x.device())) + q.index_select(0, A.row.to(x.device())),
           activation, negative_slope);
       raw = (e.reshape({e.size(0), heads, -1}) * a.reshape({1, heads, -1})).sum(-1);
@@ -90,7 +90,7 @@ struct CanAttention : nn::Operation {
           A, nn::head_scores(x, ctx.parameter(path + ".att_weight_src").reshape({-1}), heads),
           nn::head_scores(q, ctx.parameter(path + ".att_weight_dst").reshape({-1}), heads));
     }
-    return nn::multi_head_attention(A, raw, x, concat, v2 ? nn::Update::none : activation,
+    return nn::multi_head_attention(A, raw, x, concat, v2 ? nn::Activation::none : activation,
                                     negative_slope, nn::AttentionNorm::softmax, dropout,
                                     ctx.is_training());
   }
@@ -106,7 +106,7 @@ struct CANOptions {
   TORCH_ARG(std::int64_t, heads) = 2;
   TORCH_ARG(bool, concat) = true;
   TORCH_ARG(bool, skip_connection) = true;
-  TORCH_ARG(nn::Update, att_activation) = nn::Update::leaky_relu;
+  TORCH_ARG(nn::Activation, att_activation) = nn::Activation::leaky_relu;
   TORCH_ARG(double, att_negative_slope) = 0.2;
   TORCH_ARG(int, n_layers) = 2;
   TORCH_ARG(bool, att_lift) = true;
@@ -132,7 +132,7 @@ inline int can_layer_index(const CANOptions& o, int l) {
 /// multi-head attention over "lower" and "upper" (the neighbourhoods' patterns) and the skip.
 inline nn::OperatorSchedule can_schedule(const CANOptions& o) {
   using namespace nn::ops;
-  using nn::Update;
+  using nn::Activation;
   if (o.heads() < 1 || o.out_channels() % o.heads() != 0)
     throw std::invalid_argument("CAN: out_channels must be a multiple of heads (>= 1)");
   if (o.version() != "v1" && o.version() != "v2")
@@ -158,7 +158,7 @@ inline nn::OperatorSchedule can_schedule(const CANOptions& o) {
     s.step(into(1, "lift")
                .concat(from(0).via("lift_source"), from(0).via("lift_target"))
                .weight("lift_layer.lifts.att_parameter", c0, std::sqrt(2.0))
-               .act(Update::relu)
+               .act(Activation::relu)
                .dropout(0.5));
     s.step(into(1).concat(from(1, "lift"), from(1)));
   }
@@ -189,7 +189,7 @@ inline nn::OperatorSchedule can_schedule(const CANOptions& o) {
       terms.push_back(
           std::move(from(1).linear(p + "lin", o.concat() ? out : c, false).scale(1 + 1e-6)));
     s.parallel(std::move(maps));
-    s.step(into(1).sum(std::move(terms)).act(Update::relu).dropout(0.5).named(p + "update"));
+    s.step(into(1).sum(std::move(terms)).act(Activation::relu).dropout(0.5).named(p + "update"));
     if (o.pooling() && l > 0)
       s.parameter("layers." + std::to_string(2 * l) + ".att_pool", {o.concat() ? out : c, 1},
                   std::sqrt(2.0));

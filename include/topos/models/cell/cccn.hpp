@@ -41,7 +41,7 @@ inline nn::OperatorSchedule cccn_schedule(const CCCNOptions& o) {
                         .weight(p + ".conv_down.lin.weight", c, 1.0)
                         .via("down_laplacian_1_gcn")
                         .bias(p + ".conv_down.bias"))
-               .act(nn::Update::relu));
+               .act(nn::Activation::relu));
   }
   s.step(into(0).sum(from(1).via("incidence_1")));
   return s;

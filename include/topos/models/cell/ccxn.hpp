@@ -34,7 +34,7 @@ struct CCXNOptions {
 /// features while its messages are x W (Conv's A (x W)).
 inline nn::OperatorSchedule ccxn_schedule(const CCXNOptions& o) {
   using namespace nn::ops;
-  using nn::Update;
+  using nn::Activation;
   if (o.n_layers() < 1) throw std::invalid_argument("CCXN: n_layers must be >= 1");
   nn::OperatorSchedule s;
   s.input("x_0", 0, o.in_channels_0())
@@ -55,15 +55,15 @@ inline nn::OperatorSchedule ccxn_schedule(const CCXNOptions& o) {
   };
   for (int l = 0; l < o.n_layers(); ++l) {
     const auto p = "layers." + std::to_string(l) + ".";
-    s.step(into(0).sum(from(0)).act(Update::relu));
+    s.step(into(0).sum(from(0)).act(Activation::relu));
     s.step(into(0)
                .sum(conv(from(0), p + "conv_0_to_0", o.in_channels_0(), "adjacency_0", 0))
-               .act(Update::relu));
-    s.step(into(1).sum(from(1)).act(Update::relu));
+               .act(Activation::relu));
+    s.step(into(1).sum(from(1)).act(Activation::relu));
     if (o.att()) s.step(into(2).sum(from(1).via("incidence_2_t_target")));
     s.step(into(2)
                .sum(conv(from(1), p + "conv_1_to_2", o.in_channels_2(), "incidence_2_t", 1))
-               .act(Update::relu));
+               .act(Activation::relu));
   }
   s.output("x_0", 0).output("x_1", 1).output("x_2", 2);
   return s;

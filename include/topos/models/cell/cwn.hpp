@@ -26,7 +26,7 @@ struct CWNOptions {
 /// The schedule: the projections, then per layer one step into the edges.
 inline nn::OperatorSchedule cwn_schedule(const CWNOptions& o) {
   using namespace nn::ops;
-  using nn::Update;
+  using nn::Activation;
   const auto h = o.hid_channels();
   const std::array<std::int64_t, 3> c{o.in_channels_0(), o.in_channels_1(), o.in_channels_2()};
   nn::OperatorSchedule s;
@@ -37,21 +37,26 @@ inline nn::OperatorSchedule cwn_schedule(const CWNOptions& o) {
     const auto R = std::to_string(r);
     s.input("x_" + R, r, c[r]).output("x_" + R, r);
   }
-  s.parallel({into(0).sum(from(0).linear("proj_0", h)).act(Update::elu),
-              into(1).sum(from(1).linear("proj_1", h)).act(Update::elu),
-              into(2).sum(from(2).linear("proj_2", h)).act(Update::elu)});
+  s.parallel({into(0).sum(from(0).linear("proj_0", h)).act(Activation::elu),
+              into(1).sum(from(1).linear("proj_1", h)).act(Activation::elu),
+              into(2).sum(from(2).linear("proj_2", h)).act(Activation::elu)});
   for (int l = 0; l < o.n_layers(); ++l) {
     const auto p = "layers." + std::to_string(l) + ".";
-    s.step(
-        into(1)
-            .sum(from(1).conv(p + "conv_1_to_1.conv_1_to_1", h).via("adjacency_1").act(Update::elu),
-                 from(2).conv(p + "conv_1_to_1.conv_2_to_1", h).via("incidence_2").act(Update::elu),
-                 from(0)
-                     .conv(p + "conv_0_to_1.conv_0_to_1", h)
-                     .via("incidence_1_t")
-                     .act(Update::elu))
-            .linear(p + "update_fn.transform", h)
-            .act(Update::elu));
+    s.step(into(1)
+               .sum(from(1)
+                        .conv(p + "conv_1_to_1.conv_1_to_1", h)
+                        .via("adjacency_1")
+                        .act(Activation::elu),
+                    from(2)
+                        .conv(p + "conv_1_to_1.conv_2_to_1", h)
+                        .via("incidence_2")
+                        .act(Activation::elu),
+                    from(0)
+                        .conv(p + "conv_0_to_1.conv_0_to_1", h)
+                        .via("incidence_1_t")
+                        .act(Activation::elu))
+               .linear(p + "update_fn.transform", h)
+               .act(Activation::elu));
   }
   return s;
 }

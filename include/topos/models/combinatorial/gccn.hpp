@@ -55,7 +55,7 @@ struct GCCNOptions {
   TORCH_ARG(bool, batch_norm) = true;      ///< PyG's norm="BatchNorm" (else no norm)
   TORCH_ARG(double, gnn_dropout) = 0;      ///< PyG's dropout after each inner convolution
   TORCH_ARG(std::int64_t, gat_heads) = 1;  ///< GAT's heads (PyG's `heads`)
-  TORCH_ARG(nn::Update, activation) = nn::Update::relu;
+  TORCH_ARG(nn::Activation, activation) = nn::Activation::relu;
 };
 
 /// The ranks a GCCN reads and writes: 0 .. the highest rank of its routes.
@@ -195,7 +195,7 @@ inline nn::OperatorSchedule gccn_schedule(const GCCNOptions& o) {
       else
         step.batch_norm(norm, union_of, part);
     }
-    step.act(nn::Update::relu);
+    step.act(nn::Activation::relu);
     if (o.gnn_dropout() > 0) step.dropout(o.gnn_dropout());
     return step;
   };
@@ -210,7 +210,7 @@ inline nn::OperatorSchedule gccn_schedule(const GCCNOptions& o) {
       else
         step.batch_norm(p + "nn.norms.0.module", union_of, part);
     }
-    sch.step(step.act(nn::Update::relu).linear(p + "nn.lins.1", c));
+    sch.step(step.act(nn::Activation::relu).linear(p + "nn.lins.1", c));
   };
   for (int l = 0; l < o.n_layers(); ++l) {
     s.layer("layer_" + std::to_string(l));

@@ -86,7 +86,7 @@ struct HmcAttention : nn::Operation {
     const auto a_s = part(source_offset.value_or(0), ck);
     const auto a_t = part(target_offset.value_or(ck), a.size(0) - ck);
     const auto raw = nn::entry_scores(A, nn::head_scores(x, a_s), nn::head_scores(q, a_t));
-    const auto W = nn::attention_operator(A, raw, nn::Update::leaky_relu, negative_slope,
+    const auto W = nn::attention_operator(A, raw, nn::Activation::leaky_relu, negative_slope,
                                           nn::AttentionNorm::softmax, 0, false,
                                           mirrored_rows ? A.row_mirror() : torch::Tensor());
     return nn::spmm(W, x.contiguous());
@@ -100,8 +100,8 @@ struct HMCOptions {
   explicit HMCOptions(HMCChannels c) : channels_per_layer_(std::move(c)) {}
   TORCH_ARG(HMCChannels, channels_per_layer);
   TORCH_ARG(double, negative_slope) = 0.2;
-  TORCH_ARG(nn::Update, update_func_attention) = nn::Update::relu;
-  TORCH_ARG(nn::Update, update_func_aggregation) = nn::Update::relu;
+  TORCH_ARG(nn::Activation, update_func_attention) = nn::Activation::relu;
+  TORCH_ARG(nn::Activation, update_func_aggregation) = nn::Activation::relu;
   TORCH_ARG(bool,
             topomodelx_compatible) = false;  ///< HBS attention paired with mirrored entries (above)
 };

@@ -124,7 +124,7 @@ namespace detail {
 template <class Chain>
 Chain& mlp(Chain& c, const std::string& prefix, const GraphNetworkSpec& s, std::int64_t out) {
   for (int i = 0; i <= s.hidden_layers; ++i) {
-    if (i > 0) c.act(nn::Update::relu);
+    if (i > 0) c.act(nn::Activation::relu);
     c.linear(prefix + std::to_string(i), i == s.hidden_layers ? out : s.latent);
   }
   return c;

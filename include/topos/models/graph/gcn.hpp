@@ -29,7 +29,7 @@ inline nn::OperatorSchedule gcn_schedule(const GCNOptions& o) {
     auto step =
         into(0).sum(term.weight(p + ".lin.weight", o.hidden_channels(), 1.0).via("gcn_adjacency"));
     step.bias(p + ".bias");
-    if (l + 1 < o.num_layers()) step.act(nn::Update::relu);
+    if (l + 1 < o.num_layers()) step.act(nn::Activation::relu);
     s.step(std::move(step));
   }
   return s;

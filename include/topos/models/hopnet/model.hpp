@@ -115,18 +115,18 @@ inline void load_checkpoint(HopnetImpl& model, const std::map<std::string, torch
 /// state dicts do not record (a topos checkpoint records it: a different one is an error).
 struct CheckpointOverrides {
   std::optional<FeatureMode> mode;
-  std::optional<nn::Update> activation;
+  std::optional<nn::Activation> activation;
   std::optional<double> collision_radius;
 };
 
 /// The activation a reference checkpoint's file name gives by the reference's convention: the
 /// first '_'-separated word of the name ("gelu_seed0_e39.pt") when it is gelu, elu or selu. A
 /// reference state dict does not record its activation; other names mean ReLU, its default.
-inline std::optional<nn::Update> activation_from_reference_name(const std::string& path) {
+inline std::optional<nn::Activation> activation_from_reference_name(const std::string& path) {
   const std::string stem = std::filesystem::path(path).stem().string();
   const std::string word = stem.substr(0, stem.find('_'));
   for (const char* a : {"gelu", "elu", "selu"})
-    if (word == a) return nn::update_from_string(a);
+    if (word == a) return nn::activation_from_string(a);
   return std::nullopt;
 }
 
@@ -139,8 +139,8 @@ inline Hopnet load_hopnet(const std::map<std::string, torch::Tensor>& dict,
   if (ov.activation) {
     if (!is_reference_checkpoint(dict) && opt.activation() != *ov.activation)
       throw std::invalid_argument(source + ": the checkpoint was trained with activation " +
-                                  nn::update_name(opt.activation()) + ", not " +
-                                  nn::update_name(*ov.activation));
+                                  nn::activation_name(opt.activation()) + ", not " +
+                                  nn::activation_name(*ov.activation));
     opt.activation(*ov.activation);
   }
   if (ov.mode) opt.mode(*ov.mode);

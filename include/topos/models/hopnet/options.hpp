@@ -24,7 +24,7 @@ struct HopnetOptions {
             {"center_mass_distance", center_mass_distance_},
             {"hidden", hidden_},
             {"mlp_layers", mlp_layers_},
-            {"activation", nn::update_name(activation_)},
+            {"activation", nn::activation_name(activation_)},
             {"num_layers", num_layers_},
             {"collision_radius", collision_radius_},
             {"mode", to_string(mode_)}};
@@ -48,7 +48,7 @@ struct HopnetOptions {
       o.hidden(integer("hidden", 128))
           .mlp_layers(integer("mlp_layers", 2))
           .num_layers(integer("num_layers", 1));
-      o.activation(nn::update_from_string(j.value("activation", "relu")));
+      o.activation(nn::activation_from_string(j.value("activation", "relu")));
       o.mode(feature_mode_from_string(j.value("mode", "reference")));
       o.architecture(architecture_from_string(j.value("architecture", "hopnet")));
       o.center_mass_distance(j.value("center_mass_distance", true))
@@ -69,9 +69,9 @@ struct HopnetOptions {
       throw std::invalid_argument(
           "HOPNet configuration: hidden above 65536, or mlp_layers or num_layers above 64");
     const auto a = activation();
-    if (a != nn::Update::relu && a != nn::Update::gelu && a != nn::Update::elu &&
-        a != nn::Update::selu)
-      throw std::invalid_argument("HOPNet configuration: activation " + nn::update_name(a) +
+    if (a != nn::Activation::relu && a != nn::Activation::gelu && a != nn::Activation::elu &&
+        a != nn::Activation::selu)
+      throw std::invalid_argument("HOPNet configuration: activation " + nn::activation_name(a) +
                                   " is not one of the reference's (relu, gelu, elu, selu)");
     if (!(collision_radius() > 0) || !std::isfinite(collision_radius()))
       throw std::invalid_argument(
@@ -87,8 +87,8 @@ struct HopnetOptions {
 
   TORCH_ARG(std::int64_t, hidden) = 128;  ///< width of every cochain and MLP
   TORCH_ARG(int, mlp_layers) = 2;         ///< Linear layers per MLP (the reference's L)
-  TORCH_ARG(nn::Update, activation) = nn::Update::relu;  ///< relu, gelu, elu or selu
-  TORCH_ARG(int, num_layers) = 1;                        ///< processor layers
+  TORCH_ARG(nn::Activation, activation) = nn::Activation::relu;  ///< relu, gelu, elu or selu
+  TORCH_ARG(int, num_layers) = 1;                                ///< processor layers
   /// reference: the plus view of a contact negates the *normalised* direction (the published
   /// weights expect it); native: it is built from raw features, then normalised (input "x3_plus").
   TORCH_ARG(FeatureMode, mode) = FeatureMode::reference;

@@ -213,8 +213,8 @@ inline std::string variant_name(const HopnetOptions& o) {
     extra.push_back("mlp_layers " + std::to_string(o.mlp_layers()));
   if (o.num_layers() != layers && !(o.num_layers() == 2 && layers == 1))
     extra.push_back("num_layers " + std::to_string(o.num_layers()));
-  if (o.activation() != nn::Update::relu)
-    extra.push_back(std::string("activation ") + nn::update_name(o.activation()));
+  if (o.activation() != nn::Activation::relu)
+    extra.push_back(std::string("activation ") + nn::activation_name(o.activation()));
   if (o.collision_radius() != 0.1) {
     std::ostringstream r;
     r << "collision radius " << o.collision_radius();

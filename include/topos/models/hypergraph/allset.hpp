@@ -24,8 +24,9 @@ enum class MlpNorm { none, layer_norm, batch_norm };
 /// `activation` is absent (std::nullopt) where TopoModelX received None.
 class TopoMLPImpl : public torch::nn::Module {
  public:
-  TopoMLPImpl(std::int64_t in, std::int64_t width, int layers, std::optional<nn::Update> activation,
-              MlpNorm norm, double dropout, bool topomodelx_compatible)
+  TopoMLPImpl(std::int64_t in, std::int64_t width, int layers,
+              std::optional<nn::Activation> activation, MlpNorm norm, double dropout,
+              bool topomodelx_compatible)
       : dropout_(dropout) {
     if (layers < 1)
       throw std::invalid_argument("MLP: mlp_num_layers (" + std::to_string(layers) +
@@ -48,8 +49,8 @@ class TopoMLPImpl : public torch::nn::Module {
         auto bn = register_module(std::to_string(idx++), torch::nn::BatchNorm1d(width));
         steps_.push_back([bn](const torch::Tensor& x) { return bn->forward(x); });
       }
-      const auto act = activation.value_or(nn::Update::none);
-      steps_.push_back([act](const torch::Tensor& x) { return nn::apply_update(x, act); });
+      const auto act = activation.value_or(nn::Activation::none);
+      steps_.push_back([act](const torch::Tensor& x) { return nn::apply_activation(x, act); });
       ++idx;  // the activation module
       steps_.push_back(
           [this](const torch::Tensor& x) { return nn::dropout(x, dropout_, is_training()); });
@@ -75,8 +76,8 @@ struct AllSetOptions {
   TORCH_ARG(int, n_layers) = 2;
   TORCH_ARG(double, layer_dropout) = 0.2;
   TORCH_ARG(int, mlp_num_layers) = 2;
-  TORCH_ARG(std::optional<nn::Update>,
-            mlp_activation) = nn::Update::relu;  ///< nullopt: TopoModelX's None
+  TORCH_ARG(std::optional<nn::Activation>,
+            mlp_activation) = nn::Activation::relu;  ///< nullopt: TopoModelX's None
   TORCH_ARG(double, mlp_dropout) = 0.0;
   TORCH_ARG(MlpNorm, mlp_norm) = MlpNorm::none;
   TORCH_ARG(bool, topomodelx_compatible) = false;
@@ -106,7 +107,7 @@ void append_topo_mlp(C& c, const std::string& path, std::int64_t width, const Al
 /// dropout after the encoder and after the block; the mean is Conv's aggr_norm (row sums).
 inline nn::OperatorSchedule allset_schedule(const AllSetOptions& o) {
   using namespace nn::ops;
-  using nn::Update;
+  using nn::Activation;
   if (o.n_layers() < 1) throw std::invalid_argument("AllSet: n_layers must be >= 1");
   if (o.mlp_num_layers() < 1)
     throw std::invalid_argument("MLP: mlp_num_layers (" + std::to_string(o.mlp_num_layers()) +
@@ -122,14 +123,14 @@ inline nn::OperatorSchedule allset_schedule(const AllSetOptions& o) {
   auto block = [&](const std::string& path, int source, int target) {
     auto message = from(source);
     append_topo_mlp(message, path + ".encoder", h, o);
-    message.act(Update::relu).dropout(drop).conv(path + ".conv", h);
+    message.act(Activation::relu).dropout(drop).conv(path + ".conv", h);
     if (target == 1)
       message.via_t("incidence_1", /*row_norm=*/true);
     else
       message.via("incidence_1", /*row_norm=*/true);
-    auto step = into(target).sum(std::move(message.act(Update::relu)));
+    auto step = into(target).sum(std::move(message.act(Activation::relu)));
     append_topo_mlp(step, path + ".decoder", h, o);
-    return std::move(step.act(Update::relu).dropout(drop));
+    return std::move(step.act(Activation::relu).dropout(drop));
   };
   for (int l = 0; l < o.n_layers(); ++l) {
     const auto p = "layers." + std::to_string(l) + ".";

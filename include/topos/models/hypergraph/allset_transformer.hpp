@@ -23,7 +23,7 @@ struct AllSetTransformerOptions {
   TORCH_ARG(int, number_queries) = 1;
   TORCH_ARG(double, dropout) = 0.2;
   TORCH_ARG(int, mlp_num_layers) = 2;
-  TORCH_ARG(std::optional<nn::Update>, mlp_activation) = nn::Update::relu;
+  TORCH_ARG(std::optional<nn::Activation>, mlp_activation) = nn::Activation::relu;
   TORCH_ARG(double, mlp_dropout) = 0.2;
   TORCH_ARG(MlpNorm, mlp_norm) = MlpNorm::none;
 };
@@ -34,7 +34,7 @@ struct AllSetTransformerOptions {
 /// messages x V_h) plus q_h and ln0 into the target, then ln1(y + relu(MLP(y))), relu, dropout.
 inline nn::OperatorSchedule allset_transformer_schedule(const AllSetTransformerOptions& o) {
   using namespace nn::ops;
-  using nn::Update;
+  using nn::Activation;
   if (o.heads() <= 0)
     throw std::invalid_argument("AllSetTransformer: heads (" + std::to_string(o.heads()) +
                                 ") must be positive");
@@ -73,7 +73,7 @@ inline nn::OperatorSchedule allset_transformer_schedule(const AllSetTransformerO
                                                    .shape({H, 1, c})
                                                    .keys(nn::CochainKey{src, "keys"})
                                                    .source_only(true)
-                                                   .activation(Update::leaky_relu)
+                                                   .activation(Activation::leaky_relu)
                                                    .negative_slope(0.2)
                                                    .norm(nn::AttentionNorm::softmax)
                                                    .heads(H)
@@ -87,14 +87,14 @@ inline nn::OperatorSchedule allset_transformer_schedule(const AllSetTransformerO
       mlp.linear(p + "mlp." + std::to_string(idx++), h, false);
       if (l + 1 == layers) break;
       if (o.mlp_norm() == MlpNorm::layer_norm) mlp.layer_norm(p + "mlp." + std::to_string(idx++));
-      mlp.act(o.mlp_activation().value_or(Update::none)).dropout(o.mlp_dropout());
+      mlp.act(o.mlp_activation().value_or(Activation::none)).dropout(o.mlp_dropout());
       idx += 2;  // the activation and Dropout modules
     }
-    mlp.dropout(o.mlp_dropout()).act(Update::relu);
+    mlp.dropout(o.mlp_dropout()).act(Activation::relu);
     s.step(into(dst)
                .sum(from(dst), std::move(mlp))
                .layer_norm(p + "ln1")
-               .act(Update::relu)
+               .act(Activation::relu)
                .dropout(o.dropout()));
   };
   for (int l = 0; l < o.n_layers(); ++l) {

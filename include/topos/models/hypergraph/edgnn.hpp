@@ -45,7 +45,7 @@ inline nn::OperatorSchedule edgnn_schedule(const EDGNNOptions& o) {
     s.step(into(0)
                .sum(from(0, "xv").scale(1 - a), from(0, "x0").scale(a))
                .linear("conv.W", c)
-               .act(nn::Update::relu));
+               .act(nn::Activation::relu));
   }
   s.step(into(0).sum(from(0).dropout(o.dropout())));
   return s;

@@ -120,7 +120,7 @@ struct RescaledDropout : nn::Operation {
 /// "incidence_1.layer_<l>" for both directions).
 inline nn::OperatorSchedule hmpnn_schedule(const HMPNNOptions& o) {
   using namespace nn::ops;
-  using nn::Update;
+  using nn::Activation;
   if (o.in_channels() <= 0 || o.hidden_channels() <= 0)
     throw std::invalid_argument("HMPNN: in_channels and hidden_channels must be positive");
   if (o.n_layers() < 0) throw std::invalid_argument("HMPNN: n_layers must be >= 0");
@@ -151,20 +151,20 @@ inline nn::OperatorSchedule hmpnn_schedule(const HMPNNOptions& o) {
     };
     s.step(into(0, "message")
                .sum(from(0).linear(p + "node_to_hyperedge_messenger.messaging_func.0", h))
-               .act(Update::sigmoid));
+               .act(Activation::sigmoid));
     s.step(into(1, "message_sum").sum(from(0, "message").apply(up)));
     s.step(into(1, "message")
                .concat(from(1), from(1, "message_sum"))
                .linear(p + "hyperedge_to_node_messenger.messaging_func.linear", h)
-               .act(Update::sigmoid));
+               .act(Activation::sigmoid));
     s.parallel({into(0)
                     .sum(normalised(0, p + "node_batchnorm"),
                          dropped > 0 ? from(1, "message").apply(down)
                                      : from(1, "message").pattern("incidence_1", aggr))
-                    .act(Update::sigmoid),
+                    .act(Activation::sigmoid),
                 into(1)
                     .sum(normalised(1, p + "hyperedge_batchnorm"), from(1, "message_sum"))
-                    .act(Update::sigmoid)});
+                    .act(Activation::sigmoid)});
   }
   return s;
 }

@@ -40,7 +40,7 @@ inline std::pair<nn::SparseOperator, nn::SparseOperator> hnhn_normalized_inciden
 /// incidences, each a Conv weight and a bias; x_1's relu is a parallel step beside x_0's update.
 inline nn::OperatorSchedule hnhn_schedule(const HNHNOptions& o) {
   using namespace nn::ops;
-  using nn::Update;
+  using nn::Activation;
   if (o.n_layers() < 1) throw std::invalid_argument("HNHN: n_layers must be >= 1");
   const auto h = o.hidden_channels();
   nn::OperatorSchedule s;
@@ -57,8 +57,8 @@ inline nn::OperatorSchedule hnhn_schedule(const HNHNOptions& o) {
     }
     s.step(std::move(edges));
     // The nodes hear x_1 before its relu.
-    s.parallel({std::move(nodes.act(Update::relu).dropout(o.layer_drop())),
-                into(1).sum(from(1)).act(Update::relu)});
+    s.parallel({std::move(nodes.act(Activation::relu).dropout(o.layer_drop())),
+                into(1).sum(from(1)).act(Activation::relu)});
   }
   s.output("x_0", 0).output("x_1", 1);
   return s;

@@ -22,7 +22,7 @@ struct HyperGATOptions {
   TORCH_ARG(std::int64_t, hidden_channels);
   TORCH_ARG(int, n_layers) = 2;
   TORCH_ARG(double, layer_drop) = 0.2;
-  TORCH_ARG(nn::Update, update_func) = nn::Update::relu;
+  TORCH_ARG(nn::Activation, update_func) = nn::Activation::relu;
   TORCH_ARG(double, initialization_gain) = 1.414;
   TORCH_ARG(bool, topomodelx_compatible) = false;
 };
@@ -33,8 +33,8 @@ struct HyperGATOptions {
 /// vectors are declared parameters that no step uses.
 inline nn::OperatorSchedule hypergat_schedule(const HyperGATOptions& o) {
   using namespace nn::ops;
+  using nn::Activation;
   using nn::AttentionNorm;
-  using nn::Update;
   const auto h = o.hidden_channels();
   const auto g = o.initialization_gain();
   const auto u = o.update_func();
@@ -46,7 +46,7 @@ inline nn::OperatorSchedule hypergat_schedule(const HyperGATOptions& o) {
     return nn::AttendOptions(path)
         .shape({entries, 1})
         .gain(g)
-        .activation(Update::none)
+        .activation(Activation::none)
         .norm(AttentionNorm::softmax);
   };
   for (int l = 0; l < o.n_layers(); ++l) {
@@ -61,7 +61,7 @@ inline nn::OperatorSchedule hypergat_schedule(const HyperGATOptions& o) {
       continue;
     }
     s.step(into(0, "m").sum(from(0).weight(p + "weight1", h, g)));
-    s.step(into(0, "m_act").sum(from(0, "m").act(Update::leaky_relu)));
+    s.step(into(0, "m_act").sum(from(0, "m").act(Activation::leaky_relu)));
     s.step(into(1)
                .sum(from(0, "m").attend("incidence_1", scores(p + "att_weight1", h)
                                                            .transposed(true)
@@ -69,7 +69,7 @@ inline nn::OperatorSchedule hypergat_schedule(const HyperGATOptions& o) {
                                                            .keys(nn::CochainKey{0, "m_act"})))
                .act(u));
     s.step(into(1, "m").sum(from(1).weight(p + "weight2", h, g)));
-    s.step(into(1, "m_act").sum(from(1, "m").act(Update::leaky_relu)));
+    s.step(into(1, "m_act").sum(from(1, "m").act(Activation::leaky_relu)));
     s.step(into(0)
                .sum(from(1, "m").attend("incidence_1", scores(p + "att_weight2", 2 * h)
                                                            .keys(nn::CochainKey{1, "m_act"})

@@ -25,7 +25,7 @@ struct HyperSAGEOptions {
   TORCH_ARG(int, n_layers) = 2;
   TORCH_ARG(int, alpha) = -1;    ///< nodes sampled per hyperedge; -1: all
   TORCH_ARG(double, power) = 2;  ///< of the generalised means
-  TORCH_ARG(nn::Update, update_func) = nn::Update::relu;
+  TORCH_ARG(nn::Activation, update_func) = nn::Activation::relu;
   TORCH_ARG(bool, uniform_initialization) =
       true;  ///< TopoModelX's "uniform"; false: xavier_uniform (gain 1.414)
   TORCH_ARG(bool, topomodelx_compatible) = false;
@@ -41,7 +41,7 @@ inline nn::OperatorSchedule hypersage_schedule(const HyperSAGEOptions& o) {
     throw std::invalid_argument(
         "HyperSAGE: alpha must be -1 (every node of a hyperedge) or positive, got " +
         std::to_string(o.alpha()));
-  if (o.update_func() != nn::Update::relu && o.update_func() != nn::Update::sigmoid)
+  if (o.update_func() != nn::Activation::relu && o.update_func() != nn::Activation::sigmoid)
     throw std::invalid_argument("HyperSAGE: update_func must be relu or sigmoid");
   const double p = o.power();
   nn::OperatorSchedule s;

@@ -61,7 +61,7 @@ struct InitialResidual : nn::Operation {
 
 inline nn::OperatorSchedule unigcnii_schedule(const UniGCNIIOptions& o) {
   using namespace nn::ops;
-  using nn::Update;
+  using nn::Activation;
   const auto h = o.hidden_channels();
   nn::OperatorSchedule s;
   s.input("x_0", 0, o.in_channels())
@@ -69,7 +69,7 @@ inline nn::OperatorSchedule unigcnii_schedule(const UniGCNIIOptions& o) {
       .operator_input("incidence_1_norm", 1, 0);  // D_v^-1/2 B D_e^-1/2
   s.step(into(0)
              .sum(from(0).dropout(o.input_drop()).linear("initial_linear_layer", h))
-             .act(Update::relu));
+             .act(Activation::relu));
   s.step(into(0, "initial").sum(from(0)));
   for (int l = 0; l < o.n_layers(); ++l) {
     const double beta = std::log((o.topomodelx_compatible() ? o.alpha() : o.beta()) / (l + 1) + 1);
@@ -78,7 +78,7 @@ inline nn::OperatorSchedule unigcnii_schedule(const UniGCNIIOptions& o) {
     update.apply(InitialResidual({0, "initial"}, o.alpha(), beta,
                                  "layers." + std::to_string(l) + ".linear"));
     if (o.use_norm()) update.unit_rows();
-    s.step(std::move(update.dropout(o.layer_drop()).act(Update::relu)));
+    s.step(std::move(update.dropout(o.layer_drop()).act(Activation::relu)));
   }
   if (o.n_layers() == 0) s.step(into(1).sum(from(0).via_t("incidence_1")));
   s.output("x_0", 0).output("x_1", 1);

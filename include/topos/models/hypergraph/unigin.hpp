@@ -44,7 +44,7 @@ inline nn::OperatorSchedule unigin_schedule(const UniGINOptions& o) {
                              from(1).via("incidence_1"));
     nodes.linear(p + "linear", h);
     if (o.use_norm()) nodes.unit_rows();
-    s.step(std::move(nodes.dropout(o.layer_drop()).act(nn::Update::relu)));
+    s.step(std::move(nodes.dropout(o.layer_drop()).act(nn::Activation::relu)));
   }
   s.output("x_0", 0).output("x_1", 1);
   return s;

@@ -38,7 +38,7 @@ inline nn::OperatorSchedule unisage_schedule(const UniSAGEOptions& o) {
     s.step(into(1).sum(from(0).via_t("incidence_1", o.e_aggr() == nn::Aggr::mean)));
     auto nodes = into(0).sum(from(0), from(1).via("incidence_1", o.v_aggr() == nn::Aggr::mean));
     if (o.use_norm()) nodes.unit_rows();
-    s.step(std::move(nodes.dropout(o.layer_drop()).act(nn::Update::relu)));
+    s.step(std::move(nodes.dropout(o.layer_drop()).act(nn::Activation::relu)));
   }
   s.output("x_0", 0).output("x_1", 1);
   return s;

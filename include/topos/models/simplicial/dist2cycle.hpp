@@ -30,7 +30,7 @@ inline nn::OperatorSchedule dist2cycle_schedule(const Dist2CycleOptions& o) {
   for (int l = 0; l < o.n_layers(); ++l)
     s.step(into(1).sum(from(1)
                            .via("neighborhood")
-                           .act(nn::Update::relu)
+                           .act(nn::Activation::relu)
                            .linear("layers." + std::to_string(l) + ".fc_neigh", o.channels())));
   return s;
 }

@@ -20,7 +20,7 @@ struct HSNOptions {
 /// The schedule: per layer the two first-level convolutions read one snapshot, then the node step.
 inline nn::OperatorSchedule hsn_schedule(const HSNOptions& o) {
   using namespace nn::ops;
-  using nn::Update;
+  using nn::Activation;
   if (o.n_layers() < 1) throw std::invalid_argument("HSN: n_layers must be >= 1");
   const auto c = o.channels();
   nn::OperatorSchedule s;
@@ -32,14 +32,14 @@ inline nn::OperatorSchedule hsn_schedule(const HSNOptions& o) {
     const auto p = "layers." + std::to_string(l) + ".";
     s.parallel({into(0, "level1")
                     .sum(from(0).conv(p + "conv_level1_0_to_0", c).via("adjacency_0"))
-                    .act(Update::sigmoid),
+                    .act(Activation::sigmoid),
                 into(1, "level1")
                     .sum(from(0).conv(p + "conv_level1_0_to_1", c).via_t("incidence_1"))
-                    .act(Update::sigmoid)});
+                    .act(Activation::sigmoid)});
     s.step(into(0)
                .sum(from(0, "level1").conv(p + "conv_level2_0_to_0", c).via("adjacency_0"),
                     from(1, "level1").conv(p + "conv_level2_1_to_0", c).via("incidence_1"))
-               .act(Update::sigmoid));
+               .act(Activation::sigmoid));
   }
   return s;
 }

@@ -110,7 +110,8 @@ struct SanFilterAttention : nn::Operation {
     const auto ck = x.size(1);
     const auto raw = nn::entry_scores(A, nn::head_scores(x, a.narrow(0, 0, ck)),
                                       nn::head_scores(q, a.narrow(0, ck, a.size(0) - ck)));
-    const auto W = nn::attention_operator(A, raw, nn::Update::elu, 0.2, nn::AttentionNorm::softmax);
+    const auto W =
+        nn::attention_operator(A, raw, nn::Activation::elu, 0.2, nn::AttentionNorm::softmax);
     // The slices by one split: its backward writes every slice's gradient into one matrix, where
     // a narrow per slice allocates a zero-filled one each.
     const auto x_p = x.split(ck / filters, 1);

@@ -74,7 +74,7 @@ inline nn::OperatorSchedule sca_cmps_schedule(const SCACMPSOptions& o) {
                   conv(r, r, p + "lap_layers." + i, "down_laplacian_" + R).apply(IntraAggregate()),
                   conv(r - 1, r, p + "inc_layers." + i, "incidence_" + R + "_t")
                       .apply(IntraAggregate()))
-              .act(nn::Update::relu));
+              .act(nn::Activation::relu));
     }
   }
   return s;

@@ -17,7 +17,8 @@ struct SCCNOptions {
   TORCH_ARG(std::int64_t, channels);
   TORCH_ARG(int, max_rank);
   TORCH_ARG(int, n_layers) = 2;
-  TORCH_ARG(nn::Update, update_func) = nn::Update::sigmoid;  ///< relu, sigmoid, tanh or none
+  TORCH_ARG(nn::Activation,
+            update_func) = nn::Activation::sigmoid;  ///< relu, sigmoid, tanh or none
 };
 
 /// The schedule: per layer one parallel group, each rank summing its same-rank, higher-rank and
@@ -27,8 +28,8 @@ inline nn::OperatorSchedule sccn_schedule(const SCCNOptions& o) {
   if (o.max_rank() < 1) throw std::invalid_argument("SCCN: max_rank must be >= 1");
   if (o.n_layers() < 1) throw std::invalid_argument("SCCN: n_layers must be >= 1");
   const auto u = o.update_func();
-  if (u != nn::Update::none && u != nn::Update::relu && u != nn::Update::sigmoid &&
-      u != nn::Update::tanh)
+  if (u != nn::Activation::none && u != nn::Activation::relu && u != nn::Activation::sigmoid &&
+      u != nn::Activation::tanh)
     throw std::invalid_argument("SCCN: update_func must be relu, sigmoid, tanh or none");
   const auto c = o.channels();
   const int R = o.max_rank();

@@ -24,7 +24,7 @@ struct SCCNNOptions {
   TORCH_ARG(int, sc_order);
   TORCH_ARG(bool, aggr_norm) =
       false;  ///< divide each power by the Laplacian's row sums (0 where they are 0)
-  TORCH_ARG(nn::Update, update_func) = nn::Update::none;
+  TORCH_ARG(nn::Activation, update_func) = nn::Activation::none;
   TORCH_ARG(int, n_layers) = 2;
 };
 
@@ -43,7 +43,7 @@ inline nn::OperatorSchedule sccnn_schedule(const SCCNNOptions& o) {
   if (o.conv_order() < 1 || o.sc_order() < 2)
     throw std::invalid_argument("SCCNN: conv_order must be >= 1 and sc_order >= 2");
   const auto u = o.update_func();
-  if (u != nn::Update::none && u != nn::Update::relu && u != nn::Update::sigmoid)
+  if (u != nn::Activation::none && u != nn::Activation::relu && u != nn::Activation::sigmoid)
     throw std::invalid_argument("SCCNN: update_func must be relu, sigmoid or none");
   const bool norm = o.aggr_norm();
   const int K = o.conv_order();

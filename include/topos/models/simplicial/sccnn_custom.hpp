@@ -21,7 +21,7 @@ struct SCCNNCustomOptions {
   explicit SCCNNCustomOptions(std::int64_t channels) : channels_(channels) {}
   TORCH_ARG(std::int64_t, channels);
   TORCH_ARG(int, n_layers) = 2;
-  TORCH_ARG(nn::Update, update_func) = nn::Update::sigmoid;
+  TORCH_ARG(nn::Activation, update_func) = nn::Activation::sigmoid;
   TORCH_ARG(bool, topobench_compatible) = false;
 };
 

@@ -32,7 +32,7 @@ struct SCConvOperators {
 /// incidences transposed (rank r × rank r-1), so B_r itself is via_t.
 inline nn::OperatorSchedule scconv_schedule(const SCConvOptions& o) {
   using namespace nn::ops;
-  using nn::Update;
+  using nn::Activation;
   if (o.n_layers() < 1) throw std::invalid_argument("SCConv: n_layers must be >= 1");
   const auto c0 = o.node_channels(), c1 = o.edge_channels() > 0 ? o.edge_channels() : c0,
              c2 = o.face_channels() > 0 ? o.face_channels() : c0;
@@ -51,16 +51,16 @@ inline nn::OperatorSchedule scconv_schedule(const SCConvOptions& o) {
     s.parallel({into(0)
                     .sum(from(0).conv(p + "0_to_0", c0).via("adjacency_up_0_norm"),
                          from(1).conv(p + "1_to_0", c0).via_t("incidence_1"))
-                    .act(Update::sigmoid),
+                    .act(Activation::sigmoid),
                 into(1)
                     .sum(from(0).conv(p + "0_to_1", c1).via_t("incidence_1_norm"),
                          from(1).conv(p + "1_to_1", c1).via("adjacency_1_norm"),
                          from(2).conv(p + "2_to_1", c1).via_t("incidence_2"))
-                    .act(Update::sigmoid),
+                    .act(Activation::sigmoid),
                 into(2)
                     .sum(from(1).conv(p + "1_to_2", c2).via_t("incidence_2_norm"),
                          from(2).conv(p + "2_to_2", c2).via("adjacency_down_2_norm"))
-                    .act(Update::sigmoid)});
+                    .act(Activation::sigmoid)});
   }
   return s;
 }

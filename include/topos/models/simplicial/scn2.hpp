@@ -34,7 +34,7 @@ inline nn::OperatorSchedule scn2_schedule(const SCN2Options& o) {
                  .sum(from(r)
                           .conv("layers." + std::to_string(l) + ".conv_" + R + "_to_" + R, c[r])
                           .via("laplacian_" + R))
-                 .act(nn::Update::relu));
+                 .act(nn::Activation::relu));
     }
   return s;
 }

@@ -30,7 +30,7 @@ struct SCNNOptions {
   TORCH_ARG(int, conv_order_down);
   TORCH_ARG(int, conv_order_up);
   TORCH_ARG(bool, aggr_norm) = false;
-  TORCH_ARG(nn::Update, update_func) = nn::Update::none;  ///< relu, sigmoid or none
+  TORCH_ARG(nn::Activation, update_func) = nn::Activation::none;  ///< relu, sigmoid or none
   TORCH_ARG(int, n_layers) = 2;
   TORCH_ARG(bool,
             topomodelx_compatible) = false;  ///< first layer without aggr_norm and update_func
@@ -42,8 +42,8 @@ inline nn::OperatorSchedule scnn_schedule(const SCNNOptions& o) {
   if (o.conv_order_down() < 0 || o.conv_order_up() < 0 ||
       o.conv_order_down() + o.conv_order_up() == 0)
     throw std::invalid_argument("SCNN: conv_order_down and conv_order_up must be >= 0, not both 0");
-  if (o.update_func() != nn::Update::none && o.update_func() != nn::Update::relu &&
-      o.update_func() != nn::Update::sigmoid)
+  if (o.update_func() != nn::Activation::none && o.update_func() != nn::Activation::relu &&
+      o.update_func() != nn::Activation::sigmoid)
     throw std::invalid_argument("SCNN: update_func must be relu, sigmoid or none");
   if (o.n_layers() < 1) throw std::invalid_argument("SCNN: n_layers must be >= 1");
   nn::OperatorSchedule s;
@@ -64,7 +64,7 @@ inline nn::OperatorSchedule scnn_schedule(const SCNNOptions& o) {
     s.step(into(1)
                .filter("layers." + std::to_string(l) + ".weight", o.hidden_channels(),
                        from(1).powers(filters, norm, 2))
-               .act(plain ? nn::Update::none : o.update_func()));
+               .act(plain ? nn::Activation::none : o.update_func()));
   }
   return s;
 }

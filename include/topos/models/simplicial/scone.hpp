@@ -18,7 +18,7 @@ struct SCoNeOptions {
   TORCH_ARG(std::int64_t, in_channels);
   TORCH_ARG(std::int64_t, hidden_channels);
   TORCH_ARG(int, n_layers);
-  TORCH_ARG(nn::Update, update_func) = nn::Update::tanh;
+  TORCH_ARG(nn::Activation, update_func) = nn::Activation::tanh;
 };
 
 /// The schedule: per layer one step on the edges summing the three terms.

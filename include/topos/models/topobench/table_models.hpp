@@ -151,7 +151,7 @@ inline const std::vector<TableBackbone>& table_backbones() {
          "hodge_laplacian_2"}},
        [](C c) {
          return nn::OperatorNetwork(sccn_schedule(
-             SCCNOptions(c.hidden, 2).n_layers(c.n_layers).update_func(nn::Update::sigmoid)));
+             SCCNOptions(c.hidden, 2).n_layers(c.n_layers).update_func(nn::Activation::sigmoid)));
        },
        // ... and SCCN the plain Hodge Laplacians as its same-rank operators.
        [](Ops batch, C) {

@@ -4,7 +4,7 @@
 #pragma once
 
 #include "topos/models/hypergraph/allset.hpp"  // MlpNorm
-#include "topos/nn/functional.hpp"             // nn::Update, nn::Aggr
+#include "topos/nn/functional.hpp"             // nn::Activation, nn::Aggr
 
 #include <nlohmann/json.hpp>
 
@@ -44,11 +44,11 @@ class Config {
     if (!has(k)) throw ZooError(model_ + ": config lacks '" + k + "'");
     return as<T>(k);
   }
-  nn::Update update(const std::string& k, nn::Update fallback) {
+  nn::Activation update(const std::string& k, nn::Activation fallback) {
     used_.insert(k);
     if (!has(k)) return fallback;
     try {
-      return nn::update_from_string(as<std::string>(k));
+      return nn::activation_from_string(as<std::string>(k));
     } catch (const std::invalid_argument& e) {
       throw ZooError(model_ + ": config '" + k + "': " + e.what());
     }
@@ -74,16 +74,17 @@ class Config {
 
 /// A torch.nn activation class named in a config ("torch.nn.ReLU"); absent or null: `fallback`
 /// (std::nullopt: TopoModelX received None).
-inline std::optional<nn::Update> torch_activation(Config& c, const std::string& k,
-                                                  std::optional<nn::Update> fallback) {
+inline std::optional<nn::Activation> torch_activation(Config& c, const std::string& k,
+                                                      std::optional<nn::Activation> fallback) {
   const auto name = c.get<std::string>(k, "");
   if (name.empty()) return fallback;
-  static const std::map<std::string, nn::Update> known = {{"ReLU", nn::Update::relu},
-                                                          {"Sigmoid", nn::Update::sigmoid},
-                                                          {"Tanh", nn::Update::tanh},
-                                                          {"ELU", nn::Update::elu},
-                                                          {"LeakyReLU", nn::Update::leaky_relu},
-                                                          {"Identity", nn::Update::none}};
+  static const std::map<std::string, nn::Activation> known = {
+      {"ReLU", nn::Activation::relu},
+      {"Sigmoid", nn::Activation::sigmoid},
+      {"Tanh", nn::Activation::tanh},
+      {"ELU", nn::Activation::elu},
+      {"LeakyReLU", nn::Activation::leaky_relu},
+      {"Identity", nn::Activation::none}};
   const auto bare = name.rfind("torch.nn.", 0) == 0 ? name.substr(9) : name;
   auto it = known.find(bare);
   if (it == known.end())

@@ -23,7 +23,7 @@ namespace topos::models::detail {
 
 /// The hypergraph models: forward(x_0, incidence_1) (HMPNN: x_0, x_1, incidence_1).
 inline std::map<std::string, Maker> hypergraph_makers() {
-  using nn::Update;
+  using nn::Activation;
   return {
       {"AllSet",
        [](Config& c, bool compatible) {
@@ -50,7 +50,7 @@ inline std::map<std::string, Maker> hypergraph_makers() {
                  .number_queries(c.get("number_queries", 1))
                  .dropout(c.get("dropout", 0.2))
                  .mlp_num_layers(c.get("mlp_num_layers", 2))
-                 .mlp_activation(torch_activation(c, "mlp_activation", Update::relu))
+                 .mlp_activation(torch_activation(c, "mlp_activation", Activation::relu))
                  .mlp_dropout(c.get("mlp_dropout", 0.2))
                  .mlp_norm(torch_norm(c, "mlp_norm")));
          return wrap<AllSetTransformer>(
@@ -86,7 +86,7 @@ inline std::map<std::string, Maker> hypergraph_makers() {
                                       c.need<std::int64_t>("hidden_channels"))
                           .n_layers(c.get("n_layers", 2))
                           .layer_drop(c.get("layer_drop", 0.2))
-                          .update_func(c.update("update_func", Update::relu))
+                          .update_func(c.update("update_func", Activation::relu))
                           .initialization_gain(c.get("initialization_gain", 1.414))
                           .topomodelx_compatible(compatible));
          return wrap<HyperGAT>(
@@ -103,7 +103,7 @@ inline std::map<std::string, Maker> hypergraph_makers() {
                                         c.need<std::int64_t>("hidden_channels"))
                            .n_layers(c.get("n_layers", 2))
                            .alpha(c.get("alpha", -1))
-                           .update_func(c.update("update_func", Update::relu))
+                           .update_func(c.update("update_func", Activation::relu))
                            .uniform_initialization(init == "uniform")
                            .topomodelx_compatible(compatible));
          return wrap<HyperSAGE>(

@@ -24,7 +24,7 @@ namespace topos::models::detail {
 
 /// SCNN, HSN, SCConv, SCoNe, SCCN, Dist2Cycle, SCA-CMPS (simplicial); CAN, CCXN (cell).
 inline std::map<std::string, Maker> more_simplicial_and_cell_makers() {
-  using nn::Update;
+  using nn::Activation;
   return {
       {"SCNN",
        [](Config& c, bool compatible) {
@@ -32,7 +32,7 @@ inline std::map<std::string, Maker> more_simplicial_and_cell_makers() {
                               c.need<std::int64_t>("hidden_channels"),
                               c.need<int>("conv_order_down"), c.need<int>("conv_order_up"))
                       .aggr_norm(c.get("aggr_norm", false))
-                      .update_func(c.update("update_func", Update::none))
+                      .update_func(c.update("update_func", Activation::none))
                       .n_layers(c.get("n_layers", 2))
                       .topomodelx_compatible(compatible));
          return wrap<SCNN>(
@@ -82,8 +82,9 @@ inline std::map<std::string, Maker> more_simplicial_and_cell_makers() {
        }},
       {"SCCN",
        [](Config& c, bool) {
-         const auto update =
-             c.is_null("update_func") ? Update::none : c.update("update_func", Update::sigmoid);
+         const auto update = c.is_null("update_func")
+                                 ? Activation::none
+                                 : c.update("update_func", Activation::sigmoid);
          c.get<std::string>("update_func", "");  // read (null)
          SCCN net(SCCNOptions(c.need<std::int64_t>("channels"), c.need<int>("max_rank"))
                       .n_layers(c.get("n_layers", 2))
@@ -133,7 +134,7 @@ inline std::map<std::string, Maker> more_simplicial_and_cell_makers() {
                      .heads(c.get<std::int64_t>("heads", 2))
                      .concat(c.get("concat", true))
                      .skip_connection(c.get("skip_connection", true))
-                     .att_activation(act.value_or(Update::leaky_relu))
+                     .att_activation(act.value_or(Activation::leaky_relu))
                      .att_negative_slope(act ? 0.01 : 0.2)
                      .n_layers(c.get("n_layers", 2))
                      .att_lift(c.get("att_lift", true))

@@ -109,8 +109,8 @@ class Chain : public detail::OperationList {
                   LinearInit init = LinearInit::torch) {
     return apply(builtin::Linear(std::move(path), out, bias, init));
   }
-  Derived& act(Update u, double negative_slope = 0.01) {
-    return apply(builtin::Activation(u, negative_slope));
+  Derived& act(Activation u, double negative_slope = 0.01) {
+    return apply(builtin::Activate(u, negative_slope));
   }
   Derived& dropout(double p) { return apply(builtin::Dropout(p)); }
   Derived& unit_rows() { return apply(builtin::UnitRows()); }
@@ -205,7 +205,7 @@ class Term : public Chain<Term> {
   /// are multiplied by the weights and applied to x. `path` holds a (2·C): the source half, then
   /// the target half (TopoModelX's Conv.att_weight). Followed by conv(), this is TopoModelX's
   /// Conv with att=True (A (x W) = (A x) W: the weights depend on x alone).
-  Term& attend(std::string op, std::string path, Update activation = Update::elu,
+  Term& attend(std::string op, std::string path, Activation activation = Activation::elu,
                AttentionNorm norm = AttentionNorm::none, double negative_slope = 0.2) {
     return attend(std::move(op), AttendOptions(std::move(path))
                                      .activation(activation)
@@ -320,7 +320,7 @@ inline bool reads_cochains(const TermOp& t) {
 }
 
 /// The activation an operation is (OperationTraits::activation), for a product to fuse.
-inline const std::optional<Update>& activation_of(const TermOp& t) {
+inline const std::optional<Activation>& activation_of(const TermOp& t) {
   return t.traits.activation;
 }
 

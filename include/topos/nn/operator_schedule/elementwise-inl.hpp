@@ -30,16 +30,16 @@ inline OperationTraits row_wise(std::string identity = {}) {
 }
 }  // namespace
 
-TOPOS_INLINE std::string Activation::str(const std::string& x) const {
-  return update_name(update_) + "(" + x + ")";
+TOPOS_INLINE std::string Activate::str(const std::string& x) const {
+  return activation_name(update_) + "(" + x + ")";
 }
-TOPOS_INLINE TermShape Activation::infer(BuildContext&, TermShape x) const {
+TOPOS_INLINE TermShape Activate::infer(BuildContext&, TermShape x) const {
   return x;
 }
-TOPOS_INLINE torch::Tensor Activation::forward(RunContext&, const torch::Tensor& x) const {
-  return apply_update(x, update_, slope_);
+TOPOS_INLINE torch::Tensor Activate::forward(RunContext&, const torch::Tensor& x) const {
+  return apply_activation(x, update_, slope_);
 }
-TOPOS_INLINE OperationTraits Activation::traits() const {
+TOPOS_INLINE OperationTraits Activate::traits() const {
   auto t = row_wise(exact(slope_));
   t.activation = update_;
   t.negative_slope = slope_;

@@ -16,10 +16,10 @@
 
 namespace topos::nn::builtin {
 
-/// apply_update(x, update, negative_slope): fused into the product before it where it can be.
-class Activation final : public Operation {
+/// apply_activation(x, update, negative_slope): fused into the product before it where it can be.
+class Activate final : public Operation {
  public:
-  explicit Activation(Update update, double negative_slope = 0.01)
+  explicit Activate(Activation update, double negative_slope = 0.01)
       : update_(update), slope_(negative_slope) {}
   std::string str(const std::string& x) const override;
   TermShape infer(BuildContext& ctx, TermShape x) const override;
@@ -27,7 +27,7 @@ class Activation final : public Operation {
   OperationTraits traits() const override;
 
  private:
-  Update update_;
+  Activation update_;
   double slope_;
 };
 

@@ -89,15 +89,15 @@ TOPOS_INLINE void OperatorNetworkImpl::run_range(
   for (std::size_t g = begin; g < end && g < groups.size(); ++g) {
     const Cochains snapshot = h;
     PrefixCache cache;  // a term prefix shared by several steps of the group is computed once
-    struct Update {
+    struct Written {
       CochainKey key;
       torch::Tensor value, rows;  // rows: defined for a compact cochain
     };
-    std::vector<Update> updates;
+    std::vector<Written> updates;
     for (std::size_t i = 0; i < groups[g].size(); ++i) {
       if (live_only && !live_[g][i]) continue;
       const auto& s = groups[g][i];
-      Update u{s.target, {}, {}};
+      Written u{s.target, {}, {}};
       const std::string where = s.name + " (into " + s.target.str() + ")";
       detail::naming(where, detail::StepReads{s, snapshot}, [&] {
         if (auto c = compact_steps_.find({g, i}); c != compact_steps_.end())

@@ -60,7 +60,7 @@ TOPOS_INLINE torch::Tensor Linear::forward(RunContext& ctx, const torch::Tensor&
   return product(ctx, x, Epilogue::none);
 }
 TOPOS_INLINE torch::Tensor Linear::forward_activated(RunContext& ctx, const torch::Tensor& x,
-                                                     Update activation, double) const {
+                                                     Activation activation, double) const {
   return product(ctx, x, epilogue_of(activation));
 }
 TOPOS_INLINE OperationTraits Linear::traits() const {

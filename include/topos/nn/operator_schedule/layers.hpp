@@ -51,7 +51,7 @@ class Linear final : public Operation {
   torch::Tensor forward(RunContext& ctx, const torch::Tensor& x) const override;
   OperationTraits traits() const override;
   OperationCost cost(const CostContext& c) const override;
-  torch::Tensor forward_activated(RunContext& ctx, const torch::Tensor& x, Update activation,
+  torch::Tensor forward_activated(RunContext& ctx, const torch::Tensor& x, Activation activation,
                                   double negative_slope) const override;
 
  private:

@@ -191,10 +191,10 @@ struct OperationTraits {
   /// The operators forward applies (RunContext::op): a term that applies an optional operator a
   /// forward leaves out is skipped (OperatorSchedule::optional_operator), as a via's is.
   std::vector<std::string> operators;
-  /// The operation is apply_update(x, *activation, negative_slope): a product before it (a via
+  /// The operation is apply_activation(x, *activation, negative_slope): a product before it (a via
   /// without row normalisation, a linear) applies relu or elu in its kernel instead of calling
   /// forward.
-  std::optional<Update> activation;
+  std::optional<Activation> activation;
   double negative_slope = 0.01;
   /// With `str`, tells operations apart: two row-wise operations printed alike and with the same
   /// identity compute the same, so a prefix of them shared by several terms runs once. Empty:
@@ -262,11 +262,11 @@ class Operation {
   virtual std::vector<torch::Tensor> forward_terms(RunContext& ctx, const torch::Tensor& x) const {
     return {forward(ctx, x)};
   }
-  /// With traits().fuses_activation: apply_update(forward(x), activation, negative_slope) in one
-  /// kernel; called only with a fusable activation (nn::fusable).
+  /// With traits().fuses_activation: apply_activation(forward(x), activation, negative_slope)
+  /// in one kernel; called only with a fusable activation (nn::fusable).
   virtual torch::Tensor forward_activated(RunContext& ctx, const torch::Tensor& x,
-                                          Update activation, double negative_slope) const {
-    return apply_update(forward(ctx, x), activation, negative_slope);
+                                          Activation activation, double negative_slope) const {
+    return apply_activation(forward(ctx, x), activation, negative_slope);
   }
   /// With traits().leading_linear: the Linear layer forward starts with, and the rest of forward
   /// applied to that layer's output.

@@ -32,7 +32,7 @@ struct AttendOptions {
   /// The parameter's shape (default: a vector); only its element count is fixed (heads-major).
   TORCH_ARG(std::vector<std::int64_t>, shape);
   TORCH_ARG(double, gain) = 1.414;  ///< Glorot gain of the parameter
-  TORCH_ARG(Update, activation) = Update::elu;
+  TORCH_ARG(Activation, activation) = Activation::elu;
   TORCH_ARG(double, negative_slope) = 0.2;
   TORCH_ARG(AttentionNorm, norm) = AttentionNorm::none;
   TORCH_ARG(std::optional<CochainKey>, keys);     ///< default: the term's features

@@ -13,12 +13,12 @@
 
 namespace topos::testing {
 
+using nn::Activation;
 using nn::attention_weights;
 using nn::AttentionNorm;
 using nn::divide_by_row_sums;
 using nn::pair_scores;
 using nn::SparseOperator;
-using nn::Update;
 using nn::xavier_uniform;
 
 struct ConvOptions {
@@ -26,7 +26,7 @@ struct ConvOptions {
   TORCH_ARG(std::int64_t, in_channels);
   TORCH_ARG(std::int64_t, out_channels);
   TORCH_ARG(bool, aggr_norm) = false;  ///< divide by the operator's row sums
-  TORCH_ARG(Update, update_func) = Update::none;
+  TORCH_ARG(Activation, update_func) = Activation::none;
   TORCH_ARG(bool, att) = false;  ///< elu attention on [x_source_j, x_target_i]
   TORCH_ARG(bool, with_linear_transform) = true;
 };
@@ -62,13 +62,13 @@ class ConvImpl : public torch::nn::Module {
       const auto raw =
           pair_scores(A, x_source, att_weight.narrow(0, 0, C),
                       x_target.defined() ? x_target : x_source, att_weight.narrow(0, C, C));
-      N = A.with_values(attention_weights(A, raw, Update::elu, 0, AttentionNorm::none) *
+      N = A.with_values(attention_weights(A, raw, Activation::elu, 0, AttentionNorm::none) *
                         A.values.to(raw.scalar_type()));
     }
     const auto m = weight.defined() ? x_source.matmul(weight) : x_source;
     auto y = spmm(N, m);
     if (options.aggr_norm()) y = divide_by_row_sums(N, y);
-    return apply_update(y, options.update_func());
+    return apply_activation(y, options.update_func());
   }
   ConvOptions options;
   torch::Tensor weight, att_weight;
