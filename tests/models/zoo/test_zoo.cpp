@@ -116,9 +116,9 @@ TEST_CASE("activations fused into spmm and linear_act equal torch's, forward and
   };
   for (const auto e : {Epilogue::none, Epilogue::relu, Epilogue::elu}) {
     for (const auto dt : {torch::kFloat, torch::kDouble}) {
-      // 32 and 16 channels take the register kernels, 5 and 33 the generic loop; 33·rows also
-      // leaves a tail after the vectorised epilogue.
-      for (int C : {5, 16, 32, 33}) {
+      // 16, 32 and 128 channels take the register kernels, 5 and 33 the generic loop; 33·rows
+      // also leaves a tail after the vectorised epilogue.
+      for (int C : {5, 16, 32, 33, 128}) {
         const auto A = random_operator(41, 29, 0.3, dt, C);
         const auto X = (3 * torch::randn({29, C}, dt)).requires_grad_(true);
         const auto v = A.values.clone().requires_grad_(true);
@@ -182,8 +182,12 @@ TEST_CASE("linear_act in panels of 64 outputs equals torch's linear, forward and
   // (rows, inputs, outputs): rows that leave a tail after blocks of 6 and of 48; 192 outputs are
   // three panels; 128 and 256 inputs make the backward's dx and dW panels too; 320 and 1024
   // outputs make the fused backward's blocks shorter than 32 rows (25 and 8); 576 inputs give a
-  // backward of 576 outputs in panels.
+  // backward of 576 outputs in panels; 7, 13 and 100 outputs (BLAS's forward, the fused backward
+  // for an activation) leave outputs after the backward's tiles of dW's rows.
   for (auto [n, K, N] : {std::array<std::int64_t, 3>{67, 64, 128},
+                         {45, 16, 7},
+                         {33, 8, 13},
+                         {70, 128, 100},
                          {130, 128, 128},
                          {49, 32, 256},
                          {53, 128, 64},
