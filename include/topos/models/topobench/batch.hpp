@@ -3,7 +3,8 @@
 // features of each rank stacked, every named operator block-diagonal, per rank the graph each
 // cell belongs to, and the graphs' classes. The operators are concatenated from their sorted
 // triplets with shifted indices (still sorted), so building a batch is O(cells + nonzeros); a
-// factored operator's factors are each block-diagonal, its scales concatenated.
+// factored operator's factors are each block-diagonal, its scales concatenated. A Collator does
+// the same for a split's many shuffled batches from each graph's CSR, prepared once.
 #pragma once
 
 #include "topos/config.hpp"
