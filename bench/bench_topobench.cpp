@@ -6,8 +6,9 @@
 // keeps it (nn::keep_freed_memory).
 //   BM_backbone_epoch  forward + backward of the backbone alone over every batch, the work the
 //                      Python script times (counter x_topomodelx: the speed-up over its figure)
-//   BM_epoch           topos's whole epoch: shuffle, collate, encoder, backbone, readout, loss,
-//                      Adam step
+//   BM_epoch           topos's whole epoch: shuffle, batches (a Collator, as train_run), encoder,
+//                      backbone, readout, loss, Adam step
+//   BM_collate         one epoch's shuffled batches: collate, or a Collator prepared once
 //   BM_lift            lifting a whole dataset (features and operators included)
 //   BM_encoder         TopoBench's encoder (GraphNorm then Linear, 64 wide) forward + backward
 //                      over every rank of Cora's or Citeseer's clique complex: the two modules
@@ -161,11 +162,12 @@ void run_epochs(benchmark::State& state, const Setting& s, bool fast_paths, int 
   torch::optim::Adam opt(model->parameters(), torch::optim::AdamOptions(1e-3));
   std::mt19937_64 rng(0);
   auto order = p.train;
+  const Collator collator(p.graphs, p.train);  // as train_run: the split's operators once
   model->train();
   const auto epoch = [&] {
     std::shuffle(order.begin(), order.end(), rng);
     for (const auto& which : batches_of(order, s.batch)) {
-      const auto b = collate(p.graphs, which);
+      const auto b = collator(which);
       const auto loss = torch::nn::functional::cross_entropy(model->forward(b), b.labels);
       opt.zero_grad();
       loss.backward();
@@ -180,6 +182,23 @@ void BM_epoch(benchmark::State& state, Setting s) {
   if (skip_without_data(state)) return;
   nn::keep_freed_memory();  // as `tdl topobench` runs
   run_epochs(state, s, true);
+}
+
+// One epoch's batches of the shuffled train split: collate (arg 0) or a Collator prepared once
+// (arg 1, what train_run uses).
+void BM_collate(benchmark::State& state, Setting s) {
+  if (skip_without_data(state)) return;
+  nn::set_cpu_threads(1, 1);
+  nn::keep_freed_memory();
+  const auto& p = prepared(s);
+  const Collator collator(p.graphs, p.train);
+  std::mt19937_64 rng(0);
+  auto order = p.train;
+  for (auto _ : state) {
+    std::shuffle(order.begin(), order.end(), rng);
+    for (const auto& which : batches_of(order, s.batch))
+      benchmark::DoNotOptimize(state.range(0) ? collator(which) : collate(p.graphs, which));
+  }
 }
 
 // One Adam step over the model's parameters (random gradients): the part of a training step
@@ -351,6 +370,12 @@ const int registered = [] {
     benchmark::RegisterBenchmark(("BM_epoch/" + tag).c_str(), BM_epoch, s)
         ->Unit(benchmark::kMillisecond)
         ->MinTime(1.0);
+    benchmark::RegisterBenchmark(("BM_collate/" + tag).c_str(), BM_collate, s)
+        ->ArgName("collator")
+        ->Arg(0)
+        ->Arg(1)
+        ->Unit(benchmark::kMicrosecond)
+        ->MinTime(0.5);
     benchmark::RegisterBenchmark(("BM_adam_step/" + tag).c_str(), BM_adam_step, s)
         ->Unit(benchmark::kMicrosecond)
         ->MinTime(0.5);

@@ -91,8 +91,13 @@ struct LinearFunction : public torch::autograd::Function<LinearFunction> {
     const auto chunks =
         std::max<std::int64_t>(1, std::min<std::int64_t>(at::get_num_threads(), n / 4096));
     torch::Tensor dx = want_dx ? torch::empty_like(x) : torch::Tensor();
-    torch::Tensor dW = want_dW ? torch::zeros({chunks, N, K}, x.options()) : torch::Tensor();
-    torch::Tensor db = want_db ? torch::zeros({chunks, N}, x.options()) : torch::Tensor();
+    // One chunk (one thread, or under 8192 rows) sums straight into the result: no reduction.
+    const auto shape = [&](std::vector<std::int64_t> s) {
+      if (chunks > 1) s.insert(s.begin(), chunks);
+      return s;
+    };
+    torch::Tensor dW = want_dW ? torch::zeros(shape({N, K}), x.options()) : torch::Tensor();
+    torch::Tensor db = want_db ? torch::zeros(shape({N}), x.options()) : torch::Tensor();
 #if defined(__GNUC__)
     AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "topos_linear_backward", [&] {
       at::parallel_for(0, chunks, 1, [&](std::int64_t c0, std::int64_t c1) {
@@ -106,7 +111,8 @@ struct LinearFunction : public torch::autograd::Function<LinearFunction> {
       });
     });
 #endif
-    return {dx, want_dW ? dW.sum(0) : dW, want_db ? db.sum(0) : db, {}};
+    if (chunks > 1) dW = want_dW ? dW.sum(0) : dW, db = want_db ? db.sum(0) : db;
+    return {dx, dW, db, {}};
   }
 };
 

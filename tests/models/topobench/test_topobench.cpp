@@ -303,6 +303,50 @@ TEST_CASE("A batch stacks features and puts every operator block-diagonally", "[
   }
 }
 
+TEST_CASE("A Collator's batches are collate's, tensor for tensor, in any order", "[topobench]") {
+  const auto same = [](const torch::Tensor& a, const torch::Tensor& b) {
+    return a.defined() == b.defined() &&
+           (!a.defined() || (a.scalar_type() == b.scalar_type() && a.sizes() == b.sizes() &&
+                             a.is_contiguous() && torch::equal(a, b)));
+  };
+  for (Domain d : {Domain::graph, Domain::hypergraph, Domain::cell, Domain::simplicial}) {
+    const auto gs = lift_tiny(d, 3);
+    const Collator all(gs);
+    for (const std::vector<std::size_t>& which : std::vector<std::vector<std::size_t>>{
+             {0, 1, 2}, {2, 0, 1}, {1, 2}, {2}, {1, 1, 0}, {2, 1, 0, 2}}) {
+      const auto want = collate(gs, which), got = all(which);
+      INFO(domain_name(d) << ", " << which.size() << " graphs from " << which.front());
+      REQUIRE(got.x.size() == want.x.size());
+      for (std::size_t r = 0; r < want.x.size(); ++r) {
+        CHECK(same(got.x[r], want.x[r]));
+        CHECK(same(got.batch[r], want.batch[r]));
+      }
+      CHECK(same(got.labels, want.labels));
+      CHECK(got.num_graphs == want.num_graphs);
+      REQUIRE(got.operators.size() == want.operators.size());
+      for (const auto& [name, w] : want.operators) {
+        INFO(name);
+        const auto& g = got.operators.at(name);
+        CHECK(g.rows == w.rows);
+        CHECK(g.cols == w.cols);
+        for (auto [a, b] : {std::pair{g.crow, w.crow},
+                            {g.col, w.col},
+                            {g.row, w.row},
+                            {g.values, w.values},
+                            {g.t_crow, w.t_crow},
+                            {g.t_col, w.t_col},
+                            {g.t_row, w.t_row},
+                            {g.t_perm, w.t_perm}})
+          CHECK(same(a, b));
+      }
+    }
+    // Only the graphs of its part are prepared; another is an error naming it.
+    const Collator part(gs, {0, 2});
+    CHECK(torch::equal(part({2, 0}).x[0], collate(gs, {2, 0}).x[0]));
+    CHECK_THROWS_WITH(part({0, 1}), Catch::Matchers::Contains("graph 1 was not prepared"));
+  }
+}
+
 TEST_CASE("Rank-1 Laplacians kept as factors are the formed ones, in a batch and in a model",
           "[topobench]") {
   // The tiny graphs (two triangles sharing an edge, where L_1's products cancel) and a hub whose

@@ -116,9 +116,9 @@ TEST_CASE("activations fused into spmm and linear_act equal torch's, forward and
   };
   for (const auto e : {Epilogue::none, Epilogue::relu, Epilogue::elu}) {
     for (const auto dt : {torch::kFloat, torch::kDouble}) {
-      // 32 and 16 channels take the register kernels, 5 and 33 the generic loop; 33·rows also
-      // leaves a tail after the vectorised epilogue.
-      for (int C : {5, 16, 32, 33}) {
+      // 16, 32 and 128 channels take the register kernels, 5 and 33 the generic loop; 33·rows
+      // also leaves a tail after the vectorised epilogue.
+      for (int C : {5, 16, 32, 33, 128}) {
         const auto A = random_operator(41, 29, 0.3, dt, C);
         const auto X = (3 * torch::randn({29, C}, dt)).requires_grad_(true);
         const auto v = A.values.clone().requires_grad_(true);
@@ -182,8 +182,12 @@ TEST_CASE("linear_act in panels of 64 outputs equals torch's linear, forward and
   // (rows, inputs, outputs): rows that leave a tail after blocks of 6 and of 48; 192 outputs are
   // three panels; 128 and 256 inputs make the backward's dx and dW panels too; 320 and 1024
   // outputs make the fused backward's blocks shorter than 32 rows (25 and 8); 576 inputs give a
-  // backward of 576 outputs in panels.
+  // backward of 576 outputs in panels; 7, 13 and 100 outputs (BLAS's forward, the fused backward
+  // for an activation) leave outputs after the backward's tiles of dW's rows.
   for (auto [n, K, N] : {std::array<std::int64_t, 3>{67, 64, 128},
+                         {45, 16, 7},
+                         {33, 8, 13},
+                         {70, 128, 100},
                          {130, 128, 128},
                          {49, 32, 256},
                          {53, 128, 64},
@@ -214,6 +218,45 @@ TEST_CASE("linear_act in panels of 64 outputs equals torch's linear, forward and
         REQUIRE(torch::allclose(W.grad(), Wr.grad(), tol * 4, tol * 4));
         REQUIRE(torch::allclose(b.grad(), br.grad(), tol * 4, tol * 4));
       }
+    }
+  }
+}
+
+TEST_CASE("UniGCNII's update as one node gives the written-out operations' values and gradients",
+          "[models][zoo][hypergraph]") {
+  // Two layers of the update over a shared skip, fused and written out (fused_residual false),
+  // the same parameters and inputs: forward equal, gradients equal up to the order in which the
+  // skip's two gradients are summed (float32: within 1e-6 of the largest entry).
+  const auto run = [](bool fused, int width) {
+    using namespace topos::nn::ops;
+    OperatorSchedule s;
+    s.input("x_0", 0, width).output("x_0", 0);
+    s.step(into(0, "initial").sum(from(0)));
+    for (int l = 0; l < 2; ++l) {
+      models::InitialResidual r({0, "initial"}, 0.5, std::log(0.5 / (l + 1) + 1),
+                                "layers." + std::to_string(l) + ".linear");
+      r.fused_residual = fused;
+      s.step(into(0).sum(from(0)).apply(std::move(r)).act(Update::relu));
+    }
+    torch::manual_seed(5);
+    OperatorNetwork net(s);
+    auto x = torch::randn({37, width}).requires_grad_(true);
+    const auto y = net->forward({{"x_0", x}}, {}).at("x_0");
+    (y * torch::randn(y.sizes())).sum().backward();
+    std::vector<torch::Tensor> out{y.detach(), x.grad()};
+    for (int l = 0; l < 2; ++l)
+      out.push_back(net->parameter("layers." + std::to_string(l) + ".linear.weight").grad());
+    return out;
+  };
+  for (int width : {16, 128, 96}) {  // the dense kernel's narrow and panel widths, and BLAS's
+    INFO("width " << width);
+    const auto fused = run(true, width), plain = run(false, width);
+    CHECK(torch::equal(fused[0], plain[0]));
+    for (std::size_t i = 1; i < fused.size(); ++i) {
+      INFO("gradient " << i);
+      const double scale = plain[i].abs().max().item<double>();
+      CHECK(scale > 0);
+      CHECK((fused[i] - plain[i]).abs().max().item<double>() <= 1e-6 * scale);
     }
   }
 }

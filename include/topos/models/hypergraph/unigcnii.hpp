@@ -29,6 +29,57 @@ struct UniGCNIIOptions {
   TORCH_ARG(bool, topomodelx_compatible) = false;
 };
 
+namespace detail {
+/// GCNII's update x̃ Mᵀ, x̃ = (1-α) x + α s, M = β W + (1-β) I, as one autograd node: the same
+/// tensor operations as written out (forward) and as LibTorch's nodes for them would give
+/// (backward), without the eight nodes and their saved tensors. Its backward is linear_act's
+/// (fused_backward for the widths the dense kernel takes), then dx = (1-α) dx̃, ds = α dx̃,
+/// dW = β dM.
+struct InitialResidualFunction : torch::autograd::Function<InitialResidualFunction> {
+  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& x,
+                               const torch::Tensor& s, const torch::Tensor& W, double alpha,
+                               double beta) {
+    const auto mixed = (1 - alpha) * x + alpha * s;
+    const auto M = beta * W + (1 - beta) * torch::eye(W.size(0), W.options());
+    // linear_act's forward (its kernel choice; no graph is recorded inside a Function).
+    const auto y = nn::linear_act(mixed, M, {});
+    ctx->save_for_backward({mixed, M});
+    ctx->saved_data["alpha"] = alpha;
+    ctx->saved_data["beta"] = beta;
+    ctx->saved_data["onednn"] = M.size(0) > 64 && nn::detail::use_onednn(mixed);
+    return y;
+  }
+  static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx,
+                                               torch::autograd::tensor_list grads) {
+    const auto saved = ctx->get_saved_variables();
+    const auto &mixed = saved[0], &M = saved[1];
+    const double alpha = ctx->saved_data["alpha"].toDouble(),
+                 beta = ctx->saved_data["beta"].toDouble();
+    const bool want_x = ctx->needs_input_grad(0) || ctx->needs_input_grad(1),
+               want_W = ctx->needs_input_grad(2);
+    const auto g = grads[0].contiguous();
+    torch::Tensor dmixed, dM;  // as linear_act's LinearFunction::backward, no activation
+    if (ctx->saved_data["onednn"].toBool()) {
+      if (want_x) dmixed = nn::detail::onednn_mm(g, M);
+      if (want_W) dM = nn::detail::onednn_mm(g.t(), mixed);
+    } else if (nn::detail::dense_kernel_fits(M.size(0), M.size(1))) {
+      const auto d = nn::detail::LinearFunction::fused_backward(
+          mixed.contiguous(), M.contiguous(), torch::Tensor(), g, nn::Epilogue::none, want_x,
+          want_W, false);
+      dmixed = d[0], dM = d[1];
+    } else {
+      if (want_x) dmixed = g.mm(M);
+      if (want_W) dM = g.t().mm(mixed);
+    }
+    torch::Tensor dx, ds, dW;
+    if (ctx->needs_input_grad(0)) dx = dmixed * (1 - alpha);
+    if (ctx->needs_input_grad(1)) ds = dmixed * alpha;
+    if (want_W) dW = dM * beta;
+    return {dx, ds, dW, {}, {}};
+  }
+};
+}  // namespace detail
+
 /// The schedule: a linear map, then per layer the two-stage message and GCNII's update.
 /// GCNII's initial residual and identity mapping: x̃ = (1-α) x + α skip, then
 /// (1-β) x̃ + β Linear(x̃) with the bias-free Linear at `path`. UniGCNII's own operation, through
@@ -52,11 +103,21 @@ struct InitialResidual : nn::Operation {
     return x;
   }
   torch::Tensor forward(nn::RunContext& ctx, const torch::Tensor& x) const override {
-    const auto mixed = (1 - alpha) * x + alpha * ctx.cochain(skip);
-    // (1-β) x̃ + β x̃ Wᵀ as one product with (1-β) I + β W: one pass over the rows, not three.
+    const auto& s = ctx.cochain(skip);
     const auto& W = ctx.parameter(path + ".weight");
-    return nn::linear_act(mixed, beta * W + (1 - beta) * torch::eye(W.size(0), W.options()), {});
+    // (1-β) x̃ + β x̃ Wᵀ as one product with (1-β) I + β W: one pass over the rows, not three;
+    // with the mixing, one autograd node where linear_act takes the product (CPU, float).
+    if (!fused_residual || !x.device().is_cpu() || x.dim() != 2 || s.sizes() != x.sizes() ||
+        x.scalar_type() != torch::kFloat || s.scalar_type() != x.scalar_type() ||
+        W.scalar_type() != x.scalar_type()) {
+      const auto mixed = (1 - alpha) * x + alpha * s;
+      return nn::linear_act(mixed, beta * W + (1 - beta) * torch::eye(W.size(0), W.options()), {});
+    }
+    return detail::InitialResidualFunction::apply(x, s, W, alpha, beta);
   }
+  /// One autograd node (InitialResidualFunction) where it applies; false: the operations
+  /// written out, each LibTorch's node (what the tests compare it with).
+  bool fused_residual = true;
 };
 
 inline nn::OperatorSchedule unigcnii_schedule(const UniGCNIIOptions& o) {

@@ -171,6 +171,10 @@ TOPOS_INLINE TrainedRun train_run(const LiftedDataset& data, const Backbone& bac
   }
   const EvalSet val(data, split.val, bs, whole), test(data, split.test, bs, whole);
 
+  // The training graphs' operators in CSR form once: each epoch's shuffled batches are then
+  // concatenations of them (Collator), not sorted and transposed anew.
+  std::unique_ptr<const Collator> train_batches;
+  if (!data.node_level) train_batches = std::make_unique<const Collator>(data.graphs, split.train);
   std::mt19937_64 shuffle(static_cast<std::uint64_t>(seed) * 1000003u + 42u);
   std::vector<std::size_t> order = split.train;
   double best = -1;
@@ -201,7 +205,7 @@ TOPOS_INLINE TrainedRun train_run(const LiftedDataset& data, const Backbone& bac
     } else {
       std::shuffle(order.begin(), order.end(), shuffle);
       for (const auto& which : batches_of(order, bs)) {
-        const auto b = collate(data.graphs, which);
+        const auto b = (*train_batches)(which);
         step(net->forward(b), b.labels);
       }
     }

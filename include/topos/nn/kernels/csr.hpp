@@ -62,6 +62,8 @@ static TOPOS_INLINE_KERNEL bool csr_rows_width(const std::int64_t* crow, const s
       return csr_rows_fixed<T, 32, E, VB>(crow, col, val, perm, X, Y, begin, end), true;
     case 64:
       return csr_rows_fixed<T, 64, E, VB>(crow, col, val, perm, X, Y, begin, end), true;
+    case 128:  // CWN's and UniGNN2's width on MUTAG, NCI1, NCI109: 8 zmm accumulators
+      return csr_rows_fixed<T, 128, E, VB>(crow, col, val, perm, X, Y, begin, end), true;
     default:
       return false;
   }
