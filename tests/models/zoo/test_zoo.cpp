@@ -236,7 +236,7 @@ TEST_CASE("UniGCNII's update as one node gives the written-out operations' value
       models::InitialResidual r({0, "initial"}, 0.5, std::log(0.5 / (l + 1) + 1),
                                 "layers." + std::to_string(l) + ".linear");
       r.fused_residual = fused;
-      s.step(into(0).sum(from(0)).apply(std::move(r)).act(Update::relu));
+      s.step(into(0).sum(from(0)).apply(std::move(r)).act(Activation::relu));
     }
     torch::manual_seed(5);
     OperatorNetwork net(s);
