@@ -16,7 +16,7 @@
 #include <cstdlib>
 
 using namespace topos;
-using namespace topos::hopnet;
+using namespace topos::models::hopnet;
 
 namespace {
 struct Setup {

@@ -8,12 +8,13 @@
 #pragma once
 
 #include "topos/models/hopnet/model.hpp"
+#include "topos/models/namespace_aliases.hpp"
 #include "topos/sim/meshes.hpp"
 #include "topos/sim/rollout.hpp"
 
 #include <optional>
 
-namespace topos::hopnet {
+namespace topos::models::hopnet {
 
 // Deprecated aliases: the rollout loop, its options and result and the metrics moved to
 // topos/sim/rollout.hpp (namespace topos::sim); write sim::NAME.
@@ -85,4 +86,4 @@ inline RolloutResult rollout(HopnetImpl& model, const Normalizer& norm, const Sc
   });
 }
 
-}  // namespace topos::hopnet
+}  // namespace topos::models::hopnet
