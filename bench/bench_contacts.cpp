@@ -4,7 +4,7 @@
 #include <benchmark/benchmark.h>
 
 #include "topos/geometry/contacts.hpp"
-#include "topos/models/hopnet/scene.hpp"
+#include "topos/sim/scene.hpp"
 
 #include <cstdlib>
 #include <random>
@@ -16,17 +16,17 @@ std::string ref_dir() {
   const char* d = std::getenv("TOPOS_REFERENCE_DIR");
   return d ? d : "";
 }
-const hopnet::Scene& movi_a8() {
-  static hopnet::Scene s = [] {
-    hopnet::MeshLibrary lib(ref_dir() + "/data/kubasic");
-    return hopnet::make_scene(data::read_kubric_metadata(ref_dir() + "/data/movi-a/8"), lib);
+const sim::Scene& movi_a8() {
+  static sim::Scene s = [] {
+    sim::MeshLibrary lib(ref_dir() + "/data/kubasic");
+    return sim::make_scene(data::read_kubric_metadata(ref_dir() + "/data/movi-a/8"), lib);
   }();
   return s;
 }
 // Ten KuBasic objects stacked closely above the floor (1.5 m spacing, sizes 0.75-1.5), posed at
 // random orientations: many face pairs within d_c, like a settled MOVi-B frame.
 std::vector<PosedObject> kubasic_scene(std::vector<TriangleMesh>& keep) {
-  hopnet::MeshLibrary lib(ref_dir() + "/data/kubasic");
+  sim::MeshLibrary lib(ref_dir() + "/data/kubasic");
   const char* shapes[] = {"cube", "sphere",     "cylinder", "cone", "torus",
                           "gear", "torus_knot", "sponge",   "spot", "teapot"};
   std::mt19937 rng(3);
@@ -37,7 +37,7 @@ std::vector<PosedObject> kubasic_scene(std::vector<TriangleMesh>& keep) {
     m.vertices *= 1.0 + 0.4 * u(rng);
     keep.push_back(m);
   }
-  keep.push_back(hopnet::floor_mesh());
+  keep.push_back(sim::floor_mesh());
   std::vector<PosedObject> objs;
   for (int i = 0; i < 10; ++i) {
     const Eigen::Vector3d p(1.45 * (i % 4) - 2, 1.45 * (i / 4) - 1.5, 0.74);
@@ -56,7 +56,7 @@ static void BM_MoviA8_Reference(benchmark::State& state) {
   std::vector<VertexFaceIndex> idx;
   for (auto& o : s.objects) idx.emplace_back(o.mesh.faces, o.mesh.vertices.rows());
   std::vector<std::vector<PosedObject>> frames;
-  for (std::int64_t t = 0; t < s.num_frames; ++t) frames.push_back(hopnet::pose_scene(s, t));
+  for (std::int64_t t = 0; t < s.num_frames; ++t) frames.push_back(sim::pose_scene(s, t));
   std::size_t t = 0, pairs = 0;
   for (auto _ : state) {
     auto c = reference_contacts(frames[t++ % frames.size()], 0.1, &idx);
@@ -71,7 +71,7 @@ static void BM_MoviA8_Native(benchmark::State& state) {
   if (ref_dir().empty()) return state.SkipWithError("set TOPOS_REFERENCE_DIR");
   const auto& s = movi_a8();
   std::vector<std::vector<PosedObject>> frames;
-  for (std::int64_t t = 0; t < s.num_frames; ++t) frames.push_back(hopnet::pose_scene(s, t));
+  for (std::int64_t t = 0; t < s.num_frames; ++t) frames.push_back(sim::pose_scene(s, t));
   std::size_t t = 0, pairs = 0;
   for (auto _ : state) pairs += find_contacts(frames[t++ % frames.size()], 0.1).size();
   state.counters["pairs/frame"] =

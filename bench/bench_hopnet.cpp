@@ -21,7 +21,7 @@
 #include <iostream>
 
 using namespace topos;
-using namespace topos::hopnet;
+using namespace topos::models::hopnet;
 
 namespace {
 struct Setup {

@@ -22,7 +22,7 @@
 #include <sstream>
 #include <string>
 
-namespace tb = topos::models::topobench;
+namespace topobench = topos::models::topobench;
 
 // The backbone, GIN (Xu et al. 2019) on the nodes as an operator schedule: layer l is
 // h <- Linear(relu(BatchNorm(Linear(h + A h)))), relu between layers, A the GCN-normalised
@@ -83,31 +83,32 @@ int run(int argc, char** argv) {
 
   // The backbone and its rank layout: graph domain, encodes and returns rank 0, reads the
   // GCN-normalised adjacency (which the lifting then builds).
-  const tb::Backbone gin = tb::Backbone::schedule(
-      "GIN", {tb::Domain::graph, {0}, 1, {"gcn_adjacency"}},
-      [](const tb::BackboneContext& c) { return gin_schedule(c.hidden, c.n_layers); });
+  const topobench::Backbone gin = topobench::Backbone::schedule(
+      "GIN", {topobench::Domain::graph, {0}, 1, {"gcn_adjacency"}},
+      [](const topobench::BackboneContext& c) { return gin_schedule(c.hidden, c.n_layers); });
 
   // TopoBench's settings for GCN on MUTAG (reproduce-hparams.txt), with fewer epochs and a
   // validation check after every one.
-  tb::RunConfig cfg;
+  topobench::RunConfig cfg;
   cfg.lr = 0.001, cfg.hidden = 128, cfg.layers = 3, cfg.batch_size = 32, cfg.dropout = 0.5;
   cfg.max_epochs = epochs, cfg.min_epochs = 1, cfg.val_every = 1, cfg.patience = 10;
-  const auto data = tb::lift_dataset(data_dir, tb::dataset_name("MUTAG"), gin.layout(), cfg);
+  const auto data =
+      topobench::lift_dataset(data_dir, topobench::dataset_name("MUTAG"), gin.layout(), cfg);
 
-  tb::RunsFolder folder(out);
+  topobench::RunsFolder folder(out);
   std::istringstream list(splits);
   for (std::string s; std::getline(list, s, ',');) {
     const std::int64_t seed = std::stoll(s);
     if (folder.done(gin.name(), "MUTAG", seed)) continue;  // resumable, as tdl topobench
-    const auto trained = tb::train_run(data, gin, "MUTAG", cfg, seed);
+    const auto trained = topobench::train_run(data, gin, "MUTAG", cfg, seed);
     folder.add(trained.result, trained.curve);
     std::printf(
         "GIN on MUTAG, split %lld: test accuracy %.1f %% (best check: epoch %d, "
         "validation %.1f %%; majority class %.1f %%)\n",
         static_cast<long long>(seed), 100 * trained.result.test_accuracy, trained.result.best_epoch,
-        100 * trained.best_val_accuracy, 100 * tb::majority_accuracy(data, seed));
+        100 * trained.best_val_accuracy, 100 * topobench::majority_accuracy(data, seed));
   }
-  std::cout << tb::format_summary(tb::summarize(folder.runs()));
+  std::cout << topobench::format_summary(topobench::summarize(folder.runs()));
   std::cerr << "wrote " << (folder.path() / "runs.csv").string()
             << ", curves.csv, summary.csv, index.html\n";
   return 0;

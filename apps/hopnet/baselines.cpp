@@ -16,7 +16,7 @@ namespace hopnet_cli {
 
 int run_baseline_train(const BaselineTrainArgs& a) {
   namespace fs = std::filesystem;
-  const auto config = baselines::parse_baseline_config(a.config);
+  const auto config = models::baselines::parse_baseline_config(a.config);
   const auto spec = config.spec();
   const auto td = open_training_data(a.data, a.split_file);
   const auto& dataset = td.dataset;
@@ -33,7 +33,7 @@ int run_baseline_train(const BaselineTrainArgs& a) {
   std::map<std::string, torch::Tensor> resumed;  // the checkpoint resumed from, read once
   if (resuming) {  // the model before anything else: its statistics would not fit another's
     resumed = nn::read_tensor_dict(ckpt);
-    const auto cfg = baselines::checkpoint_config(resumed, ckpt);
+    const auto cfg = models::baselines::checkpoint_config(resumed, ckpt);
     const std::string model = cfg.value("model", "hopnet");
     if (model != config.model())
       throw std::invalid_argument(ckpt + ": a " + model + " checkpoint (topos.config model '" +
@@ -49,7 +49,7 @@ int run_baseline_train(const BaselineTrainArgs& a) {
   struct Loaded {
     std::int64_t id;
     Scene scene;
-    std::unique_ptr<baselines::SceneGraphs> graphs;
+    std::unique_ptr<models::baselines::SceneGraphs> graphs;
   };
   MeshLibrary lib(a.assets);
   const auto load = [&](const std::vector<std::int64_t>& which, const char* label) {
@@ -65,7 +65,7 @@ int run_baseline_train(const BaselineTrainArgs& a) {
       if (l.scene.num_frames < 4)
         throw data::DataError(a.data + ": scene " + std::to_string(id) +
                               " has fewer than 4 frames");
-      l.graphs = std::make_unique<baselines::SceneGraphs>(config, l.scene);
+      l.graphs = std::make_unique<models::baselines::SceneGraphs>(config, l.scene);
       out.push_back(std::move(l));
       bar.update();
     }
@@ -83,13 +83,13 @@ int run_baseline_train(const BaselineTrainArgs& a) {
   };
 
   const auto stats_path = (fs::path(a.out) / "stats.json").string();
-  gns::Statistics stats;
+  models::gns::Statistics stats;
   if (a.resume && fs::exists(stats_path)) {
-    stats = gns::Statistics::load(stats_path);
+    stats = models::gns::Statistics::load(stats_path);
   } else {
     // Every stats_stride-th timestep of the training split (the reimplementation's warm-up sees
     // 2,000 random batches of 64).
-    gns::StatisticsAccumulator acc(spec);
+    models::gns::StatisticsAccumulator acc(spec);
     std::vector<std::pair<std::size_t, std::int64_t>> chosen;
     for (std::size_t i = 0; i < samples.size(); i += static_cast<std::size_t>(a.stats_stride))
       chosen.push_back(samples[i]);
@@ -105,13 +105,13 @@ int run_baseline_train(const BaselineTrainArgs& a) {
   stats.check_fits(spec, stats_path);
 
   torch::manual_seed(a.seed);
-  baselines::Baseline model(config);
+  models::baselines::Baseline model(config);
   torch::optim::Adam opt(model.net->parameters(), torch::optim::AdamOptions(a.lr));
   std::int64_t step = 0;
   // Weights from a baseline checkpoint of this model (load_baseline checks it whole).
   const auto adopt = [&](const std::map<std::string, torch::Tensor>& dict,
                          const std::string& path) {
-    const auto loaded = baselines::load_baseline(dict, path, config.model());
+    const auto loaded = models::baselines::load_baseline(dict, path, config.model());
     torch::NoGradGuard ng;
     auto src = loaded.model.net->named_parameters();
     for (auto& p : model.net->named_parameters()) p.value().copy_(src[p.key()]);
@@ -171,14 +171,14 @@ int run_baseline_train(const BaselineTrainArgs& a) {
     const std::int64_t epoch = s / epoch_steps, k = s % epoch_steps;
     if (cached.first != epoch) cached = {epoch, nn::epoch_order(n_samples, a.seed, epoch)};
     const auto& order = cached.second;
-    std::vector<gns::GraphFrame> frames;
+    std::vector<models::gns::GraphFrame> frames;
     for (std::int64_t i = k * a.batch_timesteps;
          i < std::min(n_samples, (k + 1) * a.batch_timesteps); ++i)
       frames.push_back(
           frame_of(train, samples[static_cast<std::size_t>(order[static_cast<std::size_t>(i)])]));
-    std::vector<const gns::GraphFrame*> ptr;
+    std::vector<const models::gns::GraphFrame*> ptr;
     for (const auto& f : frames) ptr.push_back(&f);
-    return gns::collate(spec, ptr, stats);
+    return models::gns::collate(spec, ptr, stats);
   };
   const auto validate = [&] {
     torch::NoGradGuard ng;
@@ -186,13 +186,13 @@ int run_baseline_train(const BaselineTrainArgs& a) {
     double sum = 0;
     std::size_t n = 0;
     for (std::size_t i = 0; i < val_samples.size(); i += 16) {
-      std::vector<gns::GraphFrame> frames;
+      std::vector<models::gns::GraphFrame> frames;
       for (std::size_t j = i; j < std::min(val_samples.size(), i + 16); ++j)
         frames.push_back(frame_of(val, val_samples[j]));
-      std::vector<const gns::GraphFrame*> ptr;
+      std::vector<const models::gns::GraphFrame*> ptr;
       for (const auto& f : frames) ptr.push_back(&f);
-      const auto b = gns::collate(spec, ptr, stats);
-      sum += gns::acceleration_loss(model.net->forward(b).at("mesh"), b).item<double>() *
+      const auto b = models::gns::collate(spec, ptr, stats);
+      sum += models::gns::acceleration_loss(model.net->forward(b).at("mesh"), b).item<double>() *
              static_cast<double>(frames.size());
       n += frames.size();
     }
@@ -202,7 +202,7 @@ int run_baseline_train(const BaselineTrainArgs& a) {
   double trained_seconds = resuming ? data::read_json_file(state_path).value("seconds", 0.0) : 0;
   const auto save = [&] {
     FileGroup group(journal);
-    baselines::save_baseline(model, stats, group.stage(ckpt));
+    models::baselines::save_baseline(model, stats, group.stage(ckpt));
     nn::write_tensor_dict(nn::adam_state_dict(opt, *model.net), group.stage(opt_path));
     write_json_atomic({{"step", step}, {"seconds", trained_seconds}, {"model", config.to_json()}},
                       group.stage(state_path));
@@ -215,18 +215,18 @@ int run_baseline_train(const BaselineTrainArgs& a) {
   const auto t_start = std::chrono::steady_clock::now();
   double loss_sum = 0;
   std::int64_t loss_n = 0;
-  std::future<gns::GraphBatch> next;
+  std::future<models::gns::GraphBatch> next;
   if (step < total_steps) next = std::async(std::launch::async, batch_of, step);
   bool out_of_time = a.max_seconds > 0 && trained_seconds >= a.max_seconds;  // spent before
   while (step < total_steps && !out_of_time) {
     reset_peak_rss();
     const auto t0 = std::chrono::steady_clock::now();
-    const gns::GraphBatch batch = next.get();  // built while the previous step ran
+    const models::gns::GraphBatch batch = next.get();  // built while the previous step ran
     if (step + 1 < total_steps) next = std::async(std::launch::async, batch_of, step + 1);
     const double lr = lr_at(step);
     for (auto& g : opt.param_groups()) static_cast<torch::optim::AdamOptions&>(g.options()).lr(lr);
     opt.zero_grad();
-    const auto loss = gns::acceleration_loss(model.net->forward(batch).at("mesh"), batch);
+    const auto loss = models::gns::acceleration_loss(model.net->forward(batch).at("mesh"), batch);
     loss.backward();
     opt.step();
     ++step;

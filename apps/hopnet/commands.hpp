@@ -29,7 +29,7 @@
 namespace hopnet_cli {
 
 using namespace topos;
-using namespace topos::hopnet;
+using namespace topos::models::hopnet;
 
 /// A registered subcommand: its CLI11 app and what runs it.
 struct Command {

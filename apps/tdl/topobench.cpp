@@ -38,7 +38,6 @@
 
 namespace tdl_cli {
 
-namespace tb = topos::models::topobench;
 namespace topobench = topos::models::topobench;
 namespace fs = std::filesystem;
 
@@ -89,7 +88,7 @@ int run_topobench(const TopoBenchOptions& o) {
 
   topobench::RunsFolder folder(out, topobench::table_model_names());  // an earlier start's, checked
 
-  std::vector<tb::TableJob> jobs;
+  std::vector<topobench::TableJob> jobs;
   std::size_t skipped = 0;
   // Cells that cannot run here, with the measured reason (not_run.csv; the table shows them).
   topobench::NotRun not_run;
@@ -124,11 +123,12 @@ int run_topobench(const TopoBenchOptions& o) {
         throw std::invalid_argument(cfg.source +
                                     ": no dataset.split_params.data_seed (give --splits)");
       bool factored = false;
-      if (const auto rank1 = tb::rank1_pair_operators(tb::rank_layout(*m)); !rank1.empty()) {
+      if (const auto rank1 = topobench::rank1_pair_operators(topobench::rank_layout(*m));
+          !rank1.empty()) {
         if (!pairs.count(d->name)) pairs[d->name] = shared_node_pairs(root, *d);
         if (pairs[d->name] > o.factor_above) {
-          const auto can = tb::factorable_operators(
-              m->domain, m->domain == tb::Domain::simplicial && cfg.signed_incidence);
+          const auto can = topobench::factorable_operators(
+              m->domain, m->domain == topobench::Domain::simplicial && cfg.signed_incidence);
           factored = std::all_of(rank1.begin(), rank1.end(),
                                  [&](const std::string& op) { return can.count(op) > 0; });
           std::ostringstream why;
@@ -176,14 +176,14 @@ int run_topobench(const TopoBenchOptions& o) {
   // operation (docs/benchmarks.md: BM_epoch_options).
   topos::nn::keep_freed_memory();
 
-  tb::TableRunOptions run;
+  topobench::TableRunOptions run;
   run.jobs = o.jobs;
   run.max_epochs = o.max_epochs;
-  run.backbone = [](const tb::ModelSpec& m) { return tb::table_backbone(m.name); };
-  run.on_not_run = [&](const tb::NotRun&) {
+  run.backbone = [](const topobench::ModelSpec& m) { return topobench::table_backbone(m.name); };
+  run.on_not_run = [&](const topobench::NotRun&) {
     topos::write_file_atomic((out / "not_run.csv").string(), not_run_csv());
   };
-  const auto failed_cells = tb::run_table(root, jobs, folder, not_run, run);
+  const auto failed_cells = topobench::run_table(root, jobs, folder, not_run, run);
   if (!failed_cells.empty()) {
     std::cerr << "tdl topobench: " << failed_cells.size() << " cell(s) failed; see not_run.csv:";
     for (const auto& [m, d] : failed_cells) std::cerr << " " << m << "/" << d;

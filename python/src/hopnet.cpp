@@ -17,7 +17,7 @@
 
 namespace topos::python {
 
-using namespace topos::hopnet;
+using namespace topos::models::hopnet;
 
 namespace {
 

@@ -30,7 +30,7 @@ namespace topos::python {
 
 namespace {
 
-namespace tb = topos::models::topobench;
+namespace topobench = topos::models::topobench;
 namespace fs = std::filesystem;
 
 /// A Python object that C++ copies freely (std::function, Backbone, the model's options): the
@@ -64,10 +64,10 @@ fs::path root_arg(const std::optional<fs::path>& root) {
   return p;
 }
 
-tb::Domain domain_arg(const std::string& d) {
-  for (auto x :
-       {tb::Domain::graph, tb::Domain::hypergraph, tb::Domain::cell, tb::Domain::simplicial})
-    if (d == tb::domain_name(x)) return x;
+topobench::Domain domain_arg(const std::string& d) {
+  for (auto x : {topobench::Domain::graph, topobench::Domain::hypergraph, topobench::Domain::cell,
+                 topobench::Domain::simplicial})
+    if (d == topobench::domain_name(x)) return x;
   throw py::value_error("domain: '" + d + "' is not one of 'graph', 'hypergraph', 'cell', " +
                         "'simplicial'");
 }
@@ -93,9 +93,9 @@ py::dict operators_out(const std::map<std::string, nn::SparseOperator>& ops) {
 
 /// A lifted dataset with the name it was read under and the layout it was lifted for.
 struct Lifted {
-  std::shared_ptr<const tb::LiftedDataset> data;
+  std::shared_ptr<const topobench::LiftedDataset> data;
   std::string dataset;
-  tb::RankLayout layout;
+  topobench::RankLayout layout;
 };
 
 std::vector<std::size_t> indices_arg(const py::handle& obj, std::int64_t size,
@@ -159,7 +159,8 @@ class PyBackboneImpl : public torch::nn::Module {
     module_->attr("train")(on);
   }
 
-  tb::NamedCochains forward(const tb::NamedCochains& x, const tb::NamedOperators& ops) {
+  topobench::NamedCochains forward(const topobench::NamedCochains& x,
+                                   const topobench::NamedOperators& ops) {
     py::gil_scoped_acquire gil;
     check_shared();
     py::dict xs;
@@ -168,7 +169,7 @@ class PyBackboneImpl : public torch::nn::Module {
     if (!py::isinstance(out, py::module_::import("collections.abc").attr("Mapping")))
       throw py::type_error(name_ + ": the backbone's forward returned a " + type_name(out) +
                            "; expected a dict of name ('x_0', ...) -> tensor");
-    tb::NamedCochains y;
+    topobench::NamedCochains y;
     for (const auto& [k, v] : out.cast<py::dict>()) {
       if (!py::isinstance<py::str>(k) || !THPVariable_Check(v.ptr()))
         throw py::type_error(name_ + ": the backbone's forward returned an entry " + type_name(k) +
@@ -215,11 +216,12 @@ TORCH_MODULE(PyBackbone);
 
 /// The C++ backbone of a Python recipe: make(ctx) returns an OperatorSchedule, a
 /// topos.nn.OperatorNetwork, or any torch.nn.Module (called as forward(x, operators)).
-tb::Backbone backbone_arg(const std::string& name, const tb::RankLayout& layout, py::object make) {
+topobench::Backbone backbone_arg(const std::string& name, const topobench::RankLayout& layout,
+                                 py::object make) {
   if (!PyCallable_Check(make.ptr()))
     throw py::type_error("Backbone(make): expected a callable make(ctx), got a " + type_name(make));
   const PyRef fn = hold(std::move(make));
-  return tb::Backbone(name, layout, [fn, name, layout](const tb::BackboneContext& c) {
+  return topobench::Backbone(name, layout, [fn, name, layout](const topobench::BackboneContext& c) {
     py::gil_scoped_acquire gil;
     const py::object made = (*fn)(c);
     const py::module_ nn_mod = py::module_::import("topos.nn");
@@ -230,7 +232,8 @@ tb::Backbone backbone_arg(const std::string& name, const tb::RankLayout& layout,
               ? nn::OperatorNetwork(made.cast<nn::OperatorSchedule>())
               : nn::OperatorNetwork(
                     made.attr("_network").cast<std::shared_ptr<nn::OperatorNetworkImpl>>());
-      return tb::Backbone::network(name, layout, [net](const tb::BackboneContext&) { return net; })
+      return topobench::Backbone::network(name, layout,
+                                          [net](const topobench::BackboneContext&) { return net; })
           .build(c);
     }
     if (!py::isinstance(made, py::module_::import("torch").attr("nn").attr("Module")))
@@ -238,13 +241,13 @@ tb::Backbone backbone_arg(const std::string& name, const tb::RankLayout& layout,
                            "; expected a topos.nn.OperatorSchedule, a topos.nn.OperatorNetwork or "
                            "a torch.nn.Module whose forward(x, operators) returns a dict");
     PyBackbone module(hold(made), name);
-    return tb::Backbone::module(name, layout,
-                                [module](const tb::BackboneContext&) { return module; })
+    return topobench::Backbone::module(
+               name, layout, [module](const topobench::BackboneContext&) { return module; })
         .build(c);
   });
 }
 
-using Model = tb::TopoBenchModelImpl;
+using Model = topobench::TopoBenchModelImpl;
 
 std::shared_ptr<Model> shared_model(Model& m) {
   return std::dynamic_pointer_cast<Model>(m.shared_from_this());
@@ -260,13 +263,14 @@ py::dict state_dict(Model& m) {
 // ----- bindings ---------------------------------------------------------------------------------
 
 void bind_protocol(py::module_& m) {
-  py::class_<tb::RankLayout>(m, "RankLayout",
-                             "What a backbone works on: the domain the data is lifted to, the "
-                             "ranks the encoder gives it, how many ranks it returns, and the "
-                             "operators (lifting names) it and the readout read.")
+  py::class_<topobench::RankLayout>(
+      m, "RankLayout",
+      "What a backbone works on: the domain the data is lifted to, the "
+      "ranks the encoder gives it, how many ranks it returns, and the "
+      "operators (lifting names) it and the readout read.")
       .def(py::init([](const std::string& domain, std::vector<int> encoded_ranks,
                        int cell_dimensions, std::set<std::string> operators) {
-             tb::RankLayout l;
+             topobench::RankLayout l;
              l.domain = domain_arg(domain);
              l.encoded_ranks = std::move(encoded_ranks);
              l.cell_dimensions = cell_dimensions;
@@ -278,54 +282,54 @@ void bind_protocol(py::module_& m) {
            }),
            py::arg("domain"), py::arg("encoded_ranks"), py::arg("cell_dimensions"),
            py::arg("operators"))
-      .def_property_readonly("domain",
-                             [](const tb::RankLayout& l) { return tb::domain_name(l.domain); })
-      .def_readonly("encoded_ranks", &tb::RankLayout::encoded_ranks)
-      .def_readonly("cell_dimensions", &tb::RankLayout::cell_dimensions)
-      .def_readonly("operators", &tb::RankLayout::operators)
-      .def("__repr__", [](const tb::RankLayout& l) {
+      .def_property_readonly(
+          "domain", [](const topobench::RankLayout& l) { return topobench::domain_name(l.domain); })
+      .def_readonly("encoded_ranks", &topobench::RankLayout::encoded_ranks)
+      .def_readonly("cell_dimensions", &topobench::RankLayout::cell_dimensions)
+      .def_readonly("operators", &topobench::RankLayout::operators)
+      .def("__repr__", [](const topobench::RankLayout& l) {
         return py::str(
                    "RankLayout(domain={!r}, encoded_ranks={}, cell_dimensions={}, "
                    "operators={})")
-            .format(tb::domain_name(l.domain), py::cast(l.encoded_ranks), l.cell_dimensions,
+            .format(topobench::domain_name(l.domain), py::cast(l.encoded_ranks), l.cell_dimensions,
                     py::cast(l.operators));
       });
 
   m.def("models", [] {
     std::vector<std::string> n;
-    for (const auto& s : tb::model_specs()) n.push_back(s.name);
+    for (const auto& s : topobench::model_specs()) n.push_back(s.name);
     return n;
   });
   m.def("datasets", [] {
     std::vector<std::string> n;
-    for (const auto& d : tb::table_datasets()) n.push_back(d.name);
+    for (const auto& d : topobench::table_datasets()) n.push_back(d.name);
     return n;
   });
   m.def(
       "model_layout",
-      [](const std::string& model) { return tb::rank_layout(tb::model_spec(model)); },
+      [](const std::string& model) { return topobench::rank_layout(topobench::model_spec(model)); },
       py::arg("model"), "The RankLayout of one of the table's models (CWN, SCN, ...).");
 
-  py::class_<tb::RunConfig>(m, "RunConfig",
-                            "One (model, dataset) line of reproduce-hparams.txt (fields writable).")
+  py::class_<topobench::RunConfig>(
+      m, "RunConfig", "One (model, dataset) line of reproduce-hparams.txt (fields writable).")
       .def(py::init<>())
-      .def_readwrite("model_config", &tb::RunConfig::model_config)
-      .def_readwrite("dataset_config", &tb::RunConfig::dataset_config)
-      .def_readwrite("lr", &tb::RunConfig::lr)
-      .def_readwrite("dropout", &tb::RunConfig::dropout)
-      .def_readwrite("hidden", &tb::RunConfig::hidden)
-      .def_readwrite("layers", &tb::RunConfig::layers)
-      .def_readwrite("batch_size", &tb::RunConfig::batch_size)
-      .def_readwrite("readout", &tb::RunConfig::readout)
-      .def_readwrite("data_seeds", &tb::RunConfig::data_seeds)
-      .def_readwrite("max_epochs", &tb::RunConfig::max_epochs)
-      .def_readwrite("min_epochs", &tb::RunConfig::min_epochs)
-      .def_readwrite("val_every", &tb::RunConfig::val_every)
-      .def_readwrite("patience", &tb::RunConfig::patience)
-      .def_readwrite("signed_incidence", &tb::RunConfig::signed_incidence)
-      .def_readwrite("max_cell_length", &tb::RunConfig::max_cell_length)
-      .def_readwrite("source", &tb::RunConfig::source)
-      .def("__repr__", [](const tb::RunConfig& c) {
+      .def_readwrite("model_config", &topobench::RunConfig::model_config)
+      .def_readwrite("dataset_config", &topobench::RunConfig::dataset_config)
+      .def_readwrite("lr", &topobench::RunConfig::lr)
+      .def_readwrite("dropout", &topobench::RunConfig::dropout)
+      .def_readwrite("hidden", &topobench::RunConfig::hidden)
+      .def_readwrite("layers", &topobench::RunConfig::layers)
+      .def_readwrite("batch_size", &topobench::RunConfig::batch_size)
+      .def_readwrite("readout", &topobench::RunConfig::readout)
+      .def_readwrite("data_seeds", &topobench::RunConfig::data_seeds)
+      .def_readwrite("max_epochs", &topobench::RunConfig::max_epochs)
+      .def_readwrite("min_epochs", &topobench::RunConfig::min_epochs)
+      .def_readwrite("val_every", &topobench::RunConfig::val_every)
+      .def_readwrite("patience", &topobench::RunConfig::patience)
+      .def_readwrite("signed_incidence", &topobench::RunConfig::signed_incidence)
+      .def_readwrite("max_cell_length", &topobench::RunConfig::max_cell_length)
+      .def_readwrite("source", &topobench::RunConfig::source)
+      .def("__repr__", [](const topobench::RunConfig& c) {
         std::ostringstream o;
         o << "RunConfig(" << c.model_config << " " << c.dataset_config << ": lr=" << c.lr
           << " hidden=" << c.hidden << " layers=" << c.layers << " batch_size=" << c.batch_size
@@ -334,17 +338,17 @@ void bind_protocol(py::module_& m) {
           << " patience=" << c.patience << ")";
         return o.str();
       });
-  m.def("read_hparams", &tb::read_hparams, py::arg("path"),
+  m.def("read_hparams", &topobench::read_hparams, py::arg("path"),
         "Every line of a reproduce-hparams.txt file (a malformed one is a DataError naming it).");
   m.def(
       "find_config",
       [](const std::string& model, const std::string& dataset,
          const std::optional<fs::path>& hparams, const std::optional<fs::path>& root) {
-        const auto& spec = tb::model_spec(model);
-        const auto& d = tb::dataset_name(dataset);
+        const auto& spec = topobench::model_spec(model);
+        const auto& d = topobench::dataset_name(dataset);
         const fs::path file =
             hparams ? *hparams : root_arg(root) / "topobench" / "reproduce-hparams.txt";
-        return tb::find_config(tb::read_hparams(file), spec, d);
+        return topobench::find_config(topobench::read_hparams(file), spec, d);
       },
       py::arg("model"), py::arg("dataset"), py::arg("hparams") = py::none(),
       py::arg("root") = py::none());
@@ -352,55 +356,57 @@ void bind_protocol(py::module_& m) {
       "split",
       [](std::int64_t n, std::int64_t seed) {
         if (n < 0) throw py::value_error("split(n): must be >= 0, got " + std::to_string(n));
-        const auto s = tb::random_split(n, seed);
+        const auto s = topobench::random_split(n, seed);
         return py::make_tuple(s.train, s.val, s.test);
       },
       py::arg("n"), py::arg("seed"));
 
-  py::class_<tb::RunResult>(m, "RunResult", "One finished run: a row of runs.csv.")
-      .def_readonly("model", &tb::RunResult::model)
-      .def_readonly("dataset", &tb::RunResult::dataset)
-      .def_readonly("split_seed", &tb::RunResult::split_seed)
-      .def_readonly("test_accuracy", &tb::RunResult::test_accuracy)
-      .def_readonly("best_epoch", &tb::RunResult::best_epoch)
-      .def_readonly("epochs", &tb::RunResult::epochs)
-      .def_readonly("seconds", &tb::RunResult::seconds)
-      .def("__repr__", [](const tb::RunResult& r) {
+  py::class_<topobench::RunResult>(m, "RunResult", "One finished run: a row of runs.csv.")
+      .def_readonly("model", &topobench::RunResult::model)
+      .def_readonly("dataset", &topobench::RunResult::dataset)
+      .def_readonly("split_seed", &topobench::RunResult::split_seed)
+      .def_readonly("test_accuracy", &topobench::RunResult::test_accuracy)
+      .def_readonly("best_epoch", &topobench::RunResult::best_epoch)
+      .def_readonly("epochs", &topobench::RunResult::epochs)
+      .def_readonly("seconds", &topobench::RunResult::seconds)
+      .def("__repr__", [](const topobench::RunResult& r) {
         return py::str(
                    "RunResult({} {} split {}: test_accuracy={:.4f}, best_epoch={}, "
                    "epochs={})")
             .format(r.model, r.dataset, r.split_seed, r.test_accuracy, r.best_epoch, r.epochs);
       });
-  py::class_<tb::Check>(m, "Check", "One validation check: epoch, mean training loss, accuracy.")
-      .def_readonly("epoch", &tb::Check::epoch)
-      .def_readonly("loss", &tb::Check::loss)
-      .def_readonly("val_accuracy", &tb::Check::val_accuracy)
-      .def("__repr__", [](const tb::Check& c) {
+  py::class_<topobench::Check>(m, "Check",
+                               "One validation check: epoch, mean training loss, accuracy.")
+      .def_readonly("epoch", &topobench::Check::epoch)
+      .def_readonly("loss", &topobench::Check::loss)
+      .def_readonly("val_accuracy", &topobench::Check::val_accuracy)
+      .def("__repr__", [](const topobench::Check& c) {
         return py::str("Check(epoch={}, loss={:.4f}, val_accuracy={:.4f})")
             .format(c.epoch, c.loss, c.val_accuracy);
       });
 
-  py::class_<tb::RunsFolder>(m, "RunsFolder",
-                             "runs.csv, curves.csv, summary.csv, index.html and table.md of a "
-                             "folder of runs, resumable (done) and rewritten after every add.")
+  py::class_<topobench::RunsFolder>(
+      m, "RunsFolder",
+      "runs.csv, curves.csv, summary.csv, index.html and table.md of a "
+      "folder of runs, resumable (done) and rewritten after every add.")
       .def(py::init<fs::path>(), py::arg("path"))
-      .def_property_readonly("path", &tb::RunsFolder::path)
-      .def_property_readonly("runs", &tb::RunsFolder::runs)
-      .def("done", &tb::RunsFolder::done, py::arg("model"), py::arg("dataset"), py::arg("seed"))
+      .def_property_readonly("path", &topobench::RunsFolder::path)
+      .def_property_readonly("runs", &topobench::RunsFolder::runs)
+      .def("done", &topobench::RunsFolder::done, py::arg("model"), py::arg("dataset"),
+           py::arg("seed"))
       .def(
           "add",
-          [](tb::RunsFolder& f, const tb::RunResult& r, const std::vector<tb::Check>& curve) {
-            f.add(r, curve);
-          },
+          [](topobench::RunsFolder& f, const topobench::RunResult& r,
+             const std::vector<topobench::Check>& curve) { f.add(r, curve); },
           py::arg("result"), py::arg("curve"))
-      .def("write_reports", [](const tb::RunsFolder& f) { f.write_reports(); });
+      .def("write_reports", [](const topobench::RunsFolder& f) { f.write_reports(); });
 }
 
 void bind_data(py::module_& m) {
   m.def(
       "read_dataset",
       [](const std::string& name, const std::optional<fs::path>& root) {
-        const auto& d = tb::dataset_name(name);
+        const auto& d = topobench::dataset_name(name);
         const fs::path dir = root_arg(root);
         py::dict out;
         out["name"] = d.name;
@@ -441,13 +447,13 @@ void bind_data(py::module_& m) {
       py::arg("name"), py::arg("root") = py::none(),
       "A dataset of TopoBench's table from its raw files, with TopoBench's node features.");
 
-  py::class_<tb::Batch>(m, "Batch", "Lifted graphs as one block-diagonal union.")
-      .def_readonly("x", &tb::Batch::x)
-      .def_readonly("batch", &tb::Batch::batch)
-      .def_readonly("labels", &tb::Batch::labels)
-      .def_readonly("num_graphs", &tb::Batch::num_graphs)
+  py::class_<topobench::Batch>(m, "Batch", "Lifted graphs as one block-diagonal union.")
+      .def_readonly("x", &topobench::Batch::x)
+      .def_readonly("batch", &topobench::Batch::batch)
+      .def_readonly("labels", &topobench::Batch::labels)
+      .def_readonly("num_graphs", &topobench::Batch::num_graphs)
       .def_property_readonly("operators",
-                             [](const tb::Batch& b) { return operators_out(b.operators); });
+                             [](const topobench::Batch& b) { return operators_out(b.operators); });
 
   py::class_<Lifted>(m, "LiftedDataset", "A dataset lifted for one RankLayout.")
       .def("__len__", [](const Lifted& l) { return l.data->size(); })
@@ -466,7 +472,7 @@ void bind_data(py::module_& m) {
             if (i < 0 || i >= n)
               throw py::index_error("graph(i): " + std::to_string(i) + " is outside [0, " +
                                     std::to_string(n) + ")");
-            const auto b = tb::collate(l.data->graphs, {static_cast<std::size_t>(i)});
+            const auto b = topobench::collate(l.data->graphs, {static_cast<std::size_t>(i)});
             py::dict d;
             d["sizes"] = l.data->graphs[static_cast<std::size_t>(i)].sizes;
             d["x"] = b.x;
@@ -481,39 +487,42 @@ void bind_data(py::module_& m) {
             const auto which = indices_arg(
                 indices, static_cast<std::int64_t>(l.data->graphs.size()), "batch(indices)");
             py::gil_scoped_release release;
-            return tb::collate(l.data->graphs, which);
+            return topobench::collate(l.data->graphs, which);
           },
           py::arg("indices"))
       .def(
           "majority_accuracy",
-          [](const Lifted& l, std::int64_t seed) { return tb::majority_accuracy(*l.data, seed); },
+          [](const Lifted& l, std::int64_t seed) {
+            return topobench::majority_accuracy(*l.data, seed);
+          },
           py::arg("seed"),
           "The test accuracy of predicting the training split's most frequent class.");
 
   m.def(
       "lift_dataset",
-      [](const std::string& dataset, const tb::RankLayout& layout, const tb::RunConfig& cfg,
-         const std::optional<fs::path>& root, bool factored, bool progress) {
-        const auto& d = tb::dataset_name(dataset);
+      [](const std::string& dataset, const topobench::RankLayout& layout,
+         const topobench::RunConfig& cfg, const std::optional<fs::path>& root, bool factored,
+         bool progress) {
+        const auto& d = topobench::dataset_name(dataset);
         const fs::path dir = root_arg(root);
         // The lifting builds the names it knows and skips others: name one it does not know.
-        tb::LiftingOptions all;  // no operators named: every one of the domain
-        const auto known =
-            tb::lift_graph(3, {{0, 1}, {0, 2}, {1, 2}}, {1, 1, 1}, 1, {}, layout.domain, all);
+        topobench::LiftingOptions all;  // no operators named: every one of the domain
+        const auto known = topobench::lift_graph(3, {{0, 1}, {0, 2}, {1, 2}}, {1, 1, 1}, 1, {},
+                                                 layout.domain, all);
         for (const auto& op : layout.operators)
           if (!known.operators.count(op)) {
             std::string names;
             for (const auto& [name, _] : known.operators)
               names += (names.empty() ? "" : ", ") + name;
             throw py::value_error("lift(layout): the " +
-                                  std::string(tb::domain_name(layout.domain)) +
+                                  std::string(topobench::domain_name(layout.domain)) +
                                   " lifting has no operator '" + op + "' (it has: " + names + ")");
           }
         Lifted l{nullptr, d.name, layout};
         {
           py::gil_scoped_release release;
-          l.data = std::make_shared<const tb::LiftedDataset>(
-              tb::lift_dataset(dir, d, layout, cfg, factored, progress));
+          l.data = std::make_shared<const topobench::LiftedDataset>(
+              topobench::lift_dataset(dir, d, layout, cfg, factored, progress));
         }
         return l;
       },
@@ -522,19 +531,19 @@ void bind_data(py::module_& m) {
 }
 
 void bind_training(py::module_& m) {
-  py::class_<tb::BackboneContext>(m, "BackboneContext",
-                                  "What a backbone is built for: hidden (its width on every "
-                                  "rank), n_layers, topobench_compatible.")
-      .def_readonly("hidden", &tb::BackboneContext::hidden)
-      .def_readonly("n_layers", &tb::BackboneContext::n_layers)
-      .def_readonly("topobench_compatible", &tb::BackboneContext::topobench_compatible);
+  py::class_<topobench::BackboneContext>(m, "BackboneContext",
+                                         "What a backbone is built for: hidden (its width on every "
+                                         "rank), n_layers, topobench_compatible.")
+      .def_readonly("hidden", &topobench::BackboneContext::hidden)
+      .def_readonly("n_layers", &topobench::BackboneContext::n_layers)
+      .def_readonly("topobench_compatible", &topobench::BackboneContext::topobench_compatible);
 
   py::class_<Model, std::shared_ptr<Model>>(
       m, "Model",
       "TopoBench's model around the backbone: encoder, backbone, wrapper, readout, classifier.")
       .def(
           "__call__",
-          [](Model& net, const tb::Batch& b) {
+          [](Model& net, const topobench::Batch& b) {
             py::gil_scoped_release release;
             return net.forward(b);
           },
@@ -563,38 +572,40 @@ void bind_training(py::module_& m) {
             const auto part = indices_arg(indices, data.data->size(), "accuracy(indices)");
             if (batch_size == 0) throw py::value_error("accuracy(batch_size): must be positive");
             py::gil_scoped_release release;
-            return tb::EvalSet(*data.data, part, batch_size).accuracy(net);
+            return topobench::EvalSet(*data.data, part, batch_size).accuracy(net);
           },
           py::arg("data"), py::arg("indices"), py::arg("batch_size") = 64,
           "Accuracy on graphs (or nodes) `indices` of `data`, in eval mode.");
 
   m.def(
       "check_backbone",
-      [](const std::string& name, const tb::RankLayout& layout) {
-        tb::Backbone(name, layout, [](const tb::BackboneContext&) { return tb::BuiltBackbone{}; });
+      [](const std::string& name, const topobench::RankLayout& layout) {
+        topobench::Backbone(name, layout, [](const topobench::BackboneContext&) {
+          return topobench::BuiltBackbone{};
+        });
       },
       py::arg("name"), py::arg("layout"),
       "Raises ValueError where topobench::Backbone refuses the name or the layout.");
   m.def(
       "train_run",
-      [](const Lifted& data, const std::string& name, const tb::RankLayout& layout, py::object make,
-         const tb::RunConfig& cfg, std::int64_t seed, int max_epochs, bool progress,
-         py::object on_check) {
-        const tb::Backbone backbone = backbone_arg(name, layout, std::move(make));
-        tb::TrainOptions o;
+      [](const Lifted& data, const std::string& name, const topobench::RankLayout& layout,
+         py::object make, const topobench::RunConfig& cfg, std::int64_t seed, int max_epochs,
+         bool progress, py::object on_check) {
+        const topobench::Backbone backbone = backbone_arg(name, layout, std::move(make));
+        topobench::TrainOptions o;
         o.max_epochs = max_epochs;
         o.progress = progress;
         if (!on_check.is_none()) {
           const PyRef cb = hold(std::move(on_check));
-          o.on_check = [cb](const tb::Check& c, Model& net) {
+          o.on_check = [cb](const topobench::Check& c, Model& net) {
             py::gil_scoped_acquire gil;
             (*cb)(c, shared_model(net));
           };
         }
-        tb::TrainedRun run;
+        topobench::TrainedRun run;
         {
           py::gil_scoped_release release;
-          run = tb::train_run(*data.data, backbone, data.dataset, cfg, seed, o);
+          run = topobench::train_run(*data.data, backbone, data.dataset, cfg, seed, o);
         }
         py::dict out;
         out["result"] = run.result;

@@ -20,11 +20,11 @@ TOPOS_FUZZ_TARGET(checkpoint) {
       (void)t.to(torch::kDouble).sum().item<double>();
   }
   try {
-    const auto opt = topos::hopnet::checkpoint_options(dict, source());
+    const auto opt = topos::models::hopnet::checkpoint_options(dict, source());
     // Building the network costs its parameters: only small ones (the configuration's limits
     // are the config harness's).
     if (opt.hidden() <= 16 && opt.num_layers() <= 2 && opt.mlp_layers() <= 3)
-      (void)topos::hopnet::load_hopnet(dict, source());
+      (void)topos::models::hopnet::load_hopnet(dict, source());
   } catch (const std::runtime_error& e) {
     expect_error(e.what());
   }

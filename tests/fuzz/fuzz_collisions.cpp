@@ -7,8 +7,8 @@
 
 namespace {
 struct TwoCubes {
-  topos::hopnet::Scene scene;
-  topos::hopnet::HopnetGeometry geometry;
+  topos::sim::Scene scene;
+  topos::models::hopnet::HopnetGeometry geometry;
   TwoCubes() {
     topos::data::KubricScene k;
     k.num_frames = 4;
@@ -24,16 +24,17 @@ struct TwoCubes {
       }
       k.instances.push_back(in);
     }
-    topos::hopnet::MeshLibrary lib;
-    scene = topos::hopnet::make_scene(k, lib);
-    geometry = topos::hopnet::make_geometry(scene, topos::hopnet::FeatureMode::reference);
+    topos::sim::MeshLibrary lib;
+    scene = topos::sim::make_scene(k, lib);
+    geometry =
+        topos::models::hopnet::make_geometry(scene, topos::models::hopnet::FeatureMode::reference);
   }
 };
 }  // namespace
 
 TOPOS_FUZZ_TARGET(collisions) {
   using namespace topos_fuzz;
-  namespace h = topos::hopnet;
+  namespace h = topos::models::hopnet;
   std::map<std::int64_t, std::vector<h::ContactCandidate>> all;
   try {
     all = h::parse_collisions_json(text(data, size), source());

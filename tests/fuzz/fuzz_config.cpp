@@ -15,14 +15,14 @@ TOPOS_FUZZ_TARGET(config) {
     return 0;
   }
   try {
-    const auto o = topos::hopnet::HopnetOptions::from_json(j);
+    const auto o = topos::models::hopnet::HopnetOptions::from_json(j);
     check(o.hidden() > 0 && o.hidden() <= 65536 && o.mlp_layers() >= 1 && o.mlp_layers() <= 64 &&
               o.num_layers() >= 1 && o.num_layers() <= 64,
           "an accepted configuration is allocatable");
-    check(topos::hopnet::HopnetOptions::from_json(o.to_json()).to_json() == o.to_json(),
+    check(topos::models::hopnet::HopnetOptions::from_json(o.to_json()).to_json() == o.to_json(),
           "to_json round-trips");
     if (o.hidden() <= 8 && o.num_layers() <= 2 && o.mlp_layers() <= 3) {
-      topos::hopnet::Hopnet net(o);
+      topos::models::hopnet::Hopnet net(o);
       check(net->num_parameters() > 0, "a network has parameters");
     }
   } catch (const std::invalid_argument&) {

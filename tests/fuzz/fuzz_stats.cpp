@@ -6,7 +6,7 @@
 TOPOS_FUZZ_TARGET(stats) {
   using namespace topos_fuzz;
   try {
-    const auto s = topos::hopnet::parse_stats_json(text(data, size), source());
+    const auto s = topos::models::hopnet::parse_stats_json(text(data, size), source());
     // The file's own layout: x0's width varies and x4/t4 are absent without object cells.
     const auto keys = s.keys();
     check(s.mean.size() == keys.size() && s.std.size() == keys.size(), "only the layout's blocks");

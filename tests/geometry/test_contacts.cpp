@@ -9,7 +9,7 @@
 #include "topos/mesh/primitives.hpp"
 #include "topos/geometry/contacts.hpp"
 #include "topos/geometry/physx_triangle_distance.hpp"
-#include "topos/models/hopnet/scene.hpp"
+#include "topos/sim/scene.hpp"
 #include "topos/data/npy.hpp"
 
 #include <CGAL/Exact_predicates_exact_constructions_kernel.h>
@@ -222,9 +222,9 @@ TEST_CASE("trimesh posing reproduces the reference's node positions bitwise (gol
           "[geometry][rigid][reference]") {
   const auto ref = test::reference_dir("reference posing on movi-a/8");
   const auto dir = ref / "data" / "golden" / "movi-a-8";
-  hopnet::MeshLibrary lib(ref / "data" / "kubasic");
-  const hopnet::Scene scene =
-      hopnet::make_scene(data::read_kubric_metadata(ref / "data" / "movi-a" / "8"), lib);
+  sim::MeshLibrary lib(ref / "data" / "kubasic");
+  const sim::Scene scene =
+      sim::make_scene(data::read_kubric_metadata(ref / "data" / "movi-a" / "8"), lib);
   std::int64_t nodes = 0;
   for (const auto& o : scene.objects) nodes += o.mesh.vertices.rows();
   // step000/nodes_pos_in.npy: GT frames 1, 2, 3; step001's last frame: step000's predicted poses.
@@ -281,7 +281,7 @@ TEST_CASE("native contacts equal brute force on random scenes", "[geometry][cont
   std::mt19937_64 rng(99);
   std::uniform_real_distribution<double> u(-1, 1);
   const TriangleMesh shapes[3] = {uv_sphere(), box_mesh(), cylinder_mesh()};
-  const TriangleMesh floor = hopnet::floor_mesh();
+  const TriangleMesh floor = sim::floor_mesh();
 #ifdef TOPOS_SANITIZED
   const int scenes = 1;  // under the sanitizers (tests/CMakeLists.txt)
 #else
@@ -323,9 +323,8 @@ TEST_CASE("centre of mass and shape matching", "[geometry][rigid]") {
   Vertices moved = b.vertices;
   moved.rowwise() += Eigen::RowVector3d(1, 2, 3);
   REQUIRE((volumetric_center_of_mass(moved, b.faces) - Eigen::Vector3d(1, 2, 3)).norm() < 1e-12);
-  REQUIRE(
-      volumetric_center_of_mass(hopnet::floor_mesh().vertices, hopnet::floor_mesh().faces).norm() ==
-      0.0);
+  REQUIRE(volumetric_center_of_mass(sim::floor_mesh().vertices, sim::floor_mesh().faces).norm() ==
+          0.0);
   // Shape matching recovers a pose.
   const TriangleMesh s = cylinder_mesh();
   const Eigen::Vector3d com = volumetric_center_of_mass(s.vertices, s.faces);
@@ -340,9 +339,9 @@ TEST_CASE("centre of mass and shape matching", "[geometry][rigid]") {
 TEST_CASE("the reference detector reproduces collisions.json of MOVi-A scene 8 for all 480 frames",
           "[geometry][contacts][reference]") {
   const auto ref = test::reference_dir("reference contacts on movi-a/8");
-  hopnet::MeshLibrary lib(ref / "data" / "kubasic");
-  const hopnet::Scene scene =
-      hopnet::make_scene(data::read_kubric_metadata(ref / "data" / "movi-a" / "8"), lib);
+  sim::MeshLibrary lib(ref / "data" / "kubasic");
+  const sim::Scene scene =
+      sim::make_scene(data::read_kubric_metadata(ref / "data" / "movi-a" / "8"), lib);
   std::ifstream in(ref / "data" / "movi-a" / "8" / "collisions.json");
   const auto golden = nlohmann::json::parse(in);
   std::vector<VertexFaceIndex> index;
@@ -351,7 +350,7 @@ TEST_CASE("the reference detector reproduces collisions.json of MOVi-A scene 8 f
   std::int64_t pairs = 0;
   for (std::int64_t t = 0; t < scene.num_frames; ++t) {
     std::int64_t ties = 0;
-    const auto got = reference_contacts(hopnet::pose_scene(scene, t), 0.1, &index, &ties);
+    const auto got = reference_contacts(sim::pose_scene(scene, t), 0.1, &index, &ties);
     std::vector<ReferenceContactEntry> want;
     for (const auto& e : golden[std::to_string(t)]) {
       ReferenceContactEntry r{e["obj0"].get<std::int64_t>(), e["obj1"].get<std::int64_t>(), {}};

@@ -15,9 +15,9 @@
 #include <set>
 
 using namespace topos;
-using hopnet::Poses;
-using hopnet::Scene;
-using hopnet::SceneObject;
+using sim::Poses;
+using sim::Scene;
+using sim::SceneObject;
 
 namespace {
 
@@ -27,7 +27,7 @@ constexpr double kTol = 1e-12;
 Scene scene_of(std::vector<SceneObject> objects) {
   Scene s;
   s.objects = std::move(objects);
-  s.objects.push_back(hopnet::floor_object());
+  s.objects.push_back(sim::floor_object());
   return s;
 }
 
@@ -76,7 +76,7 @@ Poses poses_of(const std::vector<std::pair<Eigen::Vector3d, Eigen::Vector4d>>& p
 
 const Eigen::Vector4d kIdentity(1, 0, 0, 0);
 
-Eigen::Vector3d vec(const gns::RowMatrix& m, Eigen::Index r, Eigen::Index c) {
+Eigen::Vector3d vec(const models::gns::RowMatrix& m, Eigen::Index r, Eigen::Index c) {
   return m.block<1, 3>(r, c).transpose();
 }
 
@@ -86,8 +86,8 @@ Eigen::Matrix3d rotation(const Eigen::Vector4d& q) {
 }
 
 // World vertices of every object, stacked in node order (the floor unmoved).
-gns::RowMatrix world_nodes(const fignet::SceneMeshes& g, const Poses& p) {
-  gns::RowMatrix x(g.num_nodes(), 3);
+models::gns::RowMatrix world_nodes(const sim::SceneMeshes& g, const Poses& p) {
+  models::gns::RowMatrix x(g.num_nodes(), 3);
   for (std::int64_t o = 0; o < g.num_objects(); ++o) {
     const auto& obj = g.objects[static_cast<std::size_t>(o)];
     for (Eigen::Index v = 0; v < obj.mesh.vertices.rows(); ++v) {
@@ -104,7 +104,8 @@ gns::RowMatrix world_nodes(const fignet::SceneMeshes& g, const Poses& p) {
 
 // Checks one ff hyperedge against the node positions: rows ascending, each row's vertex is its
 // slot's node, the rows' closest points agree, d_rs = p_r - p_s, normals of the slot faces.
-void check_hyperedge(const gns::EdgeSetData& ff, Eigen::Index e, const gns::RowMatrix& x) {
+void check_hyperedge(const models::gns::EdgeSetData& ff, Eigen::Index e,
+                     const models::gns::RowMatrix& x) {
   const auto& F = ff.features;
   Eigen::Vector3d p[2];
   for (int side = 0; side < 2; ++side) {
@@ -131,7 +132,7 @@ void check_hyperedge(const gns::EdgeSetData& ff, Eigen::Index e, const gns::RowM
 }
 
 // Every hyperedge 2c + 1 is hyperedge 2c with sender and receiver swapped.
-void check_reversed_pairs(const gns::EdgeSetData& ff) {
+void check_reversed_pairs(const models::gns::EdgeSetData& ff) {
   REQUIRE(ff.size() % 2 == 0);
   const auto& F = ff.features;
   for (Eigen::Index c = 0; 2 * c < ff.size(); ++c) {
@@ -166,7 +167,7 @@ TEST_CASE("FIGNet face-face features of two hand-placed triangles", "[gns][figne
   const Scene scene =
       scene_of({object_of("A", triangle({0, 0, 0}, {1, 0, 0}, {0, 1, 0})),
                 object_of("B", triangle({0, 0, 0}, {0, -0.3, 0.4}, {0.6, 0, 0.5}))});
-  const auto g = fignet::make_fignet_geometry(scene);
+  const auto g = models::fignet::make_fignet_geometry(scene);
   REQUIRE(g.num_nodes() == 3 + 3 + 8);
   const double h = std::sqrt(0.5);
   const Eigen::Vector3d a0(0, 0, 5), a1(1, 0, 5), a2(0, 1, 5);
@@ -174,7 +175,7 @@ TEST_CASE("FIGNet face-face features of two hand-placed triangles", "[gns][figne
 
   SECTION("disjoint: the closest points are A's interior point and B's vertex") {
     const Poses p = poses_of({{{0, 0, 5}, kIdentity}, {{0.2, 0.3, 5.05}, {h, 0, 0, h}}});
-    const auto f = fignet::fignet_frame(g, p, p, p, nullptr);
+    const auto f = models::fignet::fignet_frame(g, p, p, p, nullptr);
     const auto& ff = f.edge_set("ff");
     REQUIRE(ff.size() == 2);
     REQUIRE(ff.features.cols() == 34);
@@ -203,23 +204,23 @@ TEST_CASE("FIGNet face-face features of two hand-placed triangles", "[gns][figne
     };
     // Hyperedge 0 sends A -> B; A's nodes are 0..2 and B's 3..5, slots in the rows' order.
     expect(0, {0, 0, 0.05}, rowsA, rowsB, nA, nB);
-    CHECK(ff.senders.row(0) == (gns::IndexMatrix(1, 3) << 0, 2, 1).finished());
-    CHECK(ff.receivers.row(0) == (gns::IndexMatrix(1, 3) << 3, 4, 5).finished());
+    CHECK(ff.senders.row(0) == (models::gns::IndexMatrix(1, 3) << 0, 2, 1).finished());
+    CHECK(ff.receivers.row(0) == (models::gns::IndexMatrix(1, 3) << 3, 4, 5).finished());
     expect(1, {0, 0, -0.05}, rowsB, rowsA, nB, nA);
-    CHECK(ff.senders.row(1) == (gns::IndexMatrix(1, 3) << 3, 4, 5).finished());
-    CHECK(ff.receivers.row(1) == (gns::IndexMatrix(1, 3) << 0, 2, 1).finished());
+    CHECK(ff.senders.row(1) == (models::gns::IndexMatrix(1, 3) << 3, 4, 5).finished());
+    CHECK(ff.receivers.row(1) == (models::gns::IndexMatrix(1, 3) << 0, 2, 1).finished());
     check_reversed_pairs(ff);
 
     // Outside the radius: no hyperedge.
-    fignet::FignetFeatureOptions o;
+    models::fignet::FignetFeatureOptions o;
     o.collision_radius = 0.04;
-    CHECK(fignet::fignet_frame(g, p, p, p, nullptr, o).edge_set("ff").size() == 0);
+    CHECK(models::fignet::fignet_frame(g, p, p, p, nullptr, o).edge_set("ff").size() == 0);
   }
 
   SECTION("intersecting: one common point, d_rs = 0") {
     // B lowered to 4.9: its edge w0-w1 crosses A at (0.275, 0.3, 5).
     const Poses p = poses_of({{{0, 0, 5}, kIdentity}, {{0.2, 0.3, 4.9}, {h, 0, 0, h}}});
-    const auto f = fignet::fignet_frame(g, p, p, p, nullptr);
+    const auto f = models::fignet::fignet_frame(g, p, p, p, nullptr);
     const auto& ff = f.edge_set("ff");
     REQUIRE(ff.size() == 2);
     const auto x = world_nodes(g, p);
@@ -243,11 +244,12 @@ TEST_CASE("FIGNet face-face features of two cubes and of a cube above the floor 
           "[gns][fignet]") {
   // Built-in cubes of edge 1: each side a 3 x 3 grid of 18 triangles.
   const Scene scene = scene_of({builtin("cube", 1.0), builtin("cube", 1.0)});
-  const auto g = fignet::make_fignet_geometry(scene);
+  const auto g = models::fignet::make_fignet_geometry(scene);
   const auto floor_offset = g.node_offset[2];
 
   // The faces of object o with a vertex on the plane coordinate `axis` = value (world).
-  const auto faces_touching = [&](const gns::RowMatrix& x, std::int64_t o, int axis, double value) {
+  const auto faces_touching = [&](const models::gns::RowMatrix& x, std::int64_t o, int axis,
+                                  double value) {
     std::set<std::array<std::int64_t, 3>> out;
     const auto& F = g.objects[static_cast<std::size_t>(o)].mesh.faces;
     for (Eigen::Index f = 0; f < F.rows(); ++f) {
@@ -262,7 +264,7 @@ TEST_CASE("FIGNet face-face features of two cubes and of a cube above the floor 
     }
     return out;
   };
-  const auto sorted_row = [](const gns::IndexMatrix& m, Eigen::Index e) {
+  const auto sorted_row = [](const models::gns::IndexMatrix& m, Eigen::Index e) {
     std::array<std::int64_t, 3> t{m(e, 0), m(e, 1), m(e, 2)};
     std::sort(t.begin(), t.end());
     return t;
@@ -270,7 +272,7 @@ TEST_CASE("FIGNet face-face features of two cubes and of a cube above the floor 
 
   SECTION("side by side, 5 cm apart along x") {
     const Poses p = poses_of({{{0, 0, 3}, kIdentity}, {{1.05, 0, 3}, kIdentity}});
-    const auto f = fignet::fignet_frame(g, p, p, p, nullptr);
+    const auto f = models::fignet::fignet_frame(g, p, p, p, nullptr);
     const auto& ff = f.edge_set("ff");
     const auto x = world_nodes(g, p);
     REQUIRE(ff.size() > 0);
@@ -306,7 +308,7 @@ TEST_CASE("FIGNet face-face features of two cubes and of a cube above the floor 
 
   SECTION("a cube 3 cm above the floor box") {
     const Poses p = poses_of({{{0, 0, 0.53}, kIdentity}, {{5, 0, 3}, kIdentity}});
-    const auto f = fignet::fignet_frame(g, p, p, p, nullptr);
+    const auto f = models::fignet::fignet_frame(g, p, p, p, nullptr);
     const auto& ff = f.edge_set("ff");
     const auto x = world_nodes(g, p);
     REQUIRE(ff.size() > 0);
@@ -338,7 +340,7 @@ TEST_CASE("FIGNet face-face features of two cubes and of a cube above the floor 
 TEST_CASE("FIGNet's floor box: 8 vertices, 12 outward faces, the scene floor's properties",
           "[gns][fignet]") {
   const Scene scene = scene_of({builtin("cube", 0.5), builtin("sphere", 0.7)});
-  const auto g = fignet::make_fignet_geometry(scene);
+  const auto g = models::fignet::make_fignet_geometry(scene);
   REQUIRE(g.num_objects() == 3);
   CHECK(g.objects[0].shape == "cube");
   CHECK(g.objects[1].shape == "sphere");
@@ -387,7 +389,7 @@ TEST_CASE("FIGNet node, object and mesh-object features on an analytic motion", 
   sphere.friction = 0.125;
   sphere.restitution = 0.375;
   const Scene scene = scene_of({cube, sphere});
-  const auto g = fignet::make_fignet_geometry(scene);
+  const auto g = models::fignet::make_fignet_geometry(scene);
   // Positions a + u t + w t^2 with constant rotations: every vertex moves like its body's origin,
   // so v_{t-1} = p(1) - p(0) = u + w, v_t = p(2) - p(1) = u + 3 w, the target 2 w.
   const std::array<Eigen::Vector3d, 2> a{Eigen::Vector3d(0.1, -0.2, 1.0),
@@ -401,7 +403,7 @@ TEST_CASE("FIGNet node, object and mesh-object features on an analytic motion", 
     P[static_cast<std::size_t>(t)] =
         poses_of({{a[0] + u[0] * double(t) + w[0] * double(t * t), q[0]},
                   {a[1] + u[1] * double(t) + w[1] * double(t * t), q[1]}});
-  const auto f = fignet::fignet_frame(g, P[0], P[1], P[2], &P[3]);
+  const auto f = models::fignet::fignet_frame(g, P[0], P[1], P[2], &P[3]);
   const std::int64_t N = g.num_nodes();
   const auto& mesh = f.node_set("mesh").features;
   const auto& obj = f.node_set("object").features;
@@ -414,9 +416,9 @@ TEST_CASE("FIGNet node, object and mesh-object features on an analytic motion", 
   REQUIRE(f.node_object == g.node_object);
   CHECK(f.edges.count("mm") == 0);
 
-  const auto check_row = [](const gns::RowMatrix& m, Eigen::Index r, const Eigen::Vector3d& v1,
-                            const Eigen::Vector3d& v2, double restitution, double friction,
-                            double mass, double kinematic) {
+  const auto check_row = [](const models::gns::RowMatrix& m, Eigen::Index r,
+                            const Eigen::Vector3d& v1, const Eigen::Vector3d& v2,
+                            double restitution, double friction, double mass, double kinematic) {
     CHECK((vec(m, r, 0) - v1).norm() < 1e-12);
     CHECK((vec(m, r, 3) - v2).norm() < 1e-12);
     CHECK(m(r, 6) == restitution);
@@ -481,12 +483,12 @@ TEST_CASE("FIGNet node, object and mesh-object features on an analytic motion", 
   CHECK(f.node_set("object").size() == 3);
 
   SECTION("no next poses: no target") {
-    CHECK(fignet::fignet_frame(g, P[0], P[1], P[2], nullptr).target.size() == 0);
+    CHECK(models::fignet::fignet_frame(g, P[0], P[1], P[2], nullptr).target.size() == 0);
   }
   SECTION("mesh-mesh edges: every unique edge both ways, [x_s - x_r, |.|, X_s - X_r, |.|]") {
-    fignet::FignetFeatureOptions o;
+    models::fignet::FignetFeatureOptions o;
     o.mesh_edges = true;
-    const auto fm = fignet::fignet_frame(g, P[0], P[1], P[2], nullptr, o);
+    const auto fm = models::fignet::fignet_frame(g, P[0], P[1], P[2], nullptr, o);
     const auto& mm = fm.edge_set("mm");
     // Closed meshes: 3F/2 edges; cube 108 faces, sphere 112, floor box 12.
     REQUIRE(mm.size() == 2 * (162 + 168 + 18));
@@ -522,17 +524,17 @@ TEST_CASE("MGN world edges equal a brute-force search, with virtual floor nodes 
         {{1.2 * U(rng), 1.2 * U(rng), i == 0 ? 0.1 : 0.1 + 0.8 * U(rng)}, q.normalized()});
   }
   const Scene scene = scene_of(objects);
-  const auto g = mgn::make_mgn_geometry(scene);
+  const auto g = models::mgn::make_mgn_geometry(scene);
   const std::int64_t N = g.num_nodes();
   REQUIRE(g.floor == 6);
-  CHECK(g.objects[6].mesh.vertices == hopnet::floor_mesh().vertices);  // HOPNet's quad
+  CHECK(g.objects[6].mesh.vertices == sim::floor_mesh().vertices);  // HOPNet's quad
   const Poses p = poses_of(pose);
   const auto x = world_nodes(g, p);
 
   for (double r : {0.1, 0.3}) {
-    mgn::MgnFeatureOptions o;
+    models::mgn::MgnFeatureOptions o;
     o.world_edge_radius = r;
-    const auto f = mgn::mgn_frame(g, p, p, p, &p, o);
+    const auto f = models::mgn::mgn_frame(g, p, p, p, &p, o);
     // Brute force over all node pairs of different objects.
     std::set<std::pair<std::int64_t, std::int64_t>> expected;
     for (std::int64_t i = 0; i < N; ++i)
@@ -606,15 +608,15 @@ TEST_CASE("MGN world edges equal a brute-force search, with virtual floor nodes 
 TEST_CASE("MGN node columns are FIGNet's, with virtual floor nodes on a cube's bottom face",
           "[gns][mgn]") {
   const Scene scene = scene_of({builtin("cube", 1.0, 2.0), builtin("sphere", 0.5)});
-  const auto g = mgn::make_mgn_geometry(scene);
-  const auto gf = fignet::make_fignet_geometry(scene);
+  const auto g = models::mgn::make_mgn_geometry(scene);
+  const auto gf = models::fignet::make_fignet_geometry(scene);
   const Eigen::Vector4d turn(std::cos(0.2), 0, 0, std::sin(0.2));  // about z: the bottom stays flat
   for (double bottom : {0.05, -0.05}) {
     const Poses p0 = poses_of({{{0, 0, 0.5 + bottom + 0.02}, turn}, {{3, 0, 2}, kIdentity}});
     const Poses p1 = poses_of({{{0, 0, 0.5 + bottom + 0.01}, turn}, {{3, 0, 2}, kIdentity}});
     const Poses p2 = poses_of({{{0, 0, 0.5 + bottom}, turn}, {{3, 0, 2}, kIdentity}});
-    const auto f = mgn::mgn_frame(g, p0, p1, p2, nullptr);
-    const auto ff = fignet::fignet_frame(gf, p0, p1, p2, nullptr);
+    const auto f = models::mgn::mgn_frame(g, p0, p1, p2, nullptr);
+    const auto ff = models::fignet::fignet_frame(gf, p0, p1, p2, nullptr);
     // The cube's bottom side is a 4 x 4 grid of vertices at z = bottom; its next layer is a third
     // higher, and the sphere is 2 m up.
     const std::int64_t N = g.num_nodes();
@@ -646,8 +648,8 @@ TEST_CASE("MGN node columns are FIGNet's, with virtual floor nodes on a cube's b
 
 TEST_CASE("FIGNet and MGN features: bad input is a clear error", "[gns]") {
   const Scene scene = scene_of({builtin("cube", 0.5), builtin("sphere", 0.5)});
-  const auto g = fignet::make_fignet_geometry(scene);
-  const auto gm = mgn::make_mgn_geometry(scene);
+  const auto g = models::fignet::make_fignet_geometry(scene);
+  const auto gm = models::mgn::make_mgn_geometry(scene);
   const Poses ok = poses_of({{{0, 0, 1}, kIdentity}, {{1, 0, 1}, kIdentity}});
   const Poses short_ = poses_of({{{0, 0, 1}, kIdentity}});
   Poses nan_position = ok, nan_quaternion = ok, zero_quaternion = ok;
@@ -655,35 +657,42 @@ TEST_CASE("FIGNet and MGN features: bad input is a clear error", "[gns]") {
   nan_quaternion.quaternions(0, 1) = std::numeric_limits<double>::infinity();
   zero_quaternion.quaternions.row(1).setZero();
 
-  require_invalid([&] { fignet::fignet_frame(g, short_, ok, ok, nullptr); }, "poses at t-2");
-  require_invalid([&] { fignet::fignet_frame(g, ok, ok, short_, nullptr); }, "for 3 objects");
-  require_invalid([&] { fignet::fignet_frame(g, ok, ok, ok, &short_); }, "poses at t+1");
-  require_invalid([&] { fignet::fignet_frame(g, ok, nan_position, ok, nullptr); },
+  require_invalid([&] { models::fignet::fignet_frame(g, short_, ok, ok, nullptr); },
+                  "poses at t-2");
+  require_invalid([&] { models::fignet::fignet_frame(g, ok, ok, short_, nullptr); },
+                  "for 3 objects");
+  require_invalid([&] { models::fignet::fignet_frame(g, ok, ok, ok, &short_); }, "poses at t+1");
+  require_invalid([&] { models::fignet::fignet_frame(g, ok, nan_position, ok, nullptr); },
                   "poses at t-1: the pose of object 1 is not finite");
-  require_invalid([&] { fignet::fignet_frame(g, ok, ok, nan_quaternion, nullptr); },
+  require_invalid([&] { models::fignet::fignet_frame(g, ok, ok, nan_quaternion, nullptr); },
                   "pose of object 0 is not finite");
-  require_invalid([&] { fignet::fignet_frame(g, ok, ok, zero_quaternion, nullptr); },
+  require_invalid([&] { models::fignet::fignet_frame(g, ok, ok, zero_quaternion, nullptr); },
                   "quaternion of object 1 is zero");
-  fignet::FignetFeatureOptions fo;
+  models::fignet::FignetFeatureOptions fo;
   fo.collision_radius = -0.1;
-  require_invalid([&] { fignet::fignet_frame(g, ok, ok, ok, nullptr, fo); }, "collision_radius");
+  require_invalid([&] { models::fignet::fignet_frame(g, ok, ok, ok, nullptr, fo); },
+                  "collision_radius");
 
-  require_invalid([&] { mgn::mgn_frame(gm, ok, short_, ok, nullptr); }, "poses at t-1");
-  require_invalid([&] { mgn::mgn_frame(gm, ok, ok, nan_position, nullptr); },
+  require_invalid([&] { models::mgn::mgn_frame(gm, ok, short_, ok, nullptr); }, "poses at t-1");
+  require_invalid([&] { models::mgn::mgn_frame(gm, ok, ok, nan_position, nullptr); },
                   "the pose of object 1 is not finite");
-  require_invalid([&] { mgn::mgn_frame(gm, ok, ok, ok, &zero_quaternion); }, "poses at t+1");
-  mgn::MgnFeatureOptions mo;
+  require_invalid([&] { models::mgn::mgn_frame(gm, ok, ok, ok, &zero_quaternion); },
+                  "poses at t+1");
+  models::mgn::MgnFeatureOptions mo;
   mo.world_edge_radius = 0.0;
-  require_invalid([&] { mgn::mgn_frame(gm, ok, ok, ok, nullptr, mo); }, "world_edge_radius");
+  require_invalid([&] { models::mgn::mgn_frame(gm, ok, ok, ok, nullptr, mo); },
+                  "world_edge_radius");
   mo.world_edge_radius = std::nan("");
-  require_invalid([&] { mgn::mgn_frame(gm, ok, ok, ok, nullptr, mo); }, "world_edge_radius");
+  require_invalid([&] { models::mgn::mgn_frame(gm, ok, ok, ok, nullptr, mo); },
+                  "world_edge_radius");
 
   // A mesh without faces, and one whose face points past its vertices.
   Scene bad = scene;
   bad.objects[1].mesh.faces.resize(0, 3);
-  require_invalid([&] { fignet::make_fignet_geometry(bad); }, "object 1 ('sphere') has no faces");
-  require_invalid([&] { mgn::make_mgn_geometry(bad); }, "object 1 ('sphere') has no faces");
+  require_invalid([&] { models::fignet::make_fignet_geometry(bad); },
+                  "object 1 ('sphere') has no faces");
+  require_invalid([&] { models::mgn::make_mgn_geometry(bad); }, "object 1 ('sphere') has no faces");
   bad = scene;
   bad.objects[0].mesh.faces(3, 1) = 1000;
-  require_invalid([&] { mgn::make_mgn_geometry(bad); }, "object 0 ('cube')");
+  require_invalid([&] { models::mgn::make_mgn_geometry(bad); }, "object 0 ('cube')");
 }

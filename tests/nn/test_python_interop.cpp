@@ -99,8 +99,8 @@ TEST_CASE(
   torch::manual_seed(3);
   // A HOPNet checkpoint (save_hopnet: parameters + topos.config), plain parameters
   // (save_parameters, with buffers), and a dict of mixed dtypes and a non-contiguous view.
-  topos::hopnet::Hopnet net(topos::hopnet::HopnetOptions().hidden(4));
-  topos::hopnet::save_hopnet(*net, (dir / "hopnet.pt").string());
+  topos::models::hopnet::Hopnet net(topos::models::hopnet::HopnetOptions().hidden(4));
+  topos::models::hopnet::save_hopnet(*net, (dir / "hopnet.pt").string());
   torch::nn::Sequential seq(torch::nn::Linear(3, 4), torch::nn::BatchNorm1d(4));
   seq->train();
   seq->forward(torch::randn({5, 3}));  // running statistics and num_batches_tracked move

@@ -13,6 +13,7 @@
 #include "topos/models/hopnet/variants.hpp"
 #include "topos/models/mgn/features.hpp"
 #include "topos/models/mgn/model.hpp"
+#include "topos/models/namespace_aliases.hpp"
 #include "topos/nn/serialization.hpp"
 #include "topos/sim/simulator.hpp"
 
@@ -22,7 +23,7 @@
 #include <optional>
 #include <variant>
 
-namespace topos::baselines {
+namespace topos::models::baselines {
 
 /// Whether a configuration's "model" names a baseline.
 inline bool is_baseline_model(const std::string& model) {
@@ -327,4 +328,4 @@ class BaselineSimulator : public sim::Simulator {
   std::optional<SceneGraphs> graphs_;  ///< the scene of the last reset
 };
 
-}  // namespace topos::baselines
+}  // namespace topos::models::baselines

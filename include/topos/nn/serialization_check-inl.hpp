@@ -79,12 +79,6 @@ inline std::map<std::string, ZipRecord> torch_zip_records(const char* data, std:
   return out;
 }
 
-/// Decodes the opcode at `p` of the pickle `d` of `n` bytes in the subset torch files use.
-template <class Fail>
-io::pickle::Op decode_pickle_op(const char* d, std::size_t n, std::size_t p, const Fail& fail) {
-  return io::pickle::decode(d, n, p, io::pickle::kTorch, fail);
-}
-
 /// Walks a pickle before LibTorch's unpickler sees it, refusing what that unpickler trusts:
 /// opcodes outside the protocol-2 subset torch files use, lengths past the end, memo indices
 /// no pickle writer produces (the unpickler reserves memory by them), and stack or mark
@@ -97,7 +91,7 @@ inline void check_pickle(const char* d, std::size_t n, const std::string& source
   std::vector<std::size_t> marks;
   while (true) {
     if (p >= n) fail("truncated pickle: no STOP opcode");
-    const io::pickle::Op op = decode_pickle_op(d, n, p, fail);
+    const io::pickle::Op op = io::pickle::decode(d, n, p, io::pickle::kTorch, fail);
     const char* arg = d + p + 1;
     p += op.length;
     if (op.code == '.') {
@@ -132,93 +126,144 @@ inline void check_pickle(const char* d, std::size_t n, const std::string& source
   }
 }
 
+/// The walk of pickle_for_libtorch (below): the rewritten pickle, and per stack item where its
+/// opcodes begin in it, to put the MARK before a SETITEM's key. check_pickle accepted the input,
+/// but this walk rewrites it: its stacks are checked again rather than trusted (a fuzzed pickle
+/// once popped a mark this walk had not set).
+class LibTorchPickleRewrite {
+ public:
+  LibTorchPickleRewrite(const char* d, std::size_t n, const std::string& source)
+      : d_(d), n_(n), source_(source) {
+    out_.reserve(n + 64);
+  }
+
+  std::string run() {
+    std::size_t p = 0;
+    while (p < n_) {
+      const io::pickle::Op op = io::pickle::decode(d_, n_, p, io::pickle::kTorch,
+                                                   [this](const std::string& why) { fail(why); });
+      const std::size_t q = p + op.length;
+      if (names_ordered_dict(op, p)) {
+        p = empty_dict_for_ordered_dict(q);
+      } else if (op.code == 'b' && q < n_ && d_[q] == '.') {  // BUILD just before STOP
+        drop_final_build_state();
+        p = q;
+      } else if (op.code == 's') {
+        setitem_as_setitems();
+        p = q;
+      } else {
+        copy(op, p);
+        p = q;
+        if (op.code == '.') break;
+      }
+    }
+    return std::move(out_);
+  }
+
+ private:
+  const char* d_;
+  std::size_t n_;
+  const std::string& source_;
+  std::string out_;
+  std::vector<std::uint32_t> class_memo_;  // memo entries holding the OrderedDict class
+  std::vector<std::size_t> starts_;        // per stack item: its first byte in `out_`
+  std::vector<std::pair<std::size_t, std::size_t>> marks_;  // (stack depth, position in `out_`)
+
+  void fail(const std::string& why) const {
+    throw std::runtime_error(source_ + ": not a readable torch file: " + why);
+  }
+  void broken() const { fail("malformed pickle stack"); }
+
+  /// Whether the opcode at `p` pushes the OrderedDict class: its GLOBAL, or a BINGET /
+  /// LONG_BINGET of a memo entry that holds it.
+  bool names_ordered_dict(const io::pickle::Op& op, std::size_t p) const {
+    static const std::string kOrderedDict = "collections\nOrderedDict\n";
+    bool ordered_dict = op.code == 'c' && std::string(d_ + p + 1, op.length - 1) == kOrderedDict;
+    if (op.code == 'h' || op.code == 'j') {
+      const std::uint32_t i =
+          op.code == 'h' ? static_cast<unsigned char>(d_[p + 1]) : le32(d_ + p + 1);
+      ordered_dict = std::find(class_memo_.begin(), class_memo_.end(), i) != class_memo_.end();
+    }
+    return ordered_dict;
+  }
+
+  /// `OrderedDict()` (the class, maybe memoized, then EMPTY_TUPLE REDUCE from `q`) as EMPTY_DICT;
+  /// returns where the input continues.
+  std::size_t empty_dict_for_ordered_dict(std::size_t q) {
+    const std::size_t at = out_.size();
+    if (q < n_ && (d_[q] == 'q' || d_[q] == 'r')) {  // the class memoized: later BINGETs of it
+      const std::size_t length =
+          io::pickle::decode(d_, n_, q, io::pickle::kTorch, [this](const std::string& why) {
+            fail(why);
+          }).length;
+      class_memo_.push_back(d_[q] == 'q' ? static_cast<unsigned char>(d_[q + 1])
+                                         : le32(d_ + q + 1));
+      q += length;
+    }
+    if (q + 1 >= n_ || d_[q] != ')' || d_[q + 1] != 'R')
+      fail("an OrderedDict made other than from an empty tuple");
+    out_ += '}';
+    starts_.push_back(at);
+    return q + 2;
+  }
+
+  /// The final BUILD (`_metadata`) dropped with its state, the item on top of the stack.
+  void drop_final_build_state() {
+    if (starts_.empty()) broken();
+    out_.resize(starts_.back());
+    starts_.pop_back();
+  }
+
+  /// SETITEM as MARK (before the key) ... SETITEMS.
+  void setitem_as_setitems() {
+    if (starts_.size() < 2) broken();
+    out_.insert(starts_[starts_.size() - 2], 1, '(');
+    out_ += 'u';
+    starts_.resize(starts_.size() - 2);
+  }
+
+  /// Copies the opcode at `p` as it is, tracking its effect on the stack: the item it pushes
+  /// begins where the earliest thing it consumed began (the deepest item it pops, else its mark,
+  /// else the opcode itself).
+  void copy(const io::pickle::Op& op, std::size_t p) {
+    const std::size_t at = out_.size();
+    out_.append(d_ + p, op.length);
+    if (op.code == '.') return;
+    if (op.code == '(') marks_.emplace_back(starts_.size(), at);
+    std::size_t first = at;
+    if (op.to_mark) first = pop_to_mark();
+    if (op.pops) {
+      if (starts_.size() < op.pops) broken();
+      first = starts_[starts_.size() - op.pops];
+      pop_items(op.pops);
+    }
+    if (op.pushes) starts_.push_back(first);
+  }
+
+  void pop_items(std::size_t k) {
+    if (starts_.size() < k || (!marks_.empty() && starts_.size() - k < marks_.back().first))
+      broken();
+    starts_.resize(starts_.size() - k);
+  }
+  /// Pops the stack to the top mark; returns the mark's position in `out_`.
+  std::size_t pop_to_mark() {
+    if (marks_.empty() || starts_.size() < marks_.back().first) broken();
+    const auto m = marks_.back();
+    marks_.pop_back();
+    starts_.resize(m.first);
+    return m.second;
+  }
+};
+
 /// Python's torch.save(model.state_dict()) writes what LibTorch 1.13's unpickler cannot read:
 /// collections.OrderedDicts (the dict itself, each tensor's empty backward hooks, the
 /// `_metadata` attribute set by a final BUILD), which it turns into None, and SETITEM (one pair;
 /// Python's pickler writes it for a batch of one), which it does not know. The same pickle with
 /// each `OrderedDict()` as a plain empty dict, each SETITEM as MARK ... SETITEMS, and the final
 /// BUILD dropped with its state (the metadata holds only module versions; LibTorch has no POP).
-/// Tracks where each stack item's opcodes begin in the output, to put the MARK before a
-/// SETITEM's key. The input passed check_pickle; `source` names it in errors.
+/// The input passed check_pickle; `source` names it in errors.
 inline std::string pickle_for_libtorch(const char* d, std::size_t n, const std::string& source) {
-  static const std::string kOrderedDict = "collections\nOrderedDict\n";
-  std::string out;
-  out.reserve(n + 64);
-  std::vector<std::uint32_t> class_memo;  // memo entries holding the OrderedDict class
-  std::vector<std::size_t> starts;        // per stack item: its first byte in `out`
-  std::vector<std::pair<std::size_t, std::size_t>> marks;  // (stack depth, position in `out`)
-  // check_pickle accepted the input, but this walk rewrites it: its stacks are checked again
-  // rather than trusted (a fuzzed pickle once popped a mark this walk had not set).
-  const auto fail = [&](const std::string& why) -> void {
-    throw std::runtime_error(source + ": not a readable torch file: " + why);
-  };
-  const auto broken = [&]() { fail("malformed pickle stack"); };
-  const auto pop_items = [&](std::size_t k) {
-    if (starts.size() < k || (!marks.empty() && starts.size() - k < marks.back().first)) broken();
-    starts.resize(starts.size() - k);
-  };
-  const auto pop_to_mark = [&]() {
-    if (marks.empty() || starts.size() < marks.back().first) broken();
-    const auto m = marks.back();
-    marks.pop_back();
-    starts.resize(m.first);
-    return m.second;
-  };
-  std::size_t p = 0;
-  while (p < n) {
-    const io::pickle::Op op = decode_pickle_op(d, n, p, fail);
-    const std::size_t at = out.size();
-    std::size_t q = p + op.length;
-    bool ordered_dict = op.code == 'c' && std::string(d + p + 1, op.length - 1) == kOrderedDict;
-    if (op.code == 'h' || op.code == 'j') {
-      const std::uint32_t i =
-          op.code == 'h' ? static_cast<unsigned char>(d[p + 1]) : le32(d + p + 1);
-      ordered_dict = std::find(class_memo.begin(), class_memo.end(), i) != class_memo.end();
-    }
-    if (ordered_dict) {
-      if (q < n && (d[q] == 'q' || d[q] == 'r')) {  // the class memoized: later BINGETs of it
-        const std::size_t length = decode_pickle_op(d, n, q, fail).length;
-        class_memo.push_back(d[q] == 'q' ? static_cast<unsigned char>(d[q + 1]) : le32(d + q + 1));
-        q += length;
-      }
-      if (q + 1 >= n || d[q] != ')' || d[q + 1] != 'R')
-        fail("an OrderedDict made other than from an empty tuple");
-      out += '}';
-      starts.push_back(at);
-      p = q + 2;
-      continue;
-    }
-    if (op.code == 'b' && q < n && d[q] == '.') {  // BUILD just before STOP: drop its state
-      if (starts.empty()) broken();
-      out.resize(starts.back());
-      starts.pop_back();
-      p = q;
-      continue;
-    }
-    if (op.code == 's') {  // SETITEM: MARK before the key, SETITEMS
-      if (starts.size() < 2) broken();
-      out.insert(starts[starts.size() - 2], 1, '(');
-      out += 'u';
-      starts.resize(starts.size() - 2);
-      p = q;
-      continue;
-    }
-    out.append(d + p, op.length);
-    p = q;
-    if (op.code == '.') break;
-    if (op.code == '(') marks.emplace_back(starts.size(), at);
-    // The item an opcode pushes begins where the earliest thing it consumed began: the deepest
-    // item it pops, else its mark, else the opcode itself.
-    std::size_t first = at;
-    if (op.to_mark) first = pop_to_mark();
-    if (op.pops) {
-      if (starts.size() < op.pops) broken();
-      first = starts[starts.size() - op.pops];
-      pop_items(op.pops);
-    }
-    if (op.pushes) starts.push_back(first);
-  }
-  return out;
+  return LibTorchPickleRewrite(d, n, source).run();
 }
 
 }  // namespace detail

@@ -29,7 +29,7 @@ struct OpenOptions {
   std::string stats;  ///< HOPNet's normalisation statistics (JSON)
   /// false: opened to describe it (hopnet info), so HOPNet's statistics may be missing.
   bool require_statistics = true;
-  std::optional<hopnet::FeatureMode> mode;  ///< the feature mode HOPNet runs in
+  std::optional<models::hopnet::FeatureMode> mode;  ///< the feature mode HOPNet runs in
   /// HOPNet's activation (a reference state dict does not record it; without one, a reference
   /// file named after an activation, "gelu_seed0_e39.pt", runs with it and a note says so).
   std::optional<nn::Activation> activation;
@@ -56,24 +56,25 @@ inline OpenedModel open_model(const std::string& path, const OpenOptions& o = {}
       std::make_shared<const std::map<std::string, torch::Tensor>>(nn::read_tensor_dict(path));
   OpenedModel m;
   m.path = path;
-  const auto reference = hopnet::reference_architecture(*dict);
+  const auto reference = models::hopnet::reference_architecture(*dict);
   if (!dict->count("topos.config") && !reference)
     throw std::invalid_argument(path + ": not a model checkpoint; expected " + kCheckpointFormats);
-  const std::string model = baselines::checkpoint_config(*dict, path).value("model", "hopnet");
-  if (baselines::is_baseline_model(model)) {
+  const std::string model =
+      models::baselines::checkpoint_config(*dict, path).value("model", "hopnet");
+  if (models::baselines::is_baseline_model(model)) {
     m.format = "topos";
-    m.simulator = std::make_unique<baselines::BaselineSimulator>(dict, path);
+    m.simulator = std::make_unique<models::baselines::BaselineSimulator>(dict, path);
     return m;
   }
   if (model != "hopnet")
     throw std::invalid_argument(path + ": a checkpoint of model '" + model +
                                 "', which no simulator runs; expected " + kCheckpointFormats);
-  hopnet::CheckpointOverrides ov;
+  models::hopnet::CheckpointOverrides ov;
   ov.mode = o.mode;
   ov.collision_radius = o.collision_radius;
   ov.activation = o.activation;
   if (!ov.activation && reference) {
-    ov.activation = hopnet::activation_from_reference_name(path);
+    ov.activation = models::hopnet::activation_from_reference_name(path);
     if (ov.activation) {
       const std::string a = nn::activation_name(*ov.activation);
       m.notes.push_back(path + " is a reference checkpoint named after activation " + a +
@@ -81,16 +82,16 @@ inline OpenedModel open_model(const std::string& path, const OpenOptions& o = {}
     }
   }
   m.format = reference ? "reference (HOPNet authors' state dict, class " +
-                             hopnet::reference_class(*reference) + ", " +
+                             models::hopnet::reference_class(*reference) + ", " +
                              std::to_string(dict->size()) + " tensors)"
                        : "topos";
   if (o.stats.empty() && o.require_statistics)
     throw std::invalid_argument(path + " is a HOPNet checkpoint: --stats is required");
-  auto hop = std::make_unique<hopnet::HopnetSimulator>(dict, path, ov, std::nullopt);
+  auto hop = std::make_unique<models::hopnet::HopnetSimulator>(dict, path, ov, std::nullopt);
   if (!o.stats.empty()) {  // checked against the model's options, so after loading it
-    const auto stats = hopnet::read_stats_json(o.stats);
-    hopnet::check_stats_fit(hop->net()->options, stats, o.stats);
-    hop->set_normalizer(hopnet::Normalizer(stats));
+    const auto stats = models::hopnet::read_stats_json(o.stats);
+    models::hopnet::check_stats_fit(hop->net()->options, stats, o.stats);
+    hop->set_normalizer(models::hopnet::Normalizer(stats));
   }
   m.simulator = std::move(hop);
   return m;
@@ -100,14 +101,16 @@ inline OpenedModel open_model(const std::string& path, const OpenOptions& o = {}
 /// (hopnet/variants.hpp; empty: HOPNet's standard). `o.activation` and `o.collision_radius` set
 /// HOPNet's; the baselines' fields are set in their configuration.
 inline std::unique_ptr<Simulator> make_model(const std::string& config, const OpenOptions& o = {}) {
-  if (!config.empty() && baselines::is_baseline_model(hopnet::config_model(config)))
-    return std::make_unique<baselines::BaselineSimulator>(baselines::parse_baseline_config(config));
-  hopnet::HopnetOptions opt =
-      config.empty() ? hopnet::HopnetOptions{} : hopnet::parse_config(config);
+  if (!config.empty() && models::baselines::is_baseline_model(models::hopnet::config_model(config)))
+    return std::make_unique<models::baselines::BaselineSimulator>(
+        models::baselines::parse_baseline_config(config));
+  models::hopnet::HopnetOptions opt =
+      config.empty() ? models::hopnet::HopnetOptions{} : models::hopnet::parse_config(config);
   if (o.activation) opt.activation(*o.activation);
   if (o.collision_radius) opt.collision_radius(*o.collision_radius);
   opt.validate();
-  return std::make_unique<hopnet::HopnetSimulator>(hopnet::Hopnet(opt), std::nullopt);
+  return std::make_unique<models::hopnet::HopnetSimulator>(models::hopnet::Hopnet(opt),
+                                                           std::nullopt);
 }
 
 }  // namespace topos::sim

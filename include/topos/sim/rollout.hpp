@@ -20,8 +20,9 @@
 namespace topos::sim {
 
 struct RolloutOptions {
-  int steps = 102;                ///< predicted frames (the reference's ROLLOUT_DURATION)
-  double collision_radius = 0.1;  ///< d_c of hopnet::rollout (a Simulator uses its model's own)
+  int steps = 102;  ///< predicted frames (the reference's ROLLOUT_DURATION)
+  /// d_c of models::hopnet::rollout (a Simulator uses its model's own)
+  double collision_radius = 0.1;
   /// The contacts of the first step (HOPNet's, as the reference takes collisions.json["3"]);
   /// models that detect no contact candidates ignore them.
   std::optional<std::vector<ContactCandidate>> first_contacts;

@@ -81,9 +81,9 @@ std::map<std::string, std::vector<std::int64_t>> fignet_reference_shapes(bool me
 TEST_CASE("FIGNet has the reimplementation's parameters: names, shapes, 5,559,430 in 452",
           "[gns]") {
   for (bool mm : {false, true}) {
-    fignet::FignetOptions o;
+    models::fignet::FignetOptions o;
     o.mesh_edges = mm;
-    auto net = fignet::make_fignet(o);
+    auto net = models::fignet::make_fignet(o);
     const auto got = shapes(*net);
     const auto expected = fignet_reference_shapes(mm);
     for (const auto& [name, shape] : expected) {
@@ -100,39 +100,39 @@ TEST_CASE("FIGNet has the reimplementation's parameters: names, shapes, 5,559,43
 }
 
 TEST_CASE("MeshGraphNet: 2,613,507 parameters at 10 steps, 3,851,907 at 15", "[gns]") {
-  mgn::MgnOptions o;
-  auto net = mgn::make_mgn(o);
+  models::mgn::MgnOptions o;
+  auto net = models::mgn::make_mgn(o);
   // node encoder 34,944 + mesh-edge 34,432 + world-edge 33,920 + steps × 3 × 82,560 + 33,411
   CHECK(count(*net) == 2613507);
   CHECK(shapes(*net).size() == 270u);
   CHECK(shapes(*net).at("_encode_process_decode._processor.gnn_stacks.9.node_fn.0.NN-0.weight") ==
         std::vector<std::int64_t>{128, 384});
   o.network.steps = 15;
-  CHECK(count(*mgn::make_mgn(o)) == 3851907);
+  CHECK(count(*models::mgn::make_mgn(o)) == 3851907);
   o.network.steps = 10;
   o.world_edge_radius = 0.3;  // the large-radius baseline: the radius is not a parameter
-  CHECK(count(*mgn::make_mgn(o)) == 2613507);
+  CHECK(count(*models::mgn::make_mgn(o)) == 2613507);
 }
 
 namespace {
 
 // A FIGNet-shaped spec small enough to check by hand: 5 mesh nodes in 2 objects, 1 block.
-gns::GraphNetworkSpec tiny_spec(std::int64_t L) {
-  fignet::FignetOptions o;
+models::gns::GraphNetworkSpec tiny_spec(std::int64_t L) {
+  models::fignet::FignetOptions o;
   o.network.latent = L;
   o.network.steps = 1;
   o.network.mlp_layers = 1;
-  return fignet::fignet_spec(o);
+  return models::fignet::fignet_spec(o);
 }
 
-gns::GraphFrame tiny_frame(std::mt19937& rng) {
+models::gns::GraphFrame tiny_frame(std::mt19937& rng) {
   std::normal_distribution<double> n(0, 1);
   auto random = [&](Eigen::Index r, Eigen::Index c) {
-    gns::RowMatrix m(r, c);
+    models::gns::RowMatrix m(r, c);
     for (Eigen::Index i = 0; i < m.size(); ++i) m.data()[i] = n(rng);
     return m;
   };
-  gns::GraphFrame f;
+  models::gns::GraphFrame f;
   f.nodes["mesh"].features = random(5, 12);
   f.nodes["object"].features = random(2, 12);
   const std::vector<std::int64_t> object{0, 0, 0, 1, 1};
@@ -157,8 +157,8 @@ gns::GraphFrame tiny_frame(std::mt19937& rng) {
   return f;
 }
 
-gns::Statistics unit_statistics(const gns::GraphNetworkSpec& spec) {
-  gns::Statistics s;
+models::gns::Statistics unit_statistics(const models::gns::GraphNetworkSpec& spec) {
+  models::gns::Statistics s;
   auto unit = [&](const std::string& k, std::int64_t w) {
     s.mean[k].assign(static_cast<std::size_t>(w), 0.0);
     s.std[k].assign(static_cast<std::size_t>(w), 1.0);
@@ -169,12 +169,12 @@ gns::Statistics unit_statistics(const gns::GraphNetworkSpec& spec) {
   return s;
 }
 
-torch::Tensor as_tensor(const gns::RowMatrix& m) {
+torch::Tensor as_tensor(const models::gns::RowMatrix& m) {
   return torch::from_blob(const_cast<double*>(m.data()), {m.rows(), m.cols()}, torch::kDouble)
       .to(torch::kFloat);
 }
 
-torch::Tensor as_index(const gns::IndexMatrix& m, int slot) {
+torch::Tensor as_index(const models::gns::IndexMatrix& m, int slot) {
   std::vector<std::int64_t> v;
   for (Eigen::Index i = 0; i < m.rows(); ++i) v.push_back(m(i, slot));
   return torch::tensor(v);
@@ -187,10 +187,10 @@ TEST_CASE("One Graph-Network block equals an index_select / index_add implementa
   std::mt19937 rng(5);
   const std::int64_t L = 4;
   const auto spec = tiny_spec(L);
-  auto net = gns::GraphNetwork(spec, "_encode_process_decode");
+  auto net = models::gns::GraphNetwork(spec, "_encode_process_decode");
   const auto frame = tiny_frame(rng);
   const auto stats = unit_statistics(spec);
-  const auto batch = gns::collate(spec, {&frame}, stats);
+  const auto batch = models::gns::collate(spec, {&frame}, stats);
   const auto out = net->forward(batch);
 
   // The same network by hand, reading the parameters by their reference names.
@@ -245,20 +245,20 @@ TEST_CASE("One Graph-Network block equals an index_select / index_add implementa
   CHECK(torch::allclose(out.at("object"), ao, 1e-5, 1e-5));
 
   // Two copies of the frame in one batch give the same rows twice.
-  const auto twice = net->forward(gns::collate(spec, {&frame, &frame}, stats));
+  const auto twice = net->forward(models::gns::collate(spec, {&frame, &frame}, stats));
   CHECK(torch::allclose(twice.at("mesh").narrow(0, 0, 5), am, 1e-5, 1e-5));
   CHECK(torch::allclose(twice.at("mesh").narrow(0, 5, 5), am, 1e-5, 1e-5));
   CHECK(torch::allclose(twice.at("object").narrow(0, 2, 2), ao, 1e-5, 1e-5));
 
   // A clone computes the same, with parameters of its own under the same names.
-  const auto copy = std::dynamic_pointer_cast<gns::GraphNetworkImpl>(net->clone());
+  const auto copy = std::dynamic_pointer_cast<models::gns::GraphNetworkImpl>(net->clone());
   REQUIRE(copy != nullptr);
   CHECK(torch::equal(copy->forward(batch).at("mesh"), out.at("mesh")));
   CHECK(copy->named_parameters().keys() == net->named_parameters().keys());
   CHECK(copy->parameters()[0].data_ptr() != net->parameters()[0].data_ptr());
 
   // The loss: squared error over the dynamic nodes only, divided by their number.
-  const auto loss = gns::acceleration_loss(out.at("mesh"), batch);
+  const auto loss = models::gns::acceleration_loss(out.at("mesh"), batch);
   const auto t = as_tensor(frame.target);
   const auto expected = (am - t).pow(2).narrow(0, 0, 3).sum() / 3;
   CHECK(loss.item<double>() == Approx(expected.item<double>()).epsilon(1e-5));
@@ -266,14 +266,14 @@ TEST_CASE("One Graph-Network block equals an index_select / index_add implementa
 
 TEST_CASE("FIGNet's graph network gives all-off's numbers with each fast path on alone",
           "[gns][fast_paths]") {
-  // The baselines' schedule (gns::graph_network_schedule), FIGNet-shaped, two blocks.
+  // The baselines' schedule (models::gns::graph_network_schedule), FIGNet-shaped, two blocks.
   torch::manual_seed(5);
   std::mt19937 rng(9);
   auto spec = tiny_spec(16);
   spec.steps = 2;
-  auto net = gns::GraphNetwork(spec, "_encode_process_decode");
+  auto net = models::gns::GraphNetwork(spec, "_encode_process_decode");
   auto a = tiny_frame(rng), b = tiny_frame(rng);
-  const auto batch = gns::collate(spec, {&a, &b}, unit_statistics(spec));
+  const auto batch = models::gns::collate(spec, {&a, &b}, unit_statistics(spec));
   const auto run = [&] {
     net->zero_grad();
     const auto out = net->forward(batch);
@@ -297,7 +297,7 @@ TEST_CASE("Graph networks: statistics, collation and configuration errors", "[gn
   const auto frame = tiny_frame(rng);
 
   SECTION("statistics are population moments per column, constant columns get std 1") {
-    gns::StatisticsAccumulator acc(spec);
+    models::gns::StatisticsAccumulator acc(spec);
     auto f2 = frame;
     f2.nodes["mesh"].features.col(3).setConstant(0.25);
     f2.nodes["object"].features.col(3).setConstant(0.25);
@@ -315,7 +315,7 @@ TEST_CASE("Graph networks: statistics, collation and configuration errors", "[gn
     CHECK(s.std.at("node")[3] == 1.0);
     // Targets of dynamic nodes only (the first 3).
     CHECK(s.mean.at("acceleration")[1] == Approx(f2.target.col(1).head(3).sum() / 3).margin(1e-12));
-    const auto back = gns::Statistics::from_json(s.to_json(), "round trip");
+    const auto back = models::gns::Statistics::from_json(s.to_json(), "round trip");
     CHECK(back.mean == s.mean);
     CHECK(back.std == s.std);
     auto missing = s;
@@ -329,34 +329,35 @@ TEST_CASE("Graph networks: statistics, collation and configuration errors", "[gn
   SECTION("a hyperedge naming a node outside its set is refused") {
     auto bad = frame;
     bad.edges["ff"].receivers(1, 2) = 5;
-    CHECK_THROWS_WITH(gns::collate(spec, {&bad}, unit_statistics(spec)),
+    CHECK_THROWS_WITH(models::gns::collate(spec, {&bad}, unit_statistics(spec)),
                       Catch::Contains("'ff'") && Catch::Contains("node 5"));
     bad = frame;
     bad.edges["ff"].senders.resize(2, 2);
-    CHECK_THROWS_WITH(gns::collate(spec, {&bad}, unit_statistics(spec)),
+    CHECK_THROWS_WITH(models::gns::collate(spec, {&bad}, unit_statistics(spec)),
                       Catch::Contains("'ff' has 2 x 2 senders"));
   }
   SECTION("a configuration of another model, or an unknown field, names both") {
-    mgn::MgnOptions m;
-    CHECK_THROWS_WITH(fignet::FignetOptions::from_json(m.to_json()),
+    models::mgn::MgnOptions m;
+    CHECK_THROWS_WITH(models::fignet::FignetOptions::from_json(m.to_json()),
                       Catch::Contains("a mgn configuration") && Catch::Contains("fignet"));
-    CHECK_THROWS_WITH(mgn::MgnOptions::from_json({{"model", "hopnet"}}),
+    CHECK_THROWS_WITH(models::mgn::MgnOptions::from_json({{"model", "hopnet"}}),
                       Catch::Contains("hopnet") && Catch::Contains("mgn"));
-    CHECK_THROWS_WITH(mgn::MgnOptions::from_json({{"model", "mgn"}, {"radius", 1}}),
+    CHECK_THROWS_WITH(models::mgn::MgnOptions::from_json({{"model", "mgn"}, {"radius", 1}}),
                       Catch::Contains("unknown field 'radius'"));
-    CHECK_THROWS_WITH(mgn::MgnOptions::from_json({{"model", "mgn"}, {"world_edge_radius", -1}}),
-                      Catch::Contains("world_edge_radius"));
-    CHECK_THROWS_WITH(fignet::FignetOptions::from_json({{"model", "fignet"}, {"steps", 0}}),
+    CHECK_THROWS_WITH(
+        models::mgn::MgnOptions::from_json({{"model", "mgn"}, {"world_edge_radius", -1}}),
+        Catch::Contains("world_edge_radius"));
+    CHECK_THROWS_WITH(models::fignet::FignetOptions::from_json({{"model", "fignet"}, {"steps", 0}}),
                       Catch::Contains("steps"));
-    fignet::FignetOptions f;
+    models::fignet::FignetOptions f;
     f.mesh_edges = true;
     f.collision_radius = 0.2;
-    const auto g = fignet::FignetOptions::from_json(f.to_json());
+    const auto g = models::fignet::FignetOptions::from_json(f.to_json());
     CHECK(g.mesh_edges);
     CHECK(g.collision_radius == 0.2);
-    gns::GraphNetworkSpec s = spec;
+    models::gns::GraphNetworkSpec s = spec;
     s.edges[0].receiver = "objects";
-    CHECK_THROWS_WITH(gns::graph_network_schedule(s),
+    CHECK_THROWS_WITH(models::gns::graph_network_schedule(s),
                       Catch::Contains("'mo'") && Catch::Contains("'objects'"));
   }
 }
@@ -367,15 +368,15 @@ TEST_CASE("A graph network fits one batch: the loss falls by orders of magnitude
   std::mt19937 rng(13);
   auto spec = tiny_spec(32);
   spec.steps = 2;
-  auto net = gns::GraphNetwork(spec, "_encode_process_decode");
+  auto net = models::gns::GraphNetwork(spec, "_encode_process_decode");
   auto a = tiny_frame(rng), b = tiny_frame(rng);
   b.dynamic = {1, 1, 1, 1, 1};
-  const auto batch = gns::collate(spec, {&a, &b}, unit_statistics(spec));
+  const auto batch = models::gns::collate(spec, {&a, &b}, unit_statistics(spec));
   torch::optim::Adam opt(net->parameters(), torch::optim::AdamOptions(1e-3));
   double first = 0, last = 0;
   for (int i = 0; i < 300; ++i) {
     opt.zero_grad();
-    const auto loss = gns::acceleration_loss(net->forward(batch).at("mesh"), batch);
+    const auto loss = models::gns::acceleration_loss(net->forward(batch).at("mesh"), batch);
     loss.backward();
     opt.step();
     (i == 0 ? first : last) = loss.item<double>();

@@ -18,7 +18,7 @@
 #include <random>
 
 using namespace topos;
-using namespace topos::hopnet;
+using namespace topos::models::hopnet;
 namespace fs = std::filesystem;
 
 namespace {

@@ -28,9 +28,9 @@ void require_same_poses(const sim::RolloutResult& a, const sim::RolloutResult& b
 }
 
 // HOPNet statistics with zero means and unit scales (the type columns as the reference forces).
-hopnet::NormalizationStats zero_mean_unit_stats() {
-  hopnet::NormalizationStats s;
-  for (const auto& [k, n] : hopnet::NormalizationStats::layout())
+models::hopnet::NormalizationStats zero_mean_unit_stats() {
+  models::hopnet::NormalizationStats s;
+  for (const auto& [k, n] : models::hopnet::NormalizationStats::layout())
     s.mean[k].assign(n, 0.0), s.std[k].assign(n, 1.0);
   s.mean["x4"][8] = s.mean["x4"][9] = s.std["x4"][8] = s.std["x4"][9] = 0.5;
   return s;
@@ -38,13 +38,15 @@ hopnet::NormalizationStats zero_mean_unit_stats() {
 
 }  // namespace
 
-TEST_CASE("open_model: a topos HOPNet checkpoint rolls out as hopnet::rollout does, bit for bit",
-          "[sim][hopnet]") {
+TEST_CASE(
+    "open_model: a topos HOPNet checkpoint rolls out as models::hopnet::rollout does, bit for bit",
+    "[sim][hopnet]") {
   const auto dir = testing::fresh_dir("sim_hopnet");
   torch::manual_seed(3);
-  hopnet::Hopnet net(hopnet::HopnetOptions().hidden(16).mode(hopnet::FeatureMode::native));
-  hopnet::save_hopnet(*net, (dir / "hopnet.pt").string());
-  hopnet::write_stats_json(zero_mean_unit_stats(), (dir / "stats.json").string());
+  models::hopnet::Hopnet net(
+      models::hopnet::HopnetOptions().hidden(16).mode(models::hopnet::FeatureMode::native));
+  models::hopnet::save_hopnet(*net, (dir / "hopnet.pt").string());
+  models::hopnet::write_stats_json(zero_mean_unit_stats(), (dir / "stats.json").string());
   const auto scene = testing::cube_and_sphere();
 
   sim::OpenOptions o;
@@ -54,7 +56,7 @@ TEST_CASE("open_model: a topos HOPNet checkpoint rolls out as hopnet::rollout do
   CHECK(opened.notes.empty());
   sim::Simulator& model = *opened.simulator;
   CHECK(model.name() == "hopnet");
-  CHECK(model.variant() == hopnet::variant_name(net->options));
+  CHECK(model.variant() == models::hopnet::variant_name(net->options));
   CHECK(model.num_parameters() == net->num_parameters());
   CHECK(model.config() == net->options.to_json());
 
@@ -62,10 +64,10 @@ TEST_CASE("open_model: a topos HOPNet checkpoint rolls out as hopnet::rollout do
   opt.steps = 6;
   const auto got = sim::rollout(model, scene, opt);
   net->eval();
-  const auto g = hopnet::make_geometry(scene, net->options.lifting());
+  const auto g = models::hopnet::make_geometry(scene, net->options.lifting());
   opt.collision_radius = net->options.collision_radius();
-  const auto want =
-      hopnet::rollout(*net, hopnet::Normalizer(zero_mean_unit_stats()), scene, g, opt);
+  const auto want = models::hopnet::rollout(
+      *net, models::hopnet::Normalizer(zero_mean_unit_stats()), scene, g, opt);
   REQUIRE(got.num_frames() == 10);
   require_same_poses(got, want);
   // The predictions moved the sphere: the comparison is not of ground truth with itself.
@@ -87,23 +89,24 @@ TEST_CASE("open_model: a topos HOPNet checkpoint rolls out as hopnet::rollout do
   fs::remove_all(dir);
 }
 
-TEST_CASE("open_model: FIGNet and MeshGraphNet checkpoints roll out as baselines::rollout does",
-          "[sim][gns]") {
+TEST_CASE(
+    "open_model: FIGNet and MeshGraphNet checkpoints roll out as models::baselines::rollout does",
+    "[sim][gns]") {
   const auto dir = testing::fresh_dir("sim_baselines");
   const auto scene = testing::cube_and_sphere();
   for (const std::string text :
        {R"({"model": "mgn", "latent": 8, "steps": 2})", R"({"model": "fignet", "latent": 8,
        "steps": 2, "collision_radius": 0.2})"}) {
-    const auto config = baselines::BaselineConfig::from_json(nlohmann::json::parse(text));
+    const auto config = models::baselines::BaselineConfig::from_json(nlohmann::json::parse(text));
     INFO(config.model());
     torch::manual_seed(5);
-    baselines::Baseline b(config);
-    const baselines::SceneGraphs graphs(config, scene);
-    gns::StatisticsAccumulator acc(config.spec());
+    models::baselines::Baseline b(config);
+    const models::baselines::SceneGraphs graphs(config, scene);
+    models::gns::StatisticsAccumulator acc(config.spec());
     for (std::int64_t t = 2; t + 1 < scene.num_frames; ++t) acc.add(graphs.frame(scene, t));
     const auto stats = acc.finish();
     const auto path = (dir / (config.model() + ".pt")).string();
-    baselines::save_baseline(b, stats, path);
+    models::baselines::save_baseline(b, stats, path);
 
     auto opened = sim::open_model(path);  // no --stats: the checkpoint carries them
     CHECK(opened.format == "topos");
@@ -114,7 +117,7 @@ TEST_CASE("open_model: FIGNet and MeshGraphNet checkpoints roll out as baselines
     opt.steps = 5;
     const auto got = sim::rollout(model, scene, opt);
     b.net->eval();
-    const auto want = baselines::rollout(b, stats, scene, graphs, opt);
+    const auto want = models::baselines::rollout(b, stats, scene, graphs, opt);
     REQUIRE(got.num_frames() == 9);
     require_same_poses(got, want);
     CHECK(got.poses.back().positions(1, 2) != scene.position(8, 1).z());
@@ -171,7 +174,7 @@ TEST_CASE("open_model on the published MOVi-A checkpoint: the reference rollout,
   const auto ckpt = (ref / "data" / "checkpoints" / "modela_seed2_e39.pt").string();
   sim::OpenOptions o;
   o.stats = (ref / "data" / "normalization" / "movia.json").string();
-  o.mode = hopnet::FeatureMode::reference;
+  o.mode = models::hopnet::FeatureMode::reference;
   auto opened = sim::open_model(ckpt, o);
   CHECK_THAT(opened.format,
              Catch::StartsWith("reference (HOPNet authors' state dict, class HOPNet, "));
@@ -181,15 +184,15 @@ TEST_CASE("open_model on the published MOVi-A checkpoint: the reference rollout,
       sim::make_scene(data::read_kubric_metadata(ref / "data" / "movi-a" / "8"), lib);
   sim::RolloutOptions opt;
   opt.steps = 8;
-  opt.first_contacts =
-      hopnet::read_collisions_json((ref / "data" / "movi-a" / "8" / "collisions.json").string())
-          .at(3);
+  opt.first_contacts = models::hopnet::read_collisions_json(
+                           (ref / "data" / "movi-a" / "8" / "collisions.json").string())
+                           .at(3);
   const auto got = sim::rollout(*opened.simulator, scene, opt);
 
-  auto net = hopnet::load_hopnet(ckpt, hopnet::FeatureMode::reference);
+  auto net = models::hopnet::load_hopnet(ckpt, models::hopnet::FeatureMode::reference);
   net->eval();
-  const auto g = hopnet::make_geometry(scene, net->options.lifting());
-  const hopnet::Normalizer norm(hopnet::read_stats_json(o.stats));
-  const auto want = hopnet::rollout(*net, norm, scene, g, opt);
+  const auto g = models::hopnet::make_geometry(scene, net->options.lifting());
+  const models::hopnet::Normalizer norm(models::hopnet::read_stats_json(o.stats));
+  const auto want = models::hopnet::rollout(*net, norm, scene, g, opt);
   require_same_poses(got, want);
 }

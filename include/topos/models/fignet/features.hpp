@@ -19,6 +19,7 @@
 #include "topos/geometry/contacts.hpp"
 #include "topos/models/gns/graph.hpp"
 #include "topos/models/hopnet/scene.hpp"  // the deprecated hopnet:: names of the scene
+#include "topos/models/namespace_aliases.hpp"
 #include "topos/sim/mesh_graph.hpp"
 
 #include <algorithm>
@@ -28,7 +29,7 @@
 #include <string>
 #include <vector>
 
-namespace topos::fignet {
+namespace topos::models::fignet {
 
 using gns::GraphFrame;
 using gns::RowMatrix;
@@ -224,4 +225,4 @@ inline GraphFrame fignet_frame(const FignetGeometry& g, const sim::Poses& p2, co
   return f;
 }
 
-}  // namespace topos::fignet
+}  // namespace topos::models::fignet

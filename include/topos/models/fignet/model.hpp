@@ -10,8 +10,9 @@
 
 #include "topos/models/gns/model.hpp"
 #include "topos/models/gns/options.hpp"
+#include "topos/models/namespace_aliases.hpp"
 
-namespace topos::fignet {
+namespace topos::models::fignet {
 
 struct FignetOptions {
   gns::NetworkOptions network;
@@ -57,4 +58,4 @@ inline gns::GraphNetwork make_fignet(const FignetOptions& o) {
   return gns::GraphNetwork(fignet_spec(o), "_encode_process_decode");
 }
 
-}  // namespace topos::fignet
+}  // namespace topos::models::fignet

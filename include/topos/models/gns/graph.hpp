@@ -5,6 +5,8 @@
 // Eigen only: the models (models/gns/network.hpp) turn it into tensors and operators.
 #pragma once
 
+#include "topos/models/namespace_aliases.hpp"
+
 #include <Eigen/Core>
 
 #include <cstdint>
@@ -13,7 +15,7 @@
 #include <string>
 #include <vector>
 
-namespace topos::gns {
+namespace topos::models::gns {
 
 using RowMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
 using IndexMatrix = Eigen::Matrix<std::int64_t, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
@@ -54,4 +56,4 @@ struct GraphFrame {
   }
 };
 
-}  // namespace topos::gns
+}  // namespace topos::models::gns

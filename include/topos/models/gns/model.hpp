@@ -7,6 +7,7 @@
 
 #include "topos/io/atomic_file.hpp"
 #include "topos/models/gns/network.hpp"
+#include "topos/models/namespace_aliases.hpp"
 #include "topos/nn/cloneable.hpp"
 
 #include <nlohmann/json.hpp>
@@ -14,7 +15,7 @@
 #include <cmath>
 #include <fstream>
 
-namespace topos::gns {
+namespace topos::models::gns {
 
 /// Per-column mean and std by statistics key (GraphNetworkSpec's `statistics` of each set, and
 /// "acceleration" for the targets).
@@ -273,4 +274,4 @@ inline torch::Tensor acceleration_loss(const torch::Tensor& predicted, const Gra
   return ((predicted - b.target.to(predicted.device())).pow(2).sum(1) * mask).sum() / n;
 }
 
-}  // namespace topos::gns
+}  // namespace topos::models::gns

@@ -14,11 +14,12 @@
 #pragma once
 
 #include "topos/models/gns/graph.hpp"
+#include "topos/models/namespace_aliases.hpp"
 #include "topos/nn/operator_schedule.hpp"
 
 #include <set>
 
-namespace topos::gns {
+namespace topos::models::gns {
 
 struct NodeSetSpec {
   std::string name;           ///< the input and output name, and the GraphFrame node set
@@ -232,4 +233,4 @@ inline nn::OperatorSchedule graph_network_schedule(const GraphNetworkSpec& spec)
   return s;
 }
 
-}  // namespace topos::gns
+}  // namespace topos::models::gns

@@ -6,6 +6,7 @@
 
 #include "topos/data/json.hpp"
 #include "topos/models/gns/network.hpp"
+#include "topos/models/namespace_aliases.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -14,7 +15,7 @@
 #include <stdexcept>
 #include <string>
 
-namespace topos::gns {
+namespace topos::models::gns {
 
 struct NetworkOptions {
   std::int64_t latent = 128;
@@ -77,4 +78,4 @@ inline double positive_radius(const nlohmann::json& j, const std::string& model,
   return j[key].get<double>();
 }
 
-}  // namespace topos::gns
+}  // namespace topos::models::gns

@@ -8,6 +8,7 @@
 #include "topos/models/hopnet/neighborhoods.hpp"
 #include "topos/models/hopnet/normalization.hpp"
 #include "topos/models/hopnet/options.hpp"
+#include "topos/models/namespace_aliases.hpp"
 #include "topos/nn/complex_batch.hpp"
 
 #include <torch/torch.h>
@@ -18,7 +19,7 @@
 #include <utility>
 #include <vector>
 
-namespace topos::hopnet {
+namespace topos::models::hopnet {
 
 /// Statistics as float32 tensors, applied as the reference does: (x − mean) / std in float32.
 class Normalizer {
@@ -126,4 +127,4 @@ inline HopnetBatch make_batch(
   return b;
 }
 
-}  // namespace topos::hopnet
+}  // namespace topos::models::hopnet

@@ -5,6 +5,7 @@
 
 #include "topos/models/hopnet/lifting_options.hpp"
 #include "topos/models/hopnet/options.hpp"
+#include "topos/models/namespace_aliases.hpp"
 
 #include <nlohmann/json.hpp>
 #include <torch/torch.h>
@@ -17,7 +18,7 @@
 #include <stdexcept>
 #include <string>
 
-namespace topos::hopnet {
+namespace topos::models::hopnet {
 
 /// The reference class of an architecture, as its checkpoints prefix their tensors
 /// ("_HOPNet__", "_HOPNet_NoObjectCells__", "_HOPNet_NoSequential__").
@@ -121,4 +122,4 @@ inline HopnetOptions checkpoint_options(const std::map<std::string, torch::Tenso
   return o;
 }
 
-}  // namespace topos::hopnet
+}  // namespace topos::models::hopnet

@@ -8,6 +8,7 @@
 #include "topos/geometry/physx_triangle_distance.hpp"
 #include "topos/geometry/triangle_distance.hpp"
 #include "topos/models/hopnet/geometry.hpp"
+#include "topos/models/namespace_aliases.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -20,7 +21,7 @@
 #include <string>
 #include <vector>
 
-namespace topos::hopnet {
+namespace topos::models::hopnet {
 
 /// A candidate contact: local face ids of two objects (obj0's face is "face0", role -1); the
 /// type lives in topos/sim/scene.hpp, this alias is kept for HOPNet's code and its users.
@@ -155,4 +156,4 @@ inline std::int64_t count_contact_cells(const HopnetGeometry& g,
   return n;
 }
 
-}  // namespace topos::hopnet
+}  // namespace topos::models::hopnet

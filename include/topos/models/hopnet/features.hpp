@@ -27,6 +27,7 @@
 #include "topos/models/hopnet/lifting_options.hpp"
 #include "topos/models/hopnet/neighborhoods.hpp"
 #include "topos/models/hopnet/scene.hpp"
+#include "topos/models/namespace_aliases.hpp"
 
 #include <nlohmann/json.hpp>
 

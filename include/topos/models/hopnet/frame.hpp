@@ -6,6 +6,7 @@
 #include "topos/geometry/contacts.hpp"
 #include "topos/models/hopnet/contact_cells.hpp"
 #include "topos/models/hopnet/geometry.hpp"
+#include "topos/models/namespace_aliases.hpp"
 
 #include <Eigen/Dense>
 
@@ -16,7 +17,7 @@
 #include <utility>
 #include <vector>
 
-namespace topos::hopnet {
+namespace topos::models::hopnet {
 
 /// One timestep's complex and raw (double) features. Row i of x2/x3 is face/contact i.
 struct HopnetFrame {
@@ -187,4 +188,4 @@ inline HopnetFrame build_frame(const HopnetGeometry& g, const Poses& first, cons
   return f;
 }
 
-}  // namespace topos::hopnet
+}  // namespace topos::models::hopnet

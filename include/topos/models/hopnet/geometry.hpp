@@ -8,6 +8,7 @@
 #include "topos/mesh/rigid.hpp"
 #include "topos/models/hopnet/lifting_options.hpp"
 #include "topos/models/hopnet/scene.hpp"
+#include "topos/models/namespace_aliases.hpp"
 
 #include <Eigen/Dense>
 
@@ -19,7 +20,7 @@
 #include <string>
 #include <vector>
 
-namespace topos::hopnet {
+namespace topos::models::hopnet {
 
 /// CPython's iteration order of frozenset({a, b}) built from [a, b] (a inserted first), for
 /// small non-negative ints (hash = value, table of 8 slots): returns true when a comes first.
@@ -148,4 +149,4 @@ inline std::vector<PosedObject> pose_objects(const HopnetGeometry& g, const Pose
   return out;
 }
 
-}  // namespace topos::hopnet
+}  // namespace topos::models::hopnet

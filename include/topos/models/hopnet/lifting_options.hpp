@@ -3,12 +3,14 @@
 // member of the family (Architecture), LiftingOptions and the input feature widths. Std only.
 #pragma once
 
+#include "topos/models/namespace_aliases.hpp"
+
 #include <array>
 #include <cstdint>
 #include <stdexcept>
 #include <string>
 
-namespace topos::hopnet {
+namespace topos::models::hopnet {
 
 enum class FeatureMode { reference, native };
 
@@ -58,4 +60,4 @@ struct LiftingOptions {
   bool object_cells() const { return architecture != Architecture::no_object_cells; }
 };
 
-}  // namespace topos::hopnet
+}  // namespace topos::models::hopnet

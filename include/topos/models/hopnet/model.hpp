@@ -11,6 +11,7 @@
 #include "topos/models/hopnet/normalization.hpp"
 #include "topos/models/hopnet/options.hpp"
 #include "topos/models/hopnet/schedule.hpp"
+#include "topos/models/namespace_aliases.hpp"
 #include "topos/nn/cloneable.hpp"
 #include "topos/nn/serialization.hpp"
 
@@ -27,7 +28,7 @@
 #include <string>
 #include <vector>
 
-namespace topos::hopnet {
+namespace topos::models::hopnet {
 
 /// Normalised accelerations of nodes (a0) and objects (a4; undefined without object cells,
 /// where a0 has a row per virtual node too, after the mesh nodes).
@@ -174,4 +175,4 @@ inline void save_hopnet(const HopnetImpl& model, const std::string& path) {
   nn::write_tensor_dict(dict, path);
 }
 
-}  // namespace topos::hopnet
+}  // namespace topos::models::hopnet

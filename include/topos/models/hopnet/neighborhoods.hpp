@@ -7,6 +7,7 @@
 #include "topos/models/hopnet/frame.hpp"
 #include "topos/models/hopnet/geometry.hpp"
 #include "topos/models/hopnet/lifting_options.hpp"
+#include "topos/models/namespace_aliases.hpp"
 
 #include <cstdint>
 #include <map>
@@ -15,7 +16,7 @@
 #include <utility>
 #include <vector>
 
-namespace topos::hopnet {
+namespace topos::models::hopnet {
 
 /// The neighbourhoods HOPNet's schedule reads, with explicit directions:
 ///   B02 (0→2), B12 (1→2), B42 (4→2: each face receives its object), B23neg / B23pos (2→3,
@@ -151,4 +152,4 @@ inline std::map<std::string, Neighborhood> hopnet_neighborhoods(const HopnetGeom
   return out;
 }
 
-}  // namespace topos::hopnet
+}  // namespace topos::models::hopnet

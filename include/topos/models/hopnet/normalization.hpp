@@ -13,6 +13,7 @@
 
 #include "topos/io/atomic_file.hpp"
 #include "topos/data/kubric.hpp"
+#include "topos/models/namespace_aliases.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -25,7 +26,7 @@
 #include <string>
 #include <vector>
 
-namespace topos::hopnet {
+namespace topos::models::hopnet {
 
 struct NormalizationStats {
   /// key ("x0".."x4", "t0", "t4") -> per-column values
@@ -234,4 +235,4 @@ class StatsAccumulator {
   std::map<std::string, Acc> acc_;
 };
 
-}  // namespace topos::hopnet
+}  // namespace topos::models::hopnet

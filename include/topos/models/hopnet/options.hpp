@@ -5,6 +5,7 @@
 
 #include "topos/data/json.hpp"
 #include "topos/models/hopnet/lifting_options.hpp"
+#include "topos/models/namespace_aliases.hpp"
 #include "topos/nn/mlp.hpp"
 
 #include <nlohmann/json.hpp>
@@ -15,7 +16,7 @@
 #include <stdexcept>
 #include <string>
 
-namespace topos::hopnet {
+namespace topos::models::hopnet {
 
 struct HopnetOptions {
   nlohmann::json to_json() const {
@@ -97,4 +98,4 @@ struct HopnetOptions {
   TORCH_ARG(double, collision_radius) = 0.1;     ///< d_c of contact detection (training, rollout)
 };
 
-}  // namespace topos::hopnet
+}  // namespace topos::models::hopnet

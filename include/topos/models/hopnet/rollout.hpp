@@ -10,6 +10,7 @@
 #pragma once
 
 #include "topos/models/hopnet/model.hpp"
+#include "topos/models/namespace_aliases.hpp"
 #include "topos/nn/mlp.hpp"
 #include "topos/sim/meshes.hpp"
 #include "topos/sim/rollout.hpp"
@@ -17,7 +18,7 @@
 #include <optional>
 #include <stdexcept>
 
-namespace topos::hopnet {
+namespace topos::models::hopnet {
 
 // Deprecated aliases: the rollout loop, its options and result and the metrics moved to
 // topos/sim/rollout.hpp (namespace topos::sim); write sim::NAME.
@@ -102,4 +103,4 @@ inline RolloutResult rollout(HopnetImpl& model, const Normalizer& norm, const Sc
   });
 }
 
-}  // namespace topos::hopnet
+}  // namespace topos::models::hopnet

@@ -4,9 +4,10 @@
 // include topos/sim/scene.hpp and write sim::Scene (etc.) instead.
 #pragma once
 
+#include "topos/models/namespace_aliases.hpp"
 #include "topos/sim/scene.hpp"
 
-namespace topos::hopnet {
+namespace topos::models::hopnet {
 
 using sim::floor_mesh;
 using sim::floor_object;
@@ -19,4 +20,4 @@ using sim::Scene;
 using sim::scene_poses;
 using sim::SceneObject;
 
-}  // namespace topos::hopnet
+}  // namespace topos::models::hopnet

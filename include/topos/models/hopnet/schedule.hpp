@@ -6,6 +6,7 @@
 
 #include "topos/models/hopnet/lifting_options.hpp"
 #include "topos/models/hopnet/options.hpp"
+#include "topos/models/namespace_aliases.hpp"
 #include "topos/nn/operator_schedule.hpp"
 
 #include <array>
@@ -14,7 +15,7 @@
 #include <string>
 #include <vector>
 
-namespace topos::hopnet {
+namespace topos::models::hopnet {
 
 // One processor layer, as a schedule (L = "layer<l>_"):
 //   into 2        = L2 ([h2, Σ_B02 L0to2(h0), Σ_B12 L1to2(h1), B42 L4to2(h4)])
@@ -247,4 +248,4 @@ inline nn::OperatorSchedule hopnet_schedule(const HopnetOptions& opt) {
   return s;
 }
 
-}  // namespace topos::hopnet
+}  // namespace topos::models::hopnet

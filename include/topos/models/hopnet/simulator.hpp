@@ -6,6 +6,7 @@
 
 #include "topos/models/hopnet/rollout.hpp"
 #include "topos/models/hopnet/variants.hpp"
+#include "topos/models/namespace_aliases.hpp"
 #include "topos/sim/simulator.hpp"
 
 #include <map>
@@ -14,7 +15,7 @@
 #include <stdexcept>
 #include <string>
 
-namespace topos::hopnet {
+namespace topos::models::hopnet {
 
 class HopnetSimulator : public sim::Simulator {
  public:
@@ -91,4 +92,4 @@ class HopnetSimulator : public sim::Simulator {
   std::optional<HopnetGeometry> geometry_;  ///< the scene of the last reset
 };
 
-}  // namespace topos::hopnet
+}  // namespace topos::models::hopnet

@@ -13,11 +13,12 @@
 #pragma once
 
 #include "topos/models/hopnet/rollout.hpp"
+#include "topos/models/namespace_aliases.hpp"
 
 #include <exception>
 #include <thread>
 
-namespace topos::hopnet {
+namespace topos::models::hopnet {
 
 /// Raw (double) features and targets of every training timestep of one scene.
 struct TrajectoryFrames {
@@ -293,4 +294,4 @@ inline double train_step(HopnetImpl& model, torch::optim::Optimizer& opt,
   return loss;
 }
 
-}  // namespace topos::hopnet
+}  // namespace topos::models::hopnet

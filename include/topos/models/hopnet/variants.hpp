@@ -19,6 +19,7 @@
 
 #include "topos/data/json.hpp"
 #include "topos/models/hopnet/model.hpp"
+#include "topos/models/namespace_aliases.hpp"
 
 #include <filesystem>
 #include <map>
@@ -27,7 +28,7 @@
 #include <string>
 #include <vector>
 
-namespace topos::hopnet {
+namespace topos::models::hopnet {
 
 /// Fields a preset sets, as a JSON object of HopnetOptions keys.
 inline const std::map<std::string, nlohmann::json>& hopnet_presets() {
@@ -228,4 +229,4 @@ inline std::string variant_name(const HopnetOptions& o) {
   return s;
 }
 
-}  // namespace topos::hopnet
+}  // namespace topos::models::hopnet

@@ -11,6 +11,7 @@
 // floor would give, without 10^5 nodes.
 #pragma once
 
+#include "topos/models/namespace_aliases.hpp"
 #include "topos/sim/mesh_graph.hpp"
 
 #include <algorithm>
@@ -21,7 +22,7 @@
 #include <utility>
 #include <vector>
 
-namespace topos::mgn {
+namespace topos::models::mgn {
 
 using gns::GraphFrame;
 using gns::RowMatrix;
@@ -167,4 +168,4 @@ inline GraphFrame mgn_frame(const MgnGeometry& g, const sim::Poses& p2, const si
   return f;
 }
 
-}  // namespace topos::mgn
+}  // namespace topos::models::mgn

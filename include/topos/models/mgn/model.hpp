@@ -9,8 +9,9 @@
 
 #include "topos/models/gns/model.hpp"
 #include "topos/models/gns/options.hpp"
+#include "topos/models/namespace_aliases.hpp"
 
-namespace topos::mgn {
+namespace topos::models::mgn {
 
 struct MgnOptions {
   gns::NetworkOptions network;
@@ -43,4 +44,4 @@ inline gns::GraphNetwork make_mgn(const MgnOptions& o) {
   return gns::GraphNetwork(mgn_spec(o), "_encode_process_decode");
 }
 
-}  // namespace topos::mgn
+}  // namespace topos::models::mgn

@@ -1,0 +1,164 @@
+// topos/nn/spmm-inl.hpp
+// The definitions of spmm, row_softmax and row_normalize (sparse_operator.hpp) and the autograd
+// nodes behind them: act(A·X) through the CSR kernel (kernels.hpp) with its own backward, and
+// the row-wise softmax that keeps only its output. Also the members of SparseOperator that
+// apply it (row and column sums, to_dense).
+#pragma once
+
+#include "topos/nn/kernels.hpp"
+#include "topos/nn/sparse_operator.hpp"
+
+#include <torch/torch.h>
+
+#include <cstdint>
+#include <limits>
+#include <stdexcept>
+#include <string>
+
+namespace topos::nn {
+
+namespace detail {
+inline torch::Tensor csr_apply(const torch::Tensor& crow, const torch::Tensor& col,
+                               const torch::Tensor& values, const torch::Tensor& perm,
+                               const torch::Tensor& X, std::int64_t rows,
+                               Epilogue e = Epilogue::none) {
+  const auto x = X.contiguous();
+  const auto v = values.contiguous();
+  auto y = torch::empty({rows, x.size(1)}, x.options());
+  AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "topos_csr_mm", [&] {
+    csr_mm<scalar_t>(crow.data_ptr<std::int64_t>(), col.data_ptr<std::int64_t>(),
+                     v.data_ptr<scalar_t>(),
+                     perm.defined() ? perm.data_ptr<std::int64_t>() : nullptr,
+                     x.data_ptr<scalar_t>(), y.data_ptr<scalar_t>(), rows, x.size(1), e);
+  });
+  return y;
+}
+
+// act(A·X) as one node: with an activation it keeps its output, and the backward first turns dY
+// into dZ = dY ⊙ act'(Y) (no exp recomputed, as torch's elu backward does from its input).
+struct SpmmFunction : public torch::autograd::Function<SpmmFunction> {
+  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& values,
+                               const torch::Tensor& X, const torch::Tensor& crow,
+                               const torch::Tensor& col, const torch::Tensor& row,
+                               const torch::Tensor& t_crow, const torch::Tensor& t_col,
+                               const torch::Tensor& t_perm, std::int64_t rows, std::int64_t act) {
+    const auto e = static_cast<Epilogue>(act);
+    auto y = csr_apply(crow, col, values, torch::Tensor(), X, rows, e);
+    ctx->save_for_backward(
+        {values, X, col, row, t_crow, t_col, t_perm, e == Epilogue::none ? torch::Tensor() : y});
+    ctx->saved_data["act"] = act;
+    return y;
+  }
+  static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx,
+                                               torch::autograd::tensor_list grads) {
+    const auto saved = ctx->get_saved_variables();
+    const auto &values = saved[0], &X = saved[1], &col = saved[2], &row = saved[3],
+               &t_crow = saved[4], &t_col = saved[5], &t_perm = saved[6], &Y = saved[7];
+    const auto e = static_cast<Epilogue>(ctx->saved_data["act"].toInt());
+    const auto dY = apply_epilogue(Y, grads[0].contiguous(), e);
+    torch::Tensor dvalues, dX;
+    if (ctx->needs_input_grad(1)) dX = csr_apply(t_crow, t_col, values, t_perm, dY, X.size(0));
+    if (ctx->needs_input_grad(0)) {
+      const auto x = X.contiguous();
+      dvalues = torch::empty({values.size(0)}, values.options());
+      AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "topos_csr_value_grad", [&] {
+        csr_value_grad<scalar_t>(row.data_ptr<std::int64_t>(), col.data_ptr<std::int64_t>(),
+                                 dY.data_ptr<scalar_t>(), x.data_ptr<scalar_t>(),
+                                 dvalues.data_ptr<scalar_t>(), values.size(0), x.size(1));
+      });
+    }
+    return {dvalues, dX, {}, {}, {}, {}, {}, {}, {}, {}};
+  }
+};
+
+}  // namespace detail
+
+inline torch::Tensor spmm(const SparseOperator& A, const torch::Tensor& X, Epilogue act) {
+  if (X.dim() != 2 || X.size(0) != A.cols)
+    throw std::invalid_argument("spmm: operator is " + std::to_string(A.rows) + " x " +
+                                std::to_string(A.cols) + " but the features have " +
+                                (X.dim() == 2 ? std::to_string(X.size(0)) + " rows"
+                                              : std::to_string(X.dim()) + " dimensions"));
+  if (A.factored()) {  // factor by factor, right to left; autograd composes the backward
+    const auto& f = *A.factors;
+    const auto scale = [&](const torch::Tensor& x, const torch::Tensor& d) {
+      return d.defined() ? x * d.to(x.options()).unsqueeze(1) : x;
+    };
+    const auto x = scale(X, f.right);
+    torch::Tensor y;
+    for (const auto& p : f.products) {
+      auto z = x;
+      for (auto it = p.rbegin(); it != p.rend(); ++it) z = spmm(*it, z);
+      y = y.defined() ? y + z : z;
+    }
+    return detail::activate(scale(y, f.left), act);
+  }
+  auto values = A.values.scalar_type() == X.scalar_type() ? A.values : A.values.to(X.scalar_type());
+  if (!X.device().is_cpu()) {
+    const auto idx = torch::stack({A.row, A.col}).to(X.device());
+    const auto y = torch::sparse_coo_tensor(idx, values.to(X.device()), {A.rows, A.cols})
+                       ._coalesced_(true)
+                       .mm(X);
+    return detail::activate(y, act);
+  }
+  return detail::SpmmFunction::apply(values, X, A.crow, A.col, A.row, A.t_crow, A.t_col, A.t_perm,
+                                     A.rows, static_cast<std::int64_t>(act));
+}
+
+inline torch::Tensor SparseOperator::row_sums() const {
+  if (factors) return spmm(*this, torch::ones({cols, 1}, value_options())).squeeze(1);
+  return torch::zeros({rows}, values.options()).index_add(0, row, values);
+}
+inline torch::Tensor SparseOperator::col_sums() const {
+  if (factors) return t().row_sums();
+  return torch::zeros({cols}, values.options()).index_add(0, col, values);
+}
+inline torch::Tensor SparseOperator::to_dense() const {
+  if (factors) return spmm(*this, torch::eye(cols, value_options()));
+  return torch::zeros({rows, cols}, values.options()).index_put({row, col}, values);
+}
+
+namespace detail {
+// The per-row softmax as one autograd node that keeps only its output: its backward is
+// y ⊙ (dy - Σ_row y ⊙ dy). Composed of torch ops it kept the shifted scores, their exponentials
+// and the row sums, four nnz-long tensors per attention (SAN on the grid: 20 MB of 230).
+struct RowSoftmaxFunction : public torch::autograd::Function<RowSoftmaxFunction> {
+  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& scores,
+                               const torch::Tensor& row, std::int64_t rows) {
+    const auto max = torch::full({rows}, -std::numeric_limits<double>::infinity(), scores.options())
+                         .scatter_reduce(0, row, scores, "amax", /*include_self=*/true);
+    const auto e = (scores - max.index_select(0, row)).exp();
+    const auto sum = torch::zeros({rows}, scores.options()).index_add(0, row, e);
+    auto y = e / sum.index_select(0, row);
+    ctx->save_for_backward({y, row});
+    ctx->saved_data["rows"] = rows;
+    return y;
+  }
+  static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx,
+                                               torch::autograd::tensor_list grads) {
+    const auto saved = ctx->get_saved_variables();
+    const auto &y = saved[0], &row = saved[1];
+    const auto g = y * grads[0];
+    const auto s =
+        torch::zeros({ctx->saved_data["rows"].toInt()}, g.options()).index_add(0, row, g);
+    return {g - y * s.index_select(0, row), torch::Tensor(), torch::Tensor()};
+  }
+};
+}  // namespace detail
+
+inline torch::Tensor row_softmax(const SparseOperator& A, const torch::Tensor& scores) {
+  A.require_entries("row_softmax");
+  if (scores.dim() != 1 || scores.size(0) != A.nnz())
+    throw std::invalid_argument("row_softmax: expected one score per entry (" +
+                                std::to_string(A.nnz()) + ")");
+  return detail::RowSoftmaxFunction::apply(scores, A.row.to(scores.device()), A.rows);
+}
+
+inline torch::Tensor row_normalize(const SparseOperator& A, const torch::Tensor& scores) {
+  A.require_entries("row_normalize");
+  const auto row = A.row.to(scores.device());
+  const auto sum = torch::zeros({A.rows}, scores.options()).index_add(0, row, scores);
+  return scores / sum.index_select(0, row);
+}
+
+}  // namespace topos::nn
