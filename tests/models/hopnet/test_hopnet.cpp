@@ -250,7 +250,7 @@ TEST_CASE("the 102-step reference rollout of MOVi-A scene 8 lands within 2% of t
   for (int f = 0; f < 4; ++f) REQUIRE(m.pos_rmse[static_cast<std::size_t>(f)] == 0.0);
 }
 
-TEST_CASE("native rollouts may multiply in bfloat16, close to float32; reference mode may not",
+TEST_CASE("native rollouts may multiply in bfloat16, close to float32, and reference mode may not",
           "[hopnet][rollout][precision]") {
   Golden G("hopnet bfloat16 rollout");
   const auto norm = G.normalizer();

@@ -54,10 +54,11 @@ TOPOS_INLINE torch::Tensor Product::forward(RunContext& ctx, const torch::Tensor
     ctx.fail("only(" + std::to_string(p_.role) + ") needs a neighbourhood with roles, and " +
              "operator '" + p_.op + "' is a sparse operator");
   const auto& A = detail::operator_of(ctx, p_);
-  const auto name = operator_label(p_.op, p_.transposed);
-  if (p_.weighted) return detail::multiply(ctx.where(), name, A, x, p_.row_norm);
-  detail::check_fits(ctx.where(), name, A, x);
-  return pattern_aggregate(A, x, p_.reduce);
+  if (A.cols != x.size(0))  // the label is made only for the error
+    detail::check_fits(ctx.where(), operator_label(p_.op, p_.transposed), A, x);
+  if (!p_.weighted) return pattern_aggregate(A, x, p_.reduce);
+  const auto y = spmm(A, x);
+  return p_.row_norm ? divide_by_row_sums(A, y) : y;
 }
 TOPOS_INLINE OperationTraits Product::traits() const {
   OperationTraits t;
