@@ -72,6 +72,13 @@ struct Precision {
   ~Precision() { nn::set_float32_matmul_precision(nn::MatmulPrecision::highest); }
 };
 
+// The library of float32 products (gemm: 0 BLAS, 1 oneDNN, 2 topos's dense kernel; nn::CpuGemm)
+// while a benchmark runs; BLAS again afterwards.
+struct Gemm {
+  explicit Gemm(std::int64_t g) { nn::set_cpu_gemm(static_cast<nn::CpuGemm>(g)); }
+  ~Gemm() { nn::set_cpu_gemm(nn::CpuGemm::blas); }
+};
+
 // The FLOPs of one forward over `b` as the network's plan counts them (OperatorNetwork::plan_str:
 // dense products 2·rows·in·out, sparse ones 2·nnz·width; in the plain order, so messages for every
 // source cell, where the fast paths compute only those with a receiver). The batch's neighbourhoods
@@ -109,6 +116,7 @@ HopnetBatch frame_100(const HopnetGeometry& g) {
 void BM_forward(benchmark::State& state) {
   auto [mode, net, g] = make_case(state);
   const Precision precision(state.range(1) != 0);
+  const Gemm gemm(state.range(3));
   const auto& S = setup();
   const auto batch = frame_100(g);
   // TOPOS_PRINT_PLAN=1: the plan, operation by operation with its FLOPs, on stderr (once).
@@ -127,22 +135,35 @@ void BM_forward(benchmark::State& state) {
   state.counters["GFLOP/s"] =
       benchmark::Counter(flops / 1e9, benchmark::Counter::kIsIterationInvariantRate);
 }
-// Native mode with float32 and bfloat16 products; reference mode in float32 only.
+// Native mode with float32 products (BLAS, oneDNN, topos's kernel) and bfloat16 ones; reference
+// mode in float32 only.
 void precision_args(benchmark::internal::Benchmark* b) {
-  b->Args({0, 0})->Args({1, 0})->Args({1, 1})->ArgNames({"native", "bf16"});
+  b->Args({0, 0, 0})
+      ->Args({0, 0, 1})
+      ->Args({0, 0, 2})
+      ->Args({1, 0, 0})
+      ->Args({1, 0, 1})
+      ->Args({1, 0, 2})
+      ->Args({1, 1, 0})
+      ->ArgNames({"native", "bf16", "gemm"});
 }
 BENCHMARK(BM_forward)
-    ->Args({0, 0, 0})
-    ->Args({1, 0, 0})
-    ->Args({1, 1, 0})
-    ->Args({0, 0, 1})
-    ->Args({1, 0, 1})
-    ->ArgNames({"native", "bf16", "plain"})
+    ->Args({0, 0, 0, 0})
+    ->Args({0, 0, 0, 1})
+    ->Args({0, 0, 0, 2})
+    ->Args({1, 0, 0, 0})
+    ->Args({1, 0, 0, 1})
+    ->Args({1, 0, 0, 2})
+    ->Args({1, 1, 0, 0})
+    ->Args({0, 0, 1, 0})
+    ->Args({1, 0, 1, 0})
+    ->ArgNames({"native", "bf16", "plain", "gemm"})
     ->Unit(benchmark::kMillisecond);
 
 void BM_rollout_step(benchmark::State& state) {
   auto [mode, net, g] = make_case(state);
   const Precision precision(state.range(1) != 0);
+  const Gemm gemm(state.range(2));
   const auto& S = setup();
   const Poses p0 = scene_poses(S.scene, 0), p98 = scene_poses(S.scene, 98),
               p99 = scene_poses(S.scene, 99), p100 = scene_poses(S.scene, 100);
@@ -161,6 +182,7 @@ BENCHMARK(BM_rollout_step)->Apply(precision_args)->Unit(benchmark::kMillisecond)
 void BM_rollout_102(benchmark::State& state) {
   auto [mode, net, g] = make_case(state);
   const Precision precision(state.range(1) != 0);
+  const Gemm gemm(state.range(2));
   const auto& S = setup();
   RolloutOptions opt;
   if (mode == FeatureMode::reference) opt.first_contacts = S.first;

@@ -87,6 +87,28 @@ inline void add_rollout_precision_option(CLI::App* app, std::string& precision) 
       ->check(CLI::IsMember({"highest", "medium"}));
 }
 
+/// --cpu-gemm of the subcommands that roll out (rollout, evaluate).
+inline void add_rollout_gemm_option(CLI::App* app, std::string& gemm) {
+  app->add_option("--cpu-gemm", gemm,
+                  "library of the float32 products on the CPU: onednn (oneDNN's sgemm), topos "
+                  "(topos's dense kernel), blas (OpenBLAS through LibTorch), or auto (onednn when "
+                  "this LibTorch has it, else topos); they differ in summation order only")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"auto", "blas", "onednn", "topos"}));
+}
+
+/// Sets the process's library of float32 products for rollouts (--cpu-gemm) and returns its name.
+/// Each rollout runs its products on one thread, where oneDNN's sgemm runs HOPNet's rollout 1.8x
+/// faster than OpenBLAS and topos's dense kernel 1.4x (docs/benchmarks.md), with the same metrics
+/// to five digits.
+inline std::string set_rollout_gemm(const std::string& gemm) {
+  const nn::CpuGemm g = gemm != "auto"                ? nn::cpu_gemm_from_string(gemm)
+                        : nn::onednn_gemm_available() ? nn::CpuGemm::onednn
+                                                      : nn::CpuGemm::topos;
+  nn::set_cpu_gemm(g);
+  return nn::to_string(g);
+}
+
 /// Sets the process's matmul precision for rollouts in `mode`: medium with any mode but native
 /// is an error saying what to write instead (reference mode stays the published model's numbers).
 inline void set_rollout_precision(const std::string& precision, FeatureMode mode) {

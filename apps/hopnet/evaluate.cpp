@@ -18,7 +18,7 @@ namespace {
 struct EvaluateArgs {
   std::vector<std::string> checkpoints;
   std::string stats, data, assets, split = "test", split_file, mode = "reference", out,
-                                   device = "cpu", matmul_precision = "highest";
+                                   device = "cpu", matmul_precision = "highest", cpu_gemm = "auto";
   int steps = 102, viewer_scenes = 6, jobs = 0;
   VariantArgs variant;
   bool no_report = false;
@@ -50,6 +50,7 @@ int run_evaluate(const EvaluateArgs& a) {
   namespace fs = std::filesystem;
   const FeatureMode mode = feature_mode_from_string(a.mode);
   set_rollout_precision(a.matmul_precision, mode);  // every worker's rollouts
+  const std::string gemm = set_rollout_gemm(a.cpu_gemm);
   const torch::Device device = nn::device_from_string(a.device);
   // Every checkpoint is read and checked once here (sim::open_model); each worker thread below
   // rolls out with its own copy of each model (Simulator::clone), on --device.
@@ -232,6 +233,7 @@ int run_evaluate(const EvaluateArgs& a) {
   top["scenes"] = chosen;
   top["mode"] = to_string(mode);
   top["matmul_precision"] = a.matmul_precision;
+  top["cpu_gemm"] = gemm;
   top["model"] = model_name;
   top["variant"] = models.front().variant;
   top["models"] = metrics;  // every checkpoint's and constant velocity's, by name
@@ -331,6 +333,7 @@ Command add_evaluate(CLI::App& app) {
       ->check(CLI::ExistingFile);
   ce->add_option("--mode", ev.mode, "reference or native")->capture_default_str();
   add_rollout_precision_option(ce, ev.matmul_precision);
+  add_rollout_gemm_option(ce, ev.cpu_gemm);
   ce->add_option("--steps", ev.steps, "rollout steps")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);

@@ -8,7 +8,8 @@ namespace {
 
 struct RolloutArgs {
   std::string checkpoint, stats, scene, assets, mode = "reference", out, collisions, viewer,
-                                                device = "cpu", matmul_precision = "highest";
+                                                device = "cpu", matmul_precision = "highest",
+                                                cpu_gemm = "auto";
   int steps = 102;
   bool no_collisions_json = false;
   VariantArgs variant;
@@ -17,6 +18,7 @@ struct RolloutArgs {
 int run_rollout(const RolloutArgs& a) {
   const FeatureMode mode = feature_mode_from_string(a.mode);
   set_rollout_precision(a.matmul_precision, mode);
+  const std::string gemm = set_rollout_gemm(a.cpu_gemm);
   if (!a.viewer.empty()) hopnet_web::require_js_libraries();
   MeshLibrary lib(a.assets);
   const auto kubric = data::read_kubric_metadata(a.scene);
@@ -51,6 +53,7 @@ int run_rollout(const RolloutArgs& a) {
   j["scene"] = kubric.source;
   j["mode"] = to_string(mode);
   j["matmul_precision"] = a.matmul_precision;
+  j["cpu_gemm"] = gemm;
   j["checkpoint"] = a.checkpoint;
   j["variant"] = variant;
   j["frames"] = r.num_frames();
@@ -82,9 +85,11 @@ int run_rollout(const RolloutArgs& a) {
         (model.name() == "hopnet" ? std::string("HOPNet") : model.name()) + " rollout (" +
             std::string(to_string(mode)) + " mode): " + kubric.source,
         {{kubric.source, &scene, r.poses, {{"prediction", m.pos_rmse}}}});
-  std::printf("rollout: %s, %d steps in %.3f s (%.2f ms/step), mode %s, matmul precision %s\n",
-              variant.c_str(), a.steps, r.seconds, 1e3 * r.seconds / a.steps, to_string(mode),
-              a.matmul_precision.c_str());
+  std::printf(
+      "rollout: %s, %d steps in %.3f s (%.2f ms/step), mode %s, matmul precision %s, cpu gemm "
+      "%s\n",
+      variant.c_str(), a.steps, r.seconds, 1e3 * r.seconds / a.steps, to_string(mode),
+      a.matmul_precision.c_str(), gemm.c_str());
   std::printf("%6s %10s %10s %10s %10s\n", "frame", "pos_rmse", "pos_mae", "ori_rmse", "ori_mae");
   for (int f : {4, 25, 50, 75, 100})
     if (f < static_cast<int>(m.pos_rmse.size()))
@@ -117,6 +122,7 @@ Command add_rollout(CLI::App& app) {
   cr->add_option("--mode", ro.mode, "reference (the published model's inputs) or native")
       ->capture_default_str();
   add_rollout_precision_option(cr, ro.matmul_precision);
+  add_rollout_gemm_option(cr, ro.cpu_gemm);
   cr->add_option("--steps", ro.steps, "frames to predict")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);

@@ -509,10 +509,11 @@ Command add_train(CLI::App& app) {
       ->check(CLI::IsMember({"highest", "medium"}));
   ct->add_option("--cpu-gemm", tr.cpu_gemm,
                  "library of the float32 products on the CPU: onednn (oneDNN's sgemm, one "
-                 "thread per worker), blas (OpenBLAS through LibTorch), or auto (onednn with "
-                 "several workers, else blas); the two differ in summation order only")
+                 "thread per worker), topos (topos's dense kernel, one thread), blas (OpenBLAS "
+                 "through LibTorch), or auto (onednn with several workers, else blas); they "
+                 "differ in summation order only")
       ->capture_default_str()
-      ->check(CLI::IsMember({"auto", "blas", "onednn"}));
+      ->check(CLI::IsMember({"auto", "blas", "onednn", "topos"}));
   ct->add_option("--max-steps", tr.max_steps, "stop after this many optimizer steps");
   ct->add_option("--epochs", tr.epochs, "epochs")
       ->capture_default_str()

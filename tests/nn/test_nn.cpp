@@ -353,18 +353,17 @@ TEST_CASE("Mlp follows the reference layout and parameter count", "[nn][mlp]") {
   REQUIRE_THROWS_AS(activation_from_string("swish"), std::invalid_argument);
 }
 
-TEST_CASE("cpu gemm onednn: an Mlp's products through oneDNN, float32 sums in another order",
-          "[nn][mlp]") {
-  if (!onednn_gemm_available()) {
-    WARN("this LibTorch has no oneDNN: nothing to compare");
-    return;
-  }
+TEST_CASE(
+    "cpu gemm onednn and topos: an Mlp's products through oneDNN or the dense kernel, float32 "
+    "sums in another order",
+    "[nn][mlp]") {
   torch::manual_seed(4);
-  // 96 and 80 outputs take oneDNN; the last Linear (3 outputs) keeps its own kernel.
-  Mlp m(MlpOptions(24, 96, 80).layers(3));
+  // oneDNN takes the maps of more than 64 outputs (128 and 80; the last Linear's 3 keep their
+  // own kernels); topos's dense kernel takes 24 -> 128 and 128 -> 128 (not 80 or 3 outputs).
+  Mlp m(MlpOptions(24, 128, 80).layers(3));
   Mlp dec(MlpOptions(80, 96, 3).final_activation(false).layer_norm(false));
   const auto x = torch::randn({700, 24}).requires_grad_();
-  const auto W = torch::randn({96, 50}), b = torch::randn({96});
+  const auto W = torch::randn({128, 50}), b = torch::randn({128});
   const auto z = torch::randn({300, 60}).narrow(1, 5, 50);  // strided rows: passed, not copied
   const auto run = [&](CpuGemm g) {
     struct Restore {  // the setting is process-wide: back to BLAS even if this throws
@@ -379,19 +378,31 @@ TEST_CASE("cpu gemm onednn: an Mlp's products through oneDNN, float32 sums in an
     for (const auto& p : dec->parameters()) out.push_back(p.grad().clone());
     return out;
   };
-  const auto blas = run(CpuGemm::blas), onednn = run(CpuGemm::onednn);
-  REQUIRE(blas.size() == onednn.size());
-  bool differs = false;
-  for (std::size_t i = 0; i < blas.size(); ++i) {
-    INFO("tensor " << i);
-    REQUIRE(onednn[i].sizes() == blas[i].sizes());
-    CHECK(((onednn[i] - blas[i]).norm() / blas[i].norm()).item<double>() < 1e-5);
-    differs = differs || !torch::equal(onednn[i], blas[i]);
+  const auto blas = run(CpuGemm::blas);
+  std::vector<CpuGemm> others{CpuGemm::topos};
+  if (onednn_gemm_available())
+    others.push_back(CpuGemm::onednn);
+  else
+    WARN("this LibTorch has no oneDNN: only topos's kernel compared");
+  for (const auto g : others) {
+    INFO("cpu gemm " << to_string(g));
+    const auto other = run(g);
+    REQUIRE(blas.size() == other.size());
+    bool differs = false;
+    for (std::size_t i = 0; i < blas.size(); ++i) {
+      INFO("tensor " << i);
+      REQUIRE(other[i].sizes() == blas[i].sizes());
+      CHECK(((other[i] - blas[i]).norm() / blas[i].norm()).item<double>() < 1e-5);
+      differs = differs || !torch::equal(other[i], blas[i]);
+    }
+    CHECK(differs);  // the other library did multiply
   }
-  CHECK(differs);  // oneDNN did multiply
   REQUIRE(get_cpu_gemm() == CpuGemm::blas);
   REQUIRE(cpu_gemm_from_string("onednn") == CpuGemm::onednn);
-  REQUIRE_THROWS_WITH(cpu_gemm_from_string("mkl"), Catch::Contains("unknown cpu gemm 'mkl'"));
+  REQUIRE(cpu_gemm_from_string("topos") == CpuGemm::topos);
+  REQUIRE(std::string(to_string(CpuGemm::topos)) == "topos");
+  REQUIRE_THROWS_WITH(cpu_gemm_from_string("mkl"),
+                      Catch::Contains("unknown cpu gemm 'mkl' (blas, onednn, topos)"));
 }
 
 TEST_CASE("medium matmul precision: bfloat16 products, float32 out, close to highest",

@@ -42,11 +42,22 @@ inline std::int64_t padded_rows(std::int64_t m) {
   return (m + step - 1) / step * step;
 }
 
-/// Whether x·Wᵀ goes to oneDNN's sgemm through linear_act (set_cpu_gemm): 2-D float32 on the
-/// CPU, more than 64 outputs (narrower maps keep their own kernels).
-inline bool onednn_linear(const torch::Tensor& x, const torch::Tensor& weight) {
-  return x.dim() == 2 && weight.dim() == 2 && weight.size(0) > 64 &&
-         weight.scalar_type() == torch::kFloat && use_onednn(x);
+/// Whether x·Wᵀ at `highest` goes through linear_act rather than torch::linear (set_cpu_gemm):
+/// 2-D float32 on the CPU, and oneDNN chosen for a map of more than 64 outputs (narrower maps keep
+/// their own kernels), or topos's kernels chosen for a shape the dense kernel takes.
+inline bool linear_act_takes(const torch::Tensor& x, const torch::Tensor& weight) {
+  if (x.dim() != 2 || weight.dim() != 2 || weight.scalar_type() != torch::kFloat ||
+      x.scalar_type() != torch::kFloat || !x.device().is_cpu())
+    return false;
+  switch (get_cpu_gemm()) {
+    case CpuGemm::onednn:
+      return weight.size(0) > 64 && use_onednn(x);
+    case CpuGemm::topos:
+      return dense_kernel_fits(weight.size(1), weight.size(0));
+    case CpuGemm::blas:
+      break;
+  }
+  return false;
 }
 
 /// A cache that holds every padded shape a run meets (a few thousand), so nothing is evicted.
@@ -74,11 +85,12 @@ inline const char* to_string(MatmulPrecision p) {
 
 /// x·Wᵀ + b (b may be undefined) at `precision`: float32 in and out either way, so everything
 /// around the product (activations, LayerNorm, gathers, the loss) stays float32. At `highest`,
-/// a 2-D product of more than 64 outputs goes to oneDNN when set_cpu_gemm chose it.
+/// a 2-D product goes to oneDNN (more than 64 outputs) or topos's dense kernel when set_cpu_gemm
+/// chose it.
 inline torch::Tensor linear(const torch::Tensor& x, const torch::Tensor& weight,
                             const torch::Tensor& bias = {},
                             MatmulPrecision precision = get_float32_matmul_precision()) {
-  if (precision == MatmulPrecision::highest && detail::onednn_linear(x, weight))
+  if (precision == MatmulPrecision::highest && detail::linear_act_takes(x, weight))
     return linear_act(x, weight, bias);
   if (weight.scalar_type() != torch::kFloat || precision == MatmulPrecision::highest)
     return torch::linear(x, weight, bias);
@@ -182,9 +194,9 @@ class MlpImpl : public torch::nn::Module {
     for (std::size_t i = first; i < layers_.size(); ++i) {
       const auto* l = layers_[i].ptr()->as<torch::nn::LinearImpl>();
       if (l && !bf16 && precision == MatmulPrecision::highest &&
-          detail::onednn_linear(x, l->weight)) {
-        // oneDNN's product with the bias and a following ReLU in one pass over its output (the
-        // ReLU module is skipped: the same values).
+          detail::linear_act_takes(x, l->weight)) {
+        // oneDNN's or topos's product with the bias and a following ReLU in one pass over its
+        // output (the ReLU module is skipped: the same values).
         const bool relu =
             i + 1 < layers_.size() && layers_[i + 1].ptr()->as<torch::nn::ReLUImpl>() != nullptr;
         x = linear_act(x, l->weight, l->bias, relu ? Epilogue::relu : Epilogue::none);

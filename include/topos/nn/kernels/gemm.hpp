@@ -1,8 +1,11 @@
 // topos/nn/kernels/gemm.hpp
-// Which library multiplies the CPU's wide float32 products (CpuGemm): BLAS through LibTorch's mm,
-// or oneDNN's sgemm, which Debian's LibTorch links for its bfloat16 products (libdnnl) and which
-// runs HOPNet's 128-wide products 20-30 % faster than OpenBLAS 0.3.21 on an AVX-512 EPYC
-// (docs/hopnet-training.md). Process-wide, like MatmulPrecision; BLAS unless set.
+// Which library multiplies the CPU's float32 products of Linear layers (CpuGemm): BLAS through
+// LibTorch's mm; oneDNN's sgemm, which Debian's LibTorch links for its bfloat16 products (libdnnl)
+// and which runs HOPNet's 128-wide products 20-30 % faster than OpenBLAS 0.3.21 on an AVX-512
+// EPYC (docs/hopnet-training.md); or topos's own register-blocked kernel (kernels/dense.hpp), bias
+// and ReLU applied before the store, which on HOPNet's small rollout products runs several times
+// BLAS's rate inside a step (docs/benchmarks.md). Process-wide, like MatmulPrecision; BLAS unless
+// set.
 #pragma once
 
 #include "topos/nn/kernels/epilogue.hpp"
@@ -19,12 +22,14 @@
 
 namespace topos::nn {
 
-/// The library of float32 CPU products of more than 64 outputs in linear_act, nn::linear and
-/// Mlp at `highest` precision. oneDNN runs a product on the calling thread's OpenMP threads, which
-/// LibTorch sets to its intra-op thread count: choose it where products run one thread each
-/// (`hopnet train`'s workers), not where BLAS threads would share the cores. Results differ from
-/// BLAS's in float32 summation order only.
-enum class CpuGemm { blas, onednn };
+/// The library of float32 CPU products in nn::linear and Mlp at `highest` precision (and of
+/// linear_act's products of more than 64 outputs). oneDNN runs a product on the calling thread's
+/// OpenMP threads, which LibTorch sets to its intra-op thread count: choose it where products run
+/// one thread each (`hopnet train`'s workers), not where BLAS threads would share the cores.
+/// `topos` runs every product that its dense kernel takes (up to 1,024 inputs; 8, 16, 32, 64 or a
+/// multiple of 64 outputs up to 1,024 with AVX-512) on one thread, the others on BLAS. Results
+/// differ from BLAS's in float32 summation order only.
+enum class CpuGemm { blas, onednn, topos };
 namespace detail {
 inline std::atomic<CpuGemm> cpu_gemm{CpuGemm::blas};
 
@@ -55,10 +60,11 @@ inline CpuGemm get_cpu_gemm() {
 inline CpuGemm cpu_gemm_from_string(const std::string& s) {
   if (s == "blas") return CpuGemm::blas;
   if (s == "onednn") return CpuGemm::onednn;
-  throw std::invalid_argument("unknown cpu gemm '" + s + "' (blas, onednn)");
+  if (s == "topos") return CpuGemm::topos;
+  throw std::invalid_argument("unknown cpu gemm '" + s + "' (blas, onednn, topos)");
 }
 inline const char* to_string(CpuGemm g) {
-  return g == CpuGemm::blas ? "blas" : "onednn";
+  return g == CpuGemm::blas ? "blas" : g == CpuGemm::onednn ? "onednn" : "topos";
 }
 
 namespace detail {
