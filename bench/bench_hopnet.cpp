@@ -220,6 +220,39 @@ BENCHMARK(BM_dense_kernel)
     ->Unit(benchmark::kMicrosecond)
     ->MinTime(0.5);
 
+// LayerNorm over 128 channels, as every HOPNet MLP ends, one thread: torch's layer_norm
+// (topos: 0) against nn::layer_norm (topos: 1), forward alone or forward and backward (backward:
+// 1). Rows as BM_dense_kernel's. Freed memory is kept (nn::keep_freed_memory), as in training.
+void BM_layer_norm(benchmark::State& state) {
+  nn::set_cpu_threads(1, 1);
+  nn::keep_freed_memory();  // as training runs: a trajectory's fresh pages are not the kernel's
+  const std::int64_t rows = state.range(0), channels = 128;
+  const bool topos = state.range(1) != 0, backward = state.range(2) != 0;
+  torch::manual_seed(0);
+  const auto x = torch::randn({rows, channels}).requires_grad_(backward);
+  const auto w = torch::randn({channels}).requires_grad_(backward),
+             b = torch::randn({channels}).requires_grad_(backward);
+  const auto dy = torch::randn({rows, channels});
+  const auto run = [&] {
+    return topos ? nn::layer_norm(x, w, b, 1e-5) : torch::layer_norm(x, {channels}, w, b, 1e-5);
+  };
+  for (auto _ : state) {
+    if (backward) {
+      run().backward(dy);
+    } else {
+      torch::NoGradGuard ng;
+      benchmark::DoNotOptimize(run());
+    }
+  }
+  state.counters["GB/s"] =
+      benchmark::Counter((backward ? 5.0 : 2.0) * 4.0 * static_cast<double>(rows * channels) / 1e9,
+                         benchmark::Counter::kIsIterationInvariantRate);
+}
+BENCHMARK(BM_layer_norm)
+    ->ArgsProduct({{64, 192, 512, 87296}, {0, 1}, {0, 1}})
+    ->ArgNames({"rows", "topos", "backward"})
+    ->Unit(benchmark::kMicrosecond);
+
 // One optimizer step on the whole trajectory (t = 2..478: 477 timesteps), forward, backward and
 // Adam (train_step, as `hopnet train`). Arguments: chunk, timesteps per forward/backward (0: the
 // whole trajectory in one batch); workers, chunks run at once on their own threads (1: one after

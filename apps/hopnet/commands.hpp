@@ -91,22 +91,21 @@ inline void add_rollout_precision_option(CLI::App* app, std::string& precision) 
 inline void add_rollout_gemm_option(CLI::App* app, std::string& gemm) {
   app->add_option("--cpu-gemm", gemm,
                   "library of the float32 products on the CPU: onednn (oneDNN's sgemm), topos "
-                  "(topos's dense kernel), blas (OpenBLAS through LibTorch), or auto (onednn when "
-                  "this LibTorch has it, else topos); they differ in summation order only")
+                  "(topos's dense kernel), blas (OpenBLAS through LibTorch), or auto (blas in "
+                  "reference mode, which then gives the reference's digits; onednn in native "
+                  "mode, or topos without oneDNN); they differ in float32 summation order only")
       ->capture_default_str()
       ->check(CLI::IsMember({"auto", "blas", "onednn", "topos"}));
 }
 
-/// Sets the process's library of float32 products for rollouts (--cpu-gemm) and returns its name.
-/// Each rollout runs its products on one thread, where oneDNN's sgemm runs HOPNet's rollout 1.8x
-/// faster than OpenBLAS and topos's dense kernel 1.4x (docs/benchmarks.md), with the same metrics
-/// to five digits.
-inline std::string set_rollout_gemm(const std::string& gemm) {
-  const nn::CpuGemm g = gemm != "auto"                ? nn::cpu_gemm_from_string(gemm)
-                        : nn::onednn_gemm_available() ? nn::CpuGemm::onednn
-                                                      : nn::CpuGemm::topos;
-  nn::set_cpu_gemm(g);
-  return nn::to_string(g);
+/// Sets the process's library of float32 products for rollouts in `mode` (--cpu-gemm) and
+/// returns its name. A rollout multiplies on one thread, where oneDNN's sgemm runs HOPNet's
+/// rollout 1.8x faster than OpenBLAS and topos's dense kernel 1.4x (docs/benchmarks.md); the
+/// metrics move in the sixth digit, so reference mode keeps BLAS unless asked.
+inline std::string set_rollout_gemm(const std::string& gemm, FeatureMode mode) {
+  nn::set_cpu_gemm(
+      nn::cpu_gemm_for_rollout(gemm, nn::get_cpu_gemm(), mode == FeatureMode::reference));
+  return nn::to_string(nn::get_cpu_gemm());
 }
 
 /// Sets the process's matmul precision for rollouts in `mode`: medium with any mode but native

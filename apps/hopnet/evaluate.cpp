@@ -50,7 +50,7 @@ int run_evaluate(const EvaluateArgs& a) {
   namespace fs = std::filesystem;
   const FeatureMode mode = feature_mode_from_string(a.mode);
   set_rollout_precision(a.matmul_precision, mode);  // every worker's rollouts
-  const std::string gemm = set_rollout_gemm(a.cpu_gemm);
+  const std::string gemm = set_rollout_gemm(a.cpu_gemm, mode);
   const torch::Device device = nn::device_from_string(a.device);
   // Every checkpoint is read and checked once here (sim::open_model); each worker thread below
   // rolls out with its own copy of each model (Simulator::clone), on --device.

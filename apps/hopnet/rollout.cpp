@@ -18,7 +18,7 @@ struct RolloutArgs {
 int run_rollout(const RolloutArgs& a) {
   const FeatureMode mode = feature_mode_from_string(a.mode);
   set_rollout_precision(a.matmul_precision, mode);
-  const std::string gemm = set_rollout_gemm(a.cpu_gemm);
+  const std::string gemm = set_rollout_gemm(a.cpu_gemm, mode);
   if (!a.viewer.empty()) hopnet_web::require_js_libraries();
   MeshLibrary lib(a.assets);
   const auto kubric = data::read_kubric_metadata(a.scene);

@@ -778,6 +778,17 @@ void bind_schedule(py::module_& parent) {
         "Allocates CPU tensors (torch's too) through a size-class cache: freed blocks of 1 MB or "
         "more are kept (at most max_cached_bytes) and reused, as bench_zoo and the hopnet trainer "
         "do. Tensors allocated before keep their allocator.");
+  m.def(
+      "set_cpu_gemm",
+      [](const std::string& library) { set_cpu_gemm(cpu_gemm_from_string(library)); },
+      py::arg("library"),
+      "The library of the float32 CPU products of topos's Linear layers (its MLPs, `linear`), "
+      "process-wide: 'blas' (OpenBLAS through LibTorch, the default), 'onednn' (oneDNN's sgemm: "
+      "HOPNet's rollouts 1.8x faster on one thread here) or 'topos' (topos's dense kernel). They "
+      "differ in float32 summation order only.");
+  m.def(
+      "get_cpu_gemm", [] { return std::string(to_string(get_cpu_gemm())); },
+      "The library set_cpu_gemm chose: 'blas', 'onednn' or 'topos'.");
   m.def("cached_cpu_bytes", &cached_cpu_bytes, "Bytes the CPU cache holds on its free lists.");
   m.def("release_cached_cpu_memory", &release_cached_cpu_memory,
         "Gives the CPU cache's free blocks back to the system.");

@@ -41,8 +41,10 @@ from ._C.nn import (  # noqa: F401
     _Network,
     cached_cpu_bytes,
     from_,
+    get_cpu_gemm,
     into,
     release_cached_cpu_memory,
+    set_cpu_gemm,
     use_caching_cpu_allocator,
 )
 
@@ -65,8 +67,10 @@ __all__ = [
     "TermShape",
     "cached_cpu_bytes",
     "from_",
+    "get_cpu_gemm",
     "into",
     "release_cached_cpu_memory",
+    "set_cpu_gemm",
     "use_caching_cpu_allocator",
 ]
 

@@ -405,6 +405,47 @@ TEST_CASE(
                       Catch::Contains("unknown cpu gemm 'mkl' (blas, onednn, topos)"));
 }
 
+TEST_CASE("nn::layer_norm equals torch's layer_norm, values and gradients", "[nn][kernels]") {
+  torch::manual_seed(11);
+  // Channels: a multiple of the vector width, a tail, fewer than a vector; rows: one block of the
+  // backward's partial sums, and several (summed in block order).
+  for (const auto dtype : {torch::kFloat, torch::kDouble})
+    for (const std::int64_t C : {128, 37, 3})
+      for (const std::int64_t n : {5, 3000})
+        for (const int affine : {0, 1, 2}) {  // no weight or bias, both, weight only
+          INFO("dtype " << dtype << ", " << n << " × " << C << ", affine " << affine);
+          const auto opt = torch::TensorOptions().dtype(dtype);
+          const auto x0 = (torch::randn({n, C}, opt) * 3 + 1).requires_grad_();
+          const auto x1 = x0.detach().clone().requires_grad_();
+          torch::Tensor w0, b0, w1, b1;
+          if (affine > 0) {
+            w0 = torch::randn({C}, opt).requires_grad_();
+            w1 = w0.detach().clone().requires_grad_();
+          }
+          if (affine == 1) {
+            b0 = torch::randn({C}, opt).requires_grad_();
+            b1 = b0.detach().clone().requires_grad_();
+          }
+          const auto want = torch::layer_norm(x0, {C}, w0, b0, 1e-5);
+          const auto got = nn::layer_norm(x1, w1, b1, 1e-5);
+          const double tol = dtype == torch::kFloat ? 1e-5 : 1e-12;
+          REQUIRE(got.sizes() == want.sizes());
+          CHECK(((got - want).abs().max() / want.abs().max()).item<double>() < tol);
+          const auto dy = torch::randn({n, C}, opt);
+          want.backward(dy);
+          got.backward(dy);
+          const auto close = [&](const torch::Tensor& a, const torch::Tensor& b) {
+            return ((a - b).norm() / b.norm()).item<double>() < 10 * tol;
+          };
+          CHECK(close(x1.grad(), x0.grad()));
+          if (affine > 0) CHECK(close(w1.grad(), w0.grad()));
+          if (affine == 1) CHECK(close(b1.grad(), b0.grad()));
+        }
+  // Other shapes go to torch's own (three dimensions: normalised over the last).
+  const auto x3 = torch::randn({2, 4, 8});
+  CHECK(torch::allclose(nn::layer_norm(x3, {}, {}), torch::layer_norm(x3, {8})));
+}
+
 TEST_CASE("medium matmul precision: bfloat16 products, float32 out, close to highest",
           "[nn][mlp]") {
   torch::manual_seed(3);
@@ -420,7 +461,7 @@ TEST_CASE("medium matmul precision: bfloat16 products, float32 out, close to hig
     (y * torch::linspace(-1, 1, 32)).sum().backward();
     return std::make_pair(y.detach(), m->named_parameters()["2.weight"].grad().clone());
   };
-  // The highest path is torch::linear's, bit for bit.
+  // The highest path is torch::linear's products (and nn::layer_norm), bit for bit.
   const auto [y_hi, g_hi] = run(MatmulPrecision::highest);
   auto plain = x;
   for (const auto& c : m->children()) {
@@ -429,7 +470,7 @@ TEST_CASE("medium matmul precision: bfloat16 products, float32 out, close to hig
     else if (c->as<torch::nn::ReLUImpl>())
       plain = torch::relu(plain);
     else
-      plain = c->as<torch::nn::LayerNormImpl>()->forward(plain);
+      plain = nn::layer_norm(plain, *c->as<torch::nn::LayerNormImpl>());
   }
   REQUIRE(torch::equal(y_hi, plain.detach()));
   const auto [y_md, g_md] = run(MatmulPrecision::medium);

@@ -115,3 +115,29 @@ def test_hopnet_errors(ref, checkpoint, scene, tmp_path):
         hopnet.metrics(torch.zeros(10, 2, 3), torch.zeros(10, 3, 4), scene)
     with pytest.raises(TypeError, match=r"metrics\(quaternions\): expected a floating tensor"):
         hopnet.metrics(torch.zeros(10, 3, 3), torch.zeros(10, 3, 4, dtype=torch.long), scene)
+
+
+def test_rollout_cpu_gemm_libraries_agree(checkpoint, scene, reference_rollout):
+    """cpu_gemm picks the library of one rollout's float32 products and restores the process's
+    afterwards; the libraries differ in summation order only. Reference mode's 'auto' keeps the
+    process's (BLAS: the reference's digits above)."""
+    assert topos.nn.get_cpu_gemm() == "blas"
+    base = reference_rollout.metrics()["pos_rmse"][4:]
+    for library in ("topos", "onednn"):
+        try:
+            r = hopnet.rollout(checkpoint, scene, steps=102, cpu_gemm=library)
+        except ValueError as e:  # a LibTorch without oneDNN says so
+            assert library == "onednn" and "has no oneDNN" in str(e)
+            continue
+        assert topos.nn.get_cpu_gemm() == "blas"
+        assert not torch.equal(r.positions, reference_rollout.positions), library
+        torch.testing.assert_close(r.metrics()["pos_rmse"][4:], base, rtol=1e-3, atol=0)
+    same = hopnet.rollout(checkpoint, scene, steps=102, cpu_gemm="auto")
+    assert torch.equal(same.positions, reference_rollout.positions)
+    with pytest.raises(ValueError, match="unknown cpu gemm 'mkl'"):
+        hopnet.rollout(checkpoint, scene, steps=2, cpu_gemm="mkl")
+    topos.nn.set_cpu_gemm("topos")
+    try:
+        assert topos.nn.get_cpu_gemm() == "topos"
+    finally:
+        topos.nn.set_cpu_gemm("blas")

@@ -7,13 +7,15 @@
 // kernels; the kernels are in kernels/: the activations and the dispatch (epilogue.hpp), the row
 // loop over a CSR matrix under spmm (csr.hpp; sparse_operator.hpp), and the register-blocked
 // dense product for narrow maps (n × K by K × N, N up to 64) with its backward (dense.hpp), and
-// oneDNN's sgemm for wide float32 maps when chosen (gemm.hpp, CpuGemm).
+// oneDNN's sgemm for wide float32 maps when chosen (gemm.hpp, CpuGemm), and LayerNorm with its
+// backward (layer_norm.hpp).
 #pragma once
 
 #include "topos/nn/kernels/csr.hpp"
 #include "topos/nn/kernels/dense.hpp"
 #include "topos/nn/kernels/epilogue.hpp"
 #include "topos/nn/kernels/gemm.hpp"
+#include "topos/nn/kernels/layer_norm.hpp"
 
 #include <ATen/Parallel.h>
 #include <torch/torch.h>

@@ -7,6 +7,7 @@
 #pragma once
 
 #include "topos/nn/functional.hpp"  // Activation
+#include "topos/nn/kernels/layer_norm.hpp"
 
 #include <torch/torch.h>
 
@@ -210,6 +211,8 @@ class MlpImpl : public torch::nn::Module {
       } else if (l) {
         x = nn::linear(x, l->weight, l->bias, precision);
         if (x.dim() == 2 && x.size(0) != rows) x = x.narrow(0, 0, rows);
+      } else if (auto* norm = layers_[i].ptr()->as<torch::nn::LayerNormImpl>()) {
+        x = nn::layer_norm(x, *norm);
       } else {
         x = layers_[i].forward(x);
       }

@@ -44,7 +44,7 @@ class TopoMLPImpl : public torch::nn::Module {
       if (norm == MlpNorm::layer_norm) {
         auto ln = register_module(std::to_string(idx++),
                                   torch::nn::LayerNorm(torch::nn::LayerNormOptions({width})));
-        steps_.push_back([ln](const torch::Tensor& x) { return ln->forward(x); });
+        steps_.push_back([ln](const torch::Tensor& x) { return nn::layer_norm(x, *ln); });
       } else if (norm == MlpNorm::batch_norm) {
         auto bn = register_module(std::to_string(idx++), torch::nn::BatchNorm1d(width));
         steps_.push_back([bn](const torch::Tensor& x) { return bn->forward(x); });

@@ -67,6 +67,17 @@ inline const char* to_string(CpuGemm g) {
   return g == CpuGemm::blas ? "blas" : g == CpuGemm::onednn ? "onednn" : "topos";
 }
 
+/// The library a rollout multiplies on for a --cpu-gemm `name` (blas, onednn, topos or auto).
+/// `auto` keeps `current` where the rollout reproduces another implementation's digits (HOPNet's
+/// reference mode: BLAS gives the reference's), and otherwise takes oneDNN where LibTorch has it,
+/// else topos's dense kernel: a rollout multiplies on one thread, where oneDNN ran HOPNet's 1.8x
+/// faster than OpenBLAS (docs/benchmarks.md).
+inline CpuGemm cpu_gemm_for_rollout(const std::string& name, CpuGemm current, bool reproducing) {
+  if (name != "auto") return cpu_gemm_from_string(name);
+  if (reproducing) return current;
+  return onednn_gemm_available() ? CpuGemm::onednn : CpuGemm::topos;
+}
+
 namespace detail {
 
 /// Whether a product of `a` (float32, CPU) goes to oneDNN now.

@@ -92,7 +92,7 @@ TOPOS_INLINE TermShape ChannelNorm::infer(BuildContext& ctx, TermShape x) const 
 }
 TOPOS_INLINE torch::Tensor ChannelNorm::forward(RunContext& ctx, const torch::Tensor& x) const {
   if (batch_) return ctx.module<torch::nn::BatchNorm1dImpl>(path_).forward(x);
-  return ctx.module<torch::nn::LayerNormImpl>(path_).forward(x);
+  return nn::layer_norm(x, ctx.module<torch::nn::LayerNormImpl>(path_));
 }
 TOPOS_INLINE OperationTraits ChannelNorm::traits() const {
   if (!batch_) return row_wise("layer_norm");
