@@ -91,7 +91,7 @@ class MeshLibrary {
       const auto path = assets_ / shape / "collision_geometry.obj";
       if (!std::filesystem::exists(path))
         throw data::DataError(path.string() + ": missing asset for shape '" + shape + "'");
-      m = read_obj(path.string(), ObjReadOptions().merge(true)).mesh;
+      m = io::read_obj(path.string(), io::ObjReadOptions().merge(true)).mesh;
       m.name = shape;
     }
     return cache_.emplace(shape, std::move(m)).first->second;
