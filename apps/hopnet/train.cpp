@@ -51,7 +51,7 @@ struct LoadedScene {
 
 std::vector<LoadedScene> load_scenes(const data::Dataset& dataset,
                                      const std::vector<std::int64_t>& ids,
-                                     const std::string& assets, const LiftingOptions& lifting,
+                                     const std::string& assets, const SceneLiftingOptions& lifting,
                                      int max_frames, const char* label, std::FILE* log) {
   MeshLibrary lib(assets);
   std::vector<LoadedScene> out;

@@ -33,7 +33,7 @@ LiftedDataset synthetic_graphs(Domain domain = Domain::graph,
                                std::set<std::string> operators = {"gcn_adjacency"}) {
   std::mt19937 rng(11);
   std::uniform_real_distribution<float> u(0, 1);
-  LiftingOptions lo;
+  GraphLiftingOptions lo;
   lo.operators = std::move(operators);
   LiftedDataset d;
   d.num_classes = 2;
