@@ -56,7 +56,7 @@ const data::GraphClassificationDataset& dataset(const std::string& name) {
 }
 
 std::vector<LiftedGraph> lift(const data::GraphClassificationDataset& ds, Domain d, int rank) {
-  LiftingOptions o;
+  GraphLiftingOptions o;
   o.complex_dim = rank;  // the Python script lifts cliques to rank 2
   std::vector<LiftedGraph> out;
   for (const auto& g : ds.graphs) {
@@ -232,7 +232,7 @@ void BM_lift(benchmark::State& state, const char* name, Domain d) {
   const auto& ds = dataset(name);
   std::int64_t cells = 0;
   for (auto _ : state) {
-    LiftingOptions o;  // TopoBench's: cliques up to 4 nodes, cycles up to 10
+    GraphLiftingOptions o;  // TopoBench's: cliques up to 4 nodes, cycles up to 10
     cells = 0;
     for (const auto& g : ds.graphs) {
       const auto l = lift_graph(g.num_nodes, g.edges, g.x, ds.num_node_features, {}, d, o);
@@ -250,7 +250,7 @@ void BM_rank1_laplacian(benchmark::State& state) {
   const auto& ds = dataset("REDDIT-BINARY");
   const auto train = random_split(static_cast<std::int64_t>(ds.graphs.size()), 0).train;
   const auto batches = batches_of(train, 16);
-  LiftingOptions o;
+  GraphLiftingOptions o;
   o.operators = {"hodge_laplacian_1_norm"};
   if (factored) o.factored = o.operators;
   std::vector<nn::SparseOperator> ops;
@@ -319,7 +319,7 @@ void BM_encoder(benchmark::State& state, const char* name) {
   auto it = cache.find(name);
   if (it == cache.end()) {
     const auto ds = data::load_topobench_node_dataset(datasets_dir(), name);
-    LiftingOptions o;
+    GraphLiftingOptions o;
     o.complex_dim = 3;
     it = cache
              .emplace(name, lift_graph(ds.num_nodes, ds.edges, ds.x, ds.num_node_features, {},

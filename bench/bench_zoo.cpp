@@ -27,6 +27,7 @@
 
 using namespace topos;
 using namespace topos::models;
+using namespace topos::models::zoo;
 using nn::SparseOperator;
 
 namespace {

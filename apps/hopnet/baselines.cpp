@@ -28,7 +28,7 @@ int run_baseline_train(const BaselineTrainArgs& a) {
              opt_path = (fs::path(a.out) / "optimizer.pt").string(),
              state_path = (fs::path(a.out) / "state.json").string(),
              journal = (fs::path(a.out) / "commit.journal").string();
-  if (a.resume) recover_file_group(journal);
+  if (a.resume) io::recover_file_group(journal);
   const bool resuming = a.resume && fs::exists(state_path);
   std::map<std::string, torch::Tensor> resumed;  // the checkpoint resumed from, read once
   if (resuming) {  // the model before anything else: its statistics would not fit another's
@@ -38,7 +38,8 @@ int run_baseline_train(const BaselineTrainArgs& a) {
     if (model != config.model())
       throw std::invalid_argument(ckpt + ": a " + model + " checkpoint (topos.config model '" +
                                   model + "'); --config asks for " + config.model());
-    if (cfg != config.to_json())
+    // Compared as read (a checkpoint written with an older key reads the same).
+    if (models::baselines::BaselineConfig::from_json(cfg).to_json() != config.to_json())
       throw std::invalid_argument(ckpt + ": trained as " + cfg.dump() + ", --config asks for " +
                                   config.to_json().dump());
   }
@@ -201,7 +202,7 @@ int run_baseline_train(const BaselineTrainArgs& a) {
   };
   double trained_seconds = resuming ? data::read_json_file(state_path).value("seconds", 0.0) : 0;
   const auto save = [&] {
-    FileGroup group(journal);
+    io::FileGroup group(journal);
     models::baselines::save_baseline(model, stats, group.stage(ckpt));
     nn::write_tensor_dict(nn::adam_state_dict(opt, *model.net), group.stage(opt_path));
     write_json_atomic({{"step", step}, {"seconds", trained_seconds}, {"model", config.to_json()}},

@@ -183,7 +183,7 @@ inline TrainingData open_training_data(const std::string& path, const std::strin
 }
 
 inline void write_json_atomic(const nlohmann::json& j, const std::string& path) {
-  write_file_atomic(path, j.dump() + "\n");
+  io::write_file_atomic(path, j.dump() + "\n");
 }
 
 /// Activation memory per forward/backward chunk when --chunk is not given (grad, train).

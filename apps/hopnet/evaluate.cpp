@@ -268,7 +268,7 @@ int run_evaluate(const EvaluateArgs& a) {
       << (a.matmul_precision == "highest" ? "" : ", matmul precision " + a.matmul_precision)
       << ")\n\n"
       << md.str();
-    write_file_atomic((fs::path(a.out) / "table.md").string(), t.str());
+    io::write_file_atomic((fs::path(a.out) / "table.md").string(), t.str());
   }
   const std::string title =
       label + " rollouts (" + std::string(to_string(mode)) + " mode): " + a.data;

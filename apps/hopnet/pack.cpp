@@ -36,7 +36,7 @@ void pack_scenes(const std::filesystem::path& from, const std::vector<std::int64
     const auto src = from / std::to_string(id) / "collisions.json";
     if (!std::filesystem::exists(src)) continue;
     std::filesystem::create_directories(std::filesystem::path(out) / "collisions");
-    write_file_atomic(
+    io::write_file_atomic(
         (std::filesystem::path(out) / "collisions" / (std::to_string(id) + ".json")).string(),
         data::read_text_file(src));
     ++with_contacts;

@@ -382,14 +382,14 @@ inline std::string report_html(const std::string& title, const nlohmann::json& e
 
 /// Writes index.html for an evaluation (atomically).
 inline void write_evaluation_report(const std::string& path, const EvaluationReport& r) {
-  topos::write_file_atomic(
+  topos::io::write_file_atomic(
       path, report_html(r.title, evaluation_json(r),
                         r.training ? training_json(*r.training) : nullptr, r.training_note));
 }
 
 /// Writes the training curves of `log` (atomically).
 inline void write_training_report(const std::string& path, const TrainingLog& log) {
-  topos::write_file_atomic(
+  topos::io::write_file_atomic(
       path, report_html("HOPNet training: " + log.folder.string(), nullptr, training_json(log)));
 }
 

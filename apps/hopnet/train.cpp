@@ -51,7 +51,7 @@ struct LoadedScene {
 
 std::vector<LoadedScene> load_scenes(const data::Dataset& dataset,
                                      const std::vector<std::int64_t>& ids,
-                                     const std::string& assets, const LiftingOptions& lifting,
+                                     const std::string& assets, const SceneLiftingOptions& lifting,
                                      int max_frames, const char* label, std::FILE* log) {
   MeshLibrary lib(assets);
   std::vector<LoadedScene> out;
@@ -203,7 +203,7 @@ int run_train(const TrainArgs& a) {
   // (FileGroup) every --checkpoint-every steps and at every epoch's end: a run killed at any
   // point resumes from the last committed step. Only rank 0 writes, so only it recovers.
   const auto journal = (fs::path(a.out) / "commit.journal").string();
-  if (a.resume && main_rank) recover_file_group(journal);
+  if (a.resume && main_rank) io::recover_file_group(journal);
   Hopnet model(options);
   // Where the run stands: `epoch` epochs done, then `epoch_step` steps of the next one.
   int start_epoch = 0;
@@ -297,7 +297,7 @@ int run_train(const TrainArgs& a) {
   const auto save = [&](int epochs_done, std::int64_t epoch_step, bool new_best) {
     steps_csv.flush();  // the rows of the committed steps are on disk before the commit
     epochs_csv.flush();
-    FileGroup group(journal);
+    io::FileGroup group(journal);
     model->to(torch::kCPU);
     save_hopnet(*model, group.stage(ckpt));
     if (new_best) save_hopnet(*model, group.stage(best_path));

@@ -102,7 +102,7 @@ inline std::string viewer_html(const std::string& title, const std::vector<Viewe
 /// Writes the viewer for `scenes` to `path` (atomically).
 inline void write_viewer_html(const std::string& path, const std::string& title,
                               const std::vector<ViewerScene>& scenes) {
-  topos::write_file_atomic(path, viewer_html(title, scenes));
+  topos::io::write_file_atomic(path, viewer_html(title, scenes));
 }
 
 }  // namespace hopnet_viewer

@@ -21,7 +21,7 @@ void register_forward(CLI::App& app, Run& run) {
     run = [o] {
       auto c = open_case(*o);
       torch::NoGradGuard no_grad;
-      const auto out = topos::models::run_case(c);
+      const auto out = topos::models::zoo::run_case(c);
       for (const auto& name : c.outputs)
         topos::models::write_npy_tensor(std::filesystem::path(o->out_dir) / (name + ".npy"),
                                         out.at(name));
@@ -43,7 +43,7 @@ void register_grad(CLI::App& app, Run& run) {
         throw topos::data::DataError(o->case_dir +
                                      ": no grads/ folder (this case has no gradients)");
       auto c = open_case(*o);
-      const auto g = topos::models::case_gradients(c);
+      const auto g = topos::models::zoo::case_gradients(c);
       for (const auto& [name, t] : g)
         topos::models::write_npy_tensor(std::filesystem::path(o->out_dir) / (name + ".npy"), t);
       std::cout << c.model.name << ": wrote " << g.size() << " gradients to " << o->out_dir << "\n";

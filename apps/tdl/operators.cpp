@@ -24,7 +24,7 @@ struct OperatorsArgs {
 
 int run_operators(const OperatorsArgs& a) {
   namespace fs = std::filesystem;
-  const topos::tdl::Operators ops = topos::tdl::compute_operators(a.case_dir);
+  const topos::data::Operators ops = topos::data::compute_operators(a.case_dir);
   fs::create_directories(a.out);
   for (const std::string& name : ops.order) {
     if (name.empty() || name.find('/') != std::string::npos ||
@@ -33,10 +33,10 @@ int run_operators(const OperatorsArgs& a) {
     }
   }
   for (const std::string& name : ops.order) {
-    const topos::tdl::SparseOp& m = ops.by_name.at(name);
+    const topos::data::SparseOp& m = ops.by_name.at(name);
     std::vector<float> dense(static_cast<std::size_t>(m.rows() * m.cols()), 0.0f);
     for (Eigen::Index i = 0; i < m.outerSize(); ++i)
-      for (topos::tdl::SparseOp::InnerIterator it(m, i); it; ++it)
+      for (topos::data::SparseOp::InnerIterator it(m, i); it; ++it)
         dense[static_cast<std::size_t>(it.row() * m.cols() + it.col())] =
             static_cast<float>(it.value());
     topos::data::write_npy((fs::path(a.out) / (name + ".npy")).string(), {m.rows(), m.cols()},

@@ -51,14 +51,14 @@ inline void write_task_results(
     const std::string& ylabel, const std::string& summary) {
   std::filesystem::create_directories(out);
   const std::filesystem::path dir(out);
-  topos::write_file_atomic((dir / "accuracy.csv").string(), csv);
+  topos::io::write_file_atomic((dir / "accuracy.csv").string(), csv);
   topos::SvgPlotOptions plot;
   plot.xlabel = "epoch";
   plot.ylabel = ylabel;
   plot.ymax = 1;
   plot.x0 = 1;
-  topos::write_file_atomic((dir / "accuracy.svg").string(), topos::svg_line_plot(curves, plot));
-  topos::write_file_atomic((dir / "summary.json").string(), summary);
+  topos::io::write_file_atomic((dir / "accuracy.svg").string(), topos::svg_line_plot(curves, plot));
+  topos::io::write_file_atomic((dir / "summary.json").string(), summary);
   std::cout << summary << "wrote " << out << "/accuracy.csv, accuracy.svg, summary.json\n";
 }
 

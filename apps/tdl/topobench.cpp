@@ -165,7 +165,7 @@ int run_topobench(const TopoBenchOptions& o) {
     }
     return csv.str();
   };
-  topos::write_file_atomic((out / "not_run.csv").string(), not_run_csv());
+  topos::io::write_file_atomic((out / "not_run.csv").string(), not_run_csv());
 
   // Threads: one intra-op thread and one BLAS thread per run; `--jobs` runs side by side are the
   // parallelism. TopoBench's batches are small: with two OpenMP threads per run, 83 % of a MUTAG
@@ -181,7 +181,7 @@ int run_topobench(const TopoBenchOptions& o) {
   run.max_epochs = o.max_epochs;
   run.backbone = [](const topobench::ModelSpec& m) { return topobench::table_backbone(m.name); };
   run.on_not_run = [&](const topobench::NotRun&) {
-    topos::write_file_atomic((out / "not_run.csv").string(), not_run_csv());
+    topos::io::write_file_atomic((out / "not_run.csv").string(), not_run_csv());
   };
   const auto failed_cells = topobench::run_table(root, jobs, folder, not_run, run);
   if (!failed_cells.empty()) {

@@ -32,14 +32,14 @@ inline void add_case_options(CLI::App* cmd, CaseOptions& o) {
       "the papers' behaviour where TopoModelX differs (docs/models.md), not TopoModelX's numbers");
 }
 
-inline topos::models::ZooCase open_case(const CaseOptions& o) {
+inline topos::models::zoo::ZooCase open_case(const CaseOptions& o) {
   const std::filesystem::path dir(o.case_dir);
   if (!std::filesystem::is_directory(dir))
     throw topos::data::DataError(o.case_dir + ": not a folder");
   // The operators are computed after the model and its weights: a bad model or config is named
   // first.
-  auto c = topos::models::load_case(
-      dir, [&dir] { return topos::models::case_operators(dir); }, !o.intended);
+  auto c = topos::models::zoo::load_case(
+      dir, [&dir] { return topos::models::zoo::case_operators(dir); }, !o.intended);
   if (!o.state_dict.empty()) topos::models::load_state_dict(*c.model.module, o.state_dict);
   std::filesystem::create_directories(o.out_dir);
   return c;

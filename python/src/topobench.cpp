@@ -506,7 +506,7 @@ void bind_data(py::module_& m) {
         const auto& d = topobench::dataset_name(dataset);
         const fs::path dir = root_arg(root);
         // The lifting builds the names it knows and skips others: name one it does not know.
-        topobench::LiftingOptions all;  // no operators named: every one of the domain
+        topobench::GraphLiftingOptions all;  // no operators named: every one of the domain
         const auto known = topobench::lift_graph(3, {{0, 1}, {0, 2}, {1, 2}}, {1, 1, 1}, 1, {},
                                                  layout.domain, all);
         for (const auto& op : layout.operators)

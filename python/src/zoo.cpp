@@ -19,8 +19,8 @@ namespace topos::python {
 
 namespace {
 
-using models::ZooArg;
-using models::ZooModel;
+using models::zoo::ZooArg;
+using models::zoo::ZooModel;
 
 /// The dtype operators are converted to: the model's first floating parameter's.
 at::ScalarType model_dtype(torch::nn::Module& m) {
@@ -60,18 +60,19 @@ ZooArg zoo_arg(const py::handle& obj, const std::string& where, at::ScalarType d
 void bind_zoo(py::module_& parent) {
   py::module_ m = parent.def_submodule(
       "zoo", "The C++ model zoo by TopoModelX class name (topos.topomodelx wraps it).");
-  py::register_local_exception<models::ZooError>(m, "ZooError", PyExc_ValueError).attr("__doc__") =
-      "A zoo model's bad constructor or forward argument (named).";
-  m.def("model_names", &models::compiled_zoo_model_names, "TopoModelX class names the zoo builds.");
+  py::register_local_exception<models::zoo::ZooError>(m, "ZooError", PyExc_ValueError)
+      .attr("__doc__") = "A zoo model's bad constructor or forward argument (named).";
+  m.def("model_names", &models::zoo::compiled_zoo_model_names,
+        "TopoModelX class names the zoo builds.");
   py::class_<ZooModel>(m, "_ZooModel", "A zoo model (topos.topomodelx wraps it in a Module).")
       .def(py::init([](const std::string& model, const std::string& config, bool compatible) {
              nlohmann::json j;
              try {
                j = nlohmann::json::parse(config);
              } catch (const nlohmann::json::exception& e) {
-               throw models::ZooError(model + ": config is not JSON (" + e.what() + ")");
+               throw models::zoo::ZooError(model + ": config is not JSON (" + e.what() + ")");
              }
-             return models::make_compiled_zoo_model(model, j, compatible);
+             return models::zoo::make_compiled_zoo_model(model, j, compatible);
            }),
            py::arg("model"), py::arg("config"), py::arg("topomodelx_compatible"))
       .def(

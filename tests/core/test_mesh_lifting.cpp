@@ -12,8 +12,12 @@
 
 #include <filesystem>
 #include <sstream>
+#include <type_traits>
 
 using namespace topos;
+
+// The OBJ reader's names before io/ had its namespace still name the same types.
+static_assert(std::is_same_v<ObjMesh, io::ObjMesh>);
 
 namespace {
 std::int64_t euler(const TriangleMesh& m) {
@@ -108,7 +112,7 @@ TEST_CASE("OBJ parsing: blocks, v/vt/vn triples, negative indices, trimesh merge
   std::istringstream in(
       "# comment\nmtllib x.mtl\no first\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\n"
       "f 1/1/1 2/1/1 3/1/1\no second\nv 0 0 0\nv 0 0 1\nf -4 -2 -1\n");
-  auto obj = parse_obj(in, "mem.obj");
+  auto obj = io::parse_obj(in, "mem.obj");
   REQUIRE(obj.mesh.num_vertices() == 5);
   REQUIRE(obj.blocks.size() == 2);
   REQUIRE(obj.blocks[1].name == "second");
@@ -118,7 +122,7 @@ TEST_CASE("OBJ parsing: blocks, v/vt/vn triples, negative indices, trimesh merge
   in.clear();
   std::istringstream again(
       "o a\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\no b\nv 0 0 0\nv 0 0 1\nf 4 2 5\n");
-  auto merged = parse_obj(again, "mem.obj", ObjReadOptions().merge(true));
+  auto merged = io::parse_obj(again, "mem.obj", io::ObjReadOptions().merge(true));
   REQUIRE(merged.mesh.num_vertices() == 4);
   REQUIRE(merged.mesh.faces(1, 0) == 0);
 }
@@ -127,7 +131,7 @@ TEST_CASE("OBJ errors name the file and line", "[core][obj][errors]") {
   auto err = [](const std::string& text) {
     std::istringstream in(text);
     try {
-      parse_obj(in, "bad.obj");
+      io::parse_obj(in, "bad.obj");
     } catch (const MeshError& e) {
       return std::string(e.what());
     }
@@ -142,7 +146,7 @@ TEST_CASE("OBJ errors name the file and line", "[core][obj][errors]") {
   CHECK(err("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 2\n") == "bad.obj:4: face repeats a vertex");
   CHECK(err("v 0 0\n") == "bad.obj:1: vertex needs 3 coordinates");
   CHECK(err("") == "bad.obj: no vertices");
-  CHECK_THROWS_WITH(read_obj("/nonexistent/x.obj"), "/nonexistent/x.obj: cannot open file");
+  CHECK_THROWS_WITH(io::read_obj("/nonexistent/x.obj"), "/nonexistent/x.obj: cannot open file");
 }
 
 TEST_CASE("every convex part of the KuBasic meshes has V - E + F = 2",
@@ -153,7 +157,7 @@ TEST_CASE("every convex part of the KuBasic meshes has V - E + F = 2",
     const auto path = entry.path() / "collision_geometry.obj";
     // The floor dome is an open quad surface, not a closed convex part.
     if (!std::filesystem::exists(path) || entry.path().filename() == "dome") continue;
-    const ObjMesh obj = read_obj(path.string());
+    const io::ObjMesh obj = io::read_obj(path.string());
     for (std::size_t b = 0; b < obj.blocks.size(); ++b) {
       const TriangleMesh part = obj.block_mesh(b);
       INFO(path.string() << " block " << obj.blocks[b].name);
@@ -173,8 +177,8 @@ TEST_CASE("trimesh's duplicate merge gives the reference's vertex counts",
       {"suzanne", 521}, {"torus", 639}, {"torus_knot", 1141}};
   for (auto& [shape, n] : expected) {
     INFO(shape);
-    const auto obj =
-        read_obj((dir / shape / "collision_geometry.obj").string(), ObjReadOptions().merge(true));
+    const auto obj = io::read_obj((dir / shape / "collision_geometry.obj").string(),
+                                  io::ObjReadOptions().merge(true));
     CHECK(obj.mesh.num_vertices() == n);
   }
 }

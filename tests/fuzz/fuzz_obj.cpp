@@ -12,7 +12,7 @@ TOPOS_FUZZ_TARGET(obj) {
   const bool merge = data[0] & 1;
   std::istringstream in(text(data + 1, size - 1));
   try {
-    const auto obj = topos::parse_obj(in, source(), topos::ObjReadOptions().merge(merge));
+    const auto obj = topos::io::parse_obj(in, source(), topos::io::ObjReadOptions().merge(merge));
     const auto& m = obj.mesh;
     check(m.vertices.rows() > 0 && m.faces.rows() > 0, "a mesh read has vertices and faces");
     check(m.faces.minCoeff() >= 0 && m.faces.maxCoeff() < m.vertices.rows(),

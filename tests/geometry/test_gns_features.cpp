@@ -76,7 +76,7 @@ Poses poses_of(const std::vector<std::pair<Eigen::Vector3d, Eigen::Vector4d>>& p
 
 const Eigen::Vector4d kIdentity(1, 0, 0, 0);
 
-Eigen::Vector3d vec(const models::gns::RowMatrix& m, Eigen::Index r, Eigen::Index c) {
+Eigen::Vector3d vec(const sim::RowMatrix& m, Eigen::Index r, Eigen::Index c) {
   return m.block<1, 3>(r, c).transpose();
 }
 
@@ -86,8 +86,8 @@ Eigen::Matrix3d rotation(const Eigen::Vector4d& q) {
 }
 
 // World vertices of every object, stacked in node order (the floor unmoved).
-models::gns::RowMatrix world_nodes(const sim::SceneMeshes& g, const Poses& p) {
-  models::gns::RowMatrix x(g.num_nodes(), 3);
+sim::RowMatrix world_nodes(const sim::SceneMeshes& g, const Poses& p) {
+  sim::RowMatrix x(g.num_nodes(), 3);
   for (std::int64_t o = 0; o < g.num_objects(); ++o) {
     const auto& obj = g.objects[static_cast<std::size_t>(o)];
     for (Eigen::Index v = 0; v < obj.mesh.vertices.rows(); ++v) {
@@ -104,8 +104,7 @@ models::gns::RowMatrix world_nodes(const sim::SceneMeshes& g, const Poses& p) {
 
 // Checks one ff hyperedge against the node positions: rows ascending, each row's vertex is its
 // slot's node, the rows' closest points agree, d_rs = p_r - p_s, normals of the slot faces.
-void check_hyperedge(const models::gns::EdgeSetData& ff, Eigen::Index e,
-                     const models::gns::RowMatrix& x) {
+void check_hyperedge(const sim::EdgeSetData& ff, Eigen::Index e, const sim::RowMatrix& x) {
   const auto& F = ff.features;
   Eigen::Vector3d p[2];
   for (int side = 0; side < 2; ++side) {
@@ -132,7 +131,7 @@ void check_hyperedge(const models::gns::EdgeSetData& ff, Eigen::Index e,
 }
 
 // Every hyperedge 2c + 1 is hyperedge 2c with sender and receiver swapped.
-void check_reversed_pairs(const models::gns::EdgeSetData& ff) {
+void check_reversed_pairs(const sim::EdgeSetData& ff) {
   REQUIRE(ff.size() % 2 == 0);
   const auto& F = ff.features;
   for (Eigen::Index c = 0; 2 * c < ff.size(); ++c) {
@@ -204,11 +203,11 @@ TEST_CASE("FIGNet face-face features of two hand-placed triangles", "[gns][figne
     };
     // Hyperedge 0 sends A -> B; A's nodes are 0..2 and B's 3..5, slots in the rows' order.
     expect(0, {0, 0, 0.05}, rowsA, rowsB, nA, nB);
-    CHECK(ff.senders.row(0) == (models::gns::IndexMatrix(1, 3) << 0, 2, 1).finished());
-    CHECK(ff.receivers.row(0) == (models::gns::IndexMatrix(1, 3) << 3, 4, 5).finished());
+    CHECK(ff.senders.row(0) == (sim::IndexMatrix(1, 3) << 0, 2, 1).finished());
+    CHECK(ff.receivers.row(0) == (sim::IndexMatrix(1, 3) << 3, 4, 5).finished());
     expect(1, {0, 0, -0.05}, rowsB, rowsA, nB, nA);
-    CHECK(ff.senders.row(1) == (models::gns::IndexMatrix(1, 3) << 3, 4, 5).finished());
-    CHECK(ff.receivers.row(1) == (models::gns::IndexMatrix(1, 3) << 0, 2, 1).finished());
+    CHECK(ff.senders.row(1) == (sim::IndexMatrix(1, 3) << 3, 4, 5).finished());
+    CHECK(ff.receivers.row(1) == (sim::IndexMatrix(1, 3) << 0, 2, 1).finished());
     check_reversed_pairs(ff);
 
     // Outside the radius: no hyperedge.
@@ -248,8 +247,7 @@ TEST_CASE("FIGNet face-face features of two cubes and of a cube above the floor 
   const auto floor_offset = g.node_offset[2];
 
   // The faces of object o with a vertex on the plane coordinate `axis` = value (world).
-  const auto faces_touching = [&](const models::gns::RowMatrix& x, std::int64_t o, int axis,
-                                  double value) {
+  const auto faces_touching = [&](const sim::RowMatrix& x, std::int64_t o, int axis, double value) {
     std::set<std::array<std::int64_t, 3>> out;
     const auto& F = g.objects[static_cast<std::size_t>(o)].mesh.faces;
     for (Eigen::Index f = 0; f < F.rows(); ++f) {
@@ -264,7 +262,7 @@ TEST_CASE("FIGNet face-face features of two cubes and of a cube above the floor 
     }
     return out;
   };
-  const auto sorted_row = [](const models::gns::IndexMatrix& m, Eigen::Index e) {
+  const auto sorted_row = [](const sim::IndexMatrix& m, Eigen::Index e) {
     std::array<std::int64_t, 3> t{m(e, 0), m(e, 1), m(e, 2)};
     std::sort(t.begin(), t.end());
     return t;
@@ -416,9 +414,9 @@ TEST_CASE("FIGNet node, object and mesh-object features on an analytic motion", 
   REQUIRE(f.node_object == g.node_object);
   CHECK(f.edges.count("mm") == 0);
 
-  const auto check_row = [](const models::gns::RowMatrix& m, Eigen::Index r,
-                            const Eigen::Vector3d& v1, const Eigen::Vector3d& v2,
-                            double restitution, double friction, double mass, double kinematic) {
+  const auto check_row = [](const sim::RowMatrix& m, Eigen::Index r, const Eigen::Vector3d& v1,
+                            const Eigen::Vector3d& v2, double restitution, double friction,
+                            double mass, double kinematic) {
     CHECK((vec(m, r, 0) - v1).norm() < 1e-12);
     CHECK((vec(m, r, 3) - v2).norm() < 1e-12);
     CHECK(m(r, 6) == restitution);

@@ -11,8 +11,12 @@
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <type_traits>
 
 namespace fs = std::filesystem;
+
+// The names before io/ had its namespace still name the same types.
+static_assert(std::is_same_v<topos::FileGroup, topos::io::FileGroup>);
 
 namespace {
 std::string slurp(const fs::path& p) {
@@ -33,9 +37,9 @@ TEST_CASE("a file group replaces its files together, and recovery completes an i
   put(a, "old-a");
   put(b, "old-b");
   {
-    topos::FileGroup g(journal);
-    topos::write_file_atomic(g.stage(a), std::string("new-a"));
-    topos::write_file_atomic(g.stage(b), std::string("new-b"));
+    topos::io::FileGroup g(journal);
+    topos::io::write_file_atomic(g.stage(a), std::string("new-a"));
+    topos::io::write_file_atomic(g.stage(b), std::string("new-b"));
     CHECK(slurp(a) == "old-a");  // staged only
     g.commit();
   }
@@ -49,7 +53,7 @@ TEST_CASE("a file group replaces its files together, and recovery completes an i
   put(b, "old-b");
   put(a + ".next", "new-a");
   put(b + ".next.tmp", "new-");
-  topos::recover_file_group(journal);
+  topos::io::recover_file_group(journal);
   CHECK(slurp(a) == "old-a");
   CHECK(slurp(b) == "old-b");
 
@@ -58,12 +62,12 @@ TEST_CASE("a file group replaces its files together, and recovery completes an i
   fs::remove(a + ".next");
   put(b + ".next", "new-b");
   put(journal, a + "\n" + b + "\n");
-  topos::recover_file_group(journal);
+  topos::io::recover_file_group(journal);
   CHECK(slurp(a) == "new-a");
   CHECK(slurp(b) == "new-b");
   CHECK(!fs::exists(journal));
   CHECK(!fs::exists(b + ".next"));
-  topos::recover_file_group(journal);  // nothing left to do
+  topos::io::recover_file_group(journal);  // nothing left to do
   CHECK(slurp(b) == "new-b");
   fs::remove_all(d);
 }

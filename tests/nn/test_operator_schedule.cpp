@@ -10,6 +10,8 @@
 #include "topos/testing/conv.hpp"
 
 #include <set>
+#include <type_traits>
+#include <utility>
 
 using namespace topos;
 using namespace topos::nn;
@@ -17,6 +19,15 @@ using namespace topos::nn::ops;
 using Catch::Matchers::Contains;
 using topos::test::build_error;
 using topos::test::random_operator;
+
+// A chain on a temporary stays an rvalue, so it moves into sum, step or a return without
+// std::move, braced arguments included; on a named term or step it is that object.
+static_assert(std::is_same_v<decltype(from(0).via("A").act(Activation::relu)), Term&&>);
+static_assert(std::is_same_v<decltype(from(0).bias("b", {1, 4})), Term&&>);
+static_assert(std::is_same_v<decltype(into(0).sum(from(0)).named("s")), OperatorStep&&>);
+static_assert(std::is_same_v<decltype(std::declval<Term&>().via("A")), Term&>);
+static_assert(
+    std::is_same_v<decltype(std::declval<OperatorStep&>().act(Activation::relu)), OperatorStep&>);
 
 namespace {
 

@@ -112,8 +112,8 @@ bool expect_failure(const std::string& tdl, const fs::path& work, const std::str
   fs::remove_all(dir);
   fs::remove_all(out);
   fs::create_directories(dir);
-  topos::write_file_atomic((dir / "complex.json").string(), complex_json);
-  topos::write_file_atomic((dir / "operators.json").string(), operators_json);
+  topos::io::write_file_atomic((dir / "complex.json").string(), complex_json);
+  topos::io::write_file_atomic((dir / "operators.json").string(), operators_json);
   const fs::path err = work / (name + ".stderr");
   const int rc = run(quote(tdl) + " operators --case " + quote(dir.string()) + " --out " +
                      quote(out.string()) + " > /dev/null 2> " + quote(err.string()));

@@ -389,7 +389,7 @@ inline void write_topos_dataset(const std::vector<KubricScene>& scenes,
   std::filesystem::create_directories(root);
   write_npy((root / "positions.npy").string(), {total, frames, 3}, P.data());
   write_npy((root / "quaternions.npy").string(), {total, frames, 4}, Q.data());
-  write_file_atomic((root / "dataset.json").string(), index.dump() + "\n");
+  io::write_file_atomic((root / "dataset.json").string(), index.dump() + "\n");
 }
 
 }  // namespace topos::data

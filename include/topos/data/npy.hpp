@@ -208,7 +208,7 @@ inline void write_npy_bytes(const std::string& path, const std::vector<std::int6
   bytes.append(reinterpret_cast<const char*>(&len), 2);
   bytes += header;
   bytes.append(reinterpret_cast<const char*>(data), static_cast<std::size_t>(n) * item);
-  write_file_atomic(path, bytes);
+  io::write_file_atomic(path, bytes);
 }
 }  // namespace detail
 

@@ -16,7 +16,7 @@
 #include <limits>
 #include <unordered_map>
 
-namespace topos::tdl {
+namespace topos::data {
 
 namespace detail {
 
@@ -443,4 +443,4 @@ TOPOS_INLINE Operators compute_operators(const std::filesystem::path& case_dir) 
                            (case_dir / "operators.json").string());
 }
 
-}  // namespace topos::tdl
+}  // namespace topos::data

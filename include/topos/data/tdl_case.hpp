@@ -39,7 +39,7 @@
 #include <variant>
 #include <vector>
 
-namespace topos::tdl {
+namespace topos::data {
 
 using SparseOp = Eigen::SparseMatrix<double, Eigen::RowMajor, std::int64_t>;
 static_assert(std::is_same_v<SparseOp, SparseMatrix>, "tdl operators are the core operator type");
@@ -97,7 +97,12 @@ Operators compute_operators(const nlohmann::ordered_json& ops, const Domain& dom
 /// operator and the op.
 Operators compute_operators(const std::filesystem::path& case_dir);
 
-}  // namespace topos::tdl
+}  // namespace topos::data
+
+namespace topos {
+// Deprecated: the reader's old namespace. Write data::compute_operators (etc.).
+namespace tdl = data;
+}  // namespace topos
 
 #ifdef TOPOS_HEADER_ONLY
 #include "topos/data/tdl_case-inl.hpp"

@@ -13,7 +13,7 @@
 #include <string>
 #include <vector>
 
-namespace topos {
+namespace topos::io {
 
 namespace detail {
 /// Crash testing (tests/cli/crash_resume.cmake): when TOPOS_CRASH_TEST_POINT=n is set, the
@@ -95,4 +95,11 @@ class FileGroup {
   std::vector<std::string> paths_;
 };
 
+}  // namespace topos::io
+
+namespace topos {
+// Deprecated: the old flat names. Write io::write_file_atomic (etc.).
+using io::FileGroup;
+using io::recover_file_group;
+using io::write_file_atomic;
 }  // namespace topos

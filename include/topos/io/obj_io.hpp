@@ -18,7 +18,7 @@
 #include <string>
 #include <vector>
 
-namespace topos {
+namespace topos::io {
 
 struct ObjBlock {
   std::string name;
@@ -181,4 +181,14 @@ inline ObjMesh read_obj(const std::string& path, const ObjReadOptions& opt = {})
   return parse_obj(in, path, opt);
 }
 
+}  // namespace topos::io
+
+namespace topos {
+// Deprecated: the old flat names. Write io::read_obj (etc.).
+using io::merge_duplicate_vertices;
+using io::ObjBlock;
+using io::ObjMesh;
+using io::ObjReadOptions;
+using io::parse_obj;
+using io::read_obj;
 }  // namespace topos

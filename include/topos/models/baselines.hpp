@@ -83,7 +83,7 @@ class SceneGraphs {
       geometry_ = mgn::make_mgn_geometry(scene);
   }
   /// The graph of the step from poses at t-2, t-1, t (`next`: t+1, for a training target).
-  gns::GraphFrame frame(const sim::Poses& p2, const sim::Poses& p1, const sim::Poses& pt,
+  sim::GraphFrame frame(const sim::Poses& p2, const sim::Poses& p1, const sim::Poses& pt,
                         const sim::Poses* next = nullptr) const {
     if (config_.is_fignet()) {
       fignet::FignetFeatureOptions o;
@@ -96,7 +96,7 @@ class SceneGraphs {
     return mgn::mgn_frame(std::get<mgn::MgnGeometry>(geometry_), p2, p1, pt, next, o);
   }
   /// The graph of frame t's step in a ground-truth scene (t >= 2; with its target when t+1 exists).
-  gns::GraphFrame frame(const sim::Scene& scene, std::int64_t t) const {
+  sim::GraphFrame frame(const sim::Scene& scene, std::int64_t t) const {
     const auto next = t + 1 < scene.num_frames
                           ? std::optional<sim::Poses>(sim::scene_poses(scene, t + 1))
                           : std::nullopt;

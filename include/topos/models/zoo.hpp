@@ -4,7 +4,8 @@
 // an error naming it) and runs it on TopoModelX's positional forward arguments (tensors,
 // operators, tuples/lists of them, None). Used by `tdl forward` / `tdl grad` and the parity tests.
 // The registry is here; its pieces are in zoo/: config.hpp (reading a config), arguments.hpp
-// (forward arguments, ZooModel), hypergraph.hpp and simplicial_and_cell.hpp (per-domain makers).
+// (forward arguments, ZooModel), hypergraph.hpp and simplicial_and_cell.hpp (per-domain makers),
+// all in topos::models::zoo.
 #pragma once
 
 #include "topos/models/cell/cwn.hpp"
@@ -27,7 +28,7 @@
 
 namespace topos::models {
 
-namespace detail {
+namespace zoo::detail {
 
 inline const std::map<std::string, Maker>& makers() {
   static const std::map<std::string, Maker> m = [] {
@@ -129,35 +130,35 @@ inline const std::map<std::string, Maker>& makers() {
   return m;
 }
 
-}  // namespace detail
+}  // namespace zoo::detail
 
 /// TopoModelX class names the zoo builds.
 inline std::vector<std::string> zoo_model_names() {
   std::vector<std::string> out;
-  for (const auto& [k, v] : detail::makers()) out.push_back(k);
+  for (const auto& [k, v] : zoo::detail::makers()) out.push_back(k);
   return out;
 }
 
 /// Builds `model` (a TopoModelX class name) from its constructor arguments. With
 /// `topomodelx_compatible`, the model reproduces TopoModelX's numbers where they differ from the
 /// paper's definition (docs/models.md lists where).
-inline ZooModel make_zoo_model(const std::string& model, const nlohmann::json& config,
-                               bool topomodelx_compatible = true) {
-  const auto& m = detail::makers();
+inline zoo::ZooModel make_zoo_model(const std::string& model, const nlohmann::json& config,
+                                    bool topomodelx_compatible = true) {
+  const auto& m = zoo::detail::makers();
   auto it = m.find(model);
   if (it == m.end()) {
     std::string known;
     for (const auto& [k, v] : m) known += (known.empty() ? "" : ", ") + k;
-    throw ZooError("unknown model '" + model + "' (known: " + known + ")");
+    throw zoo::ZooError("unknown model '" + model + "' (known: " + known + ")");
   }
-  detail::Config c(config, model);
-  ZooModel z;
+  zoo::detail::Config c(config, model);
+  zoo::ZooModel z;
   try {
     z = it->second(c, topomodelx_compatible);
-  } catch (const ZooError&) {
+  } catch (const zoo::ZooError&) {
     throw;
   } catch (const std::exception& e) {
-    throw ZooError(model + ": " + e.what());
+    throw zoo::ZooError(model + ": " + e.what());
   }
   c.finish();
   return z;

@@ -58,7 +58,7 @@ TOPOS_INLINE std::vector<char> torch_file_bytes(const c10::IValue& value) {
 /// interrupted save leaves the old file intact.
 TOPOS_INLINE void write_torch_file(const c10::IValue& value, const std::string& path) {
   const auto bytes = torch_file_bytes(value);
-  write_file_atomic(path, bytes.data(), bytes.size());
+  io::write_file_atomic(path, bytes.data(), bytes.size());
 }
 
 /// Writes a dict of tensors that Python's torch.load reads (write_torch_file).

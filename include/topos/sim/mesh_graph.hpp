@@ -1,11 +1,11 @@
 // topos/sim/mesh_graph.hpp
 // The graph features of mesh nodes and mesh edges that FIGNet and MeshGraphNet share (FIGNet's
-// column layout, which the MeshGraphNet baseline reuses), as models::gns::GraphFrame data without
+// column layout, which the MeshGraphNet baseline reuses), as GraphFrame data without
 // LibTorch: node rows [v_{t-1}, v_t, restitution, friction x3, mass, kinematic] and mesh edges
 // both ways with [x_s - x_r, |.|, X_s - X_r, |.|].
 #pragma once
 
-#include "topos/models/gns/graph.hpp"
+#include "topos/sim/graph_frame.hpp"
 #include "topos/sim/meshes.hpp"
 
 namespace topos::sim {
@@ -44,9 +44,9 @@ inline RowMatrix mesh_node_features(const SceneMeshes& g, const RowMatrix& x2, c
 
 /// Unique mesh edges in both directions (edge 2i: a -> b, 2i + 1: b -> a), features
 /// [x_s - x_r, |.|, X_s - X_r, |.|] with X the canonical (body-frame) vertices.
-inline models::gns::EdgeSetData mesh_edge_set(const SceneMeshes& g, const RowMatrix& xt) {
+inline EdgeSetData mesh_edge_set(const SceneMeshes& g, const RowMatrix& xt) {
   const auto E = static_cast<Eigen::Index>(g.edges.size());
-  models::gns::EdgeSetData s;
+  EdgeSetData s;
   s.features.resize(2 * E, kMeshEdgeWidth);
   s.senders.resize(2 * E, 1);
   s.receivers.resize(2 * E, 1);

@@ -11,6 +11,7 @@
 #include "topos/io/obj_io.hpp"
 #include "topos/mesh/primitives.hpp"
 #include "topos/mesh/rigid.hpp"
+#include "topos/sim/graph_frame.hpp"  // RowMatrix
 #include "topos/data/kubric.hpp"
 
 #include <Eigen/Dense>
@@ -91,7 +92,7 @@ class MeshLibrary {
       const auto path = assets_ / shape / "collision_geometry.obj";
       if (!std::filesystem::exists(path))
         throw data::DataError(path.string() + ": missing asset for shape '" + shape + "'");
-      m = read_obj(path.string(), ObjReadOptions().merge(true)).mesh;
+      m = io::read_obj(path.string(), io::ObjReadOptions().merge(true)).mesh;
       m.name = shape;
     }
     return cache_.emplace(shape, std::move(m)).first->second;
@@ -140,8 +141,6 @@ inline std::vector<PosedObject> pose_scene(const Scene& s, std::int64_t t) {
   }
   return out;
 }
-
-using RowMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
 
 /// Object poses at one frame: positions O×3, quaternions O×4 (w x y z).
 struct Poses {

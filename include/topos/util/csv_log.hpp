@@ -41,7 +41,7 @@ inline void truncate_csv_log(const std::string& path, std::size_t column, std::i
     kept += row;
     pos = nl + 1;
   }
-  if (kept != text) write_file_atomic(path, kept);
+  if (kept != text) io::write_file_atomic(path, kept);
 }
 
 }  // namespace topos

@@ -20,7 +20,7 @@ int main() {
   std::ofstream(dir / "operators.json")
       << R"({"B1": {"op": "incidence_matrix", "args": {"rank": 1}},
              "L0": {"op": "hodge_laplacian_matrix", "args": {"rank": 0}}})";
-  const auto ops = topos::models::case_operators(dir);
+  const auto ops = topos::models::zoo::case_operators(dir);
   fs::remove_all(dir);
   const auto L0 = ops.at("L0").to_dense();
   const auto B1 = ops.at("B1").to_dense();

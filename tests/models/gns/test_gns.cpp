@@ -121,7 +121,7 @@ models::gns::GraphNetworkSpec tiny_spec(std::int64_t L) {
   models::fignet::FignetOptions o;
   o.network.latent = L;
   o.network.steps = 1;
-  o.network.mlp_layers = 1;
+  o.network.hidden_layers = 1;
   return models::fignet::fignet_spec(o);
 }
 
@@ -355,6 +355,20 @@ TEST_CASE("Graph networks: statistics, collation and configuration errors", "[gn
     const auto g = models::fignet::FignetOptions::from_json(f.to_json());
     CHECK(g.mesh_edges);
     CHECK(g.collision_radius == 0.2);
+    // The MLP depth is written as hidden_layers; mlp_layers, its name before, is still read.
+    f.network.hidden_layers = 1;
+    const auto written = f.to_json();
+    CHECK(written.at("hidden_layers") == 1);
+    CHECK(!written.contains("mlp_layers"));
+    auto old = written;
+    old.erase("hidden_layers");
+    old["mlp_layers"] = 3;
+    CHECK(models::fignet::FignetOptions::from_json(old).network.hidden_layers == 3);
+    old["hidden_layers"] = 3;  // both names, one value: accepted
+    CHECK(models::fignet::FignetOptions::from_json(old).network.hidden_layers == 3);
+    old["hidden_layers"] = 1;
+    CHECK_THROWS_WITH(models::fignet::FignetOptions::from_json(old),
+                      Catch::Contains("hidden_layers 1 and its old name mlp_layers 3 differ"));
     models::gns::GraphNetworkSpec s = spec;
     s.edges[0].receiver = "objects";
     CHECK_THROWS_WITH(models::gns::graph_network_schedule(s),

@@ -126,6 +126,37 @@ TEST_CASE(
   fs::remove_all(dir);
 }
 
+TEST_CASE("A baseline checkpoint written before hidden_layers (as mlp_layers) still loads",
+          "[sim][gns]") {
+  const auto dir = testing::fresh_dir("sim_old_baseline");
+  const auto scene = testing::cube_and_sphere();
+  const auto config = models::baselines::BaselineConfig::from_json(
+      {{"model", "mgn"}, {"latent", 8}, {"steps", 1}, {"hidden_layers", 1}});
+  torch::manual_seed(7);
+  models::baselines::Baseline b(config);
+  const models::baselines::SceneGraphs graphs(config, scene);
+  models::gns::StatisticsAccumulator acc(config.spec());
+  for (std::int64_t t = 2; t + 1 < scene.num_frames; ++t) acc.add(graphs.frame(scene, t));
+  const auto path = (dir / "mgn.pt").string();
+  models::baselines::save_baseline(b, acc.finish(), path);
+  auto dict = nn::read_tensor_dict(path);
+  // The configuration as checkpoints recorded it before: the depth under "mlp_layers".
+  auto old = models::baselines::checkpoint_config(dict, path);
+  REQUIRE(old.at("hidden_layers") == 1);
+  old.erase("hidden_layers");
+  old["mlp_layers"] = 1;
+  const std::string text = old.dump();
+  dict["topos.config"] =
+      torch::tensor(std::vector<std::uint8_t>(text.begin(), text.end()), torch::kUInt8);
+  const auto loaded = models::baselines::load_baseline(dict, path, "mgn");
+  CHECK(loaded.model.config.to_json() == config.to_json());
+  CHECK(loaded.model.num_parameters() == b.num_parameters());
+  const auto want = b.net->named_parameters(), got = loaded.model.net->named_parameters();
+  REQUIRE(got.size() == want.size());
+  for (const auto& p : want) CHECK(torch::equal(got[p.key()], p.value()));
+  fs::remove_all(dir);
+}
+
 TEST_CASE("open_model: a file of no known format is an error naming it and the formats", "[sim]") {
   const auto dir = testing::fresh_dir("sim_bad_files");
   const auto plain = (dir / "plain.pt").string();

@@ -36,7 +36,7 @@ const std::vector<std::string> kNames = {
 
 LiftedGraph lift(const std::vector<std::array<std::int64_t, 2>>& edges, std::int64_t n,
                  std::set<std::string> names, std::int64_t width = 1) {
-  LiftingOptions o;
+  GraphLiftingOptions o;
   o.operators = std::move(names);
   torch::manual_seed(n);
   const auto x = torch::randn({n, width});
@@ -156,7 +156,7 @@ TEST_CASE("TopoTune's neighbourhoods batch block-diagonally", "[gccn]") {
 TEST_CASE("A bad neighbourhood name is an error listing the valid forms", "[gccn]") {
   const auto throws_with = [](const std::string& name, const std::string& part, Domain d) {
     INFO(name);
-    LiftingOptions o;
+    GraphLiftingOptions o;
     o.operators = {name};
     try {
       lift_graph(3, {{0, 1}, {1, 2}, {0, 2}}, {0, 0, 0}, 1, {}, d, o);

@@ -48,7 +48,7 @@ std::vector<TinyGraph> tiny_graphs() {
 // when named).
 std::vector<LiftedGraph> lift_tiny(Domain d, std::int64_t features,
                                    std::set<std::string> operators = {}) {
-  LiftingOptions o;
+  GraphLiftingOptions o;
   o.operators = std::move(operators);
   std::vector<LiftedGraph> out;
   torch::manual_seed(3);
@@ -356,7 +356,7 @@ TEST_CASE("Rank-1 Laplacians kept as factors are the formed ones, in a batch and
   graphs.insert(graphs.begin(), TinyGraph{2, {}});
   graphs.push_back({7, {{0, 1}, {0, 2}, {0, 3}, {0, 4}, {0, 5}, {0, 6}, {1, 2}}});
   for (Domain d : {Domain::cell, Domain::simplicial}) {
-    LiftingOptions formed, factored;
+    GraphLiftingOptions formed, factored;
     factored.factored = factorable_operators(d);
     std::vector<LiftedGraph> a, b;
     torch::manual_seed(5);
@@ -410,7 +410,7 @@ TEST_CASE("Rank-1 Laplacians kept as factors are the formed ones, in a batch and
         }
     }
   }
-  LiftingOptions bad;
+  GraphLiftingOptions bad;
   bad.factored = {"up_laplacian_1"};
   REQUIRE_THROWS_WITH(lift_graph(3, {{0, 1}}, {1, 1, 1}, 1, {}, Domain::cell, bad),
                       Catch::Contains("'up_laplacian_1' cannot be kept as factors in the cell"));
@@ -632,7 +632,7 @@ TEST_CASE(
         if (std::uniform_real_distribution<double>(0, 1)(rng) < 0.9) edges.push_back({u, v});
     const auto x = torch::rand({n, 3});
     const std::vector<float> xv(x.data_ptr<float>(), x.data_ptr<float>() + x.numel());
-    graphs.push_back(lift_graph(n, edges, xv, 3, {}, Domain::simplicial, LiftingOptions()));
+    graphs.push_back(lift_graph(n, edges, xv, 3, {}, Domain::simplicial, GraphLiftingOptions()));
     graphs.back().label = g % 2;
   }
   const auto batch = collate(graphs, {0, 1, 2, 3});

@@ -33,7 +33,7 @@ LiftedDataset synthetic_graphs(Domain domain = Domain::graph,
                                std::set<std::string> operators = {"gcn_adjacency"}) {
   std::mt19937 rng(11);
   std::uniform_real_distribution<float> u(0, 1);
-  LiftingOptions lo;
+  GraphLiftingOptions lo;
   lo.operators = std::move(operators);
   LiftedDataset d;
   d.num_classes = 2;
@@ -238,7 +238,7 @@ TEST_CASE("A runs folder tables a user's model beside the table's and resumes", 
             "CWN,MUTAG,0,2,0.7,0.4\n");
   CHECK(data::read_text_file(dir / "index.html").find("<h3 id='Tiny_MUTAG'>") != std::string::npos);
   // A malformed curves.csv is named before anything runs.
-  write_file_atomic((dir / "curves.csv").string(), std::string(curves_header()) + "x\n");
+  io::write_file_atomic((dir / "curves.csv").string(), std::string(curves_header()) + "x\n");
   CHECK_THROWS_WITH(RunsFolder(dir), Catch::Matchers::Contains("curves.csv:2: malformed row 'x'"));
   std::filesystem::remove_all(dir);
 }
@@ -292,8 +292,8 @@ TEST_CASE("run_table runs a table's jobs side by side into a runs folder, a fail
   for (std::int64_t s : {0, 3})
     CHECK(again.baselines().at({"synthetic", s}) ==
           Approx(majority_accuracy(data, s)).margin(1e-6));
-  write_file_atomic((dir / "baselines.csv").string(),
-                    "dataset,split_seed,majority_test_accuracy\nsynthetic,x,0.5\n");
+  io::write_file_atomic((dir / "baselines.csv").string(),
+                        "dataset,split_seed,majority_test_accuracy\nsynthetic,x,0.5\n");
   CHECK_THROWS_WITH(RunsFolder(dir), Catch::Matchers::Contains("baselines.csv:2: expected "
                                                                "dataset,split_seed,"));
   // Anything but a std::exception stops the runner and is rethrown.

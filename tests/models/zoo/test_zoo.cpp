@@ -14,10 +14,16 @@
 #include <fstream>
 #include <map>
 #include <set>
+#include <type_traits>
 
 using namespace topos;
 using namespace topos::nn;
 using namespace topos::models;
+using namespace topos::models::zoo;
+
+// The zoo's names before it had a namespace of its own still name the same types.
+static_assert(std::is_same_v<topos::models::ZooArg, topos::models::zoo::ZooArg> &&
+              std::is_same_v<topos::models::ZooCase, topos::models::zoo::ZooCase>);
 
 namespace {
 

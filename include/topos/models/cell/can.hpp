@@ -183,11 +183,10 @@ inline nn::OperatorSchedule can_schedule(const CANOptions& o) {
       } else {
         maps.push_back(into(1, side).sum(from(1).linear(q + ".lin", out, false)));
       }
-      terms.push_back(std::move(from(1, side).apply(std::move(att))));
+      terms.push_back(from(1, side).apply(std::move(att)));
     }
     if (o.skip_connection())
-      terms.push_back(
-          std::move(from(1).linear(p + "lin", o.concat() ? out : c, false).scale(1 + 1e-6)));
+      terms.push_back(from(1).linear(p + "lin", o.concat() ? out : c, false).scale(1 + 1e-6));
     s.parallel(std::move(maps));
     s.step(into(1).sum(std::move(terms)).act(Activation::relu).dropout(0.5).named(p + "update"));
     if (o.pooling() && l > 0)

@@ -146,7 +146,7 @@ inline nn::OperatorSchedule hmc_schedule(const HMCOptions& o) {
     a.source_offset = out;
     a.target_offset = 0;
     a.mirrored_rows = o.topomodelx_compatible();
-    return std::move(from(r, m.state).apply(std::move(a)).act(u));
+    return from(r, m.state).apply(std::move(a)).act(u);
   };
   // HBNS between ranks a < b over incidence B (n_a × n_b), from the maps s<ab> (rank b, a's
   // out channels) and t<ab> (rank a, b's out channels); a_s then a_t for the message on a, the
@@ -166,7 +166,7 @@ inline nn::OperatorSchedule hmc_schedule(const HMCOptions& o) {
     att.transposed = true;
     att.source_offset = out_b;
     att.target_offset = 2 * out_b % (out_a + out_b);
-    return std::move(from(a, "t" + ab).apply(std::move(att)).act(u));
+    return from(a, "t" + ab).apply(std::move(att)).act(u);
   };
   // The maps of one level: m<r> for the HBS of the ranks in `hbs_ranks`, s01, t01, s12, t12.
   auto maps = [&](const std::string& p, const std::string& level,

@@ -1,5 +1,5 @@
 // topos/models/fignet/features.hpp
-// FIGNet's graph at one timestep (docs/design/baselines.md 1.2-1.5, 4.2), as gns::GraphFrame
+// FIGNet's graph at one timestep (docs/design/baselines.md 1.2-1.5, 4.2), as sim::GraphFrame
 // data without LibTorch: mesh nodes and object nodes with the reimplementation's 12 columns,
 // mesh-object edges both ways, optional mesh-mesh edges, and face-face hyperedges (3 slots) from
 // the exact contact detector.
@@ -17,9 +17,9 @@
 
 #include "topos/core/mesh_lifting.hpp"
 #include "topos/geometry/contacts.hpp"
-#include "topos/models/gns/graph.hpp"
 #include "topos/models/hopnet/scene.hpp"  // the deprecated hopnet:: names of the scene
 #include "topos/models/namespace_aliases.hpp"
+#include "topos/sim/graph_frame.hpp"
 #include "topos/sim/mesh_graph.hpp"
 
 #include <algorithm>
@@ -31,8 +31,8 @@
 
 namespace topos::models::fignet {
 
-using gns::GraphFrame;
-using gns::RowMatrix;
+using sim::GraphFrame;
+using sim::RowMatrix;
 
 /// Feature widths: nodes (both sets) 12, mesh-object and mesh-mesh edges 8, face-face 34.
 inline constexpr int kNodeWidth = sim::kMeshNodeWidth, kEdgeWidth = sim::kMeshEdgeWidth,
@@ -145,8 +145,8 @@ inline GraphFrame fignet_frame(const FignetGeometry& g, const sim::Poses& p2, co
                   g.objects[static_cast<std::size_t>(k)], !g.is_static(k));
 
   // Mesh-object edges: d = x - x_com (world), d_ref = X - X_com (body frame); om negates both.
-  gns::EdgeSetData& mo = f.edges["mo"];
-  gns::EdgeSetData& om = f.edges["om"];
+  sim::EdgeSetData& mo = f.edges["mo"];
+  sim::EdgeSetData& om = f.edges["om"];
   for (auto* s : {&mo, &om}) {
     s->features.resize(N, kEdgeWidth);
     s->senders.resize(N, 1);
@@ -170,7 +170,7 @@ inline GraphFrame fignet_frame(const FignetGeometry& g, const sim::Poses& p2, co
 
   // Face-face hyperedges, both directions of every pair.
   const auto contacts = find_contacts(posedt, o.collision_radius);
-  gns::EdgeSetData& ff = f.edges["ff"];
+  sim::EdgeSetData& ff = f.edges["ff"];
   const auto F = static_cast<Eigen::Index>(2 * contacts.size());
   ff.features.resize(F, kFaceEdgeWidth);
   ff.senders.resize(F, 3);

@@ -68,7 +68,9 @@ struct Statistics {
     }
     return s;
   }
-  void save(const std::string& path) const { write_file_atomic(path, to_json().dump(1) + "\n"); }
+  void save(const std::string& path) const {
+    io::write_file_atomic(path, to_json().dump(1) + "\n");
+  }
   static Statistics load(const std::string& path) {
     std::ifstream in(path);
     if (!in) throw std::invalid_argument(path + ": cannot open statistics file");

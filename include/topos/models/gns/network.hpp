@@ -13,13 +13,20 @@
 // <processor>.<k>.<fn>.0.NN-i and .1, decoder.node_fn.NN-i), so its state dict maps one to one.
 #pragma once
 
-#include "topos/models/gns/graph.hpp"
 #include "topos/models/namespace_aliases.hpp"
 #include "topos/nn/operator_schedule.hpp"
+#include "topos/sim/graph_frame.hpp"
 
 #include <set>
 
 namespace topos::models::gns {
+
+// The timestep the networks read is the simulation layer's (topos/sim/graph_frame.hpp).
+using sim::EdgeSetData;
+using sim::GraphFrame;
+using sim::IndexMatrix;
+using sim::NodeSetData;
+using sim::RowMatrix;
 
 struct NodeSetSpec {
   std::string name;           ///< the input and output name, and the GraphFrame node set

@@ -15,7 +15,7 @@
 //    mesh's orientation, each face's normal from its closest partner, and B23's two halves by
 //    the pair's own role.
 //
-// The pieces: lifting_options.hpp (FeatureMode, Architecture, LiftingOptions), geometry.hpp
+// The pieces: lifting_options.hpp (FeatureMode, Architecture, SceneLiftingOptions), geometry.hpp
 // (HopnetGeometry, pose_objects; the scene and its poses are sim/scene.hpp's), contact_cells.hpp
 // (contact candidates and their geometry), frame.hpp (build_frame, HopnetFrame) and
 // neighborhoods.hpp (hopnet_neighborhoods).

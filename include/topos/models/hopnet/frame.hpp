@@ -40,7 +40,7 @@ struct HopnetFrame {
 /// virtual node (row N+o) is [x4[o, 0:8], zeros, x4[o, 8:13]], and the spoke of node n (row E+n)
 /// is [r0, |r0|, rt, |rt|] of that node (x0[n, 8:16]), negated when the virtual node comes first.
 inline void lift_variant_features(const HopnetGeometry& g, HopnetFrame& f) {
-  const LiftingOptions& l = g.lifting;
+  const SceneLiftingOptions& l = g.lifting;
   if (l.center_mass_distance && l.object_cells()) return;
   const std::int64_t N = g.num_nodes(), E = g.num_edges(), O = g.num_objects();
   const RowMatrix full = f.x0;

@@ -48,7 +48,7 @@ struct HopnetGeometry {
       face_edges;                             ///< global face -> edge ids
   std::vector<VertexFaceIndex> vertex_faces;  ///< per object, for the reference detector
   FeatureMode mode = FeatureMode::reference;
-  LiftingOptions lifting;  ///< lifting.mode == mode
+  SceneLiftingOptions lifting;  ///< lifting.mode == mode
   /// no_object_cells: per mesh node, whether its spoke edge runs virtual node -> node (the
   /// frozenset rule on [9900 + object, node]); the spoke's features are then negated.
   std::vector<char> spoke_virtual_first;
@@ -70,15 +70,15 @@ struct HopnetGeometry {
 /// construction breaks for scenes of 9900 or more mesh nodes, which are refused.
 inline constexpr std::int64_t kVirtualNodeId = 9900;
 
-inline HopnetGeometry make_geometry(const Scene& scene, const LiftingOptions& lifting);
+inline HopnetGeometry make_geometry(const Scene& scene, const SceneLiftingOptions& lifting);
 
 inline HopnetGeometry make_geometry(const Scene& scene, FeatureMode mode) {
-  LiftingOptions l;
+  SceneLiftingOptions l;
   l.mode = mode;
   return make_geometry(scene, l);
 }
 
-inline HopnetGeometry make_geometry(const Scene& scene, const LiftingOptions& lifting) {
+inline HopnetGeometry make_geometry(const Scene& scene, const SceneLiftingOptions& lifting) {
   HopnetGeometry g;
   const FeatureMode mode = lifting.mode;
   g.mode = mode;

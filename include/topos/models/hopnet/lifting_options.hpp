@@ -1,6 +1,6 @@
 // topos/models/hopnet/lifting_options.hpp
 // How a scene is lifted for HOPNet: the feature mode (reference or native, see features.hpp), the
-// member of the family (Architecture), LiftingOptions and the input feature widths. Std only.
+// member of the family (Architecture), SceneLiftingOptions and the input feature widths. Std only.
 #pragma once
 
 #include "topos/models/namespace_aliases.hpp"
@@ -45,9 +45,10 @@ inline const char* to_string(Architecture a) {
              : (a == Architecture::no_object_cells ? "no_object_cells" : "no_sequential");
 }
 
-/// How a scene is lifted: feature mode, architecture, and whether x0 keeps the centre-mass
-/// distances r0, rt (columns 8..15; the "no centre-mass distance" ablation drops them).
-struct LiftingOptions {
+/// How a HOPNet scene is lifted to a combinatorial complex: feature mode, architecture, and
+/// whether x0 keeps the centre-mass distances r0, rt (columns 8..15; the "no centre-mass
+/// distance" ablation drops them).
+struct SceneLiftingOptions {
   FeatureMode mode = FeatureMode::reference;
   Architecture architecture = Architecture::hopnet;
   bool center_mass_distance = true;
@@ -59,5 +60,8 @@ struct LiftingOptions {
   }
   bool object_cells() const { return architecture != Architecture::no_object_cells; }
 };
+
+/// Deprecated: the earlier name, which TopoBench's graph liftings used too.
+using LiftingOptions = SceneLiftingOptions;
 
 }  // namespace topos::models::hopnet

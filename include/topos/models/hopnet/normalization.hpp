@@ -122,7 +122,7 @@ inline void write_stats_json(const NormalizationStats& s, const std::string& pat
     j[k + "_std"] = present ? nlohmann::json(s.std.at(k)) : nlohmann::json();
   }
   try {
-    write_file_atomic(path, j.dump(1) + "\n");
+    io::write_file_atomic(path, j.dump(1) + "\n");
   } catch (const std::runtime_error& e) {
     throw data::DataError(e.what());
   }

@@ -78,8 +78,8 @@ struct HopnetOptions {
       throw std::invalid_argument(
           "HOPNet configuration: the collision radius must be a positive number");
   }
-  LiftingOptions lifting() const {
-    LiftingOptions l;
+  SceneLiftingOptions lifting() const {
+    SceneLiftingOptions l;
     l.mode = mode_;
     l.architecture = architecture_;
     l.center_mass_distance = center_mass_distance_;

@@ -61,8 +61,11 @@ inline const std::set<std::string>& model_fields(const std::string& model) {
       {"hopnet",
        {"model", "architecture", "center_mass_distance", "hidden", "mlp_layers", "num_layers",
         "activation", "collision_radius", "mode"}},
-      {"fignet", {"model", "latent", "steps", "mlp_layers", "mesh_edges", "collision_radius"}},
-      {"mgn", {"model", "latent", "steps", "mlp_layers", "world_edge_radius"}},
+      // The baselines' "mlp_layers": the earlier name of "hidden_layers", still read.
+      {"fignet",
+       {"model", "latent", "steps", "hidden_layers", "mlp_layers", "mesh_edges",
+        "collision_radius"}},
+      {"mgn", {"model", "latent", "steps", "hidden_layers", "mlp_layers", "world_edge_radius"}},
   };
   auto it = f.find(model);
   if (it == f.end())

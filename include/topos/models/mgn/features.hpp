@@ -1,6 +1,6 @@
 // topos/models/mgn/features.hpp
 // MeshGraphNet's graph at one timestep (docs/design/baselines.md part 3, topos's choices), as
-// gns::GraphFrame data without LibTorch: mesh nodes with FIGNet's 12 columns, mesh edges both
+// sim::GraphFrame data without LibTorch: mesh nodes with FIGNet's 12 columns, mesh edges both
 // ways with FIGNet's 8 mesh-mesh columns, and world edges [x_s - x_r, |x_s - x_r|] between
 // nodes of different objects within the world-edge radius.
 //
@@ -24,8 +24,8 @@
 
 namespace topos::models::mgn {
 
-using gns::GraphFrame;
-using gns::RowMatrix;
+using sim::GraphFrame;
+using sim::RowMatrix;
 
 /// Feature widths: nodes 12, mesh edges 8, world edges 4.
 inline constexpr int kNodeWidth = sim::kMeshNodeWidth, kMeshEdgeWidth = sim::kMeshEdgeWidth,
@@ -141,7 +141,7 @@ inline GraphFrame mgn_frame(const MgnGeometry& g, const sim::Poses& p2, const si
     world.push_back({near_floor[static_cast<std::size_t>(v)], N + v});
     world.push_back({N + v, near_floor[static_cast<std::size_t>(v)]});
   }
-  gns::EdgeSetData& we = f.edges["world_edges"];
+  sim::EdgeSetData& we = f.edges["world_edges"];
   const auto E = static_cast<Eigen::Index>(world.size());
   we.features.resize(E, kWorldEdgeWidth);
   we.senders.resize(E, 1);

@@ -143,8 +143,8 @@ inline nn::OperatorSchedule san_schedule(const SANOptions& o) {
     const auto p = "layers." + std::to_string(l) + ".";
     const auto c = l + 1 == o.n_layers() ? out : o.hidden_channels();
     auto bank = [&](const std::string& side, const std::string& op) {
-      return std::move(from(1, side).apply(
-          SanFilterAttention(op, p + "conv_" + side + ".att_weight", {1, side}, P)));
+      return from(1, side).apply(
+          SanFilterAttention(op, p + "conv_" + side + ".att_weight", {1, side}, P));
     };
     s.parallel({into(1, "down").sum(from(1).head_weights(p + "conv_down.weight", P, c)),
                 into(1, "up").sum(from(1).head_weights(p + "conv_up.weight", P, c))});

@@ -108,7 +108,7 @@ TOPOS_INLINE LiftedGraph lift_graph(std::int64_t num_nodes,
                                     const std::vector<std::array<std::int64_t, 2>>& edges,
                                     const std::vector<float>& x, std::int64_t num_features,
                                     const std::vector<std::int64_t>& edge_labels, Domain domain,
-                                    const LiftingOptions& o) {
+                                    const GraphLiftingOptions& o) {
   if (static_cast<std::int64_t>(x.size()) != num_nodes * num_features)
     throw std::invalid_argument("lift_graph: " + std::to_string(x.size()) + " feature values for " +
                                 std::to_string(num_nodes) + " nodes × " +

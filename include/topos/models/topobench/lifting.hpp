@@ -26,7 +26,7 @@
 //               ranks up to `max_rank`
 //
 // The rank-1 Laplacians pair every two edges that share a node: Σ_v deg(v)² entries, 372 million
-// over REDDIT-BINARY. Named in `LiftingOptions::factored`, they are kept as their factors
+// over REDDIT-BINARY. Named in `GraphLiftingOptions::factored`, they are kept as their factors
 // instead (FactoredTriplets; cell: down_laplacian_1 = |B_1|ᵀ|B_1|, and its _gcn form; simplicial,
 // signed: down_laplacian_1 = B_1ᵀB_1, hodge_laplacian_1 = B_1ᵀB_1 + B_2B_2ᵀ, and its _norm form,
 // whose D is summed row by row without forming L_1): the same operator, four entries per edge.
@@ -64,7 +64,9 @@ inline const char* domain_name(Domain d) {
   return "?";
 }
 
-struct LiftingOptions {
+/// How TopoBench lifts a graph: the clique, cycle and k-hop liftings' parameters, the features
+/// kept and the operators built.
+struct GraphLiftingOptions {
   int complex_dim = 3;           ///< clique lifting: simplices of up to complex_dim + 1 nodes
   bool signed_incidence = true;  ///< simplicial operators signed (TopoBench's rows set it)
   int max_cell_length = 10;      ///< cycle lifting: longer basis cycles are no 2-cells
@@ -78,6 +80,9 @@ struct LiftingOptions {
   /// Of the operators, those kept as factors (see above; others cannot be and are an error).
   std::set<std::string> factored;
 };
+
+/// Deprecated: the earlier name, which HOPNet's scene lifting used too.
+using LiftingOptions = GraphLiftingOptions;
 
 /// The rank-1 operators lift_graph can keep as factors in `domain`.
 inline std::set<std::string> factorable_operators(Domain domain, bool signed_incidence = true) {
@@ -119,7 +124,7 @@ LiftedGraph lift_graph(std::int64_t num_nodes,
                        const std::vector<std::array<std::int64_t, 2>>& edges,
                        const std::vector<float>& x, std::int64_t num_features,
                        const std::vector<std::int64_t>& edge_labels, Domain domain,
-                       const LiftingOptions& o);
+                       const GraphLiftingOptions& o);
 
 }  // namespace topos::models::topobench
 

@@ -226,24 +226,24 @@ TOPOS_INLINE void RunsFolder::add_baseline(const std::string& dataset, std::int6
   std::ostringstream o;
   o << "dataset,split_seed,majority_test_accuracy\n" << std::fixed << std::setprecision(6);
   for (const auto& [k, v] : baselines_) o << k.first << "," << k.second << "," << v << "\n";
-  write_file_atomic((out_ / "baselines.csv").string(), o.str());
+  io::write_file_atomic((out_ / "baselines.csv").string(), o.str());
 }
 
 TOPOS_INLINE void RunsFolder::add(const RunResult& run, const std::vector<Check>& curve,
                                   const NotRun& not_run) {
   curves_ += format_curve(run, curve);
-  write_file_atomic((out_ / "curves.csv").string(), curves_);
+  io::write_file_atomic((out_ / "curves.csv").string(), curves_);
   runs_.push_back(run);
-  write_file_atomic((out_ / "runs.csv").string(), format_runs(runs_));
+  io::write_file_atomic((out_ / "runs.csv").string(), format_runs(runs_));
   write_reports(not_run);
 }
 
 TOPOS_INLINE void RunsFolder::write_reports(const NotRun& not_run) const {
-  write_file_atomic((out_ / "summary.csv").string(), format_summary(summarize(runs_)));
-  write_file_atomic(
+  io::write_file_atomic((out_ / "summary.csv").string(), format_summary(summarize(runs_)));
+  io::write_file_atomic(
       (out_ / "index.html").string(),
       report_html(runs_, not_run, curves_, (out_ / "curves.csv").string(), model_order_));
-  write_file_atomic((out_ / "table.md").string(), table_markdown(runs_, not_run, model_order_));
+  io::write_file_atomic((out_ / "table.md").string(), table_markdown(runs_, not_run, model_order_));
 }
 
 }  // namespace topos::models::topobench

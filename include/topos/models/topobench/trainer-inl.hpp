@@ -30,7 +30,7 @@ TOPOS_INLINE LiftedDataset lift_dataset(const std::filesystem::path& root, const
                                         bool factored, bool progress) {
   const auto start = std::chrono::steady_clock::now();
   const Domain domain = layout.domain;
-  LiftingOptions lo;
+  GraphLiftingOptions lo;
   lo.operators = layout.operators;
   lo.signed_incidence = domain == Domain::simplicial ? cfg.signed_incidence : false;
   if (factored) lo.factored = rank1_pair_operators(layout);

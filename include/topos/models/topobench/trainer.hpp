@@ -55,7 +55,7 @@ inline std::set<std::string> rank1_pair_operators(const RankLayout& layout) {
 /// Reads dataset `d` from `root` (TOPOS_DATASETS_DIR's layout) and lifts it as TopoBench does
 /// for `layout`'s domain, building its operators. `cfg` gives the lifting's settings
 /// (signed_incidence, max_cell_length); `factored` keeps the rank-1 pair operators as factors
-/// (LiftingOptions::factored).
+/// (GraphLiftingOptions::factored).
 LiftedDataset lift_dataset(const std::filesystem::path& root, const DatasetName& d,
                            const RankLayout& layout, const RunConfig& cfg, bool factored = false,
                            bool progress = true);

@@ -14,7 +14,7 @@
 #include <string>
 #include <vector>
 
-namespace topos::models {
+namespace topos::models::zoo {
 
 /// One positional forward argument: a feature tensor, an operator, None, a tuple/list, or a
 /// dict (a list whose items carry their keys).
@@ -165,4 +165,10 @@ ZooModel wrap(const std::string& name, M m,
 
 }  // namespace detail
 
+}  // namespace topos::models::zoo
+
+namespace topos::models {
+// Deprecated: the zoo's old names. Write zoo::ZooArg (etc.).
+using zoo::ZooArg;
+using zoo::ZooModel;
 }  // namespace topos::models

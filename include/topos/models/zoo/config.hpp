@@ -15,7 +15,7 @@
 #include <stdexcept>
 #include <string>
 
-namespace topos::models {
+namespace topos::models::zoo {
 
 class ZooError : public std::invalid_argument {
  public:
@@ -121,4 +121,9 @@ inline std::string initialization_of(Config& c, const std::string& k, const std:
 
 }  // namespace detail
 
+}  // namespace topos::models::zoo
+
+namespace topos::models {
+// Deprecated: the zoo's old names. Write zoo::ZooError (etc.).
+using zoo::ZooError;
 }  // namespace topos::models

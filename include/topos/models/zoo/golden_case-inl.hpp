@@ -9,7 +9,7 @@
 #include "topos/models/zoo.hpp"
 #include "topos/models/zoo/golden_case.hpp"
 
-namespace topos::models {
+namespace topos::models::zoo {
 
 namespace detail {
 
@@ -115,11 +115,11 @@ TOPOS_INLINE std::vector<std::string> compiled_zoo_model_names() {
 
 TOPOS_INLINE std::map<std::string, nn::SparseOperator> case_operators(
     const std::filesystem::path& dir) {
-  const tdl::Operators built = tdl::compute_operators(dir);
+  const data::Operators built = data::compute_operators(dir);
   std::map<std::string, nn::SparseOperator> ops;
   for (const auto& [name, m] : built.by_name)
     ops.emplace(name, nn::SparseOperator::from_eigen(m, torch::kFloat));
   return ops;
 }
 
-}  // namespace topos::models
+}  // namespace topos::models::zoo

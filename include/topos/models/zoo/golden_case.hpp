@@ -28,7 +28,7 @@
 #include <string>
 #include <vector>
 
-namespace topos::models {
+namespace topos::models::zoo {
 
 /// A case's model, its outputs' names and its arguments.
 struct ZooCase {
@@ -73,6 +73,18 @@ std::vector<std::string> compiled_zoo_model_names();
 /// (its operators were saved as float32 and passed as their nonzero entries).
 std::map<std::string, nn::SparseOperator> case_operators(const std::filesystem::path& dir);
 
+}  // namespace topos::models::zoo
+
+namespace topos::models {
+// Deprecated: the zoo's old names. Write zoo::load_case (etc.).
+using zoo::case_gradients;
+using zoo::case_operators;
+using zoo::compiled_zoo_model_names;
+using zoo::load_case;
+using zoo::make_compiled_zoo_model;
+using zoo::OperatorSource;
+using zoo::run_case;
+using zoo::ZooCase;
 }  // namespace topos::models
 
 #ifdef TOPOS_HEADER_ONLY

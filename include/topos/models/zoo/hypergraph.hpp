@@ -19,7 +19,7 @@
 #include <optional>
 #include <string>
 
-namespace topos::models::detail {
+namespace topos::models::zoo::detail {
 
 /// The hypergraph models: forward(x_0, incidence_1) (HMPNN: x_0, x_1, incidence_1).
 inline std::map<std::string, Maker> hypergraph_makers() {
@@ -168,4 +168,4 @@ inline std::map<std::string, Maker> hypergraph_makers() {
   };
 }
 
-}  // namespace topos::models::detail
+}  // namespace topos::models::zoo::detail

@@ -20,7 +20,7 @@
 #include <string>
 #include <vector>
 
-namespace topos::models::detail {
+namespace topos::models::zoo::detail {
 
 /// SCNN, HSN, SCConv, SCoNe, SCCN, Dist2Cycle, SCA-CMPS (simplicial); CAN, CCXN (cell).
 inline std::map<std::string, Maker> more_simplicial_and_cell_makers() {
@@ -170,4 +170,4 @@ inline std::map<std::string, Maker> more_simplicial_and_cell_makers() {
   };
 }
 
-}  // namespace topos::models::detail
+}  // namespace topos::models::zoo::detail

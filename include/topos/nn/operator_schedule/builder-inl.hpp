@@ -44,13 +44,13 @@ TOPOS_INLINE void OperatorStep::add_term(ops::Term t) {
   terms.push_back(std::move(t));
 }
 
-TOPOS_INLINE OperatorStep& OperatorStep::sum(std::vector<ops::Term> t) {
+TOPOS_INLINE OperatorStep& OperatorStep::sum(std::vector<ops::Term> t) & {
   mix = Mix::sum;
   terms.insert(terms.end(), std::make_move_iterator(t.begin()), std::make_move_iterator(t.end()));
   return *this;
 }
 
-TOPOS_INLINE OperatorStep& OperatorStep::concat(std::vector<ops::Term> t) {
+TOPOS_INLINE OperatorStep& OperatorStep::concat(std::vector<ops::Term> t) & {
   sum(std::move(t));
   mix = Mix::concat;
   return *this;

@@ -1,11 +1,11 @@
-// topos/models/gns/graph.hpp
+// topos/sim/graph_frame.hpp
 // One timestep of a graph-network simulator (MeshGraphNet, FIGNet) as plain data: typed node
 // sets and edge sets with their raw features, the edges' sender and receiver nodes (several per
-// edge for a hyperedge with slots, FIGNet's face-face edges) and the mesh nodes' targets.
-// Eigen only: the models (models/gns/network.hpp) turn it into tensors and operators.
+// edge for a hyperedge with slots, FIGNet's face-face edges) and the mesh nodes' targets; and the
+// row-major matrices the simulation layer keeps its per-node and per-object rows in. The
+// simulation layer writes it (mesh_graph.hpp, the baselines' features); the models
+// (models/gns/network.hpp) turn it into tensors and operators. Eigen only.
 #pragma once
-
-#include "topos/models/namespace_aliases.hpp"
 
 #include <Eigen/Core>
 
@@ -15,7 +15,7 @@
 #include <string>
 #include <vector>
 
-namespace topos::models::gns {
+namespace topos::sim {
 
 using RowMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
 using IndexMatrix = Eigen::Matrix<std::int64_t, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
@@ -56,4 +56,4 @@ struct GraphFrame {
   }
 };
 
-}  // namespace topos::models::gns
+}  // namespace topos::sim
