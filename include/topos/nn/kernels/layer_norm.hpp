@@ -36,8 +36,8 @@ static TOPOS_INLINE_KERNEL T lane_sum(const V& v, T tail) {
 #endif
 
 // Rows [0, n) of x: y = (x - mean) · rstd · w + b (w, b may be null), each row's mean and
-// 1 / sqrt(var + eps) stored for the backward (unless mean is null). The variance is the mean of squared deviations
-// (biased, as torch's).
+// 1 / sqrt(var + eps) stored for the backward (unless mean is null). The variance is the mean of
+// squared deviations (biased, as torch's).
 template <class T, int VB = 32>
 static TOPOS_INLINE_KERNEL void layer_norm_rows(const T* x, const T* w, const T* b, T* y, T* mean,
                                                 T* rstd, std::int64_t n, std::int64_t C, T eps) {
