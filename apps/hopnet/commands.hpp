@@ -98,10 +98,8 @@ inline void add_rollout_gemm_option(CLI::App* app, std::string& gemm) {
       ->check(CLI::IsMember({"auto", "blas", "onednn", "topos"}));
 }
 
-/// Sets the process's library of float32 products for rollouts in `mode` (--cpu-gemm) and
-/// returns its name. A rollout multiplies on one thread, where oneDNN's sgemm runs HOPNet's
-/// rollout 1.8x faster than OpenBLAS and topos's dense kernel 1.4x (docs/benchmarks.md); the
-/// metrics move in the sixth digit, so reference mode keeps BLAS unless asked.
+/// Sets the process's library of float32 products for rollouts in `mode` (--cpu-gemm,
+/// nn::cpu_gemm_for_rollout) and returns its name.
 inline std::string set_rollout_gemm(const std::string& gemm, FeatureMode mode) {
   nn::set_cpu_gemm(
       nn::cpu_gemm_for_rollout(gemm, nn::get_cpu_gemm(), mode == FeatureMode::reference));

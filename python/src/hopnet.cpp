@@ -333,7 +333,7 @@ void bind_hopnet(py::module_& parent) {
       "first step's contacts from collisions.json beside the scene in reference mode; None "
       "detects them; or a path). cpu_gemm: the library of its float32 products for this rollout "
       "('blas', 'onednn', 'topos'; 'auto': topos.nn.set_cpu_gemm's in reference mode, which "
-      "with BLAS gives the reference's digits, oneDNN in native mode, 1.8x faster)");
+      "with BLAS gives the reference's digits; oneDNN in native mode)");
 
   m.def(
       "metrics",

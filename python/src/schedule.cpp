@@ -784,7 +784,8 @@ void bind_schedule(py::module_& parent) {
       py::arg("library"),
       "The library of the float32 CPU products of topos's Linear layers (its MLPs, `linear`), "
       "process-wide: 'blas' (OpenBLAS through LibTorch, the default), 'onednn' (oneDNN's sgemm: "
-      "HOPNet's rollouts 1.8x faster on one thread here) or 'topos' (topos's dense kernel). They "
+      "its AVX-512 kernels where OpenBLAS does not know the CPU) or 'topos' (topos's dense "
+      "kernel). They "
       "differ in float32 summation order only.");
   m.def(
       "get_cpu_gemm", [] { return std::string(to_string(get_cpu_gemm())); },

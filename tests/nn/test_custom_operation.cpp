@@ -628,6 +628,13 @@ TEST_CASE("the built-in learned maps and norms are Operations with declared trai
   CostContext c;
   c.rows = 10, c.x = {0, 3}, c.y = {0, 2};
   CHECK(builtin::MlpBlock("m", mlp).cost(c).flops == 2 * 10 * (3 * 8 + 8 * 8 + 8 * 2));
+  // The formulas a user's cost() can return, as the built-ins do.
+  const auto d = OperationCost::dense(10, 3, 2), sp = OperationCost::sparse(7, 3);
+  CHECK(d.flops == 120);
+  CHECK(d.formula == "dense 2·10·3·2");
+  CHECK(builtin::Weight("w", 2, 1).cost(c).formula == d.formula);
+  CHECK(sp.flops == 42);
+  CHECK(sp.formula == "sparse 2·7·3");
 }
 
 namespace {

@@ -70,8 +70,9 @@ inline const char* to_string(CpuGemm g) {
 /// The library a rollout multiplies on for a --cpu-gemm `name` (blas, onednn, topos or auto).
 /// `auto` keeps `current` where the rollout reproduces another implementation's digits (HOPNet's
 /// reference mode: BLAS gives the reference's), and otherwise takes oneDNN where LibTorch has it,
-/// else topos's dense kernel: a rollout multiplies on one thread, where oneDNN ran HOPNet's 1.8x
-/// faster than OpenBLAS (docs/benchmarks.md).
+/// else topos's dense kernel. oneDNN picks its AVX-512 kernels by itself, where OpenBLAS 0.3.21
+/// falls back to SSE3 on CPUs it does not know (HOPNet's rollout 1.8x slower on this project's
+/// VM; as fast as oneDNN given OPENBLAS_CORETYPE: docs/benchmarks.md).
 inline CpuGemm cpu_gemm_for_rollout(const std::string& name, CpuGemm current, bool reproducing) {
   if (name != "auto") return cpu_gemm_from_string(name);
   if (reproducing) return current;

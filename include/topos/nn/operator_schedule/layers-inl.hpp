@@ -13,14 +13,6 @@
 
 namespace topos::nn::builtin {
 
-namespace {
-/// A dense product's cost: 2·rows·in·out.
-inline OperationCost dense_cost(std::int64_t rows, std::int64_t in, std::int64_t out) {
-  return {2 * rows * in * out,
-          "dense 2·" + std::to_string(rows) + "·" + std::to_string(in) + "·" + std::to_string(out)};
-}
-}  // namespace
-
 TOPOS_INLINE std::string Weight::str(const std::string& x) const {
   return x + "·" + path_;
 }
@@ -38,7 +30,7 @@ TOPOS_INLINE OperationTraits Weight::traits() const {
   return t;
 }
 TOPOS_INLINE OperationCost Weight::cost(const CostContext& c) const {
-  return dense_cost(c.rows, c.x.channels, c.y.channels);
+  return OperationCost::dense(c.rows, c.x.channels, c.y.channels);
 }
 
 TOPOS_INLINE std::string Linear::str(const std::string& x) const {
@@ -69,7 +61,7 @@ TOPOS_INLINE OperationTraits Linear::traits() const {
   return t;
 }
 TOPOS_INLINE OperationCost Linear::cost(const CostContext& c) const {
-  return dense_cost(c.rows, c.x.channels, c.y.channels);
+  return OperationCost::dense(c.rows, c.x.channels, c.y.channels);
 }
 
 TOPOS_INLINE std::string ChannelNorm::str(const std::string& x) const {

@@ -236,6 +236,15 @@ struct CostContext {
 struct OperationCost {
   std::int64_t flops = -1;
   std::string formula;
+  /// A dense product's: 2·rows·in·out ("dense 2·rows·in·out").
+  static OperationCost dense(std::int64_t rows, std::int64_t in, std::int64_t out) {
+    return {2 * rows * in * out, "dense 2·" + std::to_string(rows) + "·" + std::to_string(in) +
+                                     "·" + std::to_string(out)};
+  }
+  /// A product by a sparse operator's: 2·nnz·width ("sparse 2·nnz·width").
+  static OperationCost sparse(std::int64_t nnz, std::int64_t width) {
+    return {2 * nnz * width, "sparse 2·" + std::to_string(nnz) + "·" + std::to_string(width)};
+  }
 };
 
 /// An operation written outside topos. Immutable once in a schedule: it holds options (paths,

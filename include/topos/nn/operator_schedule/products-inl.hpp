@@ -70,9 +70,7 @@ TOPOS_INLINE OperationTraits Product::traits() const {
 }
 TOPOS_INLINE OperationCost Product::cost(const CostContext& c) const {
   if (!p_.weighted) return {};
-  const auto nnz = c.nnz(p_.op);
-  return {2 * nnz * c.x.channels,
-          "sparse 2·" + std::to_string(nnz) + "·" + std::to_string(c.x.channels)};
+  return OperationCost::sparse(c.nnz(p_.op), c.x.channels);
 }
 
 TOPOS_INLINE std::string Attend::str(const std::string& x) const {
@@ -169,9 +167,7 @@ TOPOS_INLINE OperationTraits Attend::traits() const {
   return t;
 }
 TOPOS_INLINE OperationCost Attend::cost(const CostContext& c) const {
-  const auto nnz = c.nnz(op_);
-  return {2 * nnz * c.x.channels,
-          "sparse 2·" + std::to_string(nnz) + "·" + std::to_string(c.x.channels)};
+  return OperationCost::sparse(c.nnz(op_), c.x.channels);
 }
 
 TOPOS_INLINE std::string Powers::str(const std::string& x) const {
