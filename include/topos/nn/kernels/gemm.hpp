@@ -3,9 +3,9 @@
 // LibTorch's mm; oneDNN's sgemm, which Debian's LibTorch links for its bfloat16 products (libdnnl)
 // and which runs HOPNet's 128-wide products 20-30 % faster than OpenBLAS 0.3.21 on an AVX-512
 // EPYC (docs/hopnet-training.md); or topos's own register-blocked kernel (kernels/dense.hpp), bias
-// and ReLU applied before the store, which on HOPNet's small rollout products runs several times
-// BLAS's rate inside a step (docs/benchmarks.md). Process-wide, like MatmulPrecision; BLAS unless
-// set.
+// and ReLU applied before the store, for where neither is at its best (on HOPNet's 128-wide
+// products it is the slowest of the three: docs/benchmarks.md). Process-wide, like
+// MatmulPrecision; BLAS unless set.
 #pragma once
 
 #include "topos/nn/kernels/epilogue.hpp"
