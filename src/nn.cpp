@@ -14,6 +14,7 @@
 #include "topos/nn/operator_schedule/elementwise-inl.hpp"
 #include "topos/nn/operator_schedule/interpreter-inl.hpp"
 #include "topos/nn/operator_schedule/layers-inl.hpp"
+#include "topos/nn/operator_schedule/plan-inl.hpp"
 #include "topos/nn/operator_schedule/printer-inl.hpp"
 #include "topos/nn/operator_schedule/products-inl.hpp"
 #include "topos/nn/serialization-inl.hpp"

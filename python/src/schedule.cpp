@@ -680,6 +680,35 @@ at::ScalarType network_dtype(OperatorNetworkImpl& net) {
   return at::typeMetaToScalarType(at::get_default_dtype());
 }
 
+/// A forward's arguments from Python: inputs as dense tensors, operators converted to the
+/// network's dtype, each with an error naming it.
+std::pair<std::map<std::string, torch::Tensor>, std::map<std::string, SparseOperator>> network_args(
+    OperatorNetworkImpl& net, const py::dict& inputs, const py::dict& operators) {
+  std::map<std::string, torch::Tensor> x;
+  for (const auto& [k, v] : inputs) {
+    if (!py::isinstance<py::str>(k))
+      throw py::type_error("inputs: keys are the inputs' names (str), got a " + type_name(k));
+    const std::string name = k.cast<std::string>();
+    if (!THPVariable_Check(v.ptr()))
+      throw py::type_error("inputs['" + name + "']: expected a torch.Tensor, got a " +
+                           type_name(v));
+    const at::Tensor t = py::cast<at::Tensor>(v);
+    if (t.layout() != at::kStrided)
+      throw py::type_error("inputs['" + name + "']: expected a dense tensor (cells × " +
+                           "channels), got a sparse one; pass x.to_dense()");
+    x.emplace(name, t);
+  }
+  const at::ScalarType dtype = network_dtype(net);
+  std::map<std::string, SparseOperator> a;
+  for (const auto& [k, v] : operators) {
+    if (!py::isinstance<py::str>(k))
+      throw py::type_error("operators: keys are the operators' names (str), got a " + type_name(k));
+    const std::string name = k.cast<std::string>();
+    a.emplace(name, operator_arg(v, "operators['" + name + "']", dtype));
+  }
+  return {std::move(x), std::move(a)};
+}
+
 void bind_network(py::module_& m) {
   py::class_<SparseOperator>(m, "SparseOperator",
                              "An operator converted once (CSR with its transpose), for forwards "
@@ -721,30 +750,9 @@ void bind_network(py::module_& m) {
       .def(
           "forward",
           [](Net& net, const py::dict& inputs, const py::dict& operators, bool training) {
-            std::map<std::string, torch::Tensor> x;
-            for (const auto& [k, v] : inputs) {
-              if (!py::isinstance<py::str>(k))
-                throw py::type_error("inputs: keys are the inputs' names (str), got a " +
-                                     type_name(k));
-              const std::string name = k.cast<std::string>();
-              if (!THPVariable_Check(v.ptr()))
-                throw py::type_error("inputs['" + name + "']: expected a torch.Tensor, got a " +
-                                     type_name(v));
-              const at::Tensor t = py::cast<at::Tensor>(v);
-              if (t.layout() != at::kStrided)
-                throw py::type_error("inputs['" + name + "']: expected a dense tensor (cells × " +
-                                     "channels), got a sparse one; pass x.to_dense()");
-              x.emplace(name, t);
-            }
-            const at::ScalarType dtype = network_dtype(net);
-            std::map<std::string, SparseOperator> a;
-            for (const auto& [k, v] : operators) {
-              if (!py::isinstance<py::str>(k))
-                throw py::type_error("operators: keys are the operators' names (str), got a " +
-                                     type_name(k));
-              const std::string name = k.cast<std::string>();
-              a.emplace(name, operator_arg(v, "operators['" + name + "']", dtype));
-            }
+            const auto args = network_args(net, inputs, operators);
+            const auto& x = args.first;
+            const auto& a = args.second;
             std::map<std::string, torch::Tensor> y;
             {
               py::gil_scoped_release release;  // a Python operation takes it back
@@ -754,6 +762,30 @@ void bind_network(py::module_& m) {
             return y;
           },
           py::arg("inputs"), py::arg("operators"), py::arg("training"))
+      .def(
+          "plan",
+          [](Net& net, const py::dict& inputs, const py::dict& operators) {
+            const auto args = network_args(net, inputs, operators);
+            const auto& x = args.first;
+            const auto& a = args.second;
+            const auto plan = python_spelling([&] { return net.plan(x, a); });
+            py::list steps;
+            for (const auto& group : plan.groups)
+              for (const auto& p : group) {
+                if (!p.live) continue;
+                py::list terms;
+                for (const auto& t : p.terms) terms.append(t.term->source.str());
+                steps.append(py::dict(
+                    py::arg("name") = p.step->name, py::arg("target") = p.step->target.str(),
+                    py::arg("group") = p.group, py::arg("route") = route_name(p.route),
+                    py::arg("terms") = terms, py::arg("compact_readers") = p.compact_readers));
+              }
+            return py::dict(py::arg("text") = plan.str(), py::arg("steps") = steps,
+                            py::arg("total_flops") = plan.total_flops,
+                            py::arg("fast_paths") = plan.fast_paths.str());
+          },
+          py::arg("inputs"), py::arg("operators"),
+          "The plan forward(inputs, operators) runs, as a dict (topos.nn.Plan wraps it).")
       .def("set_fast_paths", &Net::set_fast_paths, py::arg("on"))
       .def_property_readonly("schedule", &Net::schedule, py::return_value_policy::copy);
 }

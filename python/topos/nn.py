@@ -60,6 +60,7 @@ __all__ = [
     "OperatorSchedule",
     "OperatorStep",
     "ParameterInit",
+    "Plan",
     "RunContext",
     "ScheduleError",
     "SparseOperator",
@@ -172,6 +173,28 @@ class _SharedTensors(torch.nn.Module):
         return self
 
 
+class Plan:
+    """What an :class:`OperatorNetwork`'s forward runs (C++ ``topos::nn::Plan``).
+
+    ``steps``: one dict per step an output needs (``name``, ``target``, ``group``, ``route``:
+    ``"chain"``, ``"filter taps"``, ``"split first layer"``, ``"general"`` or ``"keep"``,
+    ``terms``: the sources of the terms it runs, ``compact_readers``); ``total_flops``: the FLOPs
+    of one forward in the plain order; ``fast_paths``: those on; ``str(plan)``: the listing.
+    """
+
+    def __init__(self, d):
+        self.steps = list(d["steps"])
+        self.total_flops = int(d["total_flops"])
+        self.fast_paths = d["fast_paths"]
+        self._text = d["text"]
+
+    def __str__(self):
+        return self._text
+
+    def __repr__(self):
+        return f"<topos.nn.Plan: {len(self.steps)} steps, {self.total_flops:,} FLOPs>"
+
+
 class OperatorNetwork(_SharedTensors):
     """Runs an ``OperatorSchedule``: ``net(inputs, operators)`` -> outputs by name.
 
@@ -223,6 +246,13 @@ class OperatorNetwork(_SharedTensors):
                     f"OperatorNetwork: {name} must be a dict of name -> tensor, got {type(arg).__name__}"
                 )
         return self._network.forward(dict(inputs), dict(operators), self.training)
+
+    def plan(self, inputs, operators=None):
+        """The :class:`Plan` that ``forward(inputs, operators)`` runs with the fast paths on now:
+        each step an output needs with its route, and the FLOPs on this complex."""
+        self._check_shared()
+        operators = {} if operators is None else operators
+        return Plan(self._network.plan(dict(inputs), dict(operators)))
 
     def extra_repr(self):
         net = self.__dict__.get("_network")  # absent while __init__ fails

@@ -366,6 +366,68 @@ TEST_CASE("a user operation declared row-wise takes the row-wise fast paths, wit
   }
 }
 
+TEST_CASE("a plan over a batch: compact steps, a split first layer, FLOPs on the pairs",
+          "[nn][schedule][plan]") {
+  const auto batch = small_batch();  // 6 nodes, 4 edges, 2 faces; N01: 6 pairs, N02: 4
+  OperatorSchedule s;
+  s.input("x", 0, 3).input("e", 1, 2).operator_input("N01", 0, 1).operator_input("N02", 0, 2);
+  s.step(into(0, "h").sum(from(0).linear("lift", 4)).named("lift"));
+  s.step(into(1).concat(from(1), from(0, "h").via("N01")).mlp("m", MlpOptions(6, 8, 2)).named("e"));
+  s.step(into(2).sum(from(0).linear("g", 2).pattern("N02", Aggr::mean)).named("f"));
+  s.output("y1", 1).output("y2", 2);
+  torch::manual_seed(3);
+  OperatorNetwork net(s);
+  net->to(torch::kDouble);
+  const std::map<std::string, torch::Tensor> in{{"x", torch::randn({6, 3}, torch::kDouble)},
+                                                {"e", torch::randn({4, 2}, torch::kDouble)}};
+  const auto p = net->plan(in, batch);
+  INFO(p.str());
+  CHECK(p.over_batch);
+  const auto& lift = p.groups[0][0];
+  const auto& e = p.groups[1][0];
+  const auto& f = p.groups[2][0];
+  // (0, "h") is read by N01's aggregation alone: computed on the nodes N01 reads.
+  CHECK(lift.route == StepRoute::chain);
+  CHECK(lift.compact_readers == std::vector<std::string>{"N01"});
+  CHECK(e.route == StepRoute::split_first_layer);
+  CHECK(f.route == StepRoute::general);
+  REQUIRE(f.terms.size() == 1);
+  CHECK(f.terms[0].neighborhood == "N02");
+  CHECK(f.terms[0].row_wise_prefix == 1);
+  CHECK_FALSE(f.terms[0].prefix_key.empty());
+  CHECK_THAT(p.str(),
+             Contains("step lift (into (0, \"h\"), group 0): chain, on the rows that N01 read"));
+  CHECK_THAT(p.str(), Contains("sparse 2·6·4  48 FLOPs"));
+  // The same FLOPs as the plain plan over operators of the neighbourhoods' patterns.
+  std::map<std::string, SparseOperator> ops;
+  for (const auto& name : {"N01", "N02"}) {
+    const auto& n = batch.neighborhood(name);
+    const auto t = n.target.contiguous(), src = n.source.contiguous();
+    ops[name] = SparseOperator::from_triplets(
+        n.num_target, n.num_source,
+        std::vector<std::int64_t>(t.data_ptr<std::int64_t>(),
+                                  t.data_ptr<std::int64_t>() + t.numel()),
+        std::vector<std::int64_t>(src.data_ptr<std::int64_t>(),
+                                  src.data_ptr<std::int64_t>() + src.numel()),
+        std::vector<double>(static_cast<std::size_t>(t.numel()), 1.0));
+  }
+  const auto plain = net->plan(in, ops);
+  CHECK(plain.total_flops == p.total_flops);
+  CHECK(plain.total_flops > 0);
+  CHECK(plain.groups[0][0].compact_readers.empty());
+  CHECK(plain.groups[1][0].route == StepRoute::general);
+  // Each route gives the plain plan's numbers (all fast paths off).
+  const auto fast = net->forward(in, batch);
+  net->set_fast_paths(false);
+  const auto none = net->plan(in, batch);
+  CHECK(none.groups[0][0].compact_readers.empty());
+  CHECK(none.groups[1][0].route == StepRoute::general);
+  CHECK(none.groups[2][0].terms[0].prefix_key.empty());
+  const auto slow = net->forward(in, batch);
+  for (const auto& name : {"y1", "y2"})
+    CHECK(torch::allclose(fast.at(name), slow.at(name), 1e-12, 1e-12));
+}
+
 namespace {
 
 // A · x through RunContext::op; `declared` lists A among its operators.

@@ -17,6 +17,7 @@ using namespace topos;
 using namespace topos::nn;
 using namespace topos::nn::ops;
 using Catch::Matchers::Contains;
+using Catch::Matchers::StartsWith;
 using topos::test::build_error;
 using topos::test::random_operator;
 
@@ -1116,6 +1117,7 @@ TEST_CASE("plan_str lists what forward runs with its FLOPs, counted by hand",
              .named("mix"));
   s.step(into(1).filter("f", 3, from(0).via_t("B"), from(1).powers({{"T", 2}})).named("filter"));
   s.step(into(1, "unused").sum(from(1).conv("dead", 5)).named("dead"));
+  s.step(into(0).sum(from(0).via("U").conv("kept", 3)).named("kept"));
   s.output("y_1", 1);
   OperatorNetwork net(s);
   net->to(torch::kDouble);
@@ -1142,6 +1144,51 @@ TEST_CASE("plan_str lists what forward runs with its FLOPs, counted by hand",
   auto total = plan.substr(plan.rfind("total ") + 6);
   total.erase(std::remove(total.begin(), total.end(), ','), total.end());
   CHECK(std::stoll(total) == mix + filter);
+
+  // The plan itself: its total, and each step's route.
+  const auto p = net->plan(x, ops);
+  CHECK(p.total_flops == mix + filter);
+  CHECK(p.str() == plan);
+  CHECK(p.absent == std::set<std::string>{"U"});
+  CHECK_FALSE(p.over_batch);
+  const auto step = [](const Plan& pl, const std::string& name) -> const PlannedStep& {
+    for (const auto& group : pl.groups)
+      for (const auto& ps : group)
+        if (ps.step->name == name) return ps;
+    throw std::runtime_error("no step " + name);
+  };
+  CHECK(step(p, "mix").route == StepRoute::general);
+  CHECK(step(p, "mix").terms.size() == 2);               // the term through U is left out
+  CHECK(step(p, "filter").route == StepRoute::general);  // powers fan out into more taps
+  CHECK(step(p, "dead").route == StepRoute::chain);
+  CHECK_FALSE(step(p, "dead").live);
+  CHECK(step(p, "kept").route == StepRoute::keep);
+  CHECK_THAT(plan, Contains("step filter (into (1), group 1): general"));
+  CHECK_THAT(plan, Contains("fast paths: row_subset, prefix_cache, compact_cochains"));
+  // With U given, the kept step is one chain.
+  auto with_u = ops;
+  with_u.emplace("U", SparseOperator::from_dense(Ld));
+  CHECK(step(net->plan(x, with_u), "kept").route == StepRoute::chain);
+  net->set_fast_paths(false);
+  CHECK_THAT(net->plan(x, ops).str(), StartsWith("fast paths: none\n"));
+
+  // A filter whose taps are one each: filter taps, or with filter_taps off the general way, with
+  // the same numbers up to rounding.
+  OperatorSchedule f;
+  f.input("x_0", 0, 3).input("x_1", 1, 2).operator_input("T", 1, 1);
+  f.step(
+      into(1).filter("f", 3, from(1), from(1).via("T"), from(1).via("T").via("T")).named("taps"));
+  f.output("y_1", 1);
+  OperatorNetwork taps(f);
+  taps->to(torch::kDouble);
+  CHECK(step(taps->plan(x, ops), "taps").route == StepRoute::filter);
+  const auto fast = taps->forward(x, ops).at("y_1");
+  taps->fast_paths().filter_taps(false);
+  const auto slow = taps->plan(x, ops);
+  CHECK(step(slow, "taps").route == StepRoute::general);
+  CHECK_THAT(slow.str(), Contains("fast paths: row_subset, prefix_cache, compact_cochains, "
+                                  "split_first_layer, reorder_products, fuse_activations\n"));
+  CHECK(torch::allclose(taps->forward(x, ops).at("y_1"), fast, 1e-12, 1e-12));
 }
 
 TEST_CASE("FastPaths: each fast path by name, all and none", "[nn][schedule][fast_paths]") {

@@ -337,6 +337,28 @@ def test_python_operation_right_factor_is_reordered():
     torch.testing.assert_close(out[True][0], out[False][0])
 
 
+def test_plan_lists_routes_and_counts_flops_by_hand():
+    # x: 6 nodes × 3; B: 4 × 6 with 9 entries. mix: x W (6·3·5), then B· on 5 channels, then
+    # relu, as one chain; the dead step does not run.
+    B = torch.zeros(4, 6, dtype=torch.float64)
+    B[[0, 0, 1, 1, 2, 2, 3, 3, 3], [0, 1, 1, 2, 3, 4, 0, 4, 5]] = 1.0
+    s = OperatorSchedule()
+    s.input("x", 0, 3).operator_input("B", 0, 1).optional_operator("U", 0, 0).output("y", 1)
+    s.step(into(1).sum(from_(0).conv("w", 5).via("B")).act(topos.nn.Activation.relu).named("mix"))
+    s.step(into(0, "dead").sum(from_(0).via("U")).named("dead"))
+    net = OperatorNetwork(s).double()
+    x = torch.randn(6, 3, dtype=torch.float64)
+    plan = net.plan({"x": x}, {"B": B.to_sparse()})
+    assert plan.total_flops == 2 * 6 * 3 * 5 + 2 * 9 * 5
+    assert [(st["name"], st["route"], st["terms"]) for st in plan.steps] == [("mix", "chain", ["(0)"])]
+    assert "step mix (into (1), group 0): chain" in str(plan)
+    assert plan.fast_paths.startswith("row_subset")
+    net.set_fast_paths(False)
+    assert net.plan({"x": x}, {"B": B.to_sparse()}).fast_paths == "none"
+    with pytest.raises(topos.nn.ScheduleError, match="input 'x'"):
+        net.plan({"x": x[:, :2]}, {"B": B.to_sparse()})
+
+
 def test_update_is_activations_deprecated_name():
     assert topos.nn.Update is topos.nn.Activation
     s = OperatorSchedule()

@@ -1,11 +1,11 @@
 // topos/nn/operator_schedule/interpreter-inl.hpp
-// OperatorNetwork's forward: the steps an output needs (build-inl.hpp's liveness) run in order, a
-// parallel group on one snapshot, each term evaluated (term-inl.hpp) and the terms combined into
+// OperatorNetwork's forward: the plan's steps (plan-inl.hpp) run in order, a parallel group on one
+// snapshot, each by its route: each term evaluated (term-inl.hpp) and the terms combined into
 // the step's target. Compiled into topos::nn, or inline with TOPOS_HEADER_ONLY (topos/config.hpp).
 #pragma once
 
 #include "topos/nn/operator_schedule/checks-inl.hpp"
-#include "topos/nn/operator_schedule/term-inl.hpp"
+#include "topos/nn/operator_schedule/plan-inl.hpp"
 
 #include <algorithm>
 #include <functional>
@@ -85,8 +85,8 @@ TOPOS_INLINE void OperatorNetworkImpl::run_range(
   for (const auto& name : schedule_.optional_operators())
     if (!operators.count(name) && !(batch && batch->has_neighborhood(name)))
       ops.absent.insert(name);
-  const auto& groups = schedule_.groups();
-  for (std::size_t g = begin; g < end && g < groups.size(); ++g) {
+  const auto& plan = plan_for(ops);
+  for (std::size_t g = begin; g < end && g < plan.groups.size(); ++g) {
     const Cochains snapshot = h;
     PrefixCache cache;  // a term prefix shared by several steps of the group is computed once
     struct Written {
@@ -94,15 +94,13 @@ TOPOS_INLINE void OperatorNetworkImpl::run_range(
       torch::Tensor value, rows;  // rows: defined for a compact cochain
     };
     std::vector<Written> updates;
-    for (std::size_t i = 0; i < groups[g].size(); ++i) {
-      if (live_only && !live_[g][i]) continue;
-      const auto& s = groups[g][i];
-      Written u{s.target, {}, {}};
-      const std::string where = s.name + " (into " + s.target.str() + ")";
-      detail::naming(where, detail::StepReads{s, snapshot}, [&] {
-        if (auto c = compact_steps_.find({g, i}); c != compact_steps_.end())
-          std::tie(u.value, u.rows) = run_compact(s, c->second, snapshot, ops, cache);
-        if (!u.value.defined()) u.value = run_step(s, snapshot, ops, cache);
+    for (const auto& p : plan.groups[g]) {
+      if (live_only && !p.live) continue;
+      Written u{p.step->target, {}, {}};
+      detail::naming(p.where, detail::StepReads{*p.step, snapshot}, [&] {
+        if (!p.compact_readers.empty())
+          std::tie(u.value, u.rows) = run_compact(p, snapshot, ops, cache);
+        if (!u.value.defined()) u.value = run_step(p, snapshot, ops, cache);
       });
       updates.push_back(std::move(u));
     }
@@ -131,19 +129,6 @@ TOPOS_INLINE std::vector<torch::Tensor> OperatorNetworkImpl::run(
   return v;
 }
 
-namespace detail {
-
-/// Does the term apply an optional operator that this forward left out?
-inline bool applies_absent(const ops::Term& term, const std::set<std::string>& absent) {
-  if (absent.empty()) return false;
-  for (const auto& t : term.operations())
-    for (const auto& name : operators_of(t))
-      if (absent.count(name)) return true;
-  return false;
-}
-
-}  // namespace detail
-
 /// The values a step mixes, each with the term it comes from (a polynomial filter's several);
 /// for a concatenation into an operation with a leading Linear layer over a batch (`first`: an
 /// mlp; split_first_layer), the terms already multiplied by their block of that layer's weight W,
@@ -165,62 +150,37 @@ struct OperatorNetworkImpl::StepTerms {
   }
 };
 
-TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_step(const OperatorStep& s, const Cochains& h,
+TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_step(const PlannedStep& p, const Cochains& h,
                                                          Operators& ops, PrefixCache& cache) {
-  const std::string where = s.name + " (into " + s.target.str() + ")";
-  std::vector<const ops::Term*> terms;  // those that apply no optional operator left out
-  for (const auto& term : s.terms)
-    if (!detail::applies_absent(term, ops.absent)) terms.push_back(&term);
-  if (terms.empty()) {
+  const auto& s = *p.step;
+  const auto& where = p.where;
+  if (p.route == StepRoute::keep) {
     if (!h.has(s.target.rank, s.target.state))
       throw ScheduleError(where + ": every term applies an optional operator left out, and " +
                           s.target.str() + " has no value to keep");
     return h.at(s.target.rank, s.target.state);
   }
+  if (p.route == StepRoute::chain) return guard(where, s, run_chain(p, h, ops), h, ops);
   const auto& tail = s.operations();
-  const auto over_batch_or_powers = [&](const ops::Term& t) {
-    for (const auto& o : t.operations()) {
-      const auto* p = detail::product_of(o);
-      if (o.traits.fans_out || (p != nullptr && !p->transposed && ops.neighborhood(p->op)))
-        return true;
-    }
-    return false;
-  };
-  const bool single =
-      terms.size() == 1 && (s.mix == OperatorStep::Mix::sum || s.mix == OperatorStep::Mix::mean);
-  if (single && !over_batch_or_powers(*terms[0])) {
-    // One term: its operations and the step's as one list, so that a product ending the term
-    // fuses with the step's activation.
-    const auto& term = *terms[0];
-    auto y = detail::naming(where, &term, [&] {
-      const detail::OperationSeq list(term.operations(), &tail);
-      torch::Tensor x = h.at(term.source.rank, term.source.state);
-      for (std::size_t i = 0; i < list.size(); ++i)
-        i = apply_fused(where, s.target, list, i, x, ops, h);
-      return x;
-    });
-    return guard(where, s, std::move(y), h, ops);
-  }
   torch::Tensor y;
   std::size_t first = 0;  // the first of the step's operations left to apply
-  if (fast_.filter_taps() && s.mix == OperatorStep::Mix::filter)
+  if (p.route == StepRoute::filter)
     y = detail::naming(where, "the filter", [&] { return run_filter(where, s, h, ops, cache); });
   if (!y.defined()) {
     // A concatenation into an mlp over a batch: a term summed from fewer rows than the target
     // has is multiplied by its block of the mlp's first weight before the sum (W Σ x = Σ W x):
     // HOPNet's object-to-node message then costs a product over the objects, not the nodes.
     StepTerms values;
-    if (fast_.split_first_layer() && ops.batch != nullptr && s.mix == OperatorStep::Mix::concat &&
-        !tail.empty() && tail.front().traits.leading_linear) {
+    if (p.route == StepRoute::split_first_layer) {
       detail::NetworkRunContext ctx(*this, where, s.target, ops, h);
       values.first = tail.front().operation.get();
       values.linear = values.first->first_linear(ctx);
       values.W = values.linear->weight;
       first = 1;  // mix applies the operation
     }
-    for (const auto* term : terms)
-      detail::naming(where, term,
-                     [&] { evaluate_into(where, s.target, *term, h, ops, cache, values); });
+    for (const auto& term : p.terms)
+      detail::naming(where, term.term,
+                     [&] { evaluate_into(where, s.target, term, h, ops, cache, values); });
     y = mix(where, s, values, h, ops);
   }
   y = detail::naming(where, "the step's operations", [&] {
@@ -231,12 +191,27 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_step(const OperatorStep& s, 
   return guard(where, s, std::move(y), h, ops);
 }
 
+// One term: its operations and the step's as one list, so that a product ending the term fuses
+// with the step's activation.
+TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_chain(const PlannedStep& p, const Cochains& h,
+                                                          Operators& ops) {
+  const auto& term = *p.terms[0].term;
+  return detail::naming(p.where, &term, [&] {
+    const detail::OperationSeq list(term.operations(), &p.step->operations());
+    torch::Tensor x = h.at(term.source.rank, term.source.state);
+    for (std::size_t i = 0; i < list.size(); ++i)
+      i = apply_fused(p.where, p.step->target, list, i, x, ops, h);
+    return x;
+  });
+}
+
 TOPOS_INLINE void OperatorNetworkImpl::evaluate_into(const std::string& where,
                                                      const CochainKey& target,
-                                                     const ops::Term& term, const Cochains& h,
+                                                     const PlannedTerm& planned, const Cochains& h,
                                                      Operators& ops, PrefixCache& cache,
                                                      StepTerms& out) {
-  auto v = evaluate_term(where, target, term, h, ops, cache, out.W.defined());
+  const auto& term = *planned.term;
+  auto v = evaluate_term(where, target, planned, h, ops, cache, out.W.defined());
   if (v.handled) {
     if (v.deferred) {
       // Not with backward values: they scale the gradient reaching the message, which must not
@@ -553,15 +528,14 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::guard(const std::string& where,
 }
 
 TOPOS_INLINE std::pair<torch::Tensor, torch::Tensor> OperatorNetworkImpl::run_compact(
-    const OperatorStep& s, const std::vector<std::string>& readers, const Cochains& h,
-    Operators& ops, PrefixCache& cache) {
-  const auto& src = s.terms[0].source;
-  if (!fast_.compact_cochains() || ops.batch == nullptr || h.rows(src).defined()) return {};
+    const PlannedStep& p, const Cochains& h, Operators& ops, PrefixCache& cache) {
+  const auto& src = p.step->terms[0].source;
+  if (h.rows(src).defined()) return {};
   const auto& x = h.at(src.rank, src.state);
   std::vector<torch::Tensor> sources;
-  for (const auto& name : readers) {
+  for (const auto& name : p.compact_readers) {
     const auto* n = ops.neighborhood(name);
-    if (n == nullptr || n->num_source != x.size(0)) return {};  // the readers will say why
+    if (n->num_source != x.size(0)) return {};  // the readers will say why
     sources.push_back(n->source);
   }
   const auto used =
@@ -569,7 +543,7 @@ TOPOS_INLINE std::pair<torch::Tensor, torch::Tensor> OperatorNetworkImpl::run_co
   if (used.size(0) >= x.size(0)) return {};
   Cochains rows = h;
   rows.set(src.rank, src.state, x.index_select(0, used));
-  return {run_step(s, rows, ops, cache), detail::compact_rows(used, x.size(0))};
+  return {run_step(p, rows, ops, cache), detail::compact_rows(used, x.size(0))};
 }
 
 }  // namespace topos::nn

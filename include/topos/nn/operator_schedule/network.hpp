@@ -2,7 +2,8 @@
 // OperatorNetwork: the module that runs an OperatorSchedule. Built from a schedule, it infers
 // every cochain's width, checks each step (build-inl.hpp) and creates the parameters at the
 // schedule's dotted paths (parameters-inl.hpp); its forward checks its arguments
-// (checks-inl.hpp) and interprets the steps (interpreter-inl.hpp).
+// (checks-inl.hpp), plans what to run (plan.hpp, plan-inl.hpp) and runs the plan
+// (interpreter-inl.hpp).
 #pragma once
 
 #include "topos/config.hpp"
@@ -10,11 +11,15 @@
 #include "topos/nn/aggregate.hpp"
 #include "topos/nn/complex_batch.hpp"
 #include "topos/nn/operator_schedule/builder.hpp"
+#include "topos/nn/operator_schedule/plan.hpp"
 
 #include <torch/torch.h>
 
 #include <cstdint>
+#include <functional>
 #include <map>
+#include <memory>
+#include <mutex>
 #include <set>
 #include <stdexcept>
 #include <string>
@@ -28,7 +33,6 @@ namespace detail {
 class NetworkBuildContext;
 class NetworkRunContext;
 struct FilterTaps;
-struct CostLine;
 
 /// A term's operations followed by a step's (a step of one term runs them as one list, so that
 /// a product ending the term fuses with the step's activation), without copying them.
@@ -47,68 +51,6 @@ class OperationSeq {
   const std::vector<TermOp>* then_;
 };
 }  // namespace detail
-
-/// The interpreter's fast paths, each switchable (all on by default). Each gives the plain
-/// version's numbers up to float rounding (sums in another order); a test runs every zoo model
-/// and HOPNet with each on alone against all off, outputs and gradients.
-struct FastPaths {
-  /// Over a batch's neighbourhoods: a term's row-wise prefix (mlp, linear, activations, ...)
-  /// before an aggregation runs on the source rows the neighbourhood reads only.
-  TORCH_ARG(bool, row_subset) = true;
-  /// Over a batch's neighbourhoods: a term's row-wise prefix that several steps of a parallel
-  /// group share is computed once.
-  TORCH_ARG(bool, prefix_cache) = true;
-  /// Over a batch: a cochain only ever aggregated is computed on the rows aggregations read
-  /// (HOPNet's edges reach it only through contacts).
-  TORCH_ARG(bool, compact_cochains) = true;
-  /// Over a batch: a concatenating step into an mlp applies the first Linear layer's block to a
-  /// term before its sum over a neighbourhood when the term has fewer rows than the target
-  /// (W Σ x = Σ W x: the aggregation deferred past the product).
-  TORCH_ARG(bool, split_first_layer) = true;
-  /// Over sparse operators: a filter's taps share their chains' prefixes within a group, and a
-  /// source's taps are multiplied by their weights before the chains when that costs less.
-  TORCH_ARG(bool, filter_taps) = true;
-  /// Over sparse operators: a weight next to a sparse product runs on the side with fewer rows
-  /// (A (x W) = (A x) W) when that costs less.
-  TORCH_ARG(bool, reorder_products) = true;
-  /// A sparse product or linear layer and the activation after it run as one kernel.
-  TORCH_ARG(bool, fuse_activations) = true;
-
- public:
-  static FastPaths all() { return {}; }
-  static FastPaths none() {
-    FastPaths f;
-    for (const auto& name : names()) f.set(name, false);
-    return f;
-  }
-  /// The fast paths' names, as the setters spell them.
-  static const std::vector<std::string>& names() {
-    static const std::vector<std::string> n{"row_subset",        "prefix_cache", "compact_cochains",
-                                            "split_first_layer", "filter_taps",  "reorder_products",
-                                            "fuse_activations"};
-    return n;
-  }
-  /// Sets the fast path `name` (one of names(); another is an error listing them).
-  FastPaths& set(const std::string& name, bool on) {
-    flag(name) = on;
-    return *this;
-  }
-  bool get(const std::string& name) const { return FastPaths(*this).flag(name); }
-
- private:
-  bool& flag(const std::string& name) {
-    if (name == "row_subset") return row_subset_;
-    if (name == "prefix_cache") return prefix_cache_;
-    if (name == "compact_cochains") return compact_cochains_;
-    if (name == "split_first_layer") return split_first_layer_;
-    if (name == "filter_taps") return filter_taps_;
-    if (name == "reorder_products") return reorder_products_;
-    if (name == "fuse_activations") return fuse_activations_;
-    std::string known;
-    for (const auto& n : names()) known += (known.empty() ? "" : ", ") + n;
-    throw std::invalid_argument("no fast path '" + name + "' (fast paths: " + known + ")");
-  }
-};
 
 /// Runs an OperatorSchedule; its parameters sit at the schedule's dotted paths.
 class OperatorNetworkImpl : public torch::nn::Module {
@@ -186,7 +128,24 @@ class OperatorNetworkImpl : public torch::nn::Module {
   /// filter's taps) 2·rows·in·out; other operations are listed without. The plain order (with
   /// the fast paths off: reorder_products may run a product on the other side).
   std::string plan_str(const std::map<std::string, torch::Tensor>& inputs,
-                       const std::map<std::string, SparseOperator>& operators) const;
+                       const std::map<std::string, SparseOperator>& operators) const {
+    return plan(inputs, operators).str();
+  }
+
+  /// The plan forward(inputs, operators) runs with the fast paths on now: the live steps, each
+  /// with its route (StepRoute), terms and operations, and their FLOPs on this complex counted as
+  /// plan_str says (Plan::str prints it, Plan::total_flops sums it).
+  Plan plan(const std::map<std::string, torch::Tensor>& inputs,
+            const std::map<std::string, SparseOperator>& operators) const;
+  /// The plan forward(inputs, batch, operators) runs: a neighbourhood's pairs count as its
+  /// nonzeros. (A template for the reason forward's is.)
+  template <class Batch, class = std::enable_if_t<std::is_same_v<Batch, ComplexBatch>>>
+  Plan plan(const std::map<std::string, torch::Tensor>& inputs, const Batch& batch,
+            const std::map<std::string, SparseOperator>& operators = {}) const {
+    return plan_batch(inputs, batch, operators);
+  }
+  Plan plan_batch(const std::map<std::string, torch::Tensor>& inputs, const ComplexBatch& batch,
+                  const std::map<std::string, SparseOperator>& operators) const;
 
   const OperatorSchedule& schedule() const { return schedule_; }
   /// The parameter (or buffer) at a schedule path.
@@ -216,9 +175,25 @@ class OperatorNetworkImpl : public torch::nn::Module {
   std::map<const TermOp*, TermShape> shapes_;
   std::map<const ops::Term*, std::int64_t> term_width_;
   std::map<const OperatorStep*, std::int64_t> mix_width_;
-  detail::CostLine op_cost(const TermOp& t, TermShape x, const std::map<int, std::int64_t>& cells,
-                           const std::map<std::string, SparseOperator>& operators) const;
   FastPaths fast_;
+
+  // --- planning (plan-inl.hpp, cost-inl.hpp) ---------------------------------------------------
+  struct Operators;  // the given operators, their transposes and this forward's dropped ones
+  /// The routes for a forward over `ops` with the fast paths on now (no FLOPs).
+  Plan make_plan(const Operators& ops) const;
+  /// make_plan's, kept per fast paths and kind of each declared operator (given, a neighbourhood
+  /// of the batch, left out): planning is string work a forward need not repeat.
+  const Plan& plan_for(const Operators& ops);
+  std::map<std::string, std::shared_ptr<const Plan>> plans_;
+  std::mutex plans_mutex_;
+  PlannedTerm plan_term(const ops::Term& term, const Operators& ops) const;
+  StepRoute route_of(const OperatorStep& s, const std::vector<PlannedTerm>& terms,
+                     const Operators& ops) const;
+  /// The plan's lines with their FLOPs: `cells` per rank, `nnz` of each operator by name.
+  Plan plan_with_costs(const Operators& ops, const std::map<int, std::int64_t>& cells,
+                       const std::function<std::int64_t(const std::string&)>& nnz) const;
+  PlanLine op_cost(const TermOp& t, TermShape x, const std::map<int, std::int64_t>& cells,
+                   const std::function<std::int64_t(const std::string&)>& nnz) const;
 
   friend class detail::NetworkBuildContext;
   friend class detail::NetworkRunContext;
@@ -244,7 +219,6 @@ class OperatorNetworkImpl : public torch::nn::Module {
   mutable std::set<std::string> warned_;  // the undeclared names already warned about
 
   // --- the interpreter (interpreter-inl.hpp) -------------------------------------------------
-  struct Operators;  // the given operators, their transposes and this forward's dropped ones
   std::size_t apply_fused(const std::string& where, const CochainKey& target,
                           const detail::OperationSeq& list, std::size_t i, torch::Tensor& x,
                           Operators& ops, const Cochains& h);
@@ -255,13 +229,14 @@ class OperatorNetworkImpl : public torch::nn::Module {
                               const TermOp* activation);
   struct TermValue;  // a term's value, or its rows and the aggregation still to apply
   using PrefixCache = std::map<std::string, torch::Tensor>;  // per group: shared term prefixes
-  TermValue evaluate_term(const std::string& where, const CochainKey& target, const ops::Term& t,
+  TermValue evaluate_term(const std::string& where, const CochainKey& target, const PlannedTerm& t,
                           const Cochains& h, Operators& ops, PrefixCache& cache, bool may_defer);
-  torch::Tensor run_step(const OperatorStep& s, const Cochains& h, Operators& ops,
+  torch::Tensor run_step(const PlannedStep& p, const Cochains& h, Operators& ops,
                          PrefixCache& cache);
+  torch::Tensor run_chain(const PlannedStep& p, const Cochains& h, Operators& ops);
   struct StepTerms;  // the values a step mixes
   /// A term's value(s) added to `out`, or with `out.W` its product by its block of W.
-  void evaluate_into(const std::string& where, const CochainKey& target, const ops::Term& term,
+  void evaluate_into(const std::string& where, const CochainKey& target, const PlannedTerm& term,
                      const Cochains& h, Operators& ops, PrefixCache& cache, StepTerms& out);
   /// The step's terms mixed (with a split leading Linear layer, through its operation).
   torch::Tensor mix(const std::string& where, const OperatorStep& s, StepTerms& terms,
@@ -278,10 +253,8 @@ class OperatorNetworkImpl : public torch::nn::Module {
                            PrefixCache& cache);
   /// A compact step (compact_steps_) on the rows its readers aggregate: (value, each row's
   /// compact row or -1), or (undefined, undefined) where it must run on every row.
-  std::pair<torch::Tensor, torch::Tensor> run_compact(const OperatorStep& s,
-                                                      const std::vector<std::string>& readers,
-                                                      const Cochains& h, Operators& ops,
-                                                      PrefixCache& cache);
+  std::pair<torch::Tensor, torch::Tensor> run_compact(const PlannedStep& p, const Cochains& h,
+                                                      Operators& ops, PrefixCache& cache);
   torch::Tensor guard(const std::string& where, const OperatorStep& s, torch::Tensor updated,
                       const Cochains& h, const Operators& ops) const;
 
@@ -312,4 +285,5 @@ TORCH_MODULE(OperatorNetwork);
 #include "topos/nn/operator_schedule/checks-inl.hpp"
 #include "topos/nn/operator_schedule/cost-inl.hpp"
 #include "topos/nn/operator_schedule/interpreter-inl.hpp"
+#include "topos/nn/operator_schedule/plan-inl.hpp"
 #endif

@@ -346,16 +346,14 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_operation(
 }
 
 TOPOS_INLINE OperatorNetworkImpl::TermValue OperatorNetworkImpl::evaluate_term(
-    const std::string& where, const CochainKey& target, const ops::Term& term, const Cochains& h,
-    Operators& ops, PrefixCache& cache, bool may_defer) {
+    const std::string& where, const CochainKey& target, const PlannedTerm& planned,
+    const Cochains& h, Operators& ops, PrefixCache& cache, bool may_defer) {
   TermValue v;
+  if (planned.neighborhood.empty()) return v;  // not handled here
+  const auto& term = *planned.term;
   const auto& list = term.operations();
-  std::size_t k = 0;  // the first operation that is not row-wise
-  while (k < list.size() && detail::row_wise(list[k])) ++k;
-  const TensorNeighborhood* nb = k < list.size() && detail::aggregation(list[k])
-                                     ? ops.neighborhood(detail::product_of(list[k])->op)
-                                     : nullptr;
-  if (nb == nullptr) return v;  // not handled here
+  const std::size_t k = planned.row_wise_prefix;  // the first operation that is not row-wise
+  const TensorNeighborhood* nb = ops.neighborhood(planned.neighborhood);
   v.handled = true;
   torch::Tensor x = h.at(term.source.rank, term.source.state);
   TensorNeighborhood n = *nb;
@@ -368,8 +366,8 @@ TOPOS_INLINE OperatorNetworkImpl::TermValue OperatorNetworkImpl::evaluate_term(
     n.num_source = x.size(0);
   }
   if (k > 0) {
-    const bool share = fast_.prefix_cache();
-    const auto key = share ? detail::prefix_key(term.source, list, k) : std::string();
+    const auto& key = planned.prefix_key;
+    const bool share = !key.empty();
     const auto cached = share ? cache.find(key) : cache.end();
     torch::Tensor used;
     if (cached == cache.end() && fast_.row_subset()) {

@@ -1,0 +1,167 @@
+// topos/nn/operator_schedule/plan.hpp
+// Plan: what an OperatorNetwork's forward runs, decided before it runs. Building a network checks
+// the schedule; planning a forward (per set of operators given, batch or not, and fast paths on)
+// picks the steps an output needs and, for each, the route the fast paths give it; the
+// interpreter then runs the plan and decides only what depends on the sizes of this forward's
+// values. `net->plan(inputs, operators).str()` prints it with each operation's FLOPs.
+#pragma once
+
+#include "topos/nn/operator_schedule/builder.hpp"
+
+#include <cstdint>
+#include <set>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace topos::nn {
+
+/// The interpreter's fast paths, each switchable (all on by default). Each gives the plain
+/// version's numbers up to float rounding (sums in another order); a test runs every zoo model
+/// and HOPNet with each on alone against all off, outputs and gradients.
+struct FastPaths {
+  /// Over a batch's neighbourhoods: a term's row-wise prefix (mlp, linear, activations, ...)
+  /// before an aggregation runs on the source rows the neighbourhood reads only.
+  TORCH_ARG(bool, row_subset) = true;
+  /// Over a batch's neighbourhoods: a term's row-wise prefix that several steps of a parallel
+  /// group share is computed once.
+  TORCH_ARG(bool, prefix_cache) = true;
+  /// Over a batch: a cochain only ever aggregated is computed on the rows aggregations read
+  /// (HOPNet's edges reach it only through contacts).
+  TORCH_ARG(bool, compact_cochains) = true;
+  /// Over a batch: a concatenating step into an mlp applies the first Linear layer's block to a
+  /// term before its sum over a neighbourhood when the term has fewer rows than the target
+  /// (W Σ x = Σ W x: the aggregation deferred past the product).
+  TORCH_ARG(bool, split_first_layer) = true;
+  /// Over sparse operators: a filter's taps share their chains' prefixes within a group, and a
+  /// source's taps are multiplied by their weights before the chains when that costs less.
+  TORCH_ARG(bool, filter_taps) = true;
+  /// Over sparse operators: a weight next to a sparse product runs on the side with fewer rows
+  /// (A (x W) = (A x) W) when that costs less.
+  TORCH_ARG(bool, reorder_products) = true;
+  /// A sparse product or linear layer and the activation after it run as one kernel.
+  TORCH_ARG(bool, fuse_activations) = true;
+
+ public:
+  static FastPaths all() { return {}; }
+  static FastPaths none() {
+    FastPaths f;
+    for (const auto& name : names()) f.set(name, false);
+    return f;
+  }
+  /// The fast paths' names, as the setters spell them.
+  static const std::vector<std::string>& names() {
+    static const std::vector<std::string> n{"row_subset",        "prefix_cache", "compact_cochains",
+                                            "split_first_layer", "filter_taps",  "reorder_products",
+                                            "fuse_activations"};
+    return n;
+  }
+  /// Sets the fast path `name` (one of names(); another is an error listing them).
+  FastPaths& set(const std::string& name, bool on) {
+    flag(name) = on;
+    return *this;
+  }
+  bool get(const std::string& name) const { return FastPaths(*this).flag(name); }
+  /// The names of those on, comma-separated ("none" when all are off).
+  std::string str() const {
+    std::string on;
+    for (const auto& n : names())
+      if (get(n)) on += (on.empty() ? "" : ", ") + n;
+    return on.empty() ? "none" : on;
+  }
+
+ private:
+  bool& flag(const std::string& name) {
+    if (name == "row_subset") return row_subset_;
+    if (name == "prefix_cache") return prefix_cache_;
+    if (name == "compact_cochains") return compact_cochains_;
+    if (name == "split_first_layer") return split_first_layer_;
+    if (name == "filter_taps") return filter_taps_;
+    if (name == "reorder_products") return reorder_products_;
+    if (name == "fuse_activations") return fuse_activations_;
+    std::string known;
+    for (const auto& n : names()) known += (known.empty() ? "" : ", ") + n;
+    throw std::invalid_argument("no fast path '" + name + "' (fast paths: " + known + ")");
+  }
+};
+
+/// How a planned step computes its target.
+enum class StepRoute {
+  keep,               ///< every term applies an optional operator left out: the target stays
+  chain,              ///< one term: its operations and the step's as one list (a product
+                      ///< ending the term fuses with the step's activation)
+  filter,             ///< filter_taps: the taps' shared prefixes once, some weighted first
+                      ///< (where a tap is no chain of sparse products: general)
+  split_first_layer,  ///< split_first_layer: a concatenation into an mlp, its first Linear
+                      ///< layer's blocks applied to the terms before their sums
+  general             ///< each term, then the mix, then the step's operations
+};
+
+/// A route's name, as Plan::str prints it.
+inline const char* route_name(StepRoute r) {
+  switch (r) {
+    case StepRoute::keep:
+      return "keep";
+    case StepRoute::chain:
+      return "chain";
+    case StepRoute::filter:
+      return "filter taps";
+    case StepRoute::split_first_layer:
+      return "split first layer";
+    case StepRoute::general:
+      return "general";
+  }
+  return "?";
+}
+
+/// A term of a planned step, with what the interpreter would otherwise work out each forward.
+struct PlannedTerm {
+  const ops::Term* term = nullptr;
+  /// Its leading row-wise operations (mlp, linear, activations, ...).
+  std::size_t row_wise_prefix = 0;
+  /// The neighbourhood of the batch that the operation after that prefix aggregates over, or
+  /// empty (the term runs the general way).
+  std::string neighborhood;
+  /// prefix_cache: the key under which a group shares that prefix (empty: not shared).
+  std::string prefix_key;
+};
+
+/// One line of a plan's listing: an operation (or a filter's taps) and its FLOPs (-1: not
+/// counted); `depth` 0 is a step's term header, 1 an operation.
+struct PlanLine {
+  int depth = 1;
+  std::string what;
+  std::int64_t flops = -1;
+};
+
+/// A step as the plan runs it.
+struct PlannedStep {
+  std::size_t group = 0, index = 0;  ///< its place in the schedule's groups
+  const OperatorStep* step = nullptr;
+  std::string where;  ///< "name (into target)", as errors name it
+  bool live = true;   ///< read by a later step or an output (forward runs only those)
+  StepRoute route = StepRoute::general;
+  std::vector<PlannedTerm> terms;  ///< those that apply no optional operator left out
+  /// compact_cochains: the neighbourhoods whose aggregations alone read the target; the step
+  /// then runs on the rows they read (else, on every row). Empty: every row.
+  std::vector<std::string> compact_readers;
+  std::vector<PlanLine> lines;  ///< filled by OperatorNetwork::plan (with the sizes)
+};
+
+/// What a forward runs: per group of the schedule, its steps (a group reads one snapshot of the
+/// cochains), each with its route. Points into the network's schedule: valid while it lives.
+struct Plan {
+  std::vector<std::vector<PlannedStep>> groups;
+  std::vector<std::pair<std::string, std::size_t>> layers;  ///< each named layer's first group
+  FastPaths fast_paths;
+  bool over_batch = false;        ///< planned for a ComplexBatch's neighbourhoods
+  std::set<std::string> absent;   ///< optional operators left out
+  std::int64_t total_flops = -1;  ///< the sum of the lines' FLOPs (-1: planned without sizes)
+
+  /// The plan as text: the fast paths on, then each live step with its route, terms and
+  /// operations (FLOPs in the plain order: every dense product on every row, where the fast paths
+  /// may compute fewer), and the total.
+  std::string str() const;
+};
+
+}  // namespace topos::nn
