@@ -33,6 +33,7 @@
 #include <benchmark/benchmark.h>
 
 #include <cstdlib>
+#include <iostream>
 #include <map>
 #include <memory>
 #include <random>
@@ -137,6 +138,17 @@ void BM_backbone_epoch(benchmark::State& state, Setting s) {
     }
   }
   state.counters["batches"] = static_cast<double>(p.batches.size());
+  // The epoch's FLOPs as the backbone's plan counts them (the plain order), the backward counted
+  // as twice the forward; TOPOS_PRINT_PLAN=1 prints the first batch's plan on stderr.
+  double flops = 0;
+  for (std::size_t i = 0; i < p.batches.size(); ++i) {
+    const auto plan = backbone->plan(inputs[i], model->backbone_operators(p.batches[i]));
+    if (i == 0 && std::getenv("TOPOS_PRINT_PLAN") != nullptr) std::cerr << plan.str();
+    flops += 3.0 * static_cast<double>(plan.total_flops);
+  }
+  state.counters["MFLOP"] = flops / 1e6;
+  state.counters["GFLOP/s"] = benchmark::Counter(
+      flops * static_cast<double>(state.iterations()) / 1e9, benchmark::Counter::kIsRate);
   // TopoModelX's epoch over topos's: a rate of (its seconds per iteration) per second spent.
   state.counters["x_topomodelx"] = benchmark::Counter(
       s.topomodelx_ms / 1e3 * static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);

@@ -23,6 +23,7 @@
 #include <algorithm>
 #include <cstdint>
 #include <stdexcept>
+#include <utility>
 #include <string>
 
 namespace topos::nn {
@@ -32,11 +33,9 @@ namespace detail {
 // act(x Wᵀ + b) as one node keeping x, W and its output: the activation runs in place on the
 // product (one pass, vectorised) and the backward starts from dY ⊙ act'(Y).
 struct LinearFunction : public torch::autograd::Function<LinearFunction> {
-  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& x,
-                               const torch::Tensor& W, const torch::Tensor& bias,
-                               std::int64_t act) {
-    const auto e = static_cast<Epilogue>(act);
-    const auto b = bias.numel() > 0 ? bias : torch::Tensor();  // empty: no bias
+  /// act(x Wᵀ + b) (b undefined: none), and whether oneDNN ran it (the backward follows).
+  static std::pair<torch::Tensor, bool> product(const torch::Tensor& x, const torch::Tensor& W,
+                                                const torch::Tensor& b, Epilogue e) {
     // oneDNN takes the wide products when chosen (CpuGemm): on a 128-wide map the dense kernel
     // runs at half BLAS's speed and oneDNN 1.3x BLAS's (AVX-512 EPYC).
     const bool onednn = W.size(0) > 64 && use_onednn(x);
@@ -50,6 +49,14 @@ struct LinearFunction : public torch::autograd::Function<LinearFunction> {
       y = b.defined() ? torch::addmm(b, x, W.t()) : x.mm(W.t());
       apply_epilogue(y, torch::Tensor(), e);
     }
+    return {y, onednn};
+  }
+  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& x,
+                               const torch::Tensor& W, const torch::Tensor& bias,
+                               std::int64_t act) {
+    const auto e = static_cast<Epilogue>(act);
+    const auto b = bias.numel() > 0 ? bias : torch::Tensor();  // empty: no bias
+    const auto [y, onednn] = product(x, W, b, e);
     ctx->save_for_backward({x, W, e == Epilogue::none ? torch::Tensor() : y});
     ctx->saved_data["act"] = act;
     ctx->saved_data["bias"] = b.defined();
@@ -143,6 +150,11 @@ inline torch::Tensor linear_act(const torch::Tensor& x, const torch::Tensor& W,
                                 " input channels for a weight of " + std::to_string(W.size(0)) +
                                 " x " + std::to_string(W.size(1)) +
                                 (b.defined() ? " and a bias of " + std::to_string(b.numel()) : ""));
+  // Without a gradient to take (a rollout's NoGradGuard), no autograd node: Function::apply
+  // costs a context, its saved values and the outputs' wrapping on every call.
+  if (!torch::GradMode::is_enabled() ||
+      !(x.requires_grad() || W.requires_grad() || (b.defined() && b.requires_grad())))
+    return detail::LinearFunction::product(x, W, b, act).first;
   // torch 1.13's Function::apply cannot take an undefined input: no bias is an empty one.
   return detail::LinearFunction::apply(x, W, b.defined() ? b : torch::empty({0}, x.options()),
                                        static_cast<std::int64_t>(act));

@@ -223,6 +223,16 @@ TEST_CASE("linear_act in panels of 64 outputs equals torch's linear, forward and
         REQUIRE(torch::allclose(x.grad(), xr.grad(), tol * 4, tol * 4));
         REQUIRE(torch::allclose(W.grad(), Wr.grad(), tol * 4, tol * 4));
         REQUIRE(torch::allclose(b.grad(), br.grad(), tol * 4, tol * 4));
+        // Without a gradient to take: the same values, and no autograd node.
+        {
+          torch::NoGradGuard no_grad;
+          const auto z = linear_act(x, W, b, e);
+          CHECK_FALSE(z.requires_grad());
+          REQUIRE(torch::equal(z, y.detach()));
+        }
+        const auto z = linear_act(x.detach(), W.detach(), b.detach(), e);
+        CHECK(z.grad_fn() == nullptr);
+        REQUIRE(torch::equal(z, y.detach()));
       }
     }
   }
@@ -247,6 +257,8 @@ TEST_CASE("UniGCNII's update as one node gives the written-out operations' value
     torch::manual_seed(5);
     OperatorNetwork net(s);
     auto x = torch::randn({37, width}).requires_grad_(true);
+    // The plan counts each layer's product: 2·37·width·width.
+    CHECK(net->plan({{"x_0", x}}, {}).total_flops == 2 * 2 * 37 * width * width);
     const auto y = net->forward({{"x_0", x}}, {}).at("x_0");
     (y * torch::randn(y.sizes())).sum().backward();
     std::vector<torch::Tensor> out{y.detach(), x.grad()};

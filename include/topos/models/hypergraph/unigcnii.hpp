@@ -115,6 +115,11 @@ struct InitialResidual : nn::Operation {
     }
     return detail::InitialResidualFunction::apply(x, s, W, alpha, beta);
   }
+  /// Its product by (1-β) I + β W: 2·rows·in·out (the mixing is not counted, as activations
+  /// are not).
+  nn::OperationCost cost(const nn::CostContext& c) const override {
+    return nn::OperationCost::dense(c.rows, c.x.channels, c.y.channels);
+  }
   /// One autograd node (InitialResidualFunction) where it applies; false: the operations
   /// written out, each LibTorch's node (what the tests compare it with).
   bool fused_residual = true;
