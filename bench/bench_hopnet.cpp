@@ -79,28 +79,15 @@ struct Gemm {
   ~Gemm() { nn::set_cpu_gemm(nn::CpuGemm::blas); }
 };
 
-// The FLOPs of one forward over `b` as the network's plan counts them (OperatorNetwork::plan_str:
-// dense products 2·rows·in·out, sparse ones 2·nnz·width; in the plain order, so messages for every
-// source cell, where the fast paths compute only those with a receiver). The batch's neighbourhoods
-// are given as operators of their pattern (the counts need only their nonzeros).
+// The FLOPs of one forward over `b` as the network's plan counts them (OperatorNetwork::plan over
+// the batch: dense products 2·rows·in·out, sparse ones 2·pairs·width; in the plain order, so
+// messages for every source cell, where the fast paths compute only those with a receiver).
 std::int64_t plan_flops(const Hopnet& net, const HopnetBatch& b, bool print = false) {
-  std::map<std::string, nn::SparseOperator> ops;
-  for (const auto& [name, n] : b.complex.neighborhoods()) {
-    const auto t = n.target.to(torch::kCPU).contiguous(),
-               src = n.source.to(torch::kCPU).contiguous();
-    const std::vector<std::int64_t> r(t.data_ptr<std::int64_t>(),
-                                      t.data_ptr<std::int64_t>() + t.numel()),
-        c(src.data_ptr<std::int64_t>(), src.data_ptr<std::int64_t>() + src.numel());
-    ops[name] = nn::SparseOperator::from_triplets(n.num_target, n.num_source, r, c,
-                                                  std::vector<double>(r.size(), 1.0));
-  }
   auto inputs = b.inputs;
   if (net->options.mode() != FeatureMode::native) inputs.erase("x3_plus");
-  const auto plan = net->plan_str(inputs, net->declared_operators(ops));
-  if (print) std::cerr << plan;
-  auto total = plan.substr(plan.rfind("total ") + 6);
-  total.erase(std::remove(total.begin(), total.end(), ','), total.end());
-  return std::stoll(total);
+  const auto plan = net->plan(inputs, b.complex);
+  if (print) std::cerr << plan.str();
+  return plan.total_flops;
 }
 
 // The frame at t = 100 (47 faces, 49 contacts in reference mode) as one batch.
