@@ -2,7 +2,7 @@
 # HOPNet trained from scratch on MOVi-A at full scale (docs/hopnet-training.md).
 #
 #   scripts/hopnet_training.sh run        # regenerate MOVi-A (seeds 1-1200), train or resume
-#   scripts/hopnet_training.sh snapshot   # copy the run's last commit into docs/hopnet-training/run
+#   scripts/hopnet_training.sh snapshot   # copy the run's last commit into docs/hopnet-training/run, its curves into training.html
 #   scripts/hopnet_training.sh status     # where the run stands
 #
 # `run` is resumable at any moment: kill it (any signal) and run it again; it loses at most the
@@ -88,6 +88,9 @@ case "$cmd" in
   snapshot)
     [ -e "$RUN/stats.json" ] || { echo "hopnet_training: no run in $RUN" >&2; exit 1; }
     copy_state "$SNAP"
+    # The curves (loss per step and per epoch, the validation rollouts) as a page to open.
+    (cd "$root" && "$(hopnet_binary)" plot --log docs/hopnet-training/run \
+      --out docs/hopnet-training/training.html)
     if [ -e "$SNAP/state.json" ]; then
       echo "hopnet_training: $SNAP holds step $(/usr/bin/python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['step'])" "$SNAP/state.json")"
     else

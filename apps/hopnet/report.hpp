@@ -17,6 +17,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdint>
@@ -51,6 +52,9 @@ struct CsvTable {
         return v;
       }
     throw topos::data::DataError(source + ": no column '" + name + "'");
+  }
+  bool has(const std::string& name) const {
+    return std::find(columns.begin(), columns.end(), name) != columns.end();
   }
 };
 
@@ -101,6 +105,8 @@ struct TrainingLog {
   std::filesystem::path folder;
   std::vector<double> step, step_epoch, step_loss;      // steps.csv
   std::vector<double> epoch, train_loss, val_loss, lr;  // epochs.csv
+  /// epochs.csv's validation rollouts (position RMSE at the run's frame), where it has them.
+  std::vector<double> val_rollout;
 };
 
 /// Reads `folder`/steps.csv and `folder`/epochs.csv (either may be missing, not both).
@@ -123,6 +129,8 @@ inline TrainingLog read_training_log(const std::filesystem::path& folder) {
     log.train_loss = t.column("train_loss", epochs.string());
     log.val_loss = t.column("val_loss", epochs.string());
     log.lr = t.column("lr", epochs.string());
+    if (t.has("val_rollout_pos_rmse"))
+      log.val_rollout = t.column("val_rollout_pos_rmse", epochs.string());
   }
   return log;
 }
@@ -138,7 +146,8 @@ inline nlohmann::json training_json(const TrainingLog& log) {
   return {{"folder", log.folder.string()},         {"step", numbers(log.step)},
           {"step_epoch", numbers(log.step_epoch)}, {"step_loss", numbers(log.step_loss)},
           {"epoch", numbers(log.epoch)},           {"train_loss", numbers(log.train_loss)},
-          {"val_loss", numbers(log.val_loss)},     {"lr", numbers(log.lr)}};
+          {"val_loss", numbers(log.val_loss)},     {"lr", numbers(log.lr)},
+          {"val_rollout", numbers(log.val_rollout)}};
 }
 
 // ---- the paper's results and the dataset kind -------------------------------------------------
