@@ -143,10 +143,14 @@ inline nlohmann::json numbers(const std::vector<double>& v) {
 }
 
 inline nlohmann::json training_json(const TrainingLog& log) {
-  return {{"folder", log.folder.string()},         {"step", numbers(log.step)},
-          {"step_epoch", numbers(log.step_epoch)}, {"step_loss", numbers(log.step_loss)},
-          {"epoch", numbers(log.epoch)},           {"train_loss", numbers(log.train_loss)},
-          {"val_loss", numbers(log.val_loss)},     {"lr", numbers(log.lr)},
+  return {{"folder", log.folder.string()},
+          {"step", numbers(log.step)},
+          {"step_epoch", numbers(log.step_epoch)},
+          {"step_loss", numbers(log.step_loss)},
+          {"epoch", numbers(log.epoch)},
+          {"train_loss", numbers(log.train_loss)},
+          {"val_loss", numbers(log.val_loss)},
+          {"lr", numbers(log.lr)},
           {"val_rollout", numbers(log.val_rollout)}};
 }
 
