@@ -68,36 +68,13 @@ TOPOS_INLINE Plan OperatorNetworkImpl::plan_with_costs(
   return plan;
 }
 
-TOPOS_INLINE Plan
-OperatorNetworkImpl::plan(const std::map<std::string, torch::Tensor>& inputs,
-                          const std::map<std::string, SparseOperator>& operators) const {
-  check_arguments(inputs, operators, nullptr);
+TOPOS_INLINE Plan OperatorNetworkImpl::plan_over(
+    const std::map<std::string, torch::Tensor>& inputs,
+    const std::map<std::string, SparseOperator>& operators, const ComplexBatch* batch) const {
+  check_arguments(inputs, operators, batch);
   input_cochains(inputs);  // each input's shape
-  Operators ops{&operators, nullptr, {}, {}, {}};
-  for (const auto& name : schedule_.optional_operators())
-    if (!operators.count(name)) ops.absent.insert(name);
-  std::map<int, std::int64_t> cells;  // per rank, from the inputs and the operators
-  for (const auto& in : schedule_.inputs()) cells[in.key.rank] = inputs.at(in.name).size(-2);
-  for (const auto& [name, ranks] : schedule_.operators())
-    if (auto it = operators.find(name); it != operators.end()) {
-      cells[ranks.first] = it->second.cols;
-      cells[ranks.second] = it->second.rows;
-    }
-  return plan_with_costs(ops, cells, [&](const std::string& name) {
-    auto it = operators.find(name);
-    return it == operators.end() ? std::int64_t(0) : it->second.nnz();
-  });
-}
-
-TOPOS_INLINE Plan OperatorNetworkImpl::plan_batch(
-    const std::map<std::string, torch::Tensor>& inputs, const ComplexBatch& batch,
-    const std::map<std::string, SparseOperator>& operators) const {
-  check_arguments(inputs, operators, &batch);
-  input_cochains(inputs);
-  Operators ops{&operators, &batch, {}, {}, {}};
-  for (const auto& name : schedule_.optional_operators())
-    if (!operators.count(name) && !batch.has_neighborhood(name)) ops.absent.insert(name);
-  std::map<int, std::int64_t> cells;
+  Operators ops{&operators, batch, {}, absent_operators(operators, batch), {}};
+  std::map<int, std::int64_t> cells;  // per rank, from the inputs, operators and neighbourhoods
   for (const auto& in : schedule_.inputs()) cells[in.key.rank] = inputs.at(in.name).size(-2);
   for (const auto& [name, ranks] : schedule_.operators())
     if (auto it = operators.find(name); it != operators.end()) {
@@ -107,6 +84,7 @@ TOPOS_INLINE Plan OperatorNetworkImpl::plan_batch(
       cells[ranks.first] = n->num_source;
       cells[ranks.second] = n->num_target;
     }
+  // A neighbourhood's pairs count as its nonzeros.
   return plan_with_costs(ops, cells, [&](const std::string& name) -> std::int64_t {
     if (auto it = operators.find(name); it != operators.end()) return it->second.nnz();
     const auto* n = ops.neighborhood(name);

@@ -81,10 +81,7 @@ OperatorNetworkImpl::input_cochains(const std::map<std::string, torch::Tensor>& 
 TOPOS_INLINE void OperatorNetworkImpl::run_range(
     Cochains& h, const std::map<std::string, SparseOperator>& operators, const ComplexBatch* batch,
     std::size_t begin, std::size_t end, bool live_only) {
-  Operators ops{&operators, batch, {}, {}, {}};
-  for (const auto& name : schedule_.optional_operators())
-    if (!operators.count(name) && !(batch && batch->has_neighborhood(name)))
-      ops.absent.insert(name);
+  Operators ops{&operators, batch, {}, absent_operators(operators, batch), {}};
   const auto& plan = plan_for(ops);
   for (std::size_t g = begin; g < end && g < plan.groups.size(); ++g) {
     const Cochains snapshot = h;

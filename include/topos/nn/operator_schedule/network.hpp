@@ -136,7 +136,9 @@ class OperatorNetworkImpl : public torch::nn::Module {
   /// with its route (StepRoute), terms and operations, and their FLOPs on this complex counted as
   /// plan_str says (Plan::str prints it, Plan::total_flops sums it).
   Plan plan(const std::map<std::string, torch::Tensor>& inputs,
-            const std::map<std::string, SparseOperator>& operators) const;
+            const std::map<std::string, SparseOperator>& operators) const {
+    return plan_over(inputs, operators, nullptr);
+  }
   /// The plan forward(inputs, batch, operators) runs: a neighbourhood's pairs count as its
   /// nonzeros. (A template for the reason forward's is.)
   template <class Batch, class = std::enable_if_t<std::is_same_v<Batch, ComplexBatch>>>
@@ -145,7 +147,9 @@ class OperatorNetworkImpl : public torch::nn::Module {
     return plan_batch(inputs, batch, operators);
   }
   Plan plan_batch(const std::map<std::string, torch::Tensor>& inputs, const ComplexBatch& batch,
-                  const std::map<std::string, SparseOperator>& operators) const;
+                  const std::map<std::string, SparseOperator>& operators) const {
+    return plan_over(inputs, operators, &batch);
+  }
 
   const OperatorSchedule& schedule() const { return schedule_; }
   /// The parameter (or buffer) at a schedule path.
@@ -179,8 +183,15 @@ class OperatorNetworkImpl : public torch::nn::Module {
 
   // --- planning (plan-inl.hpp, cost-inl.hpp) ---------------------------------------------------
   struct Operators;  // the given operators, their transposes and this forward's dropped ones
+  /// The optional operators a forward over `operators` (and `batch`'s neighbourhoods) lacks.
+  std::set<std::string> absent_operators(const std::map<std::string, SparseOperator>& operators,
+                                         const ComplexBatch* batch) const;
   /// The routes for a forward over `ops` with the fast paths on now (no FLOPs).
   Plan make_plan(const Operators& ops) const;
+  /// plan and plan_batch: the arguments checked, the cells and nonzeros counted, the plan made.
+  Plan plan_over(const std::map<std::string, torch::Tensor>& inputs,
+                 const std::map<std::string, SparseOperator>& operators,
+                 const ComplexBatch* batch) const;
   /// make_plan's, kept per fast paths and kind of each declared operator (given, a neighbourhood
   /// of the batch, left out): planning is string work a forward need not repeat.
   const Plan& plan_for(const Operators& ops);

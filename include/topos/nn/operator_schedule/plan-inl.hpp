@@ -106,6 +106,14 @@ TOPOS_INLINE StepRoute OperatorNetworkImpl::route_of(const OperatorStep& s,
   return StepRoute::general;
 }
 
+TOPOS_INLINE std::set<std::string> OperatorNetworkImpl::absent_operators(
+    const std::map<std::string, SparseOperator>& operators, const ComplexBatch* batch) const {
+  std::set<std::string> absent;
+  for (const auto& name : schedule_.optional_operators())
+    if (!operators.count(name) && !(batch && batch->has_neighborhood(name))) absent.insert(name);
+  return absent;
+}
+
 TOPOS_INLINE Plan OperatorNetworkImpl::make_plan(const Operators& ops) const {
   Plan plan;
   plan.fast_paths = fast_;
