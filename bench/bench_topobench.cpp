@@ -24,7 +24,8 @@
 //   BM_dropout         dropout (p = 0.5, training) of a 4000 × 128 float tensor, forward: torch's
 //                      (arg 0) or nn::dropout (arg 1); every TopoBench encoder and several
 //                      backbones drop out at every step (no data needed)
-// Needs TOPOS_DATASETS_DIR (but for BM_dropout). Run with
+// BM_backbone_epoch without one fast path: TOPOS_FAST_PATH_OFF=<FastPaths name> (e.g.
+// fuse_products), to compare in one binary. Needs TOPOS_DATASETS_DIR (but for BM_dropout). Run with
 //   OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 ./build/bench/bench_topobench
 #include "topos/data/graph_datasets.hpp"
 #include "topos/models/topobench/table_models.hpp"
@@ -119,7 +120,10 @@ void BM_backbone_epoch(benchmark::State& state, Setting s) {
       TopoBenchModelOptions(table_backbone(s.model), p.graphs[0].widths, s.hidden, 2)
           .n_layers(s.layers));
   auto& backbone = model->backbone;
-  // Hidden-width features per rank and a each output summed for the backward.
+  // TOPOS_FAST_PATH_OFF=name (a FastPaths name) times the backbone without that fast path: the
+  // same binary, side by side.
+  if (const char* off = std::getenv("TOPOS_FAST_PATH_OFF")) backbone->fast_paths().set(off, false);
+  // Hidden-width features per rank and each output summed for the backward.
   std::vector<std::map<std::string, torch::Tensor>> inputs;
   for (const auto& b : p.batches) {
     std::map<std::string, torch::Tensor> in;
@@ -142,7 +146,8 @@ void BM_backbone_epoch(benchmark::State& state, Setting s) {
   // as twice the forward; TOPOS_PRINT_PLAN=1 prints the first batch's plan on stderr.
   double flops = 0;
   for (std::size_t i = 0; i < p.batches.size(); ++i) {
-    const auto plan = backbone->plan(inputs[i], model->backbone_operators(p.batches[i]));
+    const auto plan = backbone->plan(
+        inputs[i], backbone->declared_operators(model->backbone_operators(p.batches[i])));
     if (i == 0 && std::getenv("TOPOS_PRINT_PLAN") != nullptr) std::cerr << plan.str();
     flops += 3.0 * static_cast<double>(plan.total_flops);
   }

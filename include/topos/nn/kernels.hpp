@@ -36,17 +36,23 @@ struct LinearFunction : public torch::autograd::Function<LinearFunction> {
   /// act(x Wᵀ + b) (b undefined: none), and whether oneDNN ran it (the backward follows).
   static std::pair<torch::Tensor, bool> product(const torch::Tensor& x, const torch::Tensor& W,
                                                 const torch::Tensor& b, Epilogue e) {
+    return product_right(x, W.t(), b, e);
+  }
+  /// act(x M + b) for M = Wᵀ (in × out, a schedule's weight as it is stored), as `product`.
+  static std::pair<torch::Tensor, bool> product_right(const torch::Tensor& x,
+                                                      const torch::Tensor& M,
+                                                      const torch::Tensor& b, Epilogue e) {
     // oneDNN takes the wide products when chosen (CpuGemm): on a 128-wide map the dense kernel
     // runs at half BLAS's speed and oneDNN 1.3x BLAS's (AVX-512 EPYC).
-    const bool onednn = W.size(0) > 64 && use_onednn(x);
+    const bool onednn = M.size(1) > 64 && use_onednn(x);
     torch::Tensor y;
     if (onednn) {
-      y = onednn_mm(x, W.t());
+      y = onednn_mm(x, M);
       bias_epilogue(y, b, e);
-    } else if (dense_kernel_fits(W.size(1), W.size(0))) {
-      y = dense_product(x, W.t().contiguous(), b, e);
+    } else if (dense_kernel_fits(M.size(0), M.size(1))) {
+      y = dense_product(x, M.contiguous(), b, e);
     } else {
-      y = b.defined() ? torch::addmm(b, x, W.t()) : x.mm(W.t());
+      y = b.defined() ? torch::addmm(b, x, M) : x.mm(M);
       apply_epilogue(y, torch::Tensor(), e);
     }
     return {y, onednn};
@@ -66,28 +72,33 @@ struct LinearFunction : public torch::autograd::Function<LinearFunction> {
   static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx,
                                                torch::autograd::tensor_list grads) {
     const auto saved = ctx->get_saved_variables();
-    const auto &x = saved[0], &W = saved[1], &Y = saved[2];
     const auto e = static_cast<Epilogue>(ctx->saved_data["act"].toInt());
     const bool bias = ctx->saved_data["bias"].toBool();
-    const bool onednn = ctx->saved_data["onednn"].toBool();
+    return gradients(saved[0], saved[1], saved[2], grads[0], e, ctx->saved_data["onednn"].toBool(),
+                     ctx->needs_input_grad(0), ctx->needs_input_grad(1),
+                     bias && ctx->needs_input_grad(2));
+  }
+  /// dx, dW and db of Y = act(x Wᵀ + b) from dY = g (Y undefined without an activation), as
+  /// `product` ran it (`onednn`); what is not wanted stays undefined.
+  static torch::autograd::tensor_list gradients(const torch::Tensor& x, const torch::Tensor& W,
+                                                const torch::Tensor& Y, const torch::Tensor& g,
+                                                Epilogue e, bool onednn, bool want_dx, bool want_dW,
+                                                bool want_db) {
     torch::Tensor dx, dW, db;
     if (onednn) {
-      const auto dZ = apply_epilogue(Y, grads[0].contiguous(), e);
-      if (ctx->needs_input_grad(0)) dx = onednn_mm(dZ, W);
-      if (ctx->needs_input_grad(1)) dW = onednn_mm(dZ.t(), x);
-      if (bias && ctx->needs_input_grad(2)) db = dZ.sum(0);
+      const auto dZ = apply_epilogue(Y, g.contiguous(), e);
+      if (want_dx) dx = onednn_mm(dZ, W);
+      if (want_dW) dW = onednn_mm(dZ.t(), x);
+      if (want_db) db = dZ.sum(0);
       return {dx, dW, db, {}};
     }
     if (dense_kernel_fits(W.size(0), W.size(1)))
-      return fused_backward(x.contiguous(), W.contiguous(), Y, grads[0].contiguous(), e,
-                            ctx->needs_input_grad(0), ctx->needs_input_grad(1),
-                            bias && ctx->needs_input_grad(2));
-    const auto dZ = apply_epilogue(Y, grads[0].contiguous(), e);
-    if (ctx->needs_input_grad(0))
-      dx = dense_kernel_fits(W.size(0), W.size(1)) ? dense_product(dZ, W, {}, Epilogue::none)
-                                                   : dZ.mm(W);
-    if (ctx->needs_input_grad(1)) dW = dZ.t().mm(x);
-    if (bias && ctx->needs_input_grad(2)) db = dZ.sum(0);
+      return fused_backward(x.contiguous(), W.contiguous(), Y, g.contiguous(), e, want_dx, want_dW,
+                            want_db);
+    const auto dZ = apply_epilogue(Y, g.contiguous(), e);
+    if (want_dx) dx = dZ.mm(W);
+    if (want_dW) dW = dZ.t().mm(x);
+    if (want_db) db = dZ.sum(0);
     return {dx, dW, db, {}};
   }
   // dx, dW and db in one pass over the rows (linear_backward_rows), each thread summing its own

@@ -155,6 +155,14 @@ struct SparseOperator::Factors {
 inline torch::Tensor spmm(const SparseOperator& A, const torch::Tensor& X,
                           Epilogue act = Epilogue::none);
 
+/// act(A (x W)) (`weight_first`) or act((A x) W), W in × out, as one autograd node on the CPU
+/// (differentiable in x and W; A's values taken as constants): the weight's product, the sparse
+/// product and the activation in one node. A factored operator, values that require a gradient,
+/// another device or dtype: spmm and linear_act one after the other.
+inline torch::Tensor sparse_linear_act(const SparseOperator& A, const torch::Tensor& x,
+                                       const torch::Tensor& W, bool weight_first,
+                                       Epilogue act = Epilogue::none);
+
 /// Softmax of per-entry scores within each row of A's pattern (a target's incoming messages),
 /// as torch.sparse.softmax(·, dim=1): every row's entries sum to one, empty rows stay empty.
 inline torch::Tensor row_softmax(const SparseOperator& A, const torch::Tensor& scores);

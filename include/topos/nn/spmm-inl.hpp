@@ -1,7 +1,8 @@
 // topos/nn/spmm-inl.hpp
 // The definitions of spmm, row_softmax and row_normalize (sparse_operator.hpp) and the autograd
 // nodes behind them: act(A·X) through the CSR kernel (kernels.hpp) with its own backward, and
-// the row-wise softmax that keeps only its output. Also the members of SparseOperator that
+// the row-wise softmax that keeps only its output, and sparse_linear_act's node (a weight, a
+// sparse product and an activation as one). Also the members of SparseOperator that
 // apply it (row and column sums, to_dense).
 #pragma once
 
@@ -14,6 +15,7 @@
 #include <limits>
 #include <stdexcept>
 #include <string>
+#include <tuple>
 
 namespace topos::nn {
 
@@ -71,6 +73,71 @@ struct SpmmFunction : public torch::autograd::Function<SpmmFunction> {
   }
 };
 
+// act(A (x W)) or act((A x) W) (W: in × out, as a schedule's weight) as one node keeping x or
+// A x, W and the output: one context and one saved set where the weight and the product would
+// each make their own, and no transposed view of W recorded.
+struct SparseLinearFunction : public torch::autograd::Function<SparseLinearFunction> {
+  /// The forward's values: the output, the dense product's input (x, or A x), and whether
+  /// oneDNN ran the dense product.
+  struct Values {
+    torch::Tensor y, dense_input;
+    bool onednn = false;
+  };
+  static Values product(const torch::Tensor& values, const torch::Tensor& x, const torch::Tensor& W,
+                        const torch::Tensor& crow, const torch::Tensor& col, std::int64_t rows,
+                        bool weight_first, Epilogue e) {
+    Values v;
+    if (weight_first) {
+      const auto [t, onednn] = LinearFunction::product_right(x, W, {}, Epilogue::none);
+      v.y = csr_apply(crow, col, values, torch::Tensor(), t, rows, e);
+      v.dense_input = x, v.onednn = onednn;
+    } else {
+      v.dense_input = csr_apply(crow, col, values, torch::Tensor(), x, rows);
+      std::tie(v.y, v.onednn) = LinearFunction::product_right(v.dense_input, W, {}, e);
+    }
+    return v;
+  }
+  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& x,
+                               const torch::Tensor& W, const torch::Tensor& values,
+                               const torch::Tensor& crow, const torch::Tensor& col,
+                               const torch::Tensor& t_crow, const torch::Tensor& t_col,
+                               const torch::Tensor& t_perm, std::int64_t rows, bool weight_first,
+                               std::int64_t act) {
+    const auto e = static_cast<Epilogue>(act);
+    auto v = product(values, x, W, crow, col, rows, weight_first, e);
+    ctx->save_for_backward({v.dense_input, W, values, t_crow, t_col, t_perm,
+                            e == Epilogue::none ? torch::Tensor() : v.y});
+    // One entry (each costs a hash-map insertion): the activation, then the two flags.
+    ctx->saved_data["how"] = act | (weight_first ? 4 : 0) | (v.onednn ? 8 : 0);
+    return v.y;
+  }
+  static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx,
+                                               torch::autograd::tensor_list grads) {
+    const auto s = ctx->get_saved_variables();
+    const auto &input = s[0], &W = s[1], &values = s[2], &t_crow = s[3], &t_col = s[4],
+               &t_perm = s[5], &Y = s[6];
+    const auto how = ctx->saved_data["how"].toInt();
+    const auto e = static_cast<Epilogue>(how & 3);
+    const bool onednn = (how & 8) != 0;
+    const auto x_rows = t_crow.size(0) - 1;  // Aᵀ's rows
+    const bool want_dx = ctx->needs_input_grad(0), want_dW = ctx->needs_input_grad(1);
+    torch::Tensor dx, dW;
+    if ((how & 4) != 0) {  // y = act(A t), t = x W
+      const auto dY = apply_epilogue(Y, grads[0].contiguous(), e);
+      const auto dt = csr_apply(t_crow, t_col, values, t_perm, dY, x_rows);
+      auto g = LinearFunction::gradients(input, W.t(), {}, dt, Epilogue::none, onednn, want_dx,
+                                         want_dW, false);
+      dx = g[0], dW = g[1];
+    } else {  // y = act(z W), z = A x
+      auto g =
+          LinearFunction::gradients(input, W.t(), Y, grads[0], e, onednn, want_dx, want_dW, false);
+      if (want_dx) dx = csr_apply(t_crow, t_col, values, t_perm, g[0], x_rows);
+      dW = g[1];
+    }
+    return {dx, dW.defined() ? dW.t() : dW, {}, {}, {}, {}, {}, {}, {}, {}, {}};
+  }
+};
+
 }  // namespace detail
 
 inline torch::Tensor spmm(const SparseOperator& A, const torch::Tensor& X, Epilogue act) {
@@ -103,6 +170,33 @@ inline torch::Tensor spmm(const SparseOperator& A, const torch::Tensor& X, Epilo
   }
   return detail::SpmmFunction::apply(values, X, A.crow, A.col, A.row, A.t_crow, A.t_col, A.t_perm,
                                      A.rows, static_cast<std::int64_t>(act));
+}
+
+inline torch::Tensor sparse_linear_act(const SparseOperator& A, const torch::Tensor& x,
+                                       const torch::Tensor& W, bool weight_first, Epilogue act) {
+  const bool fused = x.device().is_cpu() && x.dim() == 2 && W.dim() == 2 && !A.factored() &&
+                     (x.scalar_type() == torch::kFloat || x.scalar_type() == torch::kDouble) &&
+                     W.scalar_type() == x.scalar_type() && !A.values.requires_grad();
+  if (!fused) {
+    const auto y = weight_first ? spmm(A, linear_act(x, W.t(), {}), act)
+                                : linear_act(spmm(A, x), W.t(), {}, act);
+    return y;
+  }
+  if (x.size(0) != A.cols || x.size(1) != W.size(0))
+    throw std::invalid_argument("sparse_linear_act: the operator is " + std::to_string(A.rows) +
+                                " x " + std::to_string(A.cols) + " and the weight " +
+                                std::to_string(W.size(0)) + " x " + std::to_string(W.size(1)) +
+                                " but x is " + std::to_string(x.size(0)) + " x " +
+                                std::to_string(x.size(1)));
+  const auto values =
+      A.values.scalar_type() == x.scalar_type() ? A.values : A.values.to(x.scalar_type());
+  if (!torch::GradMode::is_enabled() || !(x.requires_grad() || W.requires_grad()))
+    return detail::SparseLinearFunction::product(values, x, W, A.crow, A.col, A.rows, weight_first,
+                                                 act)
+        .y;
+  return detail::SparseLinearFunction::apply(x, W, values, A.crow, A.col, A.t_crow, A.t_col,
+                                             A.t_perm, A.rows, weight_first,
+                                             static_cast<std::int64_t>(act));
 }
 
 inline torch::Tensor SparseOperator::row_sums() const {

@@ -9,6 +9,7 @@
 #include "topos/models/zoo.hpp"
 #include "topos/models/zoo/golden_case.hpp"
 
+#include <algorithm>
 #include <array>
 #include <filesystem>
 #include <fstream>
@@ -167,6 +168,62 @@ TEST_CASE("activations fused into spmm and linear_act equal torch's, forward and
   REQUIRE_THROWS_WITH(
       linear_act(torch::randn({3, 4}), torch::randn({2, 5}), torch::Tensor(), Epilogue::elu),
       Catch::Contains("4 input channels") && Catch::Contains("5"));
+}
+
+TEST_CASE("sparse_linear_act equals the dense act(A x W), either order, forward and backward",
+          "[nn][sparse]") {
+  const auto torch_act = [](const torch::Tensor& z, Epilogue e) {
+    return e == Epilogue::relu ? torch::relu(z) : e == Epilogue::elu ? torch::elu(z) : z;
+  };
+  torch::manual_seed(5);
+  for (const auto e : {Epilogue::none, Epilogue::relu, Epilogue::elu})
+    for (const auto dt : {torch::kFloat, torch::kDouble})
+      // (inputs, outputs): the register kernels (32 · 32, 16 · 7), the generic loop (5 · 33),
+      // oneDNN or BLAS for a wide map (128 · 128); empty rows and an empty x.
+      for (auto [ci, co] : {std::array<std::int64_t, 2>{32, 32}, {16, 7}, {5, 33}, {128, 128}})
+        for (const std::int64_t n : {29, 0})
+          for (const bool weight_first : {true, false}) {
+            INFO("act " << static_cast<int>(e) << ", dtype " << dt << ", " << ci << " -> " << co
+                        << ", " << n << " rows, weight first " << weight_first);
+            const auto A = n == 0 ? SparseOperator::from_dense(torch::zeros({41, 0}, dt))
+                                  : random_operator(41, n, 0.3, dt, ci);
+            const auto x = (3 * torch::randn({n, ci}, dt)).requires_grad_(true);
+            const auto W = torch::randn({ci, co}, dt).requires_grad_(true);
+            const auto y = sparse_linear_act(A, x, W, weight_first, e);
+            const auto xr = x.detach().clone().requires_grad_(true);
+            const auto Wr = W.detach().clone().requires_grad_(true);
+            const auto yr = torch_act(A.to_dense().matmul(xr).matmul(Wr), e);
+            // Within tol of the largest entry (float sums of up to 128 products of large terms).
+            const double tol = dt == torch::kFloat ? 1e-5 : 1e-12;
+            const auto near = [&](const torch::Tensor& got, const torch::Tensor& want) {
+              return got.sizes() == want.sizes() &&
+                     (want.numel() == 0 ||
+                      (got - want).abs().max().item<double>() <=
+                          tol * std::max(1.0, want.abs().max().item<double>()));
+            };
+            REQUIRE(near(y, yr));
+            const auto R = torch::randn(y.sizes(), dt);
+            (y * R).sum().backward();
+            (yr * R).sum().backward();
+            REQUIRE(near(x.grad(), xr.grad()));
+            REQUIRE(near(W.grad(), Wr.grad()));
+            // Without a gradient to take, the same values and no node.
+            torch::NoGradGuard no_grad;
+            const auto z = sparse_linear_act(A, x, W, weight_first, e);
+            REQUIRE_FALSE(z.requires_grad());
+            REQUIRE(torch::equal(z, y.detach()));
+          }
+  // Double precision against finite differences, both orders.
+  const auto A = random_operator(13, 11, 0.4, torch::kDouble, 4);
+  for (const bool weight_first : {true, false})
+    REQUIRE(gradcheck(
+        [&](const std::vector<torch::Tensor>& in) {
+          return sparse_linear_act(A, in[0], in[1], weight_first, Epilogue::elu);
+        },
+        {torch::randn({11, 4}, torch::kDouble), torch::randn({4, 6}, torch::kDouble)}));
+  REQUIRE_THROWS_WITH(
+      sparse_linear_act(A, torch::randn({11, 4}), torch::randn({5, 6}), true),
+      Catch::Contains("13 x 11") && Catch::Contains("5 x 6") && Catch::Contains("11 x 4"));
 }
 
 TEST_CASE("linear_act in panels of 64 outputs equals torch's linear, forward and backward",

@@ -41,6 +41,9 @@ struct FastPaths {
   TORCH_ARG(bool, reorder_products) = true;
   /// A sparse product or linear layer and the activation after it run as one kernel.
   TORCH_ARG(bool, fuse_activations) = true;
+  /// Over sparse operators: a weight next to a sparse product (and the activation after them)
+  /// run as one autograd node (sparse_linear_act), in the order reorder_products picks.
+  TORCH_ARG(bool, fuse_products) = true;
 
  public:
   static FastPaths all() { return {}; }
@@ -53,7 +56,7 @@ struct FastPaths {
   static const std::vector<std::string>& names() {
     static const std::vector<std::string> n{"row_subset",        "prefix_cache", "compact_cochains",
                                             "split_first_layer", "filter_taps",  "reorder_products",
-                                            "fuse_activations"};
+                                            "fuse_activations",  "fuse_products"};
     return n;
   }
   /// Sets the fast path `name` (one of names(); another is an error listing them).
@@ -79,6 +82,7 @@ struct FastPaths {
     if (name == "filter_taps") return filter_taps_;
     if (name == "reorder_products") return reorder_products_;
     if (name == "fuse_activations") return fuse_activations_;
+    if (name == "fuse_products") return fuse_products_;
     std::string known;
     for (const auto& n : names()) known += (known.empty() ? "" : ", ") + n;
     throw std::invalid_argument("no fast path '" + name + "' (fast paths: " + known + ")");

@@ -267,31 +267,38 @@ TOPOS_INLINE std::size_t OperatorNetworkImpl::apply_fused(const std::string& whe
   // A right factor next to a sparse product: A (x W) = (A x) W, so the dense product runs on the
   // side with fewer rows (SCCN's tetrahedra to triangles: the weight after the sum, on a quarter
   // of the rows). Sparse entries are weighted as 4 dense multiply-adds (their gather is slower).
-  if (fast_.reorder_products() && i + 1 < list.size() && x.dim() == 2) {
+  // With fuse_products, the pair (and the activation after it) is one autograd node.
+  if ((fast_.reorder_products() || fast_.fuse_products()) && i + 1 < list.size() && x.dim() == 2) {
     const auto& next = list[i + 1];
     const bool weight_first = !t.traits.right_factor.empty() && sparse_product(next);
     const bool via_first = sparse_product(t) && !next.traits.right_factor.empty();
-    if (weight_first || via_first) {
-      const auto& p = *sparse_product(weight_first ? next : t);
-      const auto& W = params_.at((weight_first ? t : next).traits.right_factor);
-      const auto& A = p.transposed ? ops.t(where, p.op) : ops.at(where, p.op);
-      if (W.dim() == 2 && A.cols == x.size(0)) {
-        const double n = static_cast<double>(x.size(0)), m = static_cast<double>(A.rows),
-                     nnz = 4.0 * static_cast<double>(A.nnz()),
-                     c_in = static_cast<double>(W.size(0)), c_out = static_cast<double>(W.size(1));
-        const double cost_weight_first = n * c_in * c_out + nnz * c_out,
-                     cost_via_first = nnz * c_in + m * c_in * c_out;
-        if (weight_first ? cost_via_first < 0.8 * cost_weight_first
-                         : cost_weight_first < 0.8 * cost_via_first) {
-          const auto name = operator_label(p.op, p.transposed);
-          if (weight_first) {
-            x = detail::multiply(where, name, A, x, p.row_norm);
-            x = linear_act(x, W.t(), {});
-          } else {
-            x = detail::multiply(where, name, A, linear_act(x, W.t(), {}), p.row_norm);
-          }
-          return i + 1;
-        }
+    const auto* p = weight_first ? sparse_product(next) : via_first ? sparse_product(t) : nullptr;
+    const auto* W = p ? &params_.at((weight_first ? t : next).traits.right_factor) : nullptr;
+    const auto* A = p ? &(p->transposed ? ops.t(where, p->op) : ops.at(where, p->op)) : nullptr;
+    if (p != nullptr && W->dim() == 2 && A->cols == x.size(0)) {
+      const double n = static_cast<double>(x.size(0)), m = static_cast<double>(A->rows),
+                   nnz = 4.0 * static_cast<double>(A->nnz()),
+                   c_in = static_cast<double>(W->size(0)), c_out = static_cast<double>(W->size(1));
+      const double cost_weight_first = n * c_in * c_out + nnz * c_out,
+                   cost_via_first = nnz * c_in + m * c_in * c_out;
+      const bool swap =
+          fast_.reorder_products() && (weight_first ? cost_via_first < 0.8 * cost_weight_first
+                                                    : cost_weight_first < 0.8 * cost_via_first);
+      const bool run_weight_first = weight_first != swap;
+      const auto name = operator_label(p->op, p->transposed);
+      if (fast_.fuse_products() && !p->row_norm) {
+        const auto* act = i + 2 < list.size() ? &detail::activation_of(list[i + 2]) : nullptr;
+        const bool fuse_act = act != nullptr && *act && fusable(**act);
+        detail::check_fits(where, name, *A, x);
+        x = sparse_linear_act(*A, x, *W, run_weight_first,
+                              fuse_act ? epilogue_of(**act) : Epilogue::none);
+        return fuse_act ? i + 2 : i + 1;
+      }
+      if (swap) {
+        x = run_weight_first
+                ? detail::multiply(where, name, *A, linear_act(x, W->t(), {}), p->row_norm)
+                : linear_act(detail::multiply(where, name, *A, x, p->row_norm), W->t(), {});
+        return i + 1;
       }
     }
   }
