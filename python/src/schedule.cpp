@@ -787,6 +787,20 @@ void bind_network(py::module_& m) {
           py::arg("inputs"), py::arg("operators"),
           "The plan forward(inputs, operators) runs, as a dict (topos.nn.Plan wraps it).")
       .def("set_fast_paths", &Net::set_fast_paths, py::arg("on"))
+      .def(
+          "set_fast_path",
+          [](Net& net, const std::string& name, bool on) { net.fast_paths().set(name, on); },
+          py::arg("name"), py::arg("on"),
+          "One fast path on or off by name (FastPaths::names(); another is a ValueError).")
+      .def(
+          "fast_paths",
+          [](const Net& net) {
+            py::dict d;
+            for (const auto& name : FastPaths::names())
+              d[py::str(name)] = net.fast_paths().get(name);
+            return d;
+          },
+          "Each fast path's name and whether it is on, in FastPaths::names()'s order.")
       .def_property_readonly("schedule", &Net::schedule, py::return_value_policy::copy);
 }
 

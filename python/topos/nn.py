@@ -212,17 +212,26 @@ class OperatorNetwork(_SharedTensors):
             )
         net = _Network(schedule)  # checks every step; a ScheduleError names the faulty one
         self._network = net
-        self._fast_paths = True
         self._share(net.tensors())
 
     @property
     def schedule(self):
         return self._network.schedule
 
-    def set_fast_paths(self, on):
-        """Off: every operation runs on every row (the same numbers; for checking traits)."""
-        self._network.set_fast_paths(on)
-        self._fast_paths = bool(on)
+    def set_fast_paths(self, on=None, **named):
+        """All fast paths on or off (off: every operation runs on every row, each on its own; the
+        same numbers up to float rounding, for checking traits), then each named one:
+        ``net.set_fast_paths(fuse_products=False)``. The names are :attr:`fast_paths`' keys; an
+        unknown one is a ValueError listing them."""
+        if on is not None:
+            self._network.set_fast_paths(bool(on))
+        for name, value in named.items():
+            self._network.set_fast_path(name, bool(value))
+
+    @property
+    def fast_paths(self):
+        """Each fast path's name and whether it is on (C++ ``topos::nn::FastPaths``)."""
+        return self._network.fast_paths()
 
     def __deepcopy__(self, memo):
         # A new C++ network from the same schedule (its operations are options, shared), then
@@ -233,7 +242,7 @@ class OperatorNetwork(_SharedTensors):
             other.to(floating[0].dtype)
         other.load_state_dict(self.state_dict())
         other.train(self.training)
-        other.set_fast_paths(self._fast_paths)
+        other.set_fast_paths(**self.fast_paths)
         memo[id(self)] = other
         return other
 

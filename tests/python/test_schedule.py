@@ -2,6 +2,7 @@
 # the very same parameters (outputs and gradients); the module's state (state_dict, .to(),
 # train/eval); operations written in Python; bad input as Python exceptions naming the argument
 # or the step.
+import copy
 import sys
 import threading
 
@@ -355,6 +356,17 @@ def test_plan_lists_routes_and_counts_flops_by_hand():
     assert plan.fast_paths.startswith("row_subset")
     net.set_fast_paths(False)
     assert net.plan({"x": x}, {"B": B.to_sparse()}).fast_paths == "none"
+    # Each by name: on alone, the same numbers as all off; a copy keeps the switches.
+    y_plain = net({"x": x}, {"B": B.to_sparse()})["y"]
+    net.set_fast_paths(fuse_products=True)
+    assert [k for k, v in net.fast_paths.items() if v] == ["fuse_products"]
+    assert net.plan({"x": x}, {"B": B.to_sparse()}).fast_paths == "fuse_products"
+    torch.testing.assert_close(net({"x": x}, {"B": B.to_sparse()})["y"], y_plain)
+    assert copy.deepcopy(net).fast_paths == net.fast_paths
+    net.set_fast_paths(True, reorder_products=False)
+    assert not net.fast_paths["reorder_products"] and net.fast_paths["fuse_products"]
+    with pytest.raises(ValueError, match="no fast path 'fuse'.*fuse_products"):
+        net.set_fast_paths(fuse=True)
     with pytest.raises(topos.nn.ScheduleError, match="input 'x'"):
         net.plan({"x": x[:, :2]}, {"B": B.to_sparse()})
 
