@@ -1135,7 +1135,10 @@ TEST_CASE("plan_str lists what forward runs with its FLOPs, counted by hand",
                            2 * 5 * 4 * 2,
                      filter = 2 * nnz(Bd) * 2 + 2 * 2 * nnz(Td) * 2 + 2 * 7 * (2 * 4) * 3;
   CHECK_THAT(plan, Contains("step mix (into (0)"));
-  CHECK_THAT(plan, Contains("dense 2·5·3·4  120 FLOPs"));
+  // fuse_products: x_0·a, L· and relu run as one node; B· then b (a Linear, not a weight) do not.
+  CHECK_THAT(plan,
+             Contains("x·a.weight  dense 2·5·3·4  120 FLOPs  (one node with the next two)\n"));
+  CHECK_THAT(plan, Contains("b(x)  dense 2·5·2·4  80 FLOPs\n"));
   CHECK_THAT(plan, Contains("sparse 2·" + std::to_string(nnz(Ld)) + "·4  " +
                             std::to_string(2 * nnz(Ld) * 4) + " FLOPs"));
   CHECK_THAT(plan, Contains("filter f  dense 2·7·8·3  336 FLOPs"));
@@ -1169,8 +1172,12 @@ TEST_CASE("plan_str lists what forward runs with its FLOPs, counted by hand",
   auto with_u = ops;
   with_u.emplace("U", SparseOperator::from_dense(Ld));
   CHECK(step(net->plan(x, with_u), "kept").route == StepRoute::chain);
+  CHECK_THAT(net->plan(x, with_u).str(), Contains("U·x  sparse 2·" + std::to_string(nnz(Ld)) +
+                                                  "·3  " + std::to_string(2 * nnz(Ld) * 3) +
+                                                  " FLOPs  (one node with the next operation)\n"));
   net->set_fast_paths(false);
   CHECK_THAT(net->plan(x, ops).str(), StartsWith("fast paths: none\n"));
+  CHECK(net->plan(x, ops).str().find("one node") == std::string::npos);
 
   // A filter whose taps are one each: filter taps, or with filter_taps off the general way, with
   // the same numbers up to rounding.

@@ -10,6 +10,7 @@
 #include <cstdint>
 #include <map>
 #include <string>
+#include <vector>
 
 namespace topos::nn {
 
@@ -43,16 +44,42 @@ TOPOS_INLINE Plan OperatorNetworkImpl::plan_with_costs(
         plan.total_flops += std::max<std::int64_t>(l.flops, 0);
         p.lines.push_back(std::move(l));
       };
-      const auto ops_lines = [&](const std::vector<TermOp>& list, TermShape x) {
-        for (const auto& t : list) {
-          line(op_cost(t, x, cells, nnz));
-          if (auto it = shapes_.find(&t); it != shapes_.end()) x = it->second;
+      // fuse_products: per operation, how many after it run in its node, found as the
+      // interpreter finds them (a chain's term and step operations are one list; the filter
+      // route's taps run their own way).
+      const auto fused = [&](const detail::OperationSeq& seq) {
+        std::vector<int> n(seq.size(), 0);
+        if (!fast_.fuse_products() || p.route == StepRoute::filter) return n;
+        for (std::size_t i = 0; i < seq.size(); ++i) {
+          const auto w = detail::weight_next_to_product(
+              seq, i, [&](const std::string& name) { return ops.neighborhood(name) != nullptr; });
+          if (w.product == nullptr || w.product->row_norm) continue;
+          n[i] = w.activation ? 2 : 1;
+          i += static_cast<std::size_t>(n[i]);
+        }
+        return n;
+      };
+      const auto ops_lines = [&](const std::vector<TermOp>& list, TermShape x,
+                                 const std::vector<int>& marks, std::size_t offset) {
+        for (std::size_t i = 0; i < list.size(); ++i) {
+          auto l = op_cost(list[i], x, cells, nnz);
+          l.fused_with_next = marks[offset + i];
+          line(std::move(l));
+          if (auto it = shapes_.find(&list[i]); it != shapes_.end()) x = it->second;
         }
       };
+      const bool chain = p.route == StepRoute::chain;
+      std::vector<int> step_marks = fused(s.operations());
       for (const auto& term : p.terms) {
         line({0, "term from " + term.term->source.str(), -1});
-        ops_lines(term.term->operations(), {term.term->source.rank, term_width_.at(term.term)});
+        const auto& list = term.term->operations();
+        const auto marks = chain ? fused(detail::OperationSeq(list, &s.operations())) : fused(list);
+        if (chain)
+          step_marks.assign(marks.begin() + static_cast<std::ptrdiff_t>(list.size()), marks.end());
+        ops_lines(list, {term.term->source.rank, term_width_.at(term.term)}, marks, 0);
       }
+      // split_first_layer applies the step's first operation in its mix: no node starts there.
+      if (p.route == StepRoute::split_first_layer && !step_marks.empty()) step_marks[0] = 0;
       TermShape y{s.target.rank, mix_width_.at(&s)};
       if (s.mix == OperatorStep::Mix::filter) {
         const auto& W = params_.at(s.filter_path);  // in × out × taps
@@ -63,7 +90,7 @@ TOPOS_INLINE Plan OperatorNetworkImpl::plan_with_costs(
         y.channels = W.size(1);
       }
       if (!s.operations().empty()) line({0, "step's operations", -1});
-      ops_lines(s.operations(), y);
+      ops_lines(s.operations(), y, step_marks, 0);
     }
   return plan;
 }

@@ -53,6 +53,9 @@ TOPOS_INLINE std::string Plan::str() const {
       for (const auto& l : p.lines) {
         o << std::string(static_cast<std::size_t>(4 + 2 * l.depth), ' ') << l.what;
         if (l.flops >= 0) o << "  " << detail::flops_str(l.flops) << " FLOPs";
+        if (l.fused_with_next > 0)
+          o << "  (one node with the next " << (l.fused_with_next == 1 ? "operation" : "two")
+            << ")";
         o << "\n";
       }
     }

@@ -136,6 +136,9 @@ struct PlanLine {
   int depth = 1;
   std::string what;
   std::int64_t flops = -1;
+  /// fuse_products: how many of the next operations run in this one's autograd node (a weight,
+  /// the sparse product next to it and a fusable activation after them), where sizes fit.
+  int fused_with_next = 0;
 };
 
 /// A step as the plan runs it.

@@ -253,6 +253,41 @@ TOPOS_INLINE std::map<std::string, torch::Tensor> over_leading(
 
 }  // namespace detail
 
+namespace detail {
+/// The pattern reorder_products and fuse_products work on at list[i]: a weight (a right factor)
+/// next to a weighted product by a sparse operator (role 0; `is_neighborhood(name)` says which
+/// operators are a batch's neighbourhoods instead), in either order. The interpreter and the
+/// planner both read it here.
+struct WeightNextToProduct {
+  const OperatorProduct* product = nullptr;  ///< null: no such pair at i
+  const std::string* weight = nullptr;       ///< the weight's parameter path
+  bool weight_first = false;                 ///< the order in the schedule
+  const Activation* activation = nullptr;    ///< list[i + 2] when it is a fusable activation
+};
+template <class IsNeighborhood>
+WeightNextToProduct weight_next_to_product(const OperationSeq& list, std::size_t i,
+                                           const IsNeighborhood& is_neighborhood) {
+  WeightNextToProduct w;
+  if (i + 1 >= list.size()) return w;
+  const auto sparse_product = [&](const TermOp& o) -> const OperatorProduct* {
+    const auto* p = product_of(o);
+    return p != nullptr && p->weighted && p->role == 0 && !is_neighborhood(p->op) ? p : nullptr;
+  };
+  const auto &t = list[i], &next = list[i + 1];
+  if (!t.traits.right_factor.empty() && (w.product = sparse_product(next)) != nullptr) {
+    w.weight = &t.traits.right_factor;
+    w.weight_first = true;
+  } else if (!next.traits.right_factor.empty() && (w.product = sparse_product(t)) != nullptr) {
+    w.weight = &next.traits.right_factor;
+  }
+  if (w.product != nullptr && i + 2 < list.size()) {
+    const auto& act = activation_of(list[i + 2]);
+    if (act && fusable(*act)) w.activation = &*act;
+  }
+  return w;
+}
+}  // namespace detail
+
 TOPOS_INLINE std::size_t OperatorNetworkImpl::apply_fused(const std::string& where,
                                                           const CochainKey& target,
                                                           const detail::OperationSeq& list,
@@ -268,12 +303,12 @@ TOPOS_INLINE std::size_t OperatorNetworkImpl::apply_fused(const std::string& whe
   // side with fewer rows (SCCN's tetrahedra to triangles: the weight after the sum, on a quarter
   // of the rows). Sparse entries are weighted as 4 dense multiply-adds (their gather is slower).
   // With fuse_products, the pair (and the activation after it) is one autograd node.
-  if ((fast_.reorder_products() || fast_.fuse_products()) && i + 1 < list.size() && x.dim() == 2) {
-    const auto& next = list[i + 1];
-    const bool weight_first = !t.traits.right_factor.empty() && sparse_product(next);
-    const bool via_first = sparse_product(t) && !next.traits.right_factor.empty();
-    const auto* p = weight_first ? sparse_product(next) : via_first ? sparse_product(t) : nullptr;
-    const auto* W = p ? &params_.at((weight_first ? t : next).traits.right_factor) : nullptr;
+  if ((fast_.reorder_products() || fast_.fuse_products()) && x.dim() == 2) {
+    const auto pair = detail::weight_next_to_product(
+        list, i, [&](const std::string& name) { return ops.neighborhood(name) != nullptr; });
+    const auto* p = pair.product;
+    const bool weight_first = pair.weight_first;
+    const auto* W = p ? &params_.at(*pair.weight) : nullptr;
     const auto* A = p ? &(p->transposed ? ops.t(where, p->op) : ops.at(where, p->op)) : nullptr;
     if (p != nullptr && W->dim() == 2 && A->cols == x.size(0)) {
       const double n = static_cast<double>(x.size(0)), m = static_cast<double>(A->rows),
@@ -287,12 +322,10 @@ TOPOS_INLINE std::size_t OperatorNetworkImpl::apply_fused(const std::string& whe
       const bool run_weight_first = weight_first != swap;
       const auto name = operator_label(p->op, p->transposed);
       if (fast_.fuse_products() && !p->row_norm) {
-        const auto* act = i + 2 < list.size() ? &detail::activation_of(list[i + 2]) : nullptr;
-        const bool fuse_act = act != nullptr && *act && fusable(**act);
         detail::check_fits(where, name, *A, x);
         x = sparse_linear_act(*A, x, *W, run_weight_first,
-                              fuse_act ? epilogue_of(**act) : Epilogue::none);
-        return fuse_act ? i + 2 : i + 1;
+                              pair.activation ? epilogue_of(*pair.activation) : Epilogue::none);
+        return pair.activation ? i + 2 : i + 1;
       }
       if (swap) {
         x = run_weight_first
