@@ -773,12 +773,17 @@ void bind_network(py::module_& m) {
             for (const auto& group : plan.groups)
               for (const auto& p : group) {
                 if (!p.live) continue;
-                py::list terms;
+                py::list terms, lines;
                 for (const auto& t : p.terms) terms.append(t.term->source.str());
+                for (const auto& l : p.lines)
+                  lines.append(py::dict(py::arg("depth") = l.depth, py::arg("what") = l.what,
+                                        py::arg("flops") = l.flops,
+                                        py::arg("fused_with_next") = l.fused_with_next));
                 steps.append(py::dict(
                     py::arg("name") = p.step->name, py::arg("target") = p.step->target.str(),
                     py::arg("group") = p.group, py::arg("route") = route_name(p.route),
-                    py::arg("terms") = terms, py::arg("compact_readers") = p.compact_readers));
+                    py::arg("terms") = terms, py::arg("compact_readers") = p.compact_readers,
+                    py::arg("lines") = lines));
               }
             return py::dict(py::arg("text") = plan.str(), py::arg("steps") = steps,
                             py::arg("total_flops") = plan.total_flops,

@@ -178,8 +178,11 @@ class Plan:
 
     ``steps``: one dict per step an output needs (``name``, ``target``, ``group``, ``route``:
     ``"chain"``, ``"filter taps"``, ``"split first layer"``, ``"general"`` or ``"keep"``,
-    ``terms``: the sources of the terms it runs, ``compact_readers``); ``total_flops``: the FLOPs
-    of one forward in the plain order; ``fast_paths``: those on; ``str(plan)``: the listing.
+    ``terms``: the sources of the terms it runs, ``compact_readers``, ``lines``: the listing's
+    lines as dicts, ``depth`` 0 a term's header and 1 an operation, ``what``, ``flops`` (-1: not
+    counted) and ``fused_with_next``, how many of the next operations run in its autograd node);
+    ``total_flops``: the FLOPs of one forward in the plain order; ``fast_paths``: those on;
+    ``str(plan)``: the listing.
     """
 
     def __init__(self, d):

@@ -353,6 +353,10 @@ def test_plan_lists_routes_and_counts_flops_by_hand():
     assert plan.total_flops == 2 * 6 * 3 * 5 + 2 * 9 * 5
     assert [(st["name"], st["route"], st["terms"]) for st in plan.steps] == [("mix", "chain", ["(0)"])]
     assert "step mix (into (1), group 0): chain" in str(plan)
+    # Its lines: the weight, B· and relu, the first running all three in one node.
+    lines = [line for line in plan.steps[0]["lines"] if line["depth"] == 1]
+    ops = [(line["what"].split("  ")[0], line["flops"], line["fused_with_next"]) for line in lines]
+    assert ops == [("x·w.weight", 2 * 6 * 3 * 5, 2), ("B·x", 2 * 9 * 5, 0), ("relu(x)", -1, 0)]
     assert plan.fast_paths.startswith("row_subset")
     net.set_fast_paths(False)
     assert net.plan({"x": x}, {"B": B.to_sparse()}).fast_paths == "none"

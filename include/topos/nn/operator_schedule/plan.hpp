@@ -42,7 +42,9 @@ struct FastPaths {
   /// A sparse product or linear layer and the activation after it run as one kernel.
   TORCH_ARG(bool, fuse_activations) = true;
   /// Over sparse operators: a weight next to a sparse product (and the activation after them)
-  /// run as one autograd node (sparse_linear_act), in the order reorder_products picks.
+  /// run as one autograd node (sparse_linear_act), in the order reorder_products picks; where
+  /// both orders cost the same and an activation follows, the weight last (its backward then
+  /// takes the activation's derivative inside the dense kernel).
   TORCH_ARG(bool, fuse_products) = true;
 
  public:
