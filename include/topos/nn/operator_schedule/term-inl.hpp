@@ -264,14 +264,20 @@ struct WeightNextToProduct {
   bool weight_first = false;                 ///< the order in the schedule
   const Activation* activation = nullptr;    ///< list[i + 2] when it is a fusable activation
 };
+/// The weighted product by a sparse operator (role 0, not a batch's neighbourhood) that `o` is,
+/// or null.
+template <class IsNeighborhood>
+const OperatorProduct* sparse_product_of(const TermOp& o, const IsNeighborhood& is_neighborhood) {
+  const auto* p = product_of(o);
+  return p != nullptr && p->weighted && p->role == 0 && !is_neighborhood(p->op) ? p : nullptr;
+}
 template <class IsNeighborhood>
 WeightNextToProduct weight_next_to_product(const OperationSeq& list, std::size_t i,
                                            const IsNeighborhood& is_neighborhood) {
   WeightNextToProduct w;
   if (i + 1 >= list.size()) return w;
-  const auto sparse_product = [&](const TermOp& o) -> const OperatorProduct* {
-    const auto* p = product_of(o);
-    return p != nullptr && p->weighted && p->role == 0 && !is_neighborhood(p->op) ? p : nullptr;
+  const auto sparse_product = [&](const TermOp& o) {
+    return sparse_product_of(o, is_neighborhood);
   };
   const auto &t = list[i], &next = list[i + 1];
   if (!t.traits.right_factor.empty() && (w.product = sparse_product(next)) != nullptr) {
@@ -294,18 +300,15 @@ TOPOS_INLINE std::size_t OperatorNetworkImpl::apply_fused(const std::string& whe
                                                           std::size_t i, torch::Tensor& x,
                                                           Operators& ops, const Cochains& h) {
   const auto& t = list[i];
-  // A weighted product by a sparse operator (not a batch's neighbourhood).
-  const auto sparse_product = [&](const TermOp& o) -> const OperatorProduct* {
-    const auto* p = detail::product_of(o);
-    return p != nullptr && p->weighted && p->role == 0 && !ops.neighborhood(p->op) ? p : nullptr;
+  const auto is_neighborhood = [&](const std::string& name) {
+    return ops.neighborhood(name) != nullptr;
   };
   // A right factor next to a sparse product: A (x W) = (A x) W, so the dense product runs on the
   // side with fewer rows (SCCN's tetrahedra to triangles: the weight after the sum, on a quarter
   // of the rows). Sparse entries are weighted as 4 dense multiply-adds (their gather is slower).
   // With fuse_products, the pair (and the activation after it) is one autograd node.
   if ((fast_.reorder_products() || fast_.fuse_products()) && x.dim() == 2) {
-    const auto pair = detail::weight_next_to_product(
-        list, i, [&](const std::string& name) { return ops.neighborhood(name) != nullptr; });
+    const auto pair = detail::weight_next_to_product(list, i, is_neighborhood);
     const auto* p = pair.product;
     const bool weight_first = pair.weight_first;
     const auto* W = p ? &params_.at(*pair.weight) : nullptr;
@@ -343,7 +346,7 @@ TOPOS_INLINE std::size_t OperatorNetworkImpl::apply_fused(const std::string& whe
   }
   // A product and the activation after it in one kernel: a sparse product without row sums, or
   // an operation whose traits say it fuses one.
-  const auto* product = sparse_product(t);
+  const auto* product = detail::sparse_product_of(t, is_neighborhood);
   const bool fuses = t.traits.fuses_activation || (product != nullptr && !product->row_norm);
   const auto* next_act = i + 1 < list.size() ? &detail::activation_of(list[i + 1]) : nullptr;
   if (!fast_.fuse_activations() || !fuses || next_act == nullptr || !*next_act ||
