@@ -11,6 +11,7 @@
 // (Conv.weight is in × out, Conv.att_weight has 2·in entries) so its state_dicts load as they are.
 #pragma once
 
+#include "topos/nn/kernels/attention.hpp"
 #include "topos/nn/kernels/dropout.hpp"
 #include "topos/nn/sparse_operator.hpp"
 
@@ -20,6 +21,7 @@
 #include <algorithm>
 #include <cmath>
 #include <mutex>
+#include <sstream>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -333,6 +335,153 @@ inline torch::Tensor multi_head_attention(const SparseOperator& A, const torch::
   }
   if (H == 1) return heads[0];
   return concat ? torch::cat(heads, 1) : torch::stack(heads, 0).mean(0);
+}
+
+namespace detail {
+// multi_head_attention_from_cells' node: it keeps the normed weights (entries × heads) and what it
+// read; its backward is attention_backward's pass over the rows, then over Aᵀ's.
+struct CellAttentionFunction : public torch::autograd::Function<CellAttentionFunction> {
+  template <class T>
+  static AttentionArgs<T> args(const torch::Tensor& source, const torch::Tensor& target,
+                               const torch::Tensor& x, const torch::Tensor& values,
+                               const torch::Tensor& crow, const torch::Tensor& col,
+                               const torch::Tensor& t_crow, const torch::Tensor& t_row,
+                               const torch::Tensor& t_perm, const torch::Tensor& weights,
+                               std::int64_t how, double slope) {
+    AttentionArgs<T> a;
+    a.crow = crow.data_ptr<std::int64_t>(), a.col = col.data_ptr<std::int64_t>();
+    a.t_crow = t_crow.data_ptr<std::int64_t>(), a.t_row = t_row.data_ptr<std::int64_t>();
+    a.t_perm = t_perm.data_ptr<std::int64_t>(), a.values = values.data_ptr<T>();
+    a.source = source.data_ptr<T>(), a.target = target.defined() ? target.data_ptr<T>() : nullptr;
+    a.x = x.data_ptr<T>(), a.weights = weights.data_ptr<T>();
+    a.rows = crow.size(0) - 1, a.cols = x.size(0), a.heads = source.size(1);
+    a.channels = x.size(1) / a.heads;
+    a.act = static_cast<ScoreActivation>(how & 3), a.norm = static_cast<ScoreNorm>(how >> 2);
+    a.slope = static_cast<T>(slope);
+    return a;
+  }
+  /// The output and the normed weights.
+  static std::pair<torch::Tensor, torch::Tensor> compute(
+      const torch::Tensor& source, const torch::Tensor& target, const torch::Tensor& x,
+      const torch::Tensor& values, const torch::Tensor& crow, const torch::Tensor& col,
+      const torch::Tensor& t_crow, const torch::Tensor& t_row, const torch::Tensor& t_perm,
+      std::int64_t how, double slope) {
+    auto w = torch::empty({col.size(0), source.size(1)}, source.options());
+    auto y = torch::empty({crow.size(0) - 1, x.size(1)}, x.options());
+    AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "topos_attention", [&] {
+      attention_forward(args<scalar_t>(source, target, x, values, crow, col, t_crow, t_row, t_perm,
+                                       w, how, slope),
+                        y.data_ptr<scalar_t>());
+    });
+    return {y, w};
+  }
+  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& source,
+                               const torch::Tensor& target, const torch::Tensor& x,
+                               const torch::Tensor& values, const torch::Tensor& crow,
+                               const torch::Tensor& col, const torch::Tensor& t_crow,
+                               const torch::Tensor& t_row, const torch::Tensor& t_perm,
+                               std::int64_t how, double slope) {
+    auto [y, w] = compute(source, target, x, values, crow, col, t_crow, t_row, t_perm, how, slope);
+    ctx->save_for_backward({source, target, x, values, crow, col, t_crow, t_row, t_perm, w});
+    ctx->saved_data["how"] = how;
+    ctx->saved_data["slope"] = slope;
+    return y;
+  }
+  static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx,
+                                               torch::autograd::tensor_list grads) {
+    const auto s = ctx->get_saved_variables();
+    const auto &source = s[0], &target = s[1], &x = s[2], &w = s[9];
+    const auto g = grads[0].contiguous();
+    const auto H = source.size(1);
+    auto d = torch::empty({s[5].size(0), H}, source.options());
+    torch::Tensor d_source, d_target, dx;
+    if (ctx->needs_input_grad(0)) d_source = torch::empty({x.size(0), H}, source.options());
+    if (ctx->needs_input_grad(1)) d_target = torch::empty({g.size(0), H}, source.options());
+    if (ctx->needs_input_grad(2)) dx = torch::empty_like(x);
+    const auto ptr = [](torch::Tensor& t, auto* type) {
+      return t.defined() ? t.data_ptr<std::remove_pointer_t<decltype(type)>>() : nullptr;
+    };
+    AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "topos_attention_backward", [&] {
+      const auto a =
+          args<scalar_t>(source, target, x, s[3], s[4], s[5], s[6], s[7], s[8], w,
+                         ctx->saved_data["how"].toInt(), ctx->saved_data["slope"].toDouble());
+      scalar_t* type = nullptr;
+      attention_backward(a, g.data_ptr<scalar_t>(), d.data_ptr<scalar_t>(), ptr(d_target, type),
+                         ptr(d_source, type), ptr(dx, type));
+    });
+    return {d_source, d_target, dx, {}, {}, {}, {}, {}, {}, {}, {}};
+  }
+};
+}  // namespace detail
+
+/// Multi-head attention's messages from per-cell scores: entry k of A (target row i, source column
+/// j) scores raw[k, h] = source[j, h] + target[i, h] (the source's alone where `target` is
+/// undefined), then as multi_head_attention: the activation, the per-target norm, dropout, times
+/// A's values, head h's block of x (A.cols × heads·C) weighted, the heads side by side (`concat`)
+/// or averaged. `source` and `target` are cells × heads, or vectors for one head. With `fused`, on
+/// the CPU, in float or double, with the activation none, relu, leaky_relu or elu, A's values
+/// constants and no dropout in training, it is one autograd node (kernels/attention.hpp: a pass
+/// over A's rows forward, one over its rows and one over its columns backward) where torch's
+/// operations took about ten per head; otherwise entry_scores then multi_head_attention, the same
+/// numbers up to rounding.
+inline torch::Tensor multi_head_attention_from_cells(
+    const SparseOperator& A, const torch::Tensor& source, const torch::Tensor& target,
+    const torch::Tensor& x, bool concat, Activation activation, double negative_slope,
+    AttentionNorm norm, double dropout = 0, bool training = false, bool fused = true) {
+  A.require_entries("multi_head_attention_from_cells");
+  const auto H = source.dim() == 1 ? 1 : source.size(1);
+  const auto shape = [](const torch::Tensor& t) {
+    std::ostringstream o;
+    o << t.sizes();
+    return o.str();
+  };
+  if (source.dim() > 2 || source.size(0) != A.cols ||
+      (target.defined() && target.size(0) != A.rows) ||
+      (target.defined() && (target.dim() == 1 ? 1 : target.size(1)) != H) || x.dim() != 2 ||
+      x.size(0) != A.cols || x.size(1) % H != 0)
+    throw std::invalid_argument(
+        "multi_head_attention_from_cells: the operator is " + std::to_string(A.rows) + " x " +
+        std::to_string(A.cols) + "; the source scores " + shape(source) + " and the messages " +
+        shape(x) + " need " + std::to_string(A.cols) + " rows" +
+        (target.defined() ? ", the target scores " + shape(target) + " " + std::to_string(A.rows)
+                          : std::string()) +
+        ", one score per head and channels divisible by the heads");
+  const auto kind = x.scalar_type();
+  const auto cpu_as_x = [&](const torch::Tensor& t) {
+    return !t.defined() || (t.device().is_cpu() && t.scalar_type() == kind);
+  };
+  const bool act_fuses = activation == Activation::none || activation == Activation::relu ||
+                         activation == Activation::leaky_relu || activation == Activation::elu;
+  if (!fused || !x.device().is_cpu() || (kind != torch::kFloat && kind != torch::kDouble) ||
+      !cpu_as_x(source) || !cpu_as_x(target) || !act_fuses || A.values.requires_grad() ||
+      (dropout > 0 && training)) {
+    const auto raw = target.defined() ? entry_scores(A, source, target)
+                                      : source.index_select(0, A.col.to(source.device()));
+    return multi_head_attention(A, raw, x, concat, activation, negative_slope, norm, dropout,
+                                training);
+  }
+  using detail::ScoreActivation;
+  const auto act = activation == Activation::relu         ? ScoreActivation::relu
+                   : activation == Activation::leaky_relu ? ScoreActivation::leaky_relu
+                   : activation == Activation::elu        ? ScoreActivation::elu
+                                                          : ScoreActivation::none;
+  const auto how = static_cast<std::int64_t>(act) | static_cast<std::int64_t>(norm) << 2;
+  const auto as_matrix = [&](const torch::Tensor& t) {
+    return t.defined() ? t.reshape({t.size(0), H}).contiguous() : t;
+  };
+  const auto src = as_matrix(source), tgt = as_matrix(target), xc = x.contiguous();
+  const auto values = A.values.scalar_type() == kind ? A.values : A.values.to(kind);
+  torch::Tensor y;
+  if (!torch::GradMode::is_enabled() ||
+      !(src.requires_grad() || (tgt.defined() && tgt.requires_grad()) || xc.requires_grad()))
+    y = detail::CellAttentionFunction::compute(src, tgt, xc, values, A.crow, A.col, A.t_crow,
+                                               A.t_col, A.t_perm, how, negative_slope)
+            .first;
+  else  // autograd takes no undefined input: no target scores as an empty tensor
+    y = detail::CellAttentionFunction::apply(src, tgt.defined() ? tgt : src.new_empty({0}), xc,
+                                             values, A.crow, A.col, A.t_crow, A.t_col, A.t_perm,
+                                             how, negative_slope);
+  return concat || H == 1 ? y : y.view({A.rows, H, -1}).mean(1);
 }
 
 /// Glorot initialisation with TopoModelX's gain for a weight of any rank (fan_in = size(1)·rest,

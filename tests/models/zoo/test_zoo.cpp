@@ -226,6 +226,103 @@ TEST_CASE("sparse_linear_act equals the dense act(A x W), either order, forward 
       Catch::Contains("13 x 11") && Catch::Contains("5 x 6") && Catch::Contains("11 x 4"));
 }
 
+TEST_CASE("attention from per-cell scores as one node equals its dense definition",
+          "[nn][attention]") {
+  // Dense: per head, raw[i][j] = src[j] + tgt[i] on A's pattern, the activation, the row's norm
+  // over its entries (empty rows stay 0), times A's values, times the head's block of x.
+  const auto dense = [](const SparseOperator& A, const torch::Tensor& src, const torch::Tensor& tgt,
+                        const torch::Tensor& x, Activation act, AttentionNorm norm, bool concat) {
+    const auto D = A.to_dense();
+    const auto on = D != 0;
+    const auto H = src.size(1), C = x.size(1) / H;
+    std::vector<torch::Tensor> heads;
+    for (std::int64_t h = 0; h < H; ++h) {
+      auto raw = src.select(1, h).unsqueeze(0).expand({A.rows, A.cols});
+      if (tgt.defined()) raw = raw + tgt.select(1, h).unsqueeze(1);
+      const auto s = apply_activation(raw, act, 0.2);
+      torch::Tensor w;
+      if (norm == AttentionNorm::softmax)
+        w = torch::softmax(s.masked_fill(~on, -std::numeric_limits<double>::infinity()), 1)
+                .nan_to_num(0);
+      else if (norm == AttentionNorm::row_sum)
+        w = (s * on) / (s * on).sum(1, true).masked_fill((s * on).sum(1, true) == 0, 1);
+      else
+        w = s;
+      heads.push_back(((w * on) * D).matmul(x.narrow(1, h * C, C)));
+    }
+    return concat ? torch::cat(heads, 1) : torch::stack(heads).mean(0);
+  };
+  torch::manual_seed(11);
+  for (const auto dt : {torch::kFloat, torch::kDouble})
+    for (const auto act :
+         {Activation::leaky_relu, Activation::elu, Activation::relu, Activation::none})
+      for (const auto norm : {AttentionNorm::softmax, AttentionNorm::row_sum, AttentionNorm::none})
+        for (const std::int64_t H : {1, 4})
+          for (const bool with_target : {true, false}) {
+            const bool concat = with_target;  // both ways, across the cases
+            const std::int64_t C = H == 1 ? 5 : 16;
+            INFO("dtype " << dt << ", activation " << static_cast<int>(act) << ", norm "
+                          << static_cast<int>(norm) << ", " << H << " heads, target "
+                          << with_target);
+            // 23 × 17 with empty rows; row sums of positive scores where the norm divides by them.
+            const auto A = random_operator(23, 17, 0.25, dt, 3);
+            auto src = torch::randn({17, H}, dt), tgt = torch::randn({23, H}, dt);
+            if (norm == AttentionNorm::row_sum) src = src.abs() + 0.5, tgt = tgt.abs();
+            src.requires_grad_(true), tgt.requires_grad_(true);
+            const auto x = torch::randn({17, H * C}, dt).requires_grad_(true);
+            const auto t = with_target ? tgt : torch::Tensor();
+            const auto y = multi_head_attention_from_cells(A, src, t, x, concat, act, 0.2, norm);
+            const auto y_plain = multi_head_attention_from_cells(A, src, t, x, concat, act, 0.2,
+                                                                 norm, 0, false, false);
+            const auto ref = dense(A, src, t, x, act, norm, concat);
+            const double tol = dt == torch::kFloat ? 2e-5 : 1e-12;
+            const auto near = [&](const torch::Tensor& got, const torch::Tensor& want) {
+              return got.defined() && got.sizes() == want.sizes() &&
+                     (got - want).abs().max().item<double>() <=
+                         tol * std::max(1.0, want.abs().max().item<double>());
+            };
+            REQUIRE(near(y, ref));
+            REQUIRE(near(y_plain, ref));
+            const auto R = torch::randn(y.sizes(), dt);
+            const auto grads = [&](const torch::Tensor& out) {
+              auto g = torch::autograd::grad(
+                  {(out * R).sum()}, with_target ? std::vector{src, tgt, x} : std::vector{src, x});
+              return g;
+            };
+            const auto g = grads(y), g_ref = grads(ref), g_plain = grads(y_plain);
+            for (std::size_t i = 0; i < g.size(); ++i) {
+              REQUIRE(near(g[i], g_ref[i]));
+              REQUIRE(near(g_plain[i], g_ref[i]));
+            }
+            torch::NoGradGuard no_grad;  // no node, the same values
+            const auto z = multi_head_attention_from_cells(A, src, t, x, concat, act, 0.2, norm);
+            REQUIRE_FALSE(z.requires_grad());
+            REQUIRE(torch::equal(z, y.detach()));
+          }
+  // Finite differences of the node's backward (double), softmax of leaky ReLU scores.
+  const auto A = random_operator(9, 7, 0.4, torch::kDouble, 4);
+  REQUIRE(gradcheck(
+      [&](const std::vector<torch::Tensor>& in) {
+        return multi_head_attention_from_cells(A, in[0], in[1], in[2], true, Activation::leaky_relu,
+                                               0.2, AttentionNorm::softmax);
+      },
+      {torch::randn({7, 2}, torch::kDouble), torch::randn({9, 2}, torch::kDouble),
+       torch::randn({7, 6}, torch::kDouble)}));
+  // An empty operator: zeros, and zero gradients.
+  const auto E = SparseOperator::from_dense(torch::zeros({4, 3}));
+  const auto xe = torch::randn({3, 8}).requires_grad_(true);
+  const auto ye = multi_head_attention_from_cells(E, torch::randn({3, 2}), {}, xe, true,
+                                                  Activation::elu, 0.2, AttentionNorm::softmax);
+  REQUIRE(torch::equal(ye, torch::zeros({4, 8})));
+  ye.sum().backward();
+  REQUIRE(torch::equal(xe.grad(), torch::zeros({3, 8})));
+  REQUIRE_THROWS_WITH(
+      multi_head_attention_from_cells(A, torch::randn({6, 2}, torch::kDouble), {},
+                                      torch::randn({7, 6}, torch::kDouble), true, Activation::none,
+                                      0.2, AttentionNorm::softmax),
+      Catch::Contains("9 x 7") && Catch::Contains("[6, 2]"));
+}
+
 TEST_CASE("linear_act in panels of 64 outputs equals torch's linear, forward and backward",
           "[nn][sparse]") {
   using topos::nn::detail::dense_kernel_fits;

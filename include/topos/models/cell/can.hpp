@@ -78,21 +78,20 @@ struct CanAttention : nn::Operation {
   torch::Tensor forward(nn::RunContext& ctx, const torch::Tensor& x) const override {
     const auto& A = ctx.op(op);
     const auto& q = query_rows(ctx, A, x, queries, op);
-    torch::Tensor raw;  // nnz × heads, or nnz with one head (v1)
-    if (v2) {
-      const auto a = ctx.parameter(path + ".att_weight").reshape({-1});
-      const auto e = nn::apply_activation(
-          x.index_select(0, A.col.to(x.device())) + q.index_select(0, A.row.to(x.device())),
-          activation, negative_slope);
-      raw = (e.reshape({e.size(0), heads, -1}) * a.reshape({1, heads, -1})).sum(-1);
-    } else {
-      raw = nn::entry_scores(
+    if (!v2)  // GATConv's scores: per source and target cell, then per entry in the kernel
+      return nn::multi_head_attention_from_cells(
           A, nn::head_scores(x, ctx.parameter(path + ".att_weight_src").reshape({-1}), heads),
-          nn::head_scores(q, ctx.parameter(path + ".att_weight_dst").reshape({-1}), heads));
-    }
-    return nn::multi_head_attention(A, raw, x, concat, v2 ? nn::Activation::none : activation,
-                                    negative_slope, nn::AttentionNorm::softmax, dropout,
-                                    ctx.is_training());
+          nn::head_scores(q, ctx.parameter(path + ".att_weight_dst").reshape({-1}), heads), x,
+          concat, activation, negative_slope, nn::AttentionNorm::softmax, dropout,
+          ctx.is_training(), ctx.fast_paths().fuse_attention());
+    // GATv2's: the activation of the summed features, then per head <e, a> (nnz × heads).
+    const auto a = ctx.parameter(path + ".att_weight").reshape({-1});
+    const auto e = nn::apply_activation(
+        x.index_select(0, A.col.to(x.device())) + q.index_select(0, A.row.to(x.device())),
+        activation, negative_slope);
+    const auto raw = (e.reshape({e.size(0), heads, -1}) * a.reshape({1, heads, -1})).sum(-1);
+    return nn::multi_head_attention(A, raw, x, concat, nn::Activation::none, negative_slope,
+                                    nn::AttentionNorm::softmax, dropout, ctx.is_training());
   }
 };
 

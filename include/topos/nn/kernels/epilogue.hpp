@@ -58,28 +58,43 @@ static TOPOS_INLINE_KERNEL T epilogue_scalar(T x, Epilogue e) {
 }
 
 #if defined(__GNUC__)
-// elu on a vector of floats (any width): x where x > 0, else expm1(x) = 2^n (1 + p(r)) - 1 with
-// r = x - n ln2 (two-part ln2), |r| <= ln2/2 and p(r) = r + r²(1/2 + ... + r⁵/7!) (truncation
-// < 1e-8), written as (2^n - 1) + 2^n p(r) so that nothing cancels near 0: within 1e-7 of expm1,
-// relative, everywhere. torch 1.13's elu calls libm's scalar expf (19 % of CWN's forward); this is
-// a few vector FMAs. In place: no vector type in a function's ABI.
+// exp(x) = 2^n (1 + p(r)) on a vector of floats (any width), with r = x - n ln2 (two-part ln2),
+// |r| <= ln2/2 and p(r) = r + r²(1/2 + ... + r⁵/7!) (truncation < 1e-8); x is clamped at -87 so
+// that 2^n stays a normal float. Returns 2^n in `s` and p(r) in `p`: elu_vec and exp_vec combine
+// them.
 template <class V>
-static TOPOS_INLINE_KERNEL void elu_vec(V& x) {
+static TOPOS_INLINE_KERNEL void exp_parts(const V& x, V& s, V& p) {
   typedef std::int32_t ivec __attribute__((vector_size(sizeof(V))));
-  const V c = x < -87.0f ? V{} - 87.0f : x;                            // 2^n stays a normal float
+  const V c = x < -87.0f ? V{} - 87.0f : x;
   const V k = (c * 1.44269504088896341f + 12582912.0f) - 12582912.0f;  // round(c / ln2)
   V r = c - k * 0.693359375f;
   r = r - k * -2.12194440e-4f;
-  const V p =
-      r + r * r *
+  p = r + r * r *
               (0.5f + r * (1.66666672e-1f +
                            r * (4.16666679e-2f +
                                 r * (8.33333377e-3f + r * (1.38888892e-3f + r * 1.98412701e-4f)))));
   const ivec bits = (__builtin_convertvector(k, ivec) + 127) << 23;
-  V s;
   std::memcpy(&s, &bits, sizeof s);
+}
+
+// elu: x where x > 0, else expm1(x) written as (2^n - 1) + 2^n p(r) so that nothing cancels near
+// 0: within 1e-7 of expm1, relative, everywhere. torch 1.13's elu calls libm's scalar expf (19 %
+// of CWN's forward); this is a few vector FMAs. In place: no vector type in a function's ABI.
+template <class V>
+static TOPOS_INLINE_KERNEL void elu_vec(V& x) {
+  V s, p;
+  exp_parts(x, s, p);
   const V e = (s - 1.0f) + s * p;
   x = x > 0.0f ? x : e;
+}
+
+// exp(x) for x <= 0 (a softmax's shifted scores), in place; within 2e-7 relative, and about
+// 1e-38 where exp underflows.
+template <class V>
+static TOPOS_INLINE_KERNEL void exp_vec(V& x) {
+  V s, p;
+  exp_parts(x, s, p);
+  x = s + s * p;
 }
 
 template <class T, Epilogue E, class V>

@@ -187,10 +187,11 @@ class GatAttention final : public Operation {
       }
     }
     const auto H = o_.heads();
-    const auto raw = entry_scores(u, head_scores(X, ctx.parameter(path_ + ".att_src"), H),
-                                  head_scores(Q, ctx.parameter(path_ + ".att_dst"), H));
-    return multi_head_attention(u, raw, X, o_.concat(), Activation::leaky_relu, o_.negative_slope(),
-                                AttentionNorm::softmax, o_.dropout(), ctx.is_training());
+    return multi_head_attention_from_cells(u, head_scores(X, ctx.parameter(path_ + ".att_src"), H),
+                                           head_scores(Q, ctx.parameter(path_ + ".att_dst"), H), X,
+                                           o_.concat(), Activation::leaky_relu, o_.negative_slope(),
+                                           AttentionNorm::softmax, o_.dropout(), ctx.is_training(),
+                                           ctx.fast_paths().fuse_attention());
   }
   OperationTraits traits() const override {
     OperationTraits t;

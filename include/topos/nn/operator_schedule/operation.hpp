@@ -124,6 +124,87 @@ class BuildContext {
   virtual std::shared_ptr<torch::nn::Module> find_module(const std::string& path) const = 0;
 };
 
+/// The interpreter's fast paths, each switchable (all on by default). Each gives the plain
+/// version's numbers up to float rounding (sums in another order); a test runs every zoo model
+/// and HOPNet with each on alone against all off, outputs and gradients.
+struct FastPaths {
+  /// Over a batch's neighbourhoods: a term's row-wise prefix (mlp, linear, activations, ...)
+  /// before an aggregation runs on the source rows the neighbourhood reads only.
+  TORCH_ARG(bool, row_subset) = true;
+  /// Over a batch's neighbourhoods: a term's row-wise prefix that several steps of a parallel
+  /// group share is computed once.
+  TORCH_ARG(bool, prefix_cache) = true;
+  /// Over a batch: a cochain only ever aggregated is computed on the rows aggregations read
+  /// (HOPNet's edges reach it only through contacts).
+  TORCH_ARG(bool, compact_cochains) = true;
+  /// Over a batch: a concatenating step into an mlp applies the first Linear layer's block to a
+  /// term before its sum over a neighbourhood when the term has fewer rows than the target
+  /// (W Σ x = Σ W x: the aggregation deferred past the product).
+  TORCH_ARG(bool, split_first_layer) = true;
+  /// Over sparse operators: a filter's taps share their chains' prefixes within a group, and a
+  /// source's taps are multiplied by their weights before the chains when that costs less.
+  TORCH_ARG(bool, filter_taps) = true;
+  /// Over sparse operators: a weight next to a sparse product runs on the side with fewer rows
+  /// (A (x W) = (A x) W) when that costs less.
+  TORCH_ARG(bool, reorder_products) = true;
+  /// A sparse product or linear layer and the activation after it run as one kernel.
+  TORCH_ARG(bool, fuse_activations) = true;
+  /// Over sparse operators: a weight next to a sparse product (and the activation after them)
+  /// run as one autograd node (sparse_linear_act), in the order reorder_products picks; where
+  /// both orders cost the same and an activation follows, the weight last (its backward then
+  /// takes the activation's derivative inside the dense kernel).
+  TORCH_ARG(bool, fuse_products) = true;
+  /// Attention over a sparse operator (`attend`) from per-cell scores as one autograd node
+  /// (multi_head_attention_from_cells): the scores' activation, the per-target norm and every
+  /// head's weighted messages in one kernel.
+  TORCH_ARG(bool, fuse_attention) = true;
+
+ public:
+  static FastPaths all() { return {}; }
+  static FastPaths none() {
+    FastPaths f;
+    for (const auto& name : names()) f.set(name, false);
+    return f;
+  }
+  /// The fast paths' names, as the setters spell them.
+  static const std::vector<std::string>& names() {
+    static const std::vector<std::string> n{
+        "row_subset",        "prefix_cache",  "compact_cochains",
+        "split_first_layer", "filter_taps",   "reorder_products",
+        "fuse_activations",  "fuse_products", "fuse_attention"};
+    return n;
+  }
+  /// Sets the fast path `name` (one of names(); another is an error listing them).
+  FastPaths& set(const std::string& name, bool on) {
+    flag(name) = on;
+    return *this;
+  }
+  bool get(const std::string& name) const { return FastPaths(*this).flag(name); }
+  /// The names of those on, comma-separated ("none" when all are off).
+  std::string str() const {
+    std::string on;
+    for (const auto& n : names())
+      if (get(n)) on += (on.empty() ? "" : ", ") + n;
+    return on.empty() ? "none" : on;
+  }
+
+ private:
+  bool& flag(const std::string& name) {
+    if (name == "row_subset") return row_subset_;
+    if (name == "prefix_cache") return prefix_cache_;
+    if (name == "compact_cochains") return compact_cochains_;
+    if (name == "split_first_layer") return split_first_layer_;
+    if (name == "filter_taps") return filter_taps_;
+    if (name == "reorder_products") return reorder_products_;
+    if (name == "fuse_activations") return fuse_activations_;
+    if (name == "fuse_products") return fuse_products_;
+    if (name == "fuse_attention") return fuse_attention_;
+    std::string known;
+    for (const auto& n : names()) known += (known.empty() ? "" : ", ") + n;
+    throw std::invalid_argument("no fast path '" + name + "' (fast paths: " + known + ")");
+  }
+};
+
 /// What an operation sees while the network runs.
 class RunContext {
  public:
@@ -154,6 +235,12 @@ class RunContext {
   /// operation naming the key: a random mask drawn once and used by several steps (HMPNN's
   /// dropped incidence entries, models::DroppedPattern). Undefined until an operation sets it.
   virtual torch::Tensor& scratch(const std::string& key) = 0;
+  /// The network's fast paths: an operation with a fused kernel of its own runs it where its
+  /// fast path is on, so that the test suite can check it against the plain version.
+  virtual const FastPaths& fast_paths() const {
+    static const FastPaths all;
+    return all;
+  }
 
  protected:
   virtual std::shared_ptr<torch::nn::Module> module_at(const std::string& path) const = 0;

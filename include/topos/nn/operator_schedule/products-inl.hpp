@@ -150,16 +150,16 @@ TOPOS_INLINE torch::Tensor Attend::forward(RunContext& ctx, const torch::Tensor&
                (o.queries() ? "query cochain " + key.str() : "target cochain") + " has " +
                std::to_string(q.size(0)));
   }
-  // The parameter's parts a_s and a_t (heads-major), per cell and head <f_h, a_h>, per entry
-  // a_s·k_j (+ a_t·q_i); then the weights and each head's messages (functional.hpp).
+  // The parameter's parts a_s and a_t (heads-major), per cell and head <f_h, a_h>; per entry
+  // a_s·k_j (+ a_t·q_i), the weights and each head's messages (functional.hpp).
   const auto H = o.heads();
   const auto a = ctx.parameter(o.param()).reshape({-1});
   const auto ck = k.size(1);
-  const auto raw = q.defined() ? entry_scores(A, head_scores(k, a.narrow(0, 0, ck), H),
-                                              head_scores(q, a.narrow(0, ck, a.size(0) - ck), H))
-                               : head_scores(k, a, H).index_select(0, A.col.to(x.device()));
-  return multi_head_attention(A, raw, x, o.concat(), o.activation(), o.negative_slope(), o.norm(),
-                              o.dropout(), ctx.is_training());
+  const auto source = head_scores(k, q.defined() ? a.narrow(0, 0, ck) : a, H);
+  const auto target = q.defined() ? head_scores(q, a.narrow(0, ck, a.size(0) - ck), H) : q;
+  return multi_head_attention_from_cells(A, source, target, x, o.concat(), o.activation(),
+                                         o.negative_slope(), o.norm(), o.dropout(),
+                                         ctx.is_training(), ctx.fast_paths().fuse_attention());
 }
 TOPOS_INLINE OperationTraits Attend::traits() const {
   OperationTraits t;  // reads its keys and queries, scores every entry: not row-wise

@@ -102,6 +102,7 @@ class NetworkRunContext final : public RunContext {
   }
   bool is_training() const override { return net_.is_training(); }
   torch::Tensor& scratch(const std::string& key) override { return ops_.scratch[key]; }
+  const FastPaths& fast_paths() const override { return net_.fast_paths(); }
 
  protected:
   std::shared_ptr<torch::nn::Module> module_at(const std::string& path) const override {

@@ -1,0 +1,279 @@
+// topos/nn/kernels/attention.hpp
+// The kernels under nn::multi_head_attention_from_cells: multi-head attention over a CSR pattern
+// from per-cell scores, a target row at a time. The forward takes each entry's score (its
+// source's plus its target's), the scores' activation, the per-row norm (softmax, row sum or
+// none) and every head's weighted sum of the messages in one pass over the rows. The backward
+// takes the rows (the weights' gradients, the norm's and the activation's backward, the targets'
+// score gradients), then the columns through Aᵀ's CSR (the messages' and the sources' score
+// gradients): each output row written by one thread, no atomics.
+#pragma once
+
+#include "topos/nn/kernels/epilogue.hpp"
+
+#include <ATen/Parallel.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <limits>
+#include <type_traits>
+
+namespace topos::nn::detail {
+
+/// The activations and norms the kernels apply to the scores (nn::Activation and
+/// nn::AttentionNorm map onto them; the others run as torch's operations).
+enum class ScoreActivation { none, relu, leaky_relu, elu };
+enum class ScoreNorm { softmax, row_sum, none };
+
+/// What the kernels read and write. Scores and weights are entries × heads (row-major), messages
+/// and outputs cells × heads·channels, a head's channels side by side.
+template <class T>
+struct AttentionArgs {
+  const std::int64_t *crow = nullptr, *col = nullptr;  // A's CSR, entries in row order
+  const std::int64_t *t_crow = nullptr, *t_row = nullptr, *t_perm = nullptr;  // Aᵀ's
+  const T* values = nullptr;                                                  // A's values
+  const T *source = nullptr, *target = nullptr;  // per-cell scores (target may be null)
+  const T* x = nullptr;                          // the messages
+  T* weights = nullptr;  // forward: written (the normed weights, before A's values)
+  std::int64_t rows = 0, cols = 0, heads = 1, channels = 0;  // channels per head
+  ScoreActivation act = ScoreActivation::none;
+  T slope = 0;
+  ScoreNorm norm = ScoreNorm::softmax;
+};
+
+template <class T>
+static TOPOS_INLINE_KERNEL T score_activation(T s, ScoreActivation a, T slope) {
+  if (a == ScoreActivation::relu) return s > T(0) ? s : T(0);
+  if (a == ScoreActivation::leaky_relu) return s > T(0) ? s : slope * s;
+  if (a == ScoreActivation::elu) return s > T(0) ? s : std::expm1(s);
+  return s;
+}
+// The derivative at the raw score, as torch's backward takes it (1 above 0; at 0 relu's is 0,
+// leaky_relu's the slope, elu's 1).
+template <class T>
+static TOPOS_INLINE_KERNEL T score_activation_grad(T s, ScoreActivation a, T slope) {
+  if (a == ScoreActivation::relu) return s > T(0) ? T(1) : T(0);
+  if (a == ScoreActivation::leaky_relu) return s > T(0) ? T(1) : slope;
+  if (a == ScoreActivation::elu) return s > T(0) ? T(1) : std::exp(s);
+  return T(1);
+}
+
+template <class T>
+static TOPOS_INLINE_KERNEL T raw_score(const AttentionArgs<T>& a, std::int64_t i, std::int64_t k,
+                                       std::int64_t h) {
+  const T s = a.source[a.col[k] * a.heads + h];
+  return a.target != nullptr ? s + a.target[i * a.heads + h] : s;
+}
+
+// exp over n contiguous values <= 0, in place.
+template <class T, int VB>
+static TOPOS_INLINE_KERNEL void exp_nonpositive(T* p, std::int64_t n) {
+  std::int64_t i = 0;
+#if defined(__GNUC__)
+  if constexpr (std::is_same_v<T, float>) {
+    typedef T vec __attribute__((vector_size(VB)));
+    constexpr int L = VB / static_cast<int>(sizeof(T));
+    for (; i + L <= n; i += L) {
+      vec v;
+      std::memcpy(&v, p + i, sizeof v);
+      exp_vec(v);
+      std::memcpy(p + i, &v, sizeof v);
+    }
+  }
+#endif
+  for (; i < n; ++i) p[i] = std::exp(p[i]);
+}
+
+// y[i] over rows [begin, end): the weights of the rows' entries, then their weighted messages.
+template <class T, int VB>
+static TOPOS_INLINE_KERNEL void attention_forward_rows(const AttentionArgs<T>& a, T* y,
+                                                       std::int64_t begin, std::int64_t end) {
+  const std::int64_t H = a.heads, C = a.channels, HC = H * C;
+  T* w = a.weights;
+  for (std::int64_t i = begin; i < end; ++i) {
+    const std::int64_t k0 = a.crow[i], k1 = a.crow[i + 1];
+    for (std::int64_t k = k0; k < k1; ++k)
+      for (std::int64_t h = 0; h < H; ++h)
+        w[k * H + h] = score_activation(raw_score(a, i, k, h), a.act, a.slope);
+    if (a.norm == ScoreNorm::softmax && k1 > k0)
+      for (std::int64_t h = 0; h < H; ++h) {
+        T m = -std::numeric_limits<T>::infinity();
+        for (std::int64_t k = k0; k < k1; ++k) m = std::max(m, w[k * H + h]);
+        for (std::int64_t k = k0; k < k1; ++k) w[k * H + h] -= m;
+      }
+  }
+  // The exponentials of the whole range at once: a row's entries are often fewer than a vector.
+  if (a.norm == ScoreNorm::softmax)
+    exp_nonpositive<T, VB>(w + a.crow[begin] * H, (a.crow[end] - a.crow[begin]) * H);
+  for (std::int64_t i = begin; i < end; ++i) {
+    const std::int64_t k0 = a.crow[i], k1 = a.crow[i + 1];
+    if (a.norm != ScoreNorm::none)
+      for (std::int64_t h = 0; h < H; ++h) {
+        T sum = 0;
+        for (std::int64_t k = k0; k < k1; ++k) sum += w[k * H + h];
+        for (std::int64_t k = k0; k < k1; ++k) w[k * H + h] /= sum;
+      }
+    T* __restrict yi = y + i * HC;
+    std::fill(yi, yi + HC, T(0));
+    for (std::int64_t k = k0; k < k1; ++k) {
+      const T* __restrict xk = a.x + a.col[k] * HC;
+      for (std::int64_t h = 0; h < H; ++h) {
+        const T c = w[k * H + h] * a.values[k];
+        for (std::int64_t ch = h * C; ch < (h + 1) * C; ++ch) yi[ch] += c * xk[ch];
+      }
+    }
+  }
+}
+
+// Over rows [begin, end): d[k, h] = the raw score's gradient of entry k and head h, from dY (g);
+// d_target[i, h] = Σ over row i's entries of d (when wanted).
+template <class T, int VB>
+static TOPOS_INLINE_KERNEL void attention_backward_rows(const AttentionArgs<T>& a, const T* g, T* d,
+                                                        T* d_target, std::int64_t begin,
+                                                        std::int64_t end) {
+  const std::int64_t H = a.heads, C = a.channels, HC = H * C;
+  const T* w = a.weights;
+  for (std::int64_t i = begin; i < end; ++i) {
+    const std::int64_t k0 = a.crow[i], k1 = a.crow[i + 1];
+    const T* __restrict gi = g + i * HC;
+    for (std::int64_t k = k0; k < k1; ++k) {
+      const T* __restrict xk = a.x + a.col[k] * HC;
+      for (std::int64_t h = 0; h < H; ++h) {
+        T s = 0;
+        for (std::int64_t ch = h * C; ch < (h + 1) * C; ++ch) s += gi[ch] * xk[ch];
+        d[k * H + h] = s * a.values[k];  // the gradient of the normed weight
+      }
+    }
+    for (std::int64_t h = 0; h < H; ++h) {
+      T t = 0, sum = 1;
+      if (a.norm != ScoreNorm::none)
+        for (std::int64_t k = k0; k < k1; ++k) t += w[k * H + h] * d[k * H + h];
+      if (a.norm == ScoreNorm::row_sum) {  // w = s / Σ s: the activated scores' sum again
+        sum = 0;
+        for (std::int64_t k = k0; k < k1; ++k)
+          sum += score_activation(raw_score(a, i, k, h), a.act, a.slope);
+      }
+      T total = 0;
+      for (std::int64_t k = k0; k < k1; ++k) {
+        const T dw = d[k * H + h];
+        const T ds = a.norm == ScoreNorm::softmax   ? w[k * H + h] * (dw - t)
+                     : a.norm == ScoreNorm::row_sum ? (dw - t) / sum
+                                                    : dw;
+        const T dr = ds * score_activation_grad(raw_score(a, i, k, h), a.act, a.slope);
+        d[k * H + h] = dr;
+        total += dr;
+      }
+      if (d_target != nullptr) d_target[i * H + h] = total;
+    }
+  }
+}
+
+// Over source cells [begin, end) through Aᵀ's CSR: dx[j] = Σ_k w[k] A[k] dY[row k] per head (when
+// wanted) and d_source[j, h] = Σ_k d[k, h] over the entries of column j (when wanted).
+template <class T, int VB>
+static TOPOS_INLINE_KERNEL void attention_backward_cols(const AttentionArgs<T>& a, const T* g,
+                                                        const T* d, T* dx, T* d_source,
+                                                        std::int64_t begin, std::int64_t end) {
+  const std::int64_t H = a.heads, C = a.channels, HC = H * C;
+  const T* w = a.weights;
+  for (std::int64_t j = begin; j < end; ++j) {
+    T* __restrict xj = dx != nullptr ? dx + j * HC : nullptr;
+    if (xj != nullptr) std::fill(xj, xj + HC, T(0));
+    if (d_source != nullptr) std::fill(d_source + j * H, d_source + (j + 1) * H, T(0));
+    for (std::int64_t t = a.t_crow[j]; t < a.t_crow[j + 1]; ++t) {
+      const std::int64_t k = a.t_perm[t];
+      if (d_source != nullptr)
+        for (std::int64_t h = 0; h < H; ++h) d_source[j * H + h] += d[k * H + h];
+      if (xj == nullptr) continue;
+      const T* __restrict gi = g + a.t_row[t] * HC;
+      for (std::int64_t h = 0; h < H; ++h) {
+        const T c = w[k * H + h] * a.values[k];
+        for (std::int64_t ch = h * C; ch < (h + 1) * C; ++ch) xj[ch] += c * gi[ch];
+      }
+    }
+  }
+}
+
+// Each kernel compiled for the baseline and x86-64-v3 (target clones) and for x86-64-v4 on
+// 64-byte vectors, as the product kernels are (epilogue.hpp).
+#define TOPOS_ATTENTION_VARIANTS(T, suffix)                                                 \
+  [[maybe_unused]] TOPOS_SIMD_CLONES static void attention_forward_##suffix(                \
+      const AttentionArgs<T>& a, T* y, std::int64_t b, std::int64_t e) {                    \
+    attention_forward_rows<T, 32>(a, y, b, e);                                              \
+  }                                                                                         \
+  [[maybe_unused]] TOPOS_SIMD_CLONES static void attention_backward_rows_##suffix(          \
+      const AttentionArgs<T>& a, const T* g, T* d, T* dt, std::int64_t b, std::int64_t e) { \
+    attention_backward_rows<T, 32>(a, g, d, dt, b, e);                                      \
+  }                                                                                         \
+  [[maybe_unused]] TOPOS_SIMD_CLONES static void attention_backward_cols_##suffix(          \
+      const AttentionArgs<T>& a, const T* g, const T* d, T* dx, T* ds, std::int64_t b,      \
+      std::int64_t e) {                                                                     \
+    attention_backward_cols<T, 32>(a, g, d, dx, ds, b, e);                                  \
+  }
+TOPOS_ATTENTION_VARIANTS(float, float)
+TOPOS_ATTENTION_VARIANTS(double, double)
+#undef TOPOS_ATTENTION_VARIANTS
+#if defined(TOPOS_HAVE_V4)
+[[maybe_unused]] TOPOS_V4 static void attention_forward_float_v4(const AttentionArgs<float>& a,
+                                                                 float* y, std::int64_t b,
+                                                                 std::int64_t e) {
+  attention_forward_rows<float, 64>(a, y, b, e);
+}
+[[maybe_unused]] TOPOS_V4 static void attention_backward_rows_float_v4(
+    const AttentionArgs<float>& a, const float* g, float* d, float* dt, std::int64_t b,
+    std::int64_t e) {
+  attention_backward_rows<float, 64>(a, g, d, dt, b, e);
+}
+[[maybe_unused]] TOPOS_V4 static void attention_backward_cols_float_v4(
+    const AttentionArgs<float>& a, const float* g, const float* d, float* dx, float* ds,
+    std::int64_t b, std::int64_t e) {
+  attention_backward_cols<float, 64>(a, g, d, dx, ds, b, e);
+}
+#endif
+
+/// y (rows × heads·channels) and a.weights (entries × heads) from the scores and messages.
+template <class T>
+void attention_forward(const AttentionArgs<T>& a, T* y) {
+  at::parallel_for(0, a.rows, 256, [&](std::int64_t b, std::int64_t e) {
+#if defined(TOPOS_HAVE_V4)
+    if constexpr (std::is_same_v<T, float>)
+      if (cpu_has_v4()) return attention_forward_float_v4(a, y, b, e);
+#endif
+    if constexpr (std::is_same_v<T, float>)
+      attention_forward_float(a, y, b, e);
+    else
+      attention_forward_double(a, y, b, e);
+  });
+}
+
+/// From dY (g, rows × heads·channels): the raw scores' gradient d (entries × heads, a buffer the
+/// caller owns), then the targets' and sources' score gradients and the messages' (each null when
+/// not wanted).
+template <class T>
+void attention_backward(const AttentionArgs<T>& a, const T* g, T* d, T* d_target, T* d_source,
+                        T* dx) {
+  at::parallel_for(0, a.rows, 256, [&](std::int64_t b, std::int64_t e) {
+#if defined(TOPOS_HAVE_V4)
+    if constexpr (std::is_same_v<T, float>)
+      if (cpu_has_v4()) return attention_backward_rows_float_v4(a, g, d, d_target, b, e);
+#endif
+    if constexpr (std::is_same_v<T, float>)
+      attention_backward_rows_float(a, g, d, d_target, b, e);
+    else
+      attention_backward_rows_double(a, g, d, d_target, b, e);
+  });
+  if (dx == nullptr && d_source == nullptr) return;
+  at::parallel_for(0, a.cols, 256, [&](std::int64_t b, std::int64_t e) {
+#if defined(TOPOS_HAVE_V4)
+    if constexpr (std::is_same_v<T, float>)
+      if (cpu_has_v4()) return attention_backward_cols_float_v4(a, g, d, dx, d_source, b, e);
+#endif
+    if constexpr (std::is_same_v<T, float>)
+      attention_backward_cols_float(a, g, d, dx, d_source, b, e);
+    else
+      attention_backward_cols_double(a, g, d, dx, d_source, b, e);
+  });
+}
+
+}  // namespace topos::nn::detail
