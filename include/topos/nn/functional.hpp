@@ -354,7 +354,7 @@ struct CellAttentionFunction : public torch::autograd::Function<CellAttentionFun
     a.t_perm = t_perm.data_ptr<std::int64_t>(), a.values = values.data_ptr<T>();
     a.source = source.data_ptr<T>(), a.target = target.defined() ? target.data_ptr<T>() : nullptr;
     a.x = x.data_ptr<T>(), a.weights = weights.data_ptr<T>();
-    a.rows = crow.size(0) - 1, a.cols = x.size(0), a.heads = source.size(1);
+    a.rows = crow.size(0) - 1, a.cols = x.size(0), a.nnz = col.size(0), a.heads = source.size(1);
     a.channels = x.size(1) / a.heads;
     a.act = static_cast<ScoreActivation>(how & 3), a.norm = static_cast<ScoreNorm>(how >> 2);
     a.slope = static_cast<T>(slope);
