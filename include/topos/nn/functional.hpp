@@ -352,7 +352,8 @@ struct CellAttentionFunction : public torch::autograd::Function<CellAttentionFun
     a.crow = crow.data_ptr<std::int64_t>(), a.col = col.data_ptr<std::int64_t>();
     a.t_crow = t_crow.data_ptr<std::int64_t>(), a.t_row = t_row.data_ptr<std::int64_t>();
     a.t_perm = t_perm.data_ptr<std::int64_t>(), a.values = values.data_ptr<T>();
-    a.source = source.data_ptr<T>(), a.target = target.defined() ? target.data_ptr<T>() : nullptr;
+    a.source = source.data_ptr<T>();  // no target scores: undefined, or autograd's empty stand-in
+    a.target = target.defined() && target.numel() > 0 ? target.data_ptr<T>() : nullptr;
     a.x = x.data_ptr<T>(), a.weights = weights.data_ptr<T>();
     a.rows = crow.size(0) - 1, a.cols = x.size(0), a.nnz = col.size(0), a.heads = source.size(1);
     a.channels = x.size(1) / a.heads;
