@@ -7,8 +7,12 @@
 // variant preset (BM_train_step_variant, freshly initialised, native mode). Native mode also with
 // bfloat16 products (bf16: 1, `hopnet rollout --mode native --matmul-precision medium`). The
 // roofline's counters (docs/benchmarks.md): each forward's FLOPs by the network's plan, GFLOP/s,
-// and the dense kernel alone on HOPNet's shapes (BM_dense_kernel).
+// the dense kernel alone on HOPNet's shapes (BM_dense_kernel), and one core's peak by precision
+// (BM_peak).
 #include <benchmark/benchmark.h>
+#if defined(__x86_64__)
+#include <immintrin.h>
+#endif
 
 #include "topos/models/hopnet/training.hpp"
 #include "topos/models/hopnet/variants.hpp"
@@ -18,6 +22,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdlib>
+#include <cstring>
 #include <iostream>
 
 using namespace topos;
@@ -206,6 +211,101 @@ BENCHMARK(BM_dense_kernel)
     ->ArgNames({"rows", "in", "bf16"})
     ->Unit(benchmark::kMicrosecond)
     ->MinTime(0.5);
+
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+// One core's arithmetic ceiling by precision, the roofline's top: twelve independent vector
+// accumulators (more than latency × ports need) kept in registers, each updated n times by
+// STEP(a) (a macro: vector arguments between functions of other targets would change the ABI).
+#define TOPOS_PEAK_LOOP(V, acc, n, STEP)                                                \
+  {                                                                                     \
+    V a0 = acc[0], a1 = acc[1], a2 = acc[2], a3 = acc[3], a4 = acc[4], a5 = acc[5];     \
+    V a6 = acc[6], a7 = acc[7], a8 = acc[8], a9 = acc[9], a10 = acc[10], a11 = acc[11]; \
+    for (long i = 0; i < (n); ++i) {                                                    \
+      a0 = STEP(a0), a1 = STEP(a1), a2 = STEP(a2), a3 = STEP(a3), a4 = STEP(a4);        \
+      a5 = STEP(a5), a6 = STEP(a6), a7 = STEP(a7), a8 = STEP(a8), a9 = STEP(a9);        \
+      a10 = STEP(a10), a11 = STEP(a11);                                                 \
+    }                                                                                   \
+    acc[0] = a0, acc[1] = a1, acc[2] = a2, acc[3] = a3, acc[4] = a4, acc[5] = a5;       \
+    acc[6] = a6, acc[7] = a7, acc[8] = a8, acc[9] = a9, acc[10] = a10, acc[11] = a11;   \
+  }
+// The sum of the accumulators' lanes (so that none of them is dead code), read as bytes.
+template <class T>
+float lanes_sum(const void* acc, std::size_t bytes) {
+  float sum = 0;
+  for (std::size_t i = 0; i < bytes / sizeof(T); ++i) {
+    T v;
+    std::memcpy(&v, static_cast<const char*>(acc) + i * sizeof(T), sizeof(T));
+    sum += static_cast<float>(v);
+  }
+  return sum;
+}
+// float32 FMA (vfmadd231ps: 16 multiply-adds, 32 FLOP).
+__attribute__((noinline, target("avx512f"))) float peak_fma_f32(long n) {
+  __m512 acc[12];
+  for (auto& a : acc) a = _mm512_set1_ps(0.0f);
+  const __m512 x = _mm512_set1_ps(1.0001f), y = _mm512_set1_ps(0.9999f);
+#define TOPOS_STEP(a) _mm512_fmadd_ps(x, y, a)
+  TOPOS_PEAK_LOOP(__m512, acc, n, TOPOS_STEP)
+#undef TOPOS_STEP
+  return lanes_sum<float>(acc, sizeof acc);
+}
+// bfloat16 pairs into float32 (vdpbf16ps: 32 multiply-adds, 64 FLOP), what bfloat16 products
+// run on where there is no AMX.
+__attribute__((noinline, target("avx512f,avx512bf16"))) float peak_dot_bf16(long n) {
+  __m512 acc[12];
+  for (auto& a : acc) a = _mm512_set1_ps(0.0f);
+  const __m512bh x = (__m512bh)_mm512_set1_epi16(0x3f80);  // bfloat16 ones
+#define TOPOS_STEP(a) _mm512_dpbf16_ps(a, x, x)
+  TOPOS_PEAK_LOOP(__m512, acc, n, TOPOS_STEP)
+#undef TOPOS_STEP
+  return lanes_sum<float>(acc, sizeof acc);
+}
+// float16 FMA (vfmadd231ph: 32 multiply-adds, 64 FLOP; float16 accumulators, which stop growing
+// at float16's precision: normal numbers throughout, nothing denormal).
+__attribute__((noinline, target("avx512f,avx512fp16"))) float peak_fma_f16(long n) {
+  __m512h acc[12];
+  for (auto& a : acc) a = _mm512_set1_ph(static_cast<_Float16>(0.0f));
+  const __m512h x = _mm512_set1_ph(static_cast<_Float16>(1.0f)),
+                y = _mm512_set1_ph(static_cast<_Float16>(0.5f));
+#define TOPOS_STEP(a) _mm512_fmadd_ph(x, y, a)
+  TOPOS_PEAK_LOOP(__m512h, acc, n, TOPOS_STEP)
+#undef TOPOS_STEP
+  return lanes_sum<_Float16>(acc, sizeof acc);
+}
+#undef TOPOS_PEAK_LOOP
+#endif
+
+// One core's peak FLOP rate per instruction kind (kind 0: float32 FMA, 1: bfloat16 dot
+// products, 2: float16 FMA), the ceiling of docs/benchmarks.md's roofline: on a CPU whose
+// bfloat16 dot products reach half the float32 FMAs' FLOP rate, bfloat16 products cannot be
+// faster than float32 ones, whatever the kernel. A kind the CPU lacks is skipped with its name.
+void BM_peak(benchmark::State& state) {
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+  const int kind = static_cast<int>(state.range(0));
+  const char* names[] = {"avx512f", "avx512bf16", "avx512fp16"};
+  const char* labels[] = {"float32 FMA", "bfloat16 dot product", "float16 FMA"};
+  state.SetLabel(labels[kind]);
+  const bool has = kind == 0   ? __builtin_cpu_supports("avx512f")
+                   : kind == 1 ? __builtin_cpu_supports("avx512bf16")
+                               : __builtin_cpu_supports("avx512fp16");
+  if (!has) {
+    state.SkipWithError((std::string("this CPU has no ") + names[kind]).c_str());
+    return;
+  }
+  long n = 1'000'000;
+  for (auto _ : state) {
+    benchmark::DoNotOptimize(n);  // not hoisted: each iteration computes
+    benchmark::DoNotOptimize(kind == 0   ? peak_fma_f32(n)
+                             : kind == 1 ? peak_dot_bf16(n)
+                                         : peak_fma_f16(n));
+  }
+  state.counters["GFLOP/s"] = benchmark::Counter(12.0 * n * (kind == 0 ? 32 : 64) / 1e9,
+                                                 benchmark::Counter::kIsIterationInvariantRate);
+#else
+  state.SkipWithError("x86-64 with GCC only");
+#endif
+}
+BENCHMARK(BM_peak)->ArgName("kind")->DenseRange(0, 2)->Unit(benchmark::kMillisecond)->MinTime(0.5);
 
 // LayerNorm over 128 channels, as every HOPNet MLP ends, one thread: torch's layer_norm
 // (topos: 0) against nn::layer_norm (topos: 1), forward alone or forward and backward (backward:

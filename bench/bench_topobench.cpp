@@ -2,8 +2,9 @@
 // bench_topomodelx_epoch.py): the train half of MUTAG and PROTEINS (data seed 0), in TopoBench's
 // batches, each batch one disjoint union lifted beforehand (clique complex to rank 2 for SCN,
 // the cycle basis up to length 10 for CWN, closed 1-hop neighbourhoods for UniGNN2), with
-// TopoBench's width and layer count, one thread, freed memory kept in the heap as `tdl topobench`
-// keeps it (nn::keep_freed_memory).
+// TopoBench's width and layer count, one thread, freed memory kept in the heap and denormals
+// flushed to zero as `tdl topobench` runs (nn::keep_freed_memory, nn::ScopedFlushDenormals).
+// Also AllSetTransformer's and SCCNN's REDDIT-BINARY settings, the table's costliest cells.
 //   BM_backbone_epoch  forward + backward of the backbone alone over every batch, the work the
 //                      Python script times (counter x_topomodelx: the speed-up over its figure)
 //   BM_epoch           topos's whole epoch: shuffle, batches (a Collator, as train_run), encoder,
@@ -25,10 +26,12 @@
 //                      (arg 0) or nn::dropout (arg 1); every TopoBench encoder and several
 //                      backbones drop out at every step (no data needed)
 // BM_backbone_epoch without one fast path: TOPOS_FAST_PATH_OFF=<FastPaths name> (e.g.
-// fuse_products), to compare in one binary. Needs TOPOS_DATASETS_DIR (but for BM_dropout). Run with
+// fuse_products), to compare in one binary; BM_backbone_epoch and the epochs with denormals kept:
+// TOPOS_KEEP_DENORMALS=1. Needs TOPOS_DATASETS_DIR (but for BM_dropout). Run with
 //   OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 ./build/bench/bench_topobench
 #include "topos/data/graph_datasets.hpp"
 #include "topos/models/topobench/table_models.hpp"
+#include "topos/models/topobench/trainer.hpp"
 #include "topos/nn/cpu.hpp"
 
 #include <benchmark/benchmark.h>
@@ -57,12 +60,19 @@ const data::GraphClassificationDataset& dataset(const std::string& name) {
   return it->second;
 }
 
-std::vector<LiftedGraph> lift(const data::GraphClassificationDataset& ds, Domain d, int rank) {
+// The operators the model reads, as the table lifts them; `factored` keeps its rank-1 pair
+// operators as products of incidences (`tdl topobench --factor-above`: REDDIT-BINARY's would not
+// fit in memory).
+std::vector<LiftedGraph> lift(const data::GraphClassificationDataset& ds, const ModelSpec& m,
+                              int rank, bool factored) {
+  const auto layout = rank_layout(m);
   GraphLiftingOptions o;
   o.complex_dim = rank;  // the Python script lifts cliques to rank 2
+  o.operators = layout.operators;
+  if (factored) o.factored = rank1_pair_operators(layout);
   std::vector<LiftedGraph> out;
   for (const auto& g : ds.graphs) {
-    out.push_back(lift_graph(g.num_nodes, g.edges, g.x, ds.num_node_features, {}, d, o));
+    out.push_back(lift_graph(g.num_nodes, g.edges, g.x, ds.num_node_features, {}, m.domain, o));
     out.back().label = g.label;
   }
   return out;
@@ -74,8 +84,9 @@ struct Setting {
   std::int64_t hidden;
   int layers;
   std::size_t batch;
-  double topomodelx_ms;  ///< tdl-bench README, the lowest figure
-  int complex_dim = 2;   ///< the clique lifting's top rank
+  double topomodelx_ms;   ///< tdl-bench README, the lowest figure
+  int complex_dim = 2;    ///< the clique lifting's top rank
+  bool factored = false;  ///< rank-1 pair operators as factors, as the table runs REDDIT-BINARY
 };
 // TopoBench's (hidden, layers, batch size) as the Python script has them, and its times.
 const Setting kSettings[] = {
@@ -85,9 +96,11 @@ const Setting kSettings[] = {
     {"CWN", "PROTEINS", 64, 3, 256, 277},
     {"UniGNN2", "MUTAG", 128, 3, 64, 370},
     {"UniGNN2", "PROTEINS", 64, 3, 128, 78500},
-    // The table's costliest cell (TopoBench's REDDIT-BINARY setting; not in the Python script).
+    // The table's two costliest cells (TopoBench's REDDIT-BINARY settings; not in the Python
+    // script).
     {"AllSetTransformer", "MUTAG", 64, 3, 32, 0},
-    {"AllSetTransformer", "REDDIT-BINARY", 64, 4, 256, 0}};
+    {"AllSetTransformer", "REDDIT-BINARY", 64, 4, 256, 0},
+    {"SCCNN", "REDDIT-BINARY", 64, 3, 16, 0, 3, true}};
 
 struct Prepared {
   std::vector<LiftedGraph> graphs;
@@ -97,12 +110,13 @@ struct Prepared {
 
 const Prepared& prepared(const Setting& s) {
   static std::map<std::string, std::unique_ptr<Prepared>> cache;
-  const std::string key = std::string(s.model) + s.dataset + std::to_string(s.complex_dim);
+  const std::string key = std::string(s.model) + s.dataset + std::to_string(s.complex_dim) +
+                          (s.factored ? "/factored" : "");
   auto& p = cache[key];
   if (!p) {
     p = std::make_unique<Prepared>();
     const auto& ds = dataset(s.dataset);
-    p->graphs = lift(ds, model_spec(s.model).domain, s.complex_dim);
+    p->graphs = lift(ds, model_spec(s.model), s.complex_dim, s.factored);
     p->train = random_split(static_cast<std::int64_t>(ds.graphs.size()), 0).train;
     for (const auto& which : batches_of(p->train, s.batch))
       p->batches.push_back(collate(p->graphs, which));
@@ -116,10 +130,17 @@ bool skip_without_data(benchmark::State& state) {
   return true;
 }
 
+// Denormals flushed as `tdl topobench` trains (TOPOS_KEEP_DENORMALS=1 keeps them: the same
+// binary side by side).
+bool flush_denormals() {
+  return std::getenv("TOPOS_KEEP_DENORMALS") == nullptr;
+}
+
 void BM_backbone_epoch(benchmark::State& state, Setting s) {
   if (skip_without_data(state)) return;
   nn::set_cpu_threads(1, 1);
   nn::keep_freed_memory();  // as `tdl topobench` runs (registered after BM_epoch_options)
+  const nn::ScopedFlushDenormals flush(flush_denormals());
   const auto& p = prepared(s);
   torch::manual_seed(0);
   TopoBenchModel model(
@@ -181,6 +202,7 @@ TopoBenchModel make_model(const Setting& s) {
 }
 
 void run_epochs(benchmark::State& state, const Setting& s, bool fast_paths, int warm_up = 0) {
+  const nn::ScopedFlushDenormals flush(flush_denormals());
   const auto& p = prepared(s);
   auto model = make_model(s);
   model->backbone->set_fast_paths(fast_paths);

@@ -1,10 +1,11 @@
 #!/usr/bin/env python3
 """The TopoBench table's wall time on a quiet machine, from timed epochs of every cell.
 
-Usage: topobench_clean_time.py [--only MODEL,...] TDL DATA_DIR RUNS_CSV OUT_CSV
+Usage: topobench_clean_time.py [--only MODEL,...] [--keep-denormals] TDL DATA_DIR RUNS_CSV OUT_CSV
 [EPOCHS [DATASET...]]. Standard library only. With --only, only those models are timed again;
 every other cell keeps its seconds per epoch from the OUT_CSV already there (after a change that
-concerns a few models).
+concerns a few models). --keep-denormals is passed to `tdl topobench` (the runs as they were
+before denormals were flushed, for a side-by-side timing).
 
 The runs of docs/topobench/runs.csv were made beside builds and tests, so their recorded seconds
 say little about the table's cost. This runs every cell of RUNS_CSV once (data seed 0, EPOCHS
@@ -27,7 +28,11 @@ import time
 
 args = sys.argv[1:]
 only = None
-if args and args[0] == "--only":
+extra = []
+while args and args[0] in ("--only", "--keep-denormals"):
+    if args[0] == "--keep-denormals":
+        extra.append(args.pop(0))
+        continue
     if len(args) < 2:
         sys.exit("--only needs a comma-separated list of models")
     only = args[1].split(",")
@@ -73,7 +78,8 @@ for d in datasets:
         start = time.time()
         p = subprocess.run([tdl, "topobench", "--data-dir", data_dir, "--out", out, "--models",
                             ",".join(models), "--datasets", d, "--splits", "0", "--max-epochs",
-                            str(epochs), "--jobs", "2"], env=env, capture_output=True, text=True)
+                            str(epochs), "--jobs", "2"] + extra, env=env, capture_output=True,
+                           text=True)
         if p.returncode != 0:
             sys.exit(f"tdl topobench on {d} failed:\n{p.stderr[-2000:]}")
         lifting[d] = sum(float(s) for s in re.findall(r"lifted \S+ in ([0-9.]+) s", p.stderr))

@@ -51,6 +51,7 @@ struct TopoBenchOptions {
   int max_epochs = 0;  ///< > 0: at most this many epochs (quick checks; not the protocol)
   /// Σ_v deg(v)² over a dataset above which its rank-1 pair operators are kept as factors.
   std::int64_t factor_above = 100'000'000;
+  bool keep_denormals = false;  ///< IEEE denormals kept (slower; topobench::TrainOptions)
 };
 
 /// Entries of the rank-1 operators that pair edges through a shared node (the down Laplacian,
@@ -179,6 +180,7 @@ int run_topobench(const TopoBenchOptions& o) {
   topobench::TableRunOptions run;
   run.jobs = o.jobs;
   run.max_epochs = o.max_epochs;
+  run.flush_denormals = !o.keep_denormals;
   run.backbone = [](const topobench::ModelSpec& m) { return topobench::table_backbone(m.name); };
   run.on_not_run = [&](const topobench::NotRun&) {
     topos::io::write_file_atomic((out / "not_run.csv").string(), not_run_csv());
@@ -242,6 +244,9 @@ void register_topobench(CLI::App& app, Run& run) {
                   "where a dataset's sum of squared degrees exceeds this (REDDIT-BINARY: 372 M)")
       ->check(CLI::Range(std::int64_t{0}, std::numeric_limits<std::int64_t>::max()))
       ->capture_default_str();
+  cmd->add_flag("--keep-denormals", o->keep_denormals,
+                "keep denormal floats (by default they are flushed to zero while a run trains: "
+                "the same results but below 1.2e-38, and SCCNN 2.5x faster)");
   cmd->callback([o, models, datasets, splits, &run] {
     o->models = split_list(*models);
     o->datasets = split_list(*datasets);

@@ -590,11 +590,12 @@ void bind_training(py::module_& m) {
       "train_run",
       [](const Lifted& data, const std::string& name, const topobench::RankLayout& layout,
          py::object make, const topobench::RunConfig& cfg, std::int64_t seed, int max_epochs,
-         bool progress, py::object on_check) {
+         bool progress, py::object on_check, bool flush_denormals) {
         const topobench::Backbone backbone = backbone_arg(name, layout, std::move(make));
         topobench::TrainOptions o;
         o.max_epochs = max_epochs;
         o.progress = progress;
+        o.flush_denormals = flush_denormals;
         if (!on_check.is_none()) {
           const PyRef cb = hold(std::move(on_check));
           o.on_check = [cb](const topobench::Check& c, Model& net) {
@@ -616,7 +617,7 @@ void bind_training(py::module_& m) {
       },
       py::arg("data"), py::arg("name"), py::arg("layout"), py::arg("make"), py::arg("config"),
       py::arg("seed"), py::arg("max_epochs") = 0, py::arg("progress") = false,
-      py::arg("on_check") = py::none());
+      py::arg("on_check") = py::none(), py::arg("flush_denormals") = true);
 }
 
 }  // namespace

@@ -15,6 +15,7 @@
 
 #include <caffe2/serialize/inline_container.h>
 
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -1060,4 +1061,44 @@ TEST_CASE("the caching CPU allocator reuses freed blocks by size class, within i
   REQUIRE(cached_cpu_bytes() == 0);
   c10::SetAllocator(c10::DeviceType::CPU, previous, /*priority=*/1);
   REQUIRE(c10::GetAllocator(c10::DeviceType::CPU) == previous);
+}
+
+TEST_CASE("denormals are flushed to zero inside ScopedFlushDenormals, on every intra-op thread",
+          "[nn][cpu]") {
+#if defined(__x86_64__) || defined(__i386__)
+  using topos::nn::ScopedFlushDenormals;
+  const float tiny = 1e-39f;  // below FLT_MIN (1.18e-38): a denormal
+  REQUIRE(std::fpclassify(tiny) == FP_SUBNORMAL);
+  volatile float a = tiny, b = 1e-30f, c = 1e-10f;  // volatile: computed at run time
+  const int threads = at::get_num_threads();
+  REQUIRE_FALSE(ScopedFlushDenormals::active());
+  REQUIRE(a * 1.0f == tiny);
+  REQUIRE(b * c > 0.0f);  // 1e-40: a denormal result
+  // A tensor operation large enough to be split over two intra-op threads.
+  const auto many = torch::full({1 << 20}, tiny);
+  at::set_num_threads(2);
+  REQUIRE((many * 1.0f).sum().item<double>() > 1e-34);
+  {
+    const ScopedFlushDenormals flush;
+    REQUIRE(ScopedFlushDenormals::active());
+    REQUIRE(a * 1.0f == 0.0f);    // denormal input read as zero
+    REQUIRE(b * c == 0.0f);       // denormal result flushed
+    REQUIRE(1e-20f * c != 0.0f);  // normal numbers unchanged
+    if (ScopedFlushDenormals::reaches_intra_op_threads())
+      REQUIRE((many * 1.0f).sum().item<double>() == 0.0);
+    else
+      WARN("LibTorch's OpenMP is not libgomp: the intra-op threads were not checked");
+    {
+      const ScopedFlushDenormals off(false);  // does nothing
+      REQUIRE(ScopedFlushDenormals::active());
+    }
+    REQUIRE(ScopedFlushDenormals::active());
+  }
+  REQUIRE_FALSE(ScopedFlushDenormals::active());
+  REQUIRE(a * 1.0f == tiny);
+  REQUIRE((many * 1.0f).sum().item<double>() > 1e-34);
+  at::set_num_threads(threads);
+#else
+  WARN("not x86: ScopedFlushDenormals does nothing here, and this test checks nothing");
+#endif
 }

@@ -207,6 +207,20 @@ def test_python_schedule_backbone_trains(mutag, config):
         assert torch.equal(v, final[k]), k
 
 
+def test_runs_flush_denormals_while_they_train_unless_asked_not_to(mutag, config):
+    backbone = Backbone("TorchCell", LAYOUT, lambda ctx: TorchCell(ctx.hidden))
+    tiny = torch.tensor([1e-39])  # a denormal float32
+    seen = []
+
+    def on_check(check, model):
+        seen.append(float((tiny * 1.0).item()))
+
+    topobench.train_run(mutag, backbone, config, 0, max_epochs=5, on_check=on_check)
+    topobench.train_run(mutag, backbone, config, 0, max_epochs=5, on_check=on_check, flush_denormals=False)
+    assert seen == [0.0, float(tiny.item())]
+    assert float((tiny * 1.0).item()) != 0.0  # the caller's mode is back after the run
+
+
 def test_torch_module_backbone_trains(mutag, config):
     backbone = Backbone("TorchCell", LAYOUT, lambda ctx: TorchCell(ctx.hidden))
     run, states = train(mutag, backbone, config)

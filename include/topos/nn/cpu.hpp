@@ -4,14 +4,19 @@
 // together: for HOPNet's large batched training matmuls, BLAS threads and one intra-op thread
 // are fastest; for a rollout's small ones, one of each. Freed memory: kept in the heap
 // (keep_freed_memory), or cached by size class (use_caching_cpu_allocator), which is as fast and
-// does not fragment.
+// does not fragment. Denormal floats: flushed to zero while a ScopedFlushDenormals lives.
 #pragma once
 
 #include <torch/torch.h>
 
+#include <ATen/Parallel.h>
+
 #include <dlfcn.h>
 #include <malloc.h>
 #include <sched.h>
+#if defined(__x86_64__) || defined(__i386__)
+#include <xmmintrin.h>
+#endif
 
 #include <c10/core/Allocator.h>
 
@@ -73,6 +78,68 @@ inline void keep_freed_memory() {
   mallopt(M_TOP_PAD, 64 << 20);
 #endif
 }
+
+/// While alive, float arithmetic on the calling thread and on LibTorch's intra-op threads (where
+/// its OpenMP is libgomp, as Debian's is: reaches_intra_op_threads) treats
+/// denormal inputs as zero and flushes denormal results to zero (x86's MXCSR DAZ and FTZ bits, as
+/// torch.set_flush_denormal sets them and TensorFlow's CPU kernels run; elsewhere nothing). A
+/// multiply-add that meets a denormal costs a microcode assist, about a hundred cycles: the tiny
+/// gradients behind saturated sigmoids (TopoBench's SCCNN) made its backward products 4-5x slower,
+/// 23.3 s against 9.2 s for an epoch on REDDIT-BINARY (docs/topobench.md). Values below 1.2e-38
+/// become 0; nothing else changes. The previous modes come back at destruction; guards nest.
+class ScopedFlushDenormals {
+ public:
+  explicit ScopedFlushDenormals(bool on = true) : on_(on) {
+#if defined(__x86_64__) || defined(__i386__)
+    if (!on_) return;
+    saved_ = _mm_getcsr();
+    set_everywhere(saved_ | kFlush);
+#endif
+  }
+  ~ScopedFlushDenormals() {
+#if defined(__x86_64__) || defined(__i386__)
+    if (on_) set_everywhere(saved_);
+#endif
+  }
+  ScopedFlushDenormals(const ScopedFlushDenormals&) = delete;
+  ScopedFlushDenormals& operator=(const ScopedFlushDenormals&) = delete;
+
+  /// Whether the guard reaches LibTorch's intra-op threads too (its OpenMP is libgomp's).
+  static bool reaches_intra_op_threads() {
+    return dlsym(RTLD_DEFAULT, "GOMP_parallel") != nullptr;
+  }
+  /// Whether denormals are flushed on the calling thread now.
+  static bool active() {
+#if defined(__x86_64__) || defined(__i386__)
+    return (_mm_getcsr() & kFlush) == kFlush;
+#else
+    return false;
+#endif
+  }
+
+ private:
+  static constexpr unsigned kFlush = 0x8040;  // FTZ (bit 15) and DAZ (bit 6)
+  // The calling thread, then every thread of its OpenMP team, the one LibTorch's operations run
+  // on. topos's headers are not compiled with -fopenmp, so at::parallel_for's pragma is not a
+  // parallel region here: the region is opened through libgomp's entry point (GOMP_parallel,
+  // which `#pragma omp parallel` compiles to; LibTorch links libgomp), found at run time. Inside
+  // a parallel region, or without libgomp, only the calling thread changes.
+  static void set_everywhere(unsigned csr) {
+#if defined(__x86_64__) || defined(__i386__)
+    _mm_setcsr(csr);
+    using Parallel = void (*)(void (*)(void*), void*, unsigned, unsigned);
+    static const auto parallel = reinterpret_cast<Parallel>(dlsym(RTLD_DEFAULT, "GOMP_parallel"));
+    const int n = at::get_num_threads();
+    if (parallel != nullptr && n > 1 && !at::in_parallel_region())
+      parallel([](void* c) { _mm_setcsr(*static_cast<unsigned*>(c)); }, &csr,
+               static_cast<unsigned>(n), 0);
+#else
+    (void)csr;
+#endif
+  }
+  bool on_;
+  unsigned saved_ = 0;
+};
 
 namespace detail {
 

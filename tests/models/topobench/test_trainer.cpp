@@ -12,6 +12,7 @@
 #include "topos/models/topobench/report.hpp"
 #include "topos/models/topobench/table_models.hpp"
 #include "topos/models/topobench/trainer.hpp"
+#include "topos/nn/cpu.hpp"
 
 #include <atomic>
 #include <filesystem>
@@ -91,12 +92,16 @@ TEST_CASE("The trainer stops early at the best check and restores it, buffers in
   std::vector<double> seen;
   std::vector<torch::Tensor> running_mean, weight;
   TrainOptions opt;
+  bool flushing = true;  // denormals flushed while the run trains, and only then
   opt.on_check = [&](const Check& c, TopoBenchModelImpl& m) {
+    flushing = flushing && topos::nn::ScopedFlushDenormals::active();
     seen.push_back(c.val_accuracy);
     running_mean.push_back(m.named_buffers()["backbone.bn.running_mean"].clone());
     weight.push_back(m.named_parameters()["backbone.lin.weight"].clone());
   };
   auto run = train_run(data, tiny_backbone(), "synthetic", cfg, 3, opt);
+  CHECK(flushing);
+  CHECK_FALSE(topos::nn::ScopedFlushDenormals::active());
 
   REQUIRE(run.curve.size() == seen.size());
   REQUIRE(run.curve.size() >= 2);

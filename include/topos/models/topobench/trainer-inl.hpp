@@ -6,6 +6,7 @@
 #include "topos/data/graph_datasets.hpp"
 #include "topos/models/topobench/trainer.hpp"
 #include "topos/nn/cloneable.hpp"   // StateSnapshot
+#include "topos/nn/cpu.hpp"         // ScopedFlushDenormals
 #include "topos/nn/functional.hpp"  // ScopedDropoutStream
 #include "topos/util/progress.hpp"
 
@@ -125,6 +126,7 @@ TOPOS_INLINE TrainedRun train_run(const LiftedDataset& data, const Backbone& bac
                                   const std::string& dataset, const RunConfig& cfg,
                                   std::int64_t seed, const TrainOptions& options) {
   const auto start = std::chrono::steady_clock::now();
+  const nn::ScopedFlushDenormals flush(options.flush_denormals);
   if (data.graphs.empty()) throw std::invalid_argument("train_run: " + dataset + " has no graphs");
   const auto& g0 = data.graphs.front();
   const auto& layout = backbone.layout();
@@ -308,6 +310,7 @@ TOPOS_INLINE std::set<std::pair<std::string, std::string>> run_table(
         const auto data = get_lifted(j);
         TrainOptions train;
         train.max_epochs = options.max_epochs;
+        train.flush_denormals = options.flush_denormals;
         train.progress = workers == 1;
         const auto run =
             train_run(*data, options.backbone(*j.model), j.dataset->name, *j.cfg, j.seed, train);

