@@ -246,7 +246,7 @@ void register_topobench(CLI::App& app, Run& run) {
       ->capture_default_str();
   cmd->add_flag("--keep-denormals", o->keep_denormals,
                 "keep denormal floats (by default they are flushed to zero while a run trains: "
-                "the same results but below 1.2e-38, and SCCNN 2.5x faster)");
+                "the same results but below 1.2e-38, and SCCNN about 2x faster)");
   cmd->callback([o, models, datasets, splits, &run] {
     o->models = split_list(*models);
     o->datasets = split_list(*datasets);

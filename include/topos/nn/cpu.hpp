@@ -86,7 +86,8 @@ inline void keep_freed_memory() {
 /// multiply-add that meets a denormal costs a microcode assist, about a hundred cycles: the tiny
 /// gradients behind saturated sigmoids (TopoBench's SCCNN) made its backward products 4-5x slower,
 /// 23.3 s against 9.2 s for an epoch on REDDIT-BINARY (docs/topobench.md). Values below 1.2e-38
-/// become 0; nothing else changes. The previous modes come back at destruction; guards nest.
+/// become 0; nothing else changes. At destruction the calling thread's previous mode comes back,
+/// on it and on the intra-op threads; guards nest.
 class ScopedFlushDenormals {
  public:
   explicit ScopedFlushDenormals(bool on = true) : on_(on) {
@@ -106,7 +107,7 @@ class ScopedFlushDenormals {
 
   /// Whether the guard reaches LibTorch's intra-op threads too (its OpenMP is libgomp's).
   static bool reaches_intra_op_threads() {
-    return dlsym(RTLD_DEFAULT, "GOMP_parallel") != nullptr;
+    return gomp_parallel() != nullptr;
   }
   /// Whether denormals are flushed on the calling thread now.
   static bool active() {
@@ -119,6 +120,12 @@ class ScopedFlushDenormals {
 
  private:
   static constexpr unsigned kFlush = 0x8040;  // FTZ (bit 15) and DAZ (bit 6)
+  using Parallel = void (*)(void (*)(void*), void*, unsigned, unsigned);
+  // libgomp's entry point for a parallel region, looked up once; null without libgomp.
+  static Parallel gomp_parallel() {
+    static const auto parallel = reinterpret_cast<Parallel>(dlsym(RTLD_DEFAULT, "GOMP_parallel"));
+    return parallel;
+  }
   // The calling thread, then every thread of its OpenMP team, the one LibTorch's operations run
   // on. topos's headers are not compiled with -fopenmp, so at::parallel_for's pragma is not a
   // parallel region here: the region is opened through libgomp's entry point (GOMP_parallel,
@@ -127,8 +134,7 @@ class ScopedFlushDenormals {
   static void set_everywhere(unsigned csr) {
 #if defined(__x86_64__) || defined(__i386__)
     _mm_setcsr(csr);
-    using Parallel = void (*)(void (*)(void*), void*, unsigned, unsigned);
-    static const auto parallel = reinterpret_cast<Parallel>(dlsym(RTLD_DEFAULT, "GOMP_parallel"));
+    const auto parallel = gomp_parallel();
     const int n = at::get_num_threads();
     if (parallel != nullptr && n > 1 && !at::in_parallel_region())
       parallel([](void* c) { _mm_setcsr(*static_cast<unsigned*>(c)); }, &csr,

@@ -85,7 +85,8 @@ struct TrainOptions {
   int max_epochs = 0;     ///< > 0: at most this many epochs (quick checks; not the protocol)
   bool progress = false;  ///< a progress bar for the run
   /// Denormal floats flushed to zero while the run trains and tests (nn::ScopedFlushDenormals):
-  /// the same results but for values below 1.2e-38, and SCCNN's epochs 2.5x shorter.
+  /// the same results but for values below 1.2e-38, and SCCNN's REDDIT-BINARY epochs about 2x
+  /// shorter.
   bool flush_denormals = true;
   /// Called after every validation check (with the model as it is then, in eval mode).
   std::function<void(const Check&, TopoBenchModelImpl&)> on_check;
