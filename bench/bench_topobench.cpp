@@ -335,9 +335,9 @@ void BM_dropout(benchmark::State& state) {
 // x Wᵀ + b forward, or forward and backward (x and W need gradients), rows × width by width ×
 // width (64, 128): torch's linear (OpenBLAS) against nn::linear_act (topos's register-blocked
 // kernel; 128 wide in panels of 64). AllSetTransformer's REDDIT-BINARY batches have about 110 k
-// rows.
+// rows. `threads`: LibTorch's intra-op threads (BLAS keeps one), which topos's kernels share.
 void BM_linear(benchmark::State& state) {
-  nn::set_cpu_threads(1, 1);
+  nn::set_cpu_threads(static_cast<int>(state.range(4)), 1);
   nn::keep_freed_memory();  // as `tdl topobench` runs (registered after BM_epoch_options)
   torch::manual_seed(0);
   const std::int64_t width = state.range(3);
@@ -438,8 +438,8 @@ const int registered = [] {
       ->Unit(benchmark::kMillisecond)
       ->MinTime(1.0);
   benchmark::RegisterBenchmark("BM_linear", BM_linear)
-      ->ArgNames({"topos", "rows", "backward", "width"})
-      ->ArgsProduct({{0, 1}, {2000, 20000, 110000}, {0, 1}, {64, 128}})
+      ->ArgNames({"topos", "rows", "backward", "width", "threads"})
+      ->ArgsProduct({{0, 1}, {2000, 20000, 110000}, {0, 1}, {64, 128}, {1, 2}})
       ->Unit(benchmark::kMicrosecond)
       ->MinTime(0.5);
   benchmark::RegisterBenchmark("BM_dropout", BM_dropout)

@@ -48,6 +48,7 @@ struct TopoBenchOptions {
   std::vector<std::string> models, datasets;
   std::vector<std::int64_t> splits;  ///< empty: the seeds of the hparams line
   int jobs = 1;
+  int threads = 1;     ///< LibTorch intra-op threads per run
   int max_epochs = 0;  ///< > 0: at most this many epochs (quick checks; not the protocol)
   /// Σ_v deg(v)² over a dataset above which its rank-1 pair operators are kept as factors.
   std::int64_t factor_above = 100'000'000;
@@ -168,10 +169,15 @@ int run_topobench(const TopoBenchOptions& o) {
   };
   topos::io::write_file_atomic((out / "not_run.csv").string(), not_run_csv());
 
-  // Threads: one intra-op thread and one BLAS thread per run; `--jobs` runs side by side are the
-  // parallelism. TopoBench's batches are small: with two OpenMP threads per run, 83 % of a MUTAG
-  // run's time went to libgomp's spin-waits on a busy two-core machine.
-  topos::nn::set_cpu_threads(1, 1);
+  // Threads: one intra-op thread and one BLAS thread per run by default; `--jobs` runs side by
+  // side are the parallelism. TopoBench's batches are small: with two OpenMP threads per run, 83 %
+  // of a MUTAG run's time went to libgomp's spin-waits on a busy two-core machine. `--threads`
+  // suits one large run alone (REDDIT-BINARY's batches of 110 k cells).
+  if (o.jobs * o.threads > topos::nn::available_cores())
+    std::cerr << "tdl topobench: warning: --jobs " << o.jobs << " × --threads " << o.threads
+              << " is more threads than this machine's " << topos::nn::available_cores()
+              << " cores; each run will wait on the others\n";
+  topos::nn::set_cpu_threads(o.threads, 1);
   // Freed memory kept in the heap: glibc hands every block over 32 MB back to the kernel, and an
   // IMDB batch's rank-3 cochains (200k tetrahedra × 128 channels) were faulted in afresh at every
   // operation (docs/benchmarks.md: BM_epoch_options).
@@ -229,6 +235,10 @@ void register_topobench(CLI::App& app, Run& run) {
       ->required();
   cmd->add_option("--splits", *splits, "data seeds (default: the hparams line's, 0,3,5,7,9)");
   cmd->add_option("--jobs", o->jobs, "runs side by side (threads shared out, no oversubscription)")
+      ->check(CLI::Range(1, 64))
+      ->capture_default_str();
+  cmd->add_option("--threads", o->threads,
+                  "LibTorch intra-op threads per run (1 unless one large run has the machine)")
       ->check(CLI::Range(1, 64))
       ->capture_default_str();
   cmd->add_option("--hparams", o->hparams,

@@ -21,6 +21,7 @@
 #include <filesystem>
 #include <random>
 #include <set>
+#include <mutex>
 #include <thread>
 
 #include <unistd.h>
@@ -1101,4 +1102,67 @@ TEST_CASE("denormals are flushed to zero inside ScopedFlushDenormals, on every i
 #else
   WARN("not x86: ScopedFlushDenormals does nothing here, and this test checks nothing");
 #endif
+}
+
+TEST_CASE("topos's kernels run on LibTorch's intra-op threads, with the same results",
+          "[nn][cpu]") {
+  // topos::nn_headers compiles with OpenMP, so at::parallel_for in topos's kernels opens a
+  // parallel region (without -fopenmp its pragma is ignored and every kernel ran on one thread).
+  const int threads = at::get_num_threads();
+  at::set_num_threads(2);
+  std::mutex m;
+  std::set<std::thread::id> seen;
+  at::parallel_for(0, 2, 1, [&](std::int64_t, std::int64_t) {
+    const std::lock_guard<std::mutex> lock(m);
+    seen.insert(std::this_thread::get_id());
+  });
+#if defined(_OPENMP)
+  REQUIRE(seen.size() == 2);
+#else
+  WARN("built without OpenMP: topos's kernels run on one thread");
+  REQUIRE(seen.size() == 1);
+#endif
+  // The dense kernel splits rows (the same arithmetic per row: bitwise equal); its backward sums
+  // dW and db per thread, then adds the two (equal up to rounding).
+  torch::manual_seed(4);
+  const auto x = torch::randn({20000, 64}, torch::requires_grad());
+  const auto W = torch::randn({64, 64}, torch::requires_grad());
+  const auto b = torch::randn({64}, torch::requires_grad());
+  const auto g = torch::randn({20000, 64});
+  const auto run = [&](int n) {
+    at::set_num_threads(n);
+    for (auto t : {x, W, b}) t.mutable_grad() = torch::Tensor();
+    const auto y = topos::nn::linear_act(x, W, b, topos::nn::Epilogue::relu);
+    y.backward(g);
+    return std::vector<torch::Tensor>{y.detach(), x.grad(), W.grad(), b.grad()};
+  };
+  const auto one = run(1), two = run(2);
+  REQUIRE(torch::equal(one[0], two[0]));
+  REQUIRE(torch::equal(one[1], two[1]));
+  REQUIRE(torch::allclose(one[2], two[2], 1e-5, 1e-3));
+  REQUIRE(torch::allclose(one[3], two[3], 1e-5, 1e-3));
+  REQUIRE(torch::allclose(one[2], ((g * (one[0] > 0)).t().mm(x.detach())), 1e-4, 1e-2));
+  // Row-parallel kernels give the same bits on any number of threads: LayerNorm without
+  // statistics (a rollout's, which wrote through a null pointer on the second thread), the CSR
+  // product, and dropout's counter-based mask.
+  const auto w = torch::rand({64}), bias = torch::randn({64});
+  std::vector<std::int64_t> r, c;
+  std::vector<double> v;
+  for (std::int64_t i = 0; i < 20000; ++i)
+    for (std::int64_t k : {i, (i * 7 + 3) % 20000, (i * 13 + 5) % 20000})
+      r.push_back(i), c.push_back(k), v.push_back(0.5 + static_cast<double>(k % 5));
+  const auto A = topos::nn::SparseOperator::from_triplets(20000, 20000, r, c, v);
+  const auto xs = x.detach();
+  const auto each = [&](int n) {
+    at::set_num_threads(n);
+    torch::NoGradGuard no_grad;
+    torch::manual_seed(9);
+    return std::vector<torch::Tensor>{topos::nn::layer_norm(xs, w, bias, 1e-5),
+                                      topos::nn::spmm(A, xs, topos::nn::Epilogue::relu),
+                                      topos::nn::dropout(xs, 0.5, true)};
+  };
+  const auto serial = each(1), parallel = each(2);
+  for (std::size_t k = 0; k < serial.size(); ++k) REQUIRE(torch::equal(serial[k], parallel[k]));
+  REQUIRE(torch::allclose(serial[0], torch::layer_norm(xs, {64}, w, bias, 1e-5), 1e-5, 1e-4));
+  at::set_num_threads(threads);
 }

@@ -127,10 +127,10 @@ class ScopedFlushDenormals {
     return parallel;
   }
   // The calling thread, then every thread of its OpenMP team, the one LibTorch's operations run
-  // on. topos's headers are not compiled with -fopenmp, so at::parallel_for's pragma is not a
-  // parallel region here: the region is opened through libgomp's entry point (GOMP_parallel,
-  // which `#pragma omp parallel` compiles to; LibTorch links libgomp), found at run time. Inside
-  // a parallel region, or without libgomp, only the calling thread changes.
+  // on. The region is opened through libgomp's entry point (GOMP_parallel, which `#pragma omp
+  // parallel` compiles to; LibTorch links libgomp), found at run time, so that this works in a
+  // translation unit compiled without -fopenmp too. Inside a parallel region, or without
+  // libgomp, only the calling thread changes.
   static void set_everywhere(unsigned csr) {
 #if defined(__x86_64__) || defined(__i386__)
     _mm_setcsr(csr);

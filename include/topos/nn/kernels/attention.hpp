@@ -253,10 +253,16 @@ TOPOS_ATTENTION_VARIANTS(double, double)
 }
 #endif
 
+// The rows (or columns) of a thread's share: every entry costs each head its channels.
+template <class T>
+std::int64_t attention_grain(const AttentionArgs<T>& a, std::int64_t n) {
+  return grain_rows(n, (a.nnz + n) * a.heads * std::max<std::int64_t>(a.channels, 1));
+}
+
 /// y (rows × heads·channels) and a.weights (entries × heads) from the scores and messages.
 template <class T>
 void attention_forward(const AttentionArgs<T>& a, T* y) {
-  at::parallel_for(0, a.rows, 256, [&](std::int64_t b, std::int64_t e) {
+  at::parallel_for(0, a.rows, attention_grain(a, a.rows), [&](std::int64_t b, std::int64_t e) {
 #if defined(TOPOS_HAVE_V4)
     if constexpr (std::is_same_v<T, float>)
       if (cpu_has_v4()) return attention_forward_float_v4(a, y, b, e);
@@ -274,7 +280,7 @@ void attention_forward(const AttentionArgs<T>& a, T* y) {
 template <class T>
 void attention_backward(const AttentionArgs<T>& a, const T* g, T* d, T* d_target, T* d_source,
                         T* dx) {
-  at::parallel_for(0, a.rows, 256, [&](std::int64_t b, std::int64_t e) {
+  at::parallel_for(0, a.rows, attention_grain(a, a.rows), [&](std::int64_t b, std::int64_t e) {
 #if defined(TOPOS_HAVE_V4)
     if constexpr (std::is_same_v<T, float>)
       if (cpu_has_v4()) return attention_backward_rows_float_v4(a, g, d, d_target, b, e);
@@ -285,7 +291,7 @@ void attention_backward(const AttentionArgs<T>& a, const T* g, T* d, T* d_target
       attention_backward_rows_double(a, g, d, d_target, b, e);
   });
   if (dx == nullptr && d_source == nullptr) return;
-  at::parallel_for(0, a.cols, 256, [&](std::int64_t b, std::int64_t e) {
+  at::parallel_for(0, a.cols, attention_grain(a, a.cols), [&](std::int64_t b, std::int64_t e) {
 #if defined(TOPOS_HAVE_V4)
     if constexpr (std::is_same_v<T, float>)
       if (cpu_has_v4()) return attention_backward_cols_float_v4(a, g, d, dx, d_source, b, e);

@@ -125,27 +125,31 @@ template <class T>
 void csr_mm(const std::int64_t* crow, const std::int64_t* col, const T* val,
             const std::int64_t* perm, const T* X, T* Y, std::int64_t rows, std::int64_t C,
             Epilogue e = Epilogue::none) {
-  at::parallel_for(0, rows, 256, [&](std::int64_t begin, std::int64_t end) {
+  const std::int64_t nnz = rows > 0 ? crow[rows] - crow[0] : 0;
+  at::parallel_for(0, rows, grain_rows(rows, (nnz + rows) * C),
+                   [&](std::int64_t begin, std::int64_t end) {
 #if defined(TOPOS_HAVE_V4)
-    if constexpr (std::is_same_v<T, float>)
-      if (cpu_has_v4()) return csr_rows_float_v4(crow, col, val, perm, X, Y, begin, end, C, e);
-    if constexpr (std::is_same_v<T, double>)
-      if (cpu_has_v4()) return csr_rows_double_v4(crow, col, val, perm, X, Y, begin, end, C, e);
+                     if constexpr (std::is_same_v<T, float>)
+                       if (cpu_has_v4())
+                         return csr_rows_float_v4(crow, col, val, perm, X, Y, begin, end, C, e);
+                     if constexpr (std::is_same_v<T, double>)
+                       if (cpu_has_v4())
+                         return csr_rows_double_v4(crow, col, val, perm, X, Y, begin, end, C, e);
 #endif
-    if constexpr (std::is_same_v<T, float>)
-      csr_rows_float(crow, col, val, perm, X, Y, begin, end, C, e);
-    else if constexpr (std::is_same_v<T, double>)
-      csr_rows_double(crow, col, val, perm, X, Y, begin, end, C, e);
-    else
-      csr_rows<T>(crow, col, val, perm, X, Y, begin, end, C, e);
-  });
+                     if constexpr (std::is_same_v<T, float>)
+                       csr_rows_float(crow, col, val, perm, X, Y, begin, end, C, e);
+                     else if constexpr (std::is_same_v<T, double>)
+                       csr_rows_double(crow, col, val, perm, X, Y, begin, end, C, e);
+                     else
+                       csr_rows<T>(crow, col, val, perm, X, Y, begin, end, C, e);
+                   });
 }
 
 // g[k] = <dY[row k], X[col k]>.
 template <class T>
 void csr_value_grad(const std::int64_t* row, const std::int64_t* col, const T* dY, const T* X, T* g,
                     std::int64_t nnz, std::int64_t C) {
-  at::parallel_for(0, nnz, 2048, [&](std::int64_t begin, std::int64_t end) {
+  at::parallel_for(0, nnz, grain_rows(nnz, nnz * C), [&](std::int64_t begin, std::int64_t end) {
     for (std::int64_t k = begin; k < end; ++k) {
       const T* __restrict a = dY + row[k] * C;
       const T* __restrict b = X + col[k] * C;

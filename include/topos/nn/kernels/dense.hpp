@@ -215,7 +215,7 @@ inline torch::Tensor dense_product(const torch::Tensor& X, const torch::Tensor& 
     const auto* mp = m.data_ptr<scalar_t>();
     const auto* bp = bc.defined() ? bc.data_ptr<scalar_t>() : nullptr;
     auto* yp = y.data_ptr<scalar_t>();
-    at::parallel_for(0, n, 512, [&](std::int64_t begin, std::int64_t end) {
+    at::parallel_for(0, n, grain_rows(n, n * K * N), [&](std::int64_t begin, std::int64_t end) {
       dense_rows_clone(xp, mp, bp, yp, begin, end, K, N, e);
     });
   });

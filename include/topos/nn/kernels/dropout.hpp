@@ -107,10 +107,11 @@ void dropout_elements(const T* x, T* y, std::int64_t count, std::uint64_t seed,
   constexpr std::int64_t B = kDropoutBlockDraws, block = B * (64 / Bits);
   constexpr std::uint64_t lane = Bits == 32 ? 0xFFFFFFFFull : (1ull << Bits) - 1;
   const std::int64_t blocks = count / block;
-  at::parallel_for(0, blocks, (1 << 15) / block, [&](std::int64_t begin, std::int64_t end) {
-    dropout_block_range<Bits, T>(x + block * begin, y + block * begin, begin, end - begin, seed,
-                                 threshold, scale);
-  });
+  at::parallel_for(0, blocks, grain_rows(blocks, 4 * blocks * block),
+                   [&](std::int64_t begin, std::int64_t end) {
+                     dropout_block_range<Bits, T>(x + block * begin, y + block * begin, begin,
+                                                  end - begin, seed, threshold, scale);
+                   });
   // The last, partial block: element o takes lane o / B of the block's draw o % B, as in a whole
   // one.
   const auto d0 = static_cast<std::uint64_t>(blocks * B);

@@ -146,8 +146,7 @@ inline void bias_epilogue(const torch::Tensor& y, const torch::Tensor& b, Epilog
   const float* bp = bc.defined() ? bc.data_ptr<float>() : nullptr;
   const bool relu = e == Epilogue::relu;
   if (bp != nullptr || relu)
-    at::parallel_for(0, y.size(0),
-                     std::max<std::int64_t>(1, (1 << 15) / std::max<std::int64_t>(N, 1)),
+    at::parallel_for(0, y.size(0), grain_rows(y.size(0), 4 * y.size(0) * N),
                      [&](std::int64_t begin, std::int64_t end) {
                        bias_relu_rows(yp + begin * N, bp, end - begin, N, relu);
                      });

@@ -206,23 +206,24 @@ TOPOS_LAYER_NORM_ENTRY(double, layer_norm_double_v4, TOPOS_V4, 64)
 template <class T>
 void layer_norm_forward_range(const T* x, const T* w, const T* b, T* y, T* mean, T* rstd,
                               std::int64_t n, std::int64_t C, T eps) {
-  at::parallel_for(
-      0, n, std::max<std::int64_t>(1, (1 << 15) / C), [&](std::int64_t lo, std::int64_t hi) {
-        const auto at = lo * C;
+  at::parallel_for(0, n, grain_rows(n, 4 * n * C), [&](std::int64_t lo, std::int64_t hi) {
+    const auto at = lo * C;
+    // No statistics kept (mean null): a later range must not write at null + lo.
+    T* const mean_lo = mean ? mean + lo : nullptr;
+    T* const rstd_lo = rstd ? rstd + lo : nullptr;
 #if defined(TOPOS_HAVE_V4)
-        if (cpu_has_v4()) {
-          if constexpr (std::is_same_v<T, float>)
-            return layer_norm_float_v4(x + at, w, b, y + at, mean + lo, rstd + lo, hi - lo, C, eps);
-          else
-            return layer_norm_double_v4(x + at, w, b, y + at, mean + lo, rstd + lo, hi - lo, C,
-                                        eps);
-        }
+    if (cpu_has_v4()) {
+      if constexpr (std::is_same_v<T, float>)
+        return layer_norm_float_v4(x + at, w, b, y + at, mean_lo, rstd_lo, hi - lo, C, eps);
+      else
+        return layer_norm_double_v4(x + at, w, b, y + at, mean_lo, rstd_lo, hi - lo, C, eps);
+    }
 #endif
-        if constexpr (std::is_same_v<T, float>)
-          layer_norm_float(x + at, w, b, y + at, mean + lo, rstd + lo, hi - lo, C, eps);
-        else
-          layer_norm_double(x + at, w, b, y + at, mean + lo, rstd + lo, hi - lo, C, eps);
-      });
+    if constexpr (std::is_same_v<T, float>)
+      layer_norm_float(x + at, w, b, y + at, mean_lo, rstd_lo, hi - lo, C, eps);
+    else
+      layer_norm_double(x + at, w, b, y + at, mean_lo, rstd_lo, hi - lo, C, eps);
+  });
 }
 
 // The backward in blocks of rows, each block summing dw and db into its own partial sums (added
@@ -233,7 +234,7 @@ void layer_norm_backward_range(const T* dy, const T* x, const T* w, const T* mea
   const std::int64_t block = std::max<std::int64_t>(64, (1 << 16) / C);
   const std::int64_t blocks = (n + block - 1) / block;
   std::vector<T> partial(static_cast<std::size_t>(std::max<std::int64_t>(blocks, 1) * 2 * C), T(0));
-  at::parallel_for(0, blocks, 1, [&](std::int64_t k0, std::int64_t k1) {
+  at::parallel_for(0, blocks, grain_rows(blocks, 8 * n * C), [&](std::int64_t k0, std::int64_t k1) {
     for (std::int64_t k = k0; k < k1; ++k) {
       const std::int64_t lo = k * block, rows = std::min(n, lo + block) - lo;
       T* pw = dw ? partial.data() + k * 2 * C : nullptr;
