@@ -46,11 +46,12 @@ inline bool cpu_has_v4() {
 }
 #endif
 
-// The rows of a thread's share when at::parallel_for splits `rows` rows that cost `work`
-// multiply-adds (or element operations) in all: at least kParallelWork each. A parallel region
-// costs microseconds to open and tens to wake a sleeping thread, so a kernel goes parallel only
-// where each thread gets far more than that: split at their own fixed grains (256-512 rows),
-// HOPNet's 500-row products and LayerNorms made a two-thread rollout 1.7x slower than one thread.
+// The grain at::parallel_for takes for `rows` rows that cost `work` multiply-adds (or element
+// operations) in all: the rows of kParallelWork, so that a range splits only where each thread's
+// share is at least about kParallelWork / 2. A parallel region costs microseconds to open and tens
+// to wake a sleeping thread, so a kernel goes parallel only where each thread gets far more than
+// that: split at their own fixed grains (256-512 rows), HOPNet's 500-row products and LayerNorms
+// made a two-thread rollout 1.7x slower than one thread.
 constexpr std::int64_t kParallelWork = std::int64_t(1) << 20;
 inline std::int64_t grain_rows(std::int64_t rows, std::int64_t work) {
   if (rows <= 0 || work <= 0) return std::max<std::int64_t>(rows, 1);
@@ -180,9 +181,14 @@ static TOPOS_INLINE_KERNEL void epilogue_rows(T* y, const T* g, T* out, std::int
 }
 #endif
 
+// Split at whole blocks of 64 elements, so that each element takes the vector loop or the scalar
+// tail (elu: a vectorised expm1 or std::expm1) as on one thread: the same bits on any count.
 template <class T>
 void epilogue_range(T* y, const T* g, T* out, std::int64_t n, Epilogue e) {
-  at::parallel_for(0, n, grain_rows(n, 4 * n), [&](std::int64_t begin, std::int64_t end) {
+  constexpr std::int64_t kBlock = 64;
+  const std::int64_t blocks = (n + kBlock - 1) / kBlock;
+  at::parallel_for(0, blocks, grain_rows(blocks, 4 * n), [&](std::int64_t b0, std::int64_t b1) {
+    const std::int64_t begin = b0 * kBlock, end = std::min(n, b1 * kBlock);
     T* o = out + begin;
     const T* gb = g ? g + begin : nullptr;
 #if defined(TOPOS_HAVE_V4)
