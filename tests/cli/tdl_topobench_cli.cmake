@@ -27,6 +27,8 @@ expect_failure_topobench("missing hparams file" "nowhere"
   --data-dir ${WORK}/nowhere --models SCN --datasets MUTAG --out ${WORK}/o)
 expect_failure_topobench("negative --factor-above" "--factor-above"
   --data-dir ${WORK}/data --models SCN --datasets MUTAG --factor-above -1 --out ${WORK}/o)
+expect_failure_topobench("no intra-op thread" "--threads: Value 0 not in range 1 to 64"
+  --data-dir ${WORK}/data --models SCN --datasets MUTAG --threads 0 --out ${WORK}/o)
 expect_failure_topobench("bad split" "--splits"
   --data-dir ${WORK}/data --models SCN --datasets MUTAG --splits 1,x --out ${WORK}/o)
 file(WRITE ${WORK}/data/topobench/bad-hparams.txt "simplicial/scn MUTAG lr=abc hid=8\n")
