@@ -451,6 +451,46 @@ TEST_CASE("nn::layer_norm equals torch's layer_norm, values and gradients", "[nn
   CHECK(torch::allclose(nn::layer_norm(x3, {}, {}), torch::layer_norm(x3, {8})));
 }
 
+TEST_CASE("nn::layer_norm with an activation is one node: the same as LayerNorm then the act",
+          "[nn][kernels]") {
+  torch::manual_seed(13);
+  for (const auto dtype : {torch::kFloat, torch::kDouble})
+    for (const std::int64_t C : {64, 37})
+      for (const std::int64_t n : {7, 3000})
+        for (const auto act : {Epilogue::relu, Epilogue::elu}) {
+          INFO("dtype " << dtype << ", " << n << " × " << C << ", act " << static_cast<int>(act));
+          const auto opt = torch::TensorOptions().dtype(dtype);
+          const auto x0 = (torch::randn({n, C}, opt) * 3 + 1).requires_grad_();
+          const auto x1 = x0.detach().clone().requires_grad_();
+          const auto w0 = torch::randn({C}, opt).requires_grad_(), b0 = torch::randn({C}, opt);
+          const auto w1 = w0.detach().clone().requires_grad_();
+          const auto b1 = b0.detach().clone().requires_grad_();
+          b0.requires_grad_();
+          // Unfused: topos's LayerNorm, then torch's activation (its own autograd node).
+          const auto want = nn::detail::activate(nn::layer_norm(x0, w0, b0, 1e-5), act);
+          const auto got = nn::layer_norm(x1, w1, b1, 1e-5, act);
+          REQUIRE(got.grad_fn()->name().find("LayerNorm") != std::string::npos);
+          const double tol = dtype == torch::kFloat ? 1e-6 : 1e-14;
+          // relu: the same bits; elu: topos's vectorised expm1 against torch's (float: libm's).
+          if (act == Epilogue::relu) REQUIRE(torch::equal(got, want));
+          REQUIRE(torch::allclose(got, want, tol, tol));
+          REQUIRE((got == 0).any().item<bool>() == (act == Epilogue::relu));  // some cut off
+          const auto dy = torch::randn({n, C}, opt);
+          want.backward(dy);
+          got.backward(dy);
+          REQUIRE(torch::allclose(x1.grad(), x0.grad(), 10 * tol, 10 * tol));
+          REQUIRE(torch::allclose(w1.grad(), w0.grad(), 100 * tol, 100 * tol));
+          REQUIRE(torch::allclose(b1.grad(), b0.grad(), 100 * tol, 100 * tol));
+          if (act == Epilogue::relu) REQUIRE(torch::equal(x1.grad(), x0.grad()));
+          torch::NoGradGuard no_grad;  // a rollout's path: no node, the same values
+          REQUIRE(torch::equal(nn::layer_norm(x1, w1, b1, 1e-5, act), got.detach()));
+        }
+  // Other shapes: torch's layer_norm, then the activation.
+  const auto x3 = torch::randn({2, 4, 8});
+  CHECK(torch::allclose(nn::layer_norm(x3, {}, {}, 1e-5, Epilogue::relu),
+                        torch::relu(torch::layer_norm(x3, {8}))));
+}
+
 TEST_CASE("medium matmul precision: bfloat16 products, float32 out, close to highest",
           "[nn][mlp]") {
   torch::manual_seed(3);

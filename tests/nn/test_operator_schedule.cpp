@@ -10,6 +10,7 @@
 #include "topos/testing/conv.hpp"
 
 #include <set>
+#include <tuple>
 #include <type_traits>
 #include <utility>
 
@@ -1197,6 +1198,52 @@ TEST_CASE("plan_str lists what forward runs with its FLOPs, counted by hand",
                                   "split_first_layer, reorder_products, fuse_activations, "
                                   "fuse_products, fuse_attention\n"));
   CHECK(torch::allclose(taps->forward(x, ops).at("y_1"), fast, 1e-12, 1e-12));
+}
+
+TEST_CASE("dropout(0) is left out and a LayerNorm fuses the activation after it",
+          "[nn][schedule][fast_paths]") {
+  // TopoBench's AllSetTransformer: Linear, dropout(0), relu; LayerNorm, relu, dropout(0).
+  OperatorSchedule s;
+  s.input("x", 0, 6);
+  s.step(into(0, "h")
+             .sum(from(0).linear("l", 6, false).dropout(0).act(Activation::relu))
+             .named("mlp"));
+  s.step(into(0)
+             .sum(from(0), from(0, "h"))
+             .layer_norm("ln")
+             .act(Activation::relu)
+             .dropout(0)
+             .named("norm"));
+  s.output("y", 0);
+  CHECK(s.str().find("dropout") == std::string::npos);
+  OperatorNetwork net(s);
+  net->to(torch::kDouble);
+  torch::manual_seed(5);
+  const auto x0 = torch::randn({40, 6}, torch::kDouble).requires_grad_();
+  const auto run = [&](bool fast) {
+    net->set_fast_paths(fast);
+    net->zero_grad();
+    const auto x = x0.detach().clone().requires_grad_();
+    const auto y = net->forward({{"x", x}}, {}).at("y");
+    (y * torch::linspace(-1, 1, 6, torch::kDouble)).sum().backward();
+    return std::make_tuple(y, x.grad(), net->named_parameters()["ln.weight"].grad().clone(),
+                           net->named_parameters()["l.weight"].grad().clone());
+  };
+  const auto [y, dx, dln, dl] = run(true);
+  // One node each: the Linear's kernel applies the relu, the LayerNorm's kernel its relu.
+  REQUIRE(y.grad_fn()->name().find("LayerNorm") != std::string::npos);
+  REQUIRE((y == 0).any().item<bool>());
+  const auto [y_plain, dx_plain, dln_plain, dl_plain] = run(false);
+  REQUIRE(y_plain.grad_fn()->name().find("Relu") != std::string::npos);
+  CHECK(torch::equal(y, y_plain));
+  CHECK(torch::allclose(dx, dx_plain, 1e-12, 1e-12));
+  CHECK(torch::allclose(dln, dln_plain, 1e-12, 1e-12));
+  CHECK(torch::allclose(dl, dl_plain, 1e-12, 1e-12));
+  // A rate outside [0, 1] is still refused when the network is built.
+  OperatorSchedule bad;
+  bad.input("x", 0, 2).output("y", 0);
+  bad.step(into(0).sum(from(0).dropout(-0.5)).named("neg"));
+  CHECK_THAT(build_error(bad), Contains("neg (into (0)): a dropout rate"));
 }
 
 TEST_CASE("FastPaths: each fast path by name, all and none", "[nn][schedule][fast_paths]") {

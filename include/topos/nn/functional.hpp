@@ -512,17 +512,17 @@ inline torch::Tensor combine_terms(const std::vector<torch::Tensor>& terms,
     if (j == unique.size()) unique.push_back(terms[k]), slices.emplace_back();
     slices[j].push_back(static_cast<std::int64_t>(k));
   }
-  // One product n × (K·in) by (K·in) × out through linear_act, whose kernel takes K·in up to 1024.
-  const auto X = torch::cat(unique, 1);  // n × (K·in), term-major
+  // One product n × (K·in) by (K·in) × out over the terms side by side, never concatenated
+  // (linear_blocks): each term's gradient comes back whole, not as a strided slice.
   if (unique.size() == terms.size())
-    return linear_act(X, weight.permute({2, 0, 1}).reshape({-1, weight.size(1)}).t(), {});
+    return linear_blocks(unique, weight.permute({2, 0, 1}).reshape({-1, weight.size(1)}).t());
   std::vector<torch::Tensor> blocks;
   for (const auto& s : slices) {
     auto w = weight.select(2, s[0]);
     for (std::size_t i = 1; i < s.size(); ++i) w = w + weight.select(2, s[i]);
     blocks.push_back(w);
   }
-  return linear_act(X, torch::cat(blocks, 0).t(), {});
+  return linear_blocks(unique, torch::cat(blocks, 0).t());
 }
 
 namespace detail {

@@ -136,6 +136,103 @@ struct LinearFunction : public torch::autograd::Function<LinearFunction> {
   }
 };
 
+// [X_0 | X_1 | ...] Wᵀ without the concatenation (dense_blocks_rows): the blocks' gradients come
+// back as blocks of their own, contiguous, where a concatenation's would be strided slices that
+// each reader copies.
+struct LinearBlocksFunction : public torch::autograd::Function<LinearBlocksFunction> {
+  /// Whether the kernels take these blocks and W (N × ΣK): CPU, one floating type, rows alike,
+  /// each block's width as dense_kernel_fits takes it both ways, and ΣK as linear_act's kernel
+  /// takes it (else linear_act over the concatenation goes to BLAS, and so does this).
+  static bool fits(const std::vector<torch::Tensor>& xs, const torch::Tensor& W) {
+    if (xs.empty() || W.dim() != 2 || !W.device().is_cpu() ||
+        (W.scalar_type() != torch::kFloat && W.scalar_type() != torch::kDouble))
+      return false;
+    std::int64_t K = 0;
+    for (const auto& x : xs) {
+      if (x.dim() != 2 || !x.device().is_cpu() || x.scalar_type() != W.scalar_type() ||
+          x.size(0) != xs[0].size(0) || !dense_kernel_fits(x.size(1), W.size(0)) ||
+          !dense_kernel_fits(W.size(0), x.size(1)))
+        return false;
+      K += x.size(1);
+    }
+    return K == W.size(1) && dense_kernel_fits(K, W.size(0)) &&
+           !(W.size(0) > 64 && use_onednn(xs[0]));
+  }
+  static torch::Tensor product(const std::vector<torch::Tensor>& xs, const torch::Tensor& W) {
+    const auto M = W.t().contiguous();
+    const auto n = xs[0].size(0), N = W.size(0);
+    auto y = torch::empty({n, N}, xs[0].options());
+#if defined(__GNUC__)
+    AT_DISPATCH_FLOATING_TYPES(W.scalar_type(), "topos_linear_blocks", [&] {
+      std::vector<torch::Tensor> held;
+      std::vector<const scalar_t*> X;
+      std::vector<std::int64_t> K;
+      for (const auto& x : xs) {
+        held.push_back(x.contiguous());
+        X.push_back(held.back().data_ptr<scalar_t>()), K.push_back(x.size(1));
+      }
+      const auto S = static_cast<std::int64_t>(xs.size());
+      at::parallel_for(0, n, grain_rows(n, n * W.size(1) * N), [&](std::int64_t b, std::int64_t e) {
+        dense_blocks_clone(X.data(), K.data(), S, M.data_ptr<scalar_t>(), y.data_ptr<scalar_t>(), b,
+                           e, N);
+      });
+    });
+#else
+    throw std::logic_error("linear_blocks: needs GCC's vector extension");
+#endif
+    return y;
+  }
+  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, at::TensorList xs,
+                               const torch::Tensor& W) {
+    std::vector<torch::Tensor> saved(xs.begin(), xs.end());
+    saved.push_back(W);
+    ctx->save_for_backward(saved);
+    return product(std::vector<torch::Tensor>(xs.begin(), xs.end()), W);
+  }
+  static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx,
+                                               torch::autograd::tensor_list grads) {
+    auto saved = ctx->get_saved_variables();
+    const auto W = saved.back().contiguous();
+    saved.pop_back();
+    const auto S = static_cast<std::int64_t>(saved.size());
+    const auto g = grads[0].contiguous();
+    const auto n = g.size(0), N = W.size(0), Ktot = W.size(1);
+    const bool want_dW = ctx->needs_input_grad(static_cast<std::size_t>(S));
+    torch::autograd::tensor_list out(saved.size() + 1);
+    const auto chunks =
+        std::max<std::int64_t>(1, std::min<std::int64_t>(at::get_num_threads(), n / 4096));
+    torch::Tensor dW;
+    if (want_dW)
+      dW = torch::zeros(chunks > 1 ? std::vector<std::int64_t>{chunks, N, Ktot}
+                                   : std::vector<std::int64_t>{N, Ktot},
+                        W.options());
+#if defined(__GNUC__)
+    AT_DISPATCH_FLOATING_TYPES(W.scalar_type(), "topos_linear_blocks_backward", [&] {
+      std::vector<const scalar_t*> X;
+      std::vector<scalar_t*> dX;
+      std::vector<std::int64_t> K;
+      for (std::int64_t s = 0; s < S; ++s) {
+        auto& x = saved[static_cast<std::size_t>(s)];
+        x = x.contiguous();
+        X.push_back(x.data_ptr<scalar_t>()), K.push_back(x.size(1));
+        auto& dx = out[static_cast<std::size_t>(s)];
+        if (ctx->needs_input_grad(static_cast<std::size_t>(s))) dx = torch::empty_like(x);
+        dX.push_back(dx.defined() ? dx.data_ptr<scalar_t>() : nullptr);
+      }
+      at::parallel_for(0, chunks, 1, [&](std::int64_t c0, std::int64_t c1) {
+        for (std::int64_t c = c0; c < c1; ++c)
+          linear_blocks_backward_clone(X.data(), K.data(), S, W.data_ptr<scalar_t>(),
+                                       g.data_ptr<scalar_t>(), dX.data(),
+                                       want_dW ? dW.data_ptr<scalar_t>() + c * N * Ktot : nullptr,
+                                       c * n / chunks, (c + 1) * n / chunks, N);
+      });
+    });
+#endif
+    out.back() = want_dW && chunks > 1 ? dW.sum(0) : dW;
+    return out;
+  }
+};
+
 }  // namespace detail
 
 using detail::Epilogue;
@@ -169,6 +266,29 @@ inline torch::Tensor linear_act(const torch::Tensor& x, const torch::Tensor& W,
   // torch 1.13's Function::apply cannot take an undefined input: no bias is an empty one.
   return detail::LinearFunction::apply(x, W, b.defined() ? b : torch::empty({0}, x.options()),
                                        static_cast<std::int64_t>(act));
+}
+
+/// [x_0 | x_1 | ...] Wᵀ (W N × Σ columns) as one autograd node that never forms the
+/// concatenation, each block's gradient a tensor of its own, where the dense kernels take the
+/// widths (CPU, float or double; each block's columns, their sum and N as linear_act takes
+/// them): the same values as linear_act(torch::cat(xs, 1), W), and the same gradients where its
+/// fused backward takes the sum too (else BLAS's, in another order). Otherwise exactly that.
+inline torch::Tensor linear_blocks(const std::vector<torch::Tensor>& xs, const torch::Tensor& W) {
+  if (xs.empty()) throw std::invalid_argument("linear_blocks: no blocks");
+  std::int64_t K = 0;
+  for (const auto& x : xs) K += x.dim() == 2 ? x.size(1) : 0;
+  if (W.dim() != 2 || K != W.size(1))
+    throw std::invalid_argument(
+        "linear_blocks: blocks of " + std::to_string(K) + " columns in all for a weight of " +
+        (W.dim() == 2 ? std::to_string(W.size(0)) + " x " + std::to_string(W.size(1))
+                      : std::to_string(W.dim()) + " dimensions"));
+  if (xs.size() == 1 || !detail::LinearBlocksFunction::fits(xs, W))
+    return linear_act(xs.size() == 1 ? xs[0] : torch::cat(xs, 1), W, {});
+  bool grad = false;
+  for (const auto& x : xs) grad = grad || x.requires_grad();
+  if (!torch::GradMode::is_enabled() || !(grad || W.requires_grad()))
+    return detail::LinearBlocksFunction::product(xs, W);
+  return detail::LinearBlocksFunction::apply(at::TensorList(xs), W);
 }
 
 }  // namespace topos::nn

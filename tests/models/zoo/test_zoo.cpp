@@ -14,6 +14,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <numeric>
 #include <set>
 #include <type_traits>
 
@@ -662,6 +663,95 @@ TEST_CASE("combine_terms is Σ_k X_k W[:, :, k], a repeated term multiplied once
   }
   REQUIRE_THROWS_WITH(combine_terms({a, b}, torch::randn({3, 2, 3})),
                       Catch::Contains("2 terms for a weight with 3 filters"));
+}
+
+TEST_CASE("linear_blocks is linear_act over the concatenation, bit for bit where it runs",
+          "[nn][conv]") {
+  torch::manual_seed(12);
+  // (rows, output width, block widths): rows leaving tails after blocks of 4, 6, 32 and 48;
+  // blocks of every width the kernels take, one of two panels (128), outputs of 8 to 128; a
+  // block of 7 columns (BLAS's width) and 96 outputs take the concatenation instead.
+  struct Case {
+    std::int64_t n, N;
+    std::vector<std::int64_t> K;
+  };
+  for (const auto& c : {Case{97, 64, {64, 64, 64, 64}}, Case{53, 16, {8, 16, 32, 64}},
+                        Case{130, 128, {64, 128}}, Case{1, 8, {8, 8}}, Case{0, 64, {64, 64}},
+                        Case{9000, 32, {32, 64, 32}}, Case{45, 64, {64, 7}}, Case{31, 96, {64, 64}},
+                        // ΣK 320: the dense kernel with AVX-512, BLAS's without (both paths alike).
+                        Case{77, 64, {64, 64, 64, 64, 64}}}) {
+    for (const auto dt : {torch::kFloat, torch::kDouble}) {
+      INFO(c.n << " rows, " << c.N << " outputs, " << c.K.size() << " blocks, "
+               << (dt == torch::kFloat ? "float" : "double"));
+      struct RestoreThreads {
+        int n = at::get_num_threads();
+        ~RestoreThreads() { at::set_num_threads(n); }
+      } restore;
+      if (c.n > 8192) at::set_num_threads(2);  // dW summed per chunk of rows
+      std::vector<torch::Tensor> xs, xr;
+      std::int64_t K = 0;
+      for (auto k : c.K) {
+        xs.push_back(torch::randn({c.n, k}, dt).requires_grad_(xs.size() != 1));  // one constant
+        xr.push_back(xs.back().detach().clone().requires_grad_(xs.size() != 2));
+        K += k;
+      }
+      const auto W = (torch::randn({c.N, K}, dt) / 8).requires_grad_(true);
+      const auto Wr = W.detach().clone().requires_grad_(true);
+      const auto y = linear_blocks(xs, W);
+      const auto yr = linear_act(torch::cat(xr, 1), Wr, {});
+      REQUIRE(torch::equal(y, yr));  // both the dense kernel, or both BLAS
+      const auto plain = torch::cat(xr, 1).detach().matmul(Wr.detach().t());
+      const double tol = dt == torch::kFloat ? 1e-4 : 1e-12;
+      REQUIRE(torch::allclose(y, plain, tol, tol));
+      const auto R = torch::randn(y.sizes(), dt);
+      (y * R).sum().backward();
+      (yr * R).sum().backward();
+      // The concatenation's backward runs the same kernel where its width ΣK fits it (BLAS's
+      // otherwise: 120 columns), and then the same sums.
+      const bool same_kernel = topos::nn::detail::dense_kernel_fits(c.N, K);
+      REQUIRE(torch::allclose(W.grad(), Wr.grad(), tol, tol));
+      if (same_kernel) REQUIRE(torch::equal(W.grad(), Wr.grad()));
+      for (std::size_t s = 0; s < xs.size(); ++s) {
+        INFO("block " << s);
+        if (s == 1) {
+          REQUIRE_FALSE(xs[s].grad().defined());  // a constant gets none
+          continue;
+        }
+        if (same_kernel) REQUIRE(torch::equal(xs[s].grad(), xr[s].grad()));
+        const auto from_plain =
+            R.matmul(W.detach())
+                .narrow(1,
+                        std::accumulate(c.K.begin(), c.K.begin() + static_cast<std::ptrdiff_t>(s),
+                                        std::int64_t{0}),
+                        c.K[s]);
+        REQUIRE(torch::allclose(xs[s].grad(), from_plain, tol, tol));
+      }
+      // Without a gradient to take: the same values, no autograd node.
+      torch::NoGradGuard no_grad;
+      const auto y0 = linear_blocks(xs, W);
+      REQUIRE_FALSE(y0.requires_grad());
+      REQUIRE(torch::equal(y0, y.detach()));
+    }
+  }
+  // A block twice (its gradients add up) and a strided one, against the concatenation.
+  const auto x = torch::randn({50, 64}).requires_grad_();
+  const auto z = torch::randn({64, 50}).requires_grad_();
+  const auto Wt = torch::randn({16, 192}).requires_grad_();
+  const auto y = linear_blocks({x, z.t(), x}, Wt);
+  const auto x2 = x.detach().clone().requires_grad_();
+  const auto z2 = z.detach().t().contiguous().requires_grad_();
+  const auto W2 = Wt.detach().clone().requires_grad_();
+  const auto y2 = torch::cat({x2, z2, x2}, 1).matmul(W2.t());
+  REQUIRE(torch::allclose(y, y2, 1e-4, 1e-4));
+  y.sum().backward();
+  y2.sum().backward();
+  REQUIRE(torch::allclose(x.grad(), x2.grad(), 1e-4, 1e-4));
+  REQUIRE(torch::allclose(z.grad(), z2.grad().t(), 1e-4, 1e-4));
+  REQUIRE(torch::allclose(Wt.grad(), W2.grad(), 1e-4, 1e-4));
+  const auto a = torch::randn({5, 8}), b = torch::randn({5, 8});
+  REQUIRE_THROWS_WITH(linear_blocks({a, b}, torch::randn({4, 24})),
+                      Catch::Contains("16 columns in all for a weight of 4 x 24"));
+  REQUIRE_THROWS_WITH(linear_blocks({}, torch::randn({4, 24})), Catch::Contains("no blocks"));
 }
 
 TEST_CASE("polynomial filters and the affine power equal dense matrix powers", "[nn][conv]") {

@@ -24,13 +24,15 @@ namespace detail {
 // of M once per four rows; M (K·N·4 bytes, 4 KB at 32 × 32) stays in L1. For the narrow products
 // of message passing (n large, K and N at most 64) this beats OpenBLAS, which packs X and
 // zeroes Y before its kernel, and it applies the bias and the activation before the store.
-// RB, when set, is the rows per block (otherwise as many as the registers allow).
+// RB, when set, is the rows per block (otherwise as many as the registers allow). `accumulate`
+// starts from Y's rows instead of the bias: a product over several blocks of K, each summed in
+// turn onto the last (dense_blocks_rows), adds in the order one product over all of K would.
 #if defined(__GNUC__)
 template <class T, int N, Epilogue E, int VB, int RB = 0>
 static TOPOS_INLINE_KERNEL void dense_rows_fixed(const T* X, const T* M, const T* b, T* Y,
                                                  std::int64_t begin, std::int64_t end,
                                                  std::int64_t K, std::int64_t ldm = N,
-                                                 std::int64_t ldy = N) {
+                                                 std::int64_t ldy = N, bool accumulate = false) {
   // A width narrower than the vector (8 floats on 64 bytes) takes vectors of its own size.
   constexpr int VBe = N * static_cast<int>(sizeof(T)) < VB ? N * static_cast<int>(sizeof(T)) : VB;
   typedef T vec __attribute__((vector_size(VBe)));
@@ -48,7 +50,11 @@ static TOPOS_INLINE_KERNEL void dense_rows_fixed(const T* X, const T* M, const T
   for (; i + R <= end; i += R) {
     vec acc[R][V];
     for (int r = 0; r < R; ++r)
-      for (int j = 0; j < V; ++j) acc[r][j] = bias[j];
+      for (int j = 0; j < V; ++j)
+        if (accumulate)
+          std::memcpy(&acc[r][j], Y + (i + r) * ldy + j * L, sizeof(vec));
+        else
+          acc[r][j] = bias[j];
     for (std::int64_t k = 0; k < K; ++k) {
       vec w[V];
       for (int j = 0; j < V; ++j) std::memcpy(&w[j], M + k * ldm + j * L, sizeof(vec));
@@ -65,7 +71,11 @@ static TOPOS_INLINE_KERNEL void dense_rows_fixed(const T* X, const T* M, const T
   }
   for (; i < end; ++i) {
     vec acc[V];
-    for (int j = 0; j < V; ++j) acc[j] = bias[j];
+    for (int j = 0; j < V; ++j)
+      if (accumulate)
+        std::memcpy(&acc[j], Y + i * ldy + j * L, sizeof(vec));
+      else
+        acc[j] = bias[j];
     for (std::int64_t k = 0; k < K; ++k) {
       const T x = X[i * K + k];
       for (int j = 0; j < V; ++j) {
@@ -90,31 +100,36 @@ constexpr int panel_rows = VB == 64 && sizeof(T) == 4 ? 6 : 0;  // 0: dense_rows
 template <class T, Epilogue E, int VB>
 static TOPOS_INLINE_KERNEL void dense_rows_panels(const T* X, const T* M, const T* b, T* Y,
                                                   std::int64_t begin, std::int64_t end,
-                                                  std::int64_t K, std::int64_t N) {
+                                                  std::int64_t K, std::int64_t N, std::int64_t ldm,
+                                                  bool accumulate) {
   constexpr std::int64_t rows = 48;
   for (std::int64_t i0 = begin; i0 < end; i0 += rows) {
     const std::int64_t i1 = std::min(end, i0 + rows);
     for (std::int64_t c = 0; c < N; c += 64)
       dense_rows_fixed<T, 64, E, VB, panel_rows<T, VB>>(X, M + c, b ? b + c : nullptr, Y + c, i0,
-                                                        i1, K, N, N);
+                                                        i1, K, ldm, N, accumulate);
   }
 }
 
+// Any width dense_kernel_fits takes; M's rows `ldm` apart (N for a whole matrix, more for a
+// block of M's columns).
 template <class T, Epilogue E, int VB>
 static TOPOS_INLINE_KERNEL void dense_rows_width(const T* X, const T* M, const T* b, T* Y,
                                                  std::int64_t begin, std::int64_t end,
-                                                 std::int64_t K, std::int64_t N) {
+                                                 std::int64_t K, std::int64_t N,
+                                                 std::int64_t ldm = 0, bool accumulate = false) {
+  if (ldm == 0) ldm = N;
   switch (N) {
     case 8:
-      return dense_rows_fixed<T, 8, E, VB>(X, M, b, Y, begin, end, K);
+      return dense_rows_fixed<T, 8, E, VB>(X, M, b, Y, begin, end, K, ldm, N, accumulate);
     case 16:
-      return dense_rows_fixed<T, 16, E, VB>(X, M, b, Y, begin, end, K);
+      return dense_rows_fixed<T, 16, E, VB>(X, M, b, Y, begin, end, K, ldm, N, accumulate);
     case 32:
-      return dense_rows_fixed<T, 32, E, VB>(X, M, b, Y, begin, end, K);
+      return dense_rows_fixed<T, 32, E, VB>(X, M, b, Y, begin, end, K, ldm, N, accumulate);
     case 64:
-      return dense_rows_fixed<T, 64, E, VB>(X, M, b, Y, begin, end, K);
+      return dense_rows_fixed<T, 64, E, VB>(X, M, b, Y, begin, end, K, ldm, N, accumulate);
     default:
-      return dense_rows_panels<T, E, VB>(X, M, b, Y, begin, end, K, N);
+      return dense_rows_panels<T, E, VB>(X, M, b, Y, begin, end, K, N, ldm, accumulate);
   }
 }
 
@@ -269,6 +284,25 @@ static TOPOS_INLINE_KERNEL void outer_block_fixed(const T* dZ, const T* x, T* dW
   for (; n < N; ++n) outer_tile_fixed<T, KP, 1, VB>(dZ, x, dW, rows, n, N, ldx, ldw);
 }
 
+// outer_block_fixed for any width dense_kernel_fits takes (x's rows K apart, dW's ldw).
+template <class T, int VB>
+static TOPOS_INLINE_KERNEL void outer_block_any(const T* z, const T* x, T* dW, std::int64_t rows,
+                                                std::int64_t N, std::int64_t K, std::int64_t ldw) {
+  switch (K) {
+    case 8:
+      return outer_block_fixed<T, 8, VB>(z, x, dW, rows, N, K, ldw);
+    case 16:
+      return outer_block_fixed<T, 16, VB>(z, x, dW, rows, N, K, ldw);
+    case 32:
+      return outer_block_fixed<T, 32, VB>(z, x, dW, rows, N, K, ldw);
+    case 64:
+      return outer_block_fixed<T, 64, VB>(z, x, dW, rows, N, K, ldw);
+    default:  // a multiple of 64: panels of dW's columns
+      for (std::int64_t c = 0; c < K; c += 64)
+        outer_block_fixed<T, 64, VB>(z, x + c, dW + c, rows, N, K, ldw);
+  }
+}
+
 // The backward of act(x Wᵀ + b) (x n × K, W N × K) over rows [begin, end), a block of rows at a
 // time so that dZ = g ⊙ act'(y) never leaves L1: dx = dZ W, and dW, db accumulate into the
 // caller's buffers. Each of the three is skipped where its pointer is null.
@@ -290,26 +324,7 @@ static TOPOS_INLINE_KERNEL void linear_backward_rows(const T* x, const T* W, con
     }
     if (dx)  // dx = dZ W: the forward's product with W's K columns as outputs
       dense_rows_width<T, Epilogue::none, VB>(z, W, nullptr, dx + i0 * K, 0, rows, N, K);
-    if (dW) {
-      switch (K) {
-        case 8:
-          outer_block_fixed<T, 8, VB>(z, x + i0 * K, dW, rows, N);
-          break;
-        case 16:
-          outer_block_fixed<T, 16, VB>(z, x + i0 * K, dW, rows, N);
-          break;
-        case 32:
-          outer_block_fixed<T, 32, VB>(z, x + i0 * K, dW, rows, N);
-          break;
-        case 64:
-          outer_block_fixed<T, 64, VB>(z, x + i0 * K, dW, rows, N);
-          break;
-        default:  // a multiple of 64: panels of dW's columns
-          for (std::int64_t c = 0; c < K; c += 64)
-            outer_block_fixed<T, 64, VB>(z, x + i0 * K + c, dW + c, rows, N, K, K);
-          break;
-      }
-    }
+    if (dW) outer_block_any<T, VB>(z, x + i0 * K, dW, rows, N, K, K);
     if (db)
       for (std::int64_t r = 0; r < rows; ++r)
         for (std::int64_t n = 0; n < N; ++n) db[n] += z[r * N + n];
@@ -368,6 +383,91 @@ inline void linear_backward_clone(const double* x, const double* W, const double
 #endif
   linear_backward_double(x, W, y, g, dx, dW, db, begin, end, K, N, e);
 }
+#endif
+
+// Blocks of columns side by side without their concatenation: X = [X_0 | X_1 | ...], X_s
+// n × K[s] (contiguous, S of them), M (ΣK) × N. Y = X M over rows [begin, end), each block of 48
+// rows summing the blocks of K in turn while its Y stays in L1: the sums of one product over
+// the concatenation, in its order, without writing the concatenation (a filter's taps:
+// combine_terms).
+#if defined(__GNUC__)
+template <class T, int VB>
+static TOPOS_INLINE_KERNEL void dense_blocks_rows(const T* const* X, const std::int64_t* K,
+                                                  std::int64_t S, const T* M, T* Y,
+                                                  std::int64_t begin, std::int64_t end,
+                                                  std::int64_t N) {
+  constexpr std::int64_t rows = 48;
+  for (std::int64_t i0 = begin; i0 < end; i0 += rows) {
+    const std::int64_t i1 = std::min(end, i0 + rows);
+    const T* m = M;
+    for (std::int64_t s = 0; s < S; m += K[s] * N, ++s)
+      dense_rows_width<T, Epilogue::none, VB>(X[s], m, nullptr, Y, i0, i1, K[s], N, N, s > 0);
+  }
+}
+// Its backward from dY = g (n × N): dX_s = g W_s (W = Mᵀ, N × ΣK, W_s its K[s] columns) into
+// dX[s] where not null, and dW += gᵀ X (dW N × ΣK) where not null, over rows [begin, end).
+template <class T, int VB>
+static TOPOS_INLINE_KERNEL void linear_blocks_backward_rows(const T* const* X,
+                                                            const std::int64_t* K, std::int64_t S,
+                                                            const T* W, const T* g, T* const* dX,
+                                                            T* dW, std::int64_t begin,
+                                                            std::int64_t end, std::int64_t N) {
+  std::int64_t ldw = 0;
+  for (std::int64_t s = 0; s < S; ++s) ldw += K[s];
+  const std::int64_t B = std::max<std::int64_t>(1, std::min<std::int64_t>(32, 32 * 256 / N));
+  for (std::int64_t i0 = begin; i0 < end; i0 += B) {
+    const std::int64_t rows = std::min(B, end - i0);
+    const T* z = g + i0 * N;
+    std::int64_t off = 0;
+    for (std::int64_t s = 0; s < S; off += K[s], ++s) {
+      if (dX[s])
+        dense_rows_width<T, Epilogue::none, VB>(z, W + off, nullptr, dX[s] + i0 * K[s], 0, rows, N,
+                                                K[s], ldw);
+      if (dW) outer_block_any<T, VB>(z, X[s] + i0 * K[s], dW + off, rows, N, K[s], ldw);
+    }
+  }
+}
+#define TOPOS_BLOCKS_KERNELS(T, NAME, ATTR, VB)                                         \
+  [[maybe_unused]] ATTR static void dense_blocks_##NAME(                                \
+      const T* const* X, const std::int64_t* K, std::int64_t S, const T* M, T* Y,       \
+      std::int64_t begin, std::int64_t end, std::int64_t N) {                           \
+    dense_blocks_rows<T, VB>(X, K, S, M, Y, begin, end, N);                             \
+  }                                                                                     \
+  [[maybe_unused]] ATTR static void linear_blocks_backward_##NAME(                      \
+      const T* const* X, const std::int64_t* K, std::int64_t S, const T* W, const T* g, \
+      T* const* dX, T* dW, std::int64_t begin, std::int64_t end, std::int64_t N) {      \
+    linear_blocks_backward_rows<T, VB>(X, K, S, W, g, dX, dW, begin, end, N);           \
+  }
+TOPOS_BLOCKS_KERNELS(float, float, TOPOS_SIMD_CLONES, 32)
+TOPOS_BLOCKS_KERNELS(double, double, TOPOS_SIMD_CLONES, 32)
+#if defined(TOPOS_HAVE_V4)
+TOPOS_BLOCKS_KERNELS(float, float_v4, TOPOS_V4, 64)
+TOPOS_BLOCKS_KERNELS(double, double_v4, TOPOS_V4, 64)
+#endif
+#undef TOPOS_BLOCKS_KERNELS
+#define TOPOS_BLOCKS_CLONE(T, NAME)                                                               \
+  inline void dense_blocks_clone(const T* const* X, const std::int64_t* K, std::int64_t S,        \
+                                 const T* M, T* Y, std::int64_t begin, std::int64_t end,          \
+                                 std::int64_t N) {                                                \
+    TOPOS_IF_V4(return dense_blocks_##NAME##_v4(X, K, S, M, Y, begin, end, N));                   \
+    dense_blocks_##NAME(X, K, S, M, Y, begin, end, N);                                            \
+  }                                                                                               \
+  inline void linear_blocks_backward_clone(                                                       \
+      const T* const* X, const std::int64_t* K, std::int64_t S, const T* W, const T* g,           \
+      T* const* dX, T* dW, std::int64_t begin, std::int64_t end, std::int64_t N) {                \
+    TOPOS_IF_V4(return linear_blocks_backward_##NAME##_v4(X, K, S, W, g, dX, dW, begin, end, N)); \
+    linear_blocks_backward_##NAME(X, K, S, W, g, dX, dW, begin, end, N);                          \
+  }
+#if defined(TOPOS_HAVE_V4)
+#define TOPOS_IF_V4(call) \
+  if (cpu_has_v4()) call
+#else
+#define TOPOS_IF_V4(call)
+#endif
+TOPOS_BLOCKS_CLONE(float, float)
+TOPOS_BLOCKS_CLONE(double, double)
+#undef TOPOS_IF_V4
+#undef TOPOS_BLOCKS_CLONE
 #endif
 
 }  // namespace detail

@@ -139,7 +139,11 @@ class Chain : public detail::OperationList {
   Derived&& act(Activation u, double negative_slope = 0.01) && {
     return std::move(act(u, negative_slope));
   }
-  Derived& dropout(double p) & { return apply(builtin::Dropout(p)); }
+  /// Dropout at rate p. Rate 0 is no operation and is left out, so that what is around it fuses
+  /// (a Linear and the relu after it: a TopoBench model run without dropout).
+  Derived& dropout(double p) & {
+    return p == 0 ? static_cast<Derived&>(*this) : apply(builtin::Dropout(p));
+  }
   Derived&& dropout(double p) && { return std::move(dropout(p)); }
   Derived& unit_rows() & { return apply(builtin::UnitRows()); }
   Derived&& unit_rows() && { return std::move(unit_rows()); }

@@ -86,8 +86,18 @@ TOPOS_INLINE torch::Tensor ChannelNorm::forward(RunContext& ctx, const torch::Te
   if (batch_) return ctx.module<torch::nn::BatchNorm1dImpl>(path_).forward(x);
   return nn::layer_norm(x, ctx.module<torch::nn::LayerNormImpl>(path_));
 }
+TOPOS_INLINE torch::Tensor ChannelNorm::forward_activated(RunContext& ctx, const torch::Tensor& x,
+                                                          Activation activation,
+                                                          double negative_slope) const {
+  if (batch_) return apply_activation(forward(ctx, x), activation, negative_slope);
+  return nn::layer_norm(x, ctx.module<torch::nn::LayerNormImpl>(path_), epilogue_of(activation));
+}
 TOPOS_INLINE OperationTraits ChannelNorm::traits() const {
-  if (!batch_) return row_wise("layer_norm");
+  if (!batch_) {
+    auto t = row_wise("layer_norm");
+    t.fuses_activation = true;
+    return t;
+  }
   OperationTraits t;  // batch statistics: every row counts
   t.reads_cochains = false;
   t.identity = "batch_norm";

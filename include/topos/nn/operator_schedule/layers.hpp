@@ -70,6 +70,9 @@ class ChannelNorm final : public Operation {
   std::string str(const std::string& x) const override;
   TermShape infer(BuildContext& ctx, TermShape x) const override;
   torch::Tensor forward(RunContext& ctx, const torch::Tensor& x) const override;
+  /// LayerNorm's kernel applies relu or elu before its store (BatchNorm: forward, then act).
+  torch::Tensor forward_activated(RunContext& ctx, const torch::Tensor& x, Activation activation,
+                                  double negative_slope) const override;
   OperationTraits traits() const override;
 
  private:
