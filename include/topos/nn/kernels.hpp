@@ -30,6 +30,13 @@ namespace topos::nn {
 
 namespace detail {
 
+// How many chunks of rows a fused dense backward splits n rows into, each summing its own partial
+// dW (and db): one per thread, each of at least 4096 rows. linear_act's and linear_blocks' take
+// the same, so that their weight gradients sum alike.
+inline std::int64_t backward_chunks(std::int64_t n) {
+  return std::max<std::int64_t>(1, std::min<std::int64_t>(at::get_num_threads(), n / 4096));
+}
+
 // act(x Wᵀ + b) as one node keeping x, W and its output: the activation runs in place on the
 // product (one pass, vectorised) and the backward starts from dY ⊙ act'(Y).
 struct LinearFunction : public torch::autograd::Function<LinearFunction> {
@@ -108,8 +115,7 @@ struct LinearFunction : public torch::autograd::Function<LinearFunction> {
                                                      Epilogue e, bool want_dx, bool want_dW,
                                                      bool want_db) {
     const auto n = x.size(0), K = W.size(1), N = W.size(0);
-    const auto chunks =
-        std::max<std::int64_t>(1, std::min<std::int64_t>(at::get_num_threads(), n / 4096));
+    const auto chunks = backward_chunks(n);
     torch::Tensor dx = want_dx ? torch::empty_like(x) : torch::Tensor();
     // One chunk (one thread, or under 8192 rows) sums straight into the result: no reduction.
     const auto shape = [&](std::vector<std::int64_t> s) {
@@ -199,8 +205,7 @@ struct LinearBlocksFunction : public torch::autograd::Function<LinearBlocksFunct
     const auto n = g.size(0), N = W.size(0), Ktot = W.size(1);
     const bool want_dW = ctx->needs_input_grad(static_cast<std::size_t>(S));
     torch::autograd::tensor_list out(saved.size() + 1);
-    const auto chunks =
-        std::max<std::int64_t>(1, std::min<std::int64_t>(at::get_num_threads(), n / 4096));
+    const auto chunks = backward_chunks(n);
     torch::Tensor dW;
     if (want_dW)
       dW = torch::zeros(chunks > 1 ? std::vector<std::int64_t>{chunks, N, Ktot}

@@ -125,9 +125,16 @@ static TOPOS_INLINE_KERNEL void epilogue_vec(V& v) {
 }
 #endif
 
-// The epilogue on its own, in place (after a dense product), and its backward from the output:
-// g ⊙ act'(y), where relu' = [y > 0] and elu' = 1 for y > 0, y + 1 below (as torch's elu_backward
-// with is_result).
+// The backward of an epilogue from its output y, in place on g (a scalar or a vector of T, by
+// reference: a vector returned by value across instruction sets changes the ABI): g ⊙ act'(y),
+// where relu' = [y > 0] and elu' = 1 for y > 0, y + 1 below (as torch's elu_backward with
+// is_result).
+template <class T, class V>
+static TOPOS_INLINE_KERNEL void epilogue_grad(const V& y, V& g, Epilogue e) {
+  g = y > T(0) ? g : e == Epilogue::relu ? V{} : g * (y + T(1));
+}
+
+// The epilogue on its own, in place (after a dense product), and its backward (epilogue_grad).
 template <class T, int VB = 32>
 static TOPOS_INLINE_KERNEL void epilogue_rows(T* y, const T* g, T* out, std::int64_t n,
                                               Epilogue e) {
@@ -145,16 +152,19 @@ static TOPOS_INLINE_KERNEL void epilogue_rows(T* y, const T* g, T* out, std::int
     } else {
       vec gv;
       std::memcpy(&gv, g + i, sizeof gv);
-      const vec r = v > T(0) ? gv : e == Epilogue::relu ? vec{} : gv * (v + T(1));
-      std::memcpy(out + i, &r, sizeof r);
+      epilogue_grad<T>(v, gv, e);
+      std::memcpy(out + i, &gv, sizeof gv);
     }
   }
 #endif
   for (; i < n; ++i) {
     if (!g)
       y[i] = epilogue_scalar(y[i], e);
-    else
-      out[i] = y[i] > T(0) ? g[i] : e == Epilogue::relu ? T(0) : g[i] * (y[i] + T(1));
+    else {
+      T r = g[i];
+      epilogue_grad<T>(y[i], r, e);
+      out[i] = r;
+    }
   }
 }
 [[maybe_unused]] TOPOS_SIMD_CLONES static void epilogue_rows_float(float* y, const float* g,

@@ -128,7 +128,9 @@ static TOPOS_INLINE_KERNEL void layer_norm_backward_rows(const T* dy, const T* y
     // dy at channel c, times act'(y) after an activation.
     const auto grad = [&](std::int64_t c) {
       if constexpr (E == Epilogue::none) return dr[c];
-      return yr[c] > T(0) ? dr[c] : E == Epilogue::relu ? T(0) : dr[c] * (yr[c] + T(1));
+      T d = dr[c];
+      epilogue_grad<T>(yr[c], d, E);
+      return d;
     };
     const T m = mean[i], r = rstd[i];
     T sg = 0, sgx = 0;
@@ -141,7 +143,7 @@ static TOPOS_INLINE_KERNEL void layer_norm_backward_rows(const T* dy, const T* y
       if constexpr (E != Epilogue::none) {
         vec yv;
         std::memcpy(&yv, yr + c, sizeof yv);
-        d = yv > T(0) ? d : E == Epilogue::relu ? vec{} : d * (yv + T(1));
+        epilogue_grad<T>(yv, d, E);
       }
       std::memcpy(&v, xr + c, sizeof v);
       const vec xh = (v - m) * r;
@@ -187,7 +189,7 @@ static TOPOS_INLINE_KERNEL void layer_norm_backward_rows(const T* dy, const T* y
       if constexpr (E != Epilogue::none) {
         vec yv;
         std::memcpy(&yv, yr + c, sizeof yv);
-        d = yv > T(0) ? d : E == Epilogue::relu ? vec{} : d * (yv + T(1));
+        epilogue_grad<T>(yv, d, E);
       }
       std::memcpy(&v, xr + c, sizeof v);
       if (w) {
