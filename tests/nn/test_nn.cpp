@@ -491,6 +491,120 @@ TEST_CASE("nn::layer_norm with an activation is one node: the same as LayerNorm 
                         torch::relu(torch::layer_norm(x3, {8}))));
 }
 
+TEST_CASE("nn::add_layer_norm forms x + r in its kernel: LayerNorm of the sum, gradients included",
+          "[nn][kernels]") {
+  torch::manual_seed(19);
+  // r a tensor of x's shape (a residual connection) or one row (a bias); every activation; rows
+  // over several blocks of the backward's partial sums; a tail of channels.
+  for (const auto dtype : {torch::kFloat, torch::kDouble})
+    for (const std::int64_t C : {64, 37})
+      for (const std::int64_t n : {3, 3000})
+        for (const bool row : {false, true})
+          for (const auto act : {Epilogue::none, Epilogue::relu, Epilogue::elu}) {
+            INFO("dtype " << dtype << ", " << n << " × " << C << (row ? ", a row" : ", a tensor")
+                          << ", act " << static_cast<int>(act));
+            const auto opt = torch::TensorOptions().dtype(dtype);
+            const auto x0 = (torch::randn({n, C}, opt) * 3 + 1).requires_grad_();
+            const auto r0 =
+                torch::randn(row ? std::vector<std::int64_t>{C} : std::vector<std::int64_t>{n, C},
+                             opt)
+                    .requires_grad_();
+            const auto w0 = torch::randn({C}, opt).requires_grad_();
+            const auto b0 = torch::randn({C}, opt).requires_grad_();
+            const auto copy = [](const torch::Tensor& t) {
+              return t.detach().clone().requires_grad_();
+            };
+            const auto x1 = copy(x0), r1 = copy(r0), w1 = copy(w0), b1 = copy(b0);
+            // Unfused: torch's add, topos's LayerNorm with the activation.
+            const auto want = nn::layer_norm(x0 + r0, w0, b0, 1e-5, act);
+            const auto got = nn::add_layer_norm(x1, r1, w1, b1, 1e-5, act);
+            REQUIRE(got.grad_fn()->name().find("LayerNormFunction") != std::string::npos);
+            // The same sum, normalised by the same kernel: the same bits.
+            REQUIRE(torch::equal(got, want));
+            const auto dy = torch::randn({n, C}, opt);
+            want.backward(dy);
+            got.backward(dy);
+            CHECK(torch::equal(x1.grad(), x0.grad()));
+            CHECK(torch::equal(w1.grad(), w0.grad()));
+            CHECK(torch::equal(b1.grad(), b0.grad()));
+            // A row's gradient is dx summed over the rows: in blocks here, by torch there.
+            const double tol = dtype == torch::kFloat ? 1e-4 : 1e-12;
+            CHECK(torch::allclose(r1.grad(), r0.grad(), tol, tol));
+            if (!row) CHECK(torch::equal(r1.grad(), r0.grad()));
+            torch::NoGradGuard no_grad;  // a rollout's path: no node, the same values
+            CHECK(torch::equal(nn::add_layer_norm(x1, r1, w1, b1, 1e-5, act), got.detach()));
+          }
+  // A residual that needs a gradient while x does not; r of another shape goes through torch's
+  // broadcasting add.
+  const auto x = torch::randn({5, 8});
+  const auto r = torch::randn({5, 8}).requires_grad_();
+  nn::add_layer_norm(x, r, {}, {}).sum().backward();
+  CHECK(r.grad().abs().max().item<double>() < 1e-5);  // a LayerNorm's rows sum to 0
+  const auto r2 = torch::randn({1, 8});
+  CHECK(torch::allclose(nn::add_layer_norm(x, r2, {}, {}), torch::layer_norm(x + r2, {8}), 1e-5,
+                        1e-5));
+}
+
+TEST_CASE("nn::head_scores is one node: per cell and head <f_h, a_h>, gradients included",
+          "[nn][kernels]") {
+  torch::manual_seed(17);
+  // Heads of a vector's channels, a tail, fewer than a vector; rows over several blocks of the
+  // backward's partial sums; a the parameter's slice as Attend passes it.
+  for (const auto dtype : {torch::kFloat, torch::kDouble})
+    for (const auto& [H, C] :
+         {std::pair<std::int64_t, std::int64_t>{4, 32}, {1, 64}, {3, 7}, {2, 3}})
+      for (const std::int64_t n : {1, 5, 5000}) {
+        INFO("dtype " << dtype << ", " << n << " cells, " << H << " heads of " << C);
+        const auto opt = torch::TensorOptions().dtype(dtype);
+        const auto f0 = torch::randn({n, H * C}, opt).requires_grad_();
+        const auto f1 = f0.detach().clone().requires_grad_();
+        const auto p0 = torch::randn({2 * H * C}, opt).requires_grad_();
+        const auto p1 = p0.detach().clone().requires_grad_();
+        // The product written out with torch's ops, in double for the reference.
+        const auto want = (f0.to(torch::kDouble).view({n, H, C}) *
+                           p0.narrow(0, H * C, H * C).to(torch::kDouble).view({1, H, C}))
+                              .sum(-1);
+        const auto got = nn::head_scores(f1, p1.narrow(0, H * C, H * C), H);
+        REQUIRE(got.grad_fn()->name().find("HeadScores") != std::string::npos);
+        REQUIRE(got.sizes() == (H == 1 ? torch::IntArrayRef{n} : torch::IntArrayRef{n, H}));
+        const double tol = dtype == torch::kFloat ? 1e-5 : 1e-13;
+        CHECK(torch::allclose(got.to(torch::kDouble), want.reshape(got.sizes()), tol, tol));
+        const auto g = torch::randn(got.sizes(), opt);
+        (want.reshape(got.sizes()) * g.to(torch::kDouble)).sum().backward();
+        (got * g).sum().backward();
+        CHECK(
+            torch::allclose(f1.grad().to(torch::kDouble), f0.grad().to(torch::kDouble), tol, tol));
+        CHECK(torch::allclose(p1.grad().to(torch::kDouble), p0.grad().to(torch::kDouble),
+                              tol * std::sqrt(double(n)), tol * std::sqrt(double(n))));
+        CHECK(p1.grad().narrow(0, 0, H * C).abs().max().item<double>() == 0);  // not the slice
+        {
+          torch::NoGradGuard no_grad;  // no node: the same values
+          CHECK(torch::equal(nn::head_scores(f1, p1.narrow(0, H * C, H * C), H), got.detach()));
+        }
+        // Only a needing its gradient (f a constant), and a thread count of two: the same bits.
+        const auto f2 = f1.detach();
+        const auto p2 = p1.detach().clone().requires_grad_();
+        const int threads = at::get_num_threads();
+        at::set_num_threads(2);
+        (nn::head_scores(f2, p2.narrow(0, H * C, H * C), H) * g).sum().backward();
+        at::set_num_threads(1);
+        p1.grad().zero_();
+        (nn::head_scores(f2, p1.narrow(0, H * C, H * C), H) * g).sum().backward();
+        at::set_num_threads(threads);
+        CHECK(torch::equal(p2.grad(), p1.grad()));
+      }
+  // Channels the heads do not divide, or weights of another count, are refused; other devices
+  // and dtypes take torch's ops.
+  CHECK_THROWS_WITH(nn::head_scores(torch::randn({3, 7}), torch::randn({7}), 2),
+                    Catch::Contains("7 channels with 7 attention weights in 2 heads"));
+  CHECK_THROWS_WITH(nn::head_scores(torch::randn({3, 8}), torch::randn({6}), 2),
+                    Catch::Contains("8 channels with 6 attention weights"));
+  const auto fi = torch::randn({3, 4}, torch::kBFloat16), ai = torch::randn({4}, torch::kBFloat16);
+  CHECK(torch::allclose(nn::head_scores(fi, ai, 2).to(torch::kFloat),
+                        (fi.view({3, 2, 2}) * ai.view({1, 2, 2})).sum(-1).to(torch::kFloat), 1e-2,
+                        1e-2));
+}
+
 TEST_CASE("medium matmul precision: bfloat16 products, float32 out, close to highest",
           "[nn][mlp]") {
   torch::manual_seed(3);

@@ -1196,7 +1196,7 @@ TEST_CASE("plan_str lists what forward runs with its FLOPs, counted by hand",
   CHECK(step(slow, "taps").route == StepRoute::general);
   CHECK_THAT(slow.str(), Contains("fast paths: row_subset, prefix_cache, compact_cochains, "
                                   "split_first_layer, reorder_products, fuse_activations, "
-                                  "fuse_products, fuse_attention\n"));
+                                  "fuse_products, fuse_attention, fuse_residuals\n"));
   CHECK(torch::allclose(taps->forward(x, ops).at("y_1"), fast, 1e-12, 1e-12));
 }
 
@@ -1246,8 +1246,105 @@ TEST_CASE("dropout(0) is left out and a LayerNorm fuses the activation after it"
   CHECK_THAT(build_error(bad), Contains("neg (into (0)): a dropout rate"));
 }
 
+TEST_CASE("fuse_residuals: a sum of two terms, or a bias, forms in the LayerNorm after it",
+          "[nn][schedule][fast_paths]") {
+  // AllSetTransformer's block: messages plus a bias (the query) into a LayerNorm; then the
+  // residual sum into a LayerNorm and its relu.
+  OperatorSchedule s;
+  s.input("x", 0, 8);
+  s.step(into(0, "h").sum(from(0).linear("l", 8).bias("q", {2, 4}).layer_norm("ln0")).named("pma"));
+  s.step(into(0)
+             .sum(from(0), from(0, "h").linear("m", 8, false).act(Activation::relu))
+             .layer_norm("ln1")
+             .act(Activation::relu)
+             .named("residual"));
+  s.step(into(0).sum(from(0), from(0, "h")).mean().layer_norm("ln2").named("mean"));  // not a sum
+  s.output("y", 0);
+  OperatorNetwork net(s);
+  net->to(torch::kDouble);
+  torch::manual_seed(7);
+  {
+    torch::NoGradGuard no_grad;
+    net->named_parameters()["q"].normal_();
+  }
+  const auto x0 = torch::randn({300, 8}, torch::kDouble);
+  const auto run = [&](FastPaths f) {
+    net->fast_paths() = f;
+    net->zero_grad();
+    const auto x = x0.clone().requires_grad_();
+    const auto y = net->forward({{"x", x}}, {}).at("y");
+    (y * torch::linspace(-1, 1, 8, torch::kDouble)).sum().backward();
+    std::vector<torch::Tensor> out{y, x.grad()};
+    for (const auto& p : net->parameters()) out.push_back(p.grad().clone());
+    return out;
+  };
+  const auto fused = run(FastPaths::none().fuse_residuals(true).fuse_activations(true));
+  const auto plain = run(FastPaths::none().fuse_activations(true));
+  const auto alone = run(FastPaths::none().fuse_residuals(true));  // the relu on its own
+  const auto off = run(FastPaths::none());
+  const auto all = run(FastPaths::all());
+  REQUIRE(fused.size() == plain.size());
+  for (std::size_t i = 0; i < fused.size(); ++i) {
+    INFO("value " << i);
+    // The sum formed in the kernel is torch's add's, normalised by the same kernel.
+    CHECK(torch::allclose(fused[i], plain[i], 1e-12, 1e-12));
+    CHECK(torch::allclose(alone[i], off[i], 1e-12, 1e-12));
+    CHECK(torch::allclose(fused[i], off[i], 1e-12, 1e-12));
+    CHECK(torch::allclose(all[i], off[i], 1e-12, 1e-12));
+  }
+  CHECK(torch::equal(fused[0], plain[0]));
+  CHECK(torch::equal(alone[0], off[0]));
+  // The nodes: with the fast path no add is left between the products and the LayerNorms.
+  net->fast_paths() = FastPaths::none().fuse_residuals(true).fuse_activations(true);
+  const auto y = net->forward({{"x", x0.clone().requires_grad_()}}, {}).at("y");
+  std::set<std::string> names;
+  std::vector<torch::autograd::Node*> todo{y.grad_fn().get()};
+  while (!todo.empty()) {
+    auto* n = todo.back();
+    todo.pop_back();
+    const auto id = n ? n->name() + "@" + std::to_string(reinterpret_cast<std::uintptr_t>(n)) : "";
+    if (n == nullptr || !names.insert(id).second) continue;
+    for (const auto& e : n->next_edges()) todo.push_back(e.function.get());
+  }
+  int adds = 0, norms = 0;
+  for (const auto& n : names) {
+    adds += n.rfind("AddBackward", 0) == 0;
+    norms += n.find("LayerNormFunction") != std::string::npos;
+  }
+  CHECK(norms == 3);
+  CHECK(adds == 1);  // the mean step's sum, which is not fused
+  // A user's operation declaring the traits gets the path: forward_residual with the two terms.
+  struct Doubled final : Operation {
+    mutable int fused_calls = 0;
+    std::string str(const std::string& x) const override { return "2·(" + x + ")"; }
+    TermShape infer(BuildContext&, TermShape x) const override { return x; }
+    torch::Tensor forward(RunContext&, const torch::Tensor& x) const override { return 2 * x; }
+    torch::Tensor forward_residual(RunContext& ctx, const torch::Tensor& x, const torch::Tensor& r,
+                                   std::optional<Activation> a, double slope) const override {
+      ++fused_calls;
+      return Operation::forward_residual(ctx, x, r, a, slope);
+    }
+    OperationTraits traits() const override {
+      OperationTraits t;
+      t.fuses_residual = true;
+      return t;
+    }
+  };
+  auto doubled = std::make_shared<Doubled>();
+  OperatorSchedule u;
+  u.input("x", 0, 3).output("y", 0);
+  u.step(into(0).sum(from(0), from(0).scale(3)).apply(doubled).act(Activation::relu));
+  OperatorNetwork user(u);
+  const auto xu = torch::randn({4, 3});
+  CHECK(torch::allclose(user->forward({{"x", xu}}, {}).at("y"), torch::relu(8 * xu)));
+  CHECK(doubled->fused_calls == 1);
+  user->fast_paths().fuse_residuals(false);
+  CHECK(torch::allclose(user->forward({{"x", xu}}, {}).at("y"), torch::relu(8 * xu)));
+  CHECK(doubled->fused_calls == 1);
+}
+
 TEST_CASE("FastPaths: each fast path by name, all and none", "[nn][schedule][fast_paths]") {
-  CHECK(FastPaths::names().size() == 9);
+  CHECK(FastPaths::names().size() == 10);
   for (const auto& name : FastPaths::names()) {
     CHECK(FastPaths().get(name));
     CHECK_FALSE(FastPaths::none().get(name));

@@ -290,13 +290,69 @@ inline torch::Tensor attention_weights(const SparseOperator& A, const torch::Ten
   return s;
 }
 
+namespace detail {
+// head_scores' node: it keeps f and a; its backward is one pass over f's rows
+// (kernels/attention.hpp).
+struct HeadScoresFunction : public torch::autograd::Function<HeadScoresFunction> {
+  static torch::Tensor compute(const torch::Tensor& f, const torch::Tensor& a, std::int64_t H) {
+    auto out =
+        H == 1 ? torch::empty({f.size(0)}, f.options()) : torch::empty({f.size(0), H}, f.options());
+    AT_DISPATCH_FLOATING_TYPES(f.scalar_type(), "topos_head_scores", [&] {
+      head_scores_forward<scalar_t>(f.data_ptr<scalar_t>(), a.data_ptr<scalar_t>(),
+                                    out.data_ptr<scalar_t>(), f.size(0), H, f.size(1) / H);
+    });
+    return out;
+  }
+  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& f,
+                               const torch::Tensor& a, std::int64_t H) {
+    const auto fc = f.contiguous(), ac = a.contiguous();
+    ctx->save_for_backward({fc, ac});
+    ctx->saved_data["heads"] = H;
+    return compute(fc, ac, H);
+  }
+  static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx,
+                                               torch::autograd::tensor_list grads) {
+    const auto s = ctx->get_saved_variables();
+    const auto &f = s[0], &a = s[1];
+    const auto H = ctx->saved_data["heads"].toInt();
+    const auto g = grads[0].contiguous();
+    torch::Tensor df, da;
+    if (ctx->needs_input_grad(0)) df = torch::empty_like(f);
+    if (ctx->needs_input_grad(1)) da = torch::zeros_like(a);
+    AT_DISPATCH_FLOATING_TYPES(f.scalar_type(), "topos_head_scores_backward", [&] {
+      head_scores_backward<scalar_t>(
+          g.data_ptr<scalar_t>(), f.data_ptr<scalar_t>(), a.data_ptr<scalar_t>(),
+          df.defined() ? df.data_ptr<scalar_t>() : nullptr,
+          da.defined() ? da.data_ptr<scalar_t>() : nullptr, f.size(0), H, f.size(1) / H);
+    });
+    return {df, da, torch::Tensor()};
+  }
+};
+}  // namespace detail
+
 /// Per cell and head, <f_h, a_h>: f (cells × heads·C) and a (heads·C entries) split head-major.
-/// One head: the vector f·a (a matrix-vector product: torch's index_select on an n × 1 matrix is
-/// 2.5x slower); several: cells × heads. With entry_scores, GAT's raw a_s·k_j + a_t·q_i per head.
+/// One head: the vector of f's rows' products with a; several: cells × heads. With entry_scores,
+/// GAT's raw a_s·k_j + a_t·q_i per head. On the CPU (float, double) one autograd node and one
+/// pass over f each way (no second derivative); elsewhere torch's ops.
 inline torch::Tensor head_scores(const torch::Tensor& f, const torch::Tensor& a,
                                  std::int64_t heads = 1) {
-  if (heads == 1) return f.mv(a.reshape({-1}));
-  return (f.reshape({f.size(0), heads, -1}) * a.reshape({1, heads, -1})).sum(-1);
+  const auto av = a.reshape({-1});
+  if (heads < 1 || (f.dim() == 2 && (f.size(1) % heads != 0 || av.numel() != f.size(1))))
+    throw std::invalid_argument(
+        "head_scores: " + std::to_string(f.dim() == 2 ? f.size(1) : -1) + " channels with " +
+        std::to_string(av.numel()) + " attention weights in " + std::to_string(heads) +
+        " heads; give as many weights as channels, a multiple of the heads");
+  const bool fused = f.device().is_cpu() && av.device().is_cpu() && f.dim() == 2 && f.size(1) > 0 &&
+                     f.size(1) % heads == 0 && av.numel() == f.size(1) &&
+                     (f.scalar_type() == torch::kFloat || f.scalar_type() == torch::kDouble) &&
+                     av.scalar_type() == f.scalar_type();
+  if (!fused) {
+    if (heads == 1) return f.mv(av);
+    return (f.reshape({f.size(0), heads, -1}) * a.reshape({1, heads, -1})).sum(-1);
+  }
+  if (!torch::GradMode::is_enabled() || !(f.requires_grad() || av.requires_grad()))
+    return detail::HeadScoresFunction::compute(f.contiguous(), av.contiguous(), heads);
+  return detail::HeadScoresFunction::apply(f, av, heads);
 }
 
 /// The operator attention applies: A's pattern with values w ⊙ A's values, w the weights from

@@ -6,6 +6,8 @@
 // and graph_norm_linear, GraphNorm then a Linear at the cost of the input's nonzeros.
 #pragma once
 
+#include "topos/nn/kernels.hpp"
+
 #include <torch/torch.h>
 
 #include <cstdint>
@@ -64,10 +66,11 @@ TORCH_MODULE(GraphNorm);
 /// dense pair makes a dozen passes over every entry of x (Citeseer: 3,703 words, 1 % of them set).
 /// The statistics are accumulated in double, since the expanded variance cancels. Values and
 /// gradients (w, b, α, W, bias) are the two modules'; where more than a quarter of x is set, it
-/// runs the two modules.
+/// runs the two modules, the Linear and `act` as one node (nn::linear_act). `act` (relu or elu)
+/// is applied to the result either way.
 inline torch::Tensor graph_norm_linear(GraphNorm& norm, torch::nn::Linear& linear,
                                        const torch::Tensor& x, const torch::Tensor& batch,
-                                       std::int64_t num_graphs) {
+                                       std::int64_t num_graphs, Epilogue act = Epilogue::none) {
   TORCH_CHECK(x.dim() == 2 && !x.requires_grad(),
               "graph_norm_linear: x must be a matrix that needs no gradient");
   TORCH_CHECK(batch.dim() == 1 && batch.size(0) == x.size(0),
@@ -77,7 +80,8 @@ inline torch::Tensor graph_norm_linear(GraphNorm& norm, torch::nn::Linear& linea
               " and the linear ", linear->weight.size(1));
   const auto n = x.size(0), f = x.size(1);
   const auto nz = x.nonzero();  // row-major, so grouped by row as embedding_bag's bags are
-  if (4 * nz.size(0) > n * f) return linear->forward(norm->forward(x, batch, num_graphs));
+  if (4 * nz.size(0) > n * f)
+    return linear_act(norm->forward(x, batch, num_graphs), linear->weight, linear->bias, act);
   const auto rows = nz.select(1, 0), cols = nz.select(1, 1);
   const auto values = x.reshape(-1).index_select(0, rows * f + cols);
   const auto entry = batch.index_select(0, rows) * f + cols;  // (graph, channel), flattened
@@ -99,7 +103,8 @@ inline torch::Tensor graph_norm_linear(GraphNorm& norm, torch::nn::Linear& linea
   const auto offsets = per_row.cumsum(0) - per_row;
   const auto y = std::get<0>(torch::embedding_bag(linear->weight.t().contiguous(), cols, offsets,
                                                   false, 0, false, weights));
-  return y + shift.to(x.scalar_type()).index_select(0, batch);
+  auto out = y + shift.to(x.scalar_type()).index_select(0, batch);
+  return act == Epilogue::relu ? out.relu_() : detail::activate(out, act);  // a temporary
 }
 
 }  // namespace topos::nn

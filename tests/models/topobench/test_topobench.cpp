@@ -10,6 +10,7 @@
 #include "support/topobench.hpp"
 
 #include <random>
+#include <tuple>
 #include <sstream>
 
 using namespace topos;
@@ -244,13 +245,18 @@ TEST_CASE("GraphNorm then Linear over the nonzeros equals the two modules, gradi
   torch::manual_seed(11);
   const auto batch =
       torch::tensor(std::vector<std::int64_t>{0, 0, 0, 0, 1, 1, 2, 2, 2}, torch::kLong);
-  for (double density : {0.1, 0.2, 0.9}) {  // the last runs the two modules
-    INFO("density " << density);
+  // Widths 5 and 32 (topos's kernel); with relu, linear_act applies it in its node. Density 0.9
+  // runs the two modules, the others the sum over the nonzeros.
+  for (const auto& [density, width, act] :
+       {std::tuple{0.1, 5, nn::Epilogue::none}, std::tuple{0.2, 5, nn::Epilogue::none},
+        std::tuple{0.9, 5, nn::Epilogue::none}, std::tuple{0.1, 32, nn::Epilogue::relu},
+        std::tuple{0.9, 32, nn::Epilogue::relu}, std::tuple{0.9, 5, nn::Epilogue::relu}}) {
+    INFO("density " << density << ", width " << width << ", relu " << (act == nn::Epilogue::relu));
     // Counts (a projection-sum of one-hot labels), with a channel no row of graph 1 sets.
     auto x = (torch::rand({9, 12}) < density).to(torch::kFloat) * torch::randint(1, 4, {9, 12});
     x.index_put_({torch::indexing::Slice(4, 6), 3}, 0);
     nn::GraphNorm norm(12);
-    torch::nn::Linear linear(12, 5);
+    torch::nn::Linear linear(12, width);
     {
       torch::NoGradGuard no_grad;
       norm->weight.uniform_(0.5, 2), norm->bias.uniform_(-1, 1), norm->mean_scale.uniform_(0, 1.5);
@@ -264,9 +270,11 @@ TEST_CASE("GraphNorm then Linear over the nonzeros equals the two modules, gradi
       for (auto& p : linear->parameters()) g.push_back(p.grad().clone());
       return g;
     };
-    const auto dense = linear->forward(norm->forward(x, batch, 3));
+    auto dense = linear->forward(norm->forward(x, batch, 3));
+    if (act == nn::Epilogue::relu) dense = torch::relu(dense);
     const auto dense_grads = grads(dense);
-    const auto fast = nn::graph_norm_linear(norm, linear, x, batch, 3);
+    const auto fast = nn::graph_norm_linear(norm, linear, x, batch, 3, act);
+    if (act == nn::Epilogue::relu) CHECK((dense == 0).sum().item<int>() > 0);  // relu cuts
     const auto fast_grads = grads(fast);
     CHECK(torch::allclose(fast, dense, 1e-5, 1e-5));
     REQUIRE(fast_grads.size() == 5);

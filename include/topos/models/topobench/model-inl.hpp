@@ -109,8 +109,8 @@ TOPOS_INLINE torch::Tensor TopoBenchModelImpl::forward(const Batch& b) {
     if (r >= b.x.size())
       throw std::invalid_argument(options.model() + " encodes rank " + std::to_string(r) +
                                   " but the batch has " + std::to_string(b.x.size()) + " ranks");
-    auto e = torch::relu(
-        nn::graph_norm_linear(norms_[k], linears_[k], b.x.at(r), b.batch.at(r), b.num_graphs));
+    auto e = nn::graph_norm_linear(norms_[k], linears_[k], b.x.at(r), b.batch.at(r), b.num_graphs,
+                                   nn::Epilogue::relu);
     if (options.dropout() > 0) e = nn::dropout(e, options.dropout(), is_training());
     encoded["x_" + std::to_string(r)] = e;
   }

@@ -5,7 +5,8 @@
 // none) and every head's weighted sum of the messages in one pass over the rows. The backward
 // takes the rows (the weights' gradients, the norm's and the activation's backward, the targets'
 // score gradients), then the columns through Aᵀ's CSR (the messages' and the sources' score
-// gradients): each output row written by one thread, no atomics.
+// gradients): each output row written by one thread, no atomics. Also the per-cell scores
+// themselves (nn::head_scores: per cell and head <f_h, a_h>) and their backward.
 #pragma once
 
 #include "topos/nn/kernels/epilogue.hpp"
@@ -18,6 +19,7 @@
 #include <cstring>
 #include <limits>
 #include <type_traits>
+#include <vector>
 
 namespace topos::nn::detail {
 
@@ -301,6 +303,157 @@ void attention_backward(const AttentionArgs<T>& a, const T* g, T* d, T* d_target
     else
       attention_backward_cols_double(a, g, d, dx, d_source, b, e);
   });
+}
+
+// Per cell and head the score <f_h, a_h> (nn::head_scores): f cells × heads·C (a head's channels
+// side by side), a heads·C, out cells × heads. One pass over f; torch's broadcast product and
+// sum made three, and an autograd node each.
+template <class T, int VB>
+static TOPOS_INLINE_KERNEL void head_scores_rows(const T* f, const T* a, T* out, std::int64_t n,
+                                                 std::int64_t H, std::int64_t C) {
+#if defined(__GNUC__)
+  typedef T vec __attribute__((vector_size(VB)));
+  constexpr std::int64_t L = VB / sizeof(T);
+#else
+  constexpr std::int64_t L = 1;
+#endif
+  const std::int64_t Cv = C / L * L;
+  for (std::int64_t i = 0; i < n * H; ++i) {
+    const T *fr = f + i * C, *ar = a + (i % H) * C;
+    T t = 0;
+    std::int64_t c = 0;
+#if defined(__GNUC__)
+    vec s{};
+    for (; c < Cv; c += L) {
+      vec u, w;
+      std::memcpy(&u, fr + c, sizeof u);
+      std::memcpy(&w, ar + c, sizeof w);
+      s += u * w;
+    }
+#endif
+    for (; c < C; ++c) t += fr[c] * ar[c];
+#if defined(__GNUC__)
+    t = lane_sum(s, t);
+#endif
+    out[i] = t;
+  }
+}
+
+// The backward of rows [0, n) from the scores' gradient g (cells × heads): df = g_{i,h} a_h (df
+// may be null) and da += Σ_i g_{i,h} f_{i,h} into this block's partial sums (da may be null).
+template <class T, int VB>
+static TOPOS_INLINE_KERNEL void head_scores_backward_rows(const T* g, const T* f, const T* a, T* df,
+                                                          T* da, std::int64_t n, std::int64_t H,
+                                                          std::int64_t C) {
+#if defined(__GNUC__)
+  typedef T vec __attribute__((vector_size(VB)));
+  constexpr std::int64_t L = VB / sizeof(T);
+#else
+  constexpr std::int64_t L = 1;
+#endif
+  const std::int64_t Cv = C / L * L;
+  for (std::int64_t i = 0; i < n * H; ++i) {
+    const T gi = g[i];
+    const T *fr = f + i * C, *ar = a + (i % H) * C;
+    T *dr = df ? df + i * C : nullptr, *sa = da ? da + (i % H) * C : nullptr;
+    std::int64_t c = 0;
+#if defined(__GNUC__)
+    for (; c < Cv; c += L) {
+      vec w;
+      if (dr) {
+        std::memcpy(&w, ar + c, sizeof w);
+        w *= gi;
+        std::memcpy(dr + c, &w, sizeof w);
+      }
+      if (sa) {
+        vec u, acc;
+        std::memcpy(&u, fr + c, sizeof u);
+        std::memcpy(&acc, sa + c, sizeof acc);
+        acc += gi * u;
+        std::memcpy(sa + c, &acc, sizeof acc);
+      }
+    }
+#endif
+    for (; c < C; ++c) {
+      if (dr) dr[c] = gi * ar[c];
+      if (sa) sa[c] += gi * fr[c];
+    }
+  }
+}
+
+#define TOPOS_HEAD_SCORES_ENTRY(T, NAME, ATTR, VB)                                             \
+  [[maybe_unused]] ATTR static void NAME(const T* f, const T* a, T* out, std::int64_t n,       \
+                                         std::int64_t H, std::int64_t C) {                     \
+    head_scores_rows<T, VB>(f, a, out, n, H, C);                                               \
+  }                                                                                            \
+  [[maybe_unused]] ATTR static void NAME##_backward(const T* g, const T* f, const T* a, T* df, \
+                                                    T* da, std::int64_t n, std::int64_t H,     \
+                                                    std::int64_t C) {                          \
+    head_scores_backward_rows<T, VB>(g, f, a, df, da, n, H, C);                                \
+  }
+TOPOS_HEAD_SCORES_ENTRY(float, head_scores_float, TOPOS_SIMD_CLONES, 32)
+TOPOS_HEAD_SCORES_ENTRY(double, head_scores_double, TOPOS_SIMD_CLONES, 32)
+#if defined(TOPOS_HAVE_V4)
+TOPOS_HEAD_SCORES_ENTRY(float, head_scores_float_v4, TOPOS_V4, 64)
+TOPOS_HEAD_SCORES_ENTRY(double, head_scores_double_v4, TOPOS_V4, 64)
+#endif
+#undef TOPOS_HEAD_SCORES_ENTRY
+
+/// out (n × H) = per row and head <f_h, a_h>, rows split among the threads.
+template <class T>
+void head_scores_forward(const T* f, const T* a, T* out, std::int64_t n, std::int64_t H,
+                         std::int64_t C) {
+  at::parallel_for(0, n, grain_rows(n, 2 * n * H * C), [&](std::int64_t lo, std::int64_t hi) {
+    const T* fl = f + lo * H * C;
+    T* ol = out + lo * H;
+#if defined(TOPOS_HAVE_V4)
+    if (cpu_has_v4()) {
+      if constexpr (std::is_same_v<T, float>)
+        return head_scores_float_v4(fl, a, ol, hi - lo, H, C);
+      else
+        return head_scores_double_v4(fl, a, ol, hi - lo, H, C);
+    }
+#endif
+    if constexpr (std::is_same_v<T, float>)
+      head_scores_float(fl, a, ol, hi - lo, H, C);
+    else
+      head_scores_double(fl, a, ol, hi - lo, H, C);
+  });
+}
+
+/// df and da (either may be null; da summed into, H·C) from the scores' gradient g: blocks of
+/// rows each sum da into partial sums of their own, added in block order (the same numbers for
+/// any thread count).
+template <class T>
+void head_scores_backward(const T* g, const T* f, const T* a, T* df, T* da, std::int64_t n,
+                          std::int64_t H, std::int64_t C) {
+  const std::int64_t HC = H * C, block = std::max<std::int64_t>(64, (1 << 16) / HC);
+  const std::int64_t blocks = (n + block - 1) / block;
+  std::vector<T> partial(da ? static_cast<std::size_t>(blocks * HC) : 0, T(0));
+  at::parallel_for(
+      0, blocks, grain_rows(blocks, 4 * n * HC), [&](std::int64_t k0, std::int64_t k1) {
+        for (std::int64_t k = k0; k < k1; ++k) {
+          const std::int64_t lo = k * block, rows = std::min(n, lo + block) - lo;
+          T* pa = da ? partial.data() + k * HC : nullptr;
+          T* dl = df ? df + lo * HC : nullptr;
+#if defined(TOPOS_HAVE_V4)
+          if (cpu_has_v4()) {
+            if constexpr (std::is_same_v<T, float>)
+              head_scores_float_v4_backward(g + lo * H, f + lo * HC, a, dl, pa, rows, H, C);
+            else
+              head_scores_double_v4_backward(g + lo * H, f + lo * HC, a, dl, pa, rows, H, C);
+            continue;
+          }
+#endif
+          if constexpr (std::is_same_v<T, float>)
+            head_scores_float_backward(g + lo * H, f + lo * HC, a, dl, pa, rows, H, C);
+          else
+            head_scores_double_backward(g + lo * H, f + lo * HC, a, dl, pa, rows, H, C);
+        }
+      });
+  if (da)
+    for (std::int64_t k = 0; k < blocks; ++k)
+      for (std::int64_t c = 0; c < HC; ++c) da[c] += partial[static_cast<std::size_t>(k * HC + c)];
 }
 
 }  // namespace topos::nn::detail

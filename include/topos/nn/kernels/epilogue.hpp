@@ -37,6 +37,20 @@ namespace detail {
 #define TOPOS_INLINE_KERNEL inline
 #endif
 
+#if defined(__GNUC__)
+// The sum of a row's L-wide vector partial sums and its scalar tail, as a tree (log2 L dependent
+// adds, not L: a row of 128 floats is only 8 vectors).
+template <class T, class V>
+static TOPOS_INLINE_KERNEL T lane_sum(const V& v, T tail) {
+  constexpr int L = static_cast<int>(sizeof(V) / sizeof(T));
+  T a[L];
+  std::memcpy(a, &v, sizeof v);
+  for (int w = L / 2; w >= 1; w /= 2)
+    for (int l = 0; l < w; ++l) a[l] += a[l + w];
+  return a[0] + tail;
+}
+#endif
+
 #if defined(TOPOS_HAVE_V4)
 inline bool cpu_has_v4() {
   static const bool v4 = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&

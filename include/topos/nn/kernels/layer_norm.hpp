@@ -3,7 +3,8 @@
 // mean and variance in two passes over the row while it sits in L1, the normalised row scaled and
 // shifted before the store, and a hand-written backward. torch 1.13's CPU layer_norm costs 5-10x
 // this on HOPNet's and TopoBench's rows of 64-128 channels (bench_hopnet's BM_layer_norm); in a
-// HOPNet rollout step, after the products, it was the largest single operation.
+// HOPNet rollout step, after the products, it was the largest single operation. It may normalise
+// a sum x + r it forms itself (nn::add_layer_norm: a residual connection, or a bias row).
 #pragma once
 
 #include "topos/nn/kernels/epilogue.hpp"
@@ -21,25 +22,14 @@ namespace topos::nn {
 
 namespace detail {
 
-#if defined(__GNUC__)
-// The sum of a row's L-wide vector partial sums and its scalar tail, as a tree (log2 L dependent
-// adds, not L: a row of 128 floats is only 8 vectors).
-template <class T, class V>
-static TOPOS_INLINE_KERNEL T lane_sum(const V& v, T tail) {
-  constexpr int L = static_cast<int>(sizeof(V) / sizeof(T));
-  T a[L];
-  std::memcpy(a, &v, sizeof v);
-  for (int w = L / 2; w >= 1; w /= 2)
-    for (int l = 0; l < w; ++l) a[l] += a[l + w];
-  return a[0] + tail;
-}
-#endif
-
 // Rows [0, n) of x: y = act((x - mean) · rstd · w + b) (w, b may be null; act relu or elu
 // applied before the store), each row's mean and 1 / sqrt(var + eps) stored for the backward
 // (unless mean is null). The variance is the mean of squared deviations (biased, as torch's).
+// With a residual r (rows `r_step` apart: C, or 0 for one row added to every row), x + r is
+// normalised, and written to `sum` first (the backward's input).
 template <class T, int VB = 32, Epilogue E = Epilogue::none>
-static TOPOS_INLINE_KERNEL void layer_norm_rows(const T* x, const T* w, const T* b, T* y, T* mean,
+static TOPOS_INLINE_KERNEL void layer_norm_rows(const T* x, const T* res, std::int64_t r_step,
+                                                T* sum, const T* w, const T* b, T* y, T* mean,
                                                 T* rstd, std::int64_t n, std::int64_t C, T eps) {
 #if defined(__GNUC__)
   typedef T vec __attribute__((vector_size(VB)));
@@ -53,6 +43,21 @@ static TOPOS_INLINE_KERNEL void layer_norm_rows(const T* x, const T* w, const T*
     T* yr = y + i * C;
     T s = 0, q = 0;
     std::int64_t c = 0;
+    if (res) {
+      const T* rr = res + i * r_step;
+      T* sr = sum + i * C;
+#if defined(__GNUC__)
+      for (; c < Cv; c += L) {
+        vec u, v;
+        std::memcpy(&u, xr + c, sizeof u);
+        std::memcpy(&v, rr + c, sizeof v);
+        u += v;
+        std::memcpy(sr + c, &u, sizeof u);
+      }
+#endif
+      for (; c < C; ++c) sr[c] = xr[c] + rr[c];
+      xr = sr, c = 0;
+    }
 #if defined(__GNUC__)
     vec sv{};
     for (; c < Cv; c += L) {
@@ -108,14 +113,14 @@ static TOPOS_INLINE_KERNEL void layer_norm_rows(const T* x, const T* w, const T*
 }
 
 // The backward of rows [0, n): with x̂ = (x - mean) · rstd and g = dy · w,
-// dx = rstd · (g - mean(g) - x̂ · mean(g · x̂)); dw += Σ dy · x̂ and db += Σ dy into this block's
-// partial sums (dw, db may be null). After an activation E, dy is first dy ⊙ act'(y) from the
-// output y (epilogue_rows's rule).
+// dx = rstd · (g - mean(g) - x̂ · mean(g · x̂)); dw += Σ dy · x̂, db += Σ dy and dres += Σ dx (a
+// residual row's gradient) into this block's partial sums (dw, db, dres may be null). After an
+// activation E, dy is first dy ⊙ act'(y) from the output y (epilogue_rows's rule).
 template <class T, int VB = 32, Epilogue E = Epilogue::none>
 static TOPOS_INLINE_KERNEL void layer_norm_backward_rows(const T* dy, const T* y, const T* x,
                                                          const T* w, const T* mean, const T* rstd,
-                                                         T* dx, T* dw, T* db, std::int64_t n,
-                                                         std::int64_t C) {
+                                                         T* dx, T* dw, T* db, T* dres,
+                                                         std::int64_t n, std::int64_t C) {
 #if defined(__GNUC__)
   typedef T vec __attribute__((vector_size(VB)));
   constexpr int L = static_cast<int>(VB / sizeof(T));
@@ -199,33 +204,44 @@ static TOPOS_INLINE_KERNEL void layer_norm_backward_rows(const T* dy, const T* y
       }
       const vec o = (d - mg - (v - m) * r * mgx) * r;
       std::memcpy(xo + c, &o, sizeof o);
+      if (dres) {
+        vec a;
+        std::memcpy(&a, dres + c, sizeof a);
+        a += o;
+        std::memcpy(dres + c, &a, sizeof a);
+      }
     }
 #endif
-    for (; c < C; ++c) xo[c] = (grad(c) * (w ? w[c] : T(1)) - mg - (xr[c] - m) * r * mgx) * r;
+    for (; c < C; ++c) {
+      xo[c] = (grad(c) * (w ? w[c] : T(1)) - mg - (xr[c] - m) * r * mgx) * r;
+      if (dres) dres[c] += xo[c];
+    }
   }
 }
 
 // The kernels per instruction set (epilogue.hpp): AVX-512 on 64-byte vectors when the CPU has it.
 #define TOPOS_LAYER_NORM_ENTRY(T, NAME, ATTR, VB)                                                  \
-  [[maybe_unused]] ATTR static void NAME(const T* x, const T* w, const T* b, T* y, T* mean,        \
-                                         T* rstd, std::int64_t n, std::int64_t C, T eps,           \
-                                         Epilogue e) {                                             \
+  [[maybe_unused]] ATTR static void NAME(const T* x, const T* res, std::int64_t r_step, T* sum,    \
+                                         const T* w, const T* b, T* y, T* mean, T* rstd,           \
+                                         std::int64_t n, std::int64_t C, T eps, Epilogue e) {      \
     if (e == Epilogue::relu)                                                                       \
-      return layer_norm_rows<T, VB, Epilogue::relu>(x, w, b, y, mean, rstd, n, C, eps);            \
+      return layer_norm_rows<T, VB, Epilogue::relu>(x, res, r_step, sum, w, b, y, mean, rstd, n,   \
+                                                    C, eps);                                       \
     if (e == Epilogue::elu)                                                                        \
-      return layer_norm_rows<T, VB, Epilogue::elu>(x, w, b, y, mean, rstd, n, C, eps);             \
-    layer_norm_rows<T, VB>(x, w, b, y, mean, rstd, n, C, eps);                                     \
+      return layer_norm_rows<T, VB, Epilogue::elu>(x, res, r_step, sum, w, b, y, mean, rstd, n, C, \
+                                                   eps);                                           \
+    layer_norm_rows<T, VB>(x, res, r_step, sum, w, b, y, mean, rstd, n, C, eps);                   \
   }                                                                                                \
   [[maybe_unused]] ATTR static void NAME##_backward(                                               \
       const T* dy, const T* y, const T* x, const T* w, const T* mean, const T* rstd, T* dx, T* dw, \
-      T* db, std::int64_t n, std::int64_t C, Epilogue e) {                                         \
+      T* db, T* dr, std::int64_t n, std::int64_t C, Epilogue e) {                                  \
     if (e == Epilogue::relu)                                                                       \
       return layer_norm_backward_rows<T, VB, Epilogue::relu>(dy, y, x, w, mean, rstd, dx, dw, db,  \
-                                                             n, C);                                \
+                                                             dr, n, C);                            \
     if (e == Epilogue::elu)                                                                        \
       return layer_norm_backward_rows<T, VB, Epilogue::elu>(dy, y, x, w, mean, rstd, dx, dw, db,   \
-                                                            n, C);                                 \
-    layer_norm_backward_rows<T, VB>(dy, y, x, w, mean, rstd, dx, dw, db, n, C);                    \
+                                                            dr, n, C);                             \
+    layer_norm_backward_rows<T, VB>(dy, y, x, w, mean, rstd, dx, dw, db, dr, n, C);                \
   }
 TOPOS_LAYER_NORM_ENTRY(float, layer_norm_float, TOPOS_SIMD_CLONES, 32)
 TOPOS_LAYER_NORM_ENTRY(double, layer_norm_double, TOPOS_SIMD_CLONES, 32)
@@ -235,96 +251,134 @@ TOPOS_LAYER_NORM_ENTRY(double, layer_norm_double_v4, TOPOS_V4, 64)
 #endif
 #undef TOPOS_LAYER_NORM_ENTRY
 
+// What a LayerNorm normalises: x, or x + r with r `r_step` apart (C: a tensor of x's shape; 0:
+// one row added to every row), the sum written to `sum` (the backward's input).
 template <class T>
-void layer_norm_forward_range(const T* x, const T* w, const T* b, T* y, T* mean, T* rstd,
-                              std::int64_t n, std::int64_t C, T eps, Epilogue e) {
+struct LayerNormInput {
+  const T* x = nullptr;
+  const T* res = nullptr;
+  std::int64_t r_step = 0;
+  T* sum = nullptr;
+};
+
+template <class T>
+void layer_norm_forward_range(const LayerNormInput<T>& in, const T* w, const T* b, T* y, T* mean,
+                              T* rstd, std::int64_t n, std::int64_t C, T eps, Epilogue e) {
   at::parallel_for(0, n, grain_rows(n, 4 * n * C), [&](std::int64_t lo, std::int64_t hi) {
     const auto at = lo * C;
     // No statistics kept (mean null): a later range must not write at null + lo.
     T* const mean_lo = mean ? mean + lo : nullptr;
     T* const rstd_lo = rstd ? rstd + lo : nullptr;
+    const T* const res = in.res ? in.res + lo * in.r_step : nullptr;
+    T* const sum = in.res ? in.sum + at : nullptr;
 #if defined(TOPOS_HAVE_V4)
     if (cpu_has_v4()) {
       if constexpr (std::is_same_v<T, float>)
-        return layer_norm_float_v4(x + at, w, b, y + at, mean_lo, rstd_lo, hi - lo, C, eps, e);
+        return layer_norm_float_v4(in.x + at, res, in.r_step, sum, w, b, y + at, mean_lo, rstd_lo,
+                                   hi - lo, C, eps, e);
       else
-        return layer_norm_double_v4(x + at, w, b, y + at, mean_lo, rstd_lo, hi - lo, C, eps, e);
+        return layer_norm_double_v4(in.x + at, res, in.r_step, sum, w, b, y + at, mean_lo, rstd_lo,
+                                    hi - lo, C, eps, e);
     }
 #endif
     if constexpr (std::is_same_v<T, float>)
-      layer_norm_float(x + at, w, b, y + at, mean_lo, rstd_lo, hi - lo, C, eps, e);
+      layer_norm_float(in.x + at, res, in.r_step, sum, w, b, y + at, mean_lo, rstd_lo, hi - lo, C,
+                       eps, e);
     else
-      layer_norm_double(x + at, w, b, y + at, mean_lo, rstd_lo, hi - lo, C, eps, e);
+      layer_norm_double(in.x + at, res, in.r_step, sum, w, b, y + at, mean_lo, rstd_lo, hi - lo, C,
+                        eps, e);
   });
 }
 
-// The backward in blocks of rows, each block summing dw and db into its own partial sums (added
-// in block order afterwards: the same numbers for any thread count).
+// The backward in blocks of rows, each block summing dw, db and dr (a residual row's gradient)
+// into its own partial sums (added in block order afterwards: the same numbers for any thread
+// count).
 template <class T>
 void layer_norm_backward_range(const T* dy, const T* y, const T* x, const T* w, const T* mean,
-                               const T* rstd, T* dx, T* dw, T* db, std::int64_t n, std::int64_t C,
-                               Epilogue e) {
+                               const T* rstd, T* dx, T* dw, T* db, T* dr, std::int64_t n,
+                               std::int64_t C, Epilogue e) {
   const std::int64_t block = std::max<std::int64_t>(64, (1 << 16) / C);
   const std::int64_t blocks = (n + block - 1) / block;
-  std::vector<T> partial(static_cast<std::size_t>(std::max<std::int64_t>(blocks, 1) * 2 * C), T(0));
+  std::vector<T> partial(static_cast<std::size_t>(std::max<std::int64_t>(blocks, 1) * 3 * C), T(0));
   at::parallel_for(0, blocks, grain_rows(blocks, 8 * n * C), [&](std::int64_t k0, std::int64_t k1) {
     for (std::int64_t k = k0; k < k1; ++k) {
       const std::int64_t lo = k * block, rows = std::min(n, lo + block) - lo;
-      T* pw = dw ? partial.data() + k * 2 * C : nullptr;
-      T* pb = db ? partial.data() + k * 2 * C + C : nullptr;
+      T* pw = dw ? partial.data() + k * 3 * C : nullptr;
+      T* pb = db ? partial.data() + k * 3 * C + C : nullptr;
+      T* pr = dr ? partial.data() + k * 3 * C + 2 * C : nullptr;
       const auto at = lo * C;
       const T* ya = y ? y + at : nullptr;
 #if defined(TOPOS_HAVE_V4)
       if (cpu_has_v4()) {
         if constexpr (std::is_same_v<T, float>)
           layer_norm_float_v4_backward(dy + at, ya, x + at, w, mean + lo, rstd + lo, dx + at, pw,
-                                       pb, rows, C, e);
+                                       pb, pr, rows, C, e);
         else
           layer_norm_double_v4_backward(dy + at, ya, x + at, w, mean + lo, rstd + lo, dx + at, pw,
-                                        pb, rows, C, e);
+                                        pb, pr, rows, C, e);
         continue;
       }
 #endif
       if constexpr (std::is_same_v<T, float>)
-        layer_norm_float_backward(dy + at, ya, x + at, w, mean + lo, rstd + lo, dx + at, pw, pb,
+        layer_norm_float_backward(dy + at, ya, x + at, w, mean + lo, rstd + lo, dx + at, pw, pb, pr,
                                   rows, C, e);
       else
         layer_norm_double_backward(dy + at, ya, x + at, w, mean + lo, rstd + lo, dx + at, pw, pb,
-                                   rows, C, e);
+                                   pr, rows, C, e);
     }
   });
   for (std::int64_t k = 0; k < blocks; ++k)
     for (std::int64_t c = 0; c < C; ++c) {
-      if (dw) dw[c] += partial[static_cast<std::size_t>(k * 2 * C + c)];
-      if (db) db[c] += partial[static_cast<std::size_t>(k * 2 * C + C + c)];
+      const auto* p = partial.data() + k * 3 * C;
+      if (dw) dw[c] += p[c];
+      if (db) db[c] += p[C + c];
+      if (dr) dr[c] += p[2 * C + c];
     }
 }
 
-// LayerNorm (and the activation `act` after it) as one node keeping x, w, each row's mean and
-// rstd, and with an activation its output. Undefined weight or bias come in empty (torch 1.13's
-// Function::apply cannot take an undefined input).
+// LayerNorm of x (+ a residual) and the activation `act` after it as one node keeping what it
+// normalised (x, or the sum), w, each row's mean and rstd, and with an activation its output.
+// Undefined tensors come in empty (torch 1.13's Function::apply cannot take an undefined input);
+// a residual of C entries is one row added to every row.
 struct LayerNormFunction : public torch::autograd::Function<LayerNormFunction> {
-  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& input,
-                               const torch::Tensor& weight, const torch::Tensor& bias, double eps,
-                               std::int64_t act) {
-    const auto e = static_cast<Epilogue>(act);
+  // y, and the sum and statistics when `keep` (else those stay undefined).
+  static std::vector<torch::Tensor> compute(const torch::Tensor& input,
+                                            const torch::Tensor& residual,
+                                            const torch::Tensor& weight, const torch::Tensor& bias,
+                                            double eps, Epilogue e, bool keep) {
     const auto x = input.contiguous();
+    const auto r = residual.numel() > 0 ? residual.contiguous() : torch::Tensor();
     const auto w = weight.numel() > 0 ? weight.contiguous() : torch::Tensor();
     const auto b = bias.numel() > 0 ? bias.contiguous() : torch::Tensor();
     const auto n = x.size(0), C = x.size(1);
     auto y = torch::empty_like(x);
-    auto mean = torch::empty({n}, x.options()), rstd = torch::empty({n}, x.options());
+    // Without a backward the sum is formed in y itself (each row read and written in place).
+    torch::Tensor sum = r.defined() ? (keep ? torch::empty_like(x) : y) : x, mean, rstd;
+    if (keep) mean = torch::empty({n}, x.options()), rstd = torch::empty({n}, x.options());
     AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "topos_layer_norm", [&] {
-      layer_norm_forward_range<scalar_t>(
-          x.data_ptr<scalar_t>(), w.defined() ? w.data_ptr<scalar_t>() : nullptr,
-          b.defined() ? b.data_ptr<scalar_t>() : nullptr, y.data_ptr<scalar_t>(),
-          mean.data_ptr<scalar_t>(), rstd.data_ptr<scalar_t>(), n, C, static_cast<scalar_t>(eps),
-          e);
+      using T = scalar_t;
+      LayerNormInput<T> in;
+      in.x = x.data_ptr<T>();
+      if (r.defined())
+        in.res = r.data_ptr<T>(), in.r_step = r.dim() == 1 ? 0 : C, in.sum = sum.data_ptr<T>();
+      layer_norm_forward_range<T>(
+          in, w.defined() ? w.data_ptr<T>() : nullptr, b.defined() ? b.data_ptr<T>() : nullptr,
+          y.data_ptr<T>(), keep ? mean.data_ptr<T>() : nullptr, keep ? rstd.data_ptr<T>() : nullptr,
+          n, C, static_cast<T>(eps), e);
     });
-    ctx->save_for_backward({x, w, mean, rstd, e == Epilogue::none ? torch::Tensor() : y});
-    ctx->saved_data["bias"] = b.defined();
+    return {y, sum, mean, rstd, w};
+  }
+  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& input,
+                               const torch::Tensor& residual, const torch::Tensor& weight,
+                               const torch::Tensor& bias, double eps, std::int64_t act) {
+    const auto e = static_cast<Epilogue>(act);
+    auto out = compute(input, residual, weight, bias, eps, e, true);
+    ctx->save_for_backward(
+        {out[1], out[4], out[2], out[3], e == Epilogue::none ? torch::Tensor() : out[0]});
+    ctx->saved_data["bias"] = bias.numel() > 0;
+    ctx->saved_data["residual"] = residual.numel() == 0 ? 0 : residual.dim();
     ctx->saved_data["act"] = act;
-    return y;
+    return out[0];
   }
   static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx,
                                                torch::autograd::tensor_list grads) {
@@ -332,74 +386,102 @@ struct LayerNormFunction : public torch::autograd::Function<LayerNormFunction> {
     const auto &x = saved[0], &w = saved[1], &mean = saved[2], &rstd = saved[3], &y = saved[4];
     const auto e = static_cast<Epilogue>(ctx->saved_data["act"].toInt());
     const bool has_bias = ctx->saved_data["bias"].toBool();
+    const auto residual = ctx->saved_data["residual"].toInt();  // 0 none, 1 a row, 2 a tensor
     const auto dy = grads[0].contiguous();
     const auto C = x.size(1);
     auto dx = torch::empty_like(x);
     torch::Tensor dw =
-        w.defined() && ctx->needs_input_grad(1) ? torch::zeros({C}, x.options()) : torch::Tensor();
+        w.defined() && ctx->needs_input_grad(2) ? torch::zeros({C}, x.options()) : torch::Tensor();
     torch::Tensor db =
-        has_bias && ctx->needs_input_grad(2) ? torch::zeros({C}, x.options()) : torch::Tensor();
+        has_bias && ctx->needs_input_grad(3) ? torch::zeros({C}, x.options()) : torch::Tensor();
+    torch::Tensor dr = residual == 1 && ctx->needs_input_grad(1) ? torch::zeros({C}, x.options())
+                                                                 : torch::Tensor();
+    const auto ptr = [](torch::Tensor& t, auto* type) {
+      return t.defined() ? t.data_ptr<std::remove_pointer_t<decltype(type)>>() : nullptr;
+    };
     AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "topos_layer_norm_backward", [&] {
+      scalar_t* type = nullptr;
       layer_norm_backward_range<scalar_t>(
           dy.data_ptr<scalar_t>(), y.defined() ? y.data_ptr<scalar_t>() : nullptr,
           x.data_ptr<scalar_t>(), w.defined() ? w.data_ptr<scalar_t>() : nullptr,
           mean.data_ptr<scalar_t>(), rstd.data_ptr<scalar_t>(), dx.data_ptr<scalar_t>(),
-          dw.defined() ? dw.data_ptr<scalar_t>() : nullptr,
-          db.defined() ? db.data_ptr<scalar_t>() : nullptr, x.size(0), C, e);
+          ptr(dw, type), ptr(db, type), ptr(dr, type), x.size(0), C, e);
     });
-    return {dx, dw, db, torch::Tensor(), torch::Tensor()};
+    if (residual == 2 && ctx->needs_input_grad(1)) dr = dx;  // d(x + r)/dr = 1
+    return {ctx->needs_input_grad(0) ? dx : torch::Tensor(),
+            dr,
+            dw,
+            db,
+            torch::Tensor(),
+            torch::Tensor()};
   }
 };
 
 }  // namespace detail
 
-/// LayerNorm over the last dimension (torch::nn::functional::layer_norm with normalized_shape
-/// {channels}), then `act`: a 2-D float or double CPU tensor through the kernels above as one
-/// autograd node (the same values up to float rounding: the mean and variance summed in another
-/// order; no second derivative); any other device, dtype or shape takes torch's layer_norm and
-/// activation.
+/// LayerNorm over the last dimension of x + residual (torch::nn::functional::layer_norm with
+/// normalized_shape {channels}), then `act`: a 2-D float or double CPU tensor through the kernels
+/// above as one autograd node (the same values up to float rounding: the mean and variance summed
+/// in another order; no second derivative). `residual`, when defined, is a tensor of x's shape
+/// (a residual connection's) or one row of channels added to every row (a bias); the sum is formed
+/// in the kernel. Any other device, dtype or shape takes torch's add, layer_norm and activation.
+inline torch::Tensor add_layer_norm(const torch::Tensor& x, const torch::Tensor& residual,
+                                    const torch::Tensor& weight, const torch::Tensor& bias,
+                                    double eps = 1e-5,
+                                    detail::Epilogue act = detail::Epilogue::none) {
+  const auto C = x.dim() == 2 ? x.size(1) : -1;
+  const auto same = [&](const torch::Tensor& p) {
+    return p.device() == x.device() && p.scalar_type() == x.scalar_type();
+  };
+  const auto fits = [&](const torch::Tensor& p) {
+    return !p.defined() || (p.dim() == 1 && p.numel() == C && same(p));
+  };
+  const bool residual_fits =
+      !residual.defined() || fits(residual) ||
+      (residual.dim() == 2 && residual.sizes() == x.sizes() && same(residual));
+  const bool fused = x.device().is_cpu() && x.dim() == 2 && C > 0 && x.size(0) > 0 &&
+                     (x.scalar_type() == torch::kFloat || x.scalar_type() == torch::kDouble) &&
+                     fits(weight) && fits(bias) && residual_fits;
+  if (!fused) {
+    const auto s = residual.defined() ? x + residual : x;
+    return detail::activate(torch::layer_norm(s, {s.dim() > 0 ? s.size(-1) : 0}, weight, bias, eps),
+                            act);
+  }
+  const auto needs = [](const torch::Tensor& t) { return t.defined() && t.requires_grad(); };
+  const bool grad = torch::GradMode::is_enabled() &&
+                    (needs(x) || needs(residual) || needs(weight) || needs(bias));
+  if (!grad)  // a rollout's: no node, no statistics kept
+    return detail::LayerNormFunction::compute(x, residual.defined() ? residual : torch::Tensor(),
+                                              weight, bias, eps, act, false)[0];
+  const auto empty = torch::empty({0}, x.options());
+  const auto or_empty = [&](const torch::Tensor& t) { return t.defined() ? t : empty; };
+  return detail::LayerNormFunction::apply(x, or_empty(residual), or_empty(weight), or_empty(bias),
+                                          eps, static_cast<std::int64_t>(act));
+}
+
+/// LayerNorm over the last dimension, then `act` (add_layer_norm without a residual).
 inline torch::Tensor layer_norm(const torch::Tensor& x, const torch::Tensor& weight,
                                 const torch::Tensor& bias, double eps = 1e-5,
                                 detail::Epilogue act = detail::Epilogue::none) {
-  const auto C = x.dim() == 2 ? x.size(1) : -1;
-  const auto fits = [&](const torch::Tensor& p) {
-    return !p.defined() || (p.dim() == 1 && p.numel() == C && p.device() == x.device() &&
-                            p.scalar_type() == x.scalar_type());
-  };
-  const bool fused = x.device().is_cpu() && x.dim() == 2 && C > 0 && x.size(0) > 0 &&
-                     (x.scalar_type() == torch::kFloat || x.scalar_type() == torch::kDouble) &&
-                     fits(weight) && fits(bias);
-  if (!fused)
-    return detail::activate(torch::layer_norm(x, {x.dim() > 0 ? x.size(-1) : 0}, weight, bias, eps),
-                            act);
-  const bool grad = torch::GradMode::is_enabled() &&
-                    (x.requires_grad() || (weight.defined() && weight.requires_grad()) ||
-                     (bias.defined() && bias.requires_grad()));
-  if (!grad) {  // a rollout's: no node, no statistics kept
-    const auto xc = x.contiguous();
-    const auto w = weight.defined() ? weight.contiguous() : weight;
-    const auto b = bias.defined() ? bias.contiguous() : bias;
-    auto y = torch::empty_like(xc);
-    AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "topos_layer_norm", [&] {
-      detail::layer_norm_forward_range<scalar_t>(
-          xc.data_ptr<scalar_t>(), w.defined() ? w.data_ptr<scalar_t>() : nullptr,
-          b.defined() ? b.data_ptr<scalar_t>() : nullptr, y.data_ptr<scalar_t>(), nullptr, nullptr,
-          xc.size(0), C, static_cast<scalar_t>(eps), act);
-    });
-    return y;
-  }
-  const auto empty = torch::empty({0}, x.options());
-  return detail::LayerNormFunction::apply(x, weight.defined() ? weight : empty,
-                                          bias.defined() ? bias : empty, eps,
-                                          static_cast<std::int64_t>(act));
+  return add_layer_norm(x, torch::Tensor(), weight, bias, eps, act);
+}
+
+/// A torch::nn::LayerNorm module applied to x + residual (residual may be undefined) through
+/// add_layer_norm above when it normalises one dimension (the add, the module's own forward,
+/// then `act`, otherwise).
+inline torch::Tensor add_layer_norm(const torch::Tensor& x, const torch::Tensor& residual,
+                                    torch::nn::LayerNormImpl& m,
+                                    detail::Epilogue act = detail::Epilogue::none) {
+  if (m.options.normalized_shape().size() != 1)
+    return detail::activate(m.forward(residual.defined() ? x + residual : x), act);
+  return add_layer_norm(x, residual, m.weight, m.bias, m.options.eps(), act);
 }
 
 /// A torch::nn::LayerNorm module applied through layer_norm above when it normalises one
 /// dimension (the module's own forward, then `act`, otherwise).
 inline torch::Tensor layer_norm(const torch::Tensor& x, torch::nn::LayerNormImpl& m,
                                 detail::Epilogue act = detail::Epilogue::none) {
-  if (m.options.normalized_shape().size() != 1) return detail::activate(m.forward(x), act);
-  return layer_norm(x, m.weight, m.bias, m.options.eps(), act);
+  return add_layer_norm(x, torch::Tensor(), m, act);
 }
 
 }  // namespace topos::nn

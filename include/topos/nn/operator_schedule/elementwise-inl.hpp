@@ -127,7 +127,9 @@ TOPOS_INLINE torch::Tensor Bias::forward(RunContext& ctx, const torch::Tensor& x
   return x + ctx.parameter(path_).reshape({-1});
 }
 TOPOS_INLINE OperationTraits Bias::traits() const {
-  return row_wise("bias");  // with its printed path
+  auto t = row_wise("bias");  // with its printed path
+  t.row_offset = path_;
+  return t;
 }
 
 TOPOS_INLINE std::string HeadWeights::str(const std::string& x) const {

@@ -178,7 +178,21 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_step(const PlannedStep& p, c
     for (const auto& term : p.terms)
       detail::naming(where, term.term,
                      [&] { evaluate_into(where, s.target, term, h, ops, cache, values); });
-    y = mix(where, s, values, h, ops);
+    // Two terms summed into an operation that forms the sum in its kernel (a residual
+    // connection into a layer norm), with its activation.
+    const auto& v = values.values;
+    if (fast_.fuse_residuals() && first == 0 && s.mix == OperatorStep::Mix::sum && v.size() == 2 &&
+        !tail.empty() && tail.front().traits.fuses_residual && v[0].dim() == 2 &&
+        v[0].sizes() == v[1].sizes()) {
+      check_terms(where, values);
+      const auto* act = fusable_activation_at(detail::OperationSeq(tail), 1);
+      y = detail::naming(where, "the step's operations", [&] {
+        return run_operation(where, s.target, tail.front(), v[0], ops, h, act, v[1]);
+      });
+      first = act ? 2 : 1;
+    } else {
+      y = mix(where, s, values, h, ops);
+    }
   }
   y = detail::naming(where, "the step's operations", [&] {
     for (std::size_t i = first; i < tail.size(); ++i)
@@ -244,11 +258,10 @@ TOPOS_INLINE void OperatorNetworkImpl::evaluate_into(const std::string& where,
   if (x.defined()) out.add(std::move(x), &term);
 }
 
-TOPOS_INLINE torch::Tensor OperatorNetworkImpl::mix(const std::string& where, const OperatorStep& s,
-                                                    StepTerms& t, const Cochains& h,
-                                                    Operators& ops) {
-  auto& v = t.values;
-  for (std::size_t i = 1; i < v.size(); ++i) {  // what LibTorch would say without the terms
+TOPOS_INLINE void OperatorNetworkImpl::check_terms(const std::string& where,
+                                                   const StepTerms& t) const {
+  const auto& v = t.values;
+  for (std::size_t i = 1; i < v.size(); ++i) {
     if (v[i].dim() != 2 || v[0].dim() != 2) break;
     if (v[i].size(0) != v[0].size(0))
       throw ScheduleError(where + ": " + detail::term_str(*t.from[i]) + " gives " +
@@ -261,6 +274,13 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::mix(const std::string& where, co
                           " gives " + c10::toString(v[0].scalar_type()) +
                           ": give the inputs and operators one dtype (net->to(dtype))");
   }
+}
+
+TOPOS_INLINE torch::Tensor OperatorNetworkImpl::mix(const std::string& where, const OperatorStep& s,
+                                                    StepTerms& t, const Cochains& h,
+                                                    Operators& ops) {
+  check_terms(where, t);
+  auto& v = t.values;
   return detail::naming(where, "mixing the terms", [&]() -> torch::Tensor {
     const auto cat = [&] { return v.size() == 1 ? v[0] : torch::cat(v, 1); };
     if (s.mix == OperatorStep::Mix::filter) return combine_terms(v, params_.at(s.filter_path));

@@ -92,10 +92,20 @@ TOPOS_INLINE torch::Tensor ChannelNorm::forward_activated(RunContext& ctx, const
   if (batch_) return apply_activation(forward(ctx, x), activation, negative_slope);
   return nn::layer_norm(x, ctx.module<torch::nn::LayerNormImpl>(path_), epilogue_of(activation));
 }
+TOPOS_INLINE torch::Tensor ChannelNorm::forward_residual(RunContext& ctx, const torch::Tensor& x,
+                                                         const torch::Tensor& r,
+                                                         std::optional<Activation> activation,
+                                                         double negative_slope) const {
+  if (batch_ || (activation && !fusable(*activation)))
+    return Operation::forward_residual(ctx, x, r, activation, negative_slope);
+  return nn::add_layer_norm(x, r, ctx.module<torch::nn::LayerNormImpl>(path_),
+                            activation ? epilogue_of(*activation) : Epilogue::none);
+}
 TOPOS_INLINE OperationTraits ChannelNorm::traits() const {
   if (!batch_) {
     auto t = row_wise("layer_norm");
     t.fuses_activation = true;
+    t.fuses_residual = true;
     return t;
   }
   OperationTraits t;  // batch statistics: every row counts

@@ -73,6 +73,10 @@ class ChannelNorm final : public Operation {
   /// LayerNorm's kernel applies relu or elu before its store (BatchNorm: forward, then act).
   torch::Tensor forward_activated(RunContext& ctx, const torch::Tensor& x, Activation activation,
                                   double negative_slope) const override;
+  /// LayerNorm's kernel forms x + r itself (nn::add_layer_norm).
+  torch::Tensor forward_residual(RunContext& ctx, const torch::Tensor& x, const torch::Tensor& r,
+                                 std::optional<Activation> activation,
+                                 double negative_slope) const override;
   OperationTraits traits() const override;
 
  private:

@@ -235,9 +235,13 @@ class OperatorNetworkImpl : public torch::nn::Module {
                           Operators& ops, const Cochains& h);
   torch::Tensor apply(const std::string& where, const CochainKey& target, const TermOp& t,
                       torch::Tensor x, Operators& ops, const Cochains& h);
+  /// t's forward on x (with `residual`: on x + residual, forward_residual), with `activation`
+  /// (an activation operation t fuses) applied in the same kernel.
   torch::Tensor run_operation(const std::string& where, const CochainKey& target, const TermOp& t,
                               const torch::Tensor& x, Operators& ops, const Cochains& h,
-                              const TermOp* activation);
+                              const TermOp* activation, const torch::Tensor& residual = {});
+  /// list[j] when it is an activation that an operation before it may fuse (fuse_activations).
+  const TermOp* fusable_activation_at(const detail::OperationSeq& list, std::size_t j) const;
   struct TermValue;  // a term's value, or its rows and the aggregation still to apply
   using PrefixCache = std::map<std::string, torch::Tensor>;  // per group: shared term prefixes
   TermValue evaluate_term(const std::string& where, const CochainKey& target, const PlannedTerm& t,
@@ -249,6 +253,8 @@ class OperatorNetworkImpl : public torch::nn::Module {
   /// A term's value(s) added to `out`, or with `out.W` its product by its block of W.
   void evaluate_into(const std::string& where, const CochainKey& target, const PlannedTerm& term,
                      const Cochains& h, Operators& ops, PrefixCache& cache, StepTerms& out);
+  /// What LibTorch would say of the terms' rows and dtypes, said with the terms.
+  void check_terms(const std::string& where, const StepTerms& t) const;
   /// The step's terms mixed (with a split leading Linear layer, through its operation).
   torch::Tensor mix(const std::string& where, const OperatorStep& s, StepTerms& terms,
                     const Cochains& h, Operators& ops);

@@ -158,6 +158,10 @@ struct FastPaths {
   /// (multi_head_attention_from_cells): the scores' activation, the per-target norm and every
   /// head's weighted messages in one kernel.
   TORCH_ARG(bool, fuse_attention) = true;
+  /// A step's sum of two terms, or a bias, and the layer norm after it (with its activation)
+  /// run as one kernel that forms the sum (add_layer_norm): a residual connection's add and a
+  /// transformer block's skip term cost no autograd node and no pass of their own.
+  TORCH_ARG(bool, fuse_residuals) = true;
 
  public:
   static FastPaths all() { return {}; }
@@ -169,9 +173,9 @@ struct FastPaths {
   /// The fast paths' names, as the setters spell them.
   static const std::vector<std::string>& names() {
     static const std::vector<std::string> n{
-        "row_subset",        "prefix_cache",  "compact_cochains",
-        "split_first_layer", "filter_taps",   "reorder_products",
-        "fuse_activations",  "fuse_products", "fuse_attention"};
+        "row_subset",     "prefix_cache",     "compact_cochains", "split_first_layer",
+        "filter_taps",    "reorder_products", "fuse_activations", "fuse_products",
+        "fuse_attention", "fuse_residuals"};
     return n;
   }
   /// Sets the fast path `name` (one of names(); another is an error listing them).
@@ -199,6 +203,7 @@ struct FastPaths {
     if (name == "fuse_activations") return fuse_activations_;
     if (name == "fuse_products") return fuse_products_;
     if (name == "fuse_attention") return fuse_attention_;
+    if (name == "fuse_residuals") return fuse_residuals_;
     std::string known;
     for (const auto& n : names()) known += (known.empty() ? "" : ", ") + n;
     throw std::invalid_argument("no fast path '" + name + "' (fast paths: " + known + ")");
@@ -294,6 +299,13 @@ struct OperationTraits {
   /// forward_activated is a fused kernel: the network calls it for this operation followed by an
   /// activation operation (FastPaths::fuse_activations).
   bool fuses_activation = false;
+  /// forward_residual is a fused kernel: the network calls it with the two terms of a summing
+  /// step that this operation starts the operations of, or after an operation with `row_offset`
+  /// (FastPaths::fuse_residuals).
+  bool fuses_residual = false;
+  /// forward(x) is x + the parameter at this path, flattened to one row of x's channels (a
+  /// bias): an operation after it that fuses a residual adds it in its kernel.
+  std::string row_offset;
   /// forward(x) = forward_after_first(x · Wᵀ + b) for the Linear layer first_linear() returns:
   /// in a concatenating step the network may multiply each term by its block of W before the
   /// terms are summed over a neighbourhood (W [x; Σ y] = W x + Σ W y;
@@ -363,6 +375,16 @@ class Operation {
   virtual torch::Tensor forward_activated(RunContext& ctx, const torch::Tensor& x,
                                           Activation activation, double negative_slope) const {
     return apply_activation(forward(ctx, x), activation, negative_slope);
+  }
+  /// With traits().fuses_residual: forward(x + r), then the activation when one is given (a
+  /// fusable one: nn::fusable), in one kernel; r is a tensor of x's shape or one row of its
+  /// channels.
+  virtual torch::Tensor forward_residual(RunContext& ctx, const torch::Tensor& x,
+                                         const torch::Tensor& r,
+                                         std::optional<Activation> activation,
+                                         double negative_slope) const {
+    auto y = forward(ctx, x + r);
+    return activation ? apply_activation(y, *activation, negative_slope) : y;
   }
   /// With traits().leading_linear: the Linear layer forward starts with, and the rest of forward
   /// applied to that layer's output.

@@ -345,6 +345,18 @@ TOPOS_INLINE std::size_t OperatorNetworkImpl::apply_fused(const std::string& whe
       }
     }
   }
+  // A bias and the operation after it that adds it in its kernel (a layer norm), with its
+  // activation.
+  if (fast_.fuse_residuals() && !t.traits.row_offset.empty() && i + 1 < list.size() &&
+      list[i + 1].traits.fuses_residual && x.dim() == 2) {
+    const auto offset = params_.find(t.traits.row_offset);
+    if (offset == params_.end())
+      throw ScheduleError(where + ": " + t.operation->str("x") + " declares the row offset '" +
+                          t.traits.row_offset + "', which is no parameter of the network");
+    const auto* act = fusable_activation_at(list, i + 2);
+    x = run_operation(where, target, list[i + 1], x, ops, h, act, offset->second.reshape({-1}));
+    return act ? i + 2 : i + 1;
+  }
   // A product and the activation after it in one kernel: a sparse product without row sums, or
   // an operation whose traits say it fuses one.
   const auto* product = detail::sparse_product_of(t, is_neighborhood);
@@ -365,6 +377,13 @@ TOPOS_INLINE std::size_t OperatorNetworkImpl::apply_fused(const std::string& whe
   return i + 1;
 }
 
+TOPOS_INLINE const TermOp* OperatorNetworkImpl::fusable_activation_at(
+    const detail::OperationSeq& list, std::size_t j) const {
+  if (!fast_.fuse_activations() || j >= list.size()) return nullptr;
+  const auto& a = detail::activation_of(list[j]);
+  return a && fusable(*a) ? &list[j] : nullptr;
+}
+
 TOPOS_INLINE torch::Tensor OperatorNetworkImpl::apply(const std::string& where,
                                                       const CochainKey& target, const TermOp& t,
                                                       torch::Tensor x, Operators& ops,
@@ -378,12 +397,17 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::apply(const std::string& where,
 // traits say it fuses) its forward_activated; the result checked against what its infer said.
 TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_operation(
     const std::string& where, const CochainKey& target, const TermOp& t, const torch::Tensor& x,
-    Operators& ops, const Cochains& h, const TermOp* activation) {
+    Operators& ops, const Cochains& h, const TermOp* activation, const torch::Tensor& residual) {
   detail::NetworkRunContext ctx(*this, where, target, ops, h);
-  auto y = activation == nullptr
-               ? t.operation->forward(ctx, x)
-               : t.operation->forward_activated(ctx, x, *activation->traits.activation,
-                                                activation->traits.negative_slope);
+  const double slope = activation ? activation->traits.negative_slope : 0.0;
+  auto y =
+      residual.defined()
+          ? t.operation->forward_residual(
+                ctx, x, residual,
+                activation ? activation->traits.activation : std::optional<Activation>(), slope)
+      : activation == nullptr
+          ? t.operation->forward(ctx, x)
+          : t.operation->forward_activated(ctx, x, *activation->traits.activation, slope);
   if (auto it = inferred_.find(&t); it != inferred_.end()) {
     const auto& [rank_in, out] = it->second;
     // The target before the step, whole, has a row per cell of its rank.
