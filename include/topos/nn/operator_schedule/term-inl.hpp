@@ -361,18 +361,17 @@ TOPOS_INLINE std::size_t OperatorNetworkImpl::apply_fused(const std::string& whe
   // an operation whose traits say it fuses one.
   const auto* product = detail::sparse_product_of(t, is_neighborhood);
   const bool fuses = t.traits.fuses_activation || (product != nullptr && !product->row_norm);
-  const auto* next_act = i + 1 < list.size() ? &detail::activation_of(list[i + 1]) : nullptr;
-  if (!fast_.fuse_activations() || !fuses || next_act == nullptr || !*next_act ||
-      !fusable(**next_act)) {
+  const auto* act = fuses ? fusable_activation_at(list, i + 1) : nullptr;
+  if (act == nullptr) {
     x = apply(where, target, t, x, ops, h);
     return i;
   }
   if (product == nullptr) {
-    x = run_operation(where, target, t, x, ops, h, &list[i + 1]);
+    x = run_operation(where, target, t, x, ops, h, act);
   } else {
     const auto& A = product->transposed ? ops.t(where, product->op) : ops.at(where, product->op);
     x = detail::multiply(where, operator_label(product->op, product->transposed), A, x, false,
-                         epilogue_of(**next_act));
+                         epilogue_of(*act->traits.activation));
   }
   return i + 1;
 }
