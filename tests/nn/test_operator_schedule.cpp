@@ -1341,6 +1341,25 @@ TEST_CASE("fuse_residuals: a sum of two terms, or a bias, forms in the LayerNorm
   user->fast_paths().fuse_residuals(false);
   CHECK(torch::allclose(user->forward({{"x", xu}}, {}).at("y"), torch::relu(8 * xu)));
   CHECK(doubled->fused_calls == 1);
+  // An operation declaring a row offset that is no parameter: a clear error when the fused path
+  // would read it, not an out-of-range exception.
+  struct Offset final : Operation {
+    std::string str(const std::string& x) const override { return x + " + missing"; }
+    TermShape infer(BuildContext&, TermShape x) const override { return x; }
+    torch::Tensor forward(RunContext&, const torch::Tensor& x) const override { return x; }
+    OperationTraits traits() const override {
+      OperationTraits t;
+      t.row_offset = "missing";
+      return t;
+    }
+  };
+  OperatorSchedule bad;
+  bad.input("x", 0, 3).output("y", 0);
+  bad.step(into(0).sum(from(0).apply(Offset()).layer_norm("ln")).named("offset"));
+  OperatorNetwork offset(bad);
+  CHECK_THROWS_WITH(offset->forward({{"x", xu}}, {}),
+                    Contains("offset (into (0))") &&
+                        Contains("declares the row offset 'missing', which is no parameter"));
 }
 
 TEST_CASE("FastPaths: each fast path by name, all and none", "[nn][schedule][fast_paths]") {
