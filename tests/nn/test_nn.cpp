@@ -457,7 +457,7 @@ TEST_CASE("nn::layer_norm with an activation is one node: the same as LayerNorm 
   for (const auto dtype : {torch::kFloat, torch::kDouble})
     for (const std::int64_t C : {64, 37})
       for (const std::int64_t n : {7, 3000})
-        for (const auto act : {Epilogue::relu, Epilogue::elu}) {
+        for (const auto act : {Epilogue::relu, Epilogue::elu, Epilogue::sigmoid}) {
           INFO("dtype " << dtype << ", " << n << " × " << C << ", act " << static_cast<int>(act));
           const auto opt = torch::TensorOptions().dtype(dtype);
           const auto x0 = (torch::randn({n, C}, opt) * 3 + 1).requires_grad_();
@@ -500,7 +500,8 @@ TEST_CASE("nn::add_layer_norm forms x + r in its kernel: LayerNorm of the sum, g
     for (const std::int64_t C : {64, 37})
       for (const std::int64_t n : {3, 3000})
         for (const bool row : {false, true})
-          for (const auto act : {Epilogue::none, Epilogue::relu, Epilogue::elu}) {
+          for (const auto act :
+               {Epilogue::none, Epilogue::relu, Epilogue::elu, Epilogue::sigmoid}) {
             INFO("dtype " << dtype << ", " << n << " × " << C << (row ? ", a row" : ", a tensor")
                           << ", act " << static_cast<int>(act));
             const auto opt = torch::TensorOptions().dtype(dtype);

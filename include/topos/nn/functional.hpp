@@ -106,12 +106,14 @@ inline torch::Tensor apply_update(const torch::Tensor& x, Activation u,
 
 /// The activations the product kernels apply in their row loop (spmm, linear_act), or none.
 inline bool fusable(Activation u) {
-  return u == Activation::none || u == Activation::relu || u == Activation::elu;
+  return u == Activation::none || u == Activation::relu || u == Activation::elu ||
+         u == Activation::sigmoid;
 }
 inline Epilogue epilogue_of(Activation u) {
-  return u == Activation::relu  ? Epilogue::relu
-         : u == Activation::elu ? Epilogue::elu
-                                : Epilogue::none;
+  return u == Activation::relu      ? Epilogue::relu
+         : u == Activation::elu     ? Epilogue::elu
+         : u == Activation::sigmoid ? Epilogue::sigmoid
+                                    : Epilogue::none;
 }
 
 /// How messages reaching one target are combined. `max` only over a batch's neighbourhoods
@@ -550,12 +552,14 @@ inline void xavier_uniform(const torch::Tensor& w, double gain = 1.414) {
   torch::nn::init::xavier_uniform_(v, gain);
 }
 
-/// A weight tensor for the combination of several filter terms: y = Σ_k X_k W[:, :, k]
-/// (TopoModelX's einsum "nik,iok->no" over stacked terms), computed without the stack. A term
-/// given twice as the same tensor (a schedule naming one term twice, computed once: TopoBench's
-/// SCCNN takes L↓x_1 twice) is multiplied once, by the sum of its weight slices.
+/// A weight tensor for the combination of several filter terms: y = act(base + Σ_k X_k W[:, :, k])
+/// (TopoModelX's einsum "nik,iok->no" over stacked terms; base undefined for none), computed
+/// without the stack, the activation applied as the product is stored. A term given twice as the
+/// same tensor (a schedule naming one term twice, computed once: TopoBench's SCCNN takes L↓x_1
+/// twice) is multiplied once, by the sum of its weight slices.
 inline torch::Tensor combine_terms(const std::vector<torch::Tensor>& terms,
-                                   const torch::Tensor& weight) {
+                                   const torch::Tensor& weight, Epilogue act = Epilogue::none,
+                                   const torch::Tensor& base = {}) {
   if (static_cast<std::int64_t>(terms.size()) != weight.size(2))
     throw std::invalid_argument("combine_terms: " + std::to_string(terms.size()) +
                                 " terms for a weight with " + std::to_string(weight.size(2)) +
@@ -571,14 +575,15 @@ inline torch::Tensor combine_terms(const std::vector<torch::Tensor>& terms,
   // One product n × (K·in) by (K·in) × out over the terms side by side, never concatenated
   // (linear_blocks): each term's gradient comes back whole, not as a strided slice.
   if (unique.size() == terms.size())
-    return linear_blocks(unique, weight.permute({2, 0, 1}).reshape({-1, weight.size(1)}).t());
+    return linear_blocks(unique, weight.permute({2, 0, 1}).reshape({-1, weight.size(1)}).t(), act,
+                         base);
   std::vector<torch::Tensor> blocks;
   for (const auto& s : slices) {
     auto w = weight.select(2, s[0]);
     for (std::size_t i = 1; i < s.size(); ++i) w = w + weight.select(2, s[i]);
     blocks.push_back(w);
   }
-  return linear_blocks(unique, torch::cat(blocks, 0).t());
+  return linear_blocks(unique, torch::cat(blocks, 0).t(), act, base);
 }
 
 namespace detail {

@@ -164,10 +164,14 @@ struct LinearBlocksFunction : public torch::autograd::Function<LinearBlocksFunct
     return K == W.size(1) && dense_kernel_fits(K, W.size(0)) &&
            !(W.size(0) > 64 && use_onednn(xs[0]));
   }
-  static torch::Tensor product(const std::vector<torch::Tensor>& xs, const torch::Tensor& W) {
+  /// act(base + [xs] Wᵀ); base may be undefined (0).
+  static torch::Tensor product(const std::vector<torch::Tensor>& xs, const torch::Tensor& W,
+                               const torch::Tensor& base = {}, Epilogue e = Epilogue::none) {
     const auto M = W.t().contiguous();
     const auto n = xs[0].size(0), N = W.size(0);
-    auto y = torch::empty({n, N}, xs[0].options());
+    const bool has_base = base.defined();
+    auto y =
+        has_base ? base.clone(at::MemoryFormat::Contiguous) : torch::empty({n, N}, xs[0].options());
 #if defined(__GNUC__)
     AT_DISPATCH_FLOATING_TYPES(W.scalar_type(), "topos_linear_blocks", [&] {
       std::vector<torch::Tensor> held;
@@ -178,9 +182,9 @@ struct LinearBlocksFunction : public torch::autograd::Function<LinearBlocksFunct
         X.push_back(held.back().data_ptr<scalar_t>()), K.push_back(x.size(1));
       }
       const auto S = static_cast<std::int64_t>(xs.size());
-      at::parallel_for(0, n, grain_rows(n, n * W.size(1) * N), [&](std::int64_t b, std::int64_t e) {
+      at::parallel_for(0, n, grain_rows(n, n * W.size(1) * N), [&](std::int64_t b, std::int64_t f) {
         dense_blocks_clone(X.data(), K.data(), S, M.data_ptr<scalar_t>(), y.data_ptr<scalar_t>(), b,
-                           e, N);
+                           f, N, has_base, e);
       });
     });
 #else
@@ -188,29 +192,46 @@ struct LinearBlocksFunction : public torch::autograd::Function<LinearBlocksFunct
 #endif
     return y;
   }
+  // how: the activation in two bits, 4 with a base (torch 1.13's Function::apply takes no
+  // undefined input: without one, base is any tensor, unread).
   static torch::Tensor forward(torch::autograd::AutogradContext* ctx, at::TensorList xs,
-                               const torch::Tensor& W) {
+                               const torch::Tensor& W, const torch::Tensor& base,
+                               std::int64_t how) {
+    static_assert(static_cast<int>(Epilogue::sigmoid) < 4, "the activation takes two bits");
+    const auto e = static_cast<Epilogue>(how & 3);
+    const bool has_base = (how & 4) != 0;
+    auto y = product(std::vector<torch::Tensor>(xs.begin(), xs.end()), W,
+                     has_base ? base : torch::Tensor(), e);
     std::vector<torch::Tensor> saved(xs.begin(), xs.end());
     saved.push_back(W);
+    saved.push_back(e == Epilogue::none ? torch::Tensor() : y);
     ctx->save_for_backward(saved);
-    return product(std::vector<torch::Tensor>(xs.begin(), xs.end()), W);
+    ctx->saved_data["how"] = how;
+    return y;
   }
   static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx,
                                                torch::autograd::tensor_list grads) {
     auto saved = ctx->get_saved_variables();
+    const auto y = saved.back();
+    saved.pop_back();
     const auto W = saved.back().contiguous();
     saved.pop_back();
+    const auto how = ctx->saved_data["how"].toInt();
+    const auto e = static_cast<Epilogue>(how & 3);
     const auto S = static_cast<std::int64_t>(saved.size());
     const auto g = grads[0].contiguous();
     const auto n = g.size(0), N = W.size(0), Ktot = W.size(1);
     const bool want_dW = ctx->needs_input_grad(static_cast<std::size_t>(S));
-    torch::autograd::tensor_list out(saved.size() + 1);
+    const bool want_dbase =
+        (how & 4) != 0 && ctx->needs_input_grad(static_cast<std::size_t>(S) + 1);
+    torch::autograd::tensor_list out(saved.size() + 3);
     const auto chunks = backward_chunks(n);
-    torch::Tensor dW;
+    torch::Tensor dW, dbase;
     if (want_dW)
       dW = torch::zeros(chunks > 1 ? std::vector<std::int64_t>{chunks, N, Ktot}
                                    : std::vector<std::int64_t>{N, Ktot},
                         W.options());
+    if (want_dbase) dbase = torch::empty_like(g);
 #if defined(__GNUC__)
     AT_DISPATCH_FLOATING_TYPES(W.scalar_type(), "topos_linear_blocks_backward", [&] {
       std::vector<const scalar_t*> X;
@@ -224,16 +245,19 @@ struct LinearBlocksFunction : public torch::autograd::Function<LinearBlocksFunct
         if (ctx->needs_input_grad(static_cast<std::size_t>(s))) dx = torch::empty_like(x);
         dX.push_back(dx.defined() ? dx.data_ptr<scalar_t>() : nullptr);
       }
+      const scalar_t* yp = y.defined() ? y.data_ptr<scalar_t>() : nullptr;
       at::parallel_for(0, chunks, 1, [&](std::int64_t c0, std::int64_t c1) {
         for (std::int64_t c = c0; c < c1; ++c)
-          linear_blocks_backward_clone(X.data(), K.data(), S, W.data_ptr<scalar_t>(),
+          linear_blocks_backward_clone(X.data(), K.data(), S, W.data_ptr<scalar_t>(), yp,
                                        g.data_ptr<scalar_t>(), dX.data(),
                                        want_dW ? dW.data_ptr<scalar_t>() + c * N * Ktot : nullptr,
-                                       c * n / chunks, (c + 1) * n / chunks, N);
+                                       want_dbase ? dbase.data_ptr<scalar_t>() : nullptr,
+                                       c * n / chunks, (c + 1) * n / chunks, N, e);
       });
     });
 #endif
-    out.back() = want_dW && chunks > 1 ? dW.sum(0) : dW;
+    out[static_cast<std::size_t>(S)] = want_dW && chunks > 1 ? dW.sum(0) : dW;
+    out[static_cast<std::size_t>(S) + 1] = dbase;
     return out;
   }
 };
@@ -273,12 +297,15 @@ inline torch::Tensor linear_act(const torch::Tensor& x, const torch::Tensor& W,
                                        static_cast<std::int64_t>(act));
 }
 
-/// [x_0 | x_1 | ...] Wᵀ (W N × Σ columns) as one autograd node that never forms the
-/// concatenation, each block's gradient a tensor of its own, where the dense kernels take the
-/// widths (CPU, float or double; each block's columns, their sum and N as linear_act takes
-/// them): the same values as linear_act(torch::cat(xs, 1), W), and the same gradients where its
-/// fused backward takes the sum too (else BLAS's, in another order). Otherwise exactly that.
-inline torch::Tensor linear_blocks(const std::vector<torch::Tensor>& xs, const torch::Tensor& W) {
+/// act(base + [x_0 | x_1 | ...] Wᵀ) (W N × Σ columns; base n × N, or undefined for none) as one
+/// autograd node that never forms the concatenation, each block's gradient a tensor of its own,
+/// the activation applied as the last block is stored, where the dense kernels take the widths
+/// (CPU, float or double; each block's columns, their sum and N as linear_act takes them): the
+/// same values as activate(base + linear_act(torch::cat(xs, 1), W), act), and the same gradients
+/// where its fused backward takes the sum too (else BLAS's, in another order). Otherwise exactly
+/// that.
+inline torch::Tensor linear_blocks(const std::vector<torch::Tensor>& xs, const torch::Tensor& W,
+                                   Epilogue act = Epilogue::none, const torch::Tensor& base = {}) {
   if (xs.empty()) throw std::invalid_argument("linear_blocks: no blocks");
   std::int64_t K = 0;
   for (const auto& x : xs) K += x.dim() == 2 ? x.size(1) : 0;
@@ -287,13 +314,28 @@ inline torch::Tensor linear_blocks(const std::vector<torch::Tensor>& xs, const t
         "linear_blocks: blocks of " + std::to_string(K) + " columns in all for a weight of " +
         (W.dim() == 2 ? std::to_string(W.size(0)) + " x " + std::to_string(W.size(1))
                       : std::to_string(W.dim()) + " dimensions"));
-  if (xs.size() == 1 || !detail::LinearBlocksFunction::fits(xs, W))
-    return linear_act(xs.size() == 1 ? xs[0] : torch::cat(xs, 1), W, {});
-  bool grad = false;
+  if (base.defined() && (base.dim() != 2 || base.size(0) != xs[0].size(0) ||
+                         base.size(1) != W.size(0) || base.scalar_type() != W.scalar_type()))
+    throw std::invalid_argument("linear_blocks: a base of " + c10::str(base.sizes()) + " " +
+                                c10::toString(base.scalar_type()) + " for a product of " +
+                                std::to_string(xs[0].size(0)) + " x " + std::to_string(W.size(0)) +
+                                " " + c10::toString(W.scalar_type()) +
+                                ": give the base the product's rows, columns and dtype");
+  const auto fallback = [&] {
+    if (!base.defined()) return linear_act(xs.size() == 1 ? xs[0] : torch::cat(xs, 1), W, {}, act);
+    return detail::activate(base + linear_act(xs.size() == 1 ? xs[0] : torch::cat(xs, 1), W, {}),
+                            act);
+  };
+  if ((xs.size() == 1 && !base.defined()) || !detail::LinearBlocksFunction::fits(xs, W) ||
+      (base.defined() && !base.device().is_cpu()))
+    return fallback();
+  bool grad = W.requires_grad() || (base.defined() && base.requires_grad());
   for (const auto& x : xs) grad = grad || x.requires_grad();
-  if (!torch::GradMode::is_enabled() || !(grad || W.requires_grad()))
-    return detail::LinearBlocksFunction::product(xs, W);
-  return detail::LinearBlocksFunction::apply(at::TensorList(xs), W);
+  if (!torch::GradMode::is_enabled() || !grad)
+    return detail::LinearBlocksFunction::product(xs, W, base, act);
+  return detail::LinearBlocksFunction::apply(
+      at::TensorList(xs), W, base.defined() ? base : torch::empty({0}, W.options()),
+      static_cast<std::int64_t>(act) | (base.defined() ? 4 : 0));
 }
 
 }  // namespace topos::nn

@@ -107,7 +107,8 @@ struct SparseLinearFunction : public torch::autograd::Function<SparseLinearFunct
     auto v = product(values, x, W, crow, col, rows, weight_first, e);
     ctx->save_for_backward({v.dense_input, W, values, t_crow, t_col, t_perm,
                             e == Epilogue::none ? torch::Tensor() : v.y});
-    // One entry (each costs a hash-map insertion): the activation, then the two flags.
+    // One entry (each costs a hash-map insertion): the activation in two bits, then two flags.
+    static_assert(static_cast<int>(Epilogue::sigmoid) < 4, "the activation takes two bits");
     ctx->saved_data["how"] = act | (weight_first ? 4 : 0) | (v.onednn ? 8 : 0);
     return v.y;
   }

@@ -5,6 +5,7 @@
 // code (the same formula gives the parameter counts TopoBench published for its table), and
 // every model trained a few steps on a tiny batch.
 #include "support/torch_prelude.hpp"
+#include "support/fast_paths.hpp"
 
 #include "topos/models/topobench/table_models.hpp"
 #include "support/topobench.hpp"
@@ -173,8 +174,11 @@ TEST_CASE("SCCNNCustom's schedule: filter taps per rank, TopoBench's repeated ta
   torch::manual_seed(4);
   const auto lifted = lift_tiny(Domain::simplicial, 2);
   const auto& g = lifted[0];  // two triangles sharing an edge
-  const std::int64_t c = 3;
-  for (bool compat : {false, true}) {
+  // 3 channels: torch's products; 32: the dense kernels, the sigmoid applied as the taps'
+  // product is stored, the triangles' taps into edges weighted first and its base.
+  for (const auto& [c, compat] :
+       {std::pair<std::int64_t, bool>{3, false}, {3, true}, {32, false}, {32, true}}) {
+    INFO(c << " channels, compatible " << compat);
     nn::OperatorNetwork net(
         sccnn_custom_schedule(SCCNNCustomOptions(c).n_layers(1).topobench_compatible(compat)));
     std::map<std::string, nn::SparseOperator> ops;
@@ -211,10 +215,33 @@ TEST_CASE("SCCNNCustom's schedule: filter taps per rank, TopoBench's repeated ta
     const auto y2 = filter({b2tx1, (compat ? L2u : L2d).matmul(b2tx1), L2u.matmul(b2tx1), h[2],
                             L2d.matmul(h[2]), L2u.matmul(h[2])},
                            "layers.0.weight_2");
-    const auto out = net->forward({{"x_0", x[0]}, {"x_1", x[1]}, {"x_2", x[2]}}, ops);
-    CHECK(torch::allclose(out.at("x_0"), y0, 1e-4, 1e-5));
+    const std::map<std::string, torch::Tensor> inputs{{"x_0", x[0]}, {"x_1", x[1]}, {"x_2", x[2]}};
+    const auto out = net->forward(inputs, ops);
+    // The plan says each filter's product and its sigmoid are one node.
+    const auto listing = net->plan(inputs, ops).str();
+    for (int r = 0; r < 3; ++r) {
+      const auto at = listing.find("filter layers.0.weight_" + std::to_string(r));
+      REQUIRE(at != std::string::npos);
+      CHECK_THAT(listing.substr(at, listing.find('\n', at) - at),
+                 Catch::EndsWith("FLOPs  (one node with the next operation)"));
+    }
     CHECK(torch::allclose(out.at("x_1"), y1, 1e-4, 1e-5));
     CHECK(torch::allclose(out.at("x_2"), y2, 1e-4, 1e-5));
+    // Gradients of inputs and weights with every fast path alone and all on, against all off.
+    for (auto& xr : x) xr.requires_grad_(true);
+    const auto run = [&] {
+      const auto o = net->forward({{"x_0", x[0]}, {"x_1", x[1]}, {"x_2", x[2]}}, ops);
+      std::vector<torch::Tensor> r{o.at("x_0"), o.at("x_1"), o.at("x_2")};
+      auto loss = torch::zeros({});
+      for (const auto& y : r)
+        loss = loss + (y * torch::arange(y.numel()).reshape(y.sizes()).cos()).sum();
+      std::vector<torch::Tensor> wrt(x.begin(), x.end());
+      for (const auto& p : net->parameters()) wrt.push_back(p);
+      const auto grads = torch::autograd::grad({loss}, wrt);
+      r.insert(r.end(), grads.begin(), grads.end());
+      return r;
+    };
+    test::check_fast_paths(*net, run, 1e-5, 1e-6);
   }
 }
 

@@ -120,9 +120,9 @@ TEST_CASE("spmm equals the dense product, forward and backward", "[nn][sparse]")
 TEST_CASE("activations fused into spmm and linear_act equal torch's, forward and backward",
           "[nn][sparse]") {
   const auto torch_act = [](const torch::Tensor& z, Epilogue e) {
-    return e == Epilogue::relu ? torch::relu(z) : e == Epilogue::elu ? torch::elu(z) : z;
+    return topos::nn::detail::activate(z, e);  // torch's own relu, elu, sigmoid
   };
-  for (const auto e : {Epilogue::none, Epilogue::relu, Epilogue::elu}) {
+  for (const auto e : {Epilogue::none, Epilogue::relu, Epilogue::elu, Epilogue::sigmoid}) {
     for (const auto dt : {torch::kFloat, torch::kDouble}) {
       // 16, 32 and 128 channels take the register kernels, 5 and 33 the generic loop; 33·rows
       // also leaves a tail after the vectorised epilogue.
@@ -174,10 +174,10 @@ TEST_CASE("activations fused into spmm and linear_act equal torch's, forward and
 TEST_CASE("sparse_linear_act equals the dense act(A x W), either order, forward and backward",
           "[nn][sparse]") {
   const auto torch_act = [](const torch::Tensor& z, Epilogue e) {
-    return e == Epilogue::relu ? torch::relu(z) : e == Epilogue::elu ? torch::elu(z) : z;
+    return topos::nn::detail::activate(z, e);  // torch's own relu, elu, sigmoid
   };
   torch::manual_seed(5);
-  for (const auto e : {Epilogue::none, Epilogue::relu, Epilogue::elu})
+  for (const auto e : {Epilogue::none, Epilogue::relu, Epilogue::elu, Epilogue::sigmoid})
     for (const auto dt : {torch::kFloat, torch::kDouble})
       // (inputs, outputs): the register kernels (32 · 32, 16 · 7), the generic loop (5 · 33),
       // oneDNN or BLAS for a wide map (128 · 128); empty rows and an empty x.
@@ -193,21 +193,31 @@ TEST_CASE("sparse_linear_act equals the dense act(A x W), either order, forward 
             const auto y = sparse_linear_act(A, x, W, weight_first, e);
             const auto xr = x.detach().clone().requires_grad_(true);
             const auto Wr = W.detach().clone().requires_grad_(true);
-            const auto yr = torch_act(A.to_dense().matmul(xr).matmul(Wr), e);
-            // Within tol of the largest entry (float sums of up to 128 products of large terms).
+            const auto pre = A.to_dense().matmul(xr).matmul(Wr);
+            const auto yr = torch_act(pre, e);
+            // Within tol of the largest entry (float sums of up to 128 products of large terms);
+            // the values within tol of the largest product, which a sigmoid maps into (0, 1).
             const double tol = dt == torch::kFloat ? 1e-5 : 1e-12;
-            const auto near = [&](const torch::Tensor& got, const torch::Tensor& want) {
+            const auto near = [&](const torch::Tensor& got, const torch::Tensor& want,
+                                  const torch::Tensor& scale) {
               return got.sizes() == want.sizes() &&
                      (want.numel() == 0 ||
                       (got - want).abs().max().item<double>() <=
-                          tol * std::max(1.0, want.abs().max().item<double>()));
+                          tol * std::max(1.0, scale.abs().max().item<double>()));
             };
-            REQUIRE(near(y, yr));
+            REQUIRE(near(y, yr, pre));
             const auto R = torch::randn(y.sizes(), dt);
             (y * R).sum().backward();
             (yr * R).sum().backward();
-            REQUIRE(near(x.grad(), xr.grad()));
-            REQUIRE(near(W.grad(), Wr.grad()));
+            // sigmoid' moves with the product's rounding (float sums of ~100 in the two orders),
+            // unlike relu's: its gradients within tol of the largest product too.
+            const auto grad_scale = [&](const torch::Tensor& g) {
+              return e == Epilogue::sigmoid && g.numel() > 0 && pre.numel() > 0
+                         ? torch::stack({g.abs().max(), pre.abs().max()})
+                         : g;
+            };
+            REQUIRE(near(x.grad(), xr.grad(), grad_scale(xr.grad())));
+            REQUIRE(near(W.grad(), Wr.grad(), grad_scale(Wr.grad())));
             // Without a gradient to take, the same values and no node.
             torch::NoGradGuard no_grad;
             const auto z = sparse_linear_act(A, x, W, weight_first, e);
@@ -337,7 +347,7 @@ TEST_CASE("linear_act in panels of 64 outputs equals torch's linear, forward and
   CHECK_FALSE(dense_kernel_fits(64, 1088));
   CHECK_FALSE(dense_kernel_fits(64, 96));
   const auto torch_act = [](const torch::Tensor& z, Epilogue e) {
-    return e == Epilogue::relu ? torch::relu(z) : e == Epilogue::elu ? torch::elu(z) : z;
+    return topos::nn::detail::activate(z, e);  // torch's own relu, elu, sigmoid
   };
   torch::manual_seed(11);
   // (rows, inputs, outputs): rows that leave a tail after blocks of 6 and of 48; 192 outputs are
@@ -358,7 +368,7 @@ TEST_CASE("linear_act in panels of 64 outputs equals torch's linear, forward and
                          {41, 32, 1024},
                          {29, 576, 64}}) {
     for (const auto dt : {torch::kFloat, torch::kDouble}) {
-      for (const auto e : {Epilogue::none, Epilogue::relu, Epilogue::elu}) {
+      for (const auto e : {Epilogue::none, Epilogue::relu, Epilogue::elu, Epilogue::sigmoid}) {
         INFO(n << " x " << K << " by " << K << " x " << N << ", "
                << (dt == torch::kFloat ? "float" : "double") << ", epilogue "
                << static_cast<int>(e));
@@ -752,6 +762,85 @@ TEST_CASE("linear_blocks is linear_act over the concatenation, bit for bit where
   REQUIRE_THROWS_WITH(linear_blocks({a, b}, torch::randn({4, 24})),
                       Catch::Contains("16 columns in all for a weight of 4 x 24"));
   REQUIRE_THROWS_WITH(linear_blocks({}, torch::randn({4, 24})), Catch::Contains("no blocks"));
+}
+
+TEST_CASE("linear_blocks with a base and an activation is act(base + the product), one node",
+          "[nn][conv]") {
+  torch::manual_seed(21);
+  struct Case {
+    std::int64_t n, N;
+    std::vector<std::int64_t> K;
+  };
+  // Rows leaving tails after the backward's blocks of 32 and of 8 (1024 outputs); a 7-wide block
+  // takes the concatenation (torch's ops after it); 9000 rows sum dW per chunk on two threads.
+  for (const auto& c : {Case{97, 64, {64, 32, 64}}, Case{53, 16, {8, 16}}, Case{41, 1024, {64, 64}},
+                        Case{9000, 32, {32, 32}}, Case{45, 64, {64, 7}}, Case{0, 32, {32, 32}}})
+    for (const auto dt : {torch::kFloat, torch::kDouble})
+      for (const auto e : {Epilogue::none, Epilogue::relu, Epilogue::elu, Epilogue::sigmoid})
+        for (const bool with_base : {true, false}) {
+          INFO(c.n << " rows, " << c.N << " outputs, " << (dt == torch::kFloat ? "float" : "double")
+                   << ", epilogue " << static_cast<int>(e) << (with_base ? ", a base" : ""));
+          struct RestoreThreads {
+            int n = at::get_num_threads();
+            ~RestoreThreads() { at::set_num_threads(n); }
+          } restore;
+          if (c.n > 8192) at::set_num_threads(2);
+          std::vector<torch::Tensor> xs, xr;
+          std::int64_t K = 0;
+          for (auto k : c.K) {
+            xs.push_back(torch::randn({c.n, k}, dt).requires_grad_(true));
+            xr.push_back(xs.back().detach().to(torch::kDouble).requires_grad_(true));
+            K += k;
+          }
+          const auto W = (torch::randn({c.N, K}, dt) / 8).requires_grad_(true);
+          const auto Wr = W.detach().to(torch::kDouble).requires_grad_(true);
+          const auto base =
+              with_base ? torch::randn({c.n, c.N}, dt).requires_grad_(true) : torch::Tensor();
+          const auto br =
+              with_base ? base.detach().to(torch::kDouble).requires_grad_(true) : torch::Tensor();
+          const auto y = linear_blocks(xs, W, e, base);
+          auto z = torch::cat(xr, 1).matmul(Wr.t());
+          if (with_base) z = z + br;
+          const auto yr = topos::nn::detail::activate(z, e);  // torch's own activations, in double
+          const double tol = dt == torch::kFloat ? 1e-4 : 1e-11;
+          REQUIRE(y.sizes() == yr.sizes());
+          REQUIRE(torch::allclose(y.to(torch::kDouble), yr, tol, tol));
+          const auto R = torch::randn(y.sizes(), dt);
+          (y * R).sum().backward();
+          (yr * R.to(torch::kDouble)).sum().backward();
+          REQUIRE(torch::allclose(W.grad().to(torch::kDouble), Wr.grad(), tol * 10, tol * 10));
+          for (std::size_t s = 0; s < xs.size(); ++s)
+            REQUIRE(torch::allclose(xs[s].grad().to(torch::kDouble), xr[s].grad(), tol, tol));
+          if (with_base)
+            REQUIRE(torch::allclose(base.grad().to(torch::kDouble), br.grad(), tol, tol));
+          torch::NoGradGuard no_grad;  // no node: the same values
+          const auto y0 = linear_blocks(xs, W, e, base);
+          REQUIRE_FALSE(y0.requires_grad());
+          REQUIRE(torch::equal(y0, y.detach()));
+        }
+  const auto a = torch::randn({5, 8}), b = torch::randn({5, 8});
+  REQUIRE_THROWS_WITH(
+      linear_blocks({a, b}, torch::randn({4, 16}), Epilogue::none, torch::randn({5, 3})),
+      Catch::Contains("a base of [5, 3]") && Catch::Contains("5 x 4"));
+  REQUIRE_THROWS_WITH(linear_blocks({a, b}, torch::randn({4, 16}), Epilogue::none,
+                                    torch::randn({5, 4}, torch::kDouble)),
+                      Catch::Contains("Double") && Catch::Contains("dtype"));
+}
+
+TEST_CASE("the vectorised sigmoid is 1 / (1 + exp(-x)) over float's whole range", "[nn][kernels]") {
+  // Within 3e-7 relative where sigmoid is a normal float; 0 or tiny where it underflows; no
+  // NaN from exp's overflow; NaN stays NaN.
+  const auto x = torch::linspace(-120, 120, 200003);
+  const auto y = linear_act(x.unsqueeze(1), torch::ones({1, 1}), {}, Epilogue::sigmoid).squeeze(1);
+  const auto ref = torch::sigmoid(x.to(torch::kDouble));
+  const auto normal = ref > 1e-37;
+  const auto rel = ((y.to(torch::kDouble) - ref).abs() / ref.clamp_min(1e-300));
+  REQUIRE(rel.masked_select(normal).max().item<double>() < 3e-7);
+  REQUIRE(y.masked_select(normal.logical_not()).max().item<float>() < 1e-36f);
+  REQUIRE(y.isfinite().all().item<bool>());
+  const auto n =
+      linear_act(torch::full({16, 1}, std::nanf("")), torch::ones({1, 1}), {}, Epilogue::sigmoid);
+  REQUIRE(n.isnan().all().item<bool>());
 }
 
 TEST_CASE("polynomial filters and the affine power equal dense matrix powers", "[nn][conv]") {

@@ -80,7 +80,9 @@ static TOPOS_INLINE_KERNEL void csr_rows(const std::int64_t* crow, const std::in
           ? csr_rows_width<T, Epilogue::none, VB>(crow, col, val, perm, X, Y, begin, end, C)
       : e == Epilogue::relu
           ? csr_rows_width<T, Epilogue::relu, VB>(crow, col, val, perm, X, Y, begin, end, C)
-          : csr_rows_width<T, Epilogue::elu, VB>(crow, col, val, perm, X, Y, begin, end, C))
+      : e == Epilogue::elu
+          ? csr_rows_width<T, Epilogue::elu, VB>(crow, col, val, perm, X, Y, begin, end, C)
+          : csr_rows_width<T, Epilogue::sigmoid, VB>(crow, col, val, perm, X, Y, begin, end, C))
     return;
 #endif
   for (std::int64_t i = begin; i < end; ++i) {

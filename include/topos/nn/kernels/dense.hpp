@@ -141,8 +141,10 @@ static TOPOS_INLINE_KERNEL void dense_rows(const T* X, const T* M, const T* b, T
     dense_rows_width<T, Epilogue::none, VB>(X, M, b, Y, begin, end, K, N);
   else if (e == Epilogue::relu)
     dense_rows_width<T, Epilogue::relu, VB>(X, M, b, Y, begin, end, K, N);
-  else
+  else if (e == Epilogue::elu)
     dense_rows_width<T, Epilogue::elu, VB>(X, M, b, Y, begin, end, K, N);
+  else
+    dense_rows_width<T, Epilogue::sigmoid, VB>(X, M, b, Y, begin, end, K, N);
 }
 [[maybe_unused]] TOPOS_SIMD_CLONES static void dense_rows_float(const float* X, const float* M,
                                                                 const float* b, float* Y,
@@ -339,8 +341,10 @@ static TOPOS_INLINE_KERNEL void linear_backward_any(const T* x, const T* W, cons
     linear_backward_rows<T, Epilogue::none, VB>(x, W, y, g, dx, dW, db, begin, end, K, N);
   else if (e == Epilogue::relu)
     linear_backward_rows<T, Epilogue::relu, VB>(x, W, y, g, dx, dW, db, begin, end, K, N);
-  else
+  else if (e == Epilogue::elu)
     linear_backward_rows<T, Epilogue::elu, VB>(x, W, y, g, dx, dW, db, begin, end, K, N);
+  else
+    linear_backward_rows<T, Epilogue::sigmoid, VB>(x, W, y, g, dx, dW, db, begin, end, K, N);
 }
 [[maybe_unused]] TOPOS_SIMD_CLONES static void linear_backward_float(
     const float* x, const float* W, const float* y, const float* g, float* dx, float* dW, float* db,
@@ -386,38 +390,52 @@ inline void linear_backward_clone(const double* x, const double* W, const double
 #endif
 
 // Blocks of columns side by side without their concatenation: X = [X_0 | X_1 | ...], X_s
-// n × K[s] (contiguous, S of them), M (ΣK) × N. Y = X M over rows [begin, end), each block of 48
-// rows summing the blocks of K in turn while its Y stays in L1: the sums of one product over
-// the concatenation, in its order, without writing the concatenation (a filter's taps:
-// combine_terms).
+// n × K[s] (contiguous, S of them), M (ΣK) × N. Y = act(Y0 + X M) over rows [begin, end), each
+// block of 48 rows summing the blocks of K in turn while its Y stays in L1: the sums of one
+// product over the concatenation, in its order, without writing the concatenation (a filter's
+// taps: combine_terms). `base`: Y already holds Y0 (a filter's other part), else Y0 = 0; the
+// activation is applied as the last block is stored.
 #if defined(__GNUC__)
-template <class T, int VB>
+template <class T, Epilogue E, int VB>
 static TOPOS_INLINE_KERNEL void dense_blocks_rows(const T* const* X, const std::int64_t* K,
                                                   std::int64_t S, const T* M, T* Y,
                                                   std::int64_t begin, std::int64_t end,
-                                                  std::int64_t N) {
+                                                  std::int64_t N, bool base) {
   constexpr std::int64_t rows = 48;
   for (std::int64_t i0 = begin; i0 < end; i0 += rows) {
     const std::int64_t i1 = std::min(end, i0 + rows);
     const T* m = M;
     for (std::int64_t s = 0; s < S; m += K[s] * N, ++s)
-      dense_rows_width<T, Epilogue::none, VB>(X[s], m, nullptr, Y, i0, i1, K[s], N, N, s > 0);
+      if (s + 1 < S)
+        dense_rows_width<T, Epilogue::none, VB>(X[s], m, nullptr, Y, i0, i1, K[s], N, N,
+                                                base || s > 0);
+      else
+        dense_rows_width<T, E, VB>(X[s], m, nullptr, Y, i0, i1, K[s], N, N, base || s > 0);
   }
 }
-// Its backward from dY = g (n × N): dX_s = g W_s (W = Mᵀ, N × ΣK, W_s its K[s] columns) into
-// dX[s] where not null, and dW += gᵀ X (dW N × ΣK) where not null, over rows [begin, end).
-template <class T, int VB>
-static TOPOS_INLINE_KERNEL void linear_blocks_backward_rows(const T* const* X,
-                                                            const std::int64_t* K, std::int64_t S,
-                                                            const T* W, const T* g, T* const* dX,
-                                                            T* dW, std::int64_t begin,
-                                                            std::int64_t end, std::int64_t N) {
+// Its backward from dY = g (n × N) and the output y: dZ = g ⊙ act'(y) a block of rows at a time
+// (into dbase where not null: Y0's gradient; else on the stack), dX_s = dZ W_s (W = Mᵀ, N × ΣK,
+// W_s its K[s] columns) into dX[s] where not null, and dW += dZᵀ X (dW N × ΣK) where not null,
+// over rows [begin, end).
+template <class T, Epilogue E, int VB>
+static TOPOS_INLINE_KERNEL void linear_blocks_backward_rows(
+    const T* const* X, const std::int64_t* K, std::int64_t S, const T* W, const T* y, const T* g,
+    T* const* dX, T* dW, T* dbase, std::int64_t begin, std::int64_t end, std::int64_t N) {
   std::int64_t ldw = 0;
   for (std::int64_t s = 0; s < S; ++s) ldw += K[s];
-  const std::int64_t B = std::max<std::int64_t>(1, std::min<std::int64_t>(32, 32 * 256 / N));
+  constexpr std::int64_t capacity = 32 * 256;
+  const std::int64_t B = std::max<std::int64_t>(1, std::min<std::int64_t>(32, capacity / N));
+  alignas(64) T dZ[E == Epilogue::none ? 1 : capacity];
   for (std::int64_t i0 = begin; i0 < end; i0 += B) {
     const std::int64_t rows = std::min(B, end - i0);
     const T* z = g + i0 * N;
+    if (E != Epilogue::none) {
+      T* out = dbase ? dbase + i0 * N : dZ;
+      epilogue_rows<T, VB>(const_cast<T*>(y + i0 * N), g + i0 * N, out, rows * N, E);
+      z = out;
+    } else if (dbase) {
+      std::memcpy(dbase + i0 * N, z, static_cast<std::size_t>(rows * N) * sizeof(T));
+    }
     std::int64_t off = 0;
     for (std::int64_t s = 0; s < S; off += K[s], ++s) {
       if (dX[s])
@@ -427,36 +445,64 @@ static TOPOS_INLINE_KERNEL void linear_blocks_backward_rows(const T* const* X,
     }
   }
 }
-#define TOPOS_BLOCKS_KERNELS(T, NAME, ATTR, VB)                                         \
-  [[maybe_unused]] ATTR static void dense_blocks_##NAME(                                \
-      const T* const* X, const std::int64_t* K, std::int64_t S, const T* M, T* Y,       \
-      std::int64_t begin, std::int64_t end, std::int64_t N) {                           \
-    dense_blocks_rows<T, VB>(X, K, S, M, Y, begin, end, N);                             \
-  }                                                                                     \
-  [[maybe_unused]] ATTR static void linear_blocks_backward_##NAME(                      \
-      const T* const* X, const std::int64_t* K, std::int64_t S, const T* W, const T* g, \
-      T* const* dX, T* dW, std::int64_t begin, std::int64_t end, std::int64_t N) {      \
-    linear_blocks_backward_rows<T, VB>(X, K, S, W, g, dX, dW, begin, end, N);           \
+#define TOPOS_BLOCKS_DISPATCH(F, ...)                  \
+  switch (e) {                                         \
+    case Epilogue::none:                               \
+      return F<T, Epilogue::none, VB>(__VA_ARGS__);    \
+    case Epilogue::relu:                               \
+      return F<T, Epilogue::relu, VB>(__VA_ARGS__);    \
+    case Epilogue::elu:                                \
+      return F<T, Epilogue::elu, VB>(__VA_ARGS__);     \
+    case Epilogue::sigmoid:                            \
+      return F<T, Epilogue::sigmoid, VB>(__VA_ARGS__); \
+  }
+template <class T, int VB>
+static TOPOS_INLINE_KERNEL void dense_blocks_any(const T* const* X, const std::int64_t* K,
+                                                 std::int64_t S, const T* M, T* Y,
+                                                 std::int64_t begin, std::int64_t end,
+                                                 std::int64_t N, bool base, Epilogue e) {
+  TOPOS_BLOCKS_DISPATCH(dense_blocks_rows, X, K, S, M, Y, begin, end, N, base)
+}
+template <class T, int VB>
+static TOPOS_INLINE_KERNEL void linear_blocks_backward_any(
+    const T* const* X, const std::int64_t* K, std::int64_t S, const T* W, const T* y, const T* g,
+    T* const* dX, T* dW, T* dbase, std::int64_t begin, std::int64_t end, std::int64_t N,
+    Epilogue e){TOPOS_BLOCKS_DISPATCH(linear_blocks_backward_rows, X, K, S, W, y, g, dX, dW, dbase,
+                                      begin, end, N)}
+#undef TOPOS_BLOCKS_DISPATCH
+#define TOPOS_BLOCKS_KERNELS(T, NAME, ATTR, VB)                                           \
+  [[maybe_unused]] ATTR static void dense_blocks_##NAME(                                  \
+      const T* const* X, const std::int64_t* K, std::int64_t S, const T* M, T* Y,         \
+      std::int64_t begin, std::int64_t end, std::int64_t N, bool base, Epilogue e) {      \
+    dense_blocks_any<T, VB>(X, K, S, M, Y, begin, end, N, base, e);                       \
+  }                                                                                       \
+  [[maybe_unused]] ATTR static void linear_blocks_backward_##NAME(                        \
+      const T* const* X, const std::int64_t* K, std::int64_t S, const T* W, const T* y,   \
+      const T* g, T* const* dX, T* dW, T* dbase, std::int64_t begin, std::int64_t end,    \
+      std::int64_t N, Epilogue e) {                                                       \
+    linear_blocks_backward_any<T, VB>(X, K, S, W, y, g, dX, dW, dbase, begin, end, N, e); \
   }
 TOPOS_BLOCKS_KERNELS(float, float, TOPOS_SIMD_CLONES, 32)
-TOPOS_BLOCKS_KERNELS(double, double, TOPOS_SIMD_CLONES, 32)
+    TOPOS_BLOCKS_KERNELS(double, double, TOPOS_SIMD_CLONES, 32)
 #if defined(TOPOS_HAVE_V4)
-TOPOS_BLOCKS_KERNELS(float, float_v4, TOPOS_V4, 64)
-TOPOS_BLOCKS_KERNELS(double, double_v4, TOPOS_V4, 64)
+        TOPOS_BLOCKS_KERNELS(float, float_v4, TOPOS_V4, 64)
+            TOPOS_BLOCKS_KERNELS(double, double_v4, TOPOS_V4, 64)
 #endif
 #undef TOPOS_BLOCKS_KERNELS
 #define TOPOS_BLOCKS_CLONE(T, NAME)                                                               \
   inline void dense_blocks_clone(const T* const* X, const std::int64_t* K, std::int64_t S,        \
                                  const T* M, T* Y, std::int64_t begin, std::int64_t end,          \
-                                 std::int64_t N) {                                                \
-    TOPOS_IF_V4(return dense_blocks_##NAME##_v4(X, K, S, M, Y, begin, end, N));                   \
-    dense_blocks_##NAME(X, K, S, M, Y, begin, end, N);                                            \
+                                 std::int64_t N, bool base, Epilogue e) {                         \
+    TOPOS_IF_V4(return dense_blocks_##NAME##_v4(X, K, S, M, Y, begin, end, N, base, e));          \
+    dense_blocks_##NAME(X, K, S, M, Y, begin, end, N, base, e);                                   \
   }                                                                                               \
-  inline void linear_blocks_backward_clone(                                                       \
-      const T* const* X, const std::int64_t* K, std::int64_t S, const T* W, const T* g,           \
-      T* const* dX, T* dW, std::int64_t begin, std::int64_t end, std::int64_t N) {                \
-    TOPOS_IF_V4(return linear_blocks_backward_##NAME##_v4(X, K, S, W, g, dX, dW, begin, end, N)); \
-    linear_blocks_backward_##NAME(X, K, S, W, g, dX, dW, begin, end, N);                          \
+  inline void linear_blocks_backward_clone(const T* const* X, const std::int64_t* K,              \
+                                           std::int64_t S, const T* W, const T* y, const T* g,    \
+                                           T* const* dX, T* dW, T* dbase, std::int64_t begin,     \
+                                           std::int64_t end, std::int64_t N, Epilogue e) {        \
+    TOPOS_IF_V4(return linear_blocks_backward_##NAME##_v4(X, K, S, W, y, g, dX, dW, dbase, begin, \
+                                                          end, N, e));                            \
+    linear_blocks_backward_##NAME(X, K, S, W, y, g, dX, dW, dbase, begin, end, N, e);             \
   }
 #if defined(TOPOS_HAVE_V4)
 #define TOPOS_IF_V4(call) \
@@ -464,8 +510,7 @@ TOPOS_BLOCKS_KERNELS(double, double_v4, TOPOS_V4, 64)
 #else
 #define TOPOS_IF_V4(call)
 #endif
-TOPOS_BLOCKS_CLONE(float, float)
-TOPOS_BLOCKS_CLONE(double, double)
+                TOPOS_BLOCKS_CLONE(float, float) TOPOS_BLOCKS_CLONE(double, double)
 #undef TOPOS_IF_V4
 #undef TOPOS_BLOCKS_CLONE
 #endif

@@ -1,7 +1,8 @@
 // topos/nn/kernels/epilogue.hpp
 // What every CPU kernel (kernels.hpp) builds on: compilation per instruction set (target clones,
 // the AVX-512 entry points, cpu_has_v4) and the activations fused into their stores (Epilogue:
-// relu, elu with a vectorised expm1), also as a pass of their own over an array (apply_epilogue).
+// relu, elu with a vectorised expm1, sigmoid with a vectorised exp), also as a pass of their own
+// over an array (apply_epilogue).
 #pragma once
 
 #include <ATen/Parallel.h>
@@ -75,12 +76,23 @@ inline std::int64_t grain_rows(std::int64_t rows, std::int64_t work) {
 
 // The activation applied to a product's rows before they are stored (a fused epilogue), so an
 // activated product is one pass over its output, and its backward needs the output only.
-enum class Epilogue { none, relu, elu };
+// Every kernel that takes one dispatches on all four (a value it does not know is a logic error,
+// never another activation).
+enum class Epilogue { none, relu, elu, sigmoid };
+
+// 1 / (1 + exp(-x)) from t = exp(-|x|) <= 1, which never overflows: 1 / (1 + t) for x >= 0,
+// t / (1 + t) below (no cancellation for large negative x).
+template <class T>
+static TOPOS_INLINE_KERNEL T sigmoid_scalar(T x) {
+  const T t = std::exp(-std::abs(x));
+  return x >= T(0) ? T(1) / (T(1) + t) : t / (T(1) + t);
+}
 
 template <class T>
 static TOPOS_INLINE_KERNEL T epilogue_scalar(T x, Epilogue e) {
   if (e == Epilogue::relu) return x > T(0) ? x : T(0);
   if (e == Epilogue::elu) return x > T(0) ? x : std::expm1(x);
+  if (e == Epilogue::sigmoid) return sigmoid_scalar(x);
   return x;
 }
 
@@ -124,13 +136,28 @@ static TOPOS_INLINE_KERNEL void exp_vec(V& x) {
   x = s + s * p;
 }
 
+// sigmoid as sigmoid_scalar writes it, with exp(-|x|) from exp_parts: within 3e-7 of
+// 1 / (1 + exp(-x)), relative; torch 1.13's CPU sigmoid is a pass of its own (and its backward
+// another) wherever a product could have applied it before the store.
+template <class V>
+static TOPOS_INLINE_KERNEL void sigmoid_vec(V& x) {
+  const V neg = x < 0.0f ? x : -x;
+  V s, p;
+  exp_parts(neg, s, p);
+  const V t = s + s * p;
+  x = (x >= 0.0f ? V{} + 1.0f : t) / (1.0f + t);
+}
+
 template <class T, Epilogue E, class V>
 static TOPOS_INLINE_KERNEL void epilogue_vec(V& v) {
   if constexpr (E == Epilogue::relu) {
     v = v > T(0) ? v : V{};
-  } else if constexpr (E == Epilogue::elu) {
+  } else if constexpr (E == Epilogue::elu || E == Epilogue::sigmoid) {
     if constexpr (std::is_same_v<T, float>) {
-      elu_vec(v);
+      if constexpr (E == Epilogue::elu)
+        elu_vec(v);
+      else
+        sigmoid_vec(v);
     } else {
       for (int l = 0; l < static_cast<int>(sizeof(V) / sizeof(T)); ++l)
         v[l] = epilogue_scalar<T>(v[l], E);
@@ -141,11 +168,14 @@ static TOPOS_INLINE_KERNEL void epilogue_vec(V& v) {
 
 // The backward of an epilogue from its output y, in place on g (a scalar or a vector of T, by
 // reference: a vector returned by value across instruction sets changes the ABI): g ⊙ act'(y),
-// where relu' = [y > 0] and elu' = 1 for y > 0, y + 1 below (as torch's elu_backward with
-// is_result).
+// where relu' = [y > 0], elu' = 1 for y > 0, y + 1 below (as torch's elu_backward with
+// is_result), and sigmoid' = (1 - y) y (as torch's sigmoid_backward).
 template <class T, class V>
 static TOPOS_INLINE_KERNEL void epilogue_grad(const V& y, V& g, Epilogue e) {
-  g = y > T(0) ? g : e == Epilogue::relu ? V{} : g * (y + T(1));
+  if (e == Epilogue::sigmoid)
+    g = g * ((T(1) - y) * y);
+  else if (e != Epilogue::none)
+    g = y > T(0) ? g : e == Epilogue::relu ? V{} : g * (y + T(1));
 }
 
 // The epilogue on its own, in place (after a dense product), and its backward (epilogue_grad).
@@ -162,6 +192,7 @@ static TOPOS_INLINE_KERNEL void epilogue_rows(T* y, const T* g, T* out, std::int
     if (!g) {
       if (e == Epilogue::relu) epilogue_vec<T, Epilogue::relu>(v);
       if (e == Epilogue::elu) epilogue_vec<T, Epilogue::elu>(v);
+      if (e == Epilogue::sigmoid) epilogue_vec<T, Epilogue::sigmoid>(v);
       std::memcpy(y + i, &v, sizeof v);
     } else {
       vec gv;
@@ -233,7 +264,10 @@ void epilogue_range(T* y, const T* g, T* out, std::int64_t n, Epilogue e) {
 /// act(y) as torch's own differentiable ops, on any device: where a product is not fused (other
 /// devices and dtypes, factored operators, dense maps the kernels do not take).
 inline torch::Tensor activate(const torch::Tensor& y, Epilogue e) {
-  return e == Epilogue::relu ? torch::relu(y) : e == Epilogue::elu ? torch::elu(y) : y;
+  return e == Epilogue::relu      ? torch::relu(y)
+         : e == Epilogue::elu     ? torch::elu(y)
+         : e == Epilogue::sigmoid ? torch::sigmoid(y)
+                                  : y;
 }
 
 /// y = act(y) in place (g undefined), or the gradient g ⊙ act'(y) from the output y.

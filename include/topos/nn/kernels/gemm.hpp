@@ -150,7 +150,7 @@ inline void bias_epilogue(const torch::Tensor& y, const torch::Tensor& b, Epilog
                      [&](std::int64_t begin, std::int64_t end) {
                        bias_relu_rows(yp + begin * N, bp, end - begin, N, relu);
                      });
-  if (e == Epilogue::elu) apply_epilogue(y, torch::Tensor(), e);
+  if (e == Epilogue::elu || e == Epilogue::sigmoid) apply_epilogue(y, torch::Tensor(), e);
 }
 
 }  // namespace detail

@@ -230,6 +230,9 @@ static TOPOS_INLINE_KERNEL void layer_norm_backward_rows(const T* dy, const T* y
     if (e == Epilogue::elu)                                                                        \
       return layer_norm_rows<T, VB, Epilogue::elu>(x, res, r_step, sum, w, b, y, mean, rstd, n, C, \
                                                    eps);                                           \
+    if (e == Epilogue::sigmoid)                                                                    \
+      return layer_norm_rows<T, VB, Epilogue::sigmoid>(x, res, r_step, sum, w, b, y, mean, rstd,   \
+                                                       n, C, eps);                                 \
     layer_norm_rows<T, VB>(x, res, r_step, sum, w, b, y, mean, rstd, n, C, eps);                   \
   }                                                                                                \
   [[maybe_unused]] ATTR static void NAME##_backward(                                               \
@@ -241,6 +244,9 @@ static TOPOS_INLINE_KERNEL void layer_norm_backward_rows(const T* dy, const T* y
     if (e == Epilogue::elu)                                                                        \
       return layer_norm_backward_rows<T, VB, Epilogue::elu>(dy, y, x, w, mean, rstd, dx, dw, db,   \
                                                             dr, n, C);                             \
+    if (e == Epilogue::sigmoid)                                                                    \
+      return layer_norm_backward_rows<T, VB, Epilogue::sigmoid>(dy, y, x, w, mean, rstd, dx, dw,   \
+                                                                db, dr, n, C);                     \
     layer_norm_backward_rows<T, VB>(dy, y, x, w, mean, rstd, dx, dw, db, dr, n, C);                \
   }
 TOPOS_LAYER_NORM_ENTRY(float, layer_norm_float, TOPOS_SIMD_CLONES, 32)

@@ -83,10 +83,13 @@ TOPOS_INLINE Plan OperatorNetworkImpl::plan_with_costs(
       TermShape y{s.target.rank, mix_width_.at(&s)};
       if (s.mix == OperatorStep::Mix::filter) {
         const auto& W = params_.at(s.filter_path);  // in × out × taps
+        // The filter route applies an activation after it as its product is stored.
+        const bool act = p.route == StepRoute::filter &&
+                         fusable_activation_at(detail::OperationSeq(s.operations()), 0) != nullptr;
         line({0,
               "filter " + s.filter_path + "  dense 2·" + std::to_string(rows(y.rank)) + "·" +
                   std::to_string(W.size(0) * W.size(2)) + "·" + std::to_string(W.size(1)),
-              2 * rows(y.rank) * W.size(0) * W.size(2) * W.size(1)});
+              2 * rows(y.rank) * W.size(0) * W.size(2) * W.size(1), act ? 1 : 0});
         y.channels = W.size(1);
       }
       if (!s.operations().empty()) line({0, "step's operations", -1});

@@ -161,8 +161,13 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_step(const PlannedStep& p, c
   const auto& tail = s.operations();
   torch::Tensor y;
   std::size_t first = 0;  // the first of the step's operations left to apply
-  if (p.route == StepRoute::filter)
-    y = detail::naming(where, "the filter", [&] { return run_filter(where, s, h, ops, cache); });
+  if (p.route == StepRoute::filter) {
+    // The activation after the filter is applied as its product is stored.
+    const auto* act = fusable_activation_at(detail::OperationSeq(tail), 0);
+    const auto e = act ? epilogue_of(*act->traits.activation) : Epilogue::none;
+    y = detail::naming(where, "the filter", [&] { return run_filter(where, s, h, ops, cache, e); });
+    if (y.defined() && act) first = 1;
+  }
   if (!y.defined()) {
     // A concatenation into an mlp over a batch: a term summed from fewer rows than the target
     // has is multiplied by its block of the mlp's first weight before the sum (W Σ x = Σ W x):
@@ -467,7 +472,8 @@ TOPOS_INLINE bool OperatorNetworkImpl::filter_chains(const std::string& where,
 // multiply-adds.
 TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_filter(const std::string& where,
                                                            const OperatorStep& s, const Cochains& h,
-                                                           Operators& ops, PrefixCache& cache) {
+                                                           Operators& ops, PrefixCache& cache,
+                                                           Epilogue act) {
   const auto& W = params_.at(s.filter_path);  // in × out × taps
   const auto K = s.terms.size();
   if (W.dim() != 3 || W.size(2) != static_cast<std::int64_t>(K)) return {};  // powers fan out
@@ -477,12 +483,14 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_filter(const std::string& wh
   std::vector<bool> is_first(K, false);
   for (const auto& taps : first)
     for (auto k : taps) is_first[k] = true;
-  auto y = other_taps(where, f, is_first, W, ops, cache);
+  // The weighted-first parts, summed, are the base the other taps' product starts from.
+  torch::Tensor base;
   for (const auto& taps : first) {
     const auto part = detail::weighted_taps(where, f, taps, W);
-    y = y.defined() ? y + part : part;
+    base = base.defined() ? base + part : part;
   }
-  return y;
+  auto y = other_taps(where, f, is_first, W, ops, cache, act, base);
+  return y.defined() ? y : detail::activate(base, act);
 }
 
 // The taps not weighted first, each distinct prefix of products once (in the group's cache),
@@ -491,7 +499,8 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::other_taps(const std::string& wh
                                                            const detail::FilterTaps& f,
                                                            const std::vector<bool>& skip,
                                                            const torch::Tensor& W, Operators& ops,
-                                                           PrefixCache& cache) {
+                                                           PrefixCache& cache, Epilogue act,
+                                                           const torch::Tensor& base) {
   std::vector<torch::Tensor> terms;
   std::vector<std::int64_t> slices;
   for (std::size_t k = 0; k < f.chains.size(); ++k) {
@@ -518,9 +527,10 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::other_taps(const std::string& wh
     slices.push_back(static_cast<std::int64_t>(k));
   }
   if (terms.empty()) return {};
-  return combine_terms(terms, terms.size() == f.chains.size()
-                                  ? W
-                                  : W.index_select(2, torch::tensor(slices).to(W.device())));
+  return combine_terms(
+      terms,
+      terms.size() == f.chains.size() ? W : W.index_select(2, torch::tensor(slices).to(W.device())),
+      act, base);
 }
 
 TOPOS_INLINE torch::Tensor OperatorNetworkImpl::guard(const std::string& where,

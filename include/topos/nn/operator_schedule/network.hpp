@@ -259,15 +259,17 @@ class OperatorNetworkImpl : public torch::nn::Module {
   torch::Tensor mix(const std::string& where, const OperatorStep& s, StepTerms& terms,
                     const Cochains& h, Operators& ops);
   /// A filter step whose terms are chains of sparse products, each source's taps weighted on
-  /// the side with fewer rows; undefined where the step is not one (the general path runs it).
+  /// the side with fewer rows, then `act` (may be none); undefined where the step is not one
+  /// (the general path runs it).
   torch::Tensor run_filter(const std::string& where, const OperatorStep& s, const Cochains& h,
-                           Operators& ops, PrefixCache& cache);
+                           Operators& ops, PrefixCache& cache, Epilogue act);
   /// The filter's taps as chains of sparse products; false where they are not.
   bool filter_chains(const std::string& where, detail::FilterTaps& f, Operators& ops);
-  /// The taps not `skip`ped, each distinct prefix once, combined with their slices of W.
+  /// The taps not `skip`ped, each distinct prefix once, combined with their slices of W onto
+  /// `base` (may be undefined), then `act`; undefined where every tap is skipped.
   torch::Tensor other_taps(const std::string& where, const detail::FilterTaps& f,
                            const std::vector<bool>& skip, const torch::Tensor& W, Operators& ops,
-                           PrefixCache& cache);
+                           PrefixCache& cache, Epilogue act, const torch::Tensor& base);
   /// A compact step (compact_steps_) on the rows its readers aggregate: (value, each row's
   /// compact row or -1), or (undefined, undefined) where it must run on every row.
   std::pair<torch::Tensor, torch::Tensor> run_compact(const PlannedStep& p, const Cochains& h,
