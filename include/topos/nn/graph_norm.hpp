@@ -66,8 +66,8 @@ TORCH_MODULE(GraphNorm);
 /// dense pair makes a dozen passes over every entry of x (Citeseer: 3,703 words, 1 % of them set).
 /// The statistics are accumulated in double, since the expanded variance cancels. Values and
 /// gradients (w, b, α, W, bias) are the two modules'; where more than a quarter of x is set, it
-/// runs the two modules, the Linear and `act` as one node (nn::linear_act). `act` (relu or elu)
-/// is applied to the result either way.
+/// runs the two modules, the Linear and `act` as one node (nn::linear_act). `act` (relu, elu or
+/// sigmoid) is applied to the result either way.
 inline torch::Tensor graph_norm_linear(GraphNorm& norm, torch::nn::Linear& linear,
                                        const torch::Tensor& x, const torch::Tensor& batch,
                                        std::int64_t num_graphs, Epilogue act = Epilogue::none) {

@@ -1,14 +1,14 @@
 // topos/nn/kernels.hpp
-// The fused CPU kernels under message passing, each applying its activation (relu, elu) before a
-// row is stored, so that an activated product is one pass over its output and its backward needs
-// the output alone. Written with GCC's vector extension and compiled per instruction set: AVX2
-// and the baseline as target clones on 32-byte vectors, AVX-512 on 64-byte ones (dispatched at
+// The fused CPU kernels under message passing, each applying its activation (relu, elu, sigmoid)
+// before a row is stored, so that an activated product is one pass over its output and its backward
+// needs the output alone. Written with GCC's vector extension and compiled per instruction set:
+// AVX2 and the baseline as target clones on 32-byte vectors, AVX-512 on 64-byte ones (dispatched at
 // run time). This header holds linear_act, act(x Wᵀ + b) as one autograd node over the dense
 // kernels; the kernels are in kernels/: the activations and the dispatch (epilogue.hpp), the row
-// loop over a CSR matrix under spmm (csr.hpp; sparse_operator.hpp), and the register-blocked
-// dense product for narrow maps (n × K by K × N, N up to 64) with its backward (dense.hpp), and
-// oneDNN's sgemm for wide float32 maps when chosen (gemm.hpp, CpuGemm), and LayerNorm with its
-// backward (layer_norm.hpp).
+// loop over a CSR matrix under spmm (csr.hpp; sparse_operator.hpp), and the register-blocked dense
+// product for narrow maps (n × K by K × N, N up to 64) with its backward (dense.hpp), and oneDNN's
+// sgemm for wide float32 maps when chosen (gemm.hpp, CpuGemm), and LayerNorm with its backward
+// (layer_norm.hpp).
 #pragma once
 
 #include "topos/nn/kernels/csr.hpp"
@@ -266,9 +266,9 @@ struct LinearBlocksFunction : public torch::autograd::Function<LinearBlocksFunct
 
 using detail::Epilogue;
 
-/// act(x Wᵀ + b) (torch::nn::functional::linear, then relu or elu) as one autograd node on the
-/// CPU: for up to 64 outputs a register-blocked kernel with the bias and the activation applied
-/// before the store, otherwise BLAS (or oneDNN: set_cpu_gemm) then one vectorised pass; the
+/// act(x Wᵀ + b) (torch::nn::functional::linear, then relu, elu or sigmoid) as one autograd node
+/// on the CPU: for up to 64 outputs a register-blocked kernel with the bias and the activation
+/// applied before the store, otherwise BLAS (or oneDNN: set_cpu_gemm) then one vectorised pass; the
 /// backward needs no exponential.
 /// Any other device, dtype or shape takes torch's ops.
 inline torch::Tensor linear_act(const torch::Tensor& x, const torch::Tensor& W,

@@ -217,6 +217,7 @@ TEST_CASE("SCCNNCustom's schedule: filter taps per rank, TopoBench's repeated ta
                            "layers.0.weight_2");
     const std::map<std::string, torch::Tensor> inputs{{"x_0", x[0]}, {"x_1", x[1]}, {"x_2", x[2]}};
     const auto out = net->forward(inputs, ops);
+    CHECK(torch::allclose(out.at("x_0"), y0, 1e-4, 1e-5));
     // The plan says each filter's product and its sigmoid are one node.
     const auto listing = net->plan(inputs, ops).str();
     for (int r = 0; r < 3; ++r) {

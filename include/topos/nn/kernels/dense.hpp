@@ -445,6 +445,7 @@ static TOPOS_INLINE_KERNEL void linear_blocks_backward_rows(
     }
   }
 }
+// An epilogue known at run time as the kernel's template argument.
 #define TOPOS_BLOCKS_DISPATCH(F, ...)                  \
   switch (e) {                                         \
     case Epilogue::none:                               \
@@ -461,14 +462,18 @@ static TOPOS_INLINE_KERNEL void dense_blocks_any(const T* const* X, const std::i
                                                  std::int64_t S, const T* M, T* Y,
                                                  std::int64_t begin, std::int64_t end,
                                                  std::int64_t N, bool base, Epilogue e) {
-  TOPOS_BLOCKS_DISPATCH(dense_blocks_rows, X, K, S, M, Y, begin, end, N, base)
+  TOPOS_BLOCKS_DISPATCH(dense_blocks_rows, X, K, S, M, Y, begin, end, N, base);
 }
 template <class T, int VB>
-static TOPOS_INLINE_KERNEL void linear_blocks_backward_any(
-    const T* const* X, const std::int64_t* K, std::int64_t S, const T* W, const T* y, const T* g,
-    T* const* dX, T* dW, T* dbase, std::int64_t begin, std::int64_t end, std::int64_t N,
-    Epilogue e){TOPOS_BLOCKS_DISPATCH(linear_blocks_backward_rows, X, K, S, W, y, g, dX, dW, dbase,
-                                      begin, end, N)}
+static TOPOS_INLINE_KERNEL void linear_blocks_backward_any(const T* const* X, const std::int64_t* K,
+                                                           std::int64_t S, const T* W, const T* y,
+                                                           const T* g, T* const* dX, T* dW,
+                                                           T* dbase, std::int64_t begin,
+                                                           std::int64_t end, std::int64_t N,
+                                                           Epilogue e) {
+  TOPOS_BLOCKS_DISPATCH(linear_blocks_backward_rows, X, K, S, W, y, g, dX, dW, dbase, begin, end,
+                        N);
+}
 #undef TOPOS_BLOCKS_DISPATCH
 #define TOPOS_BLOCKS_KERNELS(T, NAME, ATTR, VB)                                           \
   [[maybe_unused]] ATTR static void dense_blocks_##NAME(                                  \
@@ -483,10 +488,10 @@ static TOPOS_INLINE_KERNEL void linear_blocks_backward_any(
     linear_blocks_backward_any<T, VB>(X, K, S, W, y, g, dX, dW, dbase, begin, end, N, e); \
   }
 TOPOS_BLOCKS_KERNELS(float, float, TOPOS_SIMD_CLONES, 32)
-    TOPOS_BLOCKS_KERNELS(double, double, TOPOS_SIMD_CLONES, 32)
+TOPOS_BLOCKS_KERNELS(double, double, TOPOS_SIMD_CLONES, 32)
 #if defined(TOPOS_HAVE_V4)
-        TOPOS_BLOCKS_KERNELS(float, float_v4, TOPOS_V4, 64)
-            TOPOS_BLOCKS_KERNELS(double, double_v4, TOPOS_V4, 64)
+TOPOS_BLOCKS_KERNELS(float, float_v4, TOPOS_V4, 64)
+TOPOS_BLOCKS_KERNELS(double, double_v4, TOPOS_V4, 64)
 #endif
 #undef TOPOS_BLOCKS_KERNELS
 #define TOPOS_BLOCKS_CLONE(T, NAME)                                                               \
@@ -510,7 +515,7 @@ TOPOS_BLOCKS_KERNELS(float, float, TOPOS_SIMD_CLONES, 32)
 #else
 #define TOPOS_IF_V4(call)
 #endif
-                TOPOS_BLOCKS_CLONE(float, float) TOPOS_BLOCKS_CLONE(double, double)
+TOPOS_BLOCKS_CLONE(float, float) TOPOS_BLOCKS_CLONE(double, double)
 #undef TOPOS_IF_V4
 #undef TOPOS_BLOCKS_CLONE
 #endif

@@ -137,7 +137,8 @@ static TOPOS_INLINE_KERNEL void exp_vec(V& x) {
 }
 
 // sigmoid as sigmoid_scalar writes it, with exp(-|x|) from exp_parts: within 3e-7 of
-// 1 / (1 + exp(-x)), relative; torch 1.13's CPU sigmoid is a pass of its own (and its backward
+// 1 / (1 + exp(-x)), relative, for x >= -87, and 0 below, where exp_parts clamps (the true value
+// is under 1.7e-38 there); torch 1.13's CPU sigmoid is a pass of its own (and its backward
 // another) wherever a product could have applied it before the store.
 template <class V>
 static TOPOS_INLINE_KERNEL void sigmoid_vec(V& x) {
@@ -145,7 +146,8 @@ static TOPOS_INLINE_KERNEL void sigmoid_vec(V& x) {
   V s, p;
   exp_parts(neg, s, p);
   const V t = s + s * p;
-  x = (x >= 0.0f ? V{} + 1.0f : t) / (1.0f + t);
+  const V y = (x >= 0.0f ? V{} + 1.0f : t) / (1.0f + t);
+  x = x < -87.0f ? V{} : y;
 }
 
 template <class T, Epilogue E, class V>

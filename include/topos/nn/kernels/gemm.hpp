@@ -118,7 +118,8 @@ inline torch::Tensor onednn_mm(const torch::Tensor& a, const torch::Tensor& b) {
 }
 
 // y = act(y + b) for a contiguous float32 y (n × N), b of N floats or null: a product's bias and
-// activation in one pass over its output (relu or none; elu is applied after the bias).
+// activation in one pass over its output (relu or none; elu and sigmoid are applied after the
+// bias).
 template <bool Bias, bool Relu>
 static TOPOS_INLINE_KERNEL void bias_relu_loop(float* y, const float* b, std::int64_t rows,
                                                std::int64_t N) {

@@ -22,7 +22,7 @@ namespace topos::nn {
 
 namespace detail {
 
-// Rows [0, n) of x: y = act((x - mean) · rstd · w + b) (w, b may be null; act relu or elu
+// Rows [0, n) of x: y = act((x - mean) · rstd · w + b) (w, b may be null; act relu, elu or sigmoid
 // applied before the store), each row's mean and 1 / sqrt(var + eps) stored for the backward
 // (unless mean is null). The variance is the mean of squared deviations (biased, as torch's).
 // With a residual r (rows `r_step` apart: C, or 0 for one row added to every row), x + r is

@@ -40,8 +40,8 @@ class Weight final : public Operation {
   double gain_;
 };
 
-/// torch.nn.Linear at `path`: path.weight (out × in) and path.bias; relu or elu after it runs in
-/// the product's kernel.
+/// torch.nn.Linear at `path`: path.weight (out × in) and path.bias; relu, elu or sigmoid after it
+/// runs in the product's kernel.
 class Linear final : public Operation {
  public:
   Linear(std::string path, std::int64_t out, bool bias, LinearInit init)
@@ -70,7 +70,8 @@ class ChannelNorm final : public Operation {
   std::string str(const std::string& x) const override;
   TermShape infer(BuildContext& ctx, TermShape x) const override;
   torch::Tensor forward(RunContext& ctx, const torch::Tensor& x) const override;
-  /// LayerNorm's kernel applies relu or elu before its store (BatchNorm: forward, then act).
+  /// LayerNorm's kernel applies relu, elu or sigmoid before its store (BatchNorm: forward, then
+  /// act).
   torch::Tensor forward_activated(RunContext& ctx, const torch::Tensor& x, Activation activation,
                                   double negative_slope) const override;
   /// LayerNorm's kernel forms x + r itself (nn::add_layer_norm).

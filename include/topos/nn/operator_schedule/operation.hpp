@@ -284,8 +284,8 @@ struct OperationTraits {
   /// forward leaves out is skipped (OperatorSchedule::optional_operator), as a via's is.
   std::vector<std::string> operators;
   /// The operation is apply_activation(x, *activation, negative_slope): a product before it (a via
-  /// without row normalisation, a linear) applies relu or elu in its kernel instead of calling
-  /// forward.
+  /// without row normalisation, a linear) applies relu, elu or sigmoid in its kernel instead of
+  /// calling forward.
   std::optional<Activation> activation;
   double negative_slope = 0.01;
   /// With `str`, tells operations apart: two row-wise operations printed alike and with the same
