@@ -209,6 +209,10 @@ BENCHMARK(BM_rollout_102)->Apply(rollout_args)->Unit(benchmark::kMillisecond)->M
 // precision (the casts, oneDNN's bfloat16 kernel) as the MLPs run it.
 void BM_dense_kernel(benchmark::State& state) {
   nn::set_cpu_threads(1, 1);
+  // As training runs: without it each 87,296-row output (45 MB, above glibc's 32 MB mmap bound)
+  // is fresh zero pages, and the figure measures the VM's page faults (16 against 158 GFLOP/s on
+  // 2026-11-30's AMD VM).
+  nn::keep_freed_memory();
   const std::int64_t rows = state.range(0), in = state.range(1), out = 128;
   const bool bf16 = state.range(2) != 0;
   torch::manual_seed(0);

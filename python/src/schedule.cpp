@@ -778,7 +778,9 @@ void bind_network(py::module_& m) {
                 for (const auto& l : p.lines)
                   lines.append(py::dict(py::arg("depth") = l.depth, py::arg("what") = l.what,
                                         py::arg("flops") = l.flops,
-                                        py::arg("fused_with_next") = l.fused_with_next));
+                                        py::arg("fused_with_next") = l.fused_with_next,
+                                        py::arg("rows") = l.rows, py::arg("channels") = l.channels,
+                                        py::arg("terms") = l.terms));
                 steps.append(py::dict(
                     py::arg("name") = p.step->name, py::arg("target") = p.step->target.str(),
                     py::arg("group") = p.group, py::arg("route") = route_name(p.route),
@@ -787,6 +789,8 @@ void bind_network(py::module_& m) {
               }
             return py::dict(py::arg("text") = plan.str(), py::arg("steps") = steps,
                             py::arg("total_flops") = plan.total_flops,
+                            py::arg("total_values") = plan.total_values,
+                            py::arg("value_bytes") = plan.value_bytes,
                             py::arg("fast_paths") = plan.fast_paths.str());
           },
           py::arg("inputs"), py::arg("operators"),

@@ -180,14 +180,18 @@ class Plan:
     ``"chain"``, ``"filter taps"``, ``"split first layer"``, ``"general"`` or ``"keep"``,
     ``terms``: the sources of the terms it runs, ``compact_readers``, ``lines``: the listing's
     lines as dicts, ``depth`` 0 a term's header and 1 an operation, ``what``, ``flops`` (-1: not
-    counted) and ``fused_with_next``, how many of the next operations run in its autograd node);
-    ``total_flops``: the FLOPs of one forward in the plain order; ``fast_paths``: those on;
-    ``str(plan)``: the listing.
+    counted), ``fused_with_next``, how many of the next operations run in its autograd node, and
+    the buffer it writes, ``rows`` × ``channels`` (-1: none), ``terms`` of them where it fans out);
+    ``total_flops``: the FLOPs of one forward in the plain order; ``total_values``: the values its
+    operations write, each output once (``total_bytes`` at the inputs' dtype); ``fast_paths``:
+    those on; ``str(plan)``: the listing.
     """
 
     def __init__(self, d):
         self.steps = list(d["steps"])
         self.total_flops = int(d["total_flops"])
+        self.total_values = int(d["total_values"])
+        self.total_bytes = self.total_values * int(d["value_bytes"])
         self.fast_paths = d["fast_paths"]
         self._text = d["text"]
 

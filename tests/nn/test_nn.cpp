@@ -3,6 +3,7 @@
 // the plain ones, finite-difference gradients in double, batching, empty ranks, errors) and
 // parameter save/load by name.
 #include "support/torch_prelude.hpp"
+#include "support/threads.hpp"
 
 #include "topos/core/mesh_lifting.hpp"
 #include "topos/mesh/primitives.hpp"
@@ -1266,10 +1267,7 @@ TEST_CASE("topos's kernels run on LibTorch's intra-op threads, with the same res
           "[nn][cpu]") {
   // topos::nn_headers compiles with OpenMP (GCC), so at::parallel_for in topos's kernels opens a
   // parallel region (without -fopenmp its pragma is ignored and every kernel ran on one thread).
-  struct RestoreThreads {
-    int n = at::get_num_threads();
-    ~RestoreThreads() { at::set_num_threads(n); }
-  } restore;
+  topos::test::RestoreThreads restore;
   at::set_num_threads(2);
   std::mutex m;
   std::set<std::thread::id> seen;

@@ -18,6 +18,7 @@ using namespace topos;
 using namespace topos::nn;
 using namespace topos::nn::ops;
 using Catch::Matchers::Contains;
+using Catch::Matchers::EndsWith;
 using Catch::Matchers::StartsWith;
 using topos::test::build_error;
 using topos::test::random_operator;
@@ -1137,9 +1138,9 @@ TEST_CASE("plan_str lists what forward runs with its FLOPs, counted by hand",
                      filter = 2 * nnz(Bd) * 2 + 2 * 2 * nnz(Td) * 2 + 2 * 7 * (2 * 4) * 3;
   CHECK_THAT(plan, Contains("step mix (into (0)"));
   // fuse_products: x_0·a, L· and relu run as one node; B· then b (a Linear, not a weight) do not.
-  CHECK_THAT(plan,
-             Contains("x·a.weight  dense 2·5·3·4  120 FLOPs  (one node with the next two)\n"));
-  CHECK_THAT(plan, Contains("b(x)  dense 2·5·2·4  80 FLOPs\n"));
+  CHECK_THAT(plan, Contains("x·a.weight  dense 2·5·3·4  120 FLOPs  (one node with the next two)"
+                            "  -> 5 × 4\n"));
+  CHECK_THAT(plan, Contains("b(x)  dense 2·5·2·4  80 FLOPs  -> 5 × 4\n"));
   CHECK_THAT(plan, Contains("sparse 2·" + std::to_string(nnz(Ld)) + "·4  " +
                             std::to_string(2 * nnz(Ld) * 4) + " FLOPs"));
   CHECK_THAT(plan, Contains("filter f  dense 2·7·8·3  336 FLOPs"));
@@ -1153,6 +1154,18 @@ TEST_CASE("plan_str lists what forward runs with its FLOPs, counted by hand",
   const auto p = net->plan(x, ops);
   CHECK(p.total_flops == mix + filter);
   CHECK(p.str() == plan);
+  // The buffers the operations write (plain order), by hand: mix's term from (0) 5 × 4 three
+  // times (x·a, L·, relu), from (1) B· 5 × 2 and b 5 × 4, its operations 5 × 2 twice; filter's
+  // Bᵀ· 7 × 2 (x_0 has the mix's 2 channels by then), the powers' three terms (x, T·x, T²·x) 7 × 2
+  // each, the taps' product 7 × 3.
+  const std::int64_t mix_values = 3 * 5 * 4 + 5 * 2 + 5 * 4 + 2 * 5 * 2,
+                     filter_values = 7 * 2 + 3 * 7 * 2 + 7 * 3;
+  CHECK(p.total_values == mix_values + filter_values);
+  CHECK(p.value_bytes == 8);  // double
+  CHECK_THAT(plan, Contains("relu(x)  -> 5 × 4\n"));
+  CHECK_THAT(plan, Contains(" FLOPs  -> 7 × 2, 3 terms\n"));
+  CHECK_THAT(plan, Contains("filter f  dense 2·7·8·3  336 FLOPs  -> 7 × 3\n"));
+  CHECK_THAT(plan, EndsWith("\nbuffers 187 values (1.5 KiB)\n"));  // 187 · 8 = 1,496 bytes
   CHECK(p.absent == std::set<std::string>{"U"});
   CHECK_FALSE(p.over_batch);
   const auto step = [](const Plan& pl, const std::string& name) -> const PlannedStep& {
@@ -1175,7 +1188,8 @@ TEST_CASE("plan_str lists what forward runs with its FLOPs, counted by hand",
   CHECK(step(net->plan(x, with_u), "kept").route == StepRoute::chain);
   CHECK_THAT(net->plan(x, with_u).str(), Contains("U·x  sparse 2·" + std::to_string(nnz(Ld)) +
                                                   "·3  " + std::to_string(2 * nnz(Ld) * 3) +
-                                                  " FLOPs  (one node with the next operation)\n"));
+                                                  " FLOPs  (one node with the next operation)"
+                                                  "  -> 5 × 3\n"));
   net->set_fast_paths(false);
   CHECK_THAT(net->plan(x, ops).str(), StartsWith("fast paths: none\n"));
   CHECK(net->plan(x, ops).str().find("one node") == std::string::npos);
@@ -1198,6 +1212,25 @@ TEST_CASE("plan_str lists what forward runs with its FLOPs, counted by hand",
                                   "split_first_layer, reorder_products, fuse_activations, "
                                   "fuse_products, fuse_attention, fuse_residuals\n"));
   CHECK(torch::allclose(taps->forward(x, ops).at("y_1"), fast, 1e-12, 1e-12));
+}
+
+TEST_CASE("a step kept as it was lists no operation, FLOPs or buffer", "[nn][schedule][plan]") {
+  // Its one term goes through U, left out: the target stays, so its weight and relu never run.
+  OperatorSchedule s;
+  s.input("x_0", 0, 3).optional_operator("U", 0, 0);
+  s.step(into(0).sum(from(0).via("U")).weight("w", 3).act(Activation::relu).named("k"));
+  s.output("y", 0);
+  OperatorNetwork net(s);
+  const auto x = torch::randn({4, 3});
+  const auto p = net->plan({{"x_0", x}}, {});
+  REQUIRE(p.groups.size() == 1);
+  REQUIRE(p.groups[0].size() == 1);
+  CHECK(p.groups[0][0].route == StepRoute::keep);
+  CHECK(p.groups[0][0].lines.empty());
+  CHECK(p.total_flops == 0);
+  CHECK(p.total_values == 0);
+  CHECK_THAT(p.str(), Contains("step k (into (0), group 0): keep\ntotal 0 FLOPs\n"));
+  CHECK(torch::equal(net->forward({{"x_0", x}}, {}).at("y"), x));
 }
 
 TEST_CASE("dropout(0) is left out and a LayerNorm fuses the activation after it",

@@ -37,8 +37,11 @@ def test_reference_rollout_matches_the_papers_metrics(checkpoint, scene, referen
     assert r.num_frames == 106
     m = r.metrics()
     golden = {25: (0.026131, 0.979), 50: (0.083279, 2.321), 75: (0.144398, 4.496), 100: (0.271126, 6.382)}
+    # The golden values are rounded to six digits; the order of float32 sums (BLAS's blocking on
+    # this CPU) moves frame 100's in the sixth (0.2711262-0.2711266 with OpenBLAS's Haswell and
+    # SkylakeX kernels and oneDNN on 2026-11-30's AMD EPYC), so within a unit of it.
     for frame, (pos_rmse, ori_mae) in golden.items():
-        assert round(m["pos_rmse"][frame].item(), 6) == pos_rmse, f"frame {frame}"
+        assert abs(m["pos_rmse"][frame].item() - pos_rmse) <= 1e-6, f"frame {frame}"
         assert round(m["ori_mae"][frame].item(), 3) == ori_mae, f"frame {frame}"
     assert (m["pos_rmse"][:4] == 0).all()
 

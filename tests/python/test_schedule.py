@@ -357,6 +357,11 @@ def test_plan_lists_routes_and_counts_flops_by_hand():
     lines = [line for line in plan.steps[0]["lines"] if line["depth"] == 1]
     ops = [(line["what"].split("  ")[0], line["flops"], line["fused_with_next"]) for line in lines]
     assert ops == [("x·w.weight", 2 * 6 * 3 * 5, 2), ("B·x", 2 * 9 * 5, 0), ("relu(x)", -1, 0)]
+    # The buffers they write: x W on the 6 nodes, then B· and relu on the 4 edges, 5 channels.
+    assert [(line["rows"], line["channels"], line["terms"]) for line in lines] == [(6, 5, 1), (4, 5, 1), (4, 5, 1)]
+    assert plan.total_values == 6 * 5 + 2 * 4 * 5
+    assert plan.total_bytes == 8 * plan.total_values
+    assert str(plan).endswith(f"buffers 70 values ({8 * 70} bytes)\n")
     assert plan.fast_paths.startswith("row_subset")
     net.set_fast_paths(False)
     assert net.plan({"x": x}, {"B": B.to_sparse()}).fast_paths == "none"

@@ -197,8 +197,7 @@ struct LinearBlocksFunction : public torch::autograd::Function<LinearBlocksFunct
   static torch::Tensor forward(torch::autograd::AutogradContext* ctx, at::TensorList xs,
                                const torch::Tensor& W, const torch::Tensor& base,
                                std::int64_t how) {
-    static_assert(static_cast<int>(Epilogue::sigmoid) < 4, "the activation takes two bits");
-    const auto e = static_cast<Epilogue>(how & 3);
+    const auto e = static_cast<Epilogue>(how & epilogue_mask);
     const bool has_base = (how & 4) != 0;
     auto y = product(std::vector<torch::Tensor>(xs.begin(), xs.end()), W,
                      has_base ? base : torch::Tensor(), e);
@@ -217,7 +216,7 @@ struct LinearBlocksFunction : public torch::autograd::Function<LinearBlocksFunct
     const auto W = saved.back().contiguous();
     saved.pop_back();
     const auto how = ctx->saved_data["how"].toInt();
-    const auto e = static_cast<Epilogue>(how & 3);
+    const auto e = static_cast<Epilogue>(how & epilogue_mask);
     const auto S = static_cast<std::int64_t>(saved.size());
     const auto g = grads[0].contiguous();
     const auto n = g.size(0), N = W.size(0), Ktot = W.size(1);
@@ -322,9 +321,9 @@ inline torch::Tensor linear_blocks(const std::vector<torch::Tensor>& xs, const t
                                 " " + c10::toString(W.scalar_type()) +
                                 ": give the base the product's rows, columns and dtype");
   const auto fallback = [&] {
-    if (!base.defined()) return linear_act(xs.size() == 1 ? xs[0] : torch::cat(xs, 1), W, {}, act);
-    return detail::activate(base + linear_act(xs.size() == 1 ? xs[0] : torch::cat(xs, 1), W, {}),
-                            act);
+    const auto x = xs.size() == 1 ? xs[0] : torch::cat(xs, 1);
+    if (!base.defined()) return linear_act(x, W, {}, act);
+    return detail::activate(base + linear_act(x, W, {}), act);
   };
   if ((xs.size() == 1 && !base.defined()) || !detail::LinearBlocksFunction::fits(xs, W) ||
       (base.defined() && !base.device().is_cpu()))

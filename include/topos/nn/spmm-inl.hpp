@@ -108,7 +108,6 @@ struct SparseLinearFunction : public torch::autograd::Function<SparseLinearFunct
     ctx->save_for_backward({v.dense_input, W, values, t_crow, t_col, t_perm,
                             e == Epilogue::none ? torch::Tensor() : v.y});
     // One entry (each costs a hash-map insertion): the activation in two bits, then two flags.
-    static_assert(static_cast<int>(Epilogue::sigmoid) < 4, "the activation takes two bits");
     ctx->saved_data["how"] = act | (weight_first ? 4 : 0) | (v.onednn ? 8 : 0);
     return v.y;
   }
@@ -118,7 +117,7 @@ struct SparseLinearFunction : public torch::autograd::Function<SparseLinearFunct
     const auto &input = s[0], &W = s[1], &values = s[2], &t_crow = s[3], &t_col = s[4],
                &t_perm = s[5], &Y = s[6];
     const auto how = ctx->saved_data["how"].toInt();
-    const auto e = static_cast<Epilogue>(how & 3);
+    const auto e = static_cast<Epilogue>(how & epilogue_mask);
     const bool onednn = (how & 8) != 0;
     const auto x_rows = t_crow.size(0) - 1;  // Aᵀ's rows
     const bool want_dx = ctx->needs_input_grad(0), want_dW = ctx->needs_input_grad(1);

@@ -6,6 +6,7 @@
 
 #include "support/fast_paths.hpp"
 #include "support/reference.hpp"
+#include "support/threads.hpp"
 #include "topos/models/zoo.hpp"
 #include "topos/models/zoo/golden_case.hpp"
 
@@ -693,10 +694,7 @@ TEST_CASE("linear_blocks is linear_act over the concatenation, bit for bit where
     for (const auto dt : {torch::kFloat, torch::kDouble}) {
       INFO(c.n << " rows, " << c.N << " outputs, " << c.K.size() << " blocks, "
                << (dt == torch::kFloat ? "float" : "double"));
-      struct RestoreThreads {
-        int n = at::get_num_threads();
-        ~RestoreThreads() { at::set_num_threads(n); }
-      } restore;
+      topos::test::RestoreThreads restore;
       if (c.n > 8192) at::set_num_threads(2);  // dW summed per chunk of rows
       std::vector<torch::Tensor> xs, xr;
       std::int64_t K = 0;
@@ -780,10 +778,7 @@ TEST_CASE("linear_blocks with a base and an activation is act(base + the product
         for (const bool with_base : {true, false}) {
           INFO(c.n << " rows, " << c.N << " outputs, " << (dt == torch::kFloat ? "float" : "double")
                    << ", epilogue " << static_cast<int>(e) << (with_base ? ", a base" : ""));
-          struct RestoreThreads {
-            int n = at::get_num_threads();
-            ~RestoreThreads() { at::set_num_threads(n); }
-          } restore;
+          topos::test::RestoreThreads restore;
           if (c.n > 8192) at::set_num_threads(2);
           std::vector<torch::Tensor> xs, xr;
           std::int64_t K = 0;

@@ -79,6 +79,10 @@ inline std::int64_t grain_rows(std::int64_t rows, std::int64_t work) {
 // Every kernel that takes one dispatches on all four (a value it does not know is a logic error,
 // never another activation).
 enum class Epilogue { none, relu, elu, sigmoid };
+// An autograd node saves its Epilogue with flags in one integer: the low two bits.
+inline constexpr std::int64_t epilogue_mask = 3;
+static_assert(static_cast<std::int64_t>(Epilogue::sigmoid) <= epilogue_mask,
+              "an Epilogue takes two bits");
 
 // 1 / (1 + exp(-x)) from t = exp(-|x|) <= 1, which never overflows: 1 / (1 + t) for x >= 0,
 // t / (1 + t) below (no cancellation for large negative x).

@@ -1,7 +1,8 @@
 // topos/nn/operator_schedule/cost-inl.hpp
 // OperatorNetwork::plan: the plan a forward runs (plan-inl.hpp) with each operation's FLOPs
 // counted on the given complex (a product by a sparse operator 2·nnz·width, a dense product
-// 2·m·k·n). Compiled into topos::nn, or inline with TOPOS_HEADER_ONLY (topos/config.hpp).
+// 2·m·k·n) and the buffer it writes (rows × channels). Compiled into topos::nn, or inline with
+// TOPOS_HEADER_ONLY (topos/config.hpp).
 #pragma once
 
 #include "topos/nn/operator_schedule/plan-inl.hpp"
@@ -27,7 +28,11 @@ OperatorNetworkImpl::op_cost(const TermOp& t, TermShape x, const std::map<int, s
   c.rows = cells.count(x.rank) ? cells.at(x.rank) : 0, c.x = x, c.y = out;
   c.nnz = nnz;
   const auto cost = t.operation->cost(c);
-  return {1, cost.formula.empty() ? label : label + "  " + cost.formula, cost.flops};
+  PlanLine line{1, cost.formula.empty() ? label : label + "  " + cost.formula, cost.flops};
+  line.rows = cells.count(out.rank) ? cells.at(out.rank) : -1;
+  line.channels = line.rows >= 0 ? out.channels : -1;
+  if (t.traits.fans_out) line.terms = t.traits.terms;
+  return line;
 }
 
 TOPOS_INLINE Plan OperatorNetworkImpl::plan_with_costs(
@@ -35,13 +40,15 @@ TOPOS_INLINE Plan OperatorNetworkImpl::plan_with_costs(
     const std::function<std::int64_t(const std::string&)>& nnz) const {
   auto plan = make_plan(ops);
   const auto rows = [&](int rank) { return cells.count(rank) ? cells.at(rank) : 0; };
-  plan.total_flops = 0;
+  plan.total_flops = 0, plan.total_values = 0;
   for (auto& group : plan.groups)
     for (auto& p : group) {
-      if (!p.live) continue;
+      // A kept step runs nothing: its target stays (its terms were left out already).
+      if (!p.live || p.route == StepRoute::keep) continue;
       const auto& s = *p.step;
       const auto line = [&](PlanLine l) {
         plan.total_flops += std::max<std::int64_t>(l.flops, 0);
+        if (l.rows >= 0) plan.total_values += l.rows * l.channels * l.terms;
         p.lines.push_back(std::move(l));
       };
       // fuse_products: per operation, how many after it run in its node, found as the
@@ -89,7 +96,8 @@ TOPOS_INLINE Plan OperatorNetworkImpl::plan_with_costs(
         line({0,
               "filter " + s.filter_path + "  dense 2·" + std::to_string(rows(y.rank)) + "·" +
                   std::to_string(W.size(0) * W.size(2)) + "·" + std::to_string(W.size(1)),
-              2 * rows(y.rank) * W.size(0) * W.size(2) * W.size(1), act ? 1 : 0});
+              2 * rows(y.rank) * W.size(0) * W.size(2) * W.size(1), act ? 1 : 0,
+              cells.count(y.rank) ? rows(y.rank) : -1, cells.count(y.rank) ? W.size(1) : -1});
         y.channels = W.size(1);
       }
       if (!s.operations().empty()) line({0, "step's operations", -1});
@@ -115,11 +123,13 @@ TOPOS_INLINE Plan OperatorNetworkImpl::plan_over(
       cells[ranks.second] = n->num_target;
     }
   // A neighbourhood's pairs count as its nonzeros.
-  return plan_with_costs(ops, cells, [&](const std::string& name) -> std::int64_t {
+  auto plan = plan_with_costs(ops, cells, [&](const std::string& name) -> std::int64_t {
     if (auto it = operators.find(name); it != operators.end()) return it->second.nnz();
     const auto* n = ops.neighborhood(name);
     return n == nullptr ? 0 : n->source.size(0);
   });
+  if (!inputs.empty()) plan.value_bytes = inputs.begin()->second.element_size();
+  return plan;
 }
 
 }  // namespace topos::nn

@@ -134,7 +134,8 @@ class OperatorNetworkImpl : public torch::nn::Module {
 
   /// The plan forward(inputs, operators) runs with the fast paths on now: the live steps, each
   /// with its route (StepRoute), terms and operations, and their FLOPs on this complex counted as
-  /// plan_str says (Plan::str prints it, Plan::total_flops sums it).
+  /// plan_str says (Plan::str prints it, Plan::total_flops sums it) and the buffers they write
+  /// (PlanLine::rows × channels, Plan::total_values).
   Plan plan(const std::map<std::string, torch::Tensor>& inputs,
             const std::map<std::string, SparseOperator>& operators) const {
     return plan_over(inputs, operators, nullptr);

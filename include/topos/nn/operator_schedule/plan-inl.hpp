@@ -7,6 +7,8 @@
 
 #include "topos/nn/operator_schedule/term-inl.hpp"
 
+#include <iomanip>
+#include <iterator>
 #include <sstream>
 
 namespace topos::nn {
@@ -56,11 +58,27 @@ TOPOS_INLINE std::string Plan::str() const {
         if (l.fused_with_next > 0)
           o << "  (one node with the next " << (l.fused_with_next == 1 ? "operation" : "two")
             << ")";
+        if (l.rows >= 0) {
+          o << "  -> " << l.rows << " × " << l.channels;
+          if (l.terms != 1) o << ", " << l.terms << " terms";
+        }
         o << "\n";
       }
     }
   }
   if (total_flops >= 0) o << "total " << detail::flops_str(total_flops) << " FLOPs\n";
+  if (total_values >= 0) {
+    o << "buffers " << detail::flops_str(total_values) << " values";
+    if (value_bytes > 0) {
+      // In the largest unit that leaves at least 1 (1024-based, as RSS is read).
+      const char* unit[] = {"bytes", "KiB", "MiB", "GiB", "TiB"};
+      auto v = static_cast<double>(total_values) * static_cast<double>(value_bytes);
+      std::size_t u = 0;
+      for (; v >= 1024 && u + 1 < std::size(unit); ++u) v /= 1024;
+      o << " (" << std::fixed << std::setprecision(u ? 1 : 0) << v << " " << unit[u] << ")";
+    }
+    o << "\n";
+  }
   return o.str();
 }
 

@@ -3,7 +3,7 @@
 // the schedule; planning a forward (per set of operators given, batch or not, and fast paths on)
 // picks the steps an output needs and, for each, the route the fast paths give it; the
 // interpreter then runs the plan and decides only what depends on the sizes of this forward's
-// values. `net->plan(inputs, operators).str()` prints it with each operation's FLOPs.
+// values. `net->plan(inputs, operators).str()` prints it with each operation's FLOPs and buffer.
 #pragma once
 
 #include "topos/nn/operator_schedule/builder.hpp"
@@ -66,6 +66,10 @@ struct PlanLine {
   /// fuse_products: how many of the next operations run in this one's autograd node (a weight,
   /// the sparse product next to it and a fusable activation after them), where sizes fit.
   int fused_with_next = 0;
+  /// The buffer the operation writes, rows × channels in the plain order (-1: none or not known);
+  /// an operation that fans out writes `terms` of them (a polynomial filter's powers, the
+  /// identity tap included).
+  std::int64_t rows = -1, channels = -1, terms = 1;
 };
 
 /// A step as the plan runs it.
@@ -91,10 +95,18 @@ struct Plan {
   bool over_batch = false;        ///< planned for a ComplexBatch's neighbourhoods
   std::set<std::string> absent;   ///< optional operators left out
   std::int64_t total_flops = -1;  ///< the sum of the lines' FLOPs (-1: planned without sizes)
+  /// The values the lines' buffers hold together (-1: planned without sizes): each operation's
+  /// output once, in the plain order, over the cells of one sample (leading batch dimensions
+  /// multiply it). What a forward under autograd keeps is of this order: the fast paths keep
+  /// less; a sum's, mean's or concatenation's own buffer, an mlp's hidden layers, attention's
+  /// per-pair scores and dropout's masks come on top; a fan-out's identity term is counted
+  /// though it is its input.
+  std::int64_t total_values = -1;
+  std::int64_t value_bytes = 0;  ///< bytes per value: the inputs' dtype (0: not known)
 
   /// The plan as text: the fast paths on, then each live step with its route, terms and
   /// operations (FLOPs in the plain order: every dense product on every row, where the fast paths
-  /// may compute fewer), and the total.
+  /// may compute fewer; the buffer each writes, rows × channels), and the totals.
   std::string str() const;
 };
 
