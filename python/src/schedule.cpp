@@ -41,6 +41,24 @@ CochainKey key_arg(const py::handle& obj, const std::string& arg) {
                        type_name(obj));
 }
 
+/// Key weights: a (path, channels per head) or (path, channels, gain) tuple.
+KeyWeights key_weights_arg(const py::handle& obj, const std::string& arg) {
+  if (py::isinstance<py::tuple>(obj) || py::isinstance<py::list>(obj)) {
+    const auto s = obj.cast<py::sequence>();
+    if ((s.size() == 2 || s.size() == 3) && py::isinstance<py::str>(s[0]) &&
+        py::isinstance<py::int_>(s[1]) && !py::isinstance<py::bool_>(s[1]) &&
+        (s.size() == 2 || py::isinstance<py::float_>(s[2]) || py::isinstance<py::int_>(s[2]))) {
+      KeyWeights k(s[0].cast<std::string>(), s[1].cast<std::int64_t>());
+      if (s.size() == 3) k.gain(s[2].cast<double>());
+      return k;
+    }
+  }
+  throw py::type_error(arg +
+                       ": expected (path, channels per head) or (path, channels, gain), e.g. "
+                       "('att.K_weight', 16), got " +
+                       type_name(obj));
+}
+
 py::tuple key_out(const CochainKey& k) {
   return py::make_tuple(k.rank, k.state);
 }
@@ -391,7 +409,8 @@ void bind_builder(py::module_& m) {
           [](ops::Term& t, std::string op, std::string param, const py::object& activation,
              AttentionNorm norm, double slope, std::optional<std::vector<std::int64_t>> shape,
              double gain, const py::object& keys, const py::object& queries, bool source_only,
-             std::int64_t heads, bool concat, double dropout, bool transposed) -> ops::Term& {
+             std::int64_t heads, bool concat, double dropout, bool transposed,
+             const py::object& key_weights) -> ops::Term& {
             AttendOptions o(std::move(param));
             o.activation(activation_arg(activation, "attend(activation)"))
                 .norm(norm)
@@ -405,6 +424,8 @@ void bind_builder(py::module_& m) {
             if (shape) o.shape(*shape);
             if (!keys.is_none()) o.keys(key_arg(keys, "attend(keys)"));
             if (!queries.is_none()) o.queries(key_arg(queries, "attend(queries)"));
+            if (!key_weights.is_none())
+              o.key_weights(key_weights_arg(key_weights, "attend(key_weights)"));
             return t.attend(std::move(op), std::move(o));
           },
           py::arg("op"), py::arg("param"), py::arg("activation") = Activation::elu,
@@ -412,7 +433,9 @@ void bind_builder(py::module_& m) {
           py::arg("shape") = py::none(), py::arg("gain") = 1.414, py::arg("keys") = py::none(),
           py::arg("queries") = py::none(), py::arg("source_only") = false, py::arg("heads") = 1,
           py::arg("concat") = true, py::arg("dropout") = 0.0, py::arg("transposed") = false,
-          self_ref, "Messages over A weighted by attention (AttendOptions' fields as keywords).")
+          py::arg("key_weights") = py::none(), self_ref,
+          "Messages over A weighted by attention (AttendOptions' fields as keywords; key_weights: "
+          "(path, channels per head[, gain]), keys = keys · K_h folded into the scores).")
       .def(
           "powers",
           [](ops::Term& t, std::vector<std::pair<std::string, int>> filters, bool row_norm,

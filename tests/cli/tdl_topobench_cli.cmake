@@ -173,3 +173,40 @@ if(rc EQUAL 0 OR pos EQUAL -1)
   message(FATAL_ERROR "clean time --only without a clean-time file: expected an error naming it:\n${out}${err}")
 endif()
 message(STATUS "ok: clean time of one model again, the others kept (CWN ${cwn_seconds} s per epoch)")
+
+# --fixed: CWN's MUTAG cell timed at 1 and 3 epochs, its run's fixed seconds apart from its
+# epochs; the estimate is fixed + epochs x seconds per epoch, and UniGNN2's row is kept (no fixed
+# cost in the old file). A second count not above EPOCHS, or not a number, is refused with a
+# message naming the option.
+execute_process(COMMAND ${PYTHON3} ${SCRIPTS}/topobench_clean_time.py --only CWN --fixed 3 ${TDL}
+  ${data} ${WORK}/mutag/runs.csv ${WORK}/clean.csv 1 RESULT_VARIABLE rc OUTPUT_VARIABLE out
+  ERROR_VARIABLE err)
+file(STRINGS ${WORK}/clean.csv cwn REGEX "^CWN,MUTAG,")
+string(REPLACE "," ";" cwn_fields "${cwn}")
+list(LENGTH cwn_fields n)
+if(NOT rc EQUAL 0 OR NOT n EQUAL 7)
+  message(FATAL_ERROR "clean time --fixed: expected a row of 7 fields (exit ${rc}):\n${cwn}\n${out}${err}")
+endif()
+list(GET cwn_fields 2 per_epoch)
+list(GET cwn_fields 3 n_runs)
+list(GET cwn_fields 4 n_epochs)
+list(GET cwn_fields 5 estimate)
+list(GET cwn_fields 6 fixed)
+# Within the rounding of the printed figures (CMake's math is integer).
+execute_process(COMMAND ${PYTHON3} -c
+  "p,r,e,f,s=${per_epoch},${n_runs},${n_epochs},${fixed},${estimate}; print(int(abs(p*e+f*r-s)<0.06+0.005*r+0.0001*e))"
+  OUTPUT_VARIABLE sums OUTPUT_STRIP_TRAILING_WHITESPACE)
+file(STRINGS ${WORK}/clean.csv uni REGEX "^UniGNN2,MUTAG,123.0000,1,.*,0.00$")
+if(NOT sums STREQUAL "1" OR NOT uni)
+  message(FATAL_ERROR "clean time --fixed: the estimate ${estimate} is not fixed ${fixed} x ${n_runs} runs + ${per_epoch} x ${n_epochs} epochs:\n${cwn}")
+endif()
+foreach(bad "--fixed;1" "--fixed;x")
+  execute_process(COMMAND ${PYTHON3} ${SCRIPTS}/topobench_clean_time.py --only CWN ${bad} ${TDL}
+    ${data} ${WORK}/mutag/runs.csv ${WORK}/clean.csv 1 RESULT_VARIABLE rc OUTPUT_VARIABLE out
+    ERROR_VARIABLE err)
+  string(FIND "${err}" "--fixed" pos)
+  if(rc EQUAL 0 OR pos EQUAL -1)
+    message(FATAL_ERROR "clean time ${bad}: expected an error naming --fixed:\n${out}${err}")
+  endif()
+endforeach()
+message(STATUS "ok: clean time with fixed costs apart (CWN ${per_epoch} s per epoch, ${fixed} s per run)")

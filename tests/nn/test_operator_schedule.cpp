@@ -278,6 +278,71 @@ TEST_CASE(
   CHECK(torch::allclose(out.at("kq"), (scores2 * D).mm(x1), 1e-10, 1e-12));
 }
 
+TEST_CASE("key weights folded into the scores give what keys formed first give",
+          "[nn][schedule][attention]") {
+  // Edges (7, 4 channels) -> nodes (5) over B, 1 or 2 heads: keys x_1 K_h (K: H × 4 × 3) formed
+  // as a state first, or folded (key_weights); scores source-only (AllSetTransformer's) or against
+  // queries x_0 (a_t after a_s); attention's kernel, or torch's operations (fuse_attention off).
+  // Outputs and every gradient agree.
+  const auto B = random_operator(5, 7, 31);
+  torch::manual_seed(32);
+  const auto x0 = torch::randn({5, 6}, torch::kDouble), x1 = torch::randn({7, 4}, torch::kDouble);
+  for (const std::int64_t H : {1, 2})
+    for (const bool fused : {true, false})
+      for (const bool source_only : {true, false}) {
+        INFO("heads " << H << ", fuse_attention " << fused << ", source_only " << source_only);
+        const auto attend = [&](AttendOptions o) {
+          o.heads(H).source_only(source_only).activation(Activation::leaky_relu);
+          if (!source_only) o.queries(CochainKey{0, ""});
+          return from(1).head_weights("V", H, 2).attend("B", o.norm(AttentionNorm::softmax));
+        };
+        OperatorSchedule formed, folded;
+        for (auto* s : {&formed, &folded})
+          s->input("x_0", 0, 6).input("x_1", 1, 4).operator_input("B", 1, 0);
+        formed.step(into(1, "keys").sum(from(1).head_weights("K", H, 3)));
+        formed.step(into(0, "y").sum(attend(AttendOptions("a").keys(CochainKey{1, "keys"}))));
+        folded.step(into(0, "y").sum(
+            attend(AttendOptions("a").keys(CochainKey{1, ""}).key_weights(KeyWeights("K", 3)))));
+        formed.output("y", 0, "y"), folded.output("y", 0, "y");
+        OperatorNetwork a(formed), b(folded);
+        a->to(torch::kDouble), b->to(torch::kDouble);
+        a->fast_paths().fuse_attention(fused), b->fast_paths().fuse_attention(fused);
+        CHECK(b->parameter("K").sizes() == torch::IntArrayRef({H, 4, 3}));
+        REQUIRE(b->parameter("a").sizes() == a->parameter("a").sizes());
+        {
+          torch::NoGradGuard g;
+          for (const auto* name : {"K", "V", "a"}) b->parameter(name).copy_(a->parameter(name));
+        }
+        const auto run = [&](OperatorNetwork& net) {
+          const auto X0 = x0.clone().requires_grad_(), X1 = x1.clone().requires_grad_();
+          const auto y = net->forward({{"x_0", X0}, {"x_1", X1}}, {{"B", B}}).at("y");
+          (y * torch::cos(y)).sum().backward();
+          return std::vector<torch::Tensor>{y.detach(),
+                                            X0.grad(),
+                                            X1.grad(),
+                                            net->parameter("K").grad(),
+                                            net->parameter("V").grad(),
+                                            net->parameter("a").grad()};
+        };
+        const auto want = run(a), got = run(b);
+        CHECK(want[0].abs().sum().item<double>() > 0);
+        for (std::size_t i = 0; i < want.size(); ++i) {
+          INFO("output or gradient " << i);
+          if (i == 1 && source_only) continue;  // x_0 is read only as the queries
+          CHECK(torch::allclose(got[i], want[i], 1e-10, 1e-12));
+        }
+      }
+  // No channel per head: an error naming the key weights.
+  OperatorSchedule bad;
+  bad.input("x_0", 0, 6).input("x_1", 1, 4).operator_input("B", 1, 0);
+  bad.step(into(0).sum(from(1).attend("B", AttendOptions("a")
+                                               .source_only(true)
+                                               .keys(CochainKey{1, ""})
+                                               .key_weights(KeyWeights("K", 0)))));
+  bad.output("y", 0);
+  CHECK_THAT(build_error(bad), Contains("one channel per head of key weights 'K'"));
+}
+
 TEST_CASE("head weights, a bias, a constant scale, concatenated terms, declared parameters",
           "[nn][schedule]") {
   torch::manual_seed(27);
@@ -1212,6 +1277,38 @@ TEST_CASE("plan_str lists what forward runs with its FLOPs, counted by hand",
                                   "split_first_layer, reorder_products, fuse_activations, "
                                   "fuse_products, fuse_attention, fuse_residuals\n"));
   CHECK(torch::allclose(taps->forward(x, ops).at("y_1"), fast, 1e-12, 1e-12));
+}
+
+TEST_CASE("a plan counts the products of head weights, GCN's and GAT's propagation",
+          "[nn][schedule][plan]") {
+  // Nodes (5, 3 channels) on a ring without self-loops (A: 10 entries), edges (4, 3 channels),
+  // B: nodes × edges.
+  auto Ad = torch::zeros({5, 5}), Bd = torch::zeros({5, 4});
+  for (std::int64_t i = 0; i < 5; ++i) Ad[i][(i + 1) % 5] = 1, Ad[(i + 1) % 5][i] = 1;
+  for (std::int64_t j = 0; j < 4; ++j) Bd[j][j] = 1, Bd[j + 1][j] = 1;  // 8 entries
+  OperatorSchedule s;
+  s.input("x_0", 0, 3).input("x_1", 1, 3).operator_input("A", 0, 0).operator_input("B", 1, 0);
+  s.step(into(0, "h").sum(from(0).head_weights("hw", 2, 4)).named("heads"));
+  s.step(into(0, "g").sum(from(0).gcn("A")).named("gcn"));
+  s.step(into(0, "a").sum(from(0).gat("A", "att")).named("gat"));
+  s.step(into(0, "t")
+             .sum(from(1).gat("B", "att_t", GatOptions().part(GatPart::union_targets)))
+             .named("gat_targets"));
+  s.output("h", 0, "h").output("g", 0, "g").output("a", 0, "a").output("t", 0, "t");
+  OperatorNetwork net(s);
+  const std::map<std::string, torch::Tensor> x{{"x_0", torch::randn({5, 3})},
+                                               {"x_1", torch::randn({4, 3})}};
+  const std::map<std::string, SparseOperator> ops{{"A", SparseOperator::from_dense(Ad)},
+                                                  {"B", SparseOperator::from_dense(Bd)}};
+  const auto p = net->plan(x, ops);
+  INFO(p.str());
+  // Two heads of 4 side by side: 5 rows, 3 -> 8. GCN and GAT over the graph: its 10 entries and a
+  // self-loop per node; GAT's targets' part: each of the 5 targets itself, and B's 8 entries.
+  CHECK_THAT(p.str(), Contains("x·hw[×2]  dense 2·5·3·8  240 FLOPs  -> 5 × 8\n"));
+  CHECK_THAT(p.str(), Contains("gcn[A](x)  sparse 2·15·3  90 FLOPs  -> 5 × 3\n"));
+  CHECK_THAT(p.str(), Contains("gat[A](x)  sparse 2·15·3  90 FLOPs  -> 5 × 3\n"));
+  CHECK_THAT(p.str(), Contains("gat[B, targets](x)  sparse 2·13·3  78 FLOPs  -> 5 × 3\n"));
+  CHECK(p.total_flops == 240 + 90 + 90 + 78);
 }
 
 TEST_CASE("a step kept as it was lists no operation, FLOPs or buffer", "[nn][schedule][plan]") {

@@ -418,6 +418,40 @@ def test_schedule_vocabulary():
     assert y.shape == (5, 4)
 
 
+def test_key_weights_folded_equal_keys_formed(complex_):
+    # AllSetTransformer's attention: source-only scores of keys x K_h, formed as a state first or
+    # folded into the scores (key_weights); the same output and gradients.
+    def attention(keys, key_weights=None):
+        return from_(1).head_weights("V", 2, 2).attend(
+            "incidence_1", "a", Activation.leaky_relu, norm=topos.nn.AttentionNorm.softmax,
+            heads=2, source_only=True, keys=keys, key_weights=key_weights, shape=[2, 1, 3],
+        )
+
+    formed, folded = OperatorSchedule(), OperatorSchedule()
+    for s in (formed, folded):
+        s.input("x_1", 1, 4).operator_input("incidence_1", 1, 0)
+    formed.step(into(1, "keys").sum(from_(1).head_weights("K", 2, 3)))
+    formed.step(into(0, "y").sum(attention((1, "keys"))))
+    folded.step(into(0, "y").sum(attention(1, ("K", 3))))
+    for s in (formed, folded):
+        s.output("y", 0, "y")
+    a, b = OperatorNetwork(formed).double(), OperatorNetwork(folded).double()
+    assert b.state_dict()["K"].shape == (2, 4, 3)
+    b.load_state_dict(a.state_dict())
+    x1 = torch.randn(complex_["n1"], 4, dtype=torch.float64)
+    B1 = complex_["incidence_1"].double()
+    grads = []
+    for net in (a, b):
+        x = x1.clone().requires_grad_()
+        y = net({"x_1": x}, {"incidence_1": B1})["y"]
+        (y * y.cos()).sum().backward()
+        grads.append([y.detach(), x.grad] + [p.grad for _, p in sorted(net.named_parameters())])
+    for want, got in zip(*grads):
+        torch.testing.assert_close(got, want)
+    with pytest.raises(TypeError, match=r"attend\(key_weights\): expected \(path, channels per head\)"):
+        from_(1).attend("incidence_1", "a", key_weights="K")
+
+
 # ----- errors ----------------------------------------------------------------------------------
 
 

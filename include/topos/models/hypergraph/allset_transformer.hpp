@@ -29,8 +29,8 @@ struct AllSetTransformerOptions {
 };
 
 /// The schedule: per layer two set functions (TopoModelX AllSetTransformerBlock), nodes ->
-/// hyperedges over Bᵀ, then hyperedges -> nodes over B. Each: the keys x K_h as the state "keys"
-/// of the source rank, the attention (source-only scores of the keys against the query q_h,
+/// hyperedges over Bᵀ, then hyperedges -> nodes over B. Each: the attention (source-only scores
+/// of the keys x K_h against the query q_h, folded as x (K_h q_h): the keys are never formed;
 /// messages x V_h) plus q_h and ln0 into the target, then ln1(y + relu(MLP(y))), relu, dropout.
 inline nn::OperatorSchedule allset_transformer_schedule(const AllSetTransformerOptions& o) {
   using namespace nn::ops;
@@ -65,19 +65,20 @@ inline nn::OperatorSchedule allset_transformer_schedule(const AllSetTransformerO
   s.input("x_0", 0, o.in_channels()).operator_input("incidence_1", 1, 0);  // B's pattern
   auto block = [&](const std::string& p, int src, int dst) {
     const auto q = p + "multihead_att.Q_weight";
-    s.step(into(src, "keys").sum(from(src).head_weights(p + "multihead_att.K_weight", H, c)));
     s.step(into(dst)
                .sum(from(src)
                         .head_weights(p + "multihead_att.V_weight", H, c)
-                        .attend("incidence_1", nn::AttendOptions(q)
-                                                   .shape({H, 1, c})
-                                                   .keys(nn::CochainKey{src, "keys"})
-                                                   .source_only(true)
-                                                   .activation(Activation::leaky_relu)
-                                                   .negative_slope(0.2)
-                                                   .norm(nn::AttentionNorm::softmax)
-                                                   .heads(H)
-                                                   .transposed(dst == 1)))
+                        .attend("incidence_1",
+                                nn::AttendOptions(q)
+                                    .shape({H, 1, c})
+                                    .keys(nn::CochainKey{src, ""})
+                                    .key_weights(nn::KeyWeights(p + "multihead_att.K_weight", c))
+                                    .source_only(true)
+                                    .activation(Activation::leaky_relu)
+                                    .negative_slope(0.2)
+                                    .norm(nn::AttentionNorm::softmax)
+                                    .heads(H)
+                                    .transposed(dst == 1)))
                .bias(q, {H, 1, c})  // PMA's skip connection: the query
                .layer_norm(p + "ln0"));
     // TopoModelX's MLP: [Linear, norm?, act, Dropout] but the last, Linear, then Dropout;

@@ -15,6 +15,15 @@
 
 namespace topos::nn {
 
+namespace detail {
+/// A rank's cells in a plan's sizes, or `unknown` where the plan has none for it.
+TOPOS_INLINE std::int64_t cells_or(const std::map<int, std::int64_t>& cells, int rank,
+                                   std::int64_t unknown) {
+  const auto it = cells.find(rank);
+  return it == cells.end() ? unknown : it->second;
+}
+}  // namespace detail
+
 // One operation's line: a sparse product 2·nnz·width, a dense one 2·rows·in·out; `x`: its
 // operand's (rank, channels), `cells`: each rank's cells.
 TOPOS_INLINE PlanLine
@@ -25,11 +34,12 @@ OperatorNetworkImpl::op_cost(const TermOp& t, TermShape x, const std::map<int, s
   const auto out = shape == shapes_.end() ? x : shape->second;
   if (!t.operation) return {1, label, -1};
   CostContext c;
-  c.rows = cells.count(x.rank) ? cells.at(x.rank) : 0, c.x = x, c.y = out;
+  c.rows = detail::cells_or(cells, x.rank, 0), c.x = x, c.y = out;
+  c.y_rows = detail::cells_or(cells, out.rank, 0);
   c.nnz = nnz;
   const auto cost = t.operation->cost(c);
   PlanLine line{1, cost.formula.empty() ? label : label + "  " + cost.formula, cost.flops};
-  line.rows = cells.count(out.rank) ? cells.at(out.rank) : -1;
+  line.rows = detail::cells_or(cells, out.rank, -1);
   line.channels = line.rows >= 0 ? out.channels : -1;
   if (t.traits.fans_out) line.terms = t.traits.terms;
   return line;
@@ -39,7 +49,6 @@ TOPOS_INLINE Plan OperatorNetworkImpl::plan_with_costs(
     const Operators& ops, const std::map<int, std::int64_t>& cells,
     const std::function<std::int64_t(const std::string&)>& nnz) const {
   auto plan = make_plan(ops);
-  const auto rows = [&](int rank) { return cells.count(rank) ? cells.at(rank) : 0; };
   plan.total_flops = 0, plan.total_values = 0;
   for (auto& group : plan.groups)
     for (auto& p : group) {
@@ -93,11 +102,13 @@ TOPOS_INLINE Plan OperatorNetworkImpl::plan_with_costs(
         // The filter route applies an activation after it as its product is stored.
         const bool act = p.route == StepRoute::filter &&
                          fusable_activation_at(detail::OperationSeq(s.operations()), 0) != nullptr;
+        const auto n = detail::cells_or(cells, y.rank, -1);
         line({0,
-              "filter " + s.filter_path + "  dense 2·" + std::to_string(rows(y.rank)) + "·" +
+              "filter " + s.filter_path + "  dense 2·" +
+                  std::to_string(std::max<std::int64_t>(n, 0)) + "·" +
                   std::to_string(W.size(0) * W.size(2)) + "·" + std::to_string(W.size(1)),
-              2 * rows(y.rank) * W.size(0) * W.size(2) * W.size(1), act ? 1 : 0,
-              cells.count(y.rank) ? rows(y.rank) : -1, cells.count(y.rank) ? W.size(1) : -1});
+              2 * std::max<std::int64_t>(n, 0) * W.size(0) * W.size(2) * W.size(1), act ? 1 : 0, n,
+              n >= 0 ? W.size(1) : -1});
         y.channels = W.size(1);
       }
       if (!s.operations().empty()) line({0, "step's operations", -1});

@@ -147,6 +147,9 @@ TOPOS_INLINE torch::Tensor HeadWeights::forward(RunContext& ctx, const torch::Te
 TOPOS_INLINE OperationTraits HeadWeights::traits() const {
   return row_wise("heads");  // with its printed path
 }
+TOPOS_INLINE OperationCost HeadWeights::cost(const CostContext& c) const {
+  return OperationCost::dense(c.rows, c.x.channels, c.y.channels);  // the heads side by side
+}
 
 TOPOS_INLINE std::string Pow::str(const std::string& x) const {
   return "(" + x + ")^" + nn::detail::num(exponent_);

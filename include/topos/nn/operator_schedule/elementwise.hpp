@@ -112,6 +112,7 @@ class HeadWeights final : public Operation {
   TermShape infer(BuildContext& ctx, TermShape x) const override;
   torch::Tensor forward(RunContext& ctx, const torch::Tensor& x) const override;
   OperationTraits traits() const override;
+  OperationCost cost(const CostContext& c) const override;
 
  private:
   std::string path_;

@@ -104,6 +104,12 @@ class GcnPropagation final : public Operation {
     t.operators = {op_};
     return t;
   }
+  /// The product by the pattern (with a self-loop per cell on a graph: at most nnz + cells
+  /// entries); the targets' part only scales.
+  OperationCost cost(const CostContext& c) const override {
+    if (part_ == GcnPart::union_targets) return {};
+    return OperationCost::sparse(c.nnz(op_) + (part_ == GcnPart::graph ? c.rows : 0), c.x.channels);
+  }
 
  private:
   std::string op_;
@@ -198,6 +204,15 @@ class GatAttention final : public Operation {
     t.reads_cochains = o_.targets().has_value();
     t.operators = {op_};
     return t;
+  }
+  /// The weighted sum over the attention's entries: the operator's and a self-loop per cell on
+  /// a graph (at most nnz + cells), each cell itself for the sources' part, each target and its
+  /// sources for the targets' part.
+  OperationCost cost(const CostContext& c) const override {
+    const auto entries = o_.part() == GatPart::graph           ? c.nnz(op_) + c.rows
+                         : o_.part() == GatPart::union_sources ? c.rows
+                                                               : c.nnz(op_) + c.y_rows;
+    return OperationCost::sparse(entries, c.x.channels);
   }
 
  private:

@@ -323,10 +323,11 @@ struct OperationTraits {
 };
 
 /// What an operation's cost is counted on (plan_str): the operand's rows, its and the result's
-/// shapes, and the nonzeros of an operator by name (0 when not given).
+/// shapes, the result's rows, and the nonzeros of an operator by name (0 when not given).
 struct CostContext {
   std::int64_t rows = 0;
   TermShape x, y;
+  std::int64_t y_rows = 0;  ///< the result's rows: its rank's cells (0 when not known)
   std::function<std::int64_t(const std::string&)> nnz;
 };
 

@@ -93,6 +93,14 @@ TOPOS_INLINE TermShape Attend::infer(BuildContext& ctx, TermShape x) const {
            std::to_string(src) + " before the step");
     ck = *w;
   }
+  const auto H = o.heads();
+  if (const auto& kw = o.key_weights()) {
+    if (H < 1 || kw->channels() < 1)
+      fail("needs at least one head and one channel per head of key weights '" + kw->path() +
+           "' (" + std::to_string(H) + " heads, " + std::to_string(kw->channels()) + " channels)");
+    ctx.parameter(kw->path(), {H, ck, kw->channels()}, ParameterInit::glorot(kw->gain()));
+    ck = H * kw->channels();
+  }
   if (!o.source_only()) {
     const auto key = o.queries() ? *o.queries() : target;
     const auto w = key.rank == dst ? ctx.find_width(key) : std::nullopt;
@@ -110,7 +118,6 @@ TOPOS_INLINE TermShape Attend::infer(BuildContext& ctx, TermShape x) const {
            "(AttendOptions::queries)");
     cq = *w;
   }
-  const auto H = o.heads();
   if (H < 1 || x.channels % H || ck % H || cq % H)
     fail("with " + std::to_string(H) + " heads: the messages (" + std::to_string(x.channels) +
          "), keys (" + std::to_string(ck) + ") and queries (" + std::to_string(cq) +
@@ -154,8 +161,15 @@ TOPOS_INLINE torch::Tensor Attend::forward(RunContext& ctx, const torch::Tensor&
   // a_s·k_j (+ a_t·q_i), the weights and each head's messages (functional.hpp).
   const auto H = o.heads();
   const auto a = ctx.parameter(o.param()).reshape({-1});
-  const auto ck = k.size(1);
-  const auto source = head_scores(k, q.defined() ? a.narrow(0, 0, ck) : a, H);
+  torch::Tensor K;  // key weights: heads × in × channels
+  if (o.key_weights()) K = ctx.parameter(o.key_weights()->path());
+  const auto ck = K.defined() ? K.size(0) * K.size(2) : k.size(1);
+  const auto a_s = q.defined() ? a.narrow(0, 0, ck) : a;
+  // Folded keys: per head K_h a_h (in × heads), one product for every head's scores (one head's
+  // a vector, as head_scores gives it).
+  auto source = K.defined() ? k.mm(torch::einsum("hic,hc->ih", {K, a_s.reshape({H, -1})}))
+                            : head_scores(k, a_s, H);
+  if (K.defined() && H == 1) source = source.reshape({-1});
   const auto target = q.defined() ? head_scores(q, a.narrow(0, ck, a.size(0) - ck), H) : q;
   return multi_head_attention_from_cells(A, source, target, x, o.concat(), o.activation(),
                                          o.negative_slope(), o.norm(), o.dropout(),
@@ -166,6 +180,8 @@ TOPOS_INLINE OperationTraits Attend::traits() const {
   t.operators = {op_};
   return t;
 }
+// The weighted sum over A's entries. The per-cell scores are not counted: a dot product per cell
+// and head, or with key weights a product of `heads` columns (in·heads per cell).
 TOPOS_INLINE OperationCost Attend::cost(const CostContext& c) const {
   return OperationCost::sparse(c.nnz(op_), c.x.channels);
 }

@@ -17,6 +17,18 @@
 
 namespace topos::nn {
 
+/// Keys that are per-head linear maps of the keys' cochain, k_j,h = x_j K_h with K (heads × in ×
+/// channels) at `path` (Glorot with `gain`, as head_weights makes it): attend folds them into the
+/// source scores, <x_j K_h, a_h> = x_j (K_h a_h), one product of H columns where forming the keys
+/// takes one of heads·channels columns and its backward (AllSetTransformer's K).
+struct KeyWeights {
+  KeyWeights(std::string path, std::int64_t channels)
+      : path_(std::move(path)), channels_(channels) {}
+  TORCH_ARG(std::string, path);
+  TORCH_ARG(std::int64_t, channels);  ///< per head
+  TORCH_ARG(double, gain) = 1.414;
+};
+
 /// How `attend` scores and weighs a term's messages; the defaults are TopoModelX Conv's attention
 /// (one head, one (2·C) vector). Per head, scores from keys k (the term's features, or a cochain
 /// of the source rank) and queries q (the step's target before the step, or a cochain of the
@@ -35,7 +47,9 @@ struct AttendOptions {
   TORCH_ARG(Activation, activation) = Activation::elu;
   TORCH_ARG(double, negative_slope) = 0.2;
   TORCH_ARG(AttentionNorm, norm) = AttentionNorm::none;
-  TORCH_ARG(std::optional<CochainKey>, keys);     ///< default: the term's features
+  TORCH_ARG(std::optional<CochainKey>, keys);  ///< default: the term's features
+  /// The keys are `keys` times these per-head weights (folded into the scores), not `keys`.
+  TORCH_ARG(std::optional<KeyWeights>, key_weights);
   TORCH_ARG(std::optional<CochainKey>, queries);  ///< default: the step's target
   TORCH_ARG(bool, source_only) = false;           ///< no queries and no a_t
   TORCH_ARG(std::int64_t, heads) = 1;
