@@ -151,6 +151,13 @@ void BM_backbone_epoch(benchmark::State& state, Setting s) {
   // TOPOS_FAST_PATH_OFF=name (a FastPaths name) times the backbone without that fast path: the
   // same binary, side by side.
   if (const char* off = std::getenv("TOPOS_FAST_PATH_OFF")) backbone->fast_paths().set(off, false);
+  // TOPOS_MATMUL_PRECISION=medium times it with bfloat16 products (nn::MatmulPrecision): the same
+  // binary, side by side.
+  struct Restore {
+    ~Restore() { nn::set_float32_matmul_precision(nn::MatmulPrecision::highest); }
+  } restore;
+  if (const char* p = std::getenv("TOPOS_MATMUL_PRECISION"))
+    nn::set_float32_matmul_precision(nn::matmul_precision_from_string(p));
   // Hidden-width features per rank and each output summed for the backward.
   std::vector<std::map<std::string, torch::Tensor>> inputs;
   for (const auto& b : p.batches) {

@@ -17,10 +17,13 @@
 #include "topos/models/topobench/table_models.hpp"
 #include "topos/models/topobench/trainer.hpp"
 #include "topos/nn/cpu.hpp"
+#include "topos/nn/kernels/dense_bf16.hpp"
+#include "topos/nn/kernels/precision.hpp"
 
 #include <torch/torch.h>
 
 #include <algorithm>
+#include <cctype>
 #include <deque>
 #include <chrono>
 #include <filesystem>
@@ -53,6 +56,7 @@ struct TopoBenchOptions {
   /// Σ_v deg(v)² over a dataset above which its rank-1 pair operators are kept as factors.
   std::int64_t factor_above = 100'000'000;
   bool keep_denormals = false;  ///< IEEE denormals kept (slower; topobench::TrainOptions)
+  std::string matmul_precision = "highest";  ///< nn::MatmulPrecision of the runs' products
 };
 
 /// Entries of the rank-1 operators that pair edges through a shared node (the down Laplacian,
@@ -89,6 +93,28 @@ int run_topobench(const TopoBenchOptions& o) {
     for (auto* m : models) topobench::find_config(configs, *m, *d);
 
   topobench::RunsFolder folder(out, topobench::table_model_names());  // an earlier start's, checked
+  // A folder holds runs of one precision: OUT/matmul_precision says which when it is not float32
+  // (a folder without it, TopoBench's float32), so a resume cannot mix the two in one table. A
+  // folder without runs takes any.
+  if (o.matmul_precision != "highest" && !topos::nn::detail::cpu_has_bf16())
+    throw std::invalid_argument(
+        "--matmul-precision " + o.matmul_precision +
+        ": this CPU has no AVX-512 BF16, so the backbones' products would stay float32; use "
+        "--matmul-precision highest");
+  const auto precision_path = out / "matmul_precision";
+  std::string folder_precision = o.matmul_precision;
+  if (!folder.runs().empty()) {
+    folder_precision =
+        fs::exists(precision_path) ? topos::data::read_text_file(precision_path) : "highest";
+    while (!folder_precision.empty() &&
+           std::isspace(static_cast<unsigned char>(folder_precision.back())))
+      folder_precision.pop_back();
+  }
+  if (folder_precision != o.matmul_precision)
+    throw std::invalid_argument(out.string() + " holds runs at --matmul-precision " +
+                                folder_precision + ", not " + o.matmul_precision +
+                                ": give another --out, or --matmul-precision " + folder_precision +
+                                " to add to it");
 
   std::vector<topobench::TableJob> jobs;
   std::size_t skipped = 0;
@@ -178,10 +204,18 @@ int run_topobench(const TopoBenchOptions& o) {
               << " is more threads than this machine's " << topos::nn::available_cores()
               << " cores; each run will wait on the others\n";
   topos::nn::set_cpu_threads(o.threads, 1);
+  topos::nn::set_float32_matmul_precision(
+      topos::nn::matmul_precision_from_string(o.matmul_precision));
   // Freed memory kept in the heap: glibc hands every block over 32 MB back to the kernel, and an
   // IMDB batch's rank-3 cochains (200k tetrahedra × 128 channels) were faulted in afresh at every
   // operation (docs/benchmarks.md: BM_epoch_options).
   topos::nn::keep_freed_memory();
+
+  // Marked once nothing is left to refuse the start.
+  if (o.matmul_precision != "highest")
+    topos::io::write_file_atomic(precision_path.string(), o.matmul_precision);
+  else if (fs::exists(precision_path))
+    fs::remove(precision_path);  // a folder without runs, taken at float32
 
   topobench::TableRunOptions run;
   run.jobs = o.jobs;
@@ -253,6 +287,11 @@ void register_topobench(CLI::App& app, Run& run) {
                   "keep the rank-1 Laplacians (edges sharing a node) as products of incidences "
                   "where a dataset's sum of squared degrees exceeds this (REDDIT-BINARY: 372 M)")
       ->check(CLI::Range(std::int64_t{0}, std::numeric_limits<std::int64_t>::max()))
+      ->capture_default_str();
+  cmd->add_option("--matmul-precision", o->matmul_precision,
+                  "highest: float32 products, as TopoBench; medium: bfloat16 inputs with float32 "
+                  "sums (faster where the CPU has AVX-512 BF16; recorded in OUT/matmul_precision)")
+      ->check(CLI::IsMember({"highest", "medium"}))
       ->capture_default_str();
   cmd->add_flag("--keep-denormals", o->keep_denormals,
                 "keep denormal floats (by default they are flushed to zero while a run trains: "

@@ -56,6 +56,19 @@ file(READ ${WORK}/bad_runs/runs.csv after)
 if(NOT after STREQUAL bad)
   message(FATAL_ERROR "a failed start changed runs.csv")
 endif()
+# A folder of float32 runs (no OUT/matmul_precision) takes no bfloat16 runs, and an unknown
+# precision is refused by name.
+file(MAKE_DIRECTORY ${WORK}/f32_runs)
+file(WRITE ${WORK}/f32_runs/runs.csv
+  "model,dataset,split_seed,test_accuracy,best_epoch,epochs,seconds\nSCN,MUTAG,0,0.5,1,1,1\n")
+expect_failure_topobench("bfloat16 runs into a float32 folder"
+  "holds runs at --matmul-precision highest, not medium: give another --out, or --matmul-precision highest"
+  --data-dir ${WORK}/data --models SCN --datasets MUTAG --matmul-precision medium --out ${WORK}/f32_runs)
+if(EXISTS ${WORK}/f32_runs/matmul_precision)
+  message(FATAL_ERROR "a refused start marked the folder")
+endif()
+expect_failure_topobench("unknown matmul precision" "--matmul-precision: low not in {highest,medium}"
+  --data-dir ${WORK}/data --models SCN --datasets MUTAG --matmul-precision low --out ${WORK}/o)
 return()
 endif()
 
@@ -133,6 +146,24 @@ if(NOT rc EQUAL 0 OR NOT rows)
   message(FATAL_ERROR "GCCN on MUTAG (CWN's line) did not run:\n${out}${err}")
 endif()
 message(STATUS "ok: GCCN with CWN's line")
+
+# --matmul-precision medium: bfloat16 products; the folder says so, and a float32 start on it is
+# refused.
+execute_process(COMMAND ${TDL} topobench --data-dir ${data} --models CWN --datasets MUTAG --splits 0
+  --max-epochs 5 --matmul-precision medium --out ${WORK}/medium
+  RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+file(STRINGS ${WORK}/medium/runs.csv rows REGEX "^CWN,MUTAG,0,")
+if(NOT rc EQUAL 0 OR NOT rows OR NOT EXISTS ${WORK}/medium/matmul_precision)
+  message(FATAL_ERROR "CWN on MUTAG at --matmul-precision medium did not run:\n${out}${err}")
+endif()
+file(READ ${WORK}/medium/matmul_precision marker)
+execute_process(COMMAND ${TDL} topobench --data-dir ${data} --models CWN --datasets MUTAG --splits 3
+  --max-epochs 5 --out ${WORK}/medium RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+string(FIND "${err}" "holds runs at --matmul-precision medium, not highest" said)
+if(NOT marker STREQUAL "medium" OR rc EQUAL 0 OR said EQUAL -1)
+  message(FATAL_ERROR "a float32 start on a bfloat16 folder was not refused:\n${out}${err}")
+endif()
+message(STATUS "ok: --matmul-precision medium")
 
 # A run that fails (here: CWN 3,000,000 wide cannot allocate its weights) marks its cell failed in
 # not_run.csv with the error, the other cells still run, and the exit status is 1.

@@ -16,6 +16,7 @@
 
 #include <caffe2/serialize/inline_container.h>
 
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -24,6 +25,7 @@
 #include <set>
 #include <mutex>
 #include <thread>
+#include <tuple>
 #if defined(_OPENMP)
 #include <omp.h>
 #endif
@@ -648,6 +650,221 @@ TEST_CASE("medium matmul precision: bfloat16 products, float32 out, close to hig
   REQUIRE(matmul_precision_from_string("medium") == MatmulPrecision::medium);
   REQUIRE_THROWS_WITH(matmul_precision_from_string("high"),
                       Catch::Contains("unknown matmul precision 'high'"));
+}
+
+TEST_CASE("bfloat16 kernels: act(x Wᵀ + b) and its gradients against double on rounded inputs",
+          "[nn][kernels][mlp]") {
+  // The rounding: torch's own float -> bfloat16 conversion (nearest, ties to even) is the check.
+  torch::manual_seed(11);
+  const auto v = torch::cat(
+      {torch::randn({4096}), torch::tensor({1.00390625f, 1.01171875f, -3.0078125f, 0.0f})});
+  const auto bits = v.to(torch::kBFloat16).view(torch::kInt16);
+  for (std::int64_t i = 0; i < v.numel(); ++i)
+    REQUIRE(static_cast<std::int16_t>(nn::detail::bf16_bits(v[i].item<float>())) ==
+            bits[i].item<std::int16_t>());
+  if (!nn::detail::cpu_has_bf16()) {
+    WARN("this CPU has no AVX-512 BF16: the bfloat16 kernels are not checked");
+    return;
+  }
+  // Weights are packed in pairs a vector at a time (rows or columns contiguous): the same pairs
+  // as element by element.
+  const auto M = torch::randn({64, 48});
+  const auto* m = M.data_ptr<float>();
+  REQUIRE(nn::detail::pack_bf16_pairs(m, 64, 48, 48, 1) ==
+          nn::detail::pack_bf16_pairs_scalar(m, 64, 48, 48, 1));
+  REQUIRE(nn::detail::pack_bf16_pairs(m, 48, 64, 1, 48) ==
+          nn::detail::pack_bf16_pairs_scalar(m, 48, 64, 1, 48));
+  REQUIRE(nn::detail::bf16_kernel_fits(576, 64));
+  REQUIRE_FALSE(nn::detail::bf16_kernel_fits(24, 64));  // inputs not a multiple of 16: other paths
+  REQUIRE_FALSE(nn::detail::bf16_kernel_fits(64, 3));
+  topos::test::RestoreThreads restore;
+  const auto rounded = [](const torch::Tensor& t) {
+    return t.detach().to(torch::kBFloat16).to(torch::kDouble);
+  };
+  // Rows: one, odd (a lone last row in the weight gradient's pairs), many on two threads;
+  // widths: one vector, panels of 64 with tails of 16-48, the widest (1024).
+  const std::vector<std::array<std::int64_t, 4>> shapes{
+      {1, 16, 16, 1},      {37, 64, 64, 1},  {101, 576, 64, 1}, {50, 64, 576, 1},
+      {20000, 128, 48, 2}, {7, 1024, 80, 1}, {9, 32, 1024, 1}};
+  for (const auto& [n, K, N, threads] : shapes)
+    for (const auto e : {Epilogue::none, Epilogue::relu, Epilogue::elu, Epilogue::sigmoid}) {
+      INFO(n << " x " << K << " -> " << N << ", epilogue " << static_cast<int>(e));
+      at::set_num_threads(static_cast<int>(threads));
+      const auto x = torch::randn({n, K}, torch::requires_grad());
+      const auto W = (torch::randn({N, K}) / std::sqrt(static_cast<double>(K))).requires_grad_();
+      const auto b = torch::randn({N}, torch::requires_grad());
+      const auto y = linear_act(x, W, b, e, MatmulPrecision::medium);
+      REQUIRE(y.scalar_type() == torch::kFloat);
+      const auto g = torch::randn_like(y);
+      const auto grads = torch::autograd::grad({y}, {x, W, b}, {g});
+      // Reference: the same products in double from the bfloat16-rounded inputs; dZ = g ⊙ act'(y)
+      // in float32, rounded for the two products as the kernel rounds it.
+      const auto z = torch::linear(rounded(x), rounded(W), b.detach().to(torch::kDouble));
+      const auto ref = e == Epilogue::none   ? z
+                       : e == Epilogue::relu ? torch::relu(z)
+                       : e == Epilogue::elu  ? torch::elu(z)
+                                             : torch::sigmoid(z);
+      const auto yd = y.detach();
+      // (in the kernel's float32 order: a different rounding of dZ can round it to another
+      // bfloat16, a 4e-3 step)
+      const auto dZ = e == Epilogue::none   ? g
+                      : e == Epilogue::relu ? g * (yd > 0)
+                      : e == Epilogue::elu  ? torch::where(yd > 0, g, g * (yd + 1))
+                                            : g * ((1 - yd) * yd);
+      const auto max_gap = [](const torch::Tensor& a, const torch::Tensor& r) {
+        return (a.to(torch::kDouble) - r).abs().max().item<double>() /
+               std::max(1.0, r.abs().max().item<double>());
+      };
+      // float32 sums of K (or n) products: a few units in the 7th digit, far below bfloat16's
+      // 3rd (a product in float32 of the unrounded inputs would be off by ~1e-2).
+      CHECK(max_gap(y, ref) < 2e-5);
+      CHECK(max_gap(grads[0], rounded(dZ).mm(rounded(W))) < 2e-5);
+      CHECK(max_gap(grads[1], rounded(dZ).t().mm(rounded(x))) < 2e-5);
+      CHECK(max_gap(grads[2], dZ.to(torch::kDouble).sum(0)) < 2e-5);
+    }
+  // Inside a PackedWeightsScope a weight's pairs are kept between calls: an in-place update (here
+  // through a view, which shares the version counter) and a new tensor must not reuse old pairs;
+  // a write through .data() (as torch::optim::SGD steps) is seen once the scope has ended.
+  {
+    at::set_num_threads(1);
+    torch::NoGradGuard no_grad;
+    const auto x = torch::randn({30, 64});
+    auto W = torch::randn({32, 64});
+    const auto product = [&] {
+      return linear_act(x, W, {}, Epilogue::none, MatmulPrecision::medium);
+    };
+    torch::Tensor before;
+    {
+      const PackedWeightsScope scope;
+      before = product();
+      REQUIRE(torch::equal(before, product()));
+      W.narrow(0, 0, 16).mul_(2);  // doubling is exact in bfloat16: the rows double exactly
+      const auto after = product();
+      REQUIRE(torch::equal(after.narrow(1, 0, 16), 2 * before.narrow(1, 0, 16)));
+      REQUIRE(torch::equal(after.narrow(1, 16, 16), before.narrow(1, 16, 16)));
+      for (int k = 0; k < 20; ++k) {  // fresh weights of the same shape
+        W = torch::randn({32, 64});
+        REQUIRE((product().to(torch::kDouble) - rounded(x).mm(rounded(W).t()))
+                    .abs()
+                    .max()
+                    .item<double>() < 1e-4);
+      }
+    }
+    const PackedWeightsScope first;
+    const auto y = product();
+    W.data().mul_(2);  // no version bump: unseen inside this scope...
+    REQUIRE(torch::equal(product(), y));
+    {
+      const PackedWeightsScope nested;  // ...and in a nested one
+      REQUIRE(torch::equal(product(), y));
+    }
+  }
+  {
+    torch::NoGradGuard no_grad;
+    const auto x = torch::randn({30, 64});
+    const auto W = torch::randn({32, 64});
+    const auto y = linear_act(x, W, {}, Epilogue::none, MatmulPrecision::medium);
+    W.data().mul_(2);  // outside a scope every call packs afresh
+    REQUIRE(torch::equal(linear_act(x, W, {}, Epilogue::none, MatmulPrecision::medium), 2 * y));
+  }
+  // linear_blocks: blocks side by side into one row of pairs, a base, every gradient; blocks of
+  // 16 and 32 columns start their weight columns off the panels of 64; 9,000 rows on two threads
+  // sum two chunks of the weight's gradient.
+  const std::vector<std::tuple<std::int64_t, std::vector<std::int64_t>, Epilogue, int>> block_cases{
+      {45, {64, 128, 64}, Epilogue::none, 1},
+      {45, {64, 128, 64}, Epilogue::sigmoid, 1},
+      {31, {16, 16, 32}, Epilogue::relu, 1},
+      {9000, {32, 16}, Epilogue::elu, 2}};
+  for (const auto& [n, widths, e, threads] : block_cases) {
+    INFO("linear_blocks, " << n << " rows, epilogue " << static_cast<int>(e));
+    at::set_num_threads(threads);
+    struct Restore {
+      ~Restore() { set_float32_matmul_precision(MatmulPrecision::highest); }
+    } back;
+    set_float32_matmul_precision(MatmulPrecision::medium);
+    std::vector<torch::Tensor> xs;
+    std::int64_t Ktot = 0;
+    for (const auto w : widths)
+      xs.push_back(torch::randn({n, w}, torch::requires_grad())), Ktot += w;
+    const auto W = (torch::randn({64, Ktot}) / 16).requires_grad_();
+    const auto base = torch::randn({n, 64}, torch::requires_grad());
+    const auto y = linear_blocks(xs, W, e, base);
+    const auto g = torch::randn_like(y);
+    std::vector<torch::Tensor> wrt(xs);
+    wrt.push_back(W), wrt.push_back(base);
+    const auto grads = torch::autograd::grad({y}, wrt, {g});
+    std::vector<torch::Tensor> parts;
+    for (const auto& x : xs) parts.push_back(rounded(x));
+    const auto xcat = torch::cat(parts, 1);
+    const auto z = base.detach().to(torch::kDouble) + xcat.mm(rounded(W).t());
+    const auto yd = y.detach();
+    const auto ref = e == Epilogue::none   ? z
+                     : e == Epilogue::relu ? torch::relu(z)
+                     : e == Epilogue::elu  ? torch::elu(z)
+                                           : torch::sigmoid(z);
+    const auto dZ = e == Epilogue::none   ? g
+                    : e == Epilogue::relu ? g * (yd > 0)
+                    : e == Epilogue::elu  ? torch::where(yd > 0, g, g * (yd + 1))
+                                          : g * ((1 - yd) * yd);
+    const auto max_gap = [](const torch::Tensor& a, const torch::Tensor& r) {
+      return (a.to(torch::kDouble) - r).abs().max().item<double>() /
+             std::max(1.0, r.abs().max().item<double>());
+    };
+    CHECK(max_gap(y, ref) < 2e-5);
+    const auto dx = rounded(dZ).mm(rounded(W));
+    std::int64_t off = 0;
+    for (std::size_t k = 0; k < xs.size(); off += xs[k].size(1), ++k)
+      CHECK(max_gap(grads[k], dx.narrow(1, off, xs[k].size(1))) < 2e-5);
+    CHECK(max_gap(grads[xs.size()], rounded(dZ).t().mm(xcat)) < 2e-5);
+    CHECK(max_gap(grads[xs.size() + 1], dZ.to(torch::kDouble)) < 1e-6);
+  }
+  // Through the schedule's sparse weight (SparseLinearFunction keeps the path for its backward):
+  // against double, rounding where the kernels round (x or A x, W, and the gradient entering the
+  // dense product) and in float32 where they sum in float32 (the sparse products).
+  at::set_num_threads(1);
+  std::vector<std::int64_t> r, c;
+  std::vector<double> val;
+  auto Ad = torch::zeros({40, 40}, torch::kDouble);
+  for (std::int64_t i = 0; i < 40; ++i)
+    for (std::int64_t k : {i, (i * 7 + 3) % 40}) {
+      r.push_back(i), c.push_back(k), val.push_back(1.5);
+      Ad[i][k] += 1.5;
+    }
+  const auto A = SparseOperator::from_triplets(40, 40, r, c, val);
+  const auto x = torch::randn({40, 32}, torch::requires_grad());
+  const auto Wio = torch::randn({32, 64}, torch::requires_grad());  // in × out, as stored
+  const auto f32 = [](const torch::Tensor& t) { return t.to(torch::kFloat).to(torch::kDouble); };
+  for (const bool weight_first : {true, false}) {
+    INFO("weight first " << weight_first);
+    struct Restore {
+      ~Restore() { set_float32_matmul_precision(MatmulPrecision::highest); }
+    } back;
+    set_float32_matmul_precision(MatmulPrecision::medium);
+    const auto y = sparse_linear_act(A, x, Wio, weight_first, Epilogue::relu);
+    const auto g = torch::randn_like(y);
+    const auto grads = torch::autograd::grad({y}, {x, Wio}, {g});
+    const auto dY = (g * (y.detach() > 0)).to(torch::kDouble);
+    torch::Tensor y_ref, dx_ref, dW_ref;
+    if (weight_first) {  // y = relu(A (x W))
+      const auto t = f32(rounded(x).mm(rounded(Wio)));
+      y_ref = torch::relu(Ad.mm(t));
+      const auto dt = f32(Ad.t().mm(dY));
+      dx_ref = rounded(dt).mm(rounded(Wio).t());
+      dW_ref = rounded(x).t().mm(rounded(dt));
+    } else {  // y = relu((A x) W)
+      const auto z = f32(Ad.mm(x.detach().to(torch::kDouble)));
+      y_ref = torch::relu(rounded(z).mm(rounded(Wio)));
+      dx_ref = Ad.t().mm(f32(rounded(dY).mm(rounded(Wio).t())));
+      dW_ref = rounded(z).t().mm(rounded(dY));
+    }
+    const auto max_gap = [](const torch::Tensor& a, const torch::Tensor& ref) {
+      return (a.to(torch::kDouble) - ref).abs().max().item<double>() /
+             std::max(1.0, ref.abs().max().item<double>());
+    };
+    CHECK(max_gap(y, y_ref) < 2e-5);
+    CHECK(max_gap(grads[0], dx_ref) < 2e-5);
+    CHECK(max_gap(grads[1], dW_ref) < 2e-5);
+  }
 }
 
 TEST_CASE("a batch of complexes gives the per-complex results", "[nn][batch][schedule]") {

@@ -8,23 +8,29 @@
 // loop over a CSR matrix under spmm (csr.hpp; sparse_operator.hpp), and the register-blocked dense
 // product for narrow maps (n × K by K × N, N up to 64) with its backward (dense.hpp), and oneDNN's
 // sgemm for wide float32 maps when chosen (gemm.hpp, CpuGemm), and LayerNorm with its backward
-// (layer_norm.hpp).
+// (layer_norm.hpp); at MatmulPrecision::medium, bfloat16 products with float32 sums
+// (dense_bf16.hpp).
 #pragma once
 
 #include "topos/nn/kernels/csr.hpp"
 #include "topos/nn/kernels/dense.hpp"
+#include "topos/nn/kernels/dense_bf16.hpp"
 #include "topos/nn/kernels/epilogue.hpp"
 #include "topos/nn/kernels/gemm.hpp"
 #include "topos/nn/kernels/layer_norm.hpp"
+#include "topos/nn/kernels/packed_weights.hpp"
+#include "topos/nn/kernels/precision.hpp"
 
 #include <ATen/Parallel.h>
 #include <torch/torch.h>
 
 #include <algorithm>
 #include <cstdint>
+#include <memory>
 #include <stdexcept>
 #include <utility>
 #include <string>
+#include <vector>
 
 namespace topos::nn {
 
@@ -37,18 +43,54 @@ inline std::int64_t backward_chunks(std::int64_t n) {
   return std::max<std::int64_t>(1, std::min<std::int64_t>(at::get_num_threads(), n / 4096));
 }
 
+// Which library ran a product, so that its backward runs on the same one.
+enum class ProductPath : std::int64_t { kernel = 0, onednn = 1, bf16 = 2 };
+
+// Whether x·M (M K × N) runs on the bfloat16 kernels at `precision`: medium, float32 on a CPU
+// with AVX-512 BF16, a shape bf16_kernel_fits takes.
+inline bool bf16_takes(const torch::Tensor& x, std::int64_t K, std::int64_t N,
+                       MatmulPrecision precision) {
+  return precision == MatmulPrecision::medium && x.scalar_type() == torch::kFloat &&
+         x.device().is_cpu() && x.dim() == 2 && bf16_kernel_fits(K, N) && cpu_has_bf16();
+}
+
+// act(b + X M) on the bfloat16 kernels (M K × N float32, any strides; b float32 or undefined).
+inline torch::Tensor bf16_product(const torch::Tensor& X, const torch::Tensor& M,
+                                  const torch::Tensor& b, Epilogue e) {
+  const auto x = X.contiguous();
+  const auto bc = b.defined() ? b.contiguous() : b;
+  const auto n = x.size(0), K = M.size(0), N = M.size(1);
+  auto y = torch::empty({n, N}, x.options());
+#if defined(TOPOS_HAVE_BF16)
+  const auto P = packed_pairs(M, K, N, M.stride(0), M.stride(1));
+  const float* xp = x.data_ptr<float>();
+  const float* bp = bc.defined() ? bc.data_ptr<float>() : nullptr;
+  float* yp = y.data_ptr<float>();
+  at::parallel_for(0, n, grain_rows(n, n * K * N / 2), [&](std::int64_t begin, std::int64_t end) {
+    dense_rows_bf16(xp, P->data(), bp, yp, begin, end, K, N, e);
+  });
+#else
+  throw std::logic_error("bf16_product: this build has no bfloat16 kernels");
+#endif
+  return y;
+}
+
 // act(x Wᵀ + b) as one node keeping x, W and its output: the activation runs in place on the
 // product (one pass, vectorised) and the backward starts from dY ⊙ act'(Y).
 struct LinearFunction : public torch::autograd::Function<LinearFunction> {
-  /// act(x Wᵀ + b) (b undefined: none), and whether oneDNN ran it (the backward follows).
-  static std::pair<torch::Tensor, bool> product(const torch::Tensor& x, const torch::Tensor& W,
-                                                const torch::Tensor& b, Epilogue e) {
-    return product_right(x, W.t(), b, e);
+  /// act(x Wᵀ + b) (b undefined: none), and the library that ran it (the backward follows).
+  static std::pair<torch::Tensor, ProductPath> product(
+      const torch::Tensor& x, const torch::Tensor& W, const torch::Tensor& b, Epilogue e,
+      MatmulPrecision precision = get_float32_matmul_precision()) {
+    return product_right(x, W.t(), b, e, precision);
   }
   /// act(x M + b) for M = Wᵀ (in × out, a schedule's weight as it is stored), as `product`.
-  static std::pair<torch::Tensor, bool> product_right(const torch::Tensor& x,
-                                                      const torch::Tensor& M,
-                                                      const torch::Tensor& b, Epilogue e) {
+  static std::pair<torch::Tensor, ProductPath> product_right(
+      const torch::Tensor& x, const torch::Tensor& M, const torch::Tensor& b, Epilogue e,
+      MatmulPrecision precision = get_float32_matmul_precision()) {
+    if (M.scalar_type() == torch::kFloat && M.device().is_cpu() &&
+        bf16_takes(x, M.size(0), M.size(1), precision))
+      return {bf16_product(x, M, b, e), ProductPath::bf16};
     // oneDNN takes the wide products when chosen (CpuGemm): on a 128-wide map the dense kernel
     // runs at half BLAS's speed and oneDNN 1.3x BLAS's (AVX-512 EPYC).
     const bool onednn = M.size(1) > 64 && use_onednn(x);
@@ -62,45 +104,47 @@ struct LinearFunction : public torch::autograd::Function<LinearFunction> {
       y = b.defined() ? torch::addmm(b, x, M) : x.mm(M);
       apply_epilogue(y, torch::Tensor(), e);
     }
-    return {y, onednn};
+    return {y, onednn ? ProductPath::onednn : ProductPath::kernel};
   }
+  // how: the activation in two bits, 4 at medium precision.
   static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& x,
                                const torch::Tensor& W, const torch::Tensor& bias,
-                               std::int64_t act) {
-    const auto e = static_cast<Epilogue>(act);
+                               std::int64_t how) {
+    const auto e = static_cast<Epilogue>(how & epilogue_mask);
+    const auto precision = (how & 4) != 0 ? MatmulPrecision::medium : MatmulPrecision::highest;
     const auto b = bias.numel() > 0 ? bias : torch::Tensor();  // empty: no bias
-    const auto [y, onednn] = product(x, W, b, e);
+    const auto [y, path] = product(x, W, b, e, precision);
     ctx->save_for_backward({x, W, e == Epilogue::none ? torch::Tensor() : y});
-    ctx->saved_data["act"] = act;
+    ctx->saved_data["how"] = (how & epilogue_mask) | static_cast<std::int64_t>(path) << 2;
     ctx->saved_data["bias"] = b.defined();
-    ctx->saved_data["onednn"] = onednn;
     return y;
   }
   static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx,
                                                torch::autograd::tensor_list grads) {
     const auto saved = ctx->get_saved_variables();
-    const auto e = static_cast<Epilogue>(ctx->saved_data["act"].toInt());
+    const auto how = ctx->saved_data["how"].toInt();
     const bool bias = ctx->saved_data["bias"].toBool();
-    return gradients(saved[0], saved[1], saved[2], grads[0], e, ctx->saved_data["onednn"].toBool(),
+    return gradients(saved[0], saved[1], saved[2], grads[0],
+                     static_cast<Epilogue>(how & epilogue_mask), static_cast<ProductPath>(how >> 2),
                      ctx->needs_input_grad(0), ctx->needs_input_grad(1),
                      bias && ctx->needs_input_grad(2));
   }
   /// dx, dW and db of Y = act(x Wᵀ + b) from dY = g (Y undefined without an activation), as
-  /// `product` ran it (`onednn`); what is not wanted stays undefined.
+  /// `product` ran it (`path`); what is not wanted stays undefined.
   static torch::autograd::tensor_list gradients(const torch::Tensor& x, const torch::Tensor& W,
                                                 const torch::Tensor& Y, const torch::Tensor& g,
-                                                Epilogue e, bool onednn, bool want_dx, bool want_dW,
-                                                bool want_db) {
+                                                Epilogue e, ProductPath path, bool want_dx,
+                                                bool want_dW, bool want_db) {
     torch::Tensor dx, dW, db;
-    if (onednn) {
+    if (path == ProductPath::onednn) {
       const auto dZ = apply_epilogue(Y, g.contiguous(), e);
       if (want_dx) dx = onednn_mm(dZ, W);
       if (want_dW) dW = onednn_mm(dZ.t(), x);
       if (want_db) db = dZ.sum(0);
       return {dx, dW, db, {}};
     }
-    if (dense_kernel_fits(W.size(0), W.size(1)))
-      return fused_backward(x.contiguous(), W.contiguous(), Y, g.contiguous(), e, want_dx, want_dW,
+    if (path == ProductPath::bf16 || dense_kernel_fits(W.size(0), W.size(1)))
+      return fused_backward(x.contiguous(), W, Y, g.contiguous(), e, path, want_dx, want_dW,
                             want_db);
     const auto dZ = apply_epilogue(Y, g.contiguous(), e);
     if (want_dx) dx = dZ.mm(W);
@@ -110,10 +154,11 @@ struct LinearFunction : public torch::autograd::Function<LinearFunction> {
   }
   // dx, dW and db in one pass over the rows (linear_backward_rows), each thread summing its own
   // share of dW and db.
+  // On the bfloat16 kernels (path bf16) W is read through its strides.
   static torch::autograd::tensor_list fused_backward(const torch::Tensor& x, const torch::Tensor& W,
                                                      const torch::Tensor& Y, const torch::Tensor& g,
-                                                     Epilogue e, bool want_dx, bool want_dW,
-                                                     bool want_db) {
+                                                     Epilogue e, ProductPath path, bool want_dx,
+                                                     bool want_dW, bool want_db) {
     const auto n = x.size(0), K = W.size(1), N = W.size(0);
     const auto chunks = backward_chunks(n);
     torch::Tensor dx = want_dx ? torch::empty_like(x) : torch::Tensor();
@@ -124,11 +169,28 @@ struct LinearFunction : public torch::autograd::Function<LinearFunction> {
     };
     torch::Tensor dW = want_dW ? torch::zeros(shape({N, K}), x.options()) : torch::Tensor();
     torch::Tensor db = want_db ? torch::zeros(shape({N}), x.options()) : torch::Tensor();
+#if defined(TOPOS_HAVE_BF16)
+    if (path == ProductPath::bf16) {
+      const auto PT = packed_pairs(W, N, K, W.stride(0), W.stride(1));
+      at::parallel_for(0, chunks, 1, [&](std::int64_t c0, std::int64_t c1) {
+        for (std::int64_t c = c0; c < c1; ++c)
+          linear_backward_bf16(x.data_ptr<float>(), PT->data(),
+                               Y.defined() ? Y.data_ptr<float>() : nullptr, g.data_ptr<float>(),
+                               want_dx ? dx.data_ptr<float>() : nullptr,
+                               want_dW ? dW.data_ptr<float>() + c * N * K : nullptr,
+                               want_db ? db.data_ptr<float>() + c * N : nullptr, c * n / chunks,
+                               (c + 1) * n / chunks, K, N, e);
+      });
+      if (chunks > 1) dW = want_dW ? dW.sum(0) : dW, db = want_db ? db.sum(0) : db;
+      return {dx, dW, db, {}};
+    }
+#endif
 #if defined(__GNUC__)
+    const auto Wc = W.contiguous();
     AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "topos_linear_backward", [&] {
       at::parallel_for(0, chunks, 1, [&](std::int64_t c0, std::int64_t c1) {
         for (std::int64_t c = c0; c < c1; ++c)
-          linear_backward_clone(x.data_ptr<scalar_t>(), W.data_ptr<scalar_t>(),
+          linear_backward_clone(x.data_ptr<scalar_t>(), Wc.data_ptr<scalar_t>(),
                                 Y.defined() ? Y.data_ptr<scalar_t>() : nullptr,
                                 g.data_ptr<scalar_t>(), want_dx ? dx.data_ptr<scalar_t>() : nullptr,
                                 want_dW ? dW.data_ptr<scalar_t>() + c * N * K : nullptr,
@@ -164,14 +226,46 @@ struct LinearBlocksFunction : public torch::autograd::Function<LinearBlocksFunct
     return K == W.size(1) && dense_kernel_fits(K, W.size(0)) &&
            !(W.size(0) > 64 && use_onednn(xs[0]));
   }
-  /// act(base + [xs] Wᵀ); base may be undefined (0).
+  /// Whether the bfloat16 kernels take these blocks at `precision` (fits() holds): each block's
+  /// columns, their sum and N as bf16_kernel_fits takes them.
+  static bool bf16_takes(const std::vector<torch::Tensor>& xs, const torch::Tensor& W,
+                         MatmulPrecision precision) {
+    if (!detail::bf16_takes(xs[0], W.size(1), W.size(0), precision)) return false;
+    for (const auto& x : xs)
+      if (x.size(1) % 16 != 0) return false;
+    return true;
+  }
+  /// act(base + [xs] Wᵀ); base may be undefined (0). `path`, when given, says which kernels ran.
   static torch::Tensor product(const std::vector<torch::Tensor>& xs, const torch::Tensor& W,
-                               const torch::Tensor& base = {}, Epilogue e = Epilogue::none) {
-    const auto M = W.t().contiguous();
+                               const torch::Tensor& base = {}, Epilogue e = Epilogue::none,
+                               MatmulPrecision precision = get_float32_matmul_precision(),
+                               ProductPath* path = nullptr) {
     const auto n = xs[0].size(0), N = W.size(0);
     const bool has_base = base.defined();
     auto y =
         has_base ? base.clone(at::MemoryFormat::Contiguous) : torch::empty({n, N}, xs[0].options());
+    const bool bf16 = bf16_takes(xs, W, precision);
+    if (path) *path = bf16 ? ProductPath::bf16 : ProductPath::kernel;
+#if defined(TOPOS_HAVE_BF16)
+    if (bf16) {
+      const auto P = packed_pairs(W, W.size(1), N, W.stride(1), W.stride(0));
+      std::vector<torch::Tensor> held;
+      std::vector<const float*> X;
+      std::vector<std::int64_t> K;
+      for (const auto& x : xs) {
+        held.push_back(x.contiguous());
+        X.push_back(held.back().data_ptr<float>()), K.push_back(x.size(1));
+      }
+      const auto S = static_cast<std::int64_t>(xs.size());
+      at::parallel_for(0, n, grain_rows(n, n * W.size(1) * N / 2),
+                       [&](std::int64_t b, std::int64_t f) {
+                         dense_blocks_bf16(X.data(), K.data(), S, P->data(), y.data_ptr<float>(), b,
+                                           f, N, has_base, e);
+                       });
+      return y;
+    }
+#endif
+    const auto M = W.t().contiguous();
 #if defined(__GNUC__)
     AT_DISPATCH_FLOATING_TYPES(W.scalar_type(), "topos_linear_blocks", [&] {
       std::vector<torch::Tensor> held;
@@ -193,19 +287,22 @@ struct LinearBlocksFunction : public torch::autograd::Function<LinearBlocksFunct
     return y;
   }
   // how: the activation in two bits, 4 with a base (torch 1.13's Function::apply takes no
-  // undefined input: without one, base is any tensor, unread).
+  // undefined input: without one, base is any tensor, unread), 8 at medium precision; the saved
+  // how has 16 where the bfloat16 kernels ran.
   static torch::Tensor forward(torch::autograd::AutogradContext* ctx, at::TensorList xs,
                                const torch::Tensor& W, const torch::Tensor& base,
                                std::int64_t how) {
     const auto e = static_cast<Epilogue>(how & epilogue_mask);
     const bool has_base = (how & 4) != 0;
+    ProductPath path = ProductPath::kernel;
     auto y = product(std::vector<torch::Tensor>(xs.begin(), xs.end()), W,
-                     has_base ? base : torch::Tensor(), e);
+                     has_base ? base : torch::Tensor(), e,
+                     (how & 8) != 0 ? MatmulPrecision::medium : MatmulPrecision::highest, &path);
     std::vector<torch::Tensor> saved(xs.begin(), xs.end());
     saved.push_back(W);
     saved.push_back(e == Epilogue::none ? torch::Tensor() : y);
     ctx->save_for_backward(saved);
-    ctx->saved_data["how"] = how;
+    ctx->saved_data["how"] = (how & 7) | (path == ProductPath::bf16 ? 16 : 0);
     return y;
   }
   static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx,
@@ -231,6 +328,34 @@ struct LinearBlocksFunction : public torch::autograd::Function<LinearBlocksFunct
                                    : std::vector<std::int64_t>{N, Ktot},
                         W.options());
     if (want_dbase) dbase = torch::empty_like(g);
+#if defined(TOPOS_HAVE_BF16)
+    if ((how & 16) != 0) {
+      const auto PT = packed_pairs(W, N, Ktot, Ktot, 1);
+      std::vector<const float*> X;
+      std::vector<float*> dX;
+      std::vector<std::int64_t> K;
+      for (std::int64_t s = 0; s < S; ++s) {
+        auto& x = saved[static_cast<std::size_t>(s)];
+        x = x.contiguous();
+        X.push_back(x.data_ptr<float>()), K.push_back(x.size(1));
+        auto& dx = out[static_cast<std::size_t>(s)];
+        if (ctx->needs_input_grad(static_cast<std::size_t>(s))) dx = torch::empty_like(x);
+        dX.push_back(dx.defined() ? dx.data_ptr<float>() : nullptr);
+      }
+      const float* yp = y.defined() ? y.data_ptr<float>() : nullptr;
+      at::parallel_for(0, chunks, 1, [&](std::int64_t c0, std::int64_t c1) {
+        for (std::int64_t c = c0; c < c1; ++c)
+          linear_blocks_backward_bf16(X.data(), K.data(), S, PT->data(), yp, g.data_ptr<float>(),
+                                      dX.data(),
+                                      want_dW ? dW.data_ptr<float>() + c * N * Ktot : nullptr,
+                                      want_dbase ? dbase.data_ptr<float>() : nullptr,
+                                      c * n / chunks, (c + 1) * n / chunks, N, e);
+      });
+      out[static_cast<std::size_t>(S)] = want_dW && chunks > 1 ? dW.sum(0) : dW;
+      out[static_cast<std::size_t>(S) + 1] = dbase;
+      return out;
+    }
+#endif
 #if defined(__GNUC__)
     AT_DISPATCH_FLOATING_TYPES(W.scalar_type(), "topos_linear_blocks_backward", [&] {
       std::vector<const scalar_t*> X;
@@ -268,16 +393,21 @@ using detail::Epilogue;
 /// act(x Wᵀ + b) (torch::nn::functional::linear, then relu, elu or sigmoid) as one autograd node
 /// on the CPU: for up to 64 outputs a register-blocked kernel with the bias and the activation
 /// applied before the store, otherwise BLAS (or oneDNN: set_cpu_gemm) then one vectorised pass; the
-/// backward needs no exponential.
+/// backward needs no exponential. At `precision` medium, float32 products of the widths
+/// dense_bf16.hpp takes run on the bfloat16 kernels where the CPU has them.
 /// Any other device, dtype or shape takes torch's ops.
 inline torch::Tensor linear_act(const torch::Tensor& x, const torch::Tensor& W,
-                                const torch::Tensor& b, Epilogue act = Epilogue::none) {
+                                const torch::Tensor& b, Epilogue act = Epilogue::none,
+                                MatmulPrecision precision = get_float32_matmul_precision()) {
   const bool fused = x.device().is_cpu() && x.dim() == 2 && W.dim() == 2 &&
                      (x.scalar_type() == torch::kFloat || x.scalar_type() == torch::kDouble) &&
                      W.scalar_type() == x.scalar_type() &&
                      (!b.defined() || (b.dim() == 1 && b.scalar_type() == x.scalar_type()));
-  if (!fused || (act == Epilogue::none && !detail::dense_kernel_fits(W.size(1), W.size(0)) &&
-                 !(W.size(0) > 64 && detail::use_onednn(x)))) {
+  const bool bf16 =
+      fused && W.device().is_cpu() && detail::bf16_takes(x, W.size(1), W.size(0), precision);
+  if (!fused ||
+      (act == Epilogue::none && !bf16 && !detail::dense_kernel_fits(W.size(1), W.size(0)) &&
+       !(W.size(0) > 64 && detail::use_onednn(x)))) {
     const auto y = torch::linear(x, W, b);
     return detail::activate(y, act);
   }
@@ -290,10 +420,11 @@ inline torch::Tensor linear_act(const torch::Tensor& x, const torch::Tensor& W,
   // costs a context, its saved values and the outputs' wrapping on every call.
   if (!torch::GradMode::is_enabled() ||
       !(x.requires_grad() || W.requires_grad() || (b.defined() && b.requires_grad())))
-    return detail::LinearFunction::product(x, W, b, act).first;
+    return detail::LinearFunction::product(x, W, b, act, precision).first;
   // torch 1.13's Function::apply cannot take an undefined input: no bias is an empty one.
-  return detail::LinearFunction::apply(x, W, b.defined() ? b : torch::empty({0}, x.options()),
-                                       static_cast<std::int64_t>(act));
+  return detail::LinearFunction::apply(
+      x, W, b.defined() ? b : torch::empty({0}, x.options()),
+      static_cast<std::int64_t>(act) | (precision == MatmulPrecision::medium ? 4 : 0));
 }
 
 /// act(base + [x_0 | x_1 | ...] Wᵀ) (W N × Σ columns; base n × N, or undefined for none) as one
@@ -302,7 +433,8 @@ inline torch::Tensor linear_act(const torch::Tensor& x, const torch::Tensor& W,
 /// (CPU, float or double; each block's columns, their sum and N as linear_act takes them): the
 /// same values as activate(base + linear_act(torch::cat(xs, 1), W), act), and the same gradients
 /// where its fused backward takes the sum too (else BLAS's, in another order). Otherwise exactly
-/// that.
+/// that. At MatmulPrecision::medium, blocks of multiples of 16 columns go to the bfloat16
+/// kernels (their values are then those of bfloat16 products, not linear_act's to the bit).
 inline torch::Tensor linear_blocks(const std::vector<torch::Tensor>& xs, const torch::Tensor& W,
                                    Epilogue act = Epilogue::none, const torch::Tensor& base = {}) {
   if (xs.empty()) throw std::invalid_argument("linear_blocks: no blocks");
@@ -334,7 +466,8 @@ inline torch::Tensor linear_blocks(const std::vector<torch::Tensor>& xs, const t
     return detail::LinearBlocksFunction::product(xs, W, base, act);
   return detail::LinearBlocksFunction::apply(
       at::TensorList(xs), W, base.defined() ? base : torch::empty({0}, W.options()),
-      static_cast<std::int64_t>(act) | (base.defined() ? 4 : 0));
+      static_cast<std::int64_t>(act) | (base.defined() ? 4 : 0) |
+          (get_float32_matmul_precision() == MatmulPrecision::medium ? 8 : 0));
 }
 
 }  // namespace topos::nn

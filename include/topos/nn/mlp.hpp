@@ -8,28 +8,16 @@
 
 #include "topos/nn/functional.hpp"  // Activation
 #include "topos/nn/kernels/layer_norm.hpp"
+#include "topos/nn/kernels/precision.hpp"
 
 #include <torch/torch.h>
 
-#include <dlfcn.h>
-
-#include <atomic>
 #include <stdexcept>
 #include <string>
 
 namespace topos::nn {
 
-/// How float32 products are multiplied, named after PyTorch's torch.set_float32_matmul_precision:
-/// `highest` in float32; `medium` with bfloat16 inputs and float32 accumulation (oneDNN's
-/// AVX-512 BF16 kernels on CPUs that have them, about 3x a float32 product here; tensor cores on
-/// GPUs; CPUs without BF16 instructions run it slower than float32). Like torch.autocast's
-/// bfloat16, the product's output is rounded to bfloat16 too before it returns as float32, so
-/// values and gradients through it carry about 8 significant bits. Process-wide, set before
-/// training starts; parity with the reference needs `highest`, the default.
-enum class MatmulPrecision { highest, medium };
 namespace detail {
-inline std::atomic<MatmulPrecision> float32_matmul_precision{MatmulPrecision::highest};
-
 /// Rows of a bfloat16 product rounded up so that its shapes repeat (at most 8 row counts per
 /// octave, under 12.5 % padding). oneDNN compiles a kernel per shape and caches 1,024; HOPNet's
 /// chunks give every MLP a new row count, so each step compiled hundreds of kernels, and once the
@@ -61,38 +49,26 @@ inline bool linear_act_takes(const torch::Tensor& x, const torch::Tensor& weight
   return false;
 }
 
-/// A cache that holds every padded shape a run meets (a few thousand), so nothing is evicted.
-inline void grow_onednn_cache() {
-  using Setter = int (*)(int);
-  if (auto set = reinterpret_cast<Setter>(dlsym(RTLD_DEFAULT, "dnnl_set_primitive_cache_capacity")))
-    set(16384);
+/// Whether x·Wᵀ at `precision` goes through linear_act: at highest as linear_act_takes says, at
+/// medium where topos's bfloat16 kernels take the shape (detail::bf16_takes).
+inline bool linear_act_takes(const torch::Tensor& x, const torch::Tensor& weight,
+                             MatmulPrecision precision) {
+  if (precision == MatmulPrecision::highest) return linear_act_takes(x, weight);
+  return weight.dim() == 2 && weight.scalar_type() == torch::kFloat &&
+         bf16_takes(x, weight.size(1), weight.size(0), precision);
 }
+
 }  // namespace detail
-inline void set_float32_matmul_precision(MatmulPrecision p) {
-  if (p == MatmulPrecision::medium) detail::grow_onednn_cache();
-  detail::float32_matmul_precision.store(p);
-}
-inline MatmulPrecision get_float32_matmul_precision() {
-  return detail::float32_matmul_precision.load();
-}
-inline MatmulPrecision matmul_precision_from_string(const std::string& s) {
-  if (s == "highest") return MatmulPrecision::highest;
-  if (s == "medium") return MatmulPrecision::medium;
-  throw std::invalid_argument("unknown matmul precision '" + s + "' (highest, medium)");
-}
-inline const char* to_string(MatmulPrecision p) {
-  return p == MatmulPrecision::highest ? "highest" : "medium";
-}
 
 /// x·Wᵀ + b (b may be undefined) at `precision`: float32 in and out either way, so everything
 /// around the product (activations, LayerNorm, gathers, the loss) stays float32. At `highest`,
 /// a 2-D product goes to oneDNN (more than 64 outputs) or topos's dense kernel when set_cpu_gemm
-/// chose it.
+/// chose it; at `medium`, to topos's bfloat16 kernels where they take it, else oneDNN's.
 inline torch::Tensor linear(const torch::Tensor& x, const torch::Tensor& weight,
                             const torch::Tensor& bias = {},
                             MatmulPrecision precision = get_float32_matmul_precision()) {
-  if (precision == MatmulPrecision::highest && detail::linear_act_takes(x, weight))
-    return linear_act(x, weight, bias);
+  if (detail::linear_act_takes(x, weight, precision))
+    return linear_act(x, weight, bias, Epilogue::none, precision);
   if (weight.scalar_type() != torch::kFloat || precision == MatmulPrecision::highest)
     return torch::linear(x, weight, bias);
   auto xb = x.to(torch::kBFloat16);
@@ -179,14 +155,15 @@ class MlpImpl : public torch::nn::Module {
 
  private:
   torch::Tensor forward_from(std::size_t first, torch::Tensor x) {
-    // At medium precision the hidden activations stay bfloat16 from one Linear to the next (the
-    // next product would round them to bfloat16 anyway) and only the last Linear's output
-    // returns to float32: two casts per MLP instead of two per Linear. Activations other than
-    // ReLU get float32 inputs. The precision is read once, so a change from another thread
-    // cannot split an MLP between the two.
+    // At medium precision on a CPU without topos's bfloat16 kernels, the hidden activations
+    // stay bfloat16 from one Linear to the next through oneDNN (the next product would round them
+    // to bfloat16 anyway) and only the last Linear's output returns to float32: two casts per MLP
+    // instead of two per Linear. Activations other than ReLU get float32 inputs. With the
+    // kernels, each Linear they take is one linear_act (float32 out, the ReLU fused). The
+    // precision is read once, so a change from another thread cannot split an MLP between the two.
     const MatmulPrecision precision = get_float32_matmul_precision();
     const bool bf16 = x.scalar_type() == torch::kFloat && precision == MatmulPrecision::medium &&
-                      options.activation() == Activation::relu;
+                      options.activation() == Activation::relu && !detail::cpu_has_bf16();
     const std::int64_t rows = x.dim() == 2 ? x.size(0) : -1;
     const std::int64_t padded = bf16 ? detail::padded_rows(rows) : rows;
     std::size_t last_linear = 0;
@@ -194,13 +171,12 @@ class MlpImpl : public torch::nn::Module {
       if (layers_[i].ptr()->as<torch::nn::LinearImpl>()) last_linear = i;
     for (std::size_t i = first; i < layers_.size(); ++i) {
       const auto* l = layers_[i].ptr()->as<torch::nn::LinearImpl>();
-      if (l && !bf16 && precision == MatmulPrecision::highest &&
-          detail::linear_act_takes(x, l->weight)) {
+      if (l && !bf16 && detail::linear_act_takes(x, l->weight, precision)) {
         // oneDNN's or topos's product with the bias and a following ReLU in one pass over its
         // output (the ReLU module is skipped: the same values).
         const bool relu =
             i + 1 < layers_.size() && layers_[i + 1].ptr()->as<torch::nn::ReLUImpl>() != nullptr;
-        x = linear_act(x, l->weight, l->bias, relu ? Epilogue::relu : Epilogue::none);
+        x = linear_act(x, l->weight, l->bias, relu ? Epilogue::relu : Epilogue::none, precision);
         if (relu) ++i;
       } else if (l && bf16 && i < last_linear) {
         // Padded once to a repeating row count (detail::padded_rows); the rows go at the end.

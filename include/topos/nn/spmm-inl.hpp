@@ -77,23 +77,23 @@ struct SpmmFunction : public torch::autograd::Function<SpmmFunction> {
 // A x, W and the output: one context and one saved set where the weight and the product would
 // each make their own, and no transposed view of W recorded.
 struct SparseLinearFunction : public torch::autograd::Function<SparseLinearFunction> {
-  /// The forward's values: the output, the dense product's input (x, or A x), and whether
-  /// oneDNN ran the dense product.
+  /// The forward's values: the output, the dense product's input (x, or A x), and the library
+  /// that ran the dense product.
   struct Values {
     torch::Tensor y, dense_input;
-    bool onednn = false;
+    ProductPath path = ProductPath::kernel;
   };
   static Values product(const torch::Tensor& values, const torch::Tensor& x, const torch::Tensor& W,
                         const torch::Tensor& crow, const torch::Tensor& col, std::int64_t rows,
                         bool weight_first, Epilogue e) {
     Values v;
     if (weight_first) {
-      const auto [t, onednn] = LinearFunction::product_right(x, W, {}, Epilogue::none);
+      const auto [t, path] = LinearFunction::product_right(x, W, {}, Epilogue::none);
       v.y = csr_apply(crow, col, values, torch::Tensor(), t, rows, e);
-      v.dense_input = x, v.onednn = onednn;
+      v.dense_input = x, v.path = path;
     } else {
       v.dense_input = csr_apply(crow, col, values, torch::Tensor(), x, rows);
-      std::tie(v.y, v.onednn) = LinearFunction::product_right(v.dense_input, W, {}, e);
+      std::tie(v.y, v.path) = LinearFunction::product_right(v.dense_input, W, {}, e);
     }
     return v;
   }
@@ -107,8 +107,8 @@ struct SparseLinearFunction : public torch::autograd::Function<SparseLinearFunct
     auto v = product(values, x, W, crow, col, rows, weight_first, e);
     ctx->save_for_backward({v.dense_input, W, values, t_crow, t_col, t_perm,
                             e == Epilogue::none ? torch::Tensor() : v.y});
-    // One entry (each costs a hash-map insertion): the activation in two bits, then two flags.
-    ctx->saved_data["how"] = act | (weight_first ? 4 : 0) | (v.onednn ? 8 : 0);
+    // One entry (each costs a hash-map insertion): the activation in two bits, a flag, the path.
+    ctx->saved_data["how"] = act | (weight_first ? 4 : 0) | static_cast<std::int64_t>(v.path) << 3;
     return v.y;
   }
   static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx,
@@ -118,19 +118,19 @@ struct SparseLinearFunction : public torch::autograd::Function<SparseLinearFunct
                &t_perm = s[5], &Y = s[6];
     const auto how = ctx->saved_data["how"].toInt();
     const auto e = static_cast<Epilogue>(how & epilogue_mask);
-    const bool onednn = (how & 8) != 0;
+    const auto path = static_cast<ProductPath>(how >> 3);
     const auto x_rows = t_crow.size(0) - 1;  // Aᵀ's rows
     const bool want_dx = ctx->needs_input_grad(0), want_dW = ctx->needs_input_grad(1);
     torch::Tensor dx, dW;
     if ((how & 4) != 0) {  // y = act(A t), t = x W
       const auto dY = apply_epilogue(Y, grads[0].contiguous(), e);
       const auto dt = csr_apply(t_crow, t_col, values, t_perm, dY, x_rows);
-      auto g = LinearFunction::gradients(input, W.t(), {}, dt, Epilogue::none, onednn, want_dx,
+      auto g = LinearFunction::gradients(input, W.t(), {}, dt, Epilogue::none, path, want_dx,
                                          want_dW, false);
       dx = g[0], dW = g[1];
     } else {  // y = act(z W), z = A x
       auto g =
-          LinearFunction::gradients(input, W.t(), Y, grads[0], e, onednn, want_dx, want_dW, false);
+          LinearFunction::gradients(input, W.t(), Y, grads[0], e, path, want_dx, want_dW, false);
       if (want_dx) dx = csr_apply(t_crow, t_col, values, t_perm, g[0], x_rows);
       dW = g[1];
     }

@@ -9,6 +9,7 @@
 //   const auto r = sim::rollout(*opened.simulator, scene, options);
 #pragma once
 
+#include "topos/nn/kernels/packed_weights.hpp"
 #include "topos/sim/rollout.hpp"
 
 #include <nlohmann/json.hpp>
@@ -52,6 +53,7 @@ class Simulator {
 /// Rolls `simulator` out from the ground-truth frames 0..3 of `scene` for opt.steps frames.
 inline RolloutResult rollout(Simulator& simulator, const Scene& scene,
                              const RolloutOptions& opt = {}) {
+  const nn::PackedWeightsScope packed;  // the same weights at every step
   simulator.reset(scene);
   return rollout_loop(scene, opt, [&](std::size_t t, RolloutResult& r) {
     Prediction p = simulator.predict(r.poses, opt);

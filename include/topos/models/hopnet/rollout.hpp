@@ -11,6 +11,7 @@
 
 #include "topos/models/hopnet/model.hpp"
 #include "topos/models/namespace_aliases.hpp"
+#include "topos/nn/kernels/packed_weights.hpp"
 #include "topos/nn/mlp.hpp"
 #include "topos/sim/meshes.hpp"
 #include "topos/sim/rollout.hpp"
@@ -95,6 +96,7 @@ inline sim::Prediction rollout_step(
 /// Rolls out from GT frames 0..3 of `scene` for opt.steps frames.
 inline RolloutResult rollout(HopnetImpl& model, const Normalizer& norm, const Scene& scene,
                              const HopnetGeometry& g, const RolloutOptions& opt = {}) {
+  const nn::PackedWeightsScope packed;  // the same weights at every step
   return rollout_loop(scene, opt, [&](std::size_t t, RolloutResult& r) {
     sim::Prediction p =
         rollout_step(model, norm, g, r.poses, opt.collision_radius, opt.first_contacts);

@@ -33,7 +33,7 @@ namespace detail {
 /// GCNII's update x̃ Mᵀ, x̃ = (1-α) x + α s, M = β W + (1-β) I, as one autograd node: the same
 /// tensor operations as written out (forward) and as LibTorch's nodes for them would give
 /// (backward), without the eight nodes and their saved tensors. Its backward is linear_act's
-/// (fused_backward for the widths the dense kernel takes), then dx = (1-α) dx̃, ds = α dx̃,
+/// (LinearFunction::gradients, on the library its forward ran on), then dx = (1-α) dx̃, ds = α dx̃,
 /// dW = β dM.
 struct InitialResidualFunction : torch::autograd::Function<InitialResidualFunction> {
   static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& x,
@@ -42,11 +42,11 @@ struct InitialResidualFunction : torch::autograd::Function<InitialResidualFuncti
     const auto mixed = (1 - alpha) * x + alpha * s;
     const auto M = beta * W + (1 - beta) * torch::eye(W.size(0), W.options());
     // linear_act's forward (its kernel choice; no graph is recorded inside a Function).
-    const auto y = nn::linear_act(mixed, M, {});
+    const auto [y, path] = nn::detail::LinearFunction::product(mixed, M, {}, nn::Epilogue::none);
     ctx->save_for_backward({mixed, M});
     ctx->saved_data["alpha"] = alpha;
     ctx->saved_data["beta"] = beta;
-    ctx->saved_data["onednn"] = M.size(0) > 64 && nn::detail::use_onednn(mixed);
+    ctx->saved_data["path"] = static_cast<std::int64_t>(path);
     return y;
   }
   static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx,
@@ -58,19 +58,12 @@ struct InitialResidualFunction : torch::autograd::Function<InitialResidualFuncti
     const bool want_x = ctx->needs_input_grad(0) || ctx->needs_input_grad(1),
                want_W = ctx->needs_input_grad(2);
     const auto g = grads[0].contiguous();
-    torch::Tensor dmixed, dM;  // as linear_act's LinearFunction::backward, no activation
-    if (ctx->saved_data["onednn"].toBool()) {
-      if (want_x) dmixed = nn::detail::onednn_mm(g, M);
-      if (want_W) dM = nn::detail::onednn_mm(g.t(), mixed);
-    } else if (nn::detail::dense_kernel_fits(M.size(0), M.size(1))) {
-      const auto d = nn::detail::LinearFunction::fused_backward(
-          mixed.contiguous(), M.contiguous(), torch::Tensor(), g, nn::Epilogue::none, want_x,
-          want_W, false);
-      dmixed = d[0], dM = d[1];
-    } else {
-      if (want_x) dmixed = g.mm(M);
-      if (want_W) dM = g.t().mm(mixed);
-    }
+    // linear_act's backward on the library its forward ran on, no activation.
+    const auto d = nn::detail::LinearFunction::gradients(
+        mixed, M, torch::Tensor(), g, nn::Epilogue::none,
+        static_cast<nn::detail::ProductPath>(ctx->saved_data["path"].toInt()), want_x, want_W,
+        false);
+    const auto &dmixed = d[0], &dM = d[1];
     torch::Tensor dx, ds, dW;
     if (ctx->needs_input_grad(0)) dx = dmixed * (1 - alpha);
     if (ctx->needs_input_grad(1)) ds = dmixed * alpha;
