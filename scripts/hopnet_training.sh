@@ -4,6 +4,7 @@
 #   scripts/hopnet_training.sh run        # regenerate MOVi-A (seeds 1-1200), train or resume
 #   scripts/hopnet_training.sh snapshot   # copy the run's last commit into docs/hopnet-training/run, its curves into training.html
 #   scripts/hopnet_training.sh status     # where the run stands
+#   scripts/hopnet_training.sh evaluate   # the snapshot's best.pt beside the published model on the 120 test scenes
 #
 # `run` is resumable at any moment: kill it (any signal) and run it again; it loses at most the
 # step in flight (hopnet train commits every step). It runs at the lowest CPU priority, so it
@@ -98,6 +99,30 @@ case "$cmd" in
       echo "hopnet_training: $SNAP holds the statistics only (no step committed yet)"
     fi
     ;;
+  evaluate)
+    # The chosen model (the snapshot's best.pt: the epoch whose validation rollouts erred least)
+    # and the published one (modela_seed2_e39.pt, the paper's MOVi-A model) rolled out on the
+    # same 120 test scenes of the reference split, native mode, float32: Table 4's rows with
+    # their bootstrap intervals, and the ratio of the two models' errors with its paired interval.
+    [ -e "$SNAP/best.pt" ] || { echo "hopnet_training: no $SNAP/best.pt: run 'snapshot' after an epoch's validation" >&2; exit 1; }
+    PUB="$REF/data/checkpoints/modela_seed2_e39.pt"
+    [ -e "$PUB" ] || { echo "hopnet_training: $PUB is missing; set TOPOS_REFERENCE_DIR" >&2; exit 1; }
+    [ -d "$WORK/data/movi-a" ] || { echo "hopnet_training: no data in $WORK/data/movi-a: 'run' regenerates it" >&2; exit 1; }
+    H=$(hopnet_binary)
+    OUTDIR="$root/docs/hopnet-training"
+    rm -rf "$WORK/evaluation.tmp"
+    (cd "$root" && nice -n 5 "$H" evaluate --checkpoint "$PUB" docs/hopnet-training/run/best.pt \
+      --stats "$REF/data/normalization/movia.json" docs/hopnet-training/run/stats.json \
+      --name "published (modela_seed2_e39.pt)" "trained by topos (best.pt)" \
+      --data "$WORK/data/movi-a" --assets "$REF/data/kubasic" --split test --mode native \
+      --viewer-scenes 0 --jobs "${TOPOS_EVALUATE_JOBS:-1}" --out "$WORK/evaluation.tmp")
+    # per_scene.json (3 MB of curves) stays in $WORK: metrics.json holds the intervals.
+    for f in metrics.json table.md index.html; do
+      mv "$WORK/evaluation.tmp/$f" "$OUTDIR/$f"
+    done
+    rm -rf "$WORK/evaluation" && mv "$WORK/evaluation.tmp" "$WORK/evaluation"
+    echo "hopnet_training: wrote $OUTDIR/{metrics.json,table.md,index.html} ($WORK/evaluation: per_scene.json)"
+    ;;
   status)
     d="$RUN"; [ -e "$d/state.json" ] || d="$SNAP"
     [ -e "$d/state.json" ] || { echo "hopnet_training: no step committed yet"; exit 0; }
@@ -117,7 +142,7 @@ if st.get("best"):
 EOF
     ;;
   *)
-    echo "usage: scripts/hopnet_training.sh [run|snapshot|status]" >&2
+    echo "usage: scripts/hopnet_training.sh [run|snapshot|status|evaluate]" >&2
     exit 2
     ;;
 esac

@@ -3,8 +3,10 @@
 #include "commands.hpp"
 #include "report.hpp"
 #include "topos/nn/device.hpp"
+#include "topos/util/bootstrap.hpp"
 #include "viewer.hpp"
 
+#include <algorithm>
 #include <atomic>
 #include <map>
 #include <mutex>
@@ -16,9 +18,9 @@ namespace {
 
 // ---- evaluate ---------------------------------------------------------------------------------
 struct EvaluateArgs {
-  std::vector<std::string> checkpoints;
-  std::string stats, data, assets, split = "test", split_file, mode = "reference", out,
-                                   device = "cpu", matmul_precision = "highest", cpu_gemm = "auto";
+  std::vector<std::string> checkpoints, stats, names;
+  std::string data, assets, split = "test", split_file, mode = "reference", out, device = "cpu",
+                            matmul_precision = "highest", cpu_gemm = "auto";
   int steps = 102, viewer_scenes = 6, jobs = 0;
   VariantArgs variant;
   bool no_report = false;
@@ -58,13 +60,40 @@ int run_evaluate(const EvaluateArgs& a) {
     std::string name, variant, checkpoint;
     sim::OpenedModel opened;
   };
+  if (a.stats.size() > 1 && a.stats.size() != a.checkpoints.size())
+    throw std::invalid_argument(
+        "--stats: " + std::to_string(a.stats.size()) + " files for " +
+        std::to_string(a.checkpoints.size()) +
+        " checkpoints; give one for every checkpoint, or one per --checkpoint in its order ('-' "
+        "for a baseline's)");
+  if (!a.names.empty() && a.names.size() != a.checkpoints.size())
+    throw std::invalid_argument("--name: " + std::to_string(a.names.size()) + " names for " +
+                                std::to_string(a.checkpoints.size()) +
+                                " checkpoints; give one per --checkpoint, in its order");
   std::vector<Model> models;
-  for (const auto& path : a.checkpoints) {
+  for (std::size_t k = 0; k < a.checkpoints.size(); ++k) {
+    const std::string& path = a.checkpoints[k];
+    const bool own_stats = a.stats.size() > 1;  // the k-th file goes with the k-th checkpoint
+    std::string stats = a.stats.empty() ? "" : a.stats[own_stats ? k : 0];
+    if (stats == "-") stats.clear();
     Model m;
     m.checkpoint = path;
-    m.opened = open_checkpoint(path, open_options(a.variant, a.stats, mode));
+    m.opened = open_checkpoint(path, open_options(a.variant, stats, mode));
+    if (own_stats && !stats.empty() && !dynamic_cast<HopnetSimulator*>(m.opened.simulator.get()))
+      throw std::invalid_argument("--stats " + stats + " goes with " + path + ", a " +
+                                  m.opened.simulator->name() +
+                                  " checkpoint, which holds its own statistics; write '-' there");
     m.name = m.opened.simulator->name();
     m.variant = m.opened.simulator->variant();
+    if (!a.names.empty()) {
+      m.name = a.names[k];
+      const bool taken = std::any_of(models.begin(), models.end(),
+                                     [&](const Model& other) { return other.name == m.name; });
+      if (taken || m.name == "constant_velocity" || m.name.empty())
+        throw std::invalid_argument("--name '" + m.name + "' (for " + path +
+                                    "): each checkpoint needs a name of its own, not empty "
+                                    "and not 'constant_velocity'");
+    }
     // Two checkpoints of one model: their variants tell them apart, then their order.
     for (const auto& other : models)
       if (other.name == m.name) m.name += " (" + m.variant + ", " + path + ")";
@@ -187,6 +216,9 @@ int run_evaluate(const EvaluateArgs& a) {
   md << "\n|---|---|";
   for (std::size_t i = 0; i < present.size(); ++i) md << "---|";
   md << "\n";
+  // The means' 95 % intervals: percentile bootstrap over the scenes, fixed seed.
+  topos::BootstrapOptions bootstrap;
+  bootstrap.resamples = 2000;
   std::vector<std::string> names;
   for (const auto& m : models) names.push_back(m.name);
   names.push_back("constant_velocity");
@@ -195,7 +227,9 @@ int run_evaluate(const EvaluateArgs& a) {
       md << "| " << model << " | " << metric << (metric[0] == 'p' ? " (m)" : " (deg)") << " | ";
       for (int h : present) {
         const auto [m, s] = stat(per[model + "." + metric][h]);
-        metrics[model][std::to_string(h)][metric] = {{"mean", m}, {"std", s}};
+        const auto ci = topos::bootstrap_mean(per[model + "." + metric][h], bootstrap);
+        metrics[model][std::to_string(h)][metric] = {
+            {"mean", m}, {"std", s}, {"ci95", {ci.low, ci.high}}};
         char buf[64];
         std::snprintf(buf, sizeof buf, metric[0] == 'p' ? "%.4f ± %.4f" : "%.2f ± %.2f", m, s);
         md << buf << " | ";
@@ -224,6 +258,52 @@ int run_evaluate(const EvaluateArgs& a) {
     }
   }
 
+  // The means' intervals, and each later checkpoint against the first on the same scenes: the
+  // ratio of their means, its interval from resampling the scenes for both at once (what the
+  // scenes share cancels, so a 5 % difference shows where the two unpaired intervals overlap).
+  const auto header = [&](const std::string& title) {
+    md << "\n" << title << "\n\n| model | metric | ";
+    for (int h : present) md << "frame " << h << " | ";
+    md << "\n|---|---|";
+    for (std::size_t i = 0; i < present.size(); ++i) md << "---|";
+    md << "\n";
+  };
+  header("95 % intervals of the means (percentile bootstrap over the " +
+         std::to_string(chosen.size()) + " scenes, 2,000 resamples):");
+  for (const std::string& model : names)
+    for (const char* metric : {"pos_rmse", "ori_rmse", "ori_mae"}) {
+      md << "| " << model << " | " << metric << " | ";
+      for (int h : present) {
+        const auto& m = metrics[model][std::to_string(h)][metric];
+        char buf[96];
+        std::snprintf(buf, sizeof buf, metric[0] == 'p' ? "%.4f [%.4f, %.4f]" : "%.2f [%.2f, %.2f]",
+                      m["mean"].get<double>(), m["ci95"][0].get<double>(),
+                      m["ci95"][1].get<double>());
+        md << buf << " | ";
+      }
+      md << "\n";
+    }
+  nlohmann::json paired = nlohmann::json::object();
+  if (models.size() > 1) {
+    header("Against " + names.front() +
+           " on the same scenes: the ratio of the means, its paired 95 % interval:");
+    for (std::size_t k = 1; k < models.size(); ++k)
+      for (const char* metric : {"pos_rmse", "ori_rmse", "ori_mae"}) {
+        md << "| " << names[k] << " / " << names.front() << " | " << metric << " | ";
+        for (int h : present) {
+          const auto r = topos::bootstrap_ratio_of_means(
+              per[names[k] + "." + metric][h], per[names.front() + "." + metric][h], bootstrap);
+          paired[names[k]]["against"] = names.front();
+          paired[names[k]][std::to_string(h)][metric] = {{"ratio", r.estimate},
+                                                         {"ci95", {r.low, r.high}}};
+          char buf[96];
+          std::snprintf(buf, sizeof buf, "%.3f [%.3f, %.3f]", r.estimate, r.low, r.high);
+          md << buf << " | ";
+        }
+        md << "\n";
+      }
+  }
+
   // The layout: metrics.json holds, per frame, mean/std of pos_rmse, ori_rmse, ori_mae (the
   // model's).
   std::string label = model_name == "hopnet" ? "HOPNet" : model_name;
@@ -238,6 +318,7 @@ int run_evaluate(const EvaluateArgs& a) {
   top["variant"] = models.front().variant;
   top["models"] = metrics;  // every checkpoint's and constant velocity's, by name
   top["model_order"] = names;
+  if (!paired.empty()) top["paired"] = paired;  // every later checkpoint against the first
   // Per scene (in top["scenes"] order), every frame: for other statistics than the mean over
   // scenes (bootstrap intervals, subsets, pooling; scripts/reproduction_table.py).
   nlohmann::json per_scene = nlohmann::json::array();
@@ -290,11 +371,17 @@ int run_evaluate(const EvaluateArgs& a) {
                                results[i].models, results[i].baseline,
                                static_cast<int>(i) < a.viewer_scenes ? static_cast<int>(i) : -1});
     report.dataset_kind = kind, report.dataset_kind_why = kind_why;
-    // The training curves too, when the first checkpoint sits beside its training logs.
-    const auto log_dir = fs::path(models.front().checkpoint).parent_path();
-    if (fs::exists(log_dir / "steps.csv") || fs::exists(log_dir / "epochs.csv")) {
+    // The training curves too, of the first checkpoint that sits beside its training logs (a
+    // published model first, the one trained here after it).
+    std::optional<fs::path> log_dir;
+    for (const auto& m : models) {
+      const auto dir = fs::path(m.checkpoint).parent_path();
+      if (!log_dir && (fs::exists(dir / "steps.csv") || fs::exists(dir / "epochs.csv")))
+        log_dir = dir;
+    }
+    if (log_dir) {
       try {
-        report.training = hopnet_report::read_training_log(log_dir);
+        report.training = hopnet_report::read_training_log(*log_dir);
       } catch (const data::DataError& e) {
         report.training_note = std::string("training curves not shown: ") + e.what();
       }
@@ -321,8 +408,14 @@ Command add_evaluate(CLI::App& app) {
       ->required()
       ->check(CLI::ExistingFile);
   ce->add_option("--stats", ev.stats,
-                 "normalisation statistics (HOPNet; a baseline's are in its checkpoint)")
-      ->check(CLI::ExistingFile);
+                 "normalisation statistics (HOPNet's; a baseline's are in its checkpoint): one "
+                 "file for every checkpoint, or one per --checkpoint in its order ('-' for a "
+                 "baseline's)")
+      ->check(CLI::ExistingFile | CLI::IsMember({"-"}));
+  ce->add_option("--name", ev.names,
+                 "the checkpoints' names in the table and the report, one per --checkpoint in its "
+                 "order (default: the model's, e.g. hopnet, with variant and path where two "
+                 "share it)");
   ce->add_option("--data", ev.data, "dataset folder")->required()->check(CLI::ExistingDirectory);
   ce->add_option("--assets", ev.assets,
                  "KuBasic-layout asset folder (built-in shapes when omitted)");

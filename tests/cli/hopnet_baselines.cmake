@@ -56,6 +56,14 @@ if(NOT model STREQUAL "fignet")
   message(FATAL_ERROR "evaluate named the model '${model}', expected fignet")
 endif()
 
+# Statistics per checkpoint: a baseline's are in its checkpoint, so its entry is '-'.
+expect_success("evaluate two baselines, '-' for each one's statistics" evaluate --checkpoint ${WORK}/fignet/checkpoint.pt
+               ${WORK}/mgn/checkpoint.pt --stats - - --data ${WORK}/data --split-file ${WORK}/split.json --steps 8
+               --out ${WORK}/eval_dash --no-report)
+expect_failure("evaluate with a statistics file for a baseline" "goes with ${WORK}/fignet/checkpoint.pt, a fignet checkpoint, which holds its own statistics; write '-' there"
+               evaluate --checkpoint ${WORK}/fignet/checkpoint.pt ${WORK}/mgn/checkpoint.pt --stats ${WORK}/split.json -
+               --data ${WORK}/data --split-file ${WORK}/split.json --steps 8 --out ${WORK}/eval_bad --no-report)
+
 # Several checkpoints: one table with every model's rows, in order, beside constant velocity.
 expect_success("evaluate three" evaluate --checkpoint ${WORK}/fignet/checkpoint.pt
                ${WORK}/mgn/checkpoint.pt ${WORK}/mgn-large-radius/checkpoint.pt --data ${WORK}/data

@@ -134,6 +134,52 @@ if(PYTHON)
 endif()
 message(STATUS "ok: validation rollouts pick best.pt (frame-25 position RMSE ${best_rmse}, evaluate ${m})")
 
+# Two HOPNet checkpoints with statistics of their own (--stats per --checkpoint, in order): the
+# later one against the first, the ratio of their means with its paired interval, and each
+# mean's bootstrap interval around it.
+expect_success("evaluate two checkpoints, statistics each" evaluate --checkpoint ${WORK}/model/checkpoint.pt ${WORK}/resume/best.pt
+    --stats ${WORK}/model/stats.json ${WORK}/resume/stats.json --name trained resumed --data ${WORK}/topos --split-file ${WORK}/custom.json --split val
+    --mode native --steps 22 --viewer-scenes 0 --no-report --out ${WORK}/eval_two)
+file(READ ${WORK}/eval_two/metrics.json two)
+string(JSON second GET "${two}" model_order 1)
+if(NOT second STREQUAL "resumed")
+  message(FATAL_ERROR "--name trained resumed: the second model is named '${second}'")
+endif()
+string(JSON first_mean GET "${two}" models trained 25 pos_rmse mean)
+string(JSON first_low GET "${two}" models trained 25 pos_rmse ci95 0)
+string(JSON first_high GET "${two}" models trained 25 pos_rmse ci95 1)
+string(JSON second_mean GET "${two}" models "${second}" 25 pos_rmse mean)
+string(JSON against GET "${two}" paired "${second}" against)
+string(JSON ratio GET "${two}" paired "${second}" 25 pos_rmse ratio)
+if(NOT against STREQUAL "trained")
+  message(FATAL_ERROR "the paired ratios should be against the first checkpoint, 'trained'; got '${against}'")
+endif()
+if(PYTHON)
+  execute_process(COMMAND ${PYTHON} -c "import sys; m, lo, hi, s, r, b = map(float, sys.argv[1:]); sys.exit(not (lo <= m <= hi and abs(r - s / m) < 1e-9 * r and abs(s - b) < 1e-8 * max(1.0, b)))"
+    ${first_mean} ${first_low} ${first_high} ${second_mean} ${ratio} ${best_rmse} RESULT_VARIABLE rc)
+  if(NOT rc EQUAL 0)
+    message(FATAL_ERROR "evaluate of two checkpoints: mean ${first_mean} outside its interval [${first_low}, ${first_high}], or the ratio ${ratio} is not ${second_mean} / ${first_mean}, or best.pt's mean ${second_mean} is not its own ${best_rmse}")
+  endif()
+endif()
+file(READ ${WORK}/eval_two/table.md table)
+string(FIND "${table}" "| resumed / trained | pos_rmse |" pos)
+if(pos EQUAL -1)
+  message(FATAL_ERROR "table.md has no paired row for ${second}:\n${table}")
+endif()
+expect_failure("evaluate with three statistics for two checkpoints" "--stats: 3 files for 2 checkpoints; give one for every checkpoint, or one per --checkpoint"
+    evaluate --checkpoint ${WORK}/model/checkpoint.pt ${WORK}/resume/best.pt
+    --stats ${WORK}/model/stats.json ${WORK}/resume/stats.json ${WORK}/model/stats.json --data ${WORK}/topos --out ${WORK}/eval_bad)
+expect_failure("evaluate with '-' for a HOPNet checkpoint's statistics" "is a HOPNet checkpoint: --stats is required"
+    evaluate --checkpoint ${WORK}/model/checkpoint.pt ${WORK}/resume/best.pt
+    --stats ${WORK}/model/stats.json - --data ${WORK}/topos --out ${WORK}/eval_bad)
+expect_failure("evaluate with one name for two checkpoints" "--name: 1 names for 2 checkpoints; give one per --checkpoint"
+    evaluate --checkpoint ${WORK}/model/checkpoint.pt ${WORK}/resume/best.pt --stats ${WORK}/model/stats.json --name a
+    --data ${WORK}/topos --out ${WORK}/eval_bad)
+expect_failure("evaluate with two checkpoints of one name" "--name 'a' (for ${WORK}/resume/best.pt): each checkpoint needs a name of its own"
+    evaluate --checkpoint ${WORK}/model/checkpoint.pt ${WORK}/resume/best.pt --stats ${WORK}/model/stats.json --name a a
+    --data ${WORK}/topos --out ${WORK}/eval_bad)
+message(STATUS "ok: two checkpoints evaluated side by side, each with its statistics")
+
 expect_success("evaluate" evaluate --checkpoint ${WORK}/model/checkpoint.pt --stats ${WORK}/model/stats.json --data ${WORK}/topos
     --split-file ${WORK}/custom.json --split test --mode native --steps 30 --out ${WORK}/eval)
 file(READ ${WORK}/eval/metrics.json metrics)
