@@ -75,11 +75,20 @@ int run_evaluate(const EvaluateArgs& a) {
     const std::string& path = a.checkpoints[k];
     const bool own_stats = a.stats.size() > 1;  // the k-th file goes with the k-th checkpoint
     std::string stats = a.stats.empty() ? "" : a.stats[own_stats ? k : 0];
-    if (stats == "-") stats.clear();
+    const bool dash = stats == "-";  // a baseline's: its statistics are in its checkpoint
+    if (dash) stats.clear();
     Model m;
     m.checkpoint = path;
-    m.opened = open_checkpoint(path, open_options(a.variant, stats, mode));
-    if (own_stats && !stats.empty() && !dynamic_cast<HopnetSimulator*>(m.opened.simulator.get()))
+    auto how = open_options(a.variant, stats, mode);
+    how.require_statistics = !dash;  // said below, by the --stats entry's position
+    m.opened = open_checkpoint(path, how);
+    const bool hopnet = dynamic_cast<HopnetSimulator*>(m.opened.simulator.get()) != nullptr;
+    if (dash && hopnet)
+      throw std::invalid_argument(
+          "--stats: '-' goes with " + path +
+          ", a HOPNet checkpoint, which needs its normalisation statistics: write its stats.json "
+          "there (hopnet train writes one beside its checkpoints)");
+    if (own_stats && !stats.empty() && !hopnet)
       throw std::invalid_argument("--stats " + stats + " goes with " + path + ", a " +
                                   m.opened.simulator->name() +
                                   " checkpoint, which holds its own statistics; write '-' there");

@@ -96,11 +96,6 @@ int run_topobench(const TopoBenchOptions& o) {
   // A folder holds runs of one precision: OUT/matmul_precision says which when it is not float32
   // (a folder without it, TopoBench's float32), so a resume cannot mix the two in one table. A
   // folder without runs takes any.
-  if (o.matmul_precision != "highest" && !topos::nn::detail::cpu_has_bf16())
-    throw std::invalid_argument(
-        "--matmul-precision " + o.matmul_precision +
-        ": this CPU has no AVX-512 BF16, so the backbones' products would stay float32; use "
-        "--matmul-precision highest");
   const auto precision_path = out / "matmul_precision";
   std::string folder_precision = o.matmul_precision;
   if (!folder.runs().empty()) {
@@ -115,6 +110,11 @@ int run_topobench(const TopoBenchOptions& o) {
                                 folder_precision + ", not " + o.matmul_precision +
                                 ": give another --out, or --matmul-precision " + folder_precision +
                                 " to add to it");
+  if (o.matmul_precision != "highest" && !topos::nn::detail::cpu_has_bf16())
+    throw std::invalid_argument(
+        "--matmul-precision " + o.matmul_precision +
+        ": this CPU has no AVX-512 BF16, so the backbones' own products (their weights and sparse "
+        "weights) would stay float32; use --matmul-precision highest");
 
   std::vector<topobench::TableJob> jobs;
   std::size_t skipped = 0;

@@ -681,6 +681,25 @@ TEST_CASE("bfloat16 kernels: act(x Wᵀ + b) and its gradients against double on
   const auto rounded = [](const torch::Tensor& t) {
     return t.detach().to(torch::kBFloat16).to(torch::kDouble);
   };
+  const auto activation = [](const torch::Tensor& z, Epilogue e) {
+    return e == Epilogue::none   ? z
+           : e == Epilogue::relu ? torch::relu(z)
+           : e == Epilogue::elu  ? torch::elu(z)
+                                 : torch::sigmoid(z);
+  };
+  // dZ = g ⊙ act'(y) from the output y, in the kernel's float32 order (a different rounding of
+  // dZ can round it to another bfloat16, a 4e-3 step).
+  const auto output_gradient = [](const torch::Tensor& g, const torch::Tensor& y, Epilogue e) {
+    const auto yd = y.detach();
+    return e == Epilogue::none   ? g
+           : e == Epilogue::relu ? g * (yd > 0)
+           : e == Epilogue::elu  ? torch::where(yd > 0, g, g * (yd + 1))
+                                 : g * ((1 - yd) * yd);
+  };
+  const auto max_gap = [](const torch::Tensor& a, const torch::Tensor& r) {
+    return (a.to(torch::kDouble) - r).abs().max().item<double>() /
+           std::max(1.0, r.abs().max().item<double>());
+  };
   // Rows: one, odd (a lone last row in the weight gradient's pairs), many on two threads;
   // widths: one vector, panels of 64 with tails of 16-48, the widest (1024).
   const std::vector<std::array<std::int64_t, 4>> shapes{
@@ -699,22 +718,9 @@ TEST_CASE("bfloat16 kernels: act(x Wᵀ + b) and its gradients against double on
       const auto grads = torch::autograd::grad({y}, {x, W, b}, {g});
       // Reference: the same products in double from the bfloat16-rounded inputs; dZ = g ⊙ act'(y)
       // in float32, rounded for the two products as the kernel rounds it.
-      const auto z = torch::linear(rounded(x), rounded(W), b.detach().to(torch::kDouble));
-      const auto ref = e == Epilogue::none   ? z
-                       : e == Epilogue::relu ? torch::relu(z)
-                       : e == Epilogue::elu  ? torch::elu(z)
-                                             : torch::sigmoid(z);
-      const auto yd = y.detach();
-      // (in the kernel's float32 order: a different rounding of dZ can round it to another
-      // bfloat16, a 4e-3 step)
-      const auto dZ = e == Epilogue::none   ? g
-                      : e == Epilogue::relu ? g * (yd > 0)
-                      : e == Epilogue::elu  ? torch::where(yd > 0, g, g * (yd + 1))
-                                            : g * ((1 - yd) * yd);
-      const auto max_gap = [](const torch::Tensor& a, const torch::Tensor& r) {
-        return (a.to(torch::kDouble) - r).abs().max().item<double>() /
-               std::max(1.0, r.abs().max().item<double>());
-      };
+      const auto ref =
+          activation(torch::linear(rounded(x), rounded(W), b.detach().to(torch::kDouble)), e);
+      const auto dZ = output_gradient(g, y, e);
       // float32 sums of K (or n) products: a few units in the 7th digit, far below bfloat16's
       // 3rd (a product in float32 of the unrounded inputs would be off by ~1e-2).
       CHECK(max_gap(y, ref) < 2e-5);
@@ -796,20 +802,8 @@ TEST_CASE("bfloat16 kernels: act(x Wᵀ + b) and its gradients against double on
     std::vector<torch::Tensor> parts;
     for (const auto& x : xs) parts.push_back(rounded(x));
     const auto xcat = torch::cat(parts, 1);
-    const auto z = base.detach().to(torch::kDouble) + xcat.mm(rounded(W).t());
-    const auto yd = y.detach();
-    const auto ref = e == Epilogue::none   ? z
-                     : e == Epilogue::relu ? torch::relu(z)
-                     : e == Epilogue::elu  ? torch::elu(z)
-                                           : torch::sigmoid(z);
-    const auto dZ = e == Epilogue::none   ? g
-                    : e == Epilogue::relu ? g * (yd > 0)
-                    : e == Epilogue::elu  ? torch::where(yd > 0, g, g * (yd + 1))
-                                          : g * ((1 - yd) * yd);
-    const auto max_gap = [](const torch::Tensor& a, const torch::Tensor& r) {
-      return (a.to(torch::kDouble) - r).abs().max().item<double>() /
-             std::max(1.0, r.abs().max().item<double>());
-    };
+    const auto ref = activation(base.detach().to(torch::kDouble) + xcat.mm(rounded(W).t()), e);
+    const auto dZ = output_gradient(g, y, e);
     CHECK(max_gap(y, ref) < 2e-5);
     const auto dx = rounded(dZ).mm(rounded(W));
     std::int64_t off = 0;

@@ -99,6 +99,15 @@ TEST_CASE("bootstrap_ratio_of_means: pairing cancels what the units share") {
   const auto kept = bootstrap_ratio_of_means({1, 3, 10}, {2, 6, 20});
   CHECK(holes.estimate == kept.estimate);
   CHECK(holes.low == kept.low);
+  // A denominator that sums to 0 in some resamples (a model with no error on some scenes): no
+  // interval, rather than one from ratios that are infinite or NaN.
+  const auto zero = bootstrap_ratio_of_means({1, 2}, {0, 1});
+  CHECK(zero.estimate == 3.0);
+  CHECK(std::isnan(zero.low));
+  CHECK(std::isnan(zero.high));
+  const auto none = bootstrap_ratio_of_means({0, 0}, {0, 0});
+  CHECK(std::isnan(none.estimate));
+  CHECK(std::isnan(none.low));
 }
 
 TEST_CASE("bootstrap: bad options and unpaired samples are errors that say what to write") {

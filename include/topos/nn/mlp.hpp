@@ -6,7 +6,8 @@
 // names ("0.weight", "2.bias", "4.weight") match the reference's checkpoints.
 #pragma once
 
-#include "topos/nn/functional.hpp"  // Activation
+#include "topos/nn/activation.hpp"
+#include "topos/nn/kernels.hpp"  // linear_act, CpuGemm
 #include "topos/nn/kernels/layer_norm.hpp"
 #include "topos/nn/kernels/precision.hpp"
 

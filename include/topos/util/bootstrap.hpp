@@ -69,7 +69,12 @@ inline BootstrapInterval bootstrap_means(const std::vector<double>& num,
   std::mt19937_64 gen(o.seed);
   std::uniform_int_distribution<std::size_t> unit(0, n - 1);
   std::vector<double> draws(static_cast<std::size_t>(o.resamples));
-  for (auto& d : draws) d = statistic([&](std::size_t) { return unit(gen); });
+  for (auto& d : draws) {
+    d = statistic([&](std::size_t) { return unit(gen); });
+    // A resample whose denominator sums to 0 has no ratio: then the interval is undefined (and
+    // NaN would break the sort's ordering).
+    if (!std::isfinite(d)) return out;
+  }
   std::sort(draws.begin(), draws.end());
   out.low = sorted_quantile(draws, (1 - o.level) / 2);
   out.high = sorted_quantile(draws, 1 - (1 - o.level) / 2);
@@ -91,7 +96,8 @@ inline BootstrapInterval bootstrap_mean(const std::vector<double>& values,
 
 /// mean(num) / mean(den) over paired units (num[i] and den[i] measured on the same unit) and its
 /// percentile bootstrap interval, each resample drawing the same units for both. A unit with a
-/// non-finite value on either side is left out of both.
+/// non-finite value on either side is left out of both. Where some resample's den sums to 0 the
+/// interval is NaN (the estimate too, where den's own sum is 0).
 inline BootstrapInterval bootstrap_ratio_of_means(const std::vector<double>& num,
                                                   const std::vector<double>& den,
                                                   const BootstrapOptions& o = {}) {

@@ -445,6 +445,51 @@ TEST_CASE("UniGCNII's update as one node gives the written-out operations' value
   }
 }
 
+TEST_CASE("UniGCNII's update at medium precision: its product and backward in bfloat16",
+          "[models][zoo][hypergraph]") {
+  // The node's product M = βW + (1-β)I applied to the mix (1-α)x + αs: at medium, bfloat16 inputs
+  // and float32 sums, forward and backward (the backward on its forward's library). Reference: the
+  // same products in double from the float32 mix and M rounded to bfloat16.
+  struct Restore {
+    ~Restore() { nn::set_float32_matmul_precision(nn::MatmulPrecision::highest); }
+  } back;
+  nn::set_float32_matmul_precision(nn::MatmulPrecision::medium);
+  torch::manual_seed(9);
+  const double alpha = 0.1, beta = 0.4;
+  const auto x = torch::randn({45, 64}, torch::requires_grad()),
+             s = torch::randn({45, 64}, torch::requires_grad()),
+             W = (torch::randn({64, 64}) / 8).requires_grad_();
+  const auto y = models::detail::InitialResidualFunction::apply(x, s, W, alpha, beta);
+  const auto g = torch::randn_like(y);
+  const auto grads = torch::autograd::grad({y}, {x, s, W}, {g});
+  if (!nn::detail::cpu_has_bf16()) {
+    // Without AVX-512 BF16 (TOPOS_DISABLE_BF16=1 stands for such a CPU) this 64-wide product
+    // stays on the float32 kernel, forward and backward: highest's values exactly.
+    nn::set_float32_matmul_precision(nn::MatmulPrecision::highest);
+    const auto y_hi = models::detail::InitialResidualFunction::apply(x, s, W, alpha, beta);
+    const auto g_hi = torch::autograd::grad({y_hi}, {x, s, W}, {g});
+    CHECK(torch::equal(y, y_hi));
+    for (std::size_t i = 0; i < 3; ++i) CHECK(torch::equal(grads[i], g_hi[i]));
+    return;
+  }
+  torch::NoGradGuard no_grad;
+  const auto mixed = (1 - alpha) * x + alpha * s;
+  const auto M = beta * W + (1 - beta) * torch::eye(64);
+  const auto in = [](const torch::Tensor& t) { return t.to(torch::kBFloat16).to(torch::kDouble); };
+  const double tol = 2e-5;
+  const auto gap = [](const torch::Tensor& a, const torch::Tensor& r) {
+    return (a.to(torch::kDouble) - r).abs().max().item<double>() /
+           std::max(1.0, r.abs().max().item<double>());
+  };
+  CHECK(gap(y, in(mixed).mm(in(M).t())) < tol);
+  const auto dmixed = in(g).mm(in(M));
+  CHECK(gap(grads[0], (1 - alpha) * dmixed) < tol);
+  CHECK(gap(grads[1], alpha * dmixed) < tol);
+  CHECK(gap(grads[2], beta * in(g).t().mm(in(mixed))) < tol);
+  // And not float32's products: bfloat16's rounding shows at the 3rd digit.
+  CHECK(gap(y, mixed.to(torch::kDouble).mm(M.to(torch::kDouble).t())) > 1e-4);
+}
+
 TEST_CASE("from_triplets sums duplicates and drops zeros", "[nn][sparse]") {
   const auto A =
       SparseOperator::from_triplets(2, 3, {1, 0, 1, 0}, {2, 1, 2, 0}, {1.0, 3.0, -1.0, 2.0});

@@ -271,8 +271,8 @@ static TOPOS_INLINE_KERNEL void outer_tile_fixed(const T* dZ, const T* x, T* dW,
     for (int j = 0; j < V; ++j) std::memcpy(dW + (n0 + t) * ldw + j * L, &acc[t][j], sizeof(vec));
 }
 // dW[n] += Σ_i dZ[i][n] x[i] over a block of rows for a panel of KP columns, all N outputs: tiles
-// of as many outputs as the registers hold (24 accumulators of 32 zmm, 12 of 16 ymm), then one
-// at a time.
+// of as many outputs as the registers hold (24 accumulators of 32 zmm, 12 of 16 ymm), then
+// smaller ones.
 template <class T, int KP, int VB>
 static TOPOS_INLINE_KERNEL void outer_block_fixed(const T* dZ, const T* x, T* dW, std::int64_t rows,
                                                   std::int64_t N, std::int64_t ldx = KP,
@@ -283,6 +283,11 @@ static TOPOS_INLINE_KERNEL void outer_block_fixed(const T* dZ, const T* x, T* dW
   constexpr int NT = budget / V > 8 ? 8 : budget / V < 1 ? 1 : budget / V;
   std::int64_t n = 0;
   for (; n + NT <= N; n += NT) outer_tile_fixed<T, KP, NT, VB>(dZ, x, dW, rows, n, N, ldx, ldw);
+  // The rest in tiles of 4 and 2 (64 outputs in tiles of 6 leave 4: one load of x per 4, not 1).
+  if constexpr (NT > 4)
+    for (; n + 4 <= N; n += 4) outer_tile_fixed<T, KP, 4, VB>(dZ, x, dW, rows, n, N, ldx, ldw);
+  if constexpr (NT > 2)
+    for (; n + 2 <= N; n += 2) outer_tile_fixed<T, KP, 2, VB>(dZ, x, dW, rows, n, N, ldx, ldw);
   for (; n < N; ++n) outer_tile_fixed<T, KP, 1, VB>(dZ, x, dW, rows, n, N, ldx, ldw);
 }
 

@@ -12,7 +12,9 @@
 
 #include <algorithm>
 #include <cstdint>
+#include <cstdlib>
 #include <cstring>
+#include <string>
 #include <vector>
 
 #if defined(TOPOS_HAVE_V4)
@@ -25,9 +27,15 @@
 namespace topos::nn::detail {
 
 /// Whether this CPU multiplies bfloat16 pairs (AVX-512 BF16) and this build has the kernels.
+/// TOPOS_DISABLE_BF16=1 in the environment (read once) says no: a CPU without them, its paths
+/// (oneDNN's bfloat16 products, or float32) tested and timed on one that has them.
 inline bool cpu_has_bf16() {
 #if defined(TOPOS_HAVE_BF16)
-  static const bool bf16 = cpu_has_v4() && __builtin_cpu_supports("avx512bf16");
+  static const bool bf16 = [] {
+    const char* off = std::getenv("TOPOS_DISABLE_BF16");
+    if (off != nullptr && *off != '\0' && std::string(off) != "0") return false;
+    return cpu_has_v4() && __builtin_cpu_supports("avx512bf16");
+  }();
   return bf16;
 #else
   return false;
@@ -274,6 +282,18 @@ TOPOS_BF16_INLINE void bf16_outer(const std::uint32_t* Z, std::int64_t N, std::i
   }
 }
 
+// dZ = g ⊙ act'(y) for n floats (a multiple of 16): the backward kernels' first pass over a block.
+template <Epilogue E>
+TOPOS_BF16_INLINE void bf16_output_gradient(const float* g, const float* y, std::int64_t n,
+                                            float* dZ) {
+  for (std::int64_t r = 0; r < n; r += 16) {
+    __m512 gv = _mm512_loadu_ps(g + r);
+    const __m512 yv = _mm512_loadu_ps(y + r);
+    epilogue_grad<float>(yv, gv, E);
+    _mm512_storeu_ps(dZ + r, gv);
+  }
+}
+
 // The backward of act(x Wᵀ + b) over rows [begin, end) with bfloat16 products, a block of rows at
 // a time: dZ = g ⊙ act'(y) (float32), dx = dZ W (PT = pack_bf16_pairs of W, N/2 × K pairs),
 // dW += dZᵀ x and db += Σ dZ into the caller's buffers; null pointers skip their part.
@@ -292,12 +312,7 @@ TOPOS_BF16 void linear_backward_bf16_e(const float* x, const std::uint32_t* PT, 
     const std::int64_t rows = std::min(B, end - i0), pairs = (rows + 1) / 2;
     const float* z = g + i0 * N;
     if (E != Epilogue::none) {
-      for (std::int64_t r = 0; r < rows * N; r += 16) {
-        __m512 gv = _mm512_loadu_ps(g + i0 * N + r);
-        const __m512 yv = _mm512_loadu_ps(y + i0 * N + r);
-        epilogue_grad<float>(yv, gv, E);
-        _mm512_storeu_ps(dZ + r, gv);
-      }
+      bf16_output_gradient<E>(g + i0 * N, y + i0 * N, rows * N, dZ);
       z = dZ;
     }
     if (dx) {  // dx = dZ W: dZ's rows as pairs along the outputs
@@ -395,12 +410,7 @@ TOPOS_BF16 void linear_blocks_backward_bf16_e(const float* const* X, const std::
     const std::int64_t rows = std::min(B, end - i0), pairs = (rows + 1) / 2;
     const float* z = g + i0 * N;
     if (E != Epilogue::none) {
-      for (std::int64_t r = 0; r < rows * N; r += 16) {
-        __m512 gv = _mm512_loadu_ps(g + i0 * N + r);
-        const __m512 yv = _mm512_loadu_ps(y + i0 * N + r);
-        epilogue_grad<float>(yv, gv, E);
-        _mm512_storeu_ps(dZ + r, gv);
-      }
+      bf16_output_gradient<E>(g + i0 * N, y + i0 * N, rows * N, dZ);
       z = dZ;
     }
     if (dbase) std::memcpy(dbase + i0 * N, z, static_cast<std::size_t>(rows * N) * sizeof(float));
