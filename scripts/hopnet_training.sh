@@ -110,11 +110,13 @@ case "$cmd" in
     [ -d "$WORK/data/movi-a" ] || { echo "hopnet_training: no data in $WORK/data/movi-a: 'run' regenerates it" >&2; exit 1; }
     H=$(hopnet_binary)
     OUTDIR="$root/docs/hopnet-training"
+    # Paths relative to the checkout, as the committed pages show them.
+    rel() { realpath -m --relative-to="$root" "$1"; }
     rm -rf "$WORK/evaluation.tmp"
-    (cd "$root" && nice -n 5 "$H" evaluate --checkpoint "$PUB" docs/hopnet-training/run/best.pt \
-      --stats "$REF/data/normalization/movia.json" docs/hopnet-training/run/stats.json \
+    (cd "$root" && nice -n 5 "$H" evaluate --checkpoint "$(rel "$PUB")" docs/hopnet-training/run/best.pt \
+      --stats "$(rel "$REF/data/normalization/movia.json")" docs/hopnet-training/run/stats.json \
       --name "published (modela_seed2_e39.pt)" "trained by topos (best.pt)" \
-      --data "$WORK/data/movi-a" --assets "$REF/data/kubasic" --split test --mode native \
+      --data "$(rel "$WORK/data/movi-a")" --assets "$(rel "$REF/data/kubasic")" --split test --mode native \
       --viewer-scenes 0 --jobs "${TOPOS_EVALUATE_JOBS:-1}" --out "$WORK/evaluation.tmp")
     # per_scene.json (3 MB of curves) stays in $WORK: metrics.json holds the intervals.
     for f in metrics.json table.md index.html; do

@@ -375,6 +375,7 @@ int run_evaluate(const EvaluateArgs& a) {
     report.viewer = viewer.empty() ? "" : "viewer.html";
     report.horizons = horizons;
     report.rollout_seconds = seconds;
+    report.intervals = metrics, report.paired = paired;
     for (std::size_t i = 0; i < chosen.size(); ++i)
       report.scenes.push_back({chosen[i], static_cast<int>(sources[i].instances.size()),
                                results[i].models, results[i].baseline,

@@ -291,6 +291,9 @@ struct EvaluationReport {
   double rollout_seconds = 0;
   std::optional<TrainingLog> training;  ///< the checkpoint folder's logs, when it has them
   std::string training_note;            ///< why they are not shown, when they are not
+  /// metrics.json's `models` (per model, horizon and metric: mean, std, ci95) and `paired` (each
+  /// later model against the first: ratio, ci95); the page shows them where they are objects.
+  nlohmann::json intervals, paired;
 };
 
 /// Mean and (population) std over the scenes at every frame, skipping NaN; n counts the scenes.
@@ -378,6 +381,8 @@ inline nlohmann::json evaluation_json(const EvaluationReport& r) {
           {"model_order", order},
           {"scenes", scenes},
           {"paper", paper},
+          {"intervals", r.intervals.is_object() ? r.intervals : nlohmann::json::object()},
+          {"paired", r.paired.is_object() ? r.paired : nlohmann::json::object()},
           {"rollout_seconds", r.rollout_seconds}};
 }
 

@@ -139,7 +139,7 @@ message(STATUS "ok: validation rollouts pick best.pt (frame-25 position RMSE ${b
 # mean's bootstrap interval around it.
 expect_success("evaluate two checkpoints, statistics each" evaluate --checkpoint ${WORK}/model/checkpoint.pt ${WORK}/resume/best.pt
     --stats ${WORK}/model/stats.json ${WORK}/resume/stats.json --name trained resumed --data ${WORK}/topos --split-file ${WORK}/custom.json --split all
-    --mode native --steps 22 --viewer-scenes 0 --no-report --out ${WORK}/eval_two)
+    --mode native --steps 22 --viewer-scenes 0 --out ${WORK}/eval_two)
 file(READ ${WORK}/eval_two/metrics.json two)
 string(JSON second GET "${two}" model_order 1)
 if(NOT second STREQUAL "resumed")
@@ -232,6 +232,13 @@ foreach(page index.html viewer.html)
   endif()
 endforeach()
 page_data(${WORK}/eval/index.html report)
+# The two checkpoints' report carries metrics.json's intervals and paired ratios as they are.
+page_data(${WORK}/eval_two/index.html two_page)
+string(JSON page_ratio GET "${two_page}" evaluation paired resumed 25 pos_rmse ratio)
+string(JSON page_low GET "${two_page}" evaluation intervals trained 25 pos_rmse ci95 0)
+if(NOT page_ratio STREQUAL ratio OR NOT page_low STREQUAL first_low)
+  message(FATAL_ERROR "the report's paired ratio ${page_ratio} and interval ${page_low} are not metrics.json's ${ratio} and ${first_low}")
+endif()
 string(JSON scene_seed GET "${report}" evaluation scenes 0 seed)
 string(JSON viewer_index GET "${report}" evaluation scenes 0 viewer_index)
 string(JSON kind GET "${report}" evaluation dataset_kind)
