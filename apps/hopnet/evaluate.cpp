@@ -217,14 +217,19 @@ int run_evaluate(const EvaluateArgs& a) {
   const std::string kind = hopnet_report::infer_movi_kind(sources, &kind_why);
   nlohmann::json metrics;
   std::ostringstream md;
-  md << "| model | metric | ";
   std::vector<int> present;
   for (int h : horizons)
     if (per[model_name + ".pos_rmse"].count(h)) present.push_back(h);
-  for (int h : present) md << "frame " << h << " | ";
-  md << "\n|---|---|";
-  for (std::size_t i = 0; i < present.size(); ++i) md << "---|";
-  md << "\n";
+  // A table's head (after its title, where it has one): model, metric, the frames present.
+  const auto header = [&](const std::string& title) {
+    if (!title.empty()) md << "\n" << title << "\n\n";
+    md << "| model | metric | ";
+    for (int h : present) md << "frame " << h << " | ";
+    md << "\n|---|---|";
+    for (std::size_t i = 0; i < present.size(); ++i) md << "---|";
+    md << "\n";
+  };
+  header("");
   // The means' 95 % intervals: percentile bootstrap over the scenes, fixed seed.
   topos::BootstrapOptions bootstrap;
   bootstrap.resamples = 2000;
@@ -270,13 +275,6 @@ int run_evaluate(const EvaluateArgs& a) {
   // The means' intervals, and each later checkpoint against the first on the same scenes: the
   // ratio of their means, its interval from resampling the scenes for both at once (what the
   // scenes share cancels, so a 5 % difference shows where the two unpaired intervals overlap).
-  const auto header = [&](const std::string& title) {
-    md << "\n" << title << "\n\n| model | metric | ";
-    for (int h : present) md << "frame " << h << " | ";
-    md << "\n|---|---|";
-    for (std::size_t i = 0; i < present.size(); ++i) md << "---|";
-    md << "\n";
-  };
   header("95 % intervals of the means (percentile bootstrap over the " +
          std::to_string(chosen.size()) + " scenes, 2,000 resamples):");
   for (const std::string& model : names)
