@@ -7,6 +7,7 @@
 #include "topos/nn/device.hpp"
 #include "topos/nn/distributed.hpp"
 #include "launch.hpp"
+#include "topos/util/malloc.hpp"
 #include "topos/util/memory.hpp"
 #include <chrono>
 #include <cmath>
@@ -259,9 +260,10 @@ int run_train(const TrainArgs& a) {
       say("resuming in epoch %d after step %lld\n", start_epoch + 1, static_cast<long long>(step));
   }
   say("model: %lld parameters, device %s, %d worker%s per trajectory, matmul precision %s, cpu "
-      "gemm %s\n",
+      "gemm %s, malloc %s\n",
       static_cast<long long>(model->num_parameters()), device.str().c_str(), workers,
-      workers == 1 ? "" : "s", a.matmul_precision.c_str(), nn::to_string(gemm));
+      workers == 1 ? "" : "s", a.matmul_precision.c_str(), nn::to_string(gemm),
+      malloc_name().c_str());
   std::ofstream steps_csv, epochs_csv;
   if (main_rank) {
     const auto steps_path = fs::path(a.out) / "steps.csv",

@@ -3,7 +3,7 @@
 # training curves, export, and the Python-side check
 # that torch.load(weights_only=True) would open the checkpoint and the export. Then bad datasets
 # and splits: each must fail with a clear message. Arguments: -DHOPNET=<exe> -DWORK=<dir>
-# -DPYTHON=<python3 or empty> -DCHECK=<scripts/check_torch_file.py>.
+# -DPYTHON=<python3 or empty> -DCHECK=<scripts/check_torch_file.py> -DMALLOC=<tcmalloc or glibc>.
 file(REMOVE_RECURSE ${WORK})
 file(MAKE_DIRECTORY ${WORK})
 set(PROGRAM ${HOPNET})
@@ -56,6 +56,11 @@ if(NOT LAST_OUTPUT STREQUAL "6\n")
 endif()
 file(WRITE ${WORK}/custom.json "{\"train\": [1, 2], \"val\": [3], \"test\": [4]}")
 expect_success("train, custom split" train --data ${WORK}/topos --split-file ${WORK}/custom.json --out ${WORK}/model --hidden 16 --max-steps 3 --mode native)
+# The program runs on the malloc it was linked with (topos::tcmalloc, or glibc's without it).
+string(REGEX MATCH "malloc [a-z]+ [0-9]" malloc_line "${LAST_OUTPUT}")
+if(NOT malloc_line MATCHES "^malloc ${MALLOC} ")
+  message(FATAL_ERROR "train should report 'malloc ${MALLOC} <version>', got '${malloc_line}':\n${LAST_OUTPUT}")
+endif()
 foreach(f checkpoint.pt stats.json steps.csv epochs.csv)
   if(NOT EXISTS ${WORK}/model/${f})
     message(FATAL_ERROR "train did not write ${f}")

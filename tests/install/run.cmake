@@ -1,7 +1,7 @@
 # Installs topos into a temporary prefix, configures and builds a consumer project with
 # find_package(topos REQUIRED COMPONENTS nn geometry zoo), against the compiled topos::nn and
 # header-only, and one on topos::zoo, and runs them; with PYTHON, imports the installed Python
-# package first.
+# package first. MALLOC: tcmalloc or glibc, the malloc topos::tcmalloc brings.
 file(REMOVE_RECURSE "${WORK_DIR}")
 set(prefix "${WORK_DIR}/prefix")
 execute_process(COMMAND ${CMAKE_COMMAND} --install "${TOPOS_BINARY_DIR}" --prefix "${prefix}" RESULT_VARIABLE rc)
@@ -38,5 +38,13 @@ foreach(exe consumer consumer_header_only consumer_zoo)
   message(STATUS "${exe} said: ${out}")
   if(rc OR NOT out MATCHES "consumer ok")
     message(FATAL_ERROR "${exe} failed: ${rc}")
+  endif()
+  # Only the consumer links topos::tcmalloc: it runs on MALLOC, the others on glibc's.
+  set(want glibc)
+  if(exe STREQUAL "consumer")
+    set(want ${MALLOC})
+  endif()
+  if(NOT out MATCHES "malloc ${want} [0-9]")
+    message(FATAL_ERROR "${exe} should run on ${want}'s malloc: ${out}")
   endif()
 endforeach()

@@ -6,6 +6,7 @@
 #include <topos/core/mesh_lifting.hpp>
 #include <topos/geometry/graph.hpp>
 #include <topos/nn/operator_schedule.hpp>
+#include <topos/util/malloc.hpp>
 
 #include <iostream>
 
@@ -34,6 +35,7 @@ int main() {
 #else
   const char* mode = " (compiled topos::nn)";
 #endif
-  std::cout << (ok ? "consumer ok" : "consumer FAILED") << mode << "\n";
+  std::cout << (ok ? "consumer ok" : "consumer FAILED") << mode << ", malloc "
+            << topos::malloc_name() << "\n";
   return ok ? 0 : 1;
 }

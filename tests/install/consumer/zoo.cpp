@@ -5,6 +5,7 @@
 #include <torch/torch.h>
 
 #include <topos/models/zoo/golden_case.hpp>
+#include <topos/util/malloc.hpp>
 
 #include <filesystem>
 #include <fstream>
@@ -28,6 +29,7 @@ int main() {
   const bool ok =
       ops.size() == 2 && torch::equal(L0, expected) && B1.sizes() == torch::IntArrayRef{3, 3} &&
       torch::equal(B1.sum(0), torch::zeros({3})) && B1.abs().sum().item<float>() == 6.0f;
-  std::cout << (ok ? "consumer ok" : "consumer FAILED") << " (topos::zoo)\n";
+  std::cout << (ok ? "consumer ok" : "consumer FAILED") << " (topos::zoo), malloc "
+            << topos::malloc_name() << "\n";
   return ok ? 0 : 1;
 }
