@@ -17,6 +17,7 @@
 #include "topos/models/hopnet/training.hpp"
 #include "topos/models/hopnet/variants.hpp"
 #include "topos/nn/cpu.hpp"
+#include "topos/util/malloc.hpp"
 #include "topos/util/memory.hpp"
 
 #include <algorithm>
@@ -459,6 +460,12 @@ BENCHMARK(BM_train_step_variant)
     ->Unit(benchmark::kMillisecond)
     ->MinTime(3.0)
     ->UseRealTime();
+
+// hopnet's malloc (topos::tcmalloc), named in the output's context.
+const int malloc_context = [] {
+  benchmark::AddCustomContext("malloc", topos::malloc_name());
+  return 0;
+}();
 }  // namespace
 
 BENCHMARK_MAIN();

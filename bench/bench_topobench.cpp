@@ -34,6 +34,7 @@
 #include "topos/models/topobench/table_models.hpp"
 #include "topos/models/topobench/trainer.hpp"
 #include "topos/nn/cpu.hpp"
+#include "topos/util/malloc.hpp"
 
 #include <benchmark/benchmark.h>
 
@@ -411,6 +412,8 @@ const int registered = [] {
   // OpenBLAS's kernels decide torch's products' speed (OPENBLAS_CORETYPE may pin them).
   benchmark::AddCustomContext("openblas_kernels",
                               nn::blas_kernels().empty() ? "not OpenBLAS" : nn::blas_kernels());
+  // tdl's malloc (topos::tcmalloc): with it, the heap:1 settings (glibc's) change nothing.
+  benchmark::AddCustomContext("malloc", topos::malloc_name());
   // First: its heap:0 runs must come before anything keeps freed memory in the process.
   // TopoBench's SCCN on IMDB-BINARY: width 128, 4 layers, batches of 128, cliques to rank 3.
   benchmark::RegisterBenchmark("BM_epoch_options/SCCN/IMDB-BINARY", BM_epoch_options,

@@ -70,6 +70,7 @@ inline void set_cpu_threads(int intra_op, int blas) {
 /// free, so each training step re-faults hundreds of MB of fresh zero pages (a third of the step
 /// time for a 477-timestep trajectory). Call once, before large tensors are allocated. Threads
 /// share the main arena: another arena's heap cannot hold a block of over 64 MB and maps it.
+/// Under tcmalloc (topos::tcmalloc), which keeps freed memory itself, the calls change nothing.
 inline void keep_freed_memory() {
 #ifdef M_MMAP_MAX
   mallopt(M_ARENA_MAX, 1);

@@ -305,6 +305,28 @@ struct LinearBlocksFunction : public torch::autograd::Function<LinearBlocksFunct
     ctx->saved_data["how"] = (how & 7) | (path == ProductPath::bf16 ? 16 : 0);
     return y;
   }
+  // The blocks' inputs (made contiguous in `saved`), the buffers of the gradients asked for (in
+  // `out`; null where not asked) and the blocks' widths, as the kernels take them.
+  template <typename T>
+  struct BlockPointers {
+    std::vector<const T*> X;
+    std::vector<T*> dX;
+    std::vector<std::int64_t> K;
+  };
+  template <typename T>
+  static BlockPointers<T> block_pointers(torch::autograd::AutogradContext* ctx,
+                                         torch::autograd::tensor_list& saved,
+                                         torch::autograd::tensor_list& out) {
+    BlockPointers<T> b;
+    for (std::size_t s = 0; s < saved.size(); ++s) {
+      auto& x = saved[s];
+      x = x.contiguous();
+      b.X.push_back(x.data_ptr<T>()), b.K.push_back(x.size(1));
+      if (ctx->needs_input_grad(s)) out[s] = torch::empty_like(x);
+      b.dX.push_back(out[s].defined() ? out[s].data_ptr<T>() : nullptr);
+    }
+    return b;
+  }
   static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx,
                                                torch::autograd::tensor_list grads) {
     auto saved = ctx->get_saved_variables();
@@ -331,22 +353,12 @@ struct LinearBlocksFunction : public torch::autograd::Function<LinearBlocksFunct
 #if defined(TOPOS_HAVE_BF16)
     if ((how & 16) != 0) {
       const auto PT = packed_pairs(W, N, Ktot, Ktot, 1);
-      std::vector<const float*> X;
-      std::vector<float*> dX;
-      std::vector<std::int64_t> K;
-      for (std::int64_t s = 0; s < S; ++s) {
-        auto& x = saved[static_cast<std::size_t>(s)];
-        x = x.contiguous();
-        X.push_back(x.data_ptr<float>()), K.push_back(x.size(1));
-        auto& dx = out[static_cast<std::size_t>(s)];
-        if (ctx->needs_input_grad(static_cast<std::size_t>(s))) dx = torch::empty_like(x);
-        dX.push_back(dx.defined() ? dx.data_ptr<float>() : nullptr);
-      }
+      const auto b = block_pointers<float>(ctx, saved, out);
       const float* yp = y.defined() ? y.data_ptr<float>() : nullptr;
       at::parallel_for(0, chunks, 1, [&](std::int64_t c0, std::int64_t c1) {
         for (std::int64_t c = c0; c < c1; ++c)
-          linear_blocks_backward_bf16(X.data(), K.data(), S, PT->data(), yp, g.data_ptr<float>(),
-                                      dX.data(),
+          linear_blocks_backward_bf16(b.X.data(), b.K.data(), S, PT->data(), yp,
+                                      g.data_ptr<float>(), b.dX.data(),
                                       want_dW ? dW.data_ptr<float>() + c * N * Ktot : nullptr,
                                       want_dbase ? dbase.data_ptr<float>() : nullptr,
                                       c * n / chunks, (c + 1) * n / chunks, N, e);
@@ -358,22 +370,12 @@ struct LinearBlocksFunction : public torch::autograd::Function<LinearBlocksFunct
 #endif
 #if defined(__GNUC__)
     AT_DISPATCH_FLOATING_TYPES(W.scalar_type(), "topos_linear_blocks_backward", [&] {
-      std::vector<const scalar_t*> X;
-      std::vector<scalar_t*> dX;
-      std::vector<std::int64_t> K;
-      for (std::int64_t s = 0; s < S; ++s) {
-        auto& x = saved[static_cast<std::size_t>(s)];
-        x = x.contiguous();
-        X.push_back(x.data_ptr<scalar_t>()), K.push_back(x.size(1));
-        auto& dx = out[static_cast<std::size_t>(s)];
-        if (ctx->needs_input_grad(static_cast<std::size_t>(s))) dx = torch::empty_like(x);
-        dX.push_back(dx.defined() ? dx.data_ptr<scalar_t>() : nullptr);
-      }
+      const auto b = block_pointers<scalar_t>(ctx, saved, out);
       const scalar_t* yp = y.defined() ? y.data_ptr<scalar_t>() : nullptr;
       at::parallel_for(0, chunks, 1, [&](std::int64_t c0, std::int64_t c1) {
         for (std::int64_t c = c0; c < c1; ++c)
-          linear_blocks_backward_clone(X.data(), K.data(), S, W.data_ptr<scalar_t>(), yp,
-                                       g.data_ptr<scalar_t>(), dX.data(),
+          linear_blocks_backward_clone(b.X.data(), b.K.data(), S, W.data_ptr<scalar_t>(), yp,
+                                       g.data_ptr<scalar_t>(), b.dX.data(),
                                        want_dW ? dW.data_ptr<scalar_t>() + c * N * Ktot : nullptr,
                                        want_dbase ? dbase.data_ptr<scalar_t>() : nullptr,
                                        c * n / chunks, (c + 1) * n / chunks, N, e);

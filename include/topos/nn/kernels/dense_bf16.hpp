@@ -294,6 +294,27 @@ TOPOS_BF16_INLINE void bf16_output_gradient(const float* g, const float* y, std:
   }
 }
 
+// What the two bfloat16 backwards share: blocks of `rows_per_block` rows (even; 32, fewer above
+// 256 outputs) so that dZ, its pairs and the inputs' pairs stay in L1 and L2, the blocks'
+// buffers, and each block's output gradient.
+struct Bf16BackwardScratch {
+  static constexpr std::int64_t capacity = 32 * 256;
+  explicit Bf16BackwardScratch(std::int64_t N)
+      : rows_per_block(std::max<std::int64_t>(2, std::min<std::int64_t>(32, capacity / N) & ~1)) {}
+  // dZ of the `rows` rows from i0: g ⊙ act'(y) in dZ, or g itself without an activation.
+  template <Epilogue E>
+  TOPOS_BF16_INLINE const float* output_gradient(const float* g, const float* y, std::int64_t i0,
+                                                 std::int64_t rows, std::int64_t N) {
+    if (E == Epilogue::none) return g + i0 * N;
+    bf16_output_gradient<E>(g + i0 * N, y + i0 * N, rows * N, dZ);
+    return dZ;
+  }
+  const std::int64_t rows_per_block;
+  alignas(64) float dZ[capacity];
+  alignas(64) std::uint32_t Zr[capacity / 2];  // dZ's rows as pairs along the outputs (dx)
+  alignas(64) std::uint32_t Zq[capacity / 2];  // dZ's pairs of rows interleaved (dW)
+};
+
 // The backward of act(x Wᵀ + b) over rows [begin, end) with bfloat16 products, a block of rows at
 // a time: dZ = g ⊙ act'(y) (float32), dx = dZ W (PT = pack_bf16_pairs of W, N/2 × K pairs),
 // dW += dZᵀ x and db += Σ dZ into the caller's buffers; null pointers skip their part.
@@ -302,19 +323,13 @@ TOPOS_BF16 void linear_backward_bf16_e(const float* x, const std::uint32_t* PT, 
                                        const float* g, float* dx, float* dW, float* db,
                                        std::int64_t begin, std::int64_t end, std::int64_t K,
                                        std::int64_t N) {
-  // 32 rows a block (fewer above 256 outputs): dZ, its pairs and x's pairs stay in L1 and L2.
-  constexpr std::int64_t capacity = 32 * 256;
-  const std::int64_t B = std::max<std::int64_t>(2, std::min<std::int64_t>(32, capacity / N) & ~1);
-  alignas(64) float dZ[capacity];
-  alignas(64) std::uint32_t Zr[capacity / 2], Zq[capacity / 2];
+  Bf16BackwardScratch scratch(N);
+  std::uint32_t *Zr = scratch.Zr, *Zq = scratch.Zq;
+  const std::int64_t B = scratch.rows_per_block;
   std::vector<std::uint32_t> Xq(static_cast<std::size_t>(B / 2 * K));
   for (std::int64_t i0 = begin; i0 < end; i0 += B) {
     const std::int64_t rows = std::min(B, end - i0), pairs = (rows + 1) / 2;
-    const float* z = g + i0 * N;
-    if (E != Epilogue::none) {
-      bf16_output_gradient<E>(g + i0 * N, y + i0 * N, rows * N, dZ);
-      z = dZ;
-    }
+    const float* z = scratch.output_gradient<E>(g, y, i0, rows, N);
     if (dx) {  // dx = dZ W: dZ's rows as pairs along the outputs
       for (std::int64_t r = 0; r < rows; ++r) bf16_row(z + r * N, N, Zr + r * (N / 2));
       bf16_rows<Epilogue::none>(Zr, N / 2, rows, N / 2, PT, K, K, nullptr, dx + i0 * K, K, false);
@@ -397,22 +412,17 @@ TOPOS_BF16 void linear_blocks_backward_bf16_e(const float* const* X, const std::
                                               const float* y, const float* g, float* const* dX,
                                               float* dW, float* dbase, std::int64_t begin,
                                               std::int64_t end, std::int64_t N) {
-  constexpr std::int64_t capacity = 32 * 256;
-  const std::int64_t B = std::max<std::int64_t>(2, std::min<std::int64_t>(32, capacity / N) & ~1);
+  Bf16BackwardScratch scratch(N);
+  std::uint32_t *Zr = scratch.Zr, *Zq = scratch.Zq;
+  const std::int64_t B = scratch.rows_per_block;
   std::int64_t Ktot = 0;
   for (std::int64_t s = 0; s < S; ++s) Ktot += K[s];
-  alignas(64) float dZ[capacity];
-  alignas(64) std::uint32_t Zr[capacity / 2], Zq[capacity / 2];
   std::vector<std::uint32_t> Xq(static_cast<std::size_t>(B / 2 * Ktot));
   bool any_dx = false;
   for (std::int64_t s = 0; s < S; ++s) any_dx = any_dx || dX[s] != nullptr;
   for (std::int64_t i0 = begin; i0 < end; i0 += B) {
     const std::int64_t rows = std::min(B, end - i0), pairs = (rows + 1) / 2;
-    const float* z = g + i0 * N;
-    if (E != Epilogue::none) {
-      bf16_output_gradient<E>(g + i0 * N, y + i0 * N, rows * N, dZ);
-      z = dZ;
-    }
+    const float* z = scratch.output_gradient<E>(g, y, i0, rows, N);
     if (dbase) std::memcpy(dbase + i0 * N, z, static_cast<std::size_t>(rows * N) * sizeof(float));
     if (any_dx)
       for (std::int64_t r = 0; r < rows; ++r) bf16_row(z + r * N, N, Zr + r * (N / 2));
