@@ -14,8 +14,11 @@
 #include <ctime>
 #include <future>
 #include <limits>
+#include <memory>
+#include <mutex>
 #include <numeric>
 #include <random>
+#include <unordered_map>
 
 namespace hopnet_cli {
 namespace {
@@ -25,6 +28,7 @@ struct TrainArgs {
   std::string data, out, assets, stats, mode = "native", split_file, init, device = "auto";
   std::int64_t max_steps = -1, hidden = 0, chunk = 0;  // hidden 0: the configuration's (--config)
   double memory_budget_mb = kDefaultMemoryBudgetMb;
+  double contact_cache_mb = 4096;
   int epochs = 40, mlp_layers = 0, num_layers = 0, max_frames = 0;
   int nproc = 1, trajectories_per_step = 1, workers = 0;  // workers 0: one per core per rank
   std::string matmul_precision = "highest", cpu_gemm = "auto";
@@ -48,6 +52,43 @@ struct LoadedScene {
   Scene scene;
   HopnetGeometry geometry;
   std::optional<ContactsByFrame> contacts;
+};
+
+// Each scene's detected contact candidates, kept after the trajectory's first use so that later
+// epochs build its frames without the detection (about 7 % of a bfloat16 step's CPU on MOVi-A,
+// docs/hopnet-training.md). The candidates depend on the ground-truth poses alone, so the frames
+// are the same. Filled from the thread that builds the next trajectory, read by the validation;
+// bounded by --contact-cache-mb (a scene that does not fit is detected every time).
+class ContactCache {
+ public:
+  explicit ContactCache(double budget_mb) : budget_(budget_mb * 1024.0 * 1024.0) {}
+  bool enabled() const { return budget_ > 0; }
+  std::shared_ptr<const ContactsByFrame> find(const LoadedScene& s) const {
+    const std::lock_guard<std::mutex> lock(mutex_);
+    const auto it = scenes_.find(&s);
+    return it == scenes_.end() ? nullptr : it->second;
+  }
+  void add(const LoadedScene& s, ContactsByFrame contacts) {
+    double bytes = sizeof(ContactsByFrame);
+    for (const auto& [t, c] : contacts)  // a map node and a vector per frame
+      bytes += 64.0 + static_cast<double>(c.capacity() * sizeof(ContactCandidate));
+    const std::lock_guard<std::mutex> lock(mutex_);
+    if (used_ + bytes > budget_ || scenes_.count(&s) != 0) return;
+    used_ += bytes;
+    scenes_.emplace(&s, std::make_shared<const ContactsByFrame>(std::move(contacts)));
+  }
+  /// "N scenes, X MB" for the log.
+  std::string str() const {
+    const std::lock_guard<std::mutex> lock(mutex_);
+    char buf[64];
+    std::snprintf(buf, sizeof buf, "%zu scenes, %.0f MB", scenes_.size(), used_ / 1048576.0);
+    return buf;
+  }
+
+ private:
+  mutable std::mutex mutex_;
+  std::unordered_map<const LoadedScene*, std::shared_ptr<const ContactsByFrame>> scenes_;
+  double used_ = 0, budget_;
 };
 
 std::vector<LoadedScene> load_scenes(const data::Dataset& dataset,
@@ -225,9 +266,16 @@ int run_train(const TrainArgs& a) {
   dist.broadcast_(model->parameters(), 0, "parameter broadcast");
   dist.broadcast_(model->buffers(), 0, "buffer broadcast");
   const double budget = a.memory_budget_mb * 1024.0 * 1024.0;
+  ContactCache contact_cache(a.contact_cache_mb);
   const auto make_chunks = [&](const LoadedScene& s) {
+    const ContactsByFrame* given = s.contacts ? &*s.contacts : nullptr;
+    const auto cached = given || !contact_cache.enabled() ? nullptr : contact_cache.find(s);
+    if (cached) given = cached.get();
+    ContactsByFrame detected;
+    const bool fill = given == nullptr && contact_cache.enabled();
     const auto tf = trajectory_frames(s.scene, s.geometry, radius, a.min_z_collision_velocity, 2,
-                                      -1, s.contacts ? &*s.contacts : nullptr);
+                                      -1, given, fill ? &detected : nullptr);
+    if (fill) contact_cache.add(s, std::move(detected));
     auto chunks = make_training_chunks(
         s.geometry, tf, norm,
         a.chunk > 0 ? a.chunk : auto_chunk(s.geometry, tf, options.hidden(), budget / workers));
@@ -450,6 +498,8 @@ int run_train(const TrainArgs& a) {
               {"val_rollout_pos_rmse", vr}};
     epochs_csv << epoch + 1 << "," << epoch_loss_sum / static_cast<double>(epoch_steps) << "," << vl
                << "," << epoch_seconds << "," << lr << "," << vr << "\n";
+    if (contact_cache.enabled())
+      say("epoch %d: contacts kept for %s\n", epoch + 1, contact_cache.str().c_str());
     if (std::isfinite(vr))
       say("epoch %d: validation rollout position RMSE at frame %d %.5f m%s\n", epoch + 1,
           a.val_frame, vr, new_best ? " (best so far: best.pt)" : "");
@@ -497,6 +547,12 @@ Command add_train(CLI::App& app) {
                  "activation memory for the chunks in flight (one per worker)")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
+  ct->add_option("--contact-cache-mb", tr.contact_cache_mb,
+                 "memory for the training and validation scenes' detected contacts, kept from "
+                 "one epoch to the next (the same frames, without the detection; 0: detect "
+                 "every time)")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
   ct->add_option("--workers", tr.workers,
                  "chunks of a trajectory run at once, each on its own thread with one BLAS "
                  "thread (CPU; 0: one per core of this rank's share; 1: one after the other, "

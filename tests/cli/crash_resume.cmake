@@ -92,6 +92,7 @@ message(STATUS "ok: generate with its parent killed resumes to the same dataset"
 file(WRITE ${WORK}/split.json "{\"train\": [1, 2, 3], \"val\": [4], \"test\": []}")
 set(train train --data ${WORK}/gen_ref --split-file ${WORK}/split.json --hidden 8 --mode native --epochs 3 --seed 5 --max-frames 12)
 run(0 ${train} --out ${WORK}/train_ref)
+set(REF_OUT "${OUT}")
 if(NOT RC EQUAL 0)
   message(FATAL_ERROR "uninterrupted train failed:\n${OUT}")
 endif()
@@ -127,6 +128,21 @@ function(check_train out what)
   endif()
   require_no_leftovers(${out})
 endfunction()
+
+# The contacts kept from one epoch to the next (--contact-cache-mb) build the same frames as
+# detecting them again: the uninterrupted run kept them, this one detects them every epoch.
+run(0 ${train} --out ${WORK}/train_uncached --contact-cache-mb 0)
+if(NOT RC EQUAL 0)
+  message(FATAL_ERROR "train --contact-cache-mb 0 failed:\n${OUT}")
+endif()
+if(OUT MATCHES "contacts kept")
+  message(FATAL_ERROR "train --contact-cache-mb 0 reported a contact cache:\n${OUT}")
+endif()
+check_train(${WORK}/train_uncached "train without the contact cache")
+if(NOT REF_OUT MATCHES "epoch 3: contacts kept for 4 scenes")
+  message(FATAL_ERROR "the uninterrupted run did not report its contact cache (3 training and 1 validation scene):\n${REF_OUT}")
+endif()
+message(STATUS "ok: the contact cache gives the same run as detecting every epoch")
 
 # Crash points of a run: 1 stats.json; per commit (every step: --checkpoint-every defaults to
 # 1) checkpoint.pt.next, optimizer.pt.next, state.json.next (halfway through each), the

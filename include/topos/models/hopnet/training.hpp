@@ -32,12 +32,15 @@ using ContactsByFrame = std::map<std::int64_t, std::vector<ContactCandidate>>;
 
 /// Features at t = first..last (inclusive; default 2..T-2) from the scene's GT poses. Contacts
 /// are detected, or taken from `given` (the reference trains on collisions.json), which must
-/// then hold every frame used.
+/// then hold every frame used. Where they are detected and `detected` is given, each frame's
+/// candidates are also stored there: given back, they build the same frames without the
+/// detection (a trainer's cache across epochs).
 inline TrajectoryFrames trajectory_frames(const Scene& scene, const HopnetGeometry& g,
                                           double collision_radius = 0.1,
                                           double min_z_collision_velocity = 0.0,
                                           std::int64_t first = 2, std::int64_t last = -1,
-                                          const ContactsByFrame* given = nullptr) {
+                                          const ContactsByFrame* given = nullptr,
+                                          ContactsByFrame* detected = nullptr) {
   if (last < 0) last = scene.num_frames - 2;
   if (first < 2 || last > scene.num_frames - 2 || first > last)
     throw std::invalid_argument(scene.source + ": a training trajectory needs at least 4 frames");
@@ -57,6 +60,7 @@ inline TrajectoryFrames trajectory_frames(const Scene& scene, const HopnetGeomet
       contacts = it->second;
     } else {
       contacts = detect_contacts(g, posed[static_cast<std::size_t>(t)], collision_radius);
+      if (detected) (*detected)[t] = contacts;
     }
     out.frames.push_back(build_frame(g, p[0], p[static_cast<std::size_t>(t - 2)],
                                      p[static_cast<std::size_t>(t - 1)],
