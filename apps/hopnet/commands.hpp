@@ -186,6 +186,9 @@ inline void write_json_atomic(const nlohmann::json& j, const std::string& path) 
 
 /// Activation memory per forward/backward chunk when --chunk is not given (grad, train).
 inline constexpr double kDefaultMemoryBudgetMb = 3072;
+/// hopnet train --contact-cache-mb: about 2.5 MB a MOVi-A scene, so all of MOVi-A's 1,080 training
+/// and validation scenes fit.
+inline constexpr double kDefaultContactCacheMb = 4096;
 
 /// The reference's contacts of every frame beside a Kubric scene (collisions.json), or "".
 std::string collisions_beside(const data::KubricScene& scene);

@@ -19,6 +19,7 @@
 #include <numeric>
 #include <random>
 #include <unordered_map>
+#include <unordered_set>
 
 namespace hopnet_cli {
 namespace {
@@ -28,7 +29,7 @@ struct TrainArgs {
   std::string data, out, assets, stats, mode = "native", split_file, init, device = "auto";
   std::int64_t max_steps = -1, hidden = 0, chunk = 0;  // hidden 0: the configuration's (--config)
   double memory_budget_mb = kDefaultMemoryBudgetMb;
-  double contact_cache_mb = 4096;
+  double contact_cache_mb = kDefaultContactCacheMb;
   int epochs = 40, mlp_layers = 0, num_layers = 0, max_frames = 0;
   int nproc = 1, trajectories_per_step = 1, workers = 0;  // workers 0: one per core per rank
   std::string matmul_precision = "highest", cpu_gemm = "auto";
@@ -63,31 +64,46 @@ class ContactCache {
  public:
   explicit ContactCache(double budget_mb) : budget_(budget_mb * 1024.0 * 1024.0) {}
   bool enabled() const { return budget_ > 0; }
-  std::shared_ptr<const ContactsByFrame> find(const LoadedScene& s) const {
+  /// The scene's kept contacts (counted as reused), or null.
+  std::shared_ptr<const ContactsByFrame> find(const LoadedScene& s) {
     const std::lock_guard<std::mutex> lock(mutex_);
     const auto it = scenes_.find(&s);
-    return it == scenes_.end() ? nullptr : it->second;
+    if (it == scenes_.end()) return nullptr;
+    ++reused_;
+    return it->second;
+  }
+  /// Whether the scene's detected contacts should be offered to add(): not once they did not fit.
+  bool wants(const LoadedScene& s) const {
+    const std::lock_guard<std::mutex> lock(mutex_);
+    return enabled() && rejected_.count(&s) == 0;
   }
   void add(const LoadedScene& s, ContactsByFrame contacts) {
     double bytes = sizeof(ContactsByFrame);
     for (const auto& [t, c] : contacts)  // a map node and a vector per frame
       bytes += 64.0 + static_cast<double>(c.capacity() * sizeof(ContactCandidate));
     const std::lock_guard<std::mutex> lock(mutex_);
-    if (used_ + bytes > budget_ || scenes_.count(&s) != 0) return;
+    if (scenes_.count(&s) != 0) return;
+    if (used_ + bytes > budget_) {
+      rejected_.insert(&s);
+      return;
+    }
     used_ += bytes;
     scenes_.emplace(&s, std::make_shared<const ContactsByFrame>(std::move(contacts)));
   }
-  /// "N scenes, X MB" for the log.
+  /// "N scenes (reused M times), X MB" for the log.
   std::string str() const {
     const std::lock_guard<std::mutex> lock(mutex_);
-    char buf[64];
-    std::snprintf(buf, sizeof buf, "%zu scenes, %.0f MB", scenes_.size(), used_ / 1048576.0);
+    char buf[96];
+    std::snprintf(buf, sizeof buf, "%zu scenes (reused %lld times), %.0f MB", scenes_.size(),
+                  static_cast<long long>(reused_), used_ / 1048576.0);
     return buf;
   }
 
  private:
   mutable std::mutex mutex_;
   std::unordered_map<const LoadedScene*, std::shared_ptr<const ContactsByFrame>> scenes_;
+  std::unordered_set<const LoadedScene*> rejected_;
+  std::int64_t reused_ = 0;
   double used_ = 0, budget_;
 };
 
@@ -125,11 +141,13 @@ int run_train(const TrainArgs& a) {
   // Each model family trains with its own loop: HOPNet's below, the baselines' in baselines.cpp.
   if (!a.variant.config.empty() && config_model(a.variant.config) != "hopnet") {
     if (a.nproc > 1 || a.hidden > 0 || a.mlp_layers > 0 || a.num_layers > 0 || a.chunk > 0 ||
-        !a.stats.empty() || !a.variant.activation.empty() || a.variant.collision_radius > 0)
+        !a.stats.empty() || !a.variant.activation.empty() || a.variant.collision_radius > 0 ||
+        a.contact_cache_mb != kDefaultContactCacheMb)
       throw std::invalid_argument(
           "train --config " + a.variant.config +
-          ": --nproc, --hidden, --mlp-layers, --num-layers, --chunk, --stats, --activation and "
-          "--collision-radius are HOPNet's; set a baseline's fields in a JSON configuration");
+          ": --nproc, --hidden, --mlp-layers, --num-layers, --chunk, --stats, --activation, "
+          "--collision-radius and --contact-cache-mb are HOPNet's; set a baseline's fields in a "
+          "JSON configuration");
     BaselineTrainArgs b = a.baseline;
     b.data = a.data, b.out = a.out, b.assets = a.assets, b.split_file = a.split_file;
     b.config = a.variant.config, b.init = a.init, b.max_steps = a.max_steps;
@@ -139,6 +157,10 @@ int run_train(const TrainArgs& a) {
     if (a.lr_given) b.lr = a.lr;
     return run_baseline_train(b);
   }
+  if (!std::isfinite(a.contact_cache_mb))
+    throw std::invalid_argument(
+        "train --contact-cache-mb: a number of megabytes (0: no cache), not " +
+        std::to_string(a.contact_cache_mb));
   // --nproc N: this process only launches the N workers (which see RANK in their environment).
   if (a.nproc > 1 && std::getenv("RANK") == nullptr)
     return launch_local_workers(a.nproc, self_command_line());
@@ -272,7 +294,7 @@ int run_train(const TrainArgs& a) {
     const auto cached = given || !contact_cache.enabled() ? nullptr : contact_cache.find(s);
     if (cached) given = cached.get();
     ContactsByFrame detected;
-    const bool fill = given == nullptr && contact_cache.enabled();
+    const bool fill = given == nullptr && contact_cache.wants(s);
     const auto tf = trajectory_frames(s.scene, s.geometry, radius, a.min_z_collision_velocity, 2,
                                       -1, given, fill ? &detected : nullptr);
     if (fill) contact_cache.add(s, std::move(detected));
@@ -548,9 +570,9 @@ Command add_train(CLI::App& app) {
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
   ct->add_option("--contact-cache-mb", tr.contact_cache_mb,
-                 "memory for the training and validation scenes' detected contacts, kept from "
-                 "one epoch to the next (the same frames, without the detection; 0: detect "
-                 "every time)")
+                 "memory (per process) for the training and validation scenes' detected "
+                 "contacts, kept from one epoch to the next (the same frames, without the "
+                 "detection; 0: detect every time)")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
   ct->add_option("--workers", tr.workers,

@@ -91,6 +91,8 @@ expect_failure("init from another model" "the configuration asks for fignet"
                ${train} --config fignet --out ${WORK}/x --init ${WORK}/mgn/checkpoint.pt --max-steps 1)
 expect_failure("HOPNet's options" "are HOPNet's"
                ${train} --config fignet --out ${WORK}/y --hidden 64 --max-steps 1)
+expect_failure("HOPNet's contact cache" "--contact-cache-mb are HOPNet's"
+               ${train} --config fignet --out ${WORK}/y2 --contact-cache-mb 0 --max-steps 1)
 expect_success("hopnet init" init --out ${WORK}/hopnet.pt --hidden 16)
 expect_failure("HOPNet without statistics" "--stats is required"
                rollout --checkpoint ${WORK}/hopnet.pt --scene ${WORK}/data/6 --out ${WORK}/h.json)

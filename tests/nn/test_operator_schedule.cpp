@@ -1275,7 +1275,8 @@ TEST_CASE("plan_str lists what forward runs with its FLOPs, counted by hand",
   CHECK(step(slow, "taps").route == StepRoute::general);
   CHECK_THAT(slow.str(), Contains("fast paths: row_subset, prefix_cache, compact_cochains, "
                                   "split_first_layer, reorder_products, fuse_activations, "
-                                  "fuse_products, fuse_attention, fuse_residuals\n"));
+                                  "fuse_products, fuse_attention, fuse_residuals, "
+                                  "csr_aggregation\n"));
   CHECK(torch::allclose(taps->forward(x, ops).at("y_1"), fast, 1e-12, 1e-12));
 }
 
@@ -1493,7 +1494,7 @@ TEST_CASE("fuse_residuals: a sum of two terms, or a bias, forms in the LayerNorm
 }
 
 TEST_CASE("FastPaths: each fast path by name, all and none", "[nn][schedule][fast_paths]") {
-  CHECK(FastPaths::names().size() == 10);
+  CHECK(FastPaths::names().size() == 11);
   for (const auto& name : FastPaths::names()) {
     CHECK(FastPaths().get(name));
     CHECK_FALSE(FastPaths::none().get(name));

@@ -2,15 +2,22 @@
 // Aggregation of messages over a neighbourhood: gather the source rows, optionally weight them
 // by the neighbourhood's values or keep one role, and reduce per target by sum, mean or max.
 // Differentiable; targets that receive nothing get 0. A neighbourhood with backward values
-// weights the gradient of a weighted message by those instead of its values.
+// weights the gradient of a weighted message by those instead of its values. On the CPU a sum
+// over all of a neighbourhood's pairs runs as a sparse product over its pairs in CSR form (spmm,
+// both ways), which gathers each target's sources without forming a row per pair.
 #pragma once
 
 #include "topos/nn/complex_batch.hpp"
 #include "topos/nn/functional.hpp"  // Aggr
+#include "topos/nn/sparse_operator.hpp"
 
 #include <torch/torch.h>
 
+#include <algorithm>
+#include <cstdint>
+#include <memory>
 #include <string>
+#include <vector>
 
 namespace topos::nn {
 
@@ -30,6 +37,13 @@ struct AggregateOptions {
     role = r;
     return *this;
   }
+  /// A sum over every pair on the CPU as a sparse product over the pairs in CSR form (the
+  /// same sums in another order); false: gather the pairs' rows, then add them up per target.
+  bool csr = true;
+  AggregateOptions& with_csr(bool c) {
+    csr = c;
+    return *this;
+  }
 };
 
 namespace detail {
@@ -45,6 +59,65 @@ struct WeightRows : torch::autograd::Function<WeightRows> {
     return {g[0] * ctx->saved_data["w"].toTensor().unsqueeze(1), torch::Tensor(), torch::Tensor()};
   }
 };
+
+// A tensor as a cache key: its storage (held weakly, so that a new tensor at a freed address
+// cannot match), offset, size and version counter; an undefined tensor matches undefined ones.
+struct TensorKey {
+  c10::weak_intrusive_ptr<c10::StorageImpl> storage{c10::intrusive_ptr<c10::StorageImpl>()};
+  const c10::StorageImpl* key = nullptr;
+  std::int64_t offset = 0, numel = 0, version = -1;
+  static TensorKey of(const torch::Tensor& t) {
+    TensorKey k;
+    if (!t.defined() || !t.has_storage()) return k;
+    k.storage = t.storage().getWeakStorageImpl();
+    k.key = t.storage().unsafeGetStorageImpl();
+    k.offset = t.storage_offset(), k.numel = t.numel(), k.version = t._version();
+    return k;
+  }
+  bool matches(const torch::Tensor& t) const {
+    if (!t.defined() || !t.has_storage()) return key == nullptr;
+    return key == t.storage().unsafeGetStorageImpl() && !storage.expired() &&
+           offset == t.storage_offset() && numel == t.numel() && version == t._version();
+  }
+};
+
+// A neighbourhood's pairs as the num_target × num_source operator (values: the neighbourhood's,
+// or ones), kept per thread for the last neighbourhoods aggregated over: a batch's operator is
+// sorted into CSR once and serves every layer that reads it.
+struct NeighborhoodOperatorCache {
+  struct Entry {
+    TensorKey source, target, values;
+    std::int64_t num_source = 0, num_target = 0;
+    torch::Dtype dtype = torch::kFloat;
+    std::shared_ptr<const SparseOperator> op;
+  };
+  std::vector<Entry> entries;
+  std::size_t next = 0;
+};
+inline std::shared_ptr<const SparseOperator> neighborhood_operator(const TensorNeighborhood& n,
+                                                                   bool weighted,
+                                                                   torch::Dtype dtype) {
+  thread_local NeighborhoodOperatorCache cache;
+  const torch::Tensor values = weighted ? n.values : torch::Tensor();
+  for (const auto& e : cache.entries)
+    if (e.num_source == n.num_source && e.num_target == n.num_target && e.dtype == dtype &&
+        e.source.matches(n.source) && e.target.matches(n.target) && e.values.matches(values))
+      return e.op;
+  const auto nnz = static_cast<std::size_t>(n.nnz());
+  NeighborhoodOperatorCache::Entry e;
+  e.source = TensorKey::of(n.source), e.target = TensorKey::of(n.target);
+  e.values = TensorKey::of(values);
+  e.num_source = n.num_source, e.num_target = n.num_target, e.dtype = dtype;
+  e.op = std::make_shared<const SparseOperator>(SparseOperator::from_triplets(
+      n.num_target, n.num_source, index_vector(n.target), index_vector(n.source),
+      values.defined() ? value_vector(values) : std::vector<double>(nnz, 1.0), dtype));
+  constexpr std::size_t capacity = 64;
+  if (cache.entries.size() < capacity)
+    cache.entries.push_back(e);
+  else
+    cache.entries[cache.next++ % capacity] = e;
+  return e.op;
+}
 }  // namespace detail
 
 /// Messages from source rows `x` (num_source × C) to the n.num_target targets.
@@ -63,6 +136,12 @@ inline torch::Tensor aggregate(const torch::Tensor& x, const TensorNeighborhood&
       if (wb.defined()) wb = wb.index_select(0, keep);
     }
   }
+  if (opt.csr && opt.reduce == Aggr::sum && opt.role == 0 && !n.one_per_target && n.nnz() > 0 &&
+      x.dim() == 2 && x.size(0) == n.num_source && x.device().is_cpu() &&
+      n.source.device().is_cpu() &&
+      (x.scalar_type() == torch::kFloat || x.scalar_type() == torch::kDouble) &&
+      !(opt.weighted && wb.defined()))
+    return spmm(*detail::neighborhood_operator(n, opt.weighted, x.scalar_type()), x);
   torch::Tensor msg = x.index_select(0, src);
   if (opt.weighted && w.defined()) {
     if (wb.defined() && msg.requires_grad())

@@ -33,8 +33,8 @@ using ContactsByFrame = std::map<std::int64_t, std::vector<ContactCandidate>>;
 /// Features at t = first..last (inclusive; default 2..T-2) from the scene's GT poses. Contacts
 /// are detected, or taken from `given` (the reference trains on collisions.json), which must
 /// then hold every frame used. Where they are detected and `detected` is given, each frame's
-/// candidates are also stored there: given back, they build the same frames without the
-/// detection (a trainer's cache across epochs).
+/// candidates are stored there (what it held is cleared): given back, they build the same
+/// frames without the detection (a trainer's cache across epochs).
 inline TrajectoryFrames trajectory_frames(const Scene& scene, const HopnetGeometry& g,
                                           double collision_radius = 0.1,
                                           double min_z_collision_velocity = 0.0,
@@ -45,6 +45,7 @@ inline TrajectoryFrames trajectory_frames(const Scene& scene, const HopnetGeomet
   if (first < 2 || last > scene.num_frames - 2 || first > last)
     throw std::invalid_argument(scene.source + ": a training trajectory needs at least 4 frames");
   TrajectoryFrames out;
+  if (detected) detected->clear();
   std::vector<Poses> p;
   for (std::int64_t t = 0; t < scene.num_frames; ++t) p.push_back(scene_poses(scene, t));
   std::vector<std::vector<PosedObject>> posed;

@@ -162,6 +162,10 @@ struct FastPaths {
   /// run as one kernel that forms the sum (add_layer_norm): a residual connection's add and a
   /// transformer block's skip term cost no autograd node and no pass of their own.
   TORCH_ARG(bool, fuse_residuals) = true;
+  /// Over a batch's neighbourhoods: a sum over all of a neighbourhood's pairs as a sparse
+  /// product over them in CSR form (AggregateOptions::csr), forward and backward, instead of a
+  /// gathered row per pair added up per target.
+  TORCH_ARG(bool, csr_aggregation) = true;
 
  public:
   static FastPaths all() { return {}; }
@@ -175,7 +179,7 @@ struct FastPaths {
     static const std::vector<std::string> n{
         "row_subset",     "prefix_cache",     "compact_cochains", "split_first_layer",
         "filter_taps",    "reorder_products", "fuse_activations", "fuse_products",
-        "fuse_attention", "fuse_residuals"};
+        "fuse_attention", "fuse_residuals",   "csr_aggregation"};
     return n;
   }
   /// Sets the fast path `name` (one of names(); another is an error listing them).
@@ -204,6 +208,7 @@ struct FastPaths {
     if (name == "fuse_products") return fuse_products_;
     if (name == "fuse_attention") return fuse_attention_;
     if (name == "fuse_residuals") return fuse_residuals_;
+    if (name == "csr_aggregation") return csr_aggregation_;
     std::string known;
     for (const auto& n : names()) known += (known.empty() ? "" : ", ") + n;
     throw std::invalid_argument("no fast path '" + name + "' (fast paths: " + known + ")");

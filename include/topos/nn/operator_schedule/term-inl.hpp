@@ -119,8 +119,9 @@ class NetworkRunContext final : public RunContext {
   const Cochains& h_;
 };
 
-TOPOS_INLINE AggregateOptions aggregate_options(const OperatorProduct& p) {
+TOPOS_INLINE AggregateOptions aggregate_options(const OperatorProduct& p, const FastPaths& fast) {
   AggregateOptions o;
+  o.csr = fast.csr_aggregation();
   o.role = p.role;
   o.weighted = p.weighted;
   o.reduce = p.weighted ? Aggr::sum : p.reduce;
@@ -193,10 +194,11 @@ TOPOS_INLINE void check_result(const std::string& where, const Operation& op, in
 
 /// A term's operations over a batch neighbourhood: the aggregation, checked against x's rows.
 TOPOS_INLINE torch::Tensor aggregate_over(const std::string& where, const OperatorProduct& p,
-                                          const TensorNeighborhood& n, const torch::Tensor& x) {
+                                          const TensorNeighborhood& n, const torch::Tensor& x,
+                                          const FastPaths& fast) {
   if (!p.aggregation()) not_an_aggregation(where, p.op);
   check_reads(where, p.op, n.num_source, x.size(0));
-  return aggregate(x, n, aggregate_options(p));
+  return aggregate(x, n, aggregate_options(p, fast));
 }
 
 /// The leading dimensions of inputs given as (..., cells, channels): the same for every input of
@@ -388,7 +390,8 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::apply(const std::string& where,
                                                       torch::Tensor x, Operators& ops,
                                                       const Cochains& h) {
   if (const auto* p = detail::product_of(t))
-    if (const auto* n = ops.neighborhood(p->op)) return detail::aggregate_over(where, *p, *n, x);
+    if (const auto* n = ops.neighborhood(p->op))
+      return detail::aggregate_over(where, *p, *n, x, fast_);
   return run_operation(where, target, t, x, ops, h, nullptr);
 }
 
@@ -461,7 +464,7 @@ TOPOS_INLINE OperatorNetworkImpl::TermValue OperatorNetworkImpl::evaluate_term(
       if (share) cache.emplace(key, x);
     }
   }
-  v.agg = detail::aggregate_options(product);
+  v.agg = detail::aggregate_options(product, fast_);
   if (may_defer && k + 1 == list.size()) {
     v.deferred = true;
     v.x = std::move(x);
