@@ -197,7 +197,9 @@ int run_train(const TrainArgs& a) {
       main_rank ? nullptr : std::fopen("/dev/null", "w"), &std::fclose);
   std::FILE* log = main_rank ? stderr : devnull.get();
   const auto say = [&](const char* fmt, auto... args) {
-    if (main_rank) std::printf(fmt, args...);
+    if (!main_rank) return;
+    std::printf(fmt, args...);
+    std::fflush(stdout);  // a long run's log file shows each epoch as it ends
   };
   const FeatureMode mode = feature_mode_from_string(a.mode);
   HopnetOptions options = variant_options(a.variant, HopnetOptions().mode(mode));

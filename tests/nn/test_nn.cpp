@@ -322,12 +322,39 @@ TEST_CASE(
         };
         const auto [y_csr, dx_csr] = run(true);
         const auto [y_rows, dx_rows] = run(false);
+        {  // which path ran: one sparse product node, or the gathered rows' index_add
+          const auto x = x0.clone().requires_grad_(true);
+          const auto name = [&](bool csr) {
+            return aggregate(x, tn, AggregateOptions().with_weighted(w).with_csr(csr))
+                .grad_fn()
+                ->name();
+          };
+          REQUIRE_THAT(name(true), Catch::Contains("SpmmFunction"));
+          REQUIRE_THAT(name(false), !Catch::Contains("SpmmFunction"));
+        }
         const double tol = dtype == torch::kFloat ? 1e-5 : 1e-12;
         REQUIRE(torch::allclose(y_csr, y_rows, tol, tol));
         REQUIRE(torch::allclose(dx_csr, dx_rows, tol, tol));
         REQUIRE(y_csr[4].abs().sum().item<double>() == 0.0);   // target 4 receives nothing
         REQUIRE(dx_csr[6].abs().sum().item<double>() == 0.0);  // source 6 sends nothing
       }
+  // Values changed in place (their version counter moves): the operator is made again.
+  const auto x1 = torch::randn({7, 3});
+  const auto before = aggregate(x1, tn, AggregateOptions().with_weighted(true));
+  tn.values.mul_(2);
+  REQUIRE(torch::allclose(aggregate(x1, tn, AggregateOptions().with_weighted(true)), 2 * before,
+                          1e-5, 1e-5));
+  tn.values.div_(2);
+  // A batch made under InferenceMode (no version counters): the same sums, nothing kept.
+  {
+    c10::InferenceMode guard;
+    const auto ib = ComplexBatch::collate({ComplexView{{7, 6}, {{"n", n}}}}, 1);
+    const auto& in = ib.neighborhood("n");
+    REQUIRE(in.source.is_inference());
+    REQUIRE(torch::allclose(
+        aggregate(x1, in, AggregateOptions().with_weighted(true)),
+        aggregate(x1, in, AggregateOptions().with_weighted(true).with_csr(false)), 1e-5, 1e-5));
+  }
   // A neighbourhood with backward values keeps the gathered path (the CSR product has one set of
   // values for both directions): its gradient is weighted by the backward values.
   n.backward_values = std::vector<double>(n.source.size(), 2.0);

@@ -38,7 +38,9 @@ struct AggregateOptions {
     return *this;
   }
   /// A sum over every pair on the CPU as a sparse product over the pairs in CSR form (the
-  /// same sums in another order); false: gather the pairs' rows, then add them up per target.
+  /// same sums in another order; a pair whose weight is exactly zero is skipped, so an inf or
+  /// NaN it would carry is not summed); false: gather the pairs' rows, then add them up per
+  /// target. Values that require a gradient keep the gathered sum.
   bool csr = true;
   AggregateOptions& with_csr(bool c) {
     csr = c;
@@ -66,24 +68,30 @@ struct TensorKey {
   c10::weak_intrusive_ptr<c10::StorageImpl> storage{c10::intrusive_ptr<c10::StorageImpl>()};
   const c10::StorageImpl* key = nullptr;
   std::int64_t offset = 0, numel = 0, version = -1;
+  std::vector<std::int64_t> strides;
+  torch::Dtype dtype = torch::kLong;
   static TensorKey of(const torch::Tensor& t) {
     TensorKey k;
     if (!t.defined() || !t.has_storage()) return k;
     k.storage = t.storage().getWeakStorageImpl();
     k.key = t.storage().unsafeGetStorageImpl();
     k.offset = t.storage_offset(), k.numel = t.numel(), k.version = t._version();
+    k.strides = t.strides().vec(), k.dtype = t.scalar_type();
     return k;
   }
   bool matches(const torch::Tensor& t) const {
     if (!t.defined() || !t.has_storage()) return key == nullptr;
     return key == t.storage().unsafeGetStorageImpl() && !storage.expired() &&
-           offset == t.storage_offset() && numel == t.numel() && version == t._version();
+           offset == t.storage_offset() && numel == t.numel() && version == t._version() &&
+           dtype == t.scalar_type() && t.strides() == c10::IntArrayRef(strides);
   }
 };
 
 // A neighbourhood's pairs as the num_target × num_source operator (values: the neighbourhood's,
-// or ones), kept per thread for the last neighbourhoods aggregated over: a batch's operator is
-// sorted into CSR once and serves every layer that reads it.
+// or ones; pairs repeated are summed into one entry and entries exactly zero dropped), kept per
+// thread for the last neighbourhoods aggregated over: a batch's operator is sorted into CSR once
+// and serves every term and layer that reads the same neighbourhood tensors. Inference tensors
+// (which have no version counter) are not kept.
 struct NeighborhoodOperatorCache {
   struct Entry {
     TensorKey source, target, values;
@@ -99,23 +107,35 @@ inline std::shared_ptr<const SparseOperator> neighborhood_operator(const TensorN
                                                                    torch::Dtype dtype) {
   thread_local NeighborhoodOperatorCache cache;
   const torch::Tensor values = weighted ? n.values : torch::Tensor();
+  const auto build = [&] {
+    return std::make_shared<const SparseOperator>(SparseOperator::from_triplets(
+        n.num_target, n.num_source, index_vector(n.target), index_vector(n.source),
+        values.defined() ? value_vector(values)
+                         : std::vector<double>(static_cast<std::size_t>(n.nnz()), 1.0),
+        dtype));
+  };
+  const auto inference = [](const torch::Tensor& t) { return t.defined() && t.is_inference(); };
+  if (inference(n.source) || inference(n.target) || inference(values)) return build();
   for (const auto& e : cache.entries)
     if (e.num_source == n.num_source && e.num_target == n.num_target && e.dtype == dtype &&
         e.source.matches(n.source) && e.target.matches(n.target) && e.values.matches(values))
       return e.op;
-  const auto nnz = static_cast<std::size_t>(n.nnz());
+  auto& entries = cache.entries;  // those of freed neighbourhoods go first
+  entries.erase(std::remove_if(entries.begin(), entries.end(),
+                               [](const NeighborhoodOperatorCache::Entry& e) {
+                                 return e.source.storage.expired() || e.target.storage.expired();
+                               }),
+                entries.end());
   NeighborhoodOperatorCache::Entry e;
   e.source = TensorKey::of(n.source), e.target = TensorKey::of(n.target);
   e.values = TensorKey::of(values);
   e.num_source = n.num_source, e.num_target = n.num_target, e.dtype = dtype;
-  e.op = std::make_shared<const SparseOperator>(SparseOperator::from_triplets(
-      n.num_target, n.num_source, index_vector(n.target), index_vector(n.source),
-      values.defined() ? value_vector(values) : std::vector<double>(nnz, 1.0), dtype));
+  e.op = build();
   constexpr std::size_t capacity = 64;
-  if (cache.entries.size() < capacity)
-    cache.entries.push_back(e);
+  if (entries.size() < capacity)
+    entries.push_back(e);
   else
-    cache.entries[cache.next++ % capacity] = e;
+    entries[cache.next++ % capacity] = e;
   return e.op;
 }
 }  // namespace detail
@@ -140,7 +160,7 @@ inline torch::Tensor aggregate(const torch::Tensor& x, const TensorNeighborhood&
       x.dim() == 2 && x.size(0) == n.num_source && x.device().is_cpu() &&
       n.source.device().is_cpu() &&
       (x.scalar_type() == torch::kFloat || x.scalar_type() == torch::kDouble) &&
-      !(opt.weighted && wb.defined()))
+      !(opt.weighted && (wb.defined() || (w.defined() && w.requires_grad()))))
     return spmm(*detail::neighborhood_operator(n, opt.weighted, x.scalar_type()), x);
   torch::Tensor msg = x.index_select(0, src);
   if (opt.weighted && w.defined()) {

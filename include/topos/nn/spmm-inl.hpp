@@ -46,9 +46,11 @@ struct SpmmFunction : public torch::autograd::Function<SpmmFunction> {
                                const torch::Tensor& t_perm, std::int64_t rows, std::int64_t act) {
     const auto e = static_cast<Epilogue>(act);
     auto y = csr_apply(crow, col, values, torch::Tensor(), X, rows, e);
-    ctx->save_for_backward(
-        {values, X, col, row, t_crow, t_col, t_perm, e == Epilogue::none ? torch::Tensor() : y});
+    // X only for the values' gradient: an aggregation over constant values keeps no features.
+    ctx->save_for_backward({values, values.requires_grad() ? X : torch::Tensor(), col, row, t_crow,
+                            t_col, t_perm, e == Epilogue::none ? torch::Tensor() : y});
     ctx->saved_data["act"] = act;
+    ctx->saved_data["cols"] = X.size(0);
     return y;
   }
   static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx,
@@ -59,8 +61,9 @@ struct SpmmFunction : public torch::autograd::Function<SpmmFunction> {
     const auto e = static_cast<Epilogue>(ctx->saved_data["act"].toInt());
     const auto dY = apply_epilogue(Y, grads[0].contiguous(), e);
     torch::Tensor dvalues, dX;
-    if (ctx->needs_input_grad(1)) dX = csr_apply(t_crow, t_col, values, t_perm, dY, X.size(0));
-    if (ctx->needs_input_grad(0)) {
+    if (ctx->needs_input_grad(1))
+      dX = csr_apply(t_crow, t_col, values, t_perm, dY, ctx->saved_data["cols"].toInt());
+    if (ctx->needs_input_grad(0) && X.defined()) {
       const auto x = X.contiguous();
       dvalues = torch::empty({values.size(0)}, values.options());
       AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "topos_csr_value_grad", [&] {
