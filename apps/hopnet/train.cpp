@@ -292,9 +292,8 @@ int run_train(const TrainArgs& a) {
   const double budget = a.memory_budget_mb * 1024.0 * 1024.0;
   ContactCache contact_cache(a.contact_cache_mb);
   const auto make_chunks = [&](const LoadedScene& s) {
-    const ContactsByFrame* given = s.contacts ? &*s.contacts : nullptr;
-    const auto cached = given || !contact_cache.enabled() ? nullptr : contact_cache.find(s);
-    if (cached) given = cached.get();
+    const auto cached = s.contacts ? nullptr : contact_cache.find(s);  // held until built
+    const ContactsByFrame* given = s.contacts ? &*s.contacts : cached.get();
     ContactsByFrame detected;
     const bool fill = given == nullptr && contact_cache.wants(s);
     const auto tf = trajectory_frames(s.scene, s.geometry, radius, a.min_z_collision_velocity, 2,

@@ -306,38 +306,60 @@ TEST_CASE(
   n.source = {4, 0, 2, 2, 5, 1, 0, 3, 2, 5, 4};
   n.target = {3, 0, 5, 5, 0, 2, 3, 1, 0, 2, 3};
   n.values = {0.5, -1.0, 2.0, 0.25, 0.0, 1.5, -2.0, 3.0, 0.75, -0.5, 1.0};
+  n.roles = {1, -1, 1, 1, -1, 1, -1, 1, 1, -1, 1};
   const auto b = ComplexBatch::collate({ComplexView{{7, 6}, {{"n", n}}}}, 1);
   const auto& tn = b.neighborhood("n");
+  // A sum or a mean, over every pair or one role's (role 2 has none: zeros), weighted or not.
   for (const auto dtype : {torch::kFloat, torch::kDouble})
-    for (bool w : {false, true})
-      for (int repeat = 0; repeat < 2; ++repeat) {  // the second time from the cache
-        INFO("dtype " << dtype << " weighted " << w << " repeat " << repeat);
-        const auto x0 = torch::randn({7, 5}, dtype);
-        const auto g = torch::randn({6, 5}, dtype);
-        const auto run = [&](bool csr) {
-          const auto x = x0.clone().requires_grad_(true);
-          const auto y = aggregate(x, tn, AggregateOptions().with_weighted(w).with_csr(csr));
-          y.backward(g);
-          return std::make_pair(y.detach(), x.grad());
-        };
-        const auto [y_csr, dx_csr] = run(true);
-        const auto [y_rows, dx_rows] = run(false);
-        {  // which path ran: one sparse product node, or the gathered rows' index_add
-          const auto x = x0.clone().requires_grad_(true);
-          const auto name = [&](bool csr) {
-            return aggregate(x, tn, AggregateOptions().with_weighted(w).with_csr(csr))
-                .grad_fn()
-                ->name();
-          };
-          REQUIRE_THAT(name(true), Catch::Contains("SpmmFunction"));
-          REQUIRE_THAT(name(false), !Catch::Contains("SpmmFunction"));
-        }
-        const double tol = dtype == torch::kFloat ? 1e-5 : 1e-12;
-        REQUIRE(torch::allclose(y_csr, y_rows, tol, tol));
-        REQUIRE(torch::allclose(dx_csr, dx_rows, tol, tol));
-        REQUIRE(y_csr[4].abs().sum().item<double>() == 0.0);   // target 4 receives nothing
-        REQUIRE(dx_csr[6].abs().sum().item<double>() == 0.0);  // source 6 sends nothing
-      }
+    for (const auto r : {Aggr::sum, Aggr::mean})
+      for (int role : {0, 1, -1, 2})
+        for (bool w : {false, true})
+          for (int repeat = 0; repeat < 2; ++repeat) {  // the second time from the cache
+            INFO("dtype " << dtype << " " << aggr_name(r) << " role " << role << " weighted " << w
+                          << " repeat " << repeat);
+            const auto x0 = torch::randn({7, 5}, dtype);
+            const auto g = torch::randn({6, 5}, dtype);
+            const auto options = [&](bool csr) {
+              return AggregateOptions().with_reduce(r).with_role(role).with_weighted(w).with_csr(
+                  csr);
+            };
+            const auto run = [&](bool csr) {
+              const auto x = x0.clone().requires_grad_(true);
+              const auto y = aggregate(x, tn, options(csr));
+              y.backward(g);
+              return std::make_pair(y.detach(), x.grad());
+            };
+            const auto [y_csr, dx_csr] = run(true);
+            const auto [y_rows, dx_rows] = run(false);
+            {  // which path ran: one sparse product node, or the gathered rows' index_add
+              const auto x = x0.clone().requires_grad_(true);
+              const auto names = [&](bool csr) {
+                const auto y = aggregate(x, tn, options(csr));
+                const auto* node = y.grad_fn().get();
+                std::string all = node->name();
+                for (const auto& e : node->next_edges())
+                  if (e.function) all += " " + e.function->name();
+                return all;
+              };
+              REQUIRE_THAT(names(true), Catch::Contains("SpmmFunction"));
+              REQUIRE_THAT(names(false), !Catch::Contains("SpmmFunction"));
+            }
+            const double tol = dtype == torch::kFloat ? 1e-5 : 1e-12;
+            REQUIRE(torch::allclose(y_csr, y_rows, tol, tol));
+            REQUIRE(torch::allclose(dx_csr, dx_rows, tol, tol));
+            REQUIRE(y_csr[4].abs().sum().item<double>() == 0.0);   // target 4 receives nothing
+            REQUIRE(dx_csr[6].abs().sum().item<double>() == 0.0);  // source 6 sends nothing
+            if (role == 2) REQUIRE(y_csr.abs().sum().item<double>() == 0.0);
+          }
+  {  // a mean divides by the pairs counted, repeats included: target 5 gets source 2 twice
+    const auto x = torch::arange(7, torch::kDouble).unsqueeze(1);
+    const auto y = aggregate(x, tn, AggregateOptions().with_reduce(Aggr::mean));
+    REQUIRE(y[5].item<double>() == 2.0);
+    REQUIRE(y[3].item<double>() == (4.0 + 0.0 + 4.0) / 3);
+    const auto y1 = aggregate(x, tn, AggregateOptions().with_reduce(Aggr::mean).with_role(-1));
+    REQUIRE(y1[3].item<double>() == 0.0);  // its one role -1 pair comes from source 0
+    REQUIRE(y1[2].item<double>() == 5.0);
+  }
   // Values changed in place (their version counter moves): the operator is made again.
   const auto x1 = torch::randn({7, 3});
   const auto before = aggregate(x1, tn, AggregateOptions().with_weighted(true));
@@ -354,6 +376,28 @@ TEST_CASE(
     REQUIRE(torch::allclose(
         aggregate(x1, in, AggregateOptions().with_weighted(true)),
         aggregate(x1, in, AggregateOptions().with_weighted(true).with_csr(false)), 1e-5, 1e-5));
+  }
+  // A batch with version counters aggregated first under InferenceMode: nothing made there is
+  // kept (it would be an inference tensor), so a later forward with gradients can save it. The
+  // sum is kept by its second call; the mean then finds it without counts, twice.
+  {
+    const auto fb = ComplexBatch::collate({ComplexView{{7, 6}, {{"n", n}}}}, 1);
+    const auto& fn = fb.neighborhood("n");
+    const auto x = torch::randn({7, 3});
+    for (const auto r : {Aggr::sum, Aggr::mean}) {
+      INFO(aggr_name(r));
+      const auto options = AggregateOptions().with_reduce(r).with_weighted(true);
+      torch::Tensor y_inference;
+      {
+        c10::InferenceMode guard;
+        y_inference = aggregate(x, fn, options);
+      }
+      const auto xg = x.clone().requires_grad_(true);
+      const auto y = aggregate(xg, fn, options);
+      y.sum().backward();
+      REQUIRE(xg.grad().defined());
+      REQUIRE(torch::allclose(y.detach(), y_inference, 1e-6, 1e-6));
+    }
   }
   // A neighbourhood with backward values keeps the gathered path (the CSR product has one set of
   // values for both directions): its gradient is weighted by the backward values.
@@ -727,6 +771,140 @@ TEST_CASE("medium matmul precision: bfloat16 products, float32 out, close to hig
   REQUIRE(matmul_precision_from_string("medium") == MatmulPrecision::medium);
   REQUIRE_THROWS_WITH(matmul_precision_from_string("high"),
                       Catch::Contains("unknown matmul precision 'high'"));
+}
+
+TEST_CASE("medium matmul precision: maps the bfloat16 kernels do not take stay float32",
+          "[nn][mlp]") {
+  struct Restore {  // process-wide settings: back to the defaults even if this throws
+    ~Restore() {
+      set_float32_matmul_precision(MatmulPrecision::highest);
+      set_cpu_gemm(CpuGemm::blas);
+    }
+  } restore;
+  set_cpu_gemm(CpuGemm::blas);
+  torch::manual_seed(5);
+  // 24 inputs and 3 outputs are no multiples of 16.
+  const auto x = torch::randn({300, 24}), W = torch::randn({64, 24}), b = torch::randn({64});
+  const auto h = torch::randn({300, 64}), W3 = torch::randn({3, 64});
+  if (!nn::detail::cpu_has_bf16()) {
+    // Without topos's kernels (or with TOPOS_DISABLE_BF16) every map is oneDNN's bfloat16.
+    REQUIRE_FALSE(
+        torch::equal(nn::linear(x, W, b, MatmulPrecision::medium), torch::linear(x, W, b)));
+    return;
+  }
+  // With them, float32 products: bit for bit highest's, forward and gradients, whichever library.
+  std::vector<CpuGemm> gemms{CpuGemm::blas, CpuGemm::topos};
+  if (onednn_gemm_available()) gemms.push_back(CpuGemm::onednn);
+  for (const auto g : gemms) {
+    INFO("gemm " << static_cast<int>(g));
+    set_cpu_gemm(g);
+    const auto run = [&](MatmulPrecision p) {
+      const auto Wg = W.clone().requires_grad_(true);
+      const auto y = nn::linear(x, Wg, b, p);
+      (y * y).sum().backward();
+      return std::make_pair(y.detach(), Wg.grad());
+    };
+    const auto [y_md, g_md] = run(MatmulPrecision::medium);
+    const auto [y_hi, g_hi] = run(MatmulPrecision::highest);
+    REQUIRE(torch::equal(y_md, y_hi));
+    REQUIRE(torch::equal(g_md, g_hi));
+    REQUIRE(torch::equal(nn::linear(h, W3, {}, MatmulPrecision::medium), torch::linear(h, W3)));
+  }
+  set_cpu_gemm(CpuGemm::blas);
+  const auto W16 = W.narrow(1, 0, 16).t().contiguous();  // 64 -> 16: a bfloat16 product
+  REQUIRE_FALSE(
+      torch::equal(nn::linear(h, W16, {}, MatmulPrecision::medium), torch::linear(h, W16)));
+  // In an MLP such a first layer is one node with its ReLU, and no cast is left in the graph.
+  set_float32_matmul_precision(MatmulPrecision::medium);
+  for (const auto g : gemms) {
+    set_cpu_gemm(g);
+    Mlp m(MlpOptions(24, 128, 3).final_activation(false).layer_norm(false));
+    const auto y = m->forward(x);
+    REQUIRE(y.grad_fn());
+    std::set<std::string> names;
+    std::set<const torch::autograd::Node*> seen;
+    std::vector<torch::autograd::Node*> todo{y.grad_fn().get()};
+    while (!todo.empty()) {
+      auto* n = todo.back();
+      todo.pop_back();
+      if (n == nullptr || !seen.insert(n).second) continue;
+      names.insert(n->name());
+      for (const auto& e : n->next_edges()) todo.push_back(e.function.get());
+    }
+    INFO("gemm " << static_cast<int>(g));
+    CHECK(names.count("AddmmBackward0") == 1);  // the last Linear's 3 outputs: torch's float32
+    CHECK(names.count("ToCopyBackward0") == 0);
+    CHECK(names.count("ConstantPadNdBackward0") == 0);
+    if (g == CpuGemm::blas) {
+      CHECK(names.count("ReluBackward0") == 1);  // torch's Linear, then the ReLU module
+    } else {
+      CHECK(names.count("ReluBackward0") == 0);  // fused with its Linear
+      CHECK(std::any_of(names.begin(), names.end(), [](const std::string& n) {
+        return n.find("LinearFunction") != std::string::npos;
+      }));
+    }
+  }
+}
+
+TEST_CASE("tensor cache keys (versions, views, freed storage) and the cache's bound", "[nn]") {
+  using nn::detail::TensorKey;
+  auto t = torch::arange(12, torch::kFloat).view({3, 4});
+  const auto key = TensorKey::of(t);
+  REQUIRE(key.matches(t));
+  REQUIRE(key.matches(t.view({3, 4})));                 // another view of the same elements
+  REQUIRE_FALSE(key.same_tensor(t.t()));                // strides
+  REQUIRE_FALSE(key.same_tensor(t.narrow(0, 1, 2)));    // offset and size
+  REQUIRE_FALSE(key.same_tensor(t.narrow(0, 0, 2)));    // size
+  REQUIRE_FALSE(key.same_tensor(t.view(torch::kInt)));  // dtype
+  REQUIRE(key.same_storage(t.narrow(0, 0, 2)));         // where a caller says what it reads
+  REQUIRE(key.same_storage(t.t()));
+  REQUIRE_FALSE(key.same_storage(t.narrow(0, 1, 2)));
+  REQUIRE_FALSE(key.same_storage(t.view(torch::kInt)));
+  REQUIRE_FALSE(key.same_tensor(t.to(torch::kDouble)));
+  REQUIRE_FALSE(key.same_tensor(t.clone()));  // another storage
+  t.add_(1);                                  // an in-place change: the same tensor, a new version
+  REQUIRE(key.same_tensor(t));
+  REQUIRE_FALSE(key.matches(t));
+  REQUIRE(TensorKey::of(torch::Tensor()).matches(torch::Tensor()));
+  REQUIRE_FALSE(TensorKey::of(torch::Tensor()).matches(t));
+  REQUIRE_FALSE(key.matches(torch::Tensor()));
+  REQUIRE_FALSE(TensorKey::of(torch::Tensor()).expired());
+  {
+    const c10::InferenceMode guard;
+    REQUIRE_FALSE(TensorKey::keyable(torch::ones({2})));
+  }
+  REQUIRE(TensorKey::keyable(t));
+  REQUIRE(TensorKey::keyable(torch::Tensor()));
+  t = torch::Tensor();  // the storage is freed: the key expires and matches nothing
+  REQUIRE(key.expired());
+  struct Entry {
+    TensorKey tensor;
+    int id = 0;
+    bool expired() const { return tensor.expired(); }
+  };
+  nn::detail::TensorCache<Entry> cache(3);
+  std::vector<torch::Tensor> alive;
+  for (int i = 0; i < 3; ++i) {
+    alive.push_back(torch::full({2}, i));
+    cache.insert({TensorKey::of(alive.back()), i});
+  }
+  const auto find = [&](const torch::Tensor& x) {
+    const auto* e = cache.find([&](const Entry& e) { return e.tensor.matches(x); });
+    return e ? e->id : -1;
+  };
+  REQUIRE(find(alive[1]) == 1);
+  REQUIRE(find(torch::full({2}, 1)) == -1);
+  cache.insert({TensorKey::of(alive.emplace_back(torch::full({2}, 3))), 3});  // full: the oldest
+  REQUIRE(cache.entries.size() == 3);
+  REQUIRE(find(alive[0]) == -1);
+  REQUIRE(find(alive[3]) == 3);
+  alive[1] = torch::Tensor(), alive[2] = torch::Tensor();  // freed entries go before any live one
+  cache.insert({TensorKey::of(alive.emplace_back(torch::full({2}, 4))), 4});
+  REQUIRE(cache.entries.size() == 2);
+  REQUIRE(find(alive[3]) == 3);
+  REQUIRE(find(alive[4]) == 4);
+  cache.clear();
+  REQUIRE(cache.entries.empty());
 }
 
 TEST_CASE("bfloat16 kernels: act(x Wᵀ + b) and its gradients against double on rounded inputs",

@@ -1014,6 +1014,19 @@ TEST_CASE("a forward's inputs and operators are checked against the schedule's d
              Contains("input 'x_0' is float64, the network's parameters float32: write "
                       "x.to(torch::kFloat32), or convert the network with "
                       "net->to(torch::kFloat64)"));
+  // Parameters only a submodule's (an MLP): the reference is found once and follows the
+  // network's conversion.
+  OperatorSchedule in_mlp;
+  in_mlp.input("x", 0, 3).output("y", 0);
+  in_mlp.step(into(0).sum(from(0).mlp("m", MlpOptions(3, 8, 3))));
+  OperatorNetwork mlp_net(in_mlp);
+  REQUIRE(mlp_net->forward({{"x", x0}}, {}).at("y").scalar_type() == torch::kFloat);
+  mlp_net->to(torch::kDouble);
+  CHECK_THROWS_WITH(mlp_net->forward({{"x", x0}}, {}),
+                    Contains("input 'x' is float32, the network's parameters float64: write "
+                             "x.to(torch::kFloat64)"));
+  REQUIRE(mlp_net->forward({{"x", x0.to(torch::kDouble)}}, {}).at("y").scalar_type() ==
+          torch::kDouble);
   // Inputs of one rank in two states must have as many rows.
   OperatorSchedule states;
   states.input("x", 0, 3).input("z", 0, 3, "z").output("y", 0);

@@ -3,13 +3,15 @@
 // by the neighbourhood's values or keep one role, and reduce per target by sum, mean or max.
 // Differentiable; targets that receive nothing get 0. A neighbourhood with backward values
 // weights the gradient of a weighted message by those instead of its values. On the CPU a sum
-// over all of a neighbourhood's pairs runs as a sparse product over its pairs in CSR form (spmm,
-// both ways), which gathers each target's sources without forming a row per pair.
+// or mean over a neighbourhood's pairs (all, or one role's) runs as a sparse product over those
+// pairs in CSR form (spmm, both ways), which gathers each target's sources without forming a row
+// per pair.
 #pragma once
 
 #include "topos/nn/complex_batch.hpp"
 #include "topos/nn/functional.hpp"  // Aggr
 #include "topos/nn/sparse_operator.hpp"
+#include "topos/nn/tensor_cache.hpp"
 
 #include <torch/torch.h>
 
@@ -37,10 +39,11 @@ struct AggregateOptions {
     role = r;
     return *this;
   }
-  /// A sum over every pair on the CPU as a sparse product over the pairs in CSR form (the
-  /// same sums in another order; a pair whose weight is exactly zero is skipped, so an inf or
-  /// NaN it would carry is not summed); false: gather the pairs' rows, then add them up per
-  /// target. Values that require a gradient keep the gathered sum.
+  /// A sum or mean over the pairs (all, or one role's) on the CPU as a sparse product over the
+  /// pairs in CSR form (the same sums in another order, a mean divided by the same counts; a
+  /// pair whose weight is exactly zero is skipped, so an inf or NaN it would carry is not
+  /// summed); false: gather the pairs' rows, then add them up per target. Values that require a
+  /// gradient keep the gathered path.
   bool csr = true;
   AggregateOptions& with_csr(bool c) {
     csr = c;
@@ -62,87 +65,103 @@ struct WeightRows : torch::autograd::Function<WeightRows> {
   }
 };
 
-// A tensor as a cache key: its storage (held weakly, so that a new tensor at a freed address
-// cannot match), offset, size and version counter; an undefined tensor matches undefined ones.
-struct TensorKey {
-  c10::weak_intrusive_ptr<c10::StorageImpl> storage{c10::intrusive_ptr<c10::StorageImpl>()};
-  const c10::StorageImpl* key = nullptr;
-  std::int64_t offset = 0, numel = 0, version = -1;
-  std::vector<std::int64_t> strides;
-  torch::Dtype dtype = torch::kLong;
-  static TensorKey of(const torch::Tensor& t) {
-    TensorKey k;
-    if (!t.defined() || !t.has_storage()) return k;
-    k.storage = t.storage().getWeakStorageImpl();
-    k.key = t.storage().unsafeGetStorageImpl();
-    k.offset = t.storage_offset(), k.numel = t.numel(), k.version = t._version();
-    k.strides = t.strides().vec(), k.dtype = t.scalar_type();
-    return k;
-  }
-  bool matches(const torch::Tensor& t) const {
-    if (!t.defined() || !t.has_storage()) return key == nullptr;
-    return key == t.storage().unsafeGetStorageImpl() && !storage.expired() &&
-           offset == t.storage_offset() && numel == t.numel() && version == t._version() &&
-           dtype == t.scalar_type() && t.strides() == c10::IntArrayRef(strides);
+// A neighbourhood's pairs (all, or those of one role) as the num_target × num_source operator
+// (values: the neighbourhood's, or ones; pairs repeated are summed into one entry and entries
+// exactly zero dropped) and, once a mean asks, each target's count of pairs (at least 1), kept
+// per thread for the last neighbourhoods aggregated over: a batch's operator is sorted into CSR
+// once and serves every term and layer that reads the same neighbourhood tensors. Inference
+// tensors (which have no version counter) are not kept.
+struct NeighborhoodOperator {
+  TensorKey source, target, values, roles;
+  std::int64_t num_source = 0, num_target = 0, role = 0;
+  torch::Dtype dtype = torch::kFloat;
+  std::shared_ptr<const SparseOperator> op;
+  torch::Tensor count;  // num_target × 1
+  bool expired() const {
+    return source.expired() || target.expired() || values.expired() || roles.expired();
   }
 };
-
-// A neighbourhood's pairs as the num_target × num_source operator (values: the neighbourhood's,
-// or ones; pairs repeated are summed into one entry and entries exactly zero dropped), kept per
-// thread for the last neighbourhoods aggregated over: a batch's operator is sorted into CSR once
-// and serves every term and layer that reads the same neighbourhood tensors. Inference tensors
-// (which have no version counter) are not kept.
-struct NeighborhoodOperatorCache {
-  struct Entry {
-    TensorKey source, target, values;
-    std::int64_t num_source = 0, num_target = 0;
-    torch::Dtype dtype = torch::kFloat;
-    std::shared_ptr<const SparseOperator> op;
-  };
-  std::vector<Entry> entries;
-  std::size_t next = 0;
-};
-inline std::shared_ptr<const SparseOperator> neighborhood_operator(const TensorNeighborhood& n,
-                                                                   bool weighted,
-                                                                   torch::Dtype dtype) {
-  thread_local NeighborhoodOperatorCache cache;
+// The operator and, for a mean, the counts. Under InferenceMode nothing new is kept: what it
+// makes is an inference tensor, which a later forward with gradients could not save.
+inline std::pair<std::shared_ptr<const SparseOperator>, torch::Tensor> neighborhood_operator(
+    const TensorNeighborhood& n, bool weighted, int role, bool mean, torch::Dtype dtype) {
+  thread_local TensorCache<NeighborhoodOperator> cache(64);
   const torch::Tensor values = weighted ? n.values : torch::Tensor();
-  const auto build = [&] {
-    return std::make_shared<const SparseOperator>(SparseOperator::from_triplets(
-        n.num_target, n.num_source, index_vector(n.target), index_vector(n.source),
-        values.defined() ? value_vector(values)
-                         : std::vector<double>(static_cast<std::size_t>(n.nnz()), 1.0),
-        dtype));
+  const torch::Tensor roles = role != 0 ? n.roles : torch::Tensor();
+  struct Pairs {
+    std::vector<std::int64_t> source, target;
+    std::vector<double> w;
   };
-  const auto inference = [](const torch::Tensor& t) { return t.defined() && t.is_inference(); };
-  if (inference(n.source) || inference(n.target) || inference(values)) return build();
-  for (const auto& e : cache.entries)
-    if (e.num_source == n.num_source && e.num_target == n.num_target && e.dtype == dtype &&
-        e.source.matches(n.source) && e.target.matches(n.target) && e.values.matches(values))
-      return e.op;
-  auto& entries = cache.entries;  // those of freed neighbourhoods go first
-  entries.erase(std::remove_if(entries.begin(), entries.end(),
-                               [](const NeighborhoodOperatorCache::Entry& e) {
-                                 return e.source.storage.expired() || e.target.storage.expired();
-                               }),
-                entries.end());
-  NeighborhoodOperatorCache::Entry e;
-  e.source = TensorKey::of(n.source), e.target = TensorKey::of(n.target);
-  e.values = TensorKey::of(values);
-  e.num_source = n.num_source, e.num_target = n.num_target, e.dtype = dtype;
-  e.op = build();
-  constexpr std::size_t capacity = 64;
-  if (entries.size() < capacity)
-    entries.push_back(e);
-  else
-    entries[cache.next++ % capacity] = e;
-  return e.op;
+  const auto kept_pairs = [&] {
+    Pairs p{index_vector(n.source), index_vector(n.target),
+            values.defined() ? value_vector(values)
+                             : std::vector<double>(static_cast<std::size_t>(n.nnz()), 1.0)};
+    if (roles.defined()) {
+      const auto r = roles.to(torch::kLong).contiguous();
+      const auto* rp = r.data_ptr<std::int64_t>();
+      std::size_t kept = 0;
+      for (std::size_t k = 0; k < p.target.size(); ++k)
+        if (rp[k] == role)
+          p.source[kept] = p.source[k], p.target[kept] = p.target[k], p.w[kept++] = p.w[k];
+      p.source.resize(kept), p.target.resize(kept), p.w.resize(kept);
+    }
+    return p;
+  };
+  const auto count = [&](const std::vector<std::int64_t>& target) {  // pairs per target, >= 1
+    std::vector<double> c(static_cast<std::size_t>(n.num_target), 0.0);
+    for (const auto t : target) c[static_cast<std::size_t>(t)] += 1;
+    for (auto& v : c) v = std::max(v, 1.0);
+    return torch::tensor(c, torch::kDouble).to(dtype).unsqueeze(1);
+  };
+  const auto fill = [&](NeighborhoodOperator& e) {
+    const auto p = kept_pairs();
+    e.op = std::make_shared<const SparseOperator>(
+        SparseOperator::from_triplets(n.num_target, n.num_source, p.target, p.source, p.w, dtype));
+    if (mean) e.count = count(p.target);
+  };
+  const bool keep = !c10::InferenceMode::is_enabled();
+  NeighborhoodOperator fresh;
+  if (!TensorKey::keyable(n.source) || !TensorKey::keyable(n.target) ||
+      !TensorKey::keyable(values) || !TensorKey::keyable(roles)) {
+    fill(fresh);
+    return {fresh.op, fresh.count};
+  }
+  if (auto* e = cache.find([&](const NeighborhoodOperator& e) {
+        return e.num_source == n.num_source && e.num_target == n.num_target && e.dtype == dtype &&
+               e.role == role && e.source.matches(n.source) && e.target.matches(n.target) &&
+               e.values.matches(values) && e.roles.matches(roles);
+      })) {
+    if (!mean || e->count.defined()) return {e->op, e->count};
+    auto c = count(kept_pairs().target);
+    if (keep) e->count = c;
+    return {e->op, c};
+  }
+  fresh.source = TensorKey::of(n.source), fresh.target = TensorKey::of(n.target);
+  fresh.values = TensorKey::of(values), fresh.roles = TensorKey::of(roles);
+  fresh.num_source = n.num_source, fresh.num_target = n.num_target, fresh.role = role;
+  fresh.dtype = dtype;
+  fill(fresh);
+  if (!keep) return {fresh.op, fresh.count};
+  const auto& e = cache.insert(std::move(fresh));
+  return {e.op, e.count};
 }
 }  // namespace detail
 
 /// Messages from source rows `x` (num_source × C) to the n.num_target targets.
 inline torch::Tensor aggregate(const torch::Tensor& x, const TensorNeighborhood& n,
                                const AggregateOptions& opt = {}) {
+  if (opt.csr && (opt.reduce == Aggr::sum || opt.reduce == Aggr::mean) &&
+      (opt.role == 0 ? !n.one_per_target : n.roles.defined()) && n.nnz() > 0 && x.dim() == 2 &&
+      x.size(0) == n.num_source && x.device().is_cpu() && n.source.device().is_cpu() &&
+      (x.scalar_type() == torch::kFloat || x.scalar_type() == torch::kDouble) &&
+      !(opt.weighted &&
+        (n.backward_values.defined() || (n.values.defined() && n.values.requires_grad())))) {
+    const bool mean = opt.reduce == Aggr::mean;
+    const auto [A, count] =
+        detail::neighborhood_operator(n, opt.weighted, opt.role, mean, x.scalar_type());
+    const auto sum = spmm(*A, x);
+    return mean ? sum / count : sum;
+  }
   torch::Tensor src = n.source, tgt = n.target, w = n.values, wb = n.backward_values;
   if (opt.role != 0) {
     if (!n.roles.defined()) {
@@ -156,12 +175,6 @@ inline torch::Tensor aggregate(const torch::Tensor& x, const TensorNeighborhood&
       if (wb.defined()) wb = wb.index_select(0, keep);
     }
   }
-  if (opt.csr && opt.reduce == Aggr::sum && opt.role == 0 && !n.one_per_target && n.nnz() > 0 &&
-      x.dim() == 2 && x.size(0) == n.num_source && x.device().is_cpu() &&
-      n.source.device().is_cpu() &&
-      (x.scalar_type() == torch::kFloat || x.scalar_type() == torch::kDouble) &&
-      !(opt.weighted && (wb.defined() || (w.defined() && w.requires_grad()))))
-    return spmm(*detail::neighborhood_operator(n, opt.weighted, x.scalar_type()), x);
   torch::Tensor msg = x.index_select(0, src);
   if (opt.weighted && w.defined()) {
     if (wb.defined() && msg.requires_grad())

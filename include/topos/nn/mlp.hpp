@@ -51,12 +51,18 @@ inline bool linear_act_takes(const torch::Tensor& x, const torch::Tensor& weight
 }
 
 /// Whether x·Wᵀ at `precision` goes through linear_act: at highest as linear_act_takes says, at
-/// medium where topos's bfloat16 kernels take the shape (detail::bf16_takes).
+/// medium where topos's bfloat16 kernels take the shape (detail::bf16_takes), and, on a CPU
+/// that has them, the shapes they do not take as at highest: those maps are narrow (an
+/// encoder's first layer of 3-28 inputs), where bfloat16 through oneDNN paid two casts, a row
+/// padding and an unfused activation, four autograd nodes, for a product that costs less than
+/// they do. They stay float32 (torch's set_float32_matmul_precision allows bfloat16, it does
+/// not require it).
 inline bool linear_act_takes(const torch::Tensor& x, const torch::Tensor& weight,
                              MatmulPrecision precision) {
   if (precision == MatmulPrecision::highest) return linear_act_takes(x, weight);
-  return weight.dim() == 2 && weight.scalar_type() == torch::kFloat &&
-         bf16_takes(x, weight.size(1), weight.size(0), precision);
+  if (weight.dim() != 2 || weight.scalar_type() != torch::kFloat) return false;
+  return bf16_takes(x, weight.size(1), weight.size(0), precision) ||
+         (cpu_has_bf16() && linear_act_takes(x, weight));
 }
 
 }  // namespace detail
@@ -64,13 +70,16 @@ inline bool linear_act_takes(const torch::Tensor& x, const torch::Tensor& weight
 /// x·Wᵀ + b (b may be undefined) at `precision`: float32 in and out either way, so everything
 /// around the product (activations, LayerNorm, gathers, the loss) stays float32. At `highest`,
 /// a 2-D product goes to oneDNN (more than 64 outputs) or topos's dense kernel when set_cpu_gemm
-/// chose it; at `medium`, to topos's bfloat16 kernels where they take it, else oneDNN's.
+/// chose it; at `medium`, to topos's bfloat16 kernels where they take it, 2-D CPU shapes they do
+/// not take as at `highest` (a CPU with the kernels), anything else to oneDNN's bfloat16 (a GPU,
+/// or a CPU without the kernels).
 inline torch::Tensor linear(const torch::Tensor& x, const torch::Tensor& weight,
                             const torch::Tensor& bias = {},
                             MatmulPrecision precision = get_float32_matmul_precision()) {
   if (detail::linear_act_takes(x, weight, precision))
     return linear_act(x, weight, bias, Epilogue::none, precision);
-  if (weight.scalar_type() != torch::kFloat || precision == MatmulPrecision::highest)
+  if (weight.scalar_type() != torch::kFloat || precision == MatmulPrecision::highest ||
+      (detail::cpu_has_bf16() && x.device().is_cpu() && x.dim() == 2))
     return torch::linear(x, weight, bias);
   auto xb = x.to(torch::kBFloat16);
   const std::int64_t m = x.dim() == 2 ? x.size(0) : 0, rows = detail::padded_rows(m);
@@ -160,11 +169,13 @@ class MlpImpl : public torch::nn::Module {
     // stay bfloat16 from one Linear to the next through oneDNN (the next product would round them
     // to bfloat16 anyway) and only the last Linear's output returns to float32: two casts per MLP
     // instead of two per Linear. Activations other than ReLU get float32 inputs. With the
-    // kernels, each Linear they take is one linear_act (float32 out, the ReLU fused). The
+    // kernels, each Linear is one linear_act (float32 out, the ReLU fused; bfloat16 products
+    // where the kernels take the shape, float32 ones where not: linear_act_takes). The
     // precision is read once, so a change from another thread cannot split an MLP between the two.
     const MatmulPrecision precision = get_float32_matmul_precision();
     const bool bf16 = x.scalar_type() == torch::kFloat && precision == MatmulPrecision::medium &&
-                      options.activation() == Activation::relu && !detail::cpu_has_bf16();
+                      options.activation() == Activation::relu &&
+                      !(detail::cpu_has_bf16() && x.device().is_cpu() && x.dim() == 2);
     const std::int64_t rows = x.dim() == 2 ? x.size(0) : -1;
     const std::int64_t padded = bf16 ? detail::padded_rows(rows) : rows;
     std::size_t last_linear = 0;

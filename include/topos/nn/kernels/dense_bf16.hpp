@@ -14,6 +14,7 @@
 #include <cstdint>
 #include <cstdlib>
 #include <cstring>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -260,6 +261,7 @@ TOPOS_BF16_INLINE void bf16_outer_tile(const std::uint32_t* Z, std::int64_t N, s
 TOPOS_BF16_INLINE void bf16_outer(const std::uint32_t* Z, std::int64_t N, std::int64_t pairs,
                                   const std::uint32_t* Xq, std::int64_t K, float* dW,
                                   std::int64_t ldw) {
+  if (pairs == 0) return;
   for (std::int64_t k0 = 0; k0 < K; k0 += 64) {
     const std::int64_t V = std::min<std::int64_t>(4, (K - k0) / 16);
     std::int64_t n = 0;
@@ -294,13 +296,32 @@ TOPOS_BF16_INLINE void bf16_output_gradient(const float* g, const float* y, std:
   }
 }
 
-// What the two bfloat16 backwards share: blocks of `rows_per_block` rows (even; 32, fewer above
-// 256 outputs) so that dZ, its pairs and the inputs' pairs stay in L1 and L2, the blocks'
-// buffers, and each block's output gradient.
+// What the two bfloat16 backwards share: blocks of `rows_per_block` rows (a multiple of 6, the
+// row tile of dx's product, up to 36; fewer above 170 outputs) so that dZ and its pairs stay in
+// L1, the blocks' buffers, and each block's output gradient; and the weight gradient's pairs of
+// rows (of dZ and of x, K columns; none without a dW), gathered over several blocks (up to
+// `dw_pairs`, about 192 KB in L2) before they are multiplied into dW: its sums then leave their
+// registers once per gathering, not once per block (the same sums in the same order).
 struct Bf16BackwardScratch {
-  static constexpr std::int64_t capacity = 32 * 256;
-  explicit Bf16BackwardScratch(std::int64_t N)
-      : rows_per_block(std::max<std::int64_t>(2, std::min<std::int64_t>(32, capacity / N) & ~1)) {}
+  static constexpr std::int64_t capacity = 6 * 1024;  // 6 rows of the widest N
+  // N outputs, K inputs (0: no dW), `rows` rows in all (no more pairs gathered than they make).
+  Bf16BackwardScratch(std::int64_t N, std::int64_t K, std::int64_t rows)
+      : rows_per_block(block_rows(N, K)),
+        dw_pairs(gathering(N, K, rows, rows_per_block / 2)),
+        Zq(static_cast<std::size_t>(K > 0 ? dw_pairs * N : 0)),
+        Xq(static_cast<std::size_t>(dw_pairs * K)) {}
+  static std::int64_t block_rows(std::int64_t N, std::int64_t K) {
+    if (N < 16 || N > 1024 || K > 1024)  // bf16_kernel_fits's shapes only
+      throw std::logic_error("bfloat16 backward: " + std::to_string(N) + " outputs and " +
+                             std::to_string(K) + " inputs, not the kernels' 16 to 1024");
+    return std::min<std::int64_t>(36, capacity / N) / 6 * 6;
+  }
+  static std::int64_t gathering(std::int64_t N, std::int64_t K, std::int64_t rows,
+                                std::int64_t block_pairs) {
+    const std::int64_t most = std::max<std::int64_t>(1, 49152 / (N + K) / block_pairs);
+    const std::int64_t needed = ((rows + 1) / 2 + block_pairs - 1) / block_pairs;
+    return std::min(most, std::max<std::int64_t>(1, needed)) * block_pairs;
+  }
   // dZ of the `rows` rows from i0: g ⊙ act'(y) in dZ, or g itself without an activation.
   template <Epilogue E>
   TOPOS_BF16_INLINE const float* output_gradient(const float* g, const float* y, std::int64_t i0,
@@ -309,10 +330,11 @@ struct Bf16BackwardScratch {
     bf16_output_gradient<E>(g + i0 * N, y + i0 * N, rows * N, dZ);
     return dZ;
   }
-  const std::int64_t rows_per_block;
+  const std::int64_t rows_per_block, dw_pairs;
+  std::int64_t gathered = 0;  // pairs in Zq and Xq not yet in dW
   alignas(64) float dZ[capacity];
   alignas(64) std::uint32_t Zr[capacity / 2];  // dZ's rows as pairs along the outputs (dx)
-  alignas(64) std::uint32_t Zq[capacity / 2];  // dZ's pairs of rows interleaved (dW)
+  std::vector<std::uint32_t> Zq, Xq;           // dZ's and x's pairs of rows interleaved (dW)
 };
 
 // The backward of act(x Wᵀ + b) over rows [begin, end) with bfloat16 products, a block of rows at
@@ -323,10 +345,9 @@ TOPOS_BF16 void linear_backward_bf16_e(const float* x, const std::uint32_t* PT, 
                                        const float* g, float* dx, float* dW, float* db,
                                        std::int64_t begin, std::int64_t end, std::int64_t K,
                                        std::int64_t N) {
-  Bf16BackwardScratch scratch(N);
-  std::uint32_t *Zr = scratch.Zr, *Zq = scratch.Zq;
+  Bf16BackwardScratch scratch(N, dW ? K : 0, end - begin);
+  std::uint32_t *Zr = scratch.Zr, *Zq = scratch.Zq.data(), *Xq = scratch.Xq.data();
   const std::int64_t B = scratch.rows_per_block;
-  std::vector<std::uint32_t> Xq(static_cast<std::size_t>(B / 2 * K));
   for (std::int64_t i0 = begin; i0 < end; i0 += B) {
     const std::int64_t rows = std::min(B, end - i0), pairs = (rows + 1) / 2;
     const float* z = scratch.output_gradient<E>(g, y, i0, rows, N);
@@ -335,13 +356,16 @@ TOPOS_BF16 void linear_backward_bf16_e(const float* x, const std::uint32_t* PT, 
       bf16_rows<Epilogue::none>(Zr, N / 2, rows, N / 2, PT, K, K, nullptr, dx + i0 * K, K, false);
     }
     if (dW) {  // dW += dZᵀ x: pairs of rows, an odd last row with zeros
+      const std::int64_t q = scratch.gathered;
       for (std::int64_t p = 0; p < pairs; ++p) {
         const bool two = 2 * p + 1 < rows;
-        bf16_interleave(z + 2 * p * N, two ? z + (2 * p + 1) * N : nullptr, N, Zq + p * N);
+        bf16_interleave(z + 2 * p * N, two ? z + (2 * p + 1) * N : nullptr, N, Zq + (q + p) * N);
         bf16_interleave(x + (i0 + 2 * p) * K, two ? x + (i0 + 2 * p + 1) * K : nullptr, K,
-                        Xq.data() + p * K);
+                        Xq + (q + p) * K);
       }
-      bf16_outer(Zq, N, pairs, Xq.data(), K, dW, K);
+      scratch.gathered += pairs;
+      if (scratch.gathered == scratch.dw_pairs || i0 + B >= end)
+        bf16_outer(Zq, N, scratch.gathered, Xq, K, dW, K), scratch.gathered = 0;
     }
     if (db)
       for (std::int64_t r = 0; r < rows; ++r)
@@ -412,35 +436,37 @@ TOPOS_BF16 void linear_blocks_backward_bf16_e(const float* const* X, const std::
                                               const float* y, const float* g, float* const* dX,
                                               float* dW, float* dbase, std::int64_t begin,
                                               std::int64_t end, std::int64_t N) {
-  Bf16BackwardScratch scratch(N);
-  std::uint32_t *Zr = scratch.Zr, *Zq = scratch.Zq;
-  const std::int64_t B = scratch.rows_per_block;
   std::int64_t Ktot = 0;
   for (std::int64_t s = 0; s < S; ++s) Ktot += K[s];
-  std::vector<std::uint32_t> Xq(static_cast<std::size_t>(B / 2 * Ktot));
+  Bf16BackwardScratch scratch(N, dW ? Ktot : 0, end - begin);
+  std::uint32_t *Zr = scratch.Zr, *Zq = scratch.Zq.data(), *Xq = scratch.Xq.data();
+  const std::int64_t B = scratch.rows_per_block;
   bool any_dx = false;
   for (std::int64_t s = 0; s < S; ++s) any_dx = any_dx || dX[s] != nullptr;
   for (std::int64_t i0 = begin; i0 < end; i0 += B) {
     const std::int64_t rows = std::min(B, end - i0), pairs = (rows + 1) / 2;
     const float* z = scratch.output_gradient<E>(g, y, i0, rows, N);
     if (dbase) std::memcpy(dbase + i0 * N, z, static_cast<std::size_t>(rows * N) * sizeof(float));
-    if (any_dx)
+    if (any_dx) {
       for (std::int64_t r = 0; r < rows; ++r) bf16_row(z + r * N, N, Zr + r * (N / 2));
-    if (dW)
-      for (std::int64_t p = 0; p < pairs; ++p)
-        bf16_interleave(z + 2 * p * N, 2 * p + 1 < rows ? z + (2 * p + 1) * N : nullptr, N,
-                        Zq + p * N);
-    for (std::int64_t s = 0, off = 0; s < S; off += K[s], ++s) {
-      if (dX[s])
-        bf16_rows<Epilogue::none>(Zr, N / 2, rows, N / 2, PT + off, Ktot, K[s], nullptr,
-                                  dX[s] + i0 * K[s], K[s], false);
-      if (dW) {
-        const float* xs = X[s] + i0 * K[s];
-        for (std::int64_t p = 0; p < pairs; ++p)
-          bf16_interleave(xs + 2 * p * K[s], 2 * p + 1 < rows ? xs + (2 * p + 1) * K[s] : nullptr,
-                          K[s], Xq.data() + p * K[s]);
-        bf16_outer(Zq, N, pairs, Xq.data(), K[s], dW + off, Ktot);
+      for (std::int64_t s = 0, off = 0; s < S; off += K[s], ++s)
+        if (dX[s])
+          bf16_rows<Epilogue::none>(Zr, N / 2, rows, N / 2, PT + off, Ktot, K[s], nullptr,
+                                    dX[s] + i0 * K[s], K[s], false);
+    }
+    if (dW) {  // the blocks' pairs side by side in one row of Ktot pairs, as the forward's
+      const std::int64_t q = scratch.gathered;
+      for (std::int64_t p = 0; p < pairs; ++p) {
+        const bool two = 2 * p + 1 < rows;
+        bf16_interleave(z + 2 * p * N, two ? z + (2 * p + 1) * N : nullptr, N, Zq + (q + p) * N);
+        for (std::int64_t s = 0, off = 0; s < S; off += K[s], ++s) {
+          const float* xs = X[s] + (i0 + 2 * p) * K[s];
+          bf16_interleave(xs, two ? xs + K[s] : nullptr, K[s], Xq + (q + p) * Ktot + off);
+        }
       }
+      scratch.gathered += pairs;
+      if (scratch.gathered == scratch.dw_pairs || i0 + B >= end)
+        bf16_outer(Zq, N, scratch.gathered, Xq, Ktot, dW, Ktot), scratch.gathered = 0;
     }
   }
 }

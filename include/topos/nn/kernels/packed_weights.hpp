@@ -5,10 +5,10 @@
 #pragma once
 
 #include "topos/nn/kernels/dense_bf16.hpp"
+#include "topos/nn/tensor_cache.hpp"
 
 #include <torch/torch.h>
 
-#include <algorithm>
 #include <cstdint>
 #include <memory>
 #include <vector>
@@ -16,17 +16,16 @@
 namespace topos::nn {
 namespace detail {
 
-// A weight's packed pairs: the storage (held weakly, so that a new tensor at a freed address
-// cannot match), offset, shape and strides, and the version counter it was packed at.
+// A weight's packed pairs: the tensor (its key's version the one it was packed at) and how it was
+// read (R × C, strides rs and cs).
 struct PackedPairs {
-  c10::weak_intrusive_ptr<c10::StorageImpl> storage{c10::intrusive_ptr<c10::StorageImpl>()};
-  const c10::StorageImpl* key = nullptr;
-  std::int64_t offset = 0, R = 0, C = 0, rs = 0, cs = 0, version = -1;
+  TensorKey tensor;
+  std::int64_t R = 0, C = 0, rs = 0, cs = 0;
   std::shared_ptr<const std::vector<std::uint32_t>> pairs;
+  bool expired() const { return tensor.expired(); }
 };
 struct PackedPairsCache {
-  std::vector<PackedPairs> entries;
-  std::size_t next = 0;
+  TensorCache<PackedPairs> entries{512};
   int scopes = 0;  // open PackedWeightsScopes on this thread
 };
 inline PackedPairsCache& packed_pairs_cache() {
@@ -35,7 +34,8 @@ inline PackedPairsCache& packed_pairs_cache() {
 }
 
 /// pack_bf16_pairs of T (R × C, strides rs and cs), from this thread's cache inside a
-/// PackedWeightsScope while T's version counter is the one it was packed at, else packed afresh.
+/// PackedWeightsScope while T's version counter is the one it was packed at (packed again in
+/// place when it changed), else packed afresh.
 inline std::shared_ptr<const std::vector<std::uint32_t>> packed_pairs(
     const torch::Tensor& T, std::int64_t R, std::int64_t C, std::int64_t rs, std::int64_t cs) {
   const auto pack = [&] {
@@ -43,29 +43,18 @@ inline std::shared_ptr<const std::vector<std::uint32_t>> packed_pairs(
         pack_bf16_pairs(T.data_ptr<float>(), R, C, rs, cs));
   };
   auto& cache = packed_pairs_cache();
-  if (cache.scopes == 0 || T.is_inference() || !T.has_storage()) return pack();
-  constexpr std::size_t capacity = 512;
-  const auto* key = T.storage().unsafeGetStorageImpl();
-  const std::int64_t offset = T.storage_offset(), version = T._version();
-  for (auto& e : cache.entries)
-    if (e.key == key && e.offset == offset && e.R == R && e.C == C && e.rs == rs && e.cs == cs &&
-        !e.storage.expired()) {
-      if (e.version != version) e.pairs = pack(), e.version = version;
-      return e.pairs;
-    }
-  auto& entries = cache.entries;
-  entries.erase(std::remove_if(entries.begin(), entries.end(),
-                               [](const PackedPairs& e) { return e.storage.expired(); }),
-                entries.end());
+  if (cache.scopes == 0 || !TensorKey::keyable(T) || !T.has_storage()) return pack();
+  if (auto* e = cache.entries.find([&](const PackedPairs& e) {
+        return e.R == R && e.C == C && e.rs == rs && e.cs == cs && e.tensor.same_storage(T);
+      })) {
+    if (e->tensor.version != T._version()) e->pairs = pack(), e->tensor.version = T._version();
+    return e->pairs;
+  }
   PackedPairs e;
-  e.storage = T.storage().getWeakStorageImpl();
-  e.key = key, e.offset = offset, e.R = R, e.C = C, e.rs = rs, e.cs = cs, e.version = version;
+  e.tensor = TensorKey::of(T);
+  e.R = R, e.C = C, e.rs = rs, e.cs = cs;
   e.pairs = pack();
-  if (entries.size() < capacity)
-    entries.push_back(e);
-  else
-    entries[cache.next++ % capacity] = e;
-  return e.pairs;
+  return cache.entries.insert(std::move(e)).pairs;
 }
 
 }  // namespace detail
@@ -81,7 +70,7 @@ class PackedWeightsScope {
   PackedWeightsScope() { ++detail::packed_pairs_cache().scopes; }
   ~PackedWeightsScope() {
     auto& cache = detail::packed_pairs_cache();
-    if (--cache.scopes == 0) cache.entries.clear(), cache.next = 0;
+    if (--cache.scopes == 0) cache.entries.clear();
   }
   PackedWeightsScope(const PackedWeightsScope&) = delete;
   PackedWeightsScope& operator=(const PackedWeightsScope&) = delete;

@@ -16,12 +16,13 @@ namespace topos::nn {
 /// BF16, the products topos's kernels take (kernels/dense_bf16.hpp: 16 to 1024 inputs and outputs
 /// in steps of 16; linear_act, linear_blocks, the schedule's weights, Mlp) round their inputs to
 /// bfloat16 as they read them and keep float32 sums, outputs and gradients, at up to twice the
-/// float32 rate; nn::linear and Mlp send other shapes to oneDNN's bfloat16 kernels, whose output
-/// is rounded to bfloat16 too (as torch.autocast's). On a CPU without AVX-512 BF16 only nn::linear
-/// and Mlp multiply in bfloat16 (oneDNN's, slower than float32 there); the other products stay
-/// float32. Values and gradients through a bfloat16 product carry about 8 significant bits.
-/// Process-wide, set before training starts; parity with the reference needs `highest`, the
-/// default.
+/// float32 rate; the 2-D CPU shapes they do not take (inputs or outputs not a multiple of 16,
+/// or over 1024: narrow maps, where casts cost more than bfloat16 saves) stay float32. On a GPU,
+/// and on a CPU without AVX-512 BF16, only nn::linear and Mlp multiply in bfloat16 (oneDNN's on a
+/// CPU, slower than float32 there; its output is rounded to bfloat16 too, as torch.autocast's);
+/// the other products stay float32. Values and gradients through a bfloat16 product carry about
+/// 8 significant bits. Process-wide, set before training starts; parity with the reference
+/// needs `highest`, the default.
 enum class MatmulPrecision { highest, medium };
 namespace detail {
 inline std::atomic<MatmulPrecision> float32_matmul_precision{MatmulPrecision::highest};

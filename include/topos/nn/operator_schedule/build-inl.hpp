@@ -93,6 +93,7 @@ class NetworkBuildContext final : public BuildContext {
 TOPOS_INLINE OperatorNetworkImpl::OperatorNetworkImpl(OperatorSchedule schedule)
     : schedule_(std::move(schedule)) {
   validate_and_create();
+  dtype_reference_ = first_submodule_parameter();
 }
 
 TOPOS_INLINE OperatorNetworkImpl::~OperatorNetworkImpl() = default;

@@ -158,6 +158,13 @@ TOPOS_INLINE void OperatorNetworkImpl::check_names(
   }
 }
 
+TOPOS_INLINE torch::Tensor OperatorNetworkImpl::first_submodule_parameter() const {
+  for (const auto& child : children())
+    for (const auto& p : child->parameters())  // one submodule's, not the whole tree's
+      if (p.is_floating_point()) return p;
+  return {};
+}
+
 // One dtype and device: the parameters' (or, without any, the first input's).
 TOPOS_INLINE void OperatorNetworkImpl::check_dtypes(
     const std::map<std::string, torch::Tensor>& inputs,
@@ -171,16 +178,8 @@ TOPOS_INLINE void OperatorNetworkImpl::check_dtypes(
       reference = &p;
       break;
     }
-  torch::Tensor in_modules;  // where every parameter is a submodule's (an mlp, a norm)
-  for (const auto& child : children()) {
-    if (reference != nullptr) break;
-    for (const auto& p : child->parameters())  // one submodule's, not the whole tree's
-      if (p.is_floating_point()) {
-        in_modules = p;
-        reference = &in_modules;
-        break;
-      }
-  }
+  if (reference == nullptr && dtype_reference_.defined())  // a submodule's (an mlp, a norm)
+    reference = &dtype_reference_;
   for (const auto& port : ports) {
     auto it = inputs.find(port.name);
     if (it == inputs.end()) continue;  // input_cochains says so

@@ -229,6 +229,12 @@ class OperatorNetworkImpl : public torch::nn::Module {
                    const std::map<std::string, SparseOperator>& operators,
                    const ComplexBatch* batch) const;
   mutable std::set<std::string> warned_;  // the undeclared names already warned about
+  // check_dtypes's reference when the network has no parameter of its own: a submodule's, found
+  // once when the network is built (walking them, named_parameters, cost 3-4 % of a HOPNet
+  // rollout step), then only read, also by workers running forwards at once. A parameter keeps
+  // its identity when the module moves (to() sets its data in place).
+  torch::Tensor first_submodule_parameter() const;
+  torch::Tensor dtype_reference_;
 
   // --- the interpreter (interpreter-inl.hpp) -------------------------------------------------
   std::size_t apply_fused(const std::string& where, const CochainKey& target,

@@ -162,9 +162,9 @@ struct FastPaths {
   /// run as one kernel that forms the sum (add_layer_norm): a residual connection's add and a
   /// transformer block's skip term cost no autograd node and no pass of their own.
   TORCH_ARG(bool, fuse_residuals) = true;
-  /// Over a batch's neighbourhoods: a sum over all of a neighbourhood's pairs as a sparse
-  /// product over them in CSR form (AggregateOptions::csr), forward and backward, instead of a
-  /// gathered row per pair added up per target.
+  /// Over a batch's neighbourhoods: a sum or mean over a neighbourhood's pairs (all, or one
+  /// role's) as a sparse product over them in CSR form (AggregateOptions::csr), forward and
+  /// backward, instead of a gathered row per pair added up per target.
   TORCH_ARG(bool, csr_aggregation) = true;
 
  public:
