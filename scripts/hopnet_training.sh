@@ -13,7 +13,7 @@
 # docs/hopnet-training/run, so the run goes on across machines and sittings. The data are
 # regenerated seed-exactly when missing (about 3 minutes on 2 cores).
 # Needs the reference folder (TOPOS_REFERENCE_DIR, default ../shared/reference) for the KuBasic
-# meshes. TOPOS_HOPNET names a hopnet binary (default: the build's, built when missing).
+# meshes. TOPOS_HOPNET names a hopnet binary (default: build/apps/hopnet, which must exist).
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$root"

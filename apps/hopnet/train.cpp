@@ -157,7 +157,7 @@ int run_train(const TrainArgs& a) {
     if (a.lr_given) b.lr = a.lr;
     return run_baseline_train(b);
   }
-  if (!std::isfinite(a.contact_cache_mb))
+  if (!std::isfinite(a.contact_cache_mb) || a.contact_cache_mb < 0)
     throw std::invalid_argument(
         "train --contact-cache-mb: a number of megabytes (0: no cache), not " +
         std::to_string(a.contact_cache_mb));
@@ -574,8 +574,7 @@ Command add_train(CLI::App& app) {
                  "memory (per process) for the training and validation scenes' detected "
                  "contacts, kept from one epoch to the next (the same frames, without the "
                  "detection; 0: detect every time)")
-      ->capture_default_str()
-      ->check(CLI::NonNegativeNumber);
+      ->capture_default_str();
   ct->add_option("--workers", tr.workers,
                  "chunks of a trajectory run at once, each on its own thread with one BLAS "
                  "thread (CPU; 0: one per core of this rank's share; 1: one after the other, "

@@ -173,6 +173,8 @@ if(pos EQUAL -1)
 endif()
 expect_failure("a contact cache of NaN megabytes" "--contact-cache-mb: a number of megabytes (0: no cache), not nan"
   train --data ${WORK}/topos --split-file ${WORK}/custom.json --out ${WORK}/nan_cache --hidden 16 --max-steps 1 --mode native --contact-cache-mb nan)
+expect_failure("a negative contact cache" "--contact-cache-mb: a number of megabytes (0: no cache), not -1"
+  train --data ${WORK}/topos --split-file ${WORK}/custom.json --out ${WORK}/negative_cache --hidden 16 --max-steps 1 --mode native --contact-cache-mb -1)
 expect_failure("evaluate with three statistics for two checkpoints" "--stats: 3 files for 2 checkpoints; give one for every checkpoint, or one per --checkpoint"
     evaluate --checkpoint ${WORK}/model/checkpoint.pt ${WORK}/resume/best.pt
     --stats ${WORK}/model/stats.json ${WORK}/resume/stats.json ${WORK}/model/stats.json --data ${WORK}/topos --out ${WORK}/eval_bad)

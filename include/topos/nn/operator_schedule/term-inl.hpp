@@ -156,12 +156,11 @@ TOPOS_INLINE torch::Tensor used_rows(const torch::Tensor& source, std::int64_t r
 
 /// Each of `rows` cells' position among the sorted `used` ones, or -1.
 TOPOS_INLINE torch::Tensor compact_rows(const torch::Tensor& used, std::int64_t rows) {
+  auto row = torch::full({rows}, -1, used.options());
   if (!used.device().is_cpu() || used.scalar_type() != torch::kLong) {
-    auto row = torch::full({rows}, -1, used.options());
     row.index_put_({used}, torch::arange(used.size(0), used.options()));
     return row;
   }
-  auto row = torch::full({rows}, -1, used.options());
   auto* out = row.data_ptr<std::int64_t>();
   const auto u = used.contiguous();
   const auto* p = u.data_ptr<std::int64_t>();
