@@ -285,15 +285,17 @@ TEST_CASE("native contacts equal brute force on random scenes", "[geometry][cont
 #ifdef TOPOS_SANITIZED
   const int scenes = 1;  // under the sanitizers (tests/CMakeLists.txt)
 #else
-  const int scenes = 4;
+  const int scenes = 6;
 #endif
   for (int scene = 0; scene < scenes; ++scene) {
     std::vector<PosedObject> objs;
     for (int o = 0; o < 4; ++o) {
       const Eigen::Vector4d q(u(rng), u(rng), u(rng), u(rng));
-      objs.push_back({pose_vertices(shapes[o % 3].vertices * 0.5,
-                                    Eigen::Vector3d(u(rng), u(rng), 0.5 + 0.5 * u(rng)), q),
-                      &shapes[o % 3].faces});
+      // Scenes from 2 on set the objects near the floor (many floor pairs around d_c).
+      const double z = scene < 2 ? 0.5 + 0.5 * u(rng) : 0.6 + 0.15 * u(rng);
+      objs.push_back(
+          {pose_vertices(shapes[o % 3].vertices * 0.5, Eigen::Vector3d(u(rng), u(rng), z), q),
+           &shapes[o % 3].faces});
     }
     objs.push_back({floor.vertices, &floor.faces});
     const double dc = 0.1;
@@ -315,6 +317,54 @@ TEST_CASE("native contacts equal brute force on random scenes", "[geometry][cont
     }
     REQUIRE(got == brute);
   }
+}
+
+TEST_CASE("the separating-axis filter drops only pairs beyond d_c", "[geometry][contacts]") {
+  // Triangle pairs placed so that their exact distance falls around d_c (sizes 0.01-1, gaps up
+  // to twice d_c, random orientations, some coplanar with a shared plane like a floor): every
+  // pair the filter drops is farther than d_c by CGAL's exact kernel, and it drops many.
+  std::mt19937_64 rng(7);
+  std::uniform_real_distribution<double> u(-1, 1);
+  const auto to_v = [](const std::array<Eigen::Vector3d, 3>& t) {
+    return std::array<detail::V3<double>, 3>{detail::V3<double>{t[0].x(), t[0].y(), t[0].z()},
+                                             detail::V3<double>{t[1].x(), t[1].y(), t[1].z()},
+                                             detail::V3<double>{t[2].x(), t[2].y(), t[2].z()}};
+  };
+  const double dc = 0.1;
+  std::int64_t dropped = 0, near = 0, pairs = 0;
+  for (int n = 0; n < 20000; ++n) {
+    const double size = std::pow(10.0, -2 + 2 * (u(rng) + 1) / 2);
+    std::array<Eigen::Vector3d, 3> a, b;
+    for (auto& v : a) v = size * Eigen::Vector3d(u(rng), u(rng), u(rng));
+    const Eigen::Vector3d shift =
+        Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized() * (size + dc * (1 + u(rng)));
+    for (auto& v : b) v = size * Eigen::Vector3d(u(rng), u(rng), u(rng)) + shift;
+    if (n % 4 == 0)  // a floor-like shared plane: both triangles at z = 0 or a hair above
+      for (auto* t : {&a, &b})
+        for (auto& v : *t) v.z() = n % 8 == 0 ? 0.0 : 1e-9 * u(rng);
+    const double d2 = exact_sq(a, b);
+    ++pairs;
+    if (d2 <= dc * dc * 1.01 && d2 >= dc * dc * 0.99) ++near;
+    if (detail::separated_beyond(to_v(a), to_v(b), dc)) {
+      ++dropped;
+      INFO("pair " << n << ": exact squared distance " << d2);
+      REQUIRE(d2 > dc * dc);
+    }
+  }
+  std::cout << "separating-axis filter: " << dropped << " of " << pairs << " pairs dropped, "
+            << near << " within 1 % of d_c\n";
+  REQUIRE(dropped > pairs / 5);
+  REQUIRE(near > 50);
+  // A face lying over the far half of a two-triangle floor quad: no box test parts it from that
+  // half (the half's box is the whole quad), the in-plane edge normal does.
+  const std::array<Eigen::Vector3d, 3> half{Eigen::Vector3d(-1, -1, 0), Eigen::Vector3d(1, -1, 0),
+                                            Eigen::Vector3d(1, 1, 0)};
+  const std::array<Eigen::Vector3d, 3> face{Eigen::Vector3d(-0.8, 0.5, 0.01),
+                                            Eigen::Vector3d(-0.6, 0.5, 0.01),
+                                            Eigen::Vector3d(-0.7, 0.7, 0.01)};
+  REQUIRE(exact_sq(half, face) > dc * dc);
+  REQUIRE(detail::separated_beyond(to_v(half), to_v(face), dc));
+  REQUIRE_FALSE(detail::separated_beyond(to_v(face), to_v(face), dc));
 }
 
 TEST_CASE("centre of mass and shape matching", "[geometry][rigid]") {
