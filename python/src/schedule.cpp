@@ -101,11 +101,19 @@ SparseOperator operator_arg(const py::handle& obj, const std::string& arg, at::S
                                          index_vector(idx[1]), c.values());
     }
     if (t.layout() == at::kSparseCsr) {
+      // Through a coalesced COO tensor: a CSR tensor built without checking its invariants may
+      // hold a row's columns out of order or repeated (repeats are summed, as in COO).
       const at::Tensor crow = t.crow_indices().to(at::kCPU, at::kLong);
       const at::Tensor counts = crow.narrow(0, 1, t.size(0)) - crow.narrow(0, 0, t.size(0));
       const at::Tensor rows = at::arange(t.size(0), crow.options()).repeat_interleave(counts);
-      return SparseOperator::from_sorted(t.size(0), t.size(1), index_vector(rows),
-                                         index_vector(t.col_indices()), t.values());
+      const at::Tensor c =
+          at::sparse_coo_tensor(
+              at::stack({rows, t.col_indices().to(at::kCPU, at::kLong)}).to(t.values().device()),
+              t.values(), {t.size(0), t.size(1)})
+              .coalesce();
+      const at::Tensor idx = c._indices();
+      return SparseOperator::from_sorted(t.size(0), t.size(1), index_vector(idx[0]),
+                                         index_vector(idx[1]), c._values());
     }
     throw py::type_error(arg + ": a torch tensor of layout " + c10::str(t.layout()) +
                          " is not an operator; pass a sparse COO or CSR tensor");

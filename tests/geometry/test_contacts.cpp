@@ -20,6 +20,7 @@
 
 #include <fstream>
 #include <functional>
+#include <limits>
 #include <random>
 
 using namespace topos;
@@ -317,6 +318,8 @@ TEST_CASE("native contacts equal brute force on random scenes", "[geometry][cont
     }
     REQUIRE(got == brute);
   }
+  for (const double bad : {-0.1, std::nan(""), std::numeric_limits<double>::infinity()})
+    REQUIRE_THROWS_WITH(find_contacts({}, bad), Catch::Contains("d_c must be finite and >= 0"));
 }
 
 TEST_CASE("the separating-axis filter drops only pairs beyond d_c", "[geometry][contacts]") {
@@ -355,6 +358,25 @@ TEST_CASE("the separating-axis filter drops only pairs beyond d_c", "[geometry][
             << near << " within 1 % of d_c\n";
   REQUIRE(dropped > pairs / 5);
   REQUIRE(near > 50);
+  // Touching pairs (Q holds the midpoint of an edge of P, on dyadic coordinates so the midpoint
+  // is exact) at d_c = 0, and at d_c = 1e-7 with coordinates near 2^30: the projections' rounding
+  // alone must never part them.
+  std::int64_t touching = 0;
+  for (const auto& [scale, d] : {std::pair<double, double>{1024.0, 0.0}, {1073741824.0, 1e-7}}) {
+    for (int n = 0; n < 5000; ++n) {
+      std::array<Eigen::Vector3d, 3> a, b;
+      const auto dyadic = [&] { return std::round(u(rng) * 1024) / 1024 * scale; };
+      for (auto& v : a) v = Eigen::Vector3d(dyadic(), dyadic(), dyadic());
+      b[0] = (a[0] + a[1]) / 2;
+      for (int i = 1; i < 3; ++i) b[i] = Eigen::Vector3d(dyadic(), dyadic(), dyadic());
+      if (exact_sq(a, b) != 0) continue;
+      ++touching;
+      INFO("touching pair " << n << " at scale " << scale);
+      REQUIRE_FALSE(detail::separated_beyond(to_v(a), to_v(b), d));
+      REQUIRE_FALSE(detail::separated_beyond(to_v(b), to_v(a), d));
+    }
+  }
+  REQUIRE(touching > 9000);
   // A face lying over the far half of a two-triangle floor quad: no box test parts it from that
   // half (the half's box is the whole quad), the in-plane edge normal does.
   const std::array<Eigen::Vector3d, 3> half{Eigen::Vector3d(-1, -1, 0), Eigen::Vector3d(1, -1, 0),

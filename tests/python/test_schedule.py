@@ -125,7 +125,23 @@ def test_operator_formats_agree(complex_):
     uncoalesced = torch.sparse_coo_tensor(B1._indices().flip(1), B1._values().flip(0), B1.shape)
     assert not uncoalesced.is_coalesced()
     unc = net(inputs, {"incidence_1": uncoalesced, "adjacency_0": A0})
-    for other in (csr, sp, prepared, unc):
+    # A CSR tensor whose rows hold their columns reversed and one entry split in two halves
+    # (torch's unchecked constructor): the same operator once sorted and summed.
+    c = B1.to_sparse_csr()
+    crow, col, val = c.crow_indices(), c.col_indices().clone(), c.values().clone()
+    for i in range(B1.shape[0]):
+        a, b = int(crow[i]), int(crow[i + 1])
+        col[a:b], val[a:b] = col[a:b].flip(0), val[a:b].flip(0)
+    row0 = int(crow[1])
+    assert row0 >= 1
+    crow2 = torch.cat([crow[:1], crow[1:] + 1])
+    col2 = torch.cat([col[:1], col[:row0], col[row0:]])
+    val2 = torch.cat([val[:1] / 2, val[:1] / 2, val[1:row0], val[row0:]])
+    messy = torch._sparse_csr_tensor_unsafe(crow2, col2, val2, B1.shape)
+    head = messy.col_indices()[: row0 + 1]
+    assert not torch.equal(head.sort().values, head) or head.unique().numel() < head.numel()
+    mess = net(inputs, {"incidence_1": messy, "adjacency_0": A0})
+    for other in (csr, sp, prepared, unc, mess):
         torch.testing.assert_close(other["x_0"], coo, rtol=1e-6, atol=1e-6)
     assert SparseOperator(B1).shape == tuple(B1.shape)
     torch.testing.assert_close(SparseOperator(B1).to_torch().to_dense(), B1.to_dense())

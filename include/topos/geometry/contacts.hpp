@@ -23,6 +23,7 @@
 #include <CGAL/box_intersection_d.h>
 
 #include <algorithm>
+#include <cmath>
 #include <array>
 #include <vector>
 
@@ -50,12 +51,16 @@ inline CGAL::Bbox_3 face_box(const PosedObject& o, std::int64_t f, double inflat
 // True when a separating axis proves the triangles more than d_c apart: on a unit axis u the
 // distance between two sets is at least the gap between their projections. Axes: both planes'
 // normals and the six in-plane edge normals (the axes that part a face from the far half of a
-// floor quad). Conservative: a gap must pass d_c by a relative 1e-6 (far above the rounding of
-// these products), so every pair it drops is beyond d_c by the exact test too.
+// floor quad). Conservative: the gap less a bound on its rounding (projections of coordinates up
+// to M on an axis a err by under 11·eps·|a|·M) must pass d_c by a relative 1e-6 in the squares,
+// so every pair it drops is beyond d_c by the exact test too, touching pairs at d_c = 0 included.
 inline bool separated_beyond(const std::array<V3<double>, 3>& P, const std::array<V3<double>, 3>& Q,
                              double d_c) {
   using V = V3<double>;
-  const double limit = d_c * d_c * (1 + 1e-6);
+  double M = 0;
+  for (const auto* T : {&P, &Q})
+    for (const V& v : *T) M = std::max({M, std::abs(v.x), std::abs(v.y), std::abs(v.z)});
+  const double limit = d_c * d_c * (1 + 1e-6), rounding = 16 * 2.220446049250313e-16 * M;
   const auto parts = [&](const V& axis) {
     const double n2 = axis.dot(axis);
     if (!(n2 > 0)) return false;
@@ -67,7 +72,7 @@ inline bool separated_beyond(const std::array<V3<double>, 3>& P, const std::arra
       qlo = std::min(qlo, q);
       qhi = std::max(qhi, q);
     }
-    const double gap = std::max(qlo - phi, plo - qhi);
+    const double gap = std::max(qlo - phi, plo - qhi) - rounding * std::sqrt(n2);
     return gap > 0 && gap * gap > limit * n2;
   };
   for (const auto* T : {&P, &Q}) {
@@ -96,6 +101,11 @@ inline std::vector<FaceContact> find_contacts(const std::vector<PosedObject>& ob
   using Box = CGAL::Box_intersection_d::Box_with_info_d<double, 3, std::int64_t,
                                                         CGAL::Box_intersection_d::ID_EXPLICIT>;
   using V = detail::V3<double>;
+  if (!(d_c >= 0) || !std::isfinite(d_c))
+    throw std::invalid_argument(
+        "find_contacts: the contact distance d_c must be finite and >= 0, "
+        "got " +
+        std::to_string(d_c));
   detail::check_objects(objects, "find_contacts");
   const std::size_t n = objects.size();
   std::vector<CGAL::Bbox_3> object_box(n);

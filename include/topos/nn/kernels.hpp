@@ -46,12 +46,18 @@ inline std::int64_t backward_chunks(std::int64_t n) {
 // Which library ran a product, so that its backward runs on the same one.
 enum class ProductPath : std::int64_t { kernel = 0, onednn = 1, bf16 = 2 };
 
+// Whether topos's bfloat16 kernels serve x's products here: a 2-D CPU tensor on a CPU with
+// AVX-512 BF16 (the shape aside). Where they do, medium's maps they cannot take stay float32.
+inline bool bf16_kernels_serve(const torch::Tensor& x) {
+  return x.device().is_cpu() && x.dim() == 2 && cpu_has_bf16();
+}
+
 // Whether x·M (M K × N) runs on the bfloat16 kernels at `precision`: medium, float32 on a CPU
 // with AVX-512 BF16, a shape bf16_kernel_fits takes.
 inline bool bf16_takes(const torch::Tensor& x, std::int64_t K, std::int64_t N,
                        MatmulPrecision precision) {
   return precision == MatmulPrecision::medium && x.scalar_type() == torch::kFloat &&
-         x.device().is_cpu() && x.dim() == 2 && bf16_kernel_fits(K, N) && cpu_has_bf16();
+         bf16_kernel_fits(K, N) && bf16_kernels_serve(x);
 }
 
 // act(b + X M) on the bfloat16 kernels (M K × N float32, any strides; b float32 or undefined).

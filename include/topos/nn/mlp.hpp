@@ -79,7 +79,7 @@ inline torch::Tensor linear(const torch::Tensor& x, const torch::Tensor& weight,
   if (detail::linear_act_takes(x, weight, precision))
     return linear_act(x, weight, bias, Epilogue::none, precision);
   if (weight.scalar_type() != torch::kFloat || precision == MatmulPrecision::highest ||
-      (detail::cpu_has_bf16() && x.device().is_cpu() && x.dim() == 2))
+      detail::bf16_kernels_serve(x))
     return torch::linear(x, weight, bias);
   auto xb = x.to(torch::kBFloat16);
   const std::int64_t m = x.dim() == 2 ? x.size(0) : 0, rows = detail::padded_rows(m);
@@ -169,13 +169,13 @@ class MlpImpl : public torch::nn::Module {
     // stay bfloat16 from one Linear to the next through oneDNN (the next product would round them
     // to bfloat16 anyway) and only the last Linear's output returns to float32: two casts per MLP
     // instead of two per Linear. Activations other than ReLU get float32 inputs. With the
-    // kernels, each Linear is one linear_act (float32 out, the ReLU fused; bfloat16 products
-    // where the kernels take the shape, float32 ones where not: linear_act_takes). The
+    // kernels, each Linear is routed as nn::linear routes it: linear_act where linear_act_takes
+    // (float32 out, the ReLU fused; bfloat16 products where the kernels take the shape), else
+    // torch::linear in float32 (a narrow first layer on BLAS). The
     // precision is read once, so a change from another thread cannot split an MLP between the two.
     const MatmulPrecision precision = get_float32_matmul_precision();
     const bool bf16 = x.scalar_type() == torch::kFloat && precision == MatmulPrecision::medium &&
-                      options.activation() == Activation::relu &&
-                      !(detail::cpu_has_bf16() && x.device().is_cpu() && x.dim() == 2);
+                      options.activation() == Activation::relu && !detail::bf16_kernels_serve(x);
     const std::int64_t rows = x.dim() == 2 ? x.size(0) : -1;
     const std::int64_t padded = bf16 ? detail::padded_rows(rows) : rows;
     std::size_t last_linear = 0;

@@ -34,15 +34,27 @@ inline SparseOperator SparseOperator::from_triplets(std::int64_t rows, std::int6
                                                     torch::Dtype dtype) {
   if (r.size() != c.size() || r.size() != v.size())
     throw std::invalid_argument("SparseOperator: triplet arrays differ in length");
-  std::vector<std::size_t> order(r.size());
-  std::iota(order.begin(), order.end(), std::size_t{0});
+  if (rows < 0 || cols < 0)
+    throw std::invalid_argument("SparseOperator: a " + std::to_string(rows) + " x " +
+                                std::to_string(cols) + " operator; rows and cols must be >= 0");
   for (std::size_t k = 0; k < r.size(); ++k)
     if (r[k] < 0 || r[k] >= rows || c[k] < 0 || c[k] >= cols)
       throw std::invalid_argument("SparseOperator: entry (" + std::to_string(r[k]) + ", " +
                                   std::to_string(c[k]) + ") outside " + std::to_string(rows) +
                                   " x " + std::to_string(cols));
-  std::sort(order.begin(), order.end(),
-            [&](std::size_t a, std::size_t b) { return r[a] != r[b] ? r[a] < r[b] : c[a] < c[b]; });
+  // Two stable counting sorts (by column, then by row): linear where a comparison sort was
+  // n log n, and repeated entries are summed in the order they were given.
+  const auto counting_sort = [](const std::vector<std::int64_t>& key, std::int64_t range,
+                                const std::vector<std::size_t>& in) {
+    std::vector<std::size_t> start(static_cast<std::size_t>(range) + 1, 0), out(in.size());
+    for (const auto k : in) ++start[static_cast<std::size_t>(key[k]) + 1];
+    std::partial_sum(start.begin(), start.end(), start.begin());
+    for (const auto k : in) out[start[static_cast<std::size_t>(key[k])]++] = k;
+    return out;
+  };
+  std::vector<std::size_t> order(r.size());
+  std::iota(order.begin(), order.end(), std::size_t{0});
+  order = counting_sort(r, rows, counting_sort(c, cols, order));
   std::vector<std::int64_t> rr, cc;
   std::vector<double> vv;
   for (std::size_t i = 0; i < order.size();) {
@@ -84,33 +96,53 @@ inline SparseOperator SparseOperator::from_sorted(std::int64_t rows, std::int64_
                                                   const std::vector<std::int64_t>& r,
                                                   const std::vector<std::int64_t>& c,
                                                   torch::Tensor values) {
+  const auto n = static_cast<std::int64_t>(r.size());
+  if (rows < 0 || cols < 0 || c.size() != r.size() || values.dim() != 1 || values.size(0) != n)
+    throw std::invalid_argument(
+        "SparseOperator::from_sorted: expected rows, cols >= 0 and as many columns and values (a "
+        "1-d tensor) as rows indices; got " +
+        std::to_string(rows) + " x " + std::to_string(cols) + ", " + std::to_string(r.size()) +
+        " rows, " + std::to_string(c.size()) + " columns, values of shape " +
+        c10::str(values.sizes()));
+  for (std::size_t k = 0; k < r.size(); ++k) {
+    if (r[k] < 0 || r[k] >= rows || c[k] < 0 || c[k] >= cols)
+      throw std::invalid_argument("SparseOperator::from_sorted: entry (" + std::to_string(r[k]) +
+                                  ", " + std::to_string(c[k]) + ") outside " +
+                                  std::to_string(rows) + " x " + std::to_string(cols));
+    if (k > 0 && (r[k] < r[k - 1] || (r[k] == r[k - 1] && c[k] <= c[k - 1])))
+      throw std::invalid_argument(
+          "SparseOperator::from_sorted: entry " + std::to_string(k) + " (" + std::to_string(r[k]) +
+          ", " + std::to_string(c[k]) +
+          ") is not after the one before it in row-major order, or repeats it; from_triplets "
+          "sorts entries and sums repeats");
+  }
   SparseOperator a;
   a.rows = rows;
   a.cols = cols;
-  const auto n = static_cast<std::int64_t>(r.size());
-  std::vector<std::int64_t> crow(static_cast<std::size_t>(rows) + 1, 0),
-      tcrow(static_cast<std::size_t>(cols) + 1, 0);
+  // Written in place into the operator's tensors (no intermediate vectors to copy).
+  const auto longs = [](std::int64_t size) { return torch::zeros({size}, torch::kLong); };
+  a.crow = longs(rows + 1), a.t_crow = longs(cols + 1);
+  a.row = longs(n), a.col = longs(n), a.t_row = longs(n), a.t_col = longs(n), a.t_perm = longs(n);
+  auto* crow = a.crow.data_ptr<std::int64_t>();
+  auto* tcrow = a.t_crow.data_ptr<std::int64_t>();
+  std::copy(r.begin(), r.end(), a.row.data_ptr<std::int64_t>());
+  std::copy(c.begin(), c.end(), a.col.data_ptr<std::int64_t>());
   for (std::int64_t k = 0; k < n; ++k)
-    ++crow[static_cast<std::size_t>(r[k]) + 1], ++tcrow[static_cast<std::size_t>(c[k]) + 1];
-  std::partial_sum(crow.begin(), crow.end(), crow.begin());
-  std::partial_sum(tcrow.begin(), tcrow.end(), tcrow.begin());
-  std::vector<std::int64_t> tcol(static_cast<std::size_t>(n)), trow(static_cast<std::size_t>(n)),
-      tperm(static_cast<std::size_t>(n));
-  std::vector<std::int64_t> next(tcrow.begin(), tcrow.end() - 1);
+    ++crow[r[static_cast<std::size_t>(k)] + 1], ++tcrow[c[static_cast<std::size_t>(k)] + 1];
+  std::partial_sum(crow, crow + rows + 1, crow);
+  std::partial_sum(tcrow, tcrow + cols + 1, tcrow);
+  auto* tcol = a.t_col.data_ptr<std::int64_t>();
+  auto* trow = a.t_row.data_ptr<std::int64_t>();
+  auto* tperm = a.t_perm.data_ptr<std::int64_t>();
+  std::vector<std::int64_t> next(tcrow, tcrow + cols);
   for (std::int64_t k = 0; k < n; ++k) {  // rows ascending, so each column of Aᵀ stays sorted
-    const auto p = static_cast<std::size_t>(next[static_cast<std::size_t>(c[k])]++);
-    tcol[p] = r[k];
-    trow[p] = c[k];
+    const auto ck = c[static_cast<std::size_t>(k)];
+    const auto p = next[static_cast<std::size_t>(ck)]++;
+    tcol[p] = r[static_cast<std::size_t>(k)];
+    trow[p] = ck;
     tperm[p] = k;
   }
-  a.crow = torch::tensor(crow, torch::kLong);
-  a.col = torch::tensor(c, torch::kLong);
-  a.row = torch::tensor(r, torch::kLong);
   a.values = values.contiguous();
-  a.t_crow = torch::tensor(tcrow, torch::kLong);
-  a.t_col = torch::tensor(tcol, torch::kLong);
-  a.t_row = torch::tensor(trow, torch::kLong);
-  a.t_perm = torch::tensor(tperm, torch::kLong);
   return a;
 }
 

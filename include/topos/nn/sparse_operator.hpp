@@ -95,7 +95,7 @@ struct SparseOperator {
   /// The nonzero entries of a dense 2-d tensor.
   static SparseOperator from_dense(const torch::Tensor& dense);
 
-  /// Entries already in row-major order without duplicates.
+  /// Entries already in row-major order without duplicates (checked: std::invalid_argument).
   static SparseOperator from_sorted(std::int64_t rows, std::int64_t cols,
                                     const std::vector<std::int64_t>& r,
                                     const std::vector<std::int64_t>& c, torch::Tensor values);

@@ -12,6 +12,7 @@
 
 #include <algorithm>
 #include <array>
+#include <random>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -498,6 +499,56 @@ TEST_CASE("from_triplets sums duplicates and drops zeros", "[nn][sparse]") {
   REQUIRE(torch::equal(A.row_sums(), torch::tensor({5.0f, 0.0f})));
   REQUIRE_THROWS_WITH(SparseOperator::from_triplets(2, 2, {2}, {0}, {1.0}),
                       Catch::Contains("outside 2 x 2"));
+  // Random triplets with many repeats in random order against a dense sum, the CSR arrays of A
+  // and of Aᵀ against the dense matrix's own, and repeats summed in the order given.
+  std::mt19937 rng(11);
+  for (const auto& [rows, cols, n] :
+       std::initializer_list<std::array<int, 3>>{{7, 5, 60}, {1, 9, 20}, {30, 1, 40}}) {
+    std::vector<std::int64_t> r, c;
+    std::vector<double> v;
+    for (int k = 0; k < n; ++k)
+      r.push_back(std::uniform_int_distribution<int>(0, rows - 1)(rng)),
+          c.push_back(std::uniform_int_distribution<int>(0, cols - 1)(rng)),
+          v.push_back(std::uniform_int_distribution<int>(-3, 3)(rng));
+    auto dense = torch::zeros({rows, cols}, torch::kDouble);
+    for (int k = 0; k < n; ++k) dense[r[k]][c[k]] += v[k];
+    const auto B = SparseOperator::from_triplets(rows, cols, r, c, v, torch::kDouble);
+    REQUIRE(torch::equal(B.to_dense(), dense));
+    REQUIRE(torch::equal(B.t().to_dense(), dense.t()));
+    const auto nz = dense.nonzero();
+    REQUIRE(torch::equal(B.row, nz.select(1, 0)));
+    REQUIRE(torch::equal(B.col, nz.select(1, 1)));
+    REQUIRE(torch::equal(B.crow.diff(), (dense != 0).sum(1)));
+    REQUIRE(torch::equal(B.t_crow.diff(), (dense != 0).sum(0)));
+    REQUIRE(torch::equal(B.values.index_select(0, B.t_perm), dense.t().index({dense.t() != 0})));
+    REQUIRE(torch::equal(B.t_col, B.row.index_select(0, B.t_perm)));
+    REQUIRE(torch::equal(B.t_row, B.col.index_select(0, B.t_perm)));
+  }
+  // Repeats summed in the order given, among 40 entries (past the size where a comparison sort
+  // falls to a stable insertion sort): (1e16 + 1) - 1e16 is 0 in double, (1e16 - 1e16) + 1 is 1.
+  for (const bool one_last : {false, true}) {
+    std::vector<std::int64_t> r(40), c(40);
+    std::vector<double> v(40, 1.0);
+    for (int k = 0; k < 40; ++k) r[k] = (k * 7) % 5, c[k] = 2 + k % 3;
+    const int at[3] = {3, 17, 31};  // three repeats of (0, 0), spread out
+    const double vals[3] = {1e16, one_last ? -1e16 : 1.0, one_last ? 1.0 : -1e16};
+    for (int j = 0; j < 3; ++j) r[at[j]] = 0, c[at[j]] = 0, v[at[j]] = vals[j];
+    const auto S = SparseOperator::from_triplets(5, 5, r, c, v, torch::kDouble);
+    REQUIRE(S.to_dense()[0][0].item<double>() == (one_last ? 1.0 : 0.0));
+  }
+  // from_sorted checks what it is given.
+  const auto ones = [](std::int64_t n) { return torch::ones({n}); };
+  REQUIRE(SparseOperator::from_sorted(2, 3, {0, 0, 1}, {0, 2, 1}, ones(3)).nnz() == 3);
+  REQUIRE_THROWS_WITH(SparseOperator::from_sorted(2, 3, {0, 1, 0}, {0, 1, 2}, ones(3)),
+                      Catch::Contains("entry 2 (0, 2) is not after"));
+  REQUIRE_THROWS_WITH(SparseOperator::from_sorted(2, 3, {0, 0}, {1, 1}, ones(2)),
+                      Catch::Contains("or repeats it"));
+  REQUIRE_THROWS_WITH(SparseOperator::from_sorted(2, 3, {0, 2}, {1, 1}, ones(2)),
+                      Catch::Contains("entry (2, 1) outside 2 x 3"));
+  REQUIRE_THROWS_WITH(SparseOperator::from_sorted(2, 3, {0, 1}, {1, 1}, ones(3)),
+                      Catch::Contains("values of shape [3]"));
+  REQUIRE_THROWS_WITH(SparseOperator::from_triplets(-2, 3, {}, {}, {}),
+                      Catch::Contains("rows and cols must be >= 0"));
 }
 
 TEST_CASE("row softmax normalises each target's incoming scores", "[nn][attention]") {
