@@ -1259,6 +1259,16 @@ TEST_CASE("on CUDA, a training step and a rollout step equal the CPU ones", "[ho
     for (const auto& p : cpu->named_parameters()) gpu->named_parameters()[p.key()].copy_(p.value());
   }
   gpu->to(torch::kCUDA);
+  // device() follows the parameters (read from one found at construction): moved, cloned, and a
+  // clone moved back leaves the original where it was.
+  REQUIRE(cpu->device().is_cpu());
+  REQUIRE(gpu->device().is_cuda());
+  const auto cloned =
+      std::dynamic_pointer_cast<HopnetImpl>(cpu->clone(torch::Device(torch::kCUDA)));
+  REQUIRE(cloned->device().is_cuda());
+  cloned->to(torch::kCPU);
+  REQUIRE(cloned->device().is_cpu());
+  REQUIRE(gpu->device().is_cuda());
   const auto l_cpu = trajectory_loss(*cpu, item, norm);
   l_cpu.backward();
   const auto l_gpu = trajectory_loss(*gpu, item.to(torch::kCUDA), norm);
@@ -1300,4 +1310,43 @@ TEST_CASE("HOPNet gives all-off's loss and gradients with each fast path on alon
   // float32: sums in another order.
   const auto changed = test::check_fast_paths(*net, run, 1e-4, 1e-6);
   WARN("fast paths that changed some bit on HOPNet: " << test::joined(changed));
+}
+
+TEST_CASE("a HOPNet's device is its parameters' device", "[hopnet]") {
+  // On the CPU here; the CUDA case above moves and clones a model across devices.
+  Hopnet net(HopnetOptions().hidden(16));
+  REQUIRE(net->device() == net->parameters().front().device());
+  net->to(torch::kDouble);
+  REQUIRE(net->device() == torch::Device(torch::kCPU));
+  REQUIRE(std::dynamic_pointer_cast<HopnetImpl>(net->clone())->device().is_cpu());
+}
+
+TEST_CASE("normalising features on the host equals the tensor operations bit for bit",
+          "[hopnet][stats]") {
+  std::mt19937 rng(12);
+  std::uniform_real_distribution<double> u(-1, 1);
+  auto s = unit_stats();
+  for (auto& [k, v] : s.mean)
+    for (std::size_t j = 0; j < v.size(); ++j)
+      v[j] = 100 * u(rng), s.std[k][j] = std::pow(10.0, 3 * u(rng));
+  const Normalizer norm(s);
+  for (const auto& [k, n] : NormalizationStats::layout()) {
+    for (const std::int64_t rows : {0, 1, 37}) {
+      RowMatrix x(rows, static_cast<Eigen::Index>(n));
+      for (Eigen::Index i = 0; i < x.size(); ++i) x.data()[i] = std::pow(10.0, 4 * u(rng)) * u(rng);
+      INFO(k << ", " << rows << " rows");
+      const auto host = norm.normalize(k, x), ops = norm.normalize(k, Normalizer::to_tensor(x));
+      REQUIRE(host.scalar_type() == torch::kFloat);
+      REQUIRE(torch::equal(host, ops));
+    }
+    const RowMatrix wrong(2, static_cast<Eigen::Index>(n) + 1);
+    REQUIRE_THROWS_WITH(norm.normalize(k, wrong),
+                        Catch::Contains("the features have " + std::to_string(n + 1)));
+    REQUIRE_THROWS_WITH(norm.normalize(k, Normalizer::to_tensor(wrong)),
+                        Catch::Contains("the features have " + std::to_string(n + 1)));
+  }
+  REQUIRE(torch::equal(norm.normalize("x3_plus", RowMatrix::Ones(3, 28)),
+                       norm.normalize("x3", RowMatrix::Ones(3, 28))));
+  REQUIRE_THROWS_WITH(norm.normalize("x9", RowMatrix::Ones(1, 1)),
+                      Catch::Contains("have no 'x9' entries"));
 }

@@ -50,9 +50,7 @@ inline Poses predict_next(HopnetImpl& model, const Normalizer& norm, const Hopne
   check_rollout_precision(model);
   HopnetFrame frame = build_frame(g, first, p2, p1, pt, contacts);
   // The model's device decides where it runs (CPU or GPU); the pose update stays on the host.
-  const auto params = model.parameters();
-  const torch::Device device =
-      params.empty() ? torch::Device(torch::kCPU) : params.front().device();
+  const torch::Device device = model.device();
   const HopnetBatch batch = device.is_cpu() ? make_batch({{&g, &frame}}, norm)
                                             : make_batch({{&g, &frame}}, norm).to(device);
   torch::NoGradGuard no_grad;
