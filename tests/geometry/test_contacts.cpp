@@ -328,11 +328,6 @@ TEST_CASE("the separating-axis filter drops only pairs beyond d_c", "[geometry][
   // pair the filter drops is farther than d_c by CGAL's exact kernel, and it drops many.
   std::mt19937_64 rng(7);
   std::uniform_real_distribution<double> u(-1, 1);
-  const auto to_v = [](const std::array<Eigen::Vector3d, 3>& t) {
-    return std::array<detail::V3<double>, 3>{detail::V3<double>{t[0].x(), t[0].y(), t[0].z()},
-                                             detail::V3<double>{t[1].x(), t[1].y(), t[1].z()},
-                                             detail::V3<double>{t[2].x(), t[2].y(), t[2].z()}};
-  };
   const double dc = 0.1;
   std::int64_t dropped = 0, near = 0, pairs = 0;
   for (int n = 0; n < 20000; ++n) {
@@ -348,7 +343,7 @@ TEST_CASE("the separating-axis filter drops only pairs beyond d_c", "[geometry][
     const double d2 = exact_sq(a, b);
     ++pairs;
     if (d2 <= dc * dc * 1.01 && d2 >= dc * dc * 0.99) ++near;
-    if (detail::separated_beyond(to_v(a), to_v(b), dc)) {
+    if (detail::separated_beyond(a, b, dc)) {
       ++dropped;
       INFO("pair " << n << ": exact squared distance " << d2);
       REQUIRE(d2 > dc * dc);
@@ -372,8 +367,8 @@ TEST_CASE("the separating-axis filter drops only pairs beyond d_c", "[geometry][
       if (exact_sq(a, b) != 0) continue;
       ++touching;
       INFO("touching pair " << n << " at scale " << scale);
-      REQUIRE_FALSE(detail::separated_beyond(to_v(a), to_v(b), d));
-      REQUIRE_FALSE(detail::separated_beyond(to_v(b), to_v(a), d));
+      REQUIRE_FALSE(detail::separated_beyond(a, b, d));
+      REQUIRE_FALSE(detail::separated_beyond(b, a, d));
     }
   }
   REQUIRE(touching > 9000);
@@ -385,8 +380,8 @@ TEST_CASE("the separating-axis filter drops only pairs beyond d_c", "[geometry][
                                             Eigen::Vector3d(-0.6, 0.5, 0.01),
                                             Eigen::Vector3d(-0.7, 0.7, 0.01)};
   REQUIRE(exact_sq(half, face) > dc * dc);
-  REQUIRE(detail::separated_beyond(to_v(half), to_v(face), dc));
-  REQUIRE_FALSE(detail::separated_beyond(to_v(face), to_v(face), dc));
+  REQUIRE(detail::separated_beyond(half, face, dc));
+  REQUIRE_FALSE(detail::separated_beyond(face, face, dc));
 }
 
 TEST_CASE("centre of mass and shape matching", "[geometry][rigid]") {

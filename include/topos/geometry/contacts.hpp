@@ -54,15 +54,14 @@ inline CGAL::Bbox_3 face_box(const PosedObject& o, std::int64_t f, double inflat
 // floor quad). Conservative: the gap less a bound on its rounding (projections of coordinates up
 // to M on an axis a err by under 11·eps·|a|·M) must pass d_c by a relative 1e-6 in the squares,
 // so every pair it drops is beyond d_c by the exact test too, touching pairs at d_c = 0 included.
-inline bool separated_beyond(const std::array<V3<double>, 3>& P, const std::array<V3<double>, 3>& Q,
-                             double d_c) {
-  using V = V3<double>;
+inline bool separated_beyond(const std::array<Eigen::Vector3d, 3>& P,
+                             const std::array<Eigen::Vector3d, 3>& Q, double d_c) {
   double M = 0;
   for (const auto* T : {&P, &Q})
-    for (const V& v : *T) M = std::max({M, std::abs(v.x), std::abs(v.y), std::abs(v.z)});
+    for (const auto& v : *T) M = std::max(M, v.cwiseAbs().maxCoeff());
   const double limit = d_c * d_c * (1 + 1e-6), rounding = 16 * 2.220446049250313e-16 * M;
-  const auto parts = [&](const V& axis) {
-    const double n2 = axis.dot(axis);
+  const auto parts = [&](const Eigen::Vector3d& axis) {
+    const double n2 = axis.squaredNorm();
     if (!(n2 > 0)) return false;
     double plo = axis.dot(P[0]), phi = plo, qlo = axis.dot(Q[0]), qhi = qlo;
     for (int i = 1; i < 3; ++i) {
@@ -77,7 +76,7 @@ inline bool separated_beyond(const std::array<V3<double>, 3>& P, const std::arra
   };
   for (const auto* T : {&P, &Q}) {
     const auto& A = *T;
-    const V n = (A[1] - A[0]).cross(A[2] - A[0]);
+    const Eigen::Vector3d n = (A[1] - A[0]).cross(A[2] - A[0]);
     if (parts(n)) return true;
     for (int i = 0; i < 3; ++i)
       if (parts((A[(i + 1) % 3] - A[i]).cross(n))) return true;
@@ -100,7 +99,6 @@ inline std::vector<FaceContact> find_contacts(const std::vector<PosedObject>& ob
   using K = CGAL::Exact_predicates_inexact_constructions_kernel;
   using Box = CGAL::Box_intersection_d::Box_with_info_d<double, 3, std::int64_t,
                                                         CGAL::Box_intersection_d::ID_EXPLICIT>;
-  using V = detail::V3<double>;
   if (!(d_c >= 0) || !std::isfinite(d_c))
     throw std::invalid_argument(
         "find_contacts: the contact distance d_c must be finite and >= 0, "
@@ -143,13 +141,7 @@ inline std::vector<FaceContact> find_contacts(const std::vector<PosedObject>& ob
       std::sort(candidates.begin(), candidates.end());
       for (auto [fi, fk] : candidates) {
         const auto P = detail::face_points(objects[i], fi), Q = detail::face_points(objects[k], fk);
-        if (detail::separated_beyond(
-                {V{P[0].x(), P[0].y(), P[0].z()}, V{P[1].x(), P[1].y(), P[1].z()},
-                 V{P[2].x(), P[2].y(), P[2].z()}},
-                {V{Q[0].x(), Q[0].y(), Q[0].z()}, V{Q[1].x(), Q[1].y(), Q[1].z()},
-                 V{Q[2].x(), Q[2].y(), Q[2].z()}},
-                d_c))
-          continue;
+        if (detail::separated_beyond(P, Q, d_c)) continue;
         const auto r = closest_points<K>(
             K::Triangle_3({P[0].x(), P[0].y(), P[0].z()}, {P[1].x(), P[1].y(), P[1].z()},
                           {P[2].x(), P[2].y(), P[2].z()}),
