@@ -174,8 +174,10 @@ BENCHMARK(BM_rollout_step)->Apply(precision_args)->Unit(benchmark::kMillisecond)
 
 void BM_rollout_102(benchmark::State& state) {
   auto [mode, net, g] = make_case(state);
-  // threads: LibTorch's intra-op threads, which topos's kernels and oneDNN's products share.
+  // threads: LibTorch's intra-op threads, which topos's kernels and oneDNN's products share;
+  // steps: the threads a parallel group's steps share (OperatorNetworkImpl::step_threads).
   if (state.range(3) > 1) nn::set_cpu_threads(static_cast<int>(state.range(3)), 1);
+  net->step_threads(static_cast<int>(state.range(4)));
   const Precision precision(state.range(1) != 0);
   const Gemm gemm(state.range(2));
   const auto& S = setup();
@@ -186,18 +188,17 @@ void BM_rollout_102(benchmark::State& state) {
     pos100 = rollout_metrics(rollout(*net, S.norm, S.scene, g, opt).poses, S.scene).pos_rmse[100];
   state.counters["pos_rmse_100"] = pos100;
 }
-// precision_args on one thread, then both float32 modes on two threads (oneDNN's products and
-// topos's kernel).
+// precision_args on one thread, then both float32 modes on two intra-op threads (oneDNN's
+// products and topos's kernel), then oneDNN's float32 and native bfloat16 on two step threads.
 void rollout_args(benchmark::internal::Benchmark* b) {
   for (const auto& a : std::vector<std::vector<std::int64_t>>{
-           {0, 0, 0}, {0, 0, 1}, {0, 0, 2}, {1, 0, 0}, {1, 0, 1}, {1, 0, 2}, {1, 1, 0}}) {
-    auto args = a;
-    args.push_back(1);
-    b->Args(args);
-  }
+           {0, 0, 0}, {0, 0, 1}, {0, 0, 2}, {1, 0, 0}, {1, 0, 1}, {1, 0, 2}, {1, 1, 0}})
+    b->Args({a[0], a[1], a[2], 1, 1});
   for (std::int64_t native : {0, 1})
-    for (std::int64_t gemm : {1, 2}) b->Args({native, 0, gemm, 2});
-  b->ArgNames({"native", "bf16", "gemm", "threads"});
+    for (std::int64_t gemm : {1, 2}) b->Args({native, 0, gemm, 2, 1});
+  for (const auto& a : std::vector<std::vector<std::int64_t>>{{0, 0, 1}, {1, 0, 1}, {1, 1, 0}})
+    b->Args({a[0], a[1], a[2], 1, 2});
+  b->ArgNames({"native", "bf16", "gemm", "threads", "steps"});
 }
 BENCHMARK(BM_rollout_102)->Apply(rollout_args)->Unit(benchmark::kMillisecond)->MinTime(2.0);
 

@@ -10,7 +10,7 @@ struct RolloutArgs {
   std::string checkpoint, stats, scene, assets, mode = "reference", out, collisions, viewer,
                                                 device = "cpu", matmul_precision = "highest",
                                                 cpu_gemm = "auto";
-  int steps = 102;
+  int steps = 102, step_threads = 1;
   bool no_collisions_json = false;
   VariantArgs variant;
 };
@@ -29,6 +29,7 @@ int run_rollout(const RolloutArgs& a) {
   const auto opened = open_checkpoint(a.checkpoint, open_options(a.variant, a.stats, mode));
   sim::Simulator& model = *opened.simulator;
   model.to(nn::device_from_string(a.device));
+  model.step_threads(a.step_threads);
   const std::string variant = model.variant();
   RolloutOptions opt;
   opt.steps = a.steps;
@@ -54,6 +55,7 @@ int run_rollout(const RolloutArgs& a) {
   j["mode"] = to_string(mode);
   j["matmul_precision"] = a.matmul_precision;
   j["cpu_gemm"] = gemm;
+  j["step_threads"] = a.step_threads;
   j["checkpoint"] = a.checkpoint;
   j["variant"] = variant;
   j["frames"] = r.num_frames();
@@ -124,6 +126,11 @@ Command add_rollout(CLI::App& app) {
   add_rollout_precision_option(cr, ro.matmul_precision);
   add_rollout_gemm_option(cr, ro.cpu_gemm);
   cr->add_option("--steps", ro.steps, "frames to predict")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  cr->add_option("--step-threads", ro.step_threads,
+                 "threads that the network's independent steps share (the same poses; whether "
+                 "2 pays depends on the machine: docs/benchmarks.md)")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
   cr->add_option("--collisions", ro.collisions,

@@ -194,6 +194,11 @@ void bind_hopnet(py::module_& parent) {
           })
       .def_property_readonly("num_parameters",
                              [](const Checkpoint& c) { return c.net->num_parameters(); })
+      .def_property(
+          "step_threads", [](const Checkpoint& c) { return c.net->step_threads(); },
+          [](Checkpoint& c, int n) { c.net->step_threads(n); },
+          "threads that the network's independent steps share in a rollout (1: the calling "
+          "thread alone; 2 on two free cores; the same poses); below 1 is a ValueError")
       .def(
           "state_dict",
           [](const Checkpoint& c) {

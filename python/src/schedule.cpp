@@ -841,6 +841,11 @@ void bind_network(py::module_& m) {
             return d;
           },
           "Each fast path's name and whether it is on, in FastPaths::names()'s order.")
+      .def_property(
+          "step_threads", [](const Net& net) { return net.step_threads(); },
+          [](Net& net, int n) { net.step_threads(n); },
+          "Threads a parallel group's steps share outside training (OperatorNetworkImpl::"
+          "step_threads; 1: the calling thread alone).")
       .def_property_readonly("schedule", &Net::schedule, py::return_value_policy::copy);
 }
 

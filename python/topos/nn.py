@@ -240,6 +240,20 @@ class OperatorNetwork(_SharedTensors):
         """Each fast path's name and whether it is on (C++ ``topos::nn::FastPaths``)."""
         return self._network.fast_paths()
 
+    @property
+    def step_threads(self):
+        """Threads that the steps of one parallel group share in a forward outside training (1,
+        the default: the calling thread alone). With 2 or more, helper threads take some of a
+        group's independent steps (Python operations among them, each under the GIL); the outputs
+        are the same bit for bit, gradients equal up to the order of their sums. For small
+        complexes on spare cores; keep ``torch.set_num_threads(1)`` beside it. Below 1 is a
+        ValueError."""
+        return self._network.step_threads
+
+    @step_threads.setter
+    def step_threads(self, n):
+        self._network.step_threads = int(n)
+
     def __deepcopy__(self, memo):
         # A new C++ network from the same schedule (its operations are options, shared), then
         # this one's dtype, state and mode: a snapshot such as early stopping keeps.
@@ -250,6 +264,7 @@ class OperatorNetwork(_SharedTensors):
         other.load_state_dict(self.state_dict())
         other.train(self.training)
         other.set_fast_paths(**self.fast_paths)
+        other.step_threads = self.step_threads
         memo[id(self)] = other
         return other
 

@@ -47,6 +47,15 @@ foreach(preset fignet mgn mgn-large-radius)
   if(NOT frames EQUAL 10)
     message(FATAL_ERROR "${preset}: the rollout has ${frames} frames, expected 4 + 6")
   endif()
+  # Two step threads: the same poses.
+  expect_success("rollout ${preset} on two step threads" rollout --checkpoint ${out}/checkpoint.pt
+                 --scene ${WORK}/data/6 --steps 6 --step-threads 2 --out ${out}/rollout2.json)
+  file(READ ${out}/rollout2.json r2)
+  string(JSON p1 GET "${r}" positions)
+  string(JSON p2 GET "${r2}" positions)
+  if(NOT p1 STREQUAL p2)
+    message(FATAL_ERROR "${preset}: two step threads moved the poses:\n${p1}\n${p2}")
+  endif()
 endforeach()
 expect_success("evaluate fignet" evaluate --checkpoint ${WORK}/fignet/checkpoint.pt --data ${WORK}/data
                --split-file ${WORK}/split.json --steps 8 --out ${WORK}/eval --no-report)

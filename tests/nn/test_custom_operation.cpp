@@ -9,6 +9,9 @@
 #include "topos/nn/operator_schedule.hpp"
 
 #include <atomic>
+#include <chrono>
+#include <optional>
+#include <thread>
 
 using namespace topos::nn;
 using namespace topos::nn::ops;
@@ -879,4 +882,105 @@ TEST_CASE(
   CHECK(torch::allclose(parts.y, whole.y, 1e-12, 1e-12));
   CHECK(torch::allclose(parts.grad, whole.grad, 1e-12, 1e-12));
   CHECK(whole.grad.abs().sum().item<double>() > 0);
+}
+
+namespace {
+// Two steps that must run at once: each arrives, then waits (10 s at most) for the other.
+std::atomic<bool> must_meet{false};
+std::atomic<int> arrived{0};
+void meet() {
+  ++arrived;
+  const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+  while (arrived.load() < 2 && std::chrono::steady_clock::now() < until)
+    std::this_thread::sleep_for(std::chrono::microseconds(100));
+}
+
+// x · 2; records the thread it ran on, meets the other meeting step when asked to, and fails
+// on a thread other than `caller` when one is given.
+struct Slow : Operation {
+  bool meets;
+  std::thread::id* ran_on;
+  std::optional<std::thread::id> caller;  // set: fail on any other thread
+  Slow(bool m, std::thread::id* on, std::optional<std::thread::id> c = {})
+      : meets(m), ran_on(on), caller(c) {}
+  std::string str(const std::string& x) const override { return "slow(" + x + ")"; }
+  TermShape infer(BuildContext&, TermShape x) const override { return x; }
+  torch::Tensor forward(RunContext& ctx, const torch::Tensor& x) const override {
+    if (meets && must_meet) meet();
+    *ran_on = std::this_thread::get_id();
+    if (caller && *caller != *ran_on) ctx.fail("slow failed on a helper thread");
+    return x * 2;
+  }
+};
+}  // namespace
+
+TEST_CASE(
+    "a parallel group's steps run on the helper threads, with the one-thread values and "
+    "errors",
+    "[nn][schedule][operation][threads]") {
+  torch::manual_seed(5);
+  const auto x = torch::randn({6, 4}, torch::kDouble).requires_grad_();
+  const auto A = random_operator(6, 6, 3, 0.5);
+  const auto me = std::this_thread::get_id();
+  std::thread::id on[3];
+  // Two steps that meet (so each of two threads takes one of them), and a quick third.
+  const auto schedule = [&](std::optional<std::thread::id> fail_off) {
+    OperatorSchedule s;
+    s.input("x", 0, 4).operator_input("A", 0, 0).output("y", 0).output("z", 0, "z");
+    s.output("w", 0, "w");
+    s.parallel({into(0).sum(from(0).apply(Slow(true, &on[0], fail_off)).via("A")).named("first"),
+                into(0, "z")
+                    .sum(from(0).apply(Gate("g")).apply(Slow(true, &on[1], fail_off)))
+                    .named("second"),
+                into(0, "w").sum(from(0).via("A").apply(Slow(false, &on[2]))).named("third")});
+    return s;
+  };
+  OperatorNetwork net(schedule({}));
+  net->to(torch::kDouble);
+  CHECK(net->step_threads() == 1);
+  const auto run = [&] {
+    const auto out = net->forward({{"x", x}}, {{"A", A}});
+    const auto loss = out.at("y").sum() + out.at("z").pow(2).sum() + out.at("w").sin().sum();
+    auto g = torch::autograd::grad({loss}, {x, net->parameter("g")});
+    return std::vector<torch::Tensor>{out.at("y"), out.at("z"), out.at("w"), g[0], g[1]};
+  };
+  const auto one = run();
+  CHECK((on[0] == me && on[1] == me && on[2] == me));
+  net->eval();
+  net->step_threads(2);
+  CHECK(net->step_threads() == 2);
+  must_meet = true, arrived = 0;
+  const auto two = run();
+  must_meet = false;
+  CHECK(on[0] != on[1]);
+  CHECK((on[0] == me || on[1] == me));
+  // The outputs bit for bit; the gradients up to the order of autograd's sums (test::
+  // check_step_threads says why).
+  for (std::size_t k = 0; k < 3; ++k) CHECK(torch::equal(one[k], two[k]));
+  for (std::size_t k = 3; k < one.size(); ++k) CHECK(torch::allclose(one[k], two[k], 1e-13, 1e-14));
+  // A training forward keeps one thread (its random draws keep their order).
+  net->train();
+  const auto trained = run();
+  CHECK((on[0] == me && on[1] == me && on[2] == me));
+  for (std::size_t k = 0; k < one.size(); ++k) CHECK(torch::equal(one[k], trained[k]));
+
+  // An error on a helper thread reaches the caller, naming its step; the network runs again.
+  OperatorNetwork failing(schedule(me));
+  failing->to(torch::kDouble);
+  failing->eval();
+  failing->step_threads(3);
+  torch::NoGradGuard no_grad;
+  for (int round = 0; round < 2; ++round) {
+    must_meet = true, arrived = 0;
+    CHECK_THROWS_WITH(failing->forward({{"x", x}}, {{"A", A}}),
+                      (Contains("first (into (0)): ") || Contains("second (into (0, \"z\")): ")) &&
+                          Contains("slow failed on a helper thread"));
+  }
+  must_meet = false;
+  failing->step_threads(1);
+  CHECK_NOTHROW(failing->forward({{"x", x}}, {{"A", A}}));
+  CHECK_THROWS_WITH(failing->step_threads(0),
+                    Contains("OperatorNetwork::step_threads: 0 threads; give 1 (the calling "
+                             "thread alone) or more"));
+  CHECK(failing->step_threads() == 1);
 }

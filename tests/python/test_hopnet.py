@@ -144,3 +144,19 @@ def test_rollout_cpu_gemm_libraries_agree(checkpoint, scene, reference_rollout):
         assert topos.nn.get_cpu_gemm() == "topos"
     finally:
         topos.nn.set_cpu_gemm("blas")
+
+
+def test_rollout_on_two_step_threads_gives_the_same_poses(checkpoint, scene, reference_rollout):
+    """step_threads shares each parallel group's steps with helper threads; the poses are the
+    one-thread poses bit for bit."""
+    assert checkpoint.step_threads == 1
+    checkpoint.step_threads = 2
+    try:
+        r = hopnet.rollout(checkpoint, scene, steps=102)
+    finally:
+        checkpoint.step_threads = 1
+    assert torch.equal(r.positions, reference_rollout.positions)
+    assert torch.equal(r.quaternions, reference_rollout.quaternions)
+    with pytest.raises(ValueError, match="step_threads: 0 threads; give 1"):
+        checkpoint.step_threads = 0
+    assert checkpoint.step_threads == 1

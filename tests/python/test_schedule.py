@@ -657,3 +657,44 @@ def test_caching_cpu_allocator_keeps_and_releases_blocks():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["True", "True", "0"], out.stdout + out.stderr
+
+
+def test_step_threads_share_a_parallel_group(complex_):
+    """Two step threads: the same outputs as one (gradients up to rounding), Python operations
+    included (each takes the GIL on whichever thread runs it)."""
+    torch.manual_seed(8)
+    s = OperatorSchedule()
+    s.input("x_0", 0, 4).operator_input("adjacency_0", 0, 0)
+    s.output("y", 0).output("z", 0, "z").output("w", 0, "w")
+    s.parallel(
+        [
+            into(0).sum(from_(0).via("adjacency_0").apply(Gate("g1"))).named("first"),
+            into(0, "z").sum(from_(0).apply(Gate("g2")).via("adjacency_0")).named("second"),
+            into(0, "w").sum(from_(0).linear("lin", 4).act("relu")).named("third"),
+        ]
+    )
+    net = OperatorNetwork(s).double()
+    x = torch.randn(complex_["n0"], 4, dtype=torch.float64, requires_grad=True)
+    A0 = complex_["adjacency_0"].double()
+
+    def run():
+        out = net({"x_0": x}, {"adjacency_0": A0})
+        loss = out["y"].sum() + out["z"].square().sum() + out["w"].sin().sum()
+        grads = torch.autograd.grad(loss, [x] + list(net.parameters()))
+        return [out["y"], out["z"], out["w"], *grads]
+
+    net.eval()
+    assert net.step_threads == 1
+    one = run()
+    net.step_threads = 2
+    assert net.step_threads == 2
+    for _ in range(3):
+        again = run()
+        for a, b in zip(one[:3], again[:3]):  # the outputs bit for bit
+            assert torch.equal(a, b)
+        for a, b in zip(one[3:], again[3:]):  # gradients up to the order of autograd's sums
+            torch.testing.assert_close(a, b, rtol=1e-13, atol=1e-14)
+    assert copy.deepcopy(net).step_threads == 2
+    with pytest.raises(ValueError, match="step_threads: 0 threads; give 1"):
+        net.step_threads = 0
+    assert net.step_threads == 2

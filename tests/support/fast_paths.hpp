@@ -1,5 +1,5 @@
 // Checking OperatorNetwork's fast paths (nn::FastPaths) on a model: its outputs and gradients
-// with every fast path off, against each fast path on alone and all on.
+// with every fast path off, against each fast path on alone and all on; and its step threads.
 #pragma once
 
 #include "support/torch_prelude.hpp"
@@ -61,6 +61,49 @@ inline std::vector<std::string> check_fast_paths(
   }
   for (auto* n : networks) n->fast_paths() = nn::FastPaths::all();
   return changed;
+}
+
+/// `run` (its first `outputs` tensors the outputs, then gradients, as for check_fast_paths) with
+/// `m` in eval mode, its networks on one step thread, then on 2 and 3
+/// (OperatorNetworkImpl::step_threads): the outputs the same bit for bit, the gradients within
+/// rtol · (the largest entry) + atol (autograd orders its sums by when each node was made, and
+/// steps on other threads make theirs in another order). `m`'s training mode and its networks'
+/// step threads are restored.
+inline void check_step_threads(torch::nn::Module& m,
+                               const std::function<std::vector<torch::Tensor>()>& run,
+                               std::size_t outputs, double rtol, double atol) {
+  const auto networks = networks_in(m);
+  REQUIRE(!networks.empty());
+  const bool training = m.is_training();
+  std::vector<int> before;
+  for (auto* n : networks) before.push_back(n->step_threads());
+  m.eval();
+  const auto with = [&](int threads) {
+    for (auto* n : networks) n->step_threads(threads);
+    auto r = run();
+    for (auto& t : r) t = t.defined() ? t.detach().clone() : t;
+    return r;
+  };
+  const auto one = with(1);
+  REQUIRE(outputs <= one.size());
+  for (int threads : {2, 3}) {
+    const auto more = with(threads);
+    REQUIRE(more.size() == one.size());
+    for (std::size_t k = 0; k < one.size(); ++k) {
+      REQUIRE(more[k].defined() == one[k].defined());
+      if (!one[k].defined() || one[k].numel() == 0) continue;
+      const double err = (more[k] - one[k]).abs().max().item<double>(),
+                   scale = one[k].abs().max().item<double>();
+      INFO(threads << " step threads, " << (k < outputs ? "output " : "gradient ") << k
+                   << ": max difference " << err << ", largest " << scale);
+      if (k < outputs)
+        CHECK(torch::equal(more[k], one[k]));
+      else
+        CHECK(err <= atol + rtol * scale);
+    }
+  }
+  for (std::size_t i = 0; i < networks.size(); ++i) networks[i]->step_threads(before[i]);
+  m.train(training);
 }
 
 /// The names, separated by spaces ("none" when empty), for a report.

@@ -309,6 +309,7 @@ class BaselineSimulator : public sim::Simulator {
     return {predict_next(*model_, *stats_, *graphs_, poses[t - 2], poses[t - 1], poses[t]), 0.0};
   }
   void to(torch::Device) override {}
+  void step_threads(int n) override { model_->net->network->step_threads(n); }
   std::unique_ptr<sim::Simulator> clone() const override {
     if (dict_) return std::make_unique<BaselineSimulator>(dict_, source_);
     auto copy = std::make_unique<BaselineSimulator>(model_->config);

@@ -27,6 +27,44 @@ inline void SparseOperator::require_entries(const std::string& who) const {
                                 "entries; materialize() it first");
 }
 
+namespace detail {
+/// The operator of entries in row-major order, in range and without repeats, as from_sorted
+/// checks them and from_triplets and from_dense make them: its CSR arrays and its transpose's.
+inline SparseOperator csr_from_sorted(std::int64_t rows, std::int64_t cols,
+                                      const std::vector<std::int64_t>& r,
+                                      const std::vector<std::int64_t>& c, torch::Tensor values) {
+  const auto n = static_cast<std::int64_t>(r.size());
+  SparseOperator a;
+  a.rows = rows;
+  a.cols = cols;
+  // Written in place into the operator's tensors (no intermediate vectors to copy).
+  const auto longs = [](std::int64_t size) { return torch::zeros({size}, torch::kLong); };
+  a.crow = longs(rows + 1), a.t_crow = longs(cols + 1);
+  a.row = longs(n), a.col = longs(n), a.t_row = longs(n), a.t_col = longs(n), a.t_perm = longs(n);
+  auto* crow = a.crow.data_ptr<std::int64_t>();
+  auto* tcrow = a.t_crow.data_ptr<std::int64_t>();
+  std::copy(r.begin(), r.end(), a.row.data_ptr<std::int64_t>());
+  std::copy(c.begin(), c.end(), a.col.data_ptr<std::int64_t>());
+  for (std::int64_t k = 0; k < n; ++k)
+    ++crow[r[static_cast<std::size_t>(k)] + 1], ++tcrow[c[static_cast<std::size_t>(k)] + 1];
+  std::partial_sum(crow, crow + rows + 1, crow);
+  std::partial_sum(tcrow, tcrow + cols + 1, tcrow);
+  auto* tcol = a.t_col.data_ptr<std::int64_t>();
+  auto* trow = a.t_row.data_ptr<std::int64_t>();
+  auto* tperm = a.t_perm.data_ptr<std::int64_t>();
+  std::vector<std::int64_t> next(tcrow, tcrow + cols);
+  for (std::int64_t k = 0; k < n; ++k) {  // rows ascending, so each column of Aᵀ stays sorted
+    const auto ck = c[static_cast<std::size_t>(k)];
+    const auto p = next[static_cast<std::size_t>(ck)]++;
+    tcol[p] = r[static_cast<std::size_t>(k)];
+    trow[p] = ck;
+    tperm[p] = k;
+  }
+  a.values = values.contiguous();
+  return a;
+}
+}  // namespace detail
+
 inline SparseOperator SparseOperator::from_triplets(std::int64_t rows, std::int64_t cols,
                                                     const std::vector<std::int64_t>& r,
                                                     const std::vector<std::int64_t>& c,
@@ -66,7 +104,7 @@ inline SparseOperator SparseOperator::from_triplets(std::int64_t rows, std::int6
     if (!zero) rr.push_back(r[order[i]]), cc.push_back(c[order[i]]), vv.push_back(s);
     i = j;
   }
-  return from_sorted(rows, cols, rr, cc, torch::tensor(vv, torch::kDouble).to(dtype));
+  return detail::csr_from_sorted(rows, cols, rr, cc, torch::tensor(vv, torch::kDouble).to(dtype));
 }
 
 template <class EigenSparse>
@@ -89,7 +127,9 @@ inline SparseOperator SparseOperator::from_dense(const torch::Tensor& dense) {
   const auto d = dense.detach().to(torch::kCPU).contiguous();
   const auto nz = d.nonzero();
   const auto r = nz.select(1, 0), c = nz.select(1, 1);
-  return from_sorted(d.size(0), d.size(1), index_vector(r), index_vector(c), d.index({r, c}));
+  // nonzero() lists the entries in row-major order.
+  return detail::csr_from_sorted(d.size(0), d.size(1), index_vector(r), index_vector(c),
+                                 d.index({r, c}));
 }
 
 inline SparseOperator SparseOperator::from_sorted(std::int64_t rows, std::int64_t cols,
@@ -116,34 +156,7 @@ inline SparseOperator SparseOperator::from_sorted(std::int64_t rows, std::int64_
           ") is not after the one before it in row-major order, or repeats it; from_triplets "
           "sorts entries and sums repeats");
   }
-  SparseOperator a;
-  a.rows = rows;
-  a.cols = cols;
-  // Written in place into the operator's tensors (no intermediate vectors to copy).
-  const auto longs = [](std::int64_t size) { return torch::zeros({size}, torch::kLong); };
-  a.crow = longs(rows + 1), a.t_crow = longs(cols + 1);
-  a.row = longs(n), a.col = longs(n), a.t_row = longs(n), a.t_col = longs(n), a.t_perm = longs(n);
-  auto* crow = a.crow.data_ptr<std::int64_t>();
-  auto* tcrow = a.t_crow.data_ptr<std::int64_t>();
-  std::copy(r.begin(), r.end(), a.row.data_ptr<std::int64_t>());
-  std::copy(c.begin(), c.end(), a.col.data_ptr<std::int64_t>());
-  for (std::int64_t k = 0; k < n; ++k)
-    ++crow[r[static_cast<std::size_t>(k)] + 1], ++tcrow[c[static_cast<std::size_t>(k)] + 1];
-  std::partial_sum(crow, crow + rows + 1, crow);
-  std::partial_sum(tcrow, tcrow + cols + 1, tcrow);
-  auto* tcol = a.t_col.data_ptr<std::int64_t>();
-  auto* trow = a.t_row.data_ptr<std::int64_t>();
-  auto* tperm = a.t_perm.data_ptr<std::int64_t>();
-  std::vector<std::int64_t> next(tcrow, tcrow + cols);
-  for (std::int64_t k = 0; k < n; ++k) {  // rows ascending, so each column of Aᵀ stays sorted
-    const auto ck = c[static_cast<std::size_t>(k)];
-    const auto p = next[static_cast<std::size_t>(ck)]++;
-    tcol[p] = r[static_cast<std::size_t>(k)];
-    trow[p] = ck;
-    tperm[p] = k;
-  }
-  a.values = values.contiguous();
-  return a;
+  return detail::csr_from_sorted(rows, cols, r, c, std::move(values));
 }
 
 inline SparseOperator SparseOperator::t() const {

@@ -46,6 +46,9 @@ class Simulator {
   virtual Prediction predict(const std::vector<Poses>& poses, const RolloutOptions& opt) = 0;
   /// Moves the model to `device` (the baselines run on the CPU: they stay there).
   virtual void to(torch::Device device) = 0;
+  /// Threads that the independent steps of a prediction's network share
+  /// (nn::OperatorNetworkImpl::step_threads; 1, the default: the calling thread alone).
+  virtual void step_threads(int n) = 0;
   /// Another simulator with the same weights, on the CPU (one per worker thread).
   virtual std::unique_ptr<Simulator> clone() const = 0;
 };

@@ -289,6 +289,7 @@ TEST_CASE("FIGNet's graph network gives all-off's numbers with each fast path on
   };
   const auto changed = test::check_fast_paths(*net, run, 1e-4, 1e-6);  // float32
   WARN("fast paths that changed some bit on FIGNet's network: " << test::joined(changed));
+  test::check_step_threads(*net, run, net->forward(batch).size(), 1e-5, 1e-6);
 }
 
 TEST_CASE("Graph networks: statistics, collation and configuration errors", "[gns]") {

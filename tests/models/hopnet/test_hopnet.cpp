@@ -261,6 +261,17 @@ TEST_CASE("the 102-step reference rollout of MOVi-A scene 8 lands within 2% of t
     }
     // Frames 0..3 are the ground truth.
     for (int f = 0; f < 4; ++f) REQUIRE(m.pos_rmse[static_cast<std::size_t>(f)] == 0.0);
+    // Two step threads (a parallel group's steps shared with a helper): the same poses, bit for
+    // bit.
+    model->step_threads(2);
+    const auto two = rollout(*model, norm, G.scene, g, opt);
+    model->step_threads(1);
+    REQUIRE(two.poses.size() == r.poses.size());
+    for (std::size_t f = 0; f < r.poses.size(); ++f) {
+      INFO("frame " << f);
+      CHECK(two.poses[f].positions == r.poses[f].positions);
+      CHECK(two.poses[f].quaternions == r.poses[f].quaternions);
+    }
   }
 }
 
@@ -1310,6 +1321,7 @@ TEST_CASE("HOPNet gives all-off's loss and gradients with each fast path on alon
   // float32: sums in another order.
   const auto changed = test::check_fast_paths(*net, run, 1e-4, 1e-6);
   WARN("fast paths that changed some bit on HOPNet: " << test::joined(changed));
+  test::check_step_threads(*net, run, 1, 1e-5, 1e-6);  // the loss, then gradients
 }
 
 TEST_CASE("a HOPNet's device is its parameters' device", "[hopnet]") {

@@ -243,6 +243,7 @@ TEST_CASE("SCCNNCustom's schedule: filter taps per rank, TopoBench's repeated ta
       return r;
     };
     test::check_fast_paths(*net, run, 1e-5, 1e-6);
+    test::check_step_threads(*net, run, 3, 1e-5, 1e-6);
   }
 }
 

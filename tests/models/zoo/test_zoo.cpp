@@ -1162,6 +1162,39 @@ TEST_CASE(
   REQUIRE(checked >= 6);
 }
 
+TEST_CASE(
+    "every zoo model gives one thread's outputs bit for bit on 2 and 3 step threads, and its "
+    "gradients",
+    "[models][zoo][reference][threads]") {
+  std::vector<std::string> unsupported;
+  int models = 0, checked = 0;
+  for (const auto& [dir, model] : zoo_cases(unsupported, models)) {
+    INFO("case " << dir.filename().string());
+    ZooCase c = load_case(dir, case_operators(dir));
+    test::check_step_threads(
+        *c.model.module,
+        [&] {
+          const auto out = run_case(c);
+          std::vector<torch::Tensor> r;
+          torch::Tensor loss = torch::zeros({}, torch::kDouble);
+          for (const auto& name : c.outputs) {
+            r.push_back(out.at(name));
+            loss = loss + out.at(name).sin().sum();
+          }
+          std::vector<torch::Tensor> params;
+          for (const auto& p : c.model.module->parameters())
+            if (p.requires_grad()) params.push_back(p);
+          const auto g =
+              torch::autograd::grad({loss}, params, {}, false, false, /*allow_unused=*/true);
+          r.insert(r.end(), g.begin(), g.end());
+          return r;
+        },
+        c.outputs.size(), 1e-10, 1e-12);  // float64, as the fast paths
+    ++checked;
+  }
+  REQUIRE(checked >= 6);
+}
+
 TEST_CASE("known TopoModelX mismatches (docs/models.md): still differ",
           "[models][zoo][reference][!mayfail]") {
   std::vector<std::string> unsupported;

@@ -66,6 +66,7 @@ class HopnetSimulator : public sim::Simulator {
                         opt.first_contacts);
   }
   void to(torch::Device device) override { net_->to(device); }
+  void step_threads(int n) override { net_->step_threads(n); }
   std::unique_ptr<sim::Simulator> clone() const override {
     if (dict_) return std::make_unique<HopnetSimulator>(dict_, source_, overrides_, norm_);
     Hopnet net(net_->options);

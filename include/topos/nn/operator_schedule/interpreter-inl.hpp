@@ -7,9 +7,21 @@
 #include "topos/nn/operator_schedule/checks-inl.hpp"
 #include "topos/nn/operator_schedule/plan-inl.hpp"
 
+#include <ATen/Parallel.h>
+#include <ATen/ThreadLocalState.h>
+
 #include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <exception>
 #include <functional>
+#include <mutex>
+#include <numeric>
 #include <set>
+
+#if defined(__x86_64__) || defined(__i386__)
+#include <xmmintrin.h>  // _mm_getcsr: a helper flushes denormals as its caller does
+#endif
 
 namespace topos::nn {
 
@@ -78,36 +90,197 @@ OperatorNetworkImpl::input_cochains(const std::map<std::string, torch::Tensor>& 
   return h;
 }
 
+struct OperatorNetworkImpl::Written {
+  CochainKey key;
+  torch::Tensor value, rows;  // rows: defined for a compact cochain
+};
+
 TOPOS_INLINE void OperatorNetworkImpl::run_range(
     Cochains& h, const std::map<std::string, SparseOperator>& operators, const ComplexBatch* batch,
     std::size_t begin, std::size_t end, bool live_only) {
-  Operators ops{&operators, batch, {}, absent_operators(operators, batch), {}};
+  Operators ops{&operators, batch, {}, absent_operators(operators, batch), {}, false, {}};
   const auto& plan = plan_for(ops);
   for (std::size_t g = begin; g < end && g < plan.groups.size(); ++g) {
     const Cochains snapshot = h;
-    PrefixCache cache;  // a term prefix shared by several steps of the group is computed once
-    struct Written {
-      CochainKey key;
-      torch::Tensor value, rows;  // rows: defined for a compact cochain
-    };
-    std::vector<Written> updates;
-    for (const auto& p : plan.groups[g]) {
-      if (live_only && !p.live) continue;
-      Written u{p.step->target, {}, {}};
-      detail::naming(p.where, detail::StepReads{*p.step, snapshot}, [&] {
-        if (!p.compact_readers.empty())
-          std::tie(u.value, u.rows) = run_compact(p, snapshot, ops, cache);
-        if (!u.value.defined()) u.value = run_step(p, snapshot, ops, cache);
-      });
-      updates.push_back(std::move(u));
-    }
-    for (auto& u : updates) {
+    for (auto& u : run_group(plan.groups[g], snapshot, ops, live_only)) {
       if (u.rows.defined())
         h.set_compact(u.key.rank, u.key.state, std::move(u.value), std::move(u.rows));
       else
         h.set(u.key.rank, u.key.state, std::move(u.value));
     }
   }
+}
+
+TOPOS_INLINE void OperatorNetworkImpl::step_threads(int n) {
+  if (n < 1)
+    throw std::invalid_argument("OperatorNetwork::step_threads: " + std::to_string(n) +
+                                " threads; give 1 (the calling thread alone) or more");
+  step_threads_ = n;
+  helpers_.resize(static_cast<std::size_t>(n - 1));  // made when a forward first needs them
+}
+
+namespace detail {
+/// A group's live steps in units, each run on one thread: steps that may share a cached term
+/// prefix (the same prefix key, or filter taps over the same source cochain) stay in one unit,
+/// transitively. Units in the order of their first step, steps in order within a unit.
+inline std::vector<std::vector<std::size_t>> step_units(const std::vector<PlannedStep>& steps,
+                                                        bool live_only) {
+  std::vector<std::size_t> parent(steps.size());  // union-find over the steps
+  std::iota(parent.begin(), parent.end(), std::size_t{0});
+  const auto root = [&](std::size_t i) {
+    while (parent[i] != i) i = parent[i] = parent[parent[i]];
+    return i;
+  };
+  std::map<std::string, std::size_t> first_with;  // a sharing key's first step
+  for (std::size_t i = 0; i < steps.size(); ++i) {
+    const auto& p = steps[i];
+    if (live_only && !p.live) continue;
+    for (const auto& t : p.terms) {
+      std::vector<std::string> keys;
+      if (!t.prefix_key.empty()) keys.push_back("prefix " + t.prefix_key);
+      if (p.route == StepRoute::filter || !p.compact_readers.empty())
+        keys.push_back("source " + t.term->source.str());
+      for (const auto& k : keys) {
+        const auto [it, fresh] = first_with.emplace(k, i);
+        if (!fresh) {
+          const auto a = root(it->second), b = root(i);
+          parent[std::max(a, b)] = std::min(a, b);
+        }
+      }
+    }
+  }
+  std::vector<std::vector<std::size_t>> units;
+  std::map<std::size_t, std::size_t> unit_of_root;
+  for (std::size_t i = 0; i < steps.size(); ++i) {
+    if (live_only && !steps[i].live) continue;
+    const auto [it, fresh] = unit_of_root.emplace(root(i), units.size());
+    if (fresh) units.emplace_back();
+    units[it->second].push_back(i);
+  }
+  return units;
+}
+
+/// The networks whose helper threads are in use: a second forward of one of them at the same
+/// time (another thread's, or an operation's inside a step) runs its groups on one thread.
+inline std::mutex& busy_networks_mutex() {
+  static std::mutex m;
+  return m;
+}
+inline std::set<const void*>& busy_networks() {
+  static std::set<const void*> s;
+  return s;
+}
+}  // namespace detail
+
+// How long a helper polls for the next group before it sleeps: a rollout's forward and the work
+// between two forwards (a millisecond) pass without a sleep, whose wake-up took 90 µs on average
+// on a 2-vCPU VM (a group's steps take 100-250 µs there).
+inline constexpr std::chrono::microseconds kHelperSpin{2000};
+
+TOPOS_INLINE std::vector<OperatorNetworkImpl::Written> OperatorNetworkImpl::run_group(
+    const std::vector<PlannedStep>& steps, const Cochains& snapshot, Operators& ops,
+    bool live_only) {
+  std::vector<Written> updates;
+  const auto run_one = [&](const PlannedStep& p, PrefixCache& cache) {
+    Written u{p.step->target, {}, {}};
+    detail::naming(p.where, detail::StepReads{*p.step, snapshot}, [&] {
+      if (!p.compact_readers.empty())
+        std::tie(u.value, u.rows) = run_compact(p, snapshot, ops, cache);
+      if (!u.value.defined()) u.value = run_step(p, snapshot, ops, cache);
+    });
+    return u;
+  };
+  // Helpers on the CPU only (a CUDA stream is the calling thread's), outside training.
+  const bool on_cpu = params_.empty() || params_.begin()->second.device().is_cpu();
+  auto units = step_threads_ > 1 && !is_training() && on_cpu
+                   ? detail::step_units(steps, live_only)
+                   : std::vector<std::vector<std::size_t>>{};
+  // This network's helpers, unless another forward of it holds them now.
+  struct Claim {
+    const void* net = nullptr;
+    ~Claim() {
+      if (!net) return;
+      std::lock_guard<std::mutex> lock(detail::busy_networks_mutex());
+      detail::busy_networks().erase(net);
+    }
+  } claim;
+  if (units.size() >= 2) {
+    std::lock_guard<std::mutex> lock(detail::busy_networks_mutex());
+    if (detail::busy_networks().insert(this).second)
+      claim.net = this;
+    else
+      units.clear();
+  }
+  if (units.size() < 2) {
+    PrefixCache cache;  // a term prefix shared by several steps of the group is computed once
+    for (const auto& p : steps)
+      if (!live_only || p.live) updates.push_back(run_one(p, cache));
+    return updates;
+  }
+  // Each thread takes the next unit until none is left; the values go where the one-thread
+  // order puts them, and the error of the first failing step in that order is the one thrown.
+  std::vector<Written> by_step(steps.size());
+  std::vector<std::exception_ptr> errors(steps.size());
+  std::atomic<std::size_t> next{0};
+  const auto take_units = [&] {
+    for (std::size_t u; (u = next.fetch_add(1)) < units.size();) {
+      PrefixCache cache;
+      for (auto i : units[u]) {
+        try {
+          by_step[i] = run_one(steps[i], cache);
+        } catch (...) {
+          errors[i] = std::current_exception();
+          break;  // the unit's later steps may read its cache: left undone
+        }
+      }
+    }
+  };
+  // What a helper thread does not inherit: LibTorch's thread-local state (grad mode and the
+  // like), the OpenMP team size (oneDNN's products read it), denormal flushing (MXCSR).
+  const at::ThreadLocalState state;
+#if defined(__x86_64__) || defined(__i386__)
+  const unsigned csr = _mm_getcsr();
+#endif
+  const auto helpers = std::min(helpers_.size(), units.size() - 1);
+  for (std::size_t k = 0; k < helpers; ++k)  // all made before any job refers to this frame
+    if (!helpers_[k]) helpers_[k] = std::make_unique<detail::HelperThread>(kHelperSpin);
+  // Every job posted is waited for, whatever throws, before this frame goes.
+  struct Join {
+    std::vector<std::unique_ptr<detail::HelperThread>>& helpers;
+    Operators& ops;
+    std::size_t posted = 0;
+    ~Join() {
+      for (std::size_t k = 0; k < posted; ++k) try {
+          helpers[k]->wait();
+        } catch (...) {  // take_units keeps its errors: nothing to lose here
+        }
+      ops.shared = false;
+    }
+  } join{helpers_, ops};
+  ops.shared = true;
+  const int intra_op = at::get_num_threads();
+  for (std::size_t k = 0; k < helpers; ++k, ++join.posted) {
+    helpers_[k]->post([&] {
+      at::ThreadLocalStateGuard guard(state);
+      at::set_num_threads(intra_op);
+#if defined(__x86_64__) || defined(__i386__)
+      const unsigned own = _mm_getcsr();
+      _mm_setcsr(csr);
+#endif
+      take_units();
+#if defined(__x86_64__) || defined(__i386__)
+      _mm_setcsr(own);
+#endif
+    });
+  }
+  take_units();
+  for (; join.posted > 0; --join.posted) helpers_[join.posted - 1]->wait();
+  ops.shared = false;
+  for (const auto& e : errors)
+    if (e) std::rethrow_exception(e);
+  for (std::size_t i = 0; i < steps.size(); ++i)
+    if (!live_only || steps[i].live) updates.push_back(std::move(by_step[i]));
+  return updates;
 }
 
 TOPOS_INLINE std::map<std::string, torch::Tensor> OperatorNetworkImpl::output_cochains(

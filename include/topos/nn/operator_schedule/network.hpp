@@ -10,6 +10,7 @@
 #include "topos/core/sparse_matrix.hpp"  // detail::never, detail::Unavailable
 #include "topos/nn/aggregate.hpp"
 #include "topos/nn/complex_batch.hpp"
+#include "topos/nn/helper_thread.hpp"
 #include "topos/nn/operator_schedule/builder.hpp"
 #include "topos/nn/operator_schedule/plan.hpp"
 
@@ -165,6 +166,16 @@ class OperatorNetworkImpl : public torch::nn::Module {
   FastPaths& fast_paths() { return fast_; }
   const FastPaths& fast_paths() const { return fast_; }
 
+  /// Threads that the steps of one parallel group share in a CPU forward outside training (1,
+  /// the default: the calling thread alone). With n > 1 the calling thread and n - 1 helpers
+  /// take the group's independent steps in turn (steps that may share a cached term prefix stay
+  /// together): the same outputs bit for bit, gradients equal up to the order of their sums. A
+  /// training forward keeps one thread, so that its random draws (dropout) keep their order.
+  /// Keep LibTorch's intra-op threads at 1 beside it; an Operation's forward must then not write
+  /// state that another step of its group reads (scratch included). n < 1 is an error.
+  void step_threads(int n);
+  int step_threads() const { return step_threads_; }
+
  private:
   OperatorSchedule schedule_;
   std::map<std::string, torch::Tensor> params_;  // parameters and buffers by path
@@ -181,6 +192,8 @@ class OperatorNetworkImpl : public torch::nn::Module {
   std::map<const ops::Term*, std::int64_t> term_width_;
   std::map<const OperatorStep*, std::int64_t> mix_width_;
   FastPaths fast_;
+  int step_threads_ = 1;
+  std::vector<std::unique_ptr<detail::HelperThread>> helpers_;  // step_threads_ - 1, made lazily
 
   // --- planning (plan-inl.hpp, cost-inl.hpp) ---------------------------------------------------
   struct Operators;  // the given operators, their transposes and this forward's dropped ones
@@ -211,6 +224,10 @@ class OperatorNetworkImpl : public torch::nn::Module {
   friend class detail::NetworkRunContext;
   void run_range(Cochains& h, const std::map<std::string, SparseOperator>& operators,
                  const ComplexBatch* batch, std::size_t begin, std::size_t end, bool live_only);
+  struct Written;  // a step's value and where it goes
+  /// A group's live steps on the calling thread and, where step_threads allows, the helpers.
+  std::vector<Written> run_group(const std::vector<PlannedStep>& steps, const Cochains& snapshot,
+                                 Operators& ops, bool live_only);
 
   // --- the checks at the boundaries (checks-inl.hpp) ------------------------------------------
   /// A forward's arguments against the schedule: names declared, one dtype and device (the

@@ -45,6 +45,8 @@ struct OperatorNetworkImpl::Operators {
   std::map<std::string, SparseOperator> transposed;
   std::set<std::string> absent;                  // optional operators this forward lacks
   std::map<std::string, torch::Tensor> scratch;  // RunContext::scratch: kept for this run
+  bool shared = false;  // steps on several threads now: `transposed`, `scratch` under the lock
+  std::mutex lock;
   const SparseOperator& at(const std::string& where, const std::string& name) const {
     auto it = given->find(name);
     if (it == given->end()) {
@@ -55,6 +57,8 @@ struct OperatorNetworkImpl::Operators {
     return it->second;
   }
   const SparseOperator& t(const std::string& where, const std::string& name) {
+    std::unique_lock<std::mutex> guard(lock, std::defer_lock);
+    if (shared) guard.lock();  // a map's elements stay where they are as others are added
     auto it = transposed.find(name);
     if (it == transposed.end()) it = transposed.emplace(name, at(where, name).t()).first;
     return it->second;
@@ -101,7 +105,11 @@ class NetworkRunContext final : public RunContext {
     return h_.at(key.rank, key.state);
   }
   bool is_training() const override { return net_.is_training(); }
-  torch::Tensor& scratch(const std::string& key) override { return ops_.scratch[key]; }
+  torch::Tensor& scratch(const std::string& key) override {
+    std::unique_lock<std::mutex> guard(ops_.lock, std::defer_lock);
+    if (ops_.shared) guard.lock();  // steps on several threads (step_threads, eval only)
+    return ops_.scratch[key];
+  }
   const FastPaths& fast_paths() const override { return net_.fast_paths(); }
 
  protected:
