@@ -80,12 +80,17 @@ case "$cmd" in
     # to 1e-5 at epoch 40, one trajectory per step, shuffled per epoch, statistics from the
     # training split, the reference's 80/10/10 split. Departures (docs/hopnet-training.md): each
     # trajectory in chunks on both cores (the same gradient, summed in another order), and
-    # bfloat16 products with float32 sums from step 10,142 (epoch 11) on, where topos's own
-    # bfloat16 kernels made a step 2.2x faster than float32; the steps before were float32
-    # (TOPOS_TRAINING_PRECISION=highest trains in float32 throughout).
+    # bfloat16 products with float32 sums where the CPU has AVX-512 BF16 (topos's own bfloat16
+    # kernels made a step 2.2x faster than float32 there; steps 10,142-20,360 ran so), float32
+    # elsewhere: without those instructions oneDNN emulates bfloat16, and a step took 16 CPU s
+    # against float32's 6 (TOPOS_TRAINING_PRECISION overrides the choice).
+    precision=highest
+    if grep -qw avx512_bf16 /proc/cpuinfo 2>/dev/null; then precision=medium; fi
+    precision="${TOPOS_TRAINING_PRECISION:-$precision}"
+    echo "hopnet_training: --matmul-precision $precision"
     exec nice -n 19 "$H" train --data "$WORK/data/movi-a" --assets "$REF/data/kubasic" --out "$RUN" \
       --epochs 40 --lr 1e-4 --lr-decay 0.9441 --mode native --seed 0 \
-      --matmul-precision "${TOPOS_TRAINING_PRECISION:-medium}" --resume
+      --matmul-precision "$precision" --resume
     ;;
   snapshot)
     [ -e "$RUN/stats.json" ] || { echo "hopnet_training: no run in $RUN" >&2; exit 1; }

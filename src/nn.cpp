@@ -12,6 +12,7 @@
 #include "topos/nn/operator_schedule/checks-inl.hpp"
 #include "topos/nn/operator_schedule/cost-inl.hpp"
 #include "topos/nn/operator_schedule/elementwise-inl.hpp"
+#include "topos/nn/operator_schedule/filter-inl.hpp"
 #include "topos/nn/operator_schedule/interpreter-inl.hpp"
 #include "topos/nn/operator_schedule/layers-inl.hpp"
 #include "topos/nn/operator_schedule/plan-inl.hpp"

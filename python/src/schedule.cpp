@@ -846,6 +846,14 @@ void bind_network(py::module_& m) {
           [](Net& net, int n) { net.step_threads(n); },
           "Threads a parallel group's steps share outside training (OperatorNetworkImpl::"
           "step_threads; 1: the calling thread alone).")
+      .def_property_readonly(
+          "split_groups", [](const Net& net) { return net.split_groups(); },
+          "How many parallel groups forwards have run on more than one thread "
+          "(OperatorNetworkImpl::split_groups).")
+      .def_property_readonly(
+          "split_steps", [](const Net& net) { return net.split_steps(); },
+          "How many steps forwards have run with their terms at once "
+          "(OperatorNetworkImpl::split_steps).")
       .def_property_readonly("schedule", &Net::schedule, py::return_value_policy::copy);
 }
 

@@ -254,6 +254,19 @@ class OperatorNetwork(_SharedTensors):
     def step_threads(self, n):
         self._network.step_threads = int(n)
 
+    @property
+    def split_groups(self):
+        """How many parallel groups this network's forwards have run on more than one thread
+        since it was made: 0 means ``step_threads`` never took effect (no group had two
+        independent steps to run, or every forward was a training one)."""
+        return self._network.split_groups
+
+    @property
+    def split_steps(self):
+        """How many steps this network's forwards have run with their terms at once (terms that
+        aggregate over a batch's neighbourhood after row-wise operations, ``step_threads``)."""
+        return self._network.split_steps
+
     def __deepcopy__(self, memo):
         # A new C++ network from the same schedule (its operations are options, shared), then
         # this one's dtype, state and mode: a snapshot such as early stopping keeps.

@@ -895,19 +895,22 @@ void meet() {
     std::this_thread::sleep_for(std::chrono::microseconds(100));
 }
 
-// x · 2; records the thread it ran on, meets the other meeting step when asked to, and fails
-// on a thread other than `caller` when one is given.
+// x · 2; records the thread it ran on and the packed weights' scope that thread is in, meets the
+// other meeting step when asked to, and fails on a thread other than `caller` when one is given.
 struct Slow : Operation {
   bool meets;
   std::thread::id* ran_on;
   std::optional<std::thread::id> caller;  // set: fail on any other thread
-  Slow(bool m, std::thread::id* on, std::optional<std::thread::id> c = {})
-      : meets(m), ran_on(on), caller(c) {}
+  std::uint64_t* scope = nullptr;
+  Slow(bool m, std::thread::id* on, std::optional<std::thread::id> c = {},
+       std::uint64_t* packed_scope = nullptr)
+      : meets(m), ran_on(on), caller(c), scope(packed_scope) {}
   std::string str(const std::string& x) const override { return "slow(" + x + ")"; }
   TermShape infer(BuildContext&, TermShape x) const override { return x; }
   torch::Tensor forward(RunContext& ctx, const torch::Tensor& x) const override {
     if (meets && must_meet) meet();
     *ran_on = std::this_thread::get_id();
+    if (scope) *scope = topos::nn::detail::packed_weights_scope();
     if (caller && *caller != *ran_on) ctx.fail("slow failed on a helper thread");
     return x * 2;
   }
@@ -923,14 +926,17 @@ TEST_CASE(
   const auto A = random_operator(6, 6, 3, 0.5);
   const auto me = std::this_thread::get_id();
   std::thread::id on[3];
+  std::uint64_t scope_on[2] = {};
   // Two steps that meet (so each of two threads takes one of them), and a quick third.
   const auto schedule = [&](std::optional<std::thread::id> fail_off) {
     OperatorSchedule s;
     s.input("x", 0, 4).operator_input("A", 0, 0).output("y", 0).output("z", 0, "z");
     s.output("w", 0, "w");
-    s.parallel({into(0).sum(from(0).apply(Slow(true, &on[0], fail_off)).via("A")).named("first"),
+    s.parallel({into(0)
+                    .sum(from(0).apply(Slow(true, &on[0], fail_off, &scope_on[0])).via("A"))
+                    .named("first"),
                 into(0, "z")
-                    .sum(from(0).apply(Gate("g")).apply(Slow(true, &on[1], fail_off)))
+                    .sum(from(0).apply(Gate("g")).apply(Slow(true, &on[1], fail_off, &scope_on[1])))
                     .named("second"),
                 into(0, "w").sum(from(0).via("A").apply(Slow(false, &on[2]))).named("third")});
     return s;
@@ -946,6 +952,7 @@ TEST_CASE(
   };
   const auto one = run();
   CHECK((on[0] == me && on[1] == me && on[2] == me));
+  CHECK(net->split_groups() == 0);
   net->eval();
   net->step_threads(2);
   CHECK(net->step_threads() == 2);
@@ -954,6 +961,27 @@ TEST_CASE(
   must_meet = false;
   CHECK(on[0] != on[1]);
   CHECK((on[0] == me || on[1] == me));
+  CHECK(net->split_groups() == 1);
+  // The helper keeps bfloat16 weights' packed pairs within the caller's PackedWeightsScope (a
+  // rollout's helpers pack each weight once), and outside one packs afresh as the caller does.
+  CHECK((scope_on[0] == 0 && scope_on[1] == 0));
+  {
+    const PackedWeightsScope packed;
+    const auto id = topos::nn::detail::packed_weights_scope();
+    CHECK(id != 0);
+    for (int round = 0; round < 2; ++round) {
+      must_meet = true, arrived = 0;
+      run();
+      must_meet = false;
+      CHECK(on[0] != on[1]);
+      CHECK((scope_on[0] == id && scope_on[1] == id));
+    }
+  }
+  must_meet = true, arrived = 0;
+  run();
+  must_meet = false;
+  CHECK((scope_on[0] == 0 && scope_on[1] == 0));
+  CHECK(net->split_groups() == 4);
   // The outputs bit for bit; the gradients up to the order of autograd's sums (test::
   // check_step_threads says why).
   for (std::size_t k = 0; k < 3; ++k) CHECK(torch::equal(one[k], two[k]));
@@ -962,6 +990,7 @@ TEST_CASE(
   net->train();
   const auto trained = run();
   CHECK((on[0] == me && on[1] == me && on[2] == me));
+  CHECK(net->split_groups() == 4);
   for (std::size_t k = 0; k < one.size(); ++k) CHECK(torch::equal(one[k], trained[k]));
 
   // An error on a helper thread reaches the caller, naming its step; the network runs again.
@@ -983,4 +1012,129 @@ TEST_CASE(
                     Contains("OperatorNetwork::step_threads: 0 threads; give 1 (the calling "
                              "thread alone) or more"));
   CHECK(failing->step_threads() == 1);
+}
+
+namespace {
+// x · 2, declared row-wise: the row-wise prefix of a term that aggregates over a batch's
+// neighbourhood, which its step may evaluate at once with its other terms (step_threads).
+// Records its thread, meets the other meeting term when asked to, and fails (naming `label`)
+// on a thread other than `caller` when one is given.
+struct RowWiseSlow : Operation {
+  bool meets;
+  std::thread::id* ran_on;
+  std::optional<std::thread::id> caller;
+  std::string label;
+  RowWiseSlow(bool m, std::thread::id* on, std::optional<std::thread::id> c, std::string l)
+      : meets(m), ran_on(on), caller(c), label(std::move(l)) {}
+  std::string str(const std::string& x) const override { return "slow(" + x + ")"; }
+  TermShape infer(BuildContext&, TermShape x) const override { return x; }
+  torch::Tensor forward(RunContext& ctx, const torch::Tensor& x) const override {
+    if (meets && must_meet) meet();
+    *ran_on = std::this_thread::get_id();
+    if (caller && *caller != *ran_on) ctx.fail(label + " failed off the calling thread");
+    return x * 2;
+  }
+  OperationTraits traits() const override {
+    OperationTraits t;
+    t.row_wise = true;
+    return t;
+  }
+};
+
+// 40 nodes and 40 edges into 10 faces, each face reading four of each (N02, N12); N02half
+// reads nodes 0-19 only.
+ComplexBatch faces_batch() {
+  ComplexView v;
+  v.sizes = {40, 40, 10};
+  topos::Neighborhood n02;
+  n02.name = "N02", n02.source_rank = 0, n02.target_rank = 2;
+  for (std::int64_t i = 0; i < 40; ++i) n02.source.push_back(i), n02.target.push_back(i / 4);
+  n02.num_source = 40, n02.num_target = 10;
+  auto n12 = n02, half = n02;
+  n12.name = "N12", n12.source_rank = 1;
+  half.name = "N02half", half.source.resize(20), half.target.resize(20);
+  v.neighborhoods = {{"N02", n02}, {"N12", n12}, {"N02half", half}};
+  return ComplexBatch::collate({v}, 2);
+}
+}  // namespace
+
+TEST_CASE("a step's terms run at once on the helper threads, with the one-thread values and errors",
+          "[nn][schedule][operation][threads]") {
+  const auto batch = faces_batch();
+  torch::manual_seed(6);
+  const auto x0 = torch::randn({40, 3}, torch::kDouble).requires_grad_();
+  const auto x1 = torch::randn({40, 3}, torch::kDouble).requires_grad_();
+  const auto f = torch::randn({10, 2}, torch::kDouble);
+  const auto me = std::this_thread::get_id();
+  std::thread::id on[3];
+  // One step (a group of its own) whose node and edge terms meet: only a split of its terms
+  // passes. The third term shares the node term's prefix (one operation object, so one cache
+  // key: the same job, a cache hit there) over a neighbourhood that reads half the nodes.
+  const auto schedule = [&](std::optional<std::thread::id> fail_off) {
+    const auto nodes = std::make_shared<RowWiseSlow>(true, &on[0], fail_off, "the nodes' slow");
+    OperatorSchedule s;
+    s.input("x0", 0, 3).input("x1", 1, 3).input("f", 2, 2).output("y", 2);
+    s.operator_input("N02", 0, 2).operator_input("N12", 1, 2).operator_input("N02half", 0, 2);
+    s.step(into(2)
+               .concat(from(2), from(0).apply(nodes).linear("a", 4).pattern("N02"),
+                       from(1)
+                           .apply(RowWiseSlow(true, &on[1], fail_off, "the edges' slow"))
+                           .linear("b", 4)
+                           .pattern("N12"),
+                       from(0).apply(nodes).linear("a", 4).pattern("N02half", Aggr::mean))
+               .mlp("m", MlpOptions(14, 8, 2))
+               .named("faces"));
+    return s;
+  };
+  OperatorNetwork net(schedule({}));
+  net->to(torch::kDouble);
+  const auto run = [&] {
+    const auto y = net->forward({{"x0", x0}, {"x1", x1}, {"f", f}}, batch).at("y");
+    const auto g = torch::autograd::grad({y.sin().sum()}, {x0, x1, net->parameter("a.weight")});
+    return std::vector<torch::Tensor>{y, g[0], g[1], g[2]};
+  };
+  net->eval();
+  const auto one = run();
+  CHECK((on[0] == me && on[1] == me));
+  net->step_threads(2);
+  must_meet = true, arrived = 0;
+  const auto two = run();
+  must_meet = false;
+  CHECK(on[0] != on[1]);
+  CHECK((on[0] == me || on[1] == me));
+  CHECK((net->split_groups() == 1 && net->split_steps() == 1));
+  CHECK(torch::equal(one[0], two[0]));
+  for (std::size_t k = 1; k < one.size(); ++k) CHECK(torch::allclose(one[k], two[k], 1e-13, 1e-14));
+  CHECK(one[3].abs().sum().item<double>() > 0);
+  net->train();  // one thread
+  const auto trained = run();
+  CHECK((on[0] == me && on[1] == me));
+  CHECK(torch::equal(one[0], trained[0]));
+  CHECK((net->split_groups() == 1 && net->split_steps() == 1));
+
+  // A term failing on the helper: the step and the term's error, then one thread runs it.
+  torch::NoGradGuard no_grad;
+  const auto forward = [&](OperatorNetwork& n) {
+    return n->forward({{"x0", x0}, {"x1", x1}, {"f", f}}, batch);
+  };
+  OperatorNetwork failing(schedule(me));
+  failing->to(torch::kDouble);
+  failing->eval();
+  failing->step_threads(2);
+  for (int round = 0; round < 2; ++round) {
+    must_meet = true, arrived = 0;
+    CHECK_THROWS_WITH(forward(failing), Contains("faces (into (2)): ") &&
+                                            Contains("slow failed off the calling thread"));
+  }
+  // Both failing at once: the first in the step's order is the one thrown.
+  OperatorNetwork both(schedule(std::thread::id()));  // no thread's id: fails everywhere
+  both->to(torch::kDouble);
+  both->eval();
+  both->step_threads(2);
+  must_meet = true, arrived = 0;
+  CHECK_THROWS_WITH(forward(both), Contains("the nodes' slow failed"));
+  CHECK(arrived.load() == 2);  // the edges' term ran too, on the other thread
+  must_meet = false;
+  failing->step_threads(1);
+  CHECK_NOTHROW(forward(failing));
 }

@@ -1020,6 +1020,45 @@ TEST_CASE("bfloat16 kernels: act(x Wᵀ + b) and its gradients against double on
       REQUIRE(torch::equal(product(), y));
     }
   }
+  // A helper thread adopts the scope of the thread it works for: it keeps its pairs from one job
+  // to the next of that scope (a write through .data() stays unseen, as in the scope itself) and
+  // drops them when a job comes from another scope or from none.
+  {
+    torch::NoGradGuard no_grad;
+    const auto x = torch::randn({30, 64});
+    const auto W = torch::randn({32, 64});
+    const PackedWeightsScope caller;
+    const auto id = nn::detail::packed_weights_scope();
+    REQUIRE(id != 0);
+    std::thread([&] {
+      at::set_num_threads(1);
+      auto& cache = nn::detail::packed_pairs_cache();
+      const auto product = [&] {
+        return linear_act(x, W, {}, Epilogue::none, MatmulPrecision::medium);
+      };
+      nn::detail::adopt_packed_weights_scope(id);  // job 1
+      CHECK((cache.scopes == 1 && nn::detail::packed_weights_scope() == id));
+      const auto y = product();
+      CHECK(cache.entries.entries.size() == 1);
+      W.data().mul_(2);
+      nn::detail::adopt_packed_weights_scope(id);  // job 2, the same scope: the same pairs
+      CHECK(torch::equal(product(), y));
+      {
+        const PackedWeightsScope nested;  // a job's own scope nests in the adopted one
+        CHECK(torch::equal(product(), y));
+      }
+      CHECK((cache.scopes == 1 && cache.entries.entries.size() == 1));
+      nn::detail::adopt_packed_weights_scope(id + 1000);  // another scope: packed afresh
+      CHECK((cache.scopes == 1 && cache.entries.entries.empty()));
+      CHECK(torch::equal(product(), 2 * y));
+      nn::detail::adopt_packed_weights_scope(0);  // none: every call packs afresh
+      CHECK((cache.scopes == 0 && cache.entries.entries.empty() &&
+             nn::detail::packed_weights_scope() == 0));
+      W.data().mul_(0.5);
+      CHECK(torch::equal(product(), y));
+      CHECK(cache.entries.entries.empty());
+    }).join();
+  }
   {
     torch::NoGradGuard no_grad;
     const auto x = torch::randn({30, 64});

@@ -686,10 +686,13 @@ def test_step_threads_share_a_parallel_group(complex_):
     net.eval()
     assert net.step_threads == 1
     one = run()
+    assert net.split_groups == 0
     net.step_threads = 2
     assert net.step_threads == 2
-    for _ in range(3):
+    for k in range(3):
         again = run()
+        assert net.split_groups == k + 1  # the group did run on two threads
+        assert net.split_steps == 0  # no step's terms aggregate over a batch's neighbourhood
         for a, b in zip(one[:3], again[:3]):  # the outputs bit for bit
             assert torch.equal(a, b)
         for a, b in zip(one[3:], again[3:]):  # gradients up to the order of autograd's sums

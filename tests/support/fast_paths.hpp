@@ -68,10 +68,15 @@ inline std::vector<std::string> check_fast_paths(
 /// (OperatorNetworkImpl::step_threads): the outputs the same bit for bit, the gradients within
 /// rtol · (the largest entry) + atol (autograd orders its sums by when each node was made, and
 /// steps on other threads make theirs in another order). `m`'s training mode and its networks'
-/// step threads are restored.
-inline void check_step_threads(torch::nn::Module& m,
-                               const std::function<std::vector<torch::Tensor>()>& run,
-                               std::size_t outputs, double rtol, double atol) {
+/// step threads are restored. Returns how many parallel groups and steps the 2- and 3-thread
+/// runs split (OperatorNetworkImpl::split_groups, split_steps): 0 groups means the check
+/// compared one thread with itself.
+struct StepThreadSplits {
+  std::int64_t groups = 0, steps = 0;
+};
+inline StepThreadSplits check_step_threads(torch::nn::Module& m,
+                                           const std::function<std::vector<torch::Tensor>()>& run,
+                                           std::size_t outputs, double rtol, double atol) {
   const auto networks = networks_in(m);
   REQUIRE(!networks.empty());
   const bool training = m.is_training();
@@ -86,6 +91,12 @@ inline void check_step_threads(torch::nn::Module& m,
   };
   const auto one = with(1);
   REQUIRE(outputs <= one.size());
+  const auto split = [&] {
+    StepThreadSplits n;
+    for (auto* net : networks) n.groups += net->split_groups(), n.steps += net->split_steps();
+    return n;
+  };
+  const auto split_before = split();
   for (int threads : {2, 3}) {
     const auto more = with(threads);
     REQUIRE(more.size() == one.size());
@@ -104,6 +115,8 @@ inline void check_step_threads(torch::nn::Module& m,
   }
   for (std::size_t i = 0; i < networks.size(); ++i) networks[i]->step_threads(before[i]);
   m.train(training);
+  const auto after = split();
+  return {after.groups - split_before.groups, after.steps - split_before.steps};
 }
 
 /// The names, separated by spaces ("none" when empty), for a report.

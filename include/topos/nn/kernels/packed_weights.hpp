@@ -2,6 +2,7 @@
 // The bfloat16 kernels' weights packed into pairs (dense_bf16.hpp), and PackedWeightsScope, inside
 // which a thread keeps each weight's pairs between calls: a rollout multiplies the same weights
 // at every step, and packing a 128 × 512 weight costs a quarter of its product on a rollout's rows.
+// A forward's helper threads (step_threads) keep theirs within the scope of the thread they help.
 #pragma once
 
 #include "topos/nn/kernels/dense_bf16.hpp"
@@ -9,6 +10,7 @@
 
 #include <torch/torch.h>
 
+#include <atomic>
 #include <cstdint>
 #include <memory>
 #include <vector>
@@ -26,7 +28,9 @@ struct PackedPairs {
 };
 struct PackedPairsCache {
   TensorCache<PackedPairs> entries{512};
-  int scopes = 0;  // open PackedWeightsScopes on this thread
+  int scopes = 0;             // open PackedWeightsScopes on this thread (an adopted one counts)
+  std::uint64_t scope = 0;    // the outermost one's id (0: none), which helper threads adopt
+  std::uint64_t adopted = 0;  // the id of another thread's scope this one keeps pairs within
 };
 inline PackedPairsCache& packed_pairs_cache() {
   thread_local PackedPairsCache cache;
@@ -57,6 +61,29 @@ inline std::shared_ptr<const std::vector<std::uint32_t>> packed_pairs(
   return cache.entries.insert(std::move(e)).pairs;
 }
 
+inline std::uint64_t new_packed_scope_id() {
+  static std::atomic<std::uint64_t> last{0};
+  return ++last;
+}
+
+/// This thread's outermost open PackedWeightsScope (0: none), for the threads that help it.
+inline std::uint64_t packed_weights_scope() {
+  return packed_pairs_cache().scope;
+}
+
+/// A helper thread starting a job for a thread whose packed_weights_scope() is `id` keeps pairs
+/// as if inside that scope: from one job to the next of the same scope it keeps them (a rollout's
+/// helpers pack each weight once, not at every step), and it drops them once a job comes from
+/// outside that scope (another scope, or none). Between the two it holds them, unused: scope ids
+/// are never reused, so pairs kept for an ended scope are never read.
+inline void adopt_packed_weights_scope(std::uint64_t id) {
+  auto& cache = packed_pairs_cache();
+  if (cache.adopted == id) return;
+  if (cache.adopted != 0 && --cache.scopes == 0) cache.entries.clear(), cache.scope = 0;
+  cache.adopted = id;
+  if (id != 0 && cache.scopes++ == 0) cache.scope = id;
+}
+
 }  // namespace detail
 
 /// While one is alive, this thread's bfloat16 products (MatmulPrecision::medium) keep each
@@ -64,13 +91,17 @@ inline std::shared_ptr<const std::vector<std::uint32_t>> packed_pairs(
 /// change only through tensor operations while it lives (an in-place op, a copy_ or an
 /// optimizer's step on the parameter bumps its version counter, which is checked); a write
 /// through `.data()` or a raw pointer is not seen. Scopes nest; the pairs are dropped when the
-/// outermost ends. HOPNet's and the simulators' rollouts open one.
+/// outermost ends. HOPNet's and the simulators' rollouts open one. The helper threads of an
+/// OperatorNetwork's forward (step_threads) keep their pairs within the calling thread's scope.
 class PackedWeightsScope {
  public:
-  PackedWeightsScope() { ++detail::packed_pairs_cache().scopes; }
+  PackedWeightsScope() {
+    auto& cache = detail::packed_pairs_cache();
+    if (cache.scopes++ == 0) cache.scope = detail::new_packed_scope_id();
+  }
   ~PackedWeightsScope() {
     auto& cache = detail::packed_pairs_cache();
-    if (--cache.scopes == 0) cache.entries.clear();
+    if (--cache.scopes == 0) cache.entries.clear(), cache.scope = 0;
   }
   PackedWeightsScope(const PackedWeightsScope&) = delete;
   PackedWeightsScope& operator=(const PackedWeightsScope&) = delete;

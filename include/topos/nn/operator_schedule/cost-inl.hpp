@@ -122,7 +122,8 @@ TOPOS_INLINE Plan OperatorNetworkImpl::plan_over(
     const std::map<std::string, SparseOperator>& operators, const ComplexBatch* batch) const {
   check_arguments(inputs, operators, batch);
   input_cochains(inputs);  // each input's shape
-  Operators ops{&operators, batch, {}, absent_operators(operators, batch), {}, false, {}};
+  Operators ops{&operators, batch, {}, absent_operators(operators, batch), {}, false, {},
+                0,          false, {}};
   std::map<int, std::int64_t> cells;  // per rank, from the inputs, operators and neighbourhoods
   for (const auto& in : schedule_.inputs()) cells[in.key.rank] = inputs.at(in.name).size(-2);
   for (const auto& [name, ranks] : schedule_.operators())

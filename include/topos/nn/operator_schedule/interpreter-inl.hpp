@@ -1,27 +1,19 @@
 // topos/nn/operator_schedule/interpreter-inl.hpp
 // OperatorNetwork's forward: the plan's steps (plan-inl.hpp) run in order, a parallel group on one
-// snapshot, each by its route: each term evaluated (term-inl.hpp) and the terms combined into
-// the step's target. Compiled into topos::nn, or inline with TOPOS_HEADER_ONLY (topos/config.hpp).
+// snapshot (on helper threads too: step_threads), each by its route: each term evaluated
+// (term-inl.hpp; a filter's taps, filter-inl.hpp) and the terms combined into the step's target.
+// Compiled into topos::nn, or inline with TOPOS_HEADER_ONLY (topos/config.hpp).
 #pragma once
 
 #include "topos/nn/operator_schedule/checks-inl.hpp"
+#include "topos/nn/operator_schedule/parallel-inl.hpp"
 #include "topos/nn/operator_schedule/plan-inl.hpp"
-
-#include <ATen/Parallel.h>
-#include <ATen/ThreadLocalState.h>
 
 #include <algorithm>
 #include <atomic>
-#include <chrono>
 #include <exception>
 #include <functional>
 #include <mutex>
-#include <numeric>
-#include <set>
-
-#if defined(__x86_64__) || defined(__i386__)
-#include <xmmintrin.h>  // _mm_getcsr: a helper flushes denormals as its caller does
-#endif
 
 namespace topos::nn {
 
@@ -98,7 +90,8 @@ struct OperatorNetworkImpl::Written {
 TOPOS_INLINE void OperatorNetworkImpl::run_range(
     Cochains& h, const std::map<std::string, SparseOperator>& operators, const ComplexBatch* batch,
     std::size_t begin, std::size_t end, bool live_only) {
-  Operators ops{&operators, batch, {}, absent_operators(operators, batch), {}, false, {}};
+  Operators ops{&operators, batch, {}, absent_operators(operators, batch), {}, false, {},
+                0,          false, {}};
   const auto& plan = plan_for(ops);
   for (std::size_t g = begin; g < end && g < plan.groups.size(); ++g) {
     const Cochains snapshot = h;
@@ -118,64 +111,6 @@ TOPOS_INLINE void OperatorNetworkImpl::step_threads(int n) {
   step_threads_ = n;
   helpers_.resize(static_cast<std::size_t>(n - 1));  // made when a forward first needs them
 }
-
-namespace detail {
-/// A group's live steps in units, each run on one thread: steps that may share a cached term
-/// prefix (the same prefix key, or filter taps over the same source cochain) stay in one unit,
-/// transitively. Units in the order of their first step, steps in order within a unit.
-inline std::vector<std::vector<std::size_t>> step_units(const std::vector<PlannedStep>& steps,
-                                                        bool live_only) {
-  std::vector<std::size_t> parent(steps.size());  // union-find over the steps
-  std::iota(parent.begin(), parent.end(), std::size_t{0});
-  const auto root = [&](std::size_t i) {
-    while (parent[i] != i) i = parent[i] = parent[parent[i]];
-    return i;
-  };
-  std::map<std::string, std::size_t> first_with;  // a sharing key's first step
-  for (std::size_t i = 0; i < steps.size(); ++i) {
-    const auto& p = steps[i];
-    if (live_only && !p.live) continue;
-    for (const auto& t : p.terms) {
-      std::vector<std::string> keys;
-      if (!t.prefix_key.empty()) keys.push_back("prefix " + t.prefix_key);
-      if (p.route == StepRoute::filter || !p.compact_readers.empty())
-        keys.push_back("source " + t.term->source.str());
-      for (const auto& k : keys) {
-        const auto [it, fresh] = first_with.emplace(k, i);
-        if (!fresh) {
-          const auto a = root(it->second), b = root(i);
-          parent[std::max(a, b)] = std::min(a, b);
-        }
-      }
-    }
-  }
-  std::vector<std::vector<std::size_t>> units;
-  std::map<std::size_t, std::size_t> unit_of_root;
-  for (std::size_t i = 0; i < steps.size(); ++i) {
-    if (live_only && !steps[i].live) continue;
-    const auto [it, fresh] = unit_of_root.emplace(root(i), units.size());
-    if (fresh) units.emplace_back();
-    units[it->second].push_back(i);
-  }
-  return units;
-}
-
-/// The networks whose helper threads are in use: a second forward of one of them at the same
-/// time (another thread's, or an operation's inside a step) runs its groups on one thread.
-inline std::mutex& busy_networks_mutex() {
-  static std::mutex m;
-  return m;
-}
-inline std::set<const void*>& busy_networks() {
-  static std::set<const void*> s;
-  return s;
-}
-}  // namespace detail
-
-// How long a helper polls for the next group before it sleeps: a rollout's forward and the work
-// between two forwards (a millisecond) pass without a sleep, whose wake-up took 90 µs on average
-// on a 2-vCPU VM (a group's steps take 100-250 µs there).
-inline constexpr std::chrono::microseconds kHelperSpin{2000};
 
 TOPOS_INLINE std::vector<OperatorNetworkImpl::Written> OperatorNetworkImpl::run_group(
     const std::vector<PlannedStep>& steps, const Cochains& snapshot, Operators& ops,
@@ -198,13 +133,16 @@ TOPOS_INLINE std::vector<OperatorNetworkImpl::Written> OperatorNetworkImpl::run_
   // This network's helpers, unless another forward of it holds them now.
   struct Claim {
     const void* net = nullptr;
+    Operators& ops;
     ~Claim() {
+      ops.term_helpers = 0, ops.split_terms = false, ops.ahead.clear();
       if (!net) return;
       std::lock_guard<std::mutex> lock(detail::busy_networks_mutex());
       detail::busy_networks().erase(net);
     }
-  } claim;
-  if (units.size() >= 2) {
+  } claim{nullptr, ops};
+  // (Claimed for one unit only where a step may split its terms.)
+  if (units.size() >= 2 || (units.size() == 1 && detail::may_split_terms(steps, live_only))) {
     std::lock_guard<std::mutex> lock(detail::busy_networks_mutex());
     if (detail::busy_networks().insert(this).second)
       claim.net = this;
@@ -212,6 +150,8 @@ TOPOS_INLINE std::vector<OperatorNetworkImpl::Written> OperatorNetworkImpl::run_
       units.clear();
   }
   if (units.size() < 2) {
+    // One unit: its steps may still hand their terms to the helpers (run_step).
+    ops.term_helpers = claim.net ? helpers_.size() : 0;
     PrefixCache cache;  // a term prefix shared by several steps of the group is computed once
     for (const auto& p : steps)
       if (!live_only || p.live) updates.push_back(run_one(p, cache));
@@ -222,7 +162,8 @@ TOPOS_INLINE std::vector<OperatorNetworkImpl::Written> OperatorNetworkImpl::run_
   std::vector<Written> by_step(steps.size());
   std::vector<std::exception_ptr> errors(steps.size());
   std::atomic<std::size_t> next{0};
-  const auto take_units = [&] {
+  ++split_groups_;
+  detail::run_with_helpers(helpers_, std::min(helpers_.size(), units.size() - 1), ops.shared, [&] {
     for (std::size_t u; (u = next.fetch_add(1)) < units.size();) {
       PrefixCache cache;
       for (auto i : units[u]) {
@@ -234,48 +175,7 @@ TOPOS_INLINE std::vector<OperatorNetworkImpl::Written> OperatorNetworkImpl::run_
         }
       }
     }
-  };
-  // What a helper thread does not inherit: LibTorch's thread-local state (grad mode and the
-  // like), the OpenMP team size (oneDNN's products read it), denormal flushing (MXCSR).
-  const at::ThreadLocalState state;
-#if defined(__x86_64__) || defined(__i386__)
-  const unsigned csr = _mm_getcsr();
-#endif
-  const auto helpers = std::min(helpers_.size(), units.size() - 1);
-  for (std::size_t k = 0; k < helpers; ++k)  // all made before any job refers to this frame
-    if (!helpers_[k]) helpers_[k] = std::make_unique<detail::HelperThread>(kHelperSpin);
-  // Every job posted is waited for, whatever throws, before this frame goes.
-  struct Join {
-    std::vector<std::unique_ptr<detail::HelperThread>>& helpers;
-    Operators& ops;
-    std::size_t posted = 0;
-    ~Join() {
-      for (std::size_t k = 0; k < posted; ++k) try {
-          helpers[k]->wait();
-        } catch (...) {  // take_units keeps its errors: nothing to lose here
-        }
-      ops.shared = false;
-    }
-  } join{helpers_, ops};
-  ops.shared = true;
-  const int intra_op = at::get_num_threads();
-  for (std::size_t k = 0; k < helpers; ++k, ++join.posted) {
-    helpers_[k]->post([&] {
-      at::ThreadLocalStateGuard guard(state);
-      at::set_num_threads(intra_op);
-#if defined(__x86_64__) || defined(__i386__)
-      const unsigned own = _mm_getcsr();
-      _mm_setcsr(csr);
-#endif
-      take_units();
-#if defined(__x86_64__) || defined(__i386__)
-      _mm_setcsr(own);
-#endif
-    });
-  }
-  take_units();
-  for (; join.posted > 0; --join.posted) helpers_[join.posted - 1]->wait();
-  ops.shared = false;
+  });
   for (const auto& e : errors)
     if (e) std::rethrow_exception(e);
   for (std::size_t i = 0; i < steps.size(); ++i)
@@ -353,9 +253,22 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_step(const PlannedStep& p, c
       values.W = values.linear->weight;
       first = 1;  // mix applies the operation
     }
+    // With helpers free (step_threads), terms with row-wise prefixes evaluated at once first.
+    const auto jobs =
+        ops.term_helpers > 0 ? detail::term_jobs(p, h) : std::vector<std::vector<std::size_t>>{};
+    if (!jobs.empty()) {
+      if (!ops.split_terms) ++split_groups_;  // the group's first step to split
+      ops.split_terms = true, ++split_steps_;
+      const bool may_defer = values.W.defined();
+      detail::evaluate_at_once(helpers_, ops.term_helpers, ops.shared, jobs, p.terms, cache,
+                               ops.ahead, [&](const PlannedTerm& t, PrefixCache& c) {
+                                 return evaluate_term(where, s.target, t, h, ops, c, may_defer);
+                               });
+    }
     for (const auto& term : p.terms)
       detail::naming(where, term.term,
                      [&] { evaluate_into(where, s.target, term, h, ops, cache, values); });
+    ops.ahead.clear();
     // Two terms summed into an operation that forms the sum in its kernel (a residual
     // connection into a layer norm), with its activation.
     const auto& v = values.values;
@@ -478,232 +391,6 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::mix(const std::string& where, co
     for (std::size_t i = 1; i < v.size(); ++i) y = y + v[i];
     return s.mix == OperatorStep::Mix::mean ? y / static_cast<double>(v.size()) : y;
   });
-}
-
-namespace detail {
-
-/// A filter step's taps as chains of sparse products (run_filter): per tap its links, whether it
-/// is such a chain (else the general path evaluates it), and the rows they all reach.
-struct FilterTaps {
-  struct Link {
-    const SparseOperator* A;
-    const OperatorProduct* op;
-  };
-  const OperatorStep& s;
-  const Cochains& h;
-  std::vector<std::vector<Link>> chains;
-  std::vector<bool> products;
-  std::int64_t target_rows = -1;
-
-  std::int64_t source_rows(std::size_t k) const {
-    const auto& src = s.terms[k].source;
-    return h.at(src.rank, src.state).size(0);
-  }
-  /// The cache key of tap k's first j products (its source's rows tell batches apart).
-  std::string prefix(std::size_t k, std::size_t j) const {
-    return "filter|" + std::to_string(source_rows(k)) + "|" +
-           prefix_key(s.terms[k].source, s.terms[k].operations(), j);
-  }
-  /// Link j of tap k applied to x.
-  torch::Tensor multiply(const std::string& where, std::size_t k, std::size_t j,
-                         const torch::Tensor& x) const {
-    const auto& link = chains[k][j];
-    return detail::multiply(where, label(*link.op), *link.A, x, link.op->row_norm);
-  }
-  static std::string label(const OperatorProduct& o) { return operator_label(o.op, o.transposed); }
-};
-
-/// The sources whose product taps cost less weighted first (x_s Θ_k on the source's rows, then
-/// the chains on the weighted columns) than as written: their taps, by source.
-TOPOS_INLINE std::vector<std::vector<std::size_t>> weighted_first(const FilterTaps& f,
-                                                                  const torch::Tensor& W) {
-  const double c_in = static_cast<double>(W.size(0)), c_out = static_cast<double>(W.size(1));
-  std::map<std::string, std::vector<std::size_t>> by_source;
-  for (std::size_t k = 0; k < f.chains.size(); ++k)
-    if (f.products[k] && !f.chains[k].empty()) by_source[f.s.terms[k].source.str()].push_back(k);
-  std::vector<std::vector<std::size_t>> first;
-  for (const auto& [key, taps] : by_source) {
-    const double n_s = static_cast<double>(f.source_rows(taps[0])),
-                 n_t = static_cast<double>(f.target_rows), m = static_cast<double>(taps.size());
-    double last = m * n_t * c_in * c_out, early = m * n_s * c_in * c_out;
-    std::set<std::string> seen;
-    for (auto k : taps)
-      for (std::size_t j = 0; j < f.chains[k].size(); ++j) {
-        const double nnz = 4.0 * static_cast<double>(f.chains[k][j].A->nnz());
-        early += nnz * c_out;
-        if (seen.insert(f.prefix(k, j + 1)).second) last += nnz * c_in;
-      }
-    if (early < 0.8 * last) first.push_back(taps);
-  }
-  return first;
-}
-
-/// The weighted columns z of the taps `at` (side by side, `cols` each) pushed through their
-/// chains from link `depth` on, a link that several share applied once to all their columns.
-TOPOS_INLINE torch::Tensor push_columns(const std::string& where, const FilterTaps& f,
-                                        const torch::Tensor& z, const std::vector<std::size_t>& at,
-                                        std::size_t depth, std::int64_t cols) {
-  torch::Tensor out;
-  const auto add = [&](const torch::Tensor& t) { out = out.defined() ? out + t : t; };
-  // Each tap's columns, taken apart once (one autograd node) when some go their own way.
-  std::vector<torch::Tensor> pieces;
-  const auto piece = [&](std::size_t p) -> const torch::Tensor& {
-    if (pieces.empty()) pieces = at.size() == 1 ? std::vector<torch::Tensor>{z} : z.split(cols, 1);
-    return pieces[p];
-  };
-  std::vector<std::pair<std::string, std::vector<std::size_t>>> next;  // by next product
-  for (std::size_t p = 0; p < at.size(); ++p) {
-    const auto& chain = f.chains[at[p]];
-    if (chain.size() == depth) {
-      add(piece(p));
-      continue;
-    }
-    const auto& o = *chain[depth].op;
-    const auto key = FilterTaps::label(o) + (o.row_norm ? "~" : "");
-    auto it = std::find_if(next.begin(), next.end(), [&](const auto& n) { return n.first == key; });
-    if (it == next.end()) it = next.insert(next.end(), {key, {}});
-    it->second.push_back(p);
-  }
-  for (const auto& [key, ps] : next) {
-    std::vector<torch::Tensor> parts;
-    std::vector<std::size_t> below;
-    for (auto p : ps) below.push_back(at[p]);
-    torch::Tensor zp = z;  // every tap takes this product: all the columns
-    if (ps.size() < at.size()) {
-      for (auto p : ps) parts.push_back(piece(p));
-      zp = parts.size() == 1 ? parts[0].contiguous() : torch::cat(parts, 1);
-    }
-    add(push_columns(where, f, f.multiply(where, below[0], depth, zp), below, depth + 1, cols));
-  }
-  return out;
-}
-
-/// One source's weighted-first taps: x_s [Θ_a | Θ_b | ...] in one product (taps with the same
-/// chain summed into one block), then pushed through their chains.
-TOPOS_INLINE torch::Tensor weighted_taps(const std::string& where, const FilterTaps& f,
-                                         const std::vector<std::size_t>& taps,
-                                         const torch::Tensor& W) {
-  std::vector<std::size_t> items;  // one tap per distinct chain
-  std::vector<torch::Tensor> blocks;
-  for (auto k : taps) {
-    const auto key = f.prefix(k, f.chains[k].size());
-    std::size_t i = 0;
-    while (i < items.size() && f.prefix(items[i], f.chains[items[i]].size()) != key) ++i;
-    const auto w = W.select(2, static_cast<std::int64_t>(k));
-    if (i == items.size()) {
-      items.push_back(k);
-      blocks.push_back(w);
-    } else {
-      blocks[i] = blocks[i] + w;
-    }
-  }
-  const auto& src = f.s.terms[taps[0]].source;
-  return push_columns(where, f,
-                      linear_act(f.h.at(src.rank, src.state), torch::cat(blocks, 1).t(), {}), items,
-                      0, W.size(1));
-}
-
-}  // namespace detail
-
-// The taps' chains; false where the step is not such a filter (powers, a compact cochain, taps
-// reaching different rows: the general path runs it, or says why).
-TOPOS_INLINE bool OperatorNetworkImpl::filter_chains(const std::string& where,
-                                                     detail::FilterTaps& f, Operators& ops) {
-  const auto K = f.s.terms.size();
-  f.chains.assign(K, {});
-  f.products.assign(K, true);
-  for (std::size_t k = 0; k < K; ++k) {
-    const auto& term = f.s.terms[k];
-    if (f.h.rows(term.source).defined()) return false;
-    auto rows = f.source_rows(k);
-    for (const auto& o : term.operations()) {
-      if (o.traits.fans_out) return false;
-      const auto* p = detail::product_of(o);
-      const bool product = p != nullptr && p->weighted && p->role == 0 && !ops.neighborhood(p->op);
-      const SparseOperator* A = nullptr;
-      if (product) A = p->transposed ? &ops.t(where, p->op) : &ops.at(where, p->op);
-      if (A == nullptr || A->cols != rows) {  // the general path applies it, or names the misfit
-        f.products[k] = false;
-        break;
-      }
-      f.chains[k].push_back({A, p});
-      rows = A->rows;
-    }
-    if (!f.products[k]) continue;
-    if (f.target_rows >= 0 && rows != f.target_rows) return false;
-    f.target_rows = rows;
-  }
-  return true;
-}
-
-// A filter Σ_k T_k Θ_k whose taps are chains of sparse products, T_k = P_k x_s, is linear in
-// x_s: Σ_k P_k (x_s Θ_k) is the same sum with the dense products on x_s's rows. A source's taps
-// go that way when it costs less (SCCNN's triangles into edges on REDDIT-BINARY, its edges into
-// triangles on IMDB), their products applied to the weighted columns side by side where chains
-// share a prefix. The other taps are evaluated once per distinct prefix in the group and stacked
-// into one product (combine_terms). Costs as in apply_fused: a sparse entry weighs 4 dense
-// multiply-adds.
-TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_filter(const std::string& where,
-                                                           const OperatorStep& s, const Cochains& h,
-                                                           Operators& ops, PrefixCache& cache,
-                                                           Epilogue act) {
-  const auto& W = params_.at(s.filter_path);  // in × out × taps
-  const auto K = s.terms.size();
-  if (W.dim() != 3 || W.size(2) != static_cast<std::int64_t>(K)) return {};  // powers fan out
-  detail::FilterTaps f{s, h, {}, {}, -1};
-  if (!filter_chains(where, f, ops)) return {};
-  const auto first = detail::weighted_first(f, W);
-  std::vector<bool> is_first(K, false);
-  for (const auto& taps : first)
-    for (auto k : taps) is_first[k] = true;
-  // The weighted-first parts, summed, are the base the other taps' product starts from.
-  torch::Tensor base;
-  for (const auto& taps : first) {
-    const auto part = detail::weighted_taps(where, f, taps, W);
-    base = base.defined() ? base + part : part;
-  }
-  auto y = other_taps(where, f, is_first, W, ops, cache, act, base);
-  return y.defined() ? y : detail::activate(base, act);
-}
-
-// The taps not weighted first, each distinct prefix of products once (in the group's cache),
-// stacked into one product with their slices of W.
-TOPOS_INLINE torch::Tensor OperatorNetworkImpl::other_taps(const std::string& where,
-                                                           const detail::FilterTaps& f,
-                                                           const std::vector<bool>& skip,
-                                                           const torch::Tensor& W, Operators& ops,
-                                                           PrefixCache& cache, Epilogue act,
-                                                           const torch::Tensor& base) {
-  std::vector<torch::Tensor> terms;
-  std::vector<std::int64_t> slices;
-  for (std::size_t k = 0; k < f.chains.size(); ++k) {
-    if (skip[k]) continue;
-    const auto& term = f.s.terms[k];
-    torch::Tensor x = f.h.at(term.source.rank, term.source.state);
-    if (f.products[k]) {
-      std::size_t j = f.chains[k].size();
-      for (; j > 0; --j)
-        if (auto it = cache.find(f.prefix(k, j)); it != cache.end()) {
-          x = it->second;
-          break;
-        }
-      for (; j < f.chains[k].size(); ++j) {
-        x = f.multiply(where, k, j, x);
-        cache.emplace(f.prefix(k, j + 1), x);
-      }
-    } else {
-      const auto& list = term.operations();
-      for (std::size_t i = 0; i < list.size(); ++i)
-        i = apply_fused(where, f.s.target, list, i, x, ops, f.h);
-    }
-    terms.push_back(std::move(x));
-    slices.push_back(static_cast<std::int64_t>(k));
-  }
-  if (terms.empty()) return {};
-  return combine_terms(
-      terms,
-      terms.size() == f.chains.size() ? W : W.index_select(2, torch::tensor(slices).to(W.device())),
-      act, base);
 }
 
 TOPOS_INLINE torch::Tensor OperatorNetworkImpl::guard(const std::string& where,

@@ -3,7 +3,7 @@
 // every cochain's width, checks each step (build-inl.hpp) and creates the parameters at the
 // schedule's dotted paths (parameters-inl.hpp); its forward checks its arguments
 // (checks-inl.hpp), plans what to run (plan.hpp, plan-inl.hpp) and runs the plan
-// (interpreter-inl.hpp).
+// (interpreter-inl.hpp; a filter's taps: filter-inl.hpp).
 #pragma once
 
 #include "topos/config.hpp"
@@ -11,6 +11,7 @@
 #include "topos/nn/aggregate.hpp"
 #include "topos/nn/complex_batch.hpp"
 #include "topos/nn/helper_thread.hpp"
+#include "topos/nn/kernels/packed_weights.hpp"  // helpers keep the caller's packed weights
 #include "topos/nn/operator_schedule/builder.hpp"
 #include "topos/nn/operator_schedule/plan.hpp"
 
@@ -169,12 +170,21 @@ class OperatorNetworkImpl : public torch::nn::Module {
   /// Threads that the steps of one parallel group share in a CPU forward outside training (1,
   /// the default: the calling thread alone). With n > 1 the calling thread and n - 1 helpers
   /// take the group's independent steps in turn (steps that may share a cached term prefix stay
-  /// together): the same outputs bit for bit, gradients equal up to the order of their sums. A
-  /// training forward keeps one thread, so that its random draws (dropout) keep their order.
-  /// Keep LibTorch's intra-op threads at 1 beside it; an Operation's forward must then not write
-  /// state that another step of its group reads (scratch included). n < 1 is an error.
+  /// together); in a group that runs as one, a step's terms that aggregate over a batch's
+  /// neighbourhood after row-wise operations run at once where two of them read 32 rows or more
+  /// (terms that share a prefix together). The same outputs bit for bit, gradients equal up to
+  /// the order of their sums. A training forward keeps one thread, so that its random draws
+  /// (dropout) keep their order. Keep LibTorch's intra-op threads at 1 beside it; an Operation's
+  /// forward must then not write state that another step of its group, or another term of its
+  /// step, reads (scratch included). n < 1 is an error.
   void step_threads(int n);
   int step_threads() const { return step_threads_; }
+  /// How many parallel groups this network's forwards have run on more than one thread since it
+  /// was built, and how many of its steps ran their terms at once: 0 and 0 mean step_threads
+  /// never took effect (nothing to share, or training forwards only). For tests and profiles:
+  /// read them while no forward of this network runs.
+  std::int64_t split_groups() const { return split_groups_; }
+  std::int64_t split_steps() const { return split_steps_; }
 
  private:
   OperatorSchedule schedule_;
@@ -194,6 +204,7 @@ class OperatorNetworkImpl : public torch::nn::Module {
   FastPaths fast_;
   int step_threads_ = 1;
   std::vector<std::unique_ptr<detail::HelperThread>> helpers_;  // step_threads_ - 1, made lazily
+  std::int64_t split_groups_ = 0, split_steps_ = 0;  // counted by the forward holding the helpers
 
   // --- planning (plan-inl.hpp, cost-inl.hpp) ---------------------------------------------------
   struct Operators;  // the given operators, their transposes and this forward's dropped ones
@@ -327,6 +338,7 @@ TORCH_MODULE(OperatorNetwork);
 #include "topos/nn/operator_schedule/build-inl.hpp"
 #include "topos/nn/operator_schedule/checks-inl.hpp"
 #include "topos/nn/operator_schedule/cost-inl.hpp"
+#include "topos/nn/operator_schedule/filter-inl.hpp"
 #include "topos/nn/operator_schedule/interpreter-inl.hpp"
 #include "topos/nn/operator_schedule/plan-inl.hpp"
 #endif

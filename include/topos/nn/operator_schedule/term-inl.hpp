@@ -12,6 +12,7 @@
 
 #include <algorithm>
 #include <cstdint>
+#include <exception>
 #include <functional>
 #include <set>
 
@@ -39,6 +40,18 @@ TOPOS_INLINE void check_reads(const std::string& where, const std::string& name,
 
 }  // namespace detail
 
+/// A term's value; or, for a term that ends on an aggregation over a batch neighbourhood and
+/// whose caller can apply a linear map first, the rows and the aggregation still to apply.
+struct OperatorNetworkImpl::TermValue {
+  bool handled = false;  // false: the term is not one of these, evaluate it the general way
+  torch::Tensor value;
+  torch::Tensor x;
+  TensorNeighborhood n;  // sources renumbered to x's rows
+  AggregateOptions agg;
+  bool deferred = false;
+  std::exception_ptr error;  // evaluated ahead on another thread, where it threw this
+};
+
 struct OperatorNetworkImpl::Operators {
   const std::map<std::string, SparseOperator>* given;
   const ComplexBatch* batch = nullptr;  // its neighbourhoods, where no operator is given
@@ -47,6 +60,12 @@ struct OperatorNetworkImpl::Operators {
   std::map<std::string, torch::Tensor> scratch;  // RunContext::scratch: kept for this run
   bool shared = false;  // steps on several threads now: `transposed`, `scratch` under the lock
   std::mutex lock;
+  // step_threads: helpers a step may hand its terms to now (run_group sets it while it holds
+  // them for a group that runs on one thread), whether a step did, and the terms evaluated
+  // ahead on them, each taken by evaluate_term when its step reaches it in order.
+  std::size_t term_helpers = 0;
+  bool split_terms = false;
+  std::map<const PlannedTerm*, TermValue> ahead;
   const SparseOperator& at(const std::string& where, const std::string& name) const {
     auto it = given->find(name);
     if (it == given->end()) {
@@ -68,17 +87,6 @@ struct OperatorNetworkImpl::Operators {
     if (batch == nullptr || given->count(name) || !batch->has_neighborhood(name)) return nullptr;
     return &batch->neighborhood(name);
   }
-};
-
-/// A term's value; or, for a term that ends on an aggregation over a batch neighbourhood and
-/// whose caller can apply a linear map first, the rows and the aggregation still to apply.
-struct OperatorNetworkImpl::TermValue {
-  bool handled = false;  // false: the term is not one of these, evaluate it the general way
-  torch::Tensor value;
-  torch::Tensor x;
-  TensorNeighborhood n;  // sources renumbered to x's rows
-  AggregateOptions agg;
-  bool deferred = false;
 };
 
 namespace detail {
@@ -460,6 +468,15 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::run_operation(
 TOPOS_INLINE OperatorNetworkImpl::TermValue OperatorNetworkImpl::evaluate_term(
     const std::string& where, const CochainKey& target, const PlannedTerm& planned,
     const Cochains& h, Operators& ops, PrefixCache& cache, bool may_defer) {
+  if (!ops.ahead.empty()) {
+    const auto it = ops.ahead.find(&planned);
+    if (it != ops.ahead.end()) {
+      auto ahead = std::move(it->second);
+      ops.ahead.erase(it);
+      if (ahead.error) std::rethrow_exception(ahead.error);  // in the one-thread order
+      return ahead;
+    }
+  }
   TermValue v;
   if (planned.neighborhood.empty()) return v;  // not handled here
   const auto& term = *planned.term;
