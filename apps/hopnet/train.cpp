@@ -201,6 +201,13 @@ int run_train(const TrainArgs& a) {
     std::printf(fmt, args...);
     std::fflush(stdout);  // a long run's log file shows each epoch as it ends
   };
+  // Without AVX-512 BF16, medium's CPU products go to oneDNN's bfloat16, which emulates it:
+  // slower than float32 (a MOVi-A step took 16 CPU s against 6), so the user should know.
+  if (device.is_cpu() && a.matmul_precision == "medium" && !nn::detail::cpu_has_bf16())
+    std::fprintf(log,
+                 "hopnet train: warning: this CPU has no AVX-512 BF16, so --matmul-precision "
+                 "medium runs oneDNN's emulated bfloat16 products, slower than float32 here; "
+                 "--matmul-precision highest is faster\n");
   const FeatureMode mode = feature_mode_from_string(a.mode);
   HopnetOptions options = variant_options(a.variant, HopnetOptions().mode(mode));
   if (a.hidden > 0) options.hidden(a.hidden);

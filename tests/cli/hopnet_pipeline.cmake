@@ -72,6 +72,16 @@ if(NOT n EQUAL 4)
   message(FATAL_ERROR "--max-steps 3 should log 3 steps, steps.csv has ${n} lines")
 endif()
 python_check("checkpoint opens in torch.load" ${WORK}/model/checkpoint.pt)
+# On a CPU without AVX-512 BF16 (TOPOS_DISABLE_BF16=1 stands for one) medium is emulated by
+# oneDNN, slower than float32: train says so and trains.
+execute_process(COMMAND ${CMAKE_COMMAND} -E env TOPOS_DISABLE_BF16=1 ${HOPNET} train
+  --data ${WORK}/topos --split-file ${WORK}/custom.json --out ${WORK}/emulated --hidden 8
+  --max-steps 1 --mode native --matmul-precision medium
+  RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+string(FIND "${err}" "warning: this CPU has no AVX-512 BF16, so --matmul-precision medium runs oneDNN's emulated bfloat16 products" said)
+if(NOT rc EQUAL 0 OR said EQUAL -1)
+  message(FATAL_ERROR "train at medium without AVX-512 BF16 should warn and train (${rc}):\n${out}${err}")
+endif()
 
 # Loss and gradient of one trajectory; training from given weights in chunks of timesteps.
 expect_success("grad" grad --checkpoint ${WORK}/model/checkpoint.pt --stats ${WORK}/model/stats.json --scene ${WORK}/kubric/1 --mode native --chunk 7 --out ${WORK}/grad)
