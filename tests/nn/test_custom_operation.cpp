@@ -1069,7 +1069,8 @@ TEST_CASE("a step's terms run at once on the helper threads, with the one-thread
   std::thread::id on[3];
   // One step (a group of its own) whose node and edge terms meet: only a split of its terms
   // passes. The third term shares the node term's prefix (one operation object, so one cache
-  // key: the same job, a cache hit there) over a neighbourhood that reads half the nodes.
+  // key: the same job, a cache hit there) over a neighbourhood that reads half the nodes; the
+  // fourth, a job of its own, runs its prefix on the 20 nodes that neighbourhood reads.
   const auto schedule = [&](std::optional<std::thread::id> fail_off) {
     const auto nodes = std::make_shared<RowWiseSlow>(true, &on[0], fail_off, "the nodes' slow");
     OperatorSchedule s;
@@ -1081,8 +1082,13 @@ TEST_CASE("a step's terms run at once on the helper threads, with the one-thread
                            .apply(RowWiseSlow(true, &on[1], fail_off, "the edges' slow"))
                            .linear("b", 4)
                            .pattern("N12"),
-                       from(0).apply(nodes).linear("a", 4).pattern("N02half", Aggr::mean))
-               .mlp("m", MlpOptions(14, 8, 2))
+                       from(0).apply(nodes).linear("a", 4).pattern("N02half", Aggr::mean),
+                       from(0)
+                           .apply(RowWiseSlow(false, &on[2], fail_off, "the half's slow"))
+                           .linear("c", 4)
+                           .pattern("N02half"))
+               .mlp("m",
+                    MlpOptions(18, 8, 2).layer_norm(false))  // (a norm over 2 outputs: no gradient)
                .named("faces"));
     return s;
   };
