@@ -1066,16 +1066,19 @@ TEST_CASE("a step's terms run at once on the helper threads, with the one-thread
   const auto x1 = torch::randn({40, 3}, torch::kDouble).requires_grad_();
   const auto f = torch::randn({10, 2}, torch::kDouble);
   const auto me = std::this_thread::get_id();
-  std::thread::id on[3];
+  std::thread::id on[4];
   // One step (a group of its own) whose node and edge terms meet: only a split of its terms
   // passes. The third term shares the node term's prefix (one operation object, so one cache
   // key: the same job, a cache hit there) over a neighbourhood that reads half the nodes; the
-  // fourth, a job of its own, runs its prefix on the 20 nodes that neighbourhood reads.
+  // fourth, a job of its own, runs its prefix on the 20 nodes that neighbourhood reads. The
+  // fifth reads a compact cochain (the step "h" before, computed on the 20 nodes N02half reads
+  // alone), so its job maps the neighbourhood's sources to the cochain's rows.
   const auto schedule = [&](std::optional<std::thread::id> fail_off) {
     const auto nodes = std::make_shared<RowWiseSlow>(true, &on[0], fail_off, "the nodes' slow");
     OperatorSchedule s;
     s.input("x0", 0, 3).input("x1", 1, 3).input("f", 2, 2).output("y", 2);
     s.operator_input("N02", 0, 2).operator_input("N12", 1, 2).operator_input("N02half", 0, 2);
+    s.step(into(0, "h").sum(from(0).linear("lift", 3)).named("h"));
     s.step(into(2)
                .concat(from(2), from(0).apply(nodes).linear("a", 4).pattern("N02"),
                        from(1)
@@ -1086,22 +1089,32 @@ TEST_CASE("a step's terms run at once on the helper threads, with the one-thread
                        from(0)
                            .apply(RowWiseSlow(false, &on[2], fail_off, "the half's slow"))
                            .linear("c", 4)
-                           .pattern("N02half"))
+                           .pattern("N02half"),
+                       from(0, "h")
+                           .apply(RowWiseSlow(false, &on[3], fail_off, "the compact slow"))
+                           .linear("d", 4)
+                           .pattern("N02half", Aggr::max))
                .mlp("m",
-                    MlpOptions(18, 8, 2).layer_norm(false))  // (a norm over 2 outputs: no gradient)
+                    MlpOptions(22, 8, 2).layer_norm(false))  // (a norm over 2 outputs: no gradient)
                .named("faces"));
     return s;
   };
   OperatorNetwork net(schedule({}));
   net->to(torch::kDouble);
+  const std::map<std::string, torch::Tensor> inputs{{"x0", x0}, {"x1", x1}, {"f", f}};
+  const auto plan = net->plan(inputs, batch);
+  INFO(plan.str());
+  REQUIRE(plan.groups.size() == 2);
+  CHECK(plan.groups[0][0].compact_readers == std::vector<std::string>{"N02half"});
   const auto run = [&] {
-    const auto y = net->forward({{"x0", x0}, {"x1", x1}, {"f", f}}, batch).at("y");
-    const auto g = torch::autograd::grad({y.sin().sum()}, {x0, x1, net->parameter("a.weight")});
-    return std::vector<torch::Tensor>{y, g[0], g[1], g[2]};
+    const auto y = net->forward(inputs, batch).at("y");
+    const auto g = torch::autograd::grad(
+        {y.sin().sum()}, {x0, x1, net->parameter("a.weight"), net->parameter("lift.weight")});
+    return std::vector<torch::Tensor>{y, g[0], g[1], g[2], g[3]};
   };
   net->eval();
   const auto one = run();
-  CHECK((on[0] == me && on[1] == me));
+  CHECK((on[0] == me && on[1] == me && on[3] == me));
   net->step_threads(2);
   must_meet = true, arrived = 0;
   const auto two = run();
@@ -1112,6 +1125,16 @@ TEST_CASE("a step's terms run at once on the helper threads, with the one-thread
   CHECK(torch::equal(one[0], two[0]));
   for (std::size_t k = 1; k < one.size(); ++k) CHECK(torch::allclose(one[k], two[k], 1e-13, 1e-14));
   CHECK(one[3].abs().sum().item<double>() > 0);
+  CHECK(one[4].abs().sum().item<double>() > 0);  // the compact term reaches the loss
+  // The plain plan (every fast path off: "h" on all 40 nodes, no split, no cache) agrees.
+  net->set_fast_paths(false);
+  net->step_threads(1);
+  CHECK(net->plan(inputs, batch).groups[0][0].compact_readers.empty());
+  const auto plain = run();
+  net->set_fast_paths(true);
+  net->step_threads(2);
+  for (std::size_t k = 0; k < one.size(); ++k)
+    CHECK(torch::allclose(plain[k], two[k], 1e-12, 1e-13));
   net->train();  // one thread
   const auto trained = run();
   CHECK((on[0] == me && on[1] == me));
