@@ -534,6 +534,57 @@ TEST_CASE(
                       Catch::Contains("unknown cpu gemm 'mkl' (blas, onednn, topos)"));
 }
 
+TEST_CASE("the dense kernel from packed panels: the unpacked kernel's numbers, bit for bit",
+          "[nn][kernels]") {
+  const auto x300 = torch::randn({300, 8});
+  if (!topos::nn::detail::packs_panels(x300, 300, 128)) {
+    WARN("this CPU has no AVX-512: products never run from packed panels here");
+    return;
+  }
+  CHECK_FALSE(topos::nn::detail::packs_panels(x300, 255, 128));  // too few rows: not repaid
+  CHECK_FALSE(topos::nn::detail::packs_panels(x300, 300, 64));   // one panel: M as it is
+  CHECK_FALSE(topos::nn::detail::packs_panels(x300.to(torch::kDouble), 300, 128));
+  torch::manual_seed(12);
+  const std::vector<std::pair<std::int64_t, std::int64_t>> shapes{
+      {128, 128}, {256, 128}, {200, 192}, {64, 128}, {512, 256}, {1024, 128}};
+  for (const auto& [K, N] : shapes)
+    for (const auto e : {Epilogue::none, Epilogue::relu, Epilogue::elu}) {
+      INFO(K << " -> " << N << ", activation " << static_cast<int>(e));
+      const auto x = torch::randn({300, K}).requires_grad_();
+      const auto W = (torch::randn({N, K}) / std::sqrt(static_cast<double>(K))).requires_grad_();
+      const auto b = torch::randn({N});
+      const auto g = torch::randn({300, N});
+      // 300 rows run packed; the same rows in three calls of 100 run unpacked. Each row's sums
+      // are the same in the same order either way: outputs and dx equal bit for bit.
+      const auto run = [&](std::int64_t rows) {
+        std::vector<torch::Tensor> y, dx;
+        torch::Tensor dW = torch::zeros_like(W);
+        for (std::int64_t i = 0; i < 300; i += rows) {
+          const auto xi = x.detach().narrow(0, i, rows).requires_grad_();
+          const auto yi = linear_act(xi, W, b, e, MatmulPrecision::highest);
+          const auto grads = torch::autograd::grad({yi}, {xi, W}, {g.narrow(0, i, rows)});
+          y.push_back(yi.detach()), dx.push_back(grads[0]), dW += grads[1];
+        }
+        return std::vector<torch::Tensor>{torch::cat(y), torch::cat(dx), dW};
+      };
+      const auto packed = run(300), unpacked = run(100);
+      CHECK(torch::equal(packed[0], unpacked[0]));
+      CHECK(torch::equal(packed[1], unpacked[1]));
+      // And both are the product: against double.
+      const auto xd = x.detach().to(torch::kDouble), Wd = W.detach().to(torch::kDouble);
+      auto z = torch::addmm(b.to(torch::kDouble), xd, Wd.t());
+      const auto yd = e == Epilogue::relu ? torch::relu(z) : e == Epilogue::elu ? torch::elu(z) : z;
+      CHECK(torch::allclose(packed[0].to(torch::kDouble), yd, 1e-4, 1e-4));
+      const auto dz =
+          g.to(torch::kDouble) * (e == Epilogue::relu ? (z > 0).to(torch::kDouble)
+                                  : e == Epilogue::elu
+                                      ? torch::where(z > 0, torch::ones_like(z), torch::exp(z))
+                                      : torch::ones_like(z));
+      CHECK(torch::allclose(packed[1].to(torch::kDouble), dz.mm(Wd), 1e-4, 1e-4));
+      CHECK(torch::allclose(packed[2].to(torch::kDouble), dz.t().mm(xd), 1e-4, 1e-3));
+    }
+}
+
 TEST_CASE("nn::layer_norm equals torch's layer_norm, values and gradients", "[nn][kernels]") {
   torch::manual_seed(11);
   // Channels: a multiple of the vector width, a tail, fewer than a vector; rows: one block of the

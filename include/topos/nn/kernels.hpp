@@ -105,7 +105,7 @@ struct LinearFunction : public torch::autograd::Function<LinearFunction> {
       y = onednn_mm(x, M);
       bias_epilogue(y, b, e);
     } else if (dense_kernel_fits(M.size(0), M.size(1))) {
-      y = dense_product(x, M.contiguous(), b, e);
+      y = dense_product(x, M, b, e);
     } else {
       y = b.defined() ? torch::addmm(b, x, M) : x.mm(M);
       apply_epilogue(y, torch::Tensor(), e);
@@ -193,10 +193,13 @@ struct LinearFunction : public torch::autograd::Function<LinearFunction> {
 #endif
 #if defined(__GNUC__)
     const auto Wc = W.contiguous();
+    // dx = dZ W from W's panels packed where the forward's product would pack its own.
+    const auto WP = want_dx && packs_panels(x, n, K) ? pack_panels(Wc) : torch::Tensor();
     AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "topos_linear_backward", [&] {
+      const scalar_t* wp = WP.defined() ? WP.data_ptr<scalar_t>() : nullptr;
       at::parallel_for(0, chunks, 1, [&](std::int64_t c0, std::int64_t c1) {
         for (std::int64_t c = c0; c < c1; ++c)
-          linear_backward_clone(x.data_ptr<scalar_t>(), Wc.data_ptr<scalar_t>(),
+          linear_backward_clone(x.data_ptr<scalar_t>(), Wc.data_ptr<scalar_t>(), wp,
                                 Y.defined() ? Y.data_ptr<scalar_t>() : nullptr,
                                 g.data_ptr<scalar_t>(), want_dx ? dx.data_ptr<scalar_t>() : nullptr,
                                 want_dW ? dW.data_ptr<scalar_t>() + c * N * K : nullptr,

@@ -26,13 +26,16 @@ namespace detail {
 // zeroes Y before its kernel, and it applies the bias and the activation before the store.
 // RB, when set, is the rows per block (otherwise as many as the registers allow). `accumulate`
 // starts from Y's rows instead of the bias: a product over several blocks of K, each summed in
-// turn onto the last (dense_blocks_rows), adds in the order one product over all of K would.
+// turn onto the last (dense_blocks_rows, dense_rows_packed), adds in the order one product over
+// all of K would. X's rows are `ldx` apart (0: K; more for a block of X's columns).
 #if defined(__GNUC__)
 template <class T, int N, Epilogue E, int VB, int RB = 0>
 static TOPOS_INLINE_KERNEL void dense_rows_fixed(const T* X, const T* M, const T* b, T* Y,
                                                  std::int64_t begin, std::int64_t end,
                                                  std::int64_t K, std::int64_t ldm = N,
-                                                 std::int64_t ldy = N, bool accumulate = false) {
+                                                 std::int64_t ldy = N, bool accumulate = false,
+                                                 std::int64_t ldx = 0) {
+  if (ldx == 0) ldx = K;
   // A width narrower than the vector (8 floats on 64 bytes) takes vectors of its own size.
   constexpr int VBe = N * static_cast<int>(sizeof(T)) < VB ? N * static_cast<int>(sizeof(T)) : VB;
   typedef T vec __attribute__((vector_size(VBe)));
@@ -59,7 +62,7 @@ static TOPOS_INLINE_KERNEL void dense_rows_fixed(const T* X, const T* M, const T
       vec w[V];
       for (int j = 0; j < V; ++j) std::memcpy(&w[j], M + k * ldm + j * L, sizeof(vec));
       for (int r = 0; r < R; ++r) {
-        const T x = X[(i + r) * K + k];
+        const T x = X[(i + r) * ldx + k];
         for (int j = 0; j < V; ++j) acc[r][j] += x * w[j];
       }
     }
@@ -77,7 +80,7 @@ static TOPOS_INLINE_KERNEL void dense_rows_fixed(const T* X, const T* M, const T
       else
         acc[j] = bias[j];
     for (std::int64_t k = 0; k < K; ++k) {
-      const T x = X[i * K + k];
+      const T x = X[i * ldx + k];
       for (int j = 0; j < V; ++j) {
         vec w;
         std::memcpy(&w, M + k * ldm + j * L, sizeof(vec));
@@ -108,6 +111,36 @@ static TOPOS_INLINE_KERNEL void dense_rows_panels(const T* X, const T* M, const 
     for (std::int64_t c = 0; c < N; c += 64)
       dense_rows_fixed<T, 64, E, VB, panel_rows<T, VB>>(X, M + c, b ? b + c : nullptr, Y + c, i0,
                                                         i1, K, ldm, N, accumulate);
+  }
+}
+
+// dense_rows_panels from M packed by pack_panels (N / 64 panels, each K × 64 contiguous), in
+// blocks of 128 of K, each summed onto the last: the same sums in the same order. In M itself a
+// panel's rows are N floats apart, so at N = 128 every row of a panel falls in the same eighth of
+// L1's sets, more lines than their 12 ways hold, and the panel comes from L2 at every block of
+// rows; packed, a panel's block of K (32 KB) fills the sets evenly. On an Intel Xeon VM (AVX-512,
+// 48 KB L1) 16,384 × 128 · 128 products ran at 81-86 GFLOP/s unpacked and 122-130 packed, and
+// with 256 or 512 inputs at 96-107 and 117-120 (docs/benchmarks.md).
+template <class T, Epilogue E, int VB>
+static TOPOS_INLINE_KERNEL void dense_rows_packed(const T* X, const T* P, const T* b, T* Y,
+                                                  std::int64_t begin, std::int64_t end,
+                                                  std::int64_t K, std::int64_t N) {
+  constexpr std::int64_t rows = 48, depth = 128;
+  constexpr int R = panel_rows<T, VB>;
+  for (std::int64_t i0 = begin; i0 < end; i0 += rows) {
+    const std::int64_t i1 = std::min(end, i0 + rows);
+    for (std::int64_t c = 0; c < N; c += 64)
+      for (std::int64_t k0 = 0; k0 < K; k0 += depth) {
+        const std::int64_t kb = std::min(depth, K - k0);
+        const T* panel = P + c * K + k0 * 64;
+        const T* bias = k0 == 0 && b ? b + c : nullptr;
+        if (k0 + kb < K)
+          dense_rows_fixed<T, 64, Epilogue::none, VB, R>(X + k0, panel, bias, Y + c, i0, i1, kb, 64,
+                                                         N, k0 > 0, K);
+        else
+          dense_rows_fixed<T, 64, E, VB, R>(X + k0, panel, bias, Y + c, i0, i1, kb, 64, N, k0 > 0,
+                                            K);
+      }
   }
 }
 
@@ -160,6 +193,22 @@ static TOPOS_INLINE_KERNEL void dense_rows(const T* X, const T* M, const T* b, T
                                                           std::int64_t K, std::int64_t N,
                                                           Epilogue e) {
   dense_rows<float, 64>(X, M, b, Y, begin, end, K, N, e);
+}
+#endif
+#if defined(TOPOS_HAVE_V4)
+[[maybe_unused]] TOPOS_V4 static void dense_rows_packed_float_v4(const float* X, const float* P,
+                                                                 const float* b, float* Y,
+                                                                 std::int64_t begin,
+                                                                 std::int64_t end, std::int64_t K,
+                                                                 std::int64_t N, Epilogue e) {
+  if (e == Epilogue::none)
+    dense_rows_packed<float, Epilogue::none, 64>(X, P, b, Y, begin, end, K, N);
+  else if (e == Epilogue::relu)
+    dense_rows_packed<float, Epilogue::relu, 64>(X, P, b, Y, begin, end, K, N);
+  else if (e == Epilogue::elu)
+    dense_rows_packed<float, Epilogue::elu, 64>(X, P, b, Y, begin, end, K, N);
+  else
+    dense_rows_packed<float, Epilogue::sigmoid, 64>(X, P, b, Y, begin, end, K, N);
 }
 #endif
 [[maybe_unused]] TOPOS_SIMD_CLONES static void dense_rows_double(const double* X, const double* M,
@@ -218,15 +267,49 @@ inline bool dense_kernel_fits(std::int64_t K, std::int64_t N) {
 #endif
 }
 
+/// Whether a float32 product of n rows by a map of N outputs runs from M's panels packed
+/// (dense_rows_packed): AVX-512, several panels of 64 outputs, and rows enough to repay the copy
+/// (at 192 rows × 128 · 128 the copy cost more than it saved; at 512 the packed product was
+/// 1.3-1.5x faster).
+inline bool packs_panels(const torch::Tensor& x, std::int64_t n, std::int64_t N) {
+#if defined(TOPOS_HAVE_V4) && defined(__GNUC__)
+  return x.scalar_type() == torch::kFloat && N % 64 == 0 && N > 64 && n >= 256 && cpu_has_v4();
+#else
+  return x.scalar_type() != x.scalar_type() && n < 0 && N < 0;
+#endif
+}
+
+/// M (K × N, any strides, N a multiple of 64) as N / 64 panels of K × 64, each contiguous
+/// (dense_rows_packed's operand): one copy, as M.contiguous() of a transposed weight is.
+inline torch::Tensor pack_panels(const torch::Tensor& M) {
+  const auto K = M.size(0), N = M.size(1);
+  return M.view({K, N / 64, 64}).permute({1, 0, 2}).contiguous();
+}
+
 /// act(b + X · M) for contiguous float or double X (n × K) and M (K × N) on the CPU, K and N as
-/// dense_kernel_fits takes them; b may be undefined.
+/// dense_kernel_fits takes them; b may be undefined. M may be strided (a weight's transpose):
+/// it is copied once, contiguous or in packed panels.
 inline torch::Tensor dense_product(const torch::Tensor& X, const torch::Tensor& M,
                                    const torch::Tensor& b, Epilogue e) {
-  const auto x = X.contiguous(), m = M.contiguous();
+  const auto x = X.contiguous();
   const auto bc = b.defined() ? b.contiguous() : b;
-  const auto n = x.size(0), K = x.size(1), N = m.size(1);
+  const auto n = x.size(0), K = x.size(1), N = M.size(1);
   auto y = torch::empty({n, N}, x.options());
 #if defined(__GNUC__)
+#if defined(TOPOS_HAVE_V4)
+  if (packs_panels(x, n, N)) {
+    const auto P = pack_panels(M);
+    const auto* xp = x.data_ptr<float>();
+    const auto* pp = P.data_ptr<float>();
+    const auto* bp = bc.defined() ? bc.data_ptr<float>() : nullptr;
+    auto* yp = y.data_ptr<float>();
+    at::parallel_for(0, n, grain_rows(n, n * K * N), [&](std::int64_t begin, std::int64_t end) {
+      dense_rows_packed_float_v4(xp, pp, bp, yp, begin, end, K, N, e);
+    });
+    return y;
+  }
+#endif
+  const auto m = M.contiguous();
   AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "topos_dense_product", [&] {
     const auto* xp = x.data_ptr<scalar_t>();
     const auto* mp = m.data_ptr<scalar_t>();
@@ -312,15 +395,19 @@ static TOPOS_INLINE_KERNEL void outer_block_any(const T* z, const T* x, T* dW, s
 
 // The backward of act(x Wᵀ + b) (x n × K, W N × K) over rows [begin, end), a block of rows at a
 // time so that dZ = g ⊙ act'(y) never leaves L1: dx = dZ W, and dW, db accumulate into the
-// caller's buffers. Each of the three is skipped where its pointer is null.
+// caller's buffers. Each of the three is skipped where its pointer is null. WP, when given, is W
+// in packed panels (pack_panels, K a multiple of 64): dx is then dense_rows_packed's product.
 template <class T, Epilogue E, int VB>
-static TOPOS_INLINE_KERNEL void linear_backward_rows(const T* x, const T* W, const T* y, const T* g,
-                                                     T* dx, T* dW, T* db, std::int64_t begin,
-                                                     std::int64_t end, std::int64_t K,
-                                                     std::int64_t N) {
-  // Blocks of 32 rows, fewer above 256 outputs so that dZ keeps its 32 KB (float) on the stack.
+static TOPOS_INLINE_KERNEL void linear_backward_rows(const T* x, const T* W, const T* WP,
+                                                     const T* y, const T* g, T* dx, T* dW, T* db,
+                                                     std::int64_t begin, std::int64_t end,
+                                                     std::int64_t K, std::int64_t N) {
+  // Blocks of up to 30 rows, fewer above 256 outputs so that dZ keeps its 32 KB (float) on the
+  // stack: a multiple of the 6 rows the product kernels take at a time (32 left 2 rows to the
+  // one-row loop in every block). Each entry of dW and db still sums its rows in order.
   constexpr std::int64_t capacity = 32 * 256;
-  const std::int64_t B = std::max<std::int64_t>(1, std::min<std::int64_t>(32, capacity / N));
+  std::int64_t B = std::max<std::int64_t>(1, std::min<std::int64_t>(30, capacity / N));
+  if (B >= 6) B -= B % 6;
   alignas(64) T dZ[capacity];
   for (std::int64_t i0 = begin; i0 < end; i0 += B) {
     const std::int64_t rows = std::min(B, end - i0);
@@ -329,7 +416,9 @@ static TOPOS_INLINE_KERNEL void linear_backward_rows(const T* x, const T* W, con
       epilogue_rows<T, VB>(const_cast<T*>(y + i0 * N), g + i0 * N, dZ, rows * N, E);
       z = dZ;
     }
-    if (dx)  // dx = dZ W: the forward's product with W's K columns as outputs
+    if (dx && WP)  // dx = dZ W: the forward's product with W's K columns as outputs
+      dense_rows_packed<T, Epilogue::none, VB>(z, WP, nullptr, dx + i0 * K, 0, rows, N, K);
+    else if (dx)
       dense_rows_width<T, Epilogue::none, VB>(z, W, nullptr, dx + i0 * K, 0, rows, N, K);
     if (dW) outer_block_any<T, VB>(z, x + i0 * K, dW, rows, N, K, K);
     if (db)
@@ -338,59 +427,68 @@ static TOPOS_INLINE_KERNEL void linear_backward_rows(const T* x, const T* W, con
   }
 }
 template <class T, int VB = 32>
-static TOPOS_INLINE_KERNEL void linear_backward_any(const T* x, const T* W, const T* y, const T* g,
-                                                    T* dx, T* dW, T* db, std::int64_t begin,
-                                                    std::int64_t end, std::int64_t K,
-                                                    std::int64_t N, Epilogue e) {
+static TOPOS_INLINE_KERNEL void linear_backward_any(const T* x, const T* W, const T* WP, const T* y,
+                                                    const T* g, T* dx, T* dW, T* db,
+                                                    std::int64_t begin, std::int64_t end,
+                                                    std::int64_t K, std::int64_t N, Epilogue e) {
   if (e == Epilogue::none)
-    linear_backward_rows<T, Epilogue::none, VB>(x, W, y, g, dx, dW, db, begin, end, K, N);
+    linear_backward_rows<T, Epilogue::none, VB>(x, W, WP, y, g, dx, dW, db, begin, end, K, N);
   else if (e == Epilogue::relu)
-    linear_backward_rows<T, Epilogue::relu, VB>(x, W, y, g, dx, dW, db, begin, end, K, N);
+    linear_backward_rows<T, Epilogue::relu, VB>(x, W, WP, y, g, dx, dW, db, begin, end, K, N);
   else if (e == Epilogue::elu)
-    linear_backward_rows<T, Epilogue::elu, VB>(x, W, y, g, dx, dW, db, begin, end, K, N);
+    linear_backward_rows<T, Epilogue::elu, VB>(x, W, WP, y, g, dx, dW, db, begin, end, K, N);
   else
-    linear_backward_rows<T, Epilogue::sigmoid, VB>(x, W, y, g, dx, dW, db, begin, end, K, N);
+    linear_backward_rows<T, Epilogue::sigmoid, VB>(x, W, WP, y, g, dx, dW, db, begin, end, K, N);
 }
 [[maybe_unused]] TOPOS_SIMD_CLONES static void linear_backward_float(
-    const float* x, const float* W, const float* y, const float* g, float* dx, float* dW, float* db,
-    std::int64_t begin, std::int64_t end, std::int64_t K, std::int64_t N, Epilogue e) {
-  linear_backward_any<float>(x, W, y, g, dx, dW, db, begin, end, K, N, e);
+    const float* x, const float* W, const float* WP, const float* y, const float* g, float* dx,
+    float* dW, float* db, std::int64_t begin, std::int64_t end, std::int64_t K, std::int64_t N,
+    Epilogue e) {
+  linear_backward_any<float>(x, W, WP, y, g, dx, dW, db, begin, end, K, N, e);
 }
 #if defined(TOPOS_HAVE_V4)
-[[maybe_unused]] TOPOS_V4 static void linear_backward_float_v4(
-    const float* x, const float* W, const float* y, const float* g, float* dx, float* dW, float* db,
-    std::int64_t begin, std::int64_t end, std::int64_t K, std::int64_t N, Epilogue e) {
-  linear_backward_any<float, 64>(x, W, y, g, dx, dW, db, begin, end, K, N, e);
+[[maybe_unused]] TOPOS_V4 static void linear_backward_float_v4(const float* x, const float* W,
+                                                               const float* WP, const float* y,
+                                                               const float* g, float* dx, float* dW,
+                                                               float* db, std::int64_t begin,
+                                                               std::int64_t end, std::int64_t K,
+                                                               std::int64_t N, Epilogue e) {
+  linear_backward_any<float, 64>(x, W, WP, y, g, dx, dW, db, begin, end, K, N, e);
 }
 #endif
 [[maybe_unused]] TOPOS_SIMD_CLONES static void linear_backward_double(
-    const double* x, const double* W, const double* y, const double* g, double* dx, double* dW,
-    double* db, std::int64_t begin, std::int64_t end, std::int64_t K, std::int64_t N, Epilogue e) {
-  linear_backward_any<double>(x, W, y, g, dx, dW, db, begin, end, K, N, e);
+    const double* x, const double* W, const double* WP, const double* y, const double* g,
+    double* dx, double* dW, double* db, std::int64_t begin, std::int64_t end, std::int64_t K,
+    std::int64_t N, Epilogue e) {
+  linear_backward_any<double>(x, W, WP, y, g, dx, dW, db, begin, end, K, N, e);
 }
 #if defined(TOPOS_HAVE_V4)
 [[maybe_unused]] TOPOS_V4 static void linear_backward_double_v4(
-    const double* x, const double* W, const double* y, const double* g, double* dx, double* dW,
-    double* db, std::int64_t begin, std::int64_t end, std::int64_t K, std::int64_t N, Epilogue e) {
-  linear_backward_any<double, 64>(x, W, y, g, dx, dW, db, begin, end, K, N, e);
+    const double* x, const double* W, const double* WP, const double* y, const double* g,
+    double* dx, double* dW, double* db, std::int64_t begin, std::int64_t end, std::int64_t K,
+    std::int64_t N, Epilogue e) {
+  linear_backward_any<double, 64>(x, W, WP, y, g, dx, dW, db, begin, end, K, N, e);
 }
 #endif
-inline void linear_backward_clone(const float* x, const float* W, const float* y, const float* g,
-                                  float* dx, float* dW, float* db, std::int64_t begin,
-                                  std::int64_t end, std::int64_t K, std::int64_t N, Epilogue e) {
-#if defined(TOPOS_HAVE_V4)
-  if (cpu_has_v4()) return linear_backward_float_v4(x, W, y, g, dx, dW, db, begin, end, K, N, e);
-#endif
-  linear_backward_float(x, W, y, g, dx, dW, db, begin, end, K, N, e);
-}
-inline void linear_backward_clone(const double* x, const double* W, const double* y,
-                                  const double* g, double* dx, double* dW, double* db,
+inline void linear_backward_clone(const float* x, const float* W, const float* WP, const float* y,
+                                  const float* g, float* dx, float* dW, float* db,
                                   std::int64_t begin, std::int64_t end, std::int64_t K,
                                   std::int64_t N, Epilogue e) {
 #if defined(TOPOS_HAVE_V4)
-  if (cpu_has_v4()) return linear_backward_double_v4(x, W, y, g, dx, dW, db, begin, end, K, N, e);
+  if (cpu_has_v4())
+    return linear_backward_float_v4(x, W, WP, y, g, dx, dW, db, begin, end, K, N, e);
 #endif
-  linear_backward_double(x, W, y, g, dx, dW, db, begin, end, K, N, e);
+  linear_backward_float(x, W, WP, y, g, dx, dW, db, begin, end, K, N, e);
+}
+inline void linear_backward_clone(const double* x, const double* W, const double* WP,
+                                  const double* y, const double* g, double* dx, double* dW,
+                                  double* db, std::int64_t begin, std::int64_t end, std::int64_t K,
+                                  std::int64_t N, Epilogue e) {
+#if defined(TOPOS_HAVE_V4)
+  if (cpu_has_v4())
+    return linear_backward_double_v4(x, W, WP, y, g, dx, dW, db, begin, end, K, N, e);
+#endif
+  linear_backward_double(x, W, WP, y, g, dx, dW, db, begin, end, K, N, e);
 }
 #endif
 
