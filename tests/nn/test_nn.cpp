@@ -536,19 +536,36 @@ TEST_CASE(
 
 TEST_CASE("the dense kernel from packed panels: the unpacked kernel's numbers, bit for bit",
           "[nn][kernels]") {
+  using topos::nn::detail::packs_panels;
   const auto x300 = torch::randn({300, 8});
-  if (!topos::nn::detail::packs_panels(x300, 300, 128)) {
+  if (!packs_panels(x300, 300, 8, 128)) {
     WARN("this CPU has no AVX-512: products never run from packed panels here");
     return;
   }
-  CHECK_FALSE(topos::nn::detail::packs_panels(x300, 255, 128));  // too few rows: not repaid
-  CHECK_FALSE(topos::nn::detail::packs_panels(x300, 300, 64));   // one panel: M as it is
-  CHECK_FALSE(topos::nn::detail::packs_panels(x300.to(torch::kDouble), 300, 128));
+  REQUIRE(get_cpu_gemm() == CpuGemm::blas);      // linear_act's products on topos's kernels
+  CHECK_FALSE(packs_panels(x300, 255, 8, 128));  // too few rows: not repaid
+  CHECK_FALSE(packs_panels(x300, 300, 8, 64));   // one panel: M as it is
+  CHECK_FALSE(packs_panels(x300, 300, 0, 128));  // no inputs: the unpacked kernel writes b
+  CHECK_FALSE(packs_panels(x300.to(torch::kDouble), 300, 8, 128));
   torch::manual_seed(12);
+  {  // No inputs: act(b) on every row; no outputs: dx = 0 (the backward once divided by N).
+    const auto b = torch::randn({128});
+    const auto y = linear_act(torch::zeros({300, 0}), torch::zeros({128, 0}), b, Epilogue::relu,
+                              MatmulPrecision::highest);
+    CHECK(torch::equal(y, torch::relu(b).expand({300, 128})));
+    const auto x = torch::randn({300, 128}).requires_grad_();
+    const auto none =
+        linear_act(x, torch::zeros({0, 128}), {}, Epilogue::none, MatmulPrecision::highest);
+    const auto dx = torch::autograd::grad({none.sum()}, {x}, {}, false, false, true)[0];
+    REQUIRE(dx.defined());
+    CHECK(torch::equal(dx, torch::zeros_like(x)));
+  }
+  // dx = dZ W runs packed where K is a multiple of 64 above 64 (not at 64 inputs); 192 and 1024
+  // inputs or outputs take blocks of 128 of the depth with a partial last one.
   const std::vector<std::pair<std::int64_t, std::int64_t>> shapes{
-      {128, 128}, {256, 128}, {200, 192}, {64, 128}, {512, 256}, {1024, 128}};
+      {128, 128}, {256, 128}, {192, 192}, {64, 128}, {512, 256}, {1024, 128}};
   for (const auto& [K, N] : shapes)
-    for (const auto e : {Epilogue::none, Epilogue::relu, Epilogue::elu}) {
+    for (const auto e : {Epilogue::none, Epilogue::relu, Epilogue::elu, Epilogue::sigmoid}) {
       INFO(K << " -> " << N << ", activation " << static_cast<int>(e));
       const auto x = torch::randn({300, K}).requires_grad_();
       const auto W = (torch::randn({N, K}) / std::sqrt(static_cast<double>(K))).requires_grad_();
@@ -573,13 +590,17 @@ TEST_CASE("the dense kernel from packed panels: the unpacked kernel's numbers, b
       // And both are the product: against double.
       const auto xd = x.detach().to(torch::kDouble), Wd = W.detach().to(torch::kDouble);
       auto z = torch::addmm(b.to(torch::kDouble), xd, Wd.t());
-      const auto yd = e == Epilogue::relu ? torch::relu(z) : e == Epilogue::elu ? torch::elu(z) : z;
+      const auto yd = e == Epilogue::relu      ? torch::relu(z)
+                      : e == Epilogue::elu     ? torch::elu(z)
+                      : e == Epilogue::sigmoid ? torch::sigmoid(z)
+                                               : z;
       CHECK(torch::allclose(packed[0].to(torch::kDouble), yd, 1e-4, 1e-4));
-      const auto dz =
-          g.to(torch::kDouble) * (e == Epilogue::relu ? (z > 0).to(torch::kDouble)
-                                  : e == Epilogue::elu
-                                      ? torch::where(z > 0, torch::ones_like(z), torch::exp(z))
-                                      : torch::ones_like(z));
+      const auto act_grad = e == Epilogue::relu ? (z > 0).to(torch::kDouble)
+                            : e == Epilogue::elu
+                                ? torch::where(z > 0, torch::ones_like(z), torch::exp(z))
+                            : e == Epilogue::sigmoid ? yd * (1 - yd)
+                                                     : torch::ones_like(z);
+      const auto dz = g.to(torch::kDouble) * act_grad;
       CHECK(torch::allclose(packed[1].to(torch::kDouble), dz.mm(Wd), 1e-4, 1e-4));
       CHECK(torch::allclose(packed[2].to(torch::kDouble), dz.t().mm(xd), 1e-4, 1e-3));
     }

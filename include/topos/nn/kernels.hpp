@@ -194,7 +194,7 @@ struct LinearFunction : public torch::autograd::Function<LinearFunction> {
 #if defined(__GNUC__)
     const auto Wc = W.contiguous();
     // dx = dZ W from W's panels packed where the forward's product would pack its own.
-    const auto WP = want_dx && packs_panels(x, n, K) ? pack_panels(Wc) : torch::Tensor();
+    const auto WP = want_dx && packs_panels(x, n, N, K) ? pack_panels(Wc) : torch::Tensor();
     AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "topos_linear_backward", [&] {
       const scalar_t* wp = WP.defined() ? WP.data_ptr<scalar_t>() : nullptr;
       at::parallel_for(0, chunks, 1, [&](std::int64_t c0, std::int64_t c1) {

@@ -267,15 +267,16 @@ inline bool dense_kernel_fits(std::int64_t K, std::int64_t N) {
 #endif
 }
 
-/// Whether a float32 product of n rows by a map of N outputs runs from M's panels packed
-/// (dense_rows_packed): AVX-512, several panels of 64 outputs, and rows enough to repay the copy
-/// (at 192 rows × 128 · 128 the copy cost more than it saved; at 512 the packed product was
-/// 1.3-1.5x faster).
-inline bool packs_panels(const torch::Tensor& x, std::int64_t n, std::int64_t N) {
+/// Whether a float32 product of n rows by a map of K inputs and N outputs runs from M's panels
+/// packed (dense_rows_packed): AVX-512, some inputs (with none, the unpacked kernel writes the
+/// bias), several panels of 64 outputs, and rows enough to repay the copy (at 192 rows × 128 ·
+/// 128 the copy cost more than it saved; at 512 the packed product was 1.3-1.5x faster).
+inline bool packs_panels(const torch::Tensor& x, std::int64_t n, std::int64_t K, std::int64_t N) {
 #if defined(TOPOS_HAVE_V4) && defined(__GNUC__)
-  return x.scalar_type() == torch::kFloat && N % 64 == 0 && N > 64 && n >= 256 && cpu_has_v4();
+  return x.scalar_type() == torch::kFloat && K > 0 && N % 64 == 0 && N > 64 && n >= 256 &&
+         cpu_has_v4();
 #else
-  return x.scalar_type() != x.scalar_type() && n < 0 && N < 0;
+  return x.scalar_type() != x.scalar_type() && n < 0 && K < 0 && N < 0;
 #endif
 }
 
@@ -297,7 +298,7 @@ inline torch::Tensor dense_product(const torch::Tensor& X, const torch::Tensor& 
   auto y = torch::empty({n, N}, x.options());
 #if defined(__GNUC__)
 #if defined(TOPOS_HAVE_V4)
-  if (packs_panels(x, n, N)) {
+  if (packs_panels(x, n, K, N)) {
     const auto P = pack_panels(M);
     const auto* xp = x.data_ptr<float>();
     const auto* pp = P.data_ptr<float>();
@@ -406,7 +407,8 @@ static TOPOS_INLINE_KERNEL void linear_backward_rows(const T* x, const T* W, con
   // stack: a multiple of the 6 rows the product kernels take at a time (32 left 2 rows to the
   // one-row loop in every block). Each entry of dW and db still sums its rows in order.
   constexpr std::int64_t capacity = 32 * 256;
-  std::int64_t B = std::max<std::int64_t>(1, std::min<std::int64_t>(30, capacity / N));
+  std::int64_t B = std::max<std::int64_t>(
+      1, std::min<std::int64_t>(30, capacity / std::max<std::int64_t>(N, 1)));
   if (B >= 6) B -= B % 6;
   alignas(64) T dZ[capacity];
   for (std::int64_t i0 = begin; i0 < end; i0 += B) {
