@@ -606,6 +606,75 @@ TEST_CASE("the dense kernel from packed panels: the unpacked kernel's numbers, b
     }
 }
 
+TEST_CASE("dense_operand lays a map out as LibTorch's copies do, and a scope keeps it per weight",
+          "[nn][kernels]") {
+  using nn::detail::dense_operand;
+  using nn::detail::weight_operand;
+  torch::manual_seed(13);
+  // Any strides (a weight's transpose, a strided slice, contiguous), float and double, whole and
+  // partial 16 × 16 tiles; panels of 64 columns where N is a multiple of 64.
+  for (const auto dtype : {torch::kFloat, torch::kDouble}) {
+    const auto opt = torch::TensorOptions().dtype(dtype);
+    const std::vector<std::pair<std::string, torch::Tensor>> maps{
+        {"transpose 80 x 192", torch::randn({192, 80}, opt).t()},
+        {"transpose 37 x 53", torch::randn({53, 37}, opt).t()},
+        {"strided 80 x 192", torch::randn({160, 768}, opt).slice(0, 0, 160, 2).slice(1, 0, 384, 2)},
+        {"contiguous 64 x 128", torch::randn({64, 128}, opt)}};
+    for (const auto& [name, M] : maps) {
+      INFO(name << ", " << dtype);
+      const auto K = M.size(0), N = M.size(1);
+      const auto flat = dense_operand(M, false);
+      CHECK(flat.is_contiguous());
+      CHECK(torch::equal(flat, M.contiguous()));
+      if (M.is_contiguous()) CHECK(flat.data_ptr() == M.data_ptr());  // no copy
+      if (N % 64 == 0) {
+        const auto panels = dense_operand(M, true);
+        CHECK(panels.sizes() == torch::IntArrayRef({N / 64, K, 64}));
+        CHECK(torch::equal(panels, M.contiguous().view({K, N / 64, 64}).permute({1, 0, 2})));
+      }
+    }
+  }
+  // linear_act's float32 products on topos's kernels read W's transpose laid out: inside a
+  // PackedWeightsScope once per weight and version, outside at every call.
+  at::set_num_threads(1);
+  REQUIRE(get_cpu_gemm() == CpuGemm::blas);
+  torch::NoGradGuard no_grad;
+  auto& cache = nn::detail::packed_pairs_cache();
+  const auto x = torch::randn({300, 64});
+  // 32 outputs run on the dense kernel on every CPU; 128 from packed panels on 300 rows where the
+  // CPU has AVX-512 (BLAS's elsewhere, which reads W as it is).
+  for (const std::int64_t N : {32, 128}) {
+    INFO(N << " outputs");
+    auto W = torch::randn({N, 64}) / 8;
+    const auto product = [&] {
+      return linear_act(x, W, {}, Epilogue::none, MatmulPrecision::highest);
+    };
+    const auto outside = product();
+    const bool panels = nn::detail::packs_panels(x, 300, 64, N);
+    CHECK(weight_operand(W.t(), panels).data_ptr() != weight_operand(W.t(), panels).data_ptr());
+    {
+      const PackedWeightsScope scope;
+      const auto kept = weight_operand(W.t(), panels);
+      CHECK(weight_operand(W.t(), panels).data_ptr() == kept.data_ptr());
+      CHECK(torch::equal(kept, dense_operand(W.t(), panels)));
+      const auto before = product();
+      CHECK(torch::equal(before, outside));  // bit for bit: the same operand, the same sums
+      CHECK(torch::equal(product(), before));
+      W.narrow(0, 0, 16).mul_(2);  // through a view, which shares the version counter
+      const auto after = product();
+      CHECK(torch::equal(after.narrow(1, 0, 16), 2 * before.narrow(1, 0, 16)));
+      CHECK(torch::equal(after.narrow(1, 16, N - 16), before.narrow(1, 16, N - 16)));
+      for (int k = 0; k < 10; ++k) {  // fresh weights of the same shape
+        W = torch::randn({N, 64}) / 8;
+        CHECK(torch::allclose(product(), x.mm(W.t()), 1e-5, 1e-5));
+      }
+    }
+    CHECK(cache.operands.entries.empty());  // dropped with the scope
+    W.data().mul_(0);
+    CHECK(torch::equal(product(), torch::zeros({300, N})));
+  }
+}
+
 TEST_CASE("nn::layer_norm equals torch's layer_norm, values and gradients", "[nn][kernels]") {
   torch::manual_seed(11);
   // Channels: a multiple of the vector width, a tail, fewer than a vector; rows: one block of the

@@ -105,7 +105,8 @@ struct LinearFunction : public torch::autograd::Function<LinearFunction> {
       y = onednn_mm(x, M);
       bias_epilogue(y, b, e);
     } else if (dense_kernel_fits(M.size(0), M.size(1))) {
-      y = dense_product(x, M, b, e);
+      y = dense_product(x, M, b, e,
+                        weight_operand(M, packs_panels(x, x.size(0), M.size(0), M.size(1))));
     } else {
       y = b.defined() ? torch::addmm(b, x, M) : x.mm(M);
       apply_epilogue(y, torch::Tensor(), e);
@@ -194,7 +195,7 @@ struct LinearFunction : public torch::autograd::Function<LinearFunction> {
 #if defined(__GNUC__)
     const auto Wc = W.contiguous();
     // dx = dZ W from W's panels packed where the forward's product would pack its own.
-    const auto WP = want_dx && packs_panels(x, n, N, K) ? pack_panels(Wc) : torch::Tensor();
+    const auto WP = want_dx && packs_panels(x, n, N, K) ? dense_operand(Wc, true) : torch::Tensor();
     AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "topos_linear_backward", [&] {
       const scalar_t* wp = WP.defined() ? WP.data_ptr<scalar_t>() : nullptr;
       at::parallel_for(0, chunks, 1, [&](std::int64_t c0, std::int64_t c1) {
@@ -274,7 +275,7 @@ struct LinearBlocksFunction : public torch::autograd::Function<LinearBlocksFunct
       return y;
     }
 #endif
-    const auto M = W.t().contiguous();
+    const auto M = weight_operand(W.t(), false);
 #if defined(__GNUC__)
     AT_DISPATCH_FLOATING_TYPES(W.scalar_type(), "topos_linear_blocks", [&] {
       std::vector<torch::Tensor> held;

@@ -13,6 +13,7 @@
 #include <cstdint>
 #include <cstring>
 #include <stdexcept>
+#include <type_traits>
 
 namespace topos::nn {
 
@@ -114,7 +115,7 @@ static TOPOS_INLINE_KERNEL void dense_rows_panels(const T* X, const T* M, const 
   }
 }
 
-// dense_rows_panels from M packed by pack_panels (N / 64 panels, each K × 64 contiguous), in
+// dense_rows_panels from M packed by dense_operand (N / 64 panels, each K × 64 contiguous), in
 // blocks of 128 of K, each summed onto the last: the same sums in the same order. In M itself a
 // panel's rows are N floats apart, so at N = 128 every row of a panel falls in the same eighth of
 // L1's sets, more lines than their 12 ways hold, and the panel comes from L2 at every block of
@@ -280,44 +281,83 @@ inline bool packs_panels(const torch::Tensor& x, std::int64_t n, std::int64_t K,
 #endif
 }
 
-/// M (K × N, any strides, N a multiple of 64) as N / 64 panels of K × 64, each contiguous
-/// (dense_rows_packed's operand): one copy, as M.contiguous() of a transposed weight is.
-inline torch::Tensor pack_panels(const torch::Tensor& M) {
-  const auto K = M.size(0), N = M.size(1);
-  return M.view({K, N / 64, 64}).permute({1, 0, 2}).contiguous();
+// dst[r · ld + c] = src[r · rs + c · cs] for an R × C block, in tiles of 16 × 16 so that a
+// transposed read (rs 1: a weight's transpose) stays in L1. LibTorch's copy of a transposed
+// weight went element by element: a fifth of a HOPNet rollout step on these kernels.
+template <class T>
+inline void copy_2d(const T* src, std::int64_t R, std::int64_t C, std::int64_t rs, std::int64_t cs,
+                    T* dst, std::int64_t ld) {
+  if (cs == 1) {
+    for (std::int64_t r = 0; r < R; ++r) std::memcpy(dst + r * ld, src + r * rs, C * sizeof(T));
+    return;
+  }
+  constexpr std::int64_t tile = 16;
+  for (std::int64_t r0 = 0; r0 < R; r0 += tile) {
+    const auto r1 = std::min(R, r0 + tile);
+    for (std::int64_t c0 = 0; c0 < C; c0 += tile) {
+      const auto c1 = std::min(C, c0 + tile);
+      for (std::int64_t c = c0; c < c1; ++c)
+        for (std::int64_t r = r0; r < r1; ++r) dst[r * ld + c] = src[r * rs + c * cs];
+    }
+  }
 }
+
+/// M (K × N, any strides) as dense_product's kernels read it: N / 64 panels of K × 64
+/// contiguous values (`panels`, dense_rows_packed's operand; N a multiple of 64), or K × N
+/// contiguous (M itself where it is). One copy.
+inline torch::Tensor dense_operand(const torch::Tensor& M, bool panels) {
+  const auto K = M.size(0), N = M.size(1);
+  if (!panels && M.is_contiguous()) return M;
+  auto out =
+      panels ? torch::empty({N / 64, K, 64}, M.options()) : torch::empty({K, N}, M.options());
+  AT_DISPATCH_FLOATING_TYPES(M.scalar_type(), "topos_dense_operand", [&] {
+    const auto* src = M.data_ptr<scalar_t>();
+    auto* dst = out.data_ptr<scalar_t>();
+    if (!panels) return copy_2d(src, K, N, M.stride(0), M.stride(1), dst, N);
+    for (std::int64_t p = 0; p < N / 64; ++p)
+      copy_2d(src + p * 64 * M.stride(1), K, 64, M.stride(0), M.stride(1), dst + p * K * 64, 64);
+  });
+  return out;
+}
+
+#if defined(__GNUC__)
+// dense_product's rows [begin, end): from M's packed panels (float32 with AVX-512, `packed`) or
+// from M contiguous.
+template <class T>
+inline void dense_product_rows(const T* X, const T* M, const T* b, T* Y, std::int64_t begin,
+                               std::int64_t end, std::int64_t K, std::int64_t N, Epilogue e,
+                               bool packed) {
+#if defined(TOPOS_HAVE_V4)
+  if constexpr (std::is_same_v<T, float>)
+    if (packed) return dense_rows_packed_float_v4(X, M, b, Y, begin, end, K, N, e);
+#endif
+  dense_rows_clone(X, M, b, Y, begin, end, K, N, e);
+}
+#endif
 
 /// act(b + X · M) for contiguous float or double X (n × K) and M (K × N) on the CPU, K and N as
 /// dense_kernel_fits takes them; b may be undefined. M may be strided (a weight's transpose):
-/// it is copied once, contiguous or in packed panels.
+/// it is copied once, contiguous or in packed panels, unless `operand` holds that copy already
+/// (dense_operand(M, packs_panels(X, n, K, N)), e.g. kept across a rollout's steps).
 inline torch::Tensor dense_product(const torch::Tensor& X, const torch::Tensor& M,
-                                   const torch::Tensor& b, Epilogue e) {
+                                   const torch::Tensor& b, Epilogue e,
+                                   const torch::Tensor& operand = {}) {
   const auto x = X.contiguous();
   const auto bc = b.defined() ? b.contiguous() : b;
   const auto n = x.size(0), K = x.size(1), N = M.size(1);
   auto y = torch::empty({n, N}, x.options());
 #if defined(__GNUC__)
-#if defined(TOPOS_HAVE_V4)
-  if (packs_panels(x, n, K, N)) {
-    const auto P = pack_panels(M);
-    const auto* xp = x.data_ptr<float>();
-    const auto* pp = P.data_ptr<float>();
-    const auto* bp = bc.defined() ? bc.data_ptr<float>() : nullptr;
-    auto* yp = y.data_ptr<float>();
-    at::parallel_for(0, n, grain_rows(n, n * K * N), [&](std::int64_t begin, std::int64_t end) {
-      dense_rows_packed_float_v4(xp, pp, bp, yp, begin, end, K, N, e);
-    });
-    return y;
-  }
-#endif
-  const auto m = M.contiguous();
+  const bool packed = packs_panels(x, n, K, N);
+  const auto m = operand.defined() ? operand : dense_operand(M, packed);
+  TORCH_CHECK(m.dim() == (packed ? 3 : 2) && m.numel() == K * N && m.is_contiguous(),
+              "dense_product: the operand is not dense_operand(M, ", packed, ")");
   AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "topos_dense_product", [&] {
     const auto* xp = x.data_ptr<scalar_t>();
     const auto* mp = m.data_ptr<scalar_t>();
     const auto* bp = bc.defined() ? bc.data_ptr<scalar_t>() : nullptr;
     auto* yp = y.data_ptr<scalar_t>();
     at::parallel_for(0, n, grain_rows(n, n * K * N), [&](std::int64_t begin, std::int64_t end) {
-      dense_rows_clone(xp, mp, bp, yp, begin, end, K, N, e);
+      dense_product_rows(xp, mp, bp, yp, begin, end, K, N, e, packed);
     });
   });
 #else
@@ -397,7 +437,7 @@ static TOPOS_INLINE_KERNEL void outer_block_any(const T* z, const T* x, T* dW, s
 // The backward of act(x Wᵀ + b) (x n × K, W N × K) over rows [begin, end), a block of rows at a
 // time so that dZ = g ⊙ act'(y) never leaves L1: dx = dZ W, and dW, db accumulate into the
 // caller's buffers. Each of the three is skipped where its pointer is null. WP, when given, is W
-// in packed panels (pack_panels, K a multiple of 64): dx is then dense_rows_packed's product.
+// in packed panels (dense_operand, K a multiple of 64): dx is then dense_rows_packed's product.
 template <class T, Epilogue E, int VB>
 static TOPOS_INLINE_KERNEL void linear_backward_rows(const T* x, const T* W, const T* WP,
                                                      const T* y, const T* g, T* dx, T* dW, T* db,

@@ -1,10 +1,13 @@
 // topos/nn/kernels/packed_weights.hpp
-// The bfloat16 kernels' weights packed into pairs (dense_bf16.hpp), and PackedWeightsScope, inside
-// which a thread keeps each weight's pairs between calls: a rollout multiplies the same weights
-// at every step, and packing a 128 × 512 weight costs a quarter of its product on a rollout's rows.
-// A forward's helper threads (step_threads) keep theirs within the scope of the thread they help.
+// The weights as the kernels read them: bfloat16 pairs (dense_bf16.hpp), and float32 or double
+// transposes, contiguous or in panels (dense_operand, dense.hpp); and PackedWeightsScope, inside
+// which a thread keeps each weight's layout between calls: a rollout multiplies the same weights
+// at every step, and packing a 128 × 512 weight costs a quarter of its product on a rollout's
+// rows (copying the float32 transposes was a fifth of a rollout step on topos's kernels). A
+// forward's helper threads (step_threads) keep theirs within the scope of the thread they help.
 #pragma once
 
+#include "topos/nn/kernels/dense.hpp"
 #include "topos/nn/kernels/dense_bf16.hpp"
 #include "topos/nn/tensor_cache.hpp"
 
@@ -26,8 +29,17 @@ struct PackedPairs {
   std::shared_ptr<const std::vector<std::uint32_t>> pairs;
   bool expired() const { return tensor.expired(); }
 };
+// A weight laid out by dense_operand: M's key (sizes K × N, panels or not) and the copy.
+struct LaidOutWeight {
+  TensorKey tensor;
+  std::int64_t K = 0, N = 0;
+  bool panels = false;
+  torch::Tensor operand;
+  bool expired() const { return tensor.expired(); }
+};
 struct PackedPairsCache {
   TensorCache<PackedPairs> entries{512};
+  TensorCache<LaidOutWeight> operands{512};
   int scopes = 0;             // open PackedWeightsScopes on this thread (an adopted one counts)
   std::uint64_t scope = 0;    // the outermost one's id (0: none), which helper threads adopt
   std::uint64_t adopted = 0;  // the id of another thread's scope this one keeps pairs within
@@ -61,6 +73,34 @@ inline std::shared_ptr<const std::vector<std::uint32_t>> packed_pairs(
   return cache.entries.insert(std::move(e)).pairs;
 }
 
+/// dense_operand(M, panels), from this thread's cache inside a PackedWeightsScope while M is the
+/// tensor it was laid out from at the same version (laid out again in place when it changed),
+/// else laid out afresh.
+inline torch::Tensor weight_operand(const torch::Tensor& M, bool panels) {
+  auto& cache = packed_pairs_cache();
+  if (cache.scopes == 0 || (!panels && M.is_contiguous()) || !TensorKey::keyable(M) ||
+      !M.has_storage())
+    return dense_operand(M, panels);
+  const auto K = M.size(0), N = M.size(1);
+  if (auto* e = cache.operands.find([&](const LaidOutWeight& e) {
+        return e.K == K && e.N == N && e.panels == panels && e.tensor.same_tensor(M);
+      })) {
+    if (e->tensor.version != M._version())
+      e->operand = dense_operand(M, panels), e->tensor.version = M._version();
+    return e->operand;
+  }
+  LaidOutWeight e;
+  e.tensor = TensorKey::of(M);
+  e.K = K, e.N = N, e.panels = panels;
+  e.operand = dense_operand(M, panels);
+  return cache.operands.insert(std::move(e)).operand;
+}
+
+// Drops what a thread's ended scope kept.
+inline void clear_packed_weights(PackedPairsCache& cache) {
+  cache.entries.clear(), cache.operands.clear(), cache.scope = 0;
+}
+
 inline std::uint64_t new_packed_scope_id() {
   static std::atomic<std::uint64_t> last{0};
   return ++last;
@@ -79,20 +119,21 @@ inline std::uint64_t packed_weights_scope() {
 inline void adopt_packed_weights_scope(std::uint64_t id) {
   auto& cache = packed_pairs_cache();
   if (cache.adopted == id) return;
-  if (cache.adopted != 0 && --cache.scopes == 0) cache.entries.clear(), cache.scope = 0;
+  if (cache.adopted != 0 && --cache.scopes == 0) clear_packed_weights(cache);
   cache.adopted = id;
   if (id != 0 && cache.scopes++ == 0) cache.scope = id;
 }
 
 }  // namespace detail
 
-/// While one is alive, this thread's bfloat16 products (MatmulPrecision::medium) keep each
-/// weight's packed pairs between calls instead of packing them every call. The weights must
-/// change only through tensor operations while it lives (an in-place op, a copy_ or an
-/// optimizer's step on the parameter bumps its version counter, which is checked); a write
-/// through `.data()` or a raw pointer is not seen. Scopes nest; the pairs are dropped when the
-/// outermost ends. HOPNet's and the simulators' rollouts open one. The helper threads of an
-/// OperatorNetwork's forward (step_threads) keep their pairs within the calling thread's scope.
+/// While one is alive, this thread's products on topos's kernels keep each weight as they read it
+/// between calls (bfloat16 pairs at MatmulPrecision::medium, a float32 transpose otherwise)
+/// instead of laying it out at every call. The weights must change only through tensor
+/// operations while it lives (an in-place op, a copy_ or an optimizer's step on the parameter
+/// bumps its version counter, which is checked); a write through `.data()` or a raw pointer is
+/// not seen. Scopes nest; what they kept is dropped when the outermost ends. HOPNet's and the
+/// simulators' rollouts open one. The helper threads of an OperatorNetwork's forward
+/// (step_threads) keep theirs within the calling thread's scope.
 class PackedWeightsScope {
  public:
   PackedWeightsScope() {
@@ -101,7 +142,7 @@ class PackedWeightsScope {
   }
   ~PackedWeightsScope() {
     auto& cache = detail::packed_pairs_cache();
-    if (--cache.scopes == 0) cache.entries.clear(), cache.scope = 0;
+    if (--cache.scopes == 0) detail::clear_packed_weights(cache);
   }
   PackedWeightsScope(const PackedWeightsScope&) = delete;
   PackedWeightsScope& operator=(const PackedWeightsScope&) = delete;
