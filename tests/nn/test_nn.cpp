@@ -675,6 +675,54 @@ TEST_CASE("dense_operand lays a map out as LibTorch's copies do, and a scope kee
   }
 }
 
+TEST_CASE("selected_weight keeps a weight's slices inside a scope, per version and index",
+          "[nn][kernels]") {
+  using nn::detail::selected_weight;
+  torch::manual_seed(17);
+  const auto W = torch::randn({8, 12, 3}).requires_grad_();
+  const std::vector<std::int64_t> cols{1, 4, 5, 11}, taps{2, 0};
+  const auto want = [&](std::int64_t dim, const std::vector<std::int64_t>& index) {
+    return W.detach().index_select(dim, torch::tensor(index));
+  };
+  {  // outside a scope: a fresh copy at every call, on the autograd graph
+    const auto a = selected_weight(W, 1, cols);
+    CHECK(torch::equal(a, want(1, cols)));
+    CHECK(a.requires_grad());
+    a.sum().backward();
+    CHECK(torch::equal(W.grad().sum(2).sum(0),
+                       torch::tensor({0, 24, 0, 0, 24, 24, 0, 0, 0, 0, 0, 24}).to(torch::kFloat)));
+  }
+  const PackedWeightsScope scope;
+  {  // recording a gradient through W: never kept
+    const auto a = selected_weight(W, 1, cols);
+    CHECK(a.requires_grad());
+    CHECK(a.data_ptr() != selected_weight(W, 1, cols).data_ptr());
+  }
+  torch::NoGradGuard no_grad;
+  const auto kept = selected_weight(W, 1, cols);
+  CHECK(torch::equal(kept, want(1, cols)));
+  CHECK(selected_weight(W, 1, cols).data_ptr() == kept.data_ptr());
+  const auto other = selected_weight(W, 2, taps);  // another dimension and index: its own entry
+  CHECK(torch::equal(other, want(2, taps)));
+  CHECK(other.data_ptr() != kept.data_ptr());
+  CHECK(torch::equal(selected_weight(W, 1, {1, 4, 5}), want(1, {1, 4, 5})));
+  // An optimizer's in-place step on W: selected again, into the kept tensor, whose version moves
+  // so that the layouts kept of it are redone.
+  const auto version = kept._version();
+  W.add_(1);
+  const auto after = selected_weight(W, 1, cols);
+  CHECK(after.data_ptr() == kept.data_ptr());
+  CHECK(after._version() > version);
+  CHECK(torch::equal(after, want(1, cols)));
+  {  // inside InferenceMode too the slice is a normal tensor, which the products' caches can key
+    const c10::InferenceMode inference;
+    const auto fresh = torch::randn({4, 6});
+    const auto s = selected_weight(fresh, 1, {0, 5});
+    CHECK_FALSE(s.is_inference());
+    CHECK(torch::equal(s, fresh.index_select(1, torch::tensor({0, 5}))));
+  }
+}
+
 TEST_CASE("nn::layer_norm equals torch's layer_norm, values and gradients", "[nn][kernels]") {
   torch::manual_seed(11);
   // Channels: a multiple of the vector width, a tail, fewer than a vector; rows: one block of the

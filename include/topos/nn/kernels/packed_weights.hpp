@@ -1,6 +1,7 @@
 // topos/nn/kernels/packed_weights.hpp
-// The weights as the kernels read them: bfloat16 pairs (dense_bf16.hpp), and float32 or double
-// transposes, contiguous or in panels (dense_operand, dense.hpp); and PackedWeightsScope, inside
+// The weights as the kernels read them: bfloat16 pairs (dense_bf16.hpp), float32 or double
+// transposes, contiguous or in panels (dense_operand, dense.hpp), and slices of a weight that a
+// step reads (selected_weight); and PackedWeightsScope, inside
 // which a thread keeps each weight's layout between calls: a rollout multiplies the same weights
 // at every step, and packing a 128 × 512 weight costs a quarter of its product on a rollout's
 // rows (copying the float32 transposes was a fifth of a rollout step on topos's kernels). A
@@ -37,9 +38,19 @@ struct LaidOutWeight {
   torch::Tensor operand;
   bool expired() const { return tensor.expired(); }
 };
+// Slices of a weight along one dimension, as W.index_select(dim, index) gives them: W's key and
+// the copy.
+struct SelectedWeight {
+  TensorKey tensor;
+  std::int64_t dim = 0;
+  std::vector<std::int64_t> index;
+  torch::Tensor selected;
+  bool expired() const { return tensor.expired(); }
+};
 struct PackedPairsCache {
   TensorCache<PackedPairs> entries{512};
   TensorCache<LaidOutWeight> operands{512};
+  TensorCache<SelectedWeight> selections{256};
   int scopes = 0;             // open PackedWeightsScopes on this thread (an adopted one counts)
   std::uint64_t scope = 0;    // the outermost one's id (0: none), which helper threads adopt
   std::uint64_t adopted = 0;  // the id of another thread's scope this one keeps pairs within
@@ -96,9 +107,40 @@ inline torch::Tensor weight_operand(const torch::Tensor& M, bool panels) {
   return cache.operands.insert(std::move(e)).operand;
 }
 
+/// W.index_select(dim, index): inside a PackedWeightsScope, while no gradient is recorded through
+/// W, the one tensor kept for W at its version (selected again in place when W changed), so that
+/// the products' caches above keep its layout too; else selected afresh. A step whose terms are
+/// split reads a slice of its weight's columns at every call: a fresh copy each time, laid out
+/// again by every product (3 % of a rollout on topos's kernels).
+inline torch::Tensor selected_weight(const torch::Tensor& W, std::int64_t dim,
+                                     const std::vector<std::int64_t>& index) {
+  const auto select = [&] {
+    const c10::InferenceMode normal_tensors(false);  // an inference tensor could not be a key
+    return W.index_select(dim, torch::tensor(index, torch::kLong).to(W.device()));
+  };
+  auto& cache = packed_pairs_cache();
+  if (cache.scopes == 0 || (torch::GradMode::is_enabled() && W.requires_grad()) ||
+      !TensorKey::keyable(W) || !W.has_storage())
+    return select();
+  if (auto* e = cache.selections.find([&](const SelectedWeight& e) {
+        return e.dim == dim && e.index == index && e.tensor.same_tensor(W);
+      })) {
+    if (e->tensor.version != W._version()) {
+      e->selected.copy_(select());  // bumps its version: the layouts kept of it are redone
+      e->tensor.version = W._version();
+    }
+    return e->selected;
+  }
+  SelectedWeight e;
+  e.tensor = TensorKey::of(W);
+  e.dim = dim, e.index = index;
+  e.selected = select();
+  return cache.selections.insert(std::move(e)).selected;
+}
+
 // Drops what a thread's ended scope kept.
 inline void clear_packed_weights(PackedPairsCache& cache) {
-  cache.entries.clear(), cache.operands.clear(), cache.scope = 0;
+  cache.entries.clear(), cache.operands.clear(), cache.selections.clear(), cache.scope = 0;
 }
 
 inline std::uint64_t new_packed_scope_id() {

@@ -235,10 +235,9 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::other_taps(const std::string& wh
     slices.push_back(static_cast<std::int64_t>(k));
   }
   if (terms.empty()) return {};
-  return combine_terms(
-      terms,
-      terms.size() == f.chains.size() ? W : W.index_select(2, torch::tensor(slices).to(W.device())),
-      act, base);
+  return combine_terms(terms,
+                       terms.size() == f.chains.size() ? W : detail::selected_weight(W, 2, slices),
+                       act, base);
 }
 
 }  // namespace topos::nn

@@ -381,7 +381,7 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::mix(const std::string& where, co
       const auto& W = t.W;
       const auto Wd = static_cast<std::int64_t>(t.cols.size()) == W.size(1)
                           ? W
-                          : W.index_select(1, torch::tensor(t.cols, torch::kLong).to(W.device()));
+                          : detail::selected_weight(W, 1, t.cols);
       auto z = nn::linear(cat(), Wd, t.linear->bias);
       z.add_(t.early);
       return t.first->forward_after_first(ctx, z);
