@@ -8,6 +8,8 @@
 // POSIX + Linux (/proc/self/exe, PR_SET_PDEATHSIG); std only otherwise.
 #pragma once
 
+#include "topos/util/read_file.hpp"
+
 #include <signal.h>
 #include <stdlib.h>
 #include <sys/prctl.h>
@@ -18,8 +20,6 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
-#include <iterator>
 #include <stdexcept>
 #include <string>
 #include <thread>
@@ -29,8 +29,8 @@ namespace topos {
 
 /// This process's command line (argv), read from /proc/self/cmdline.
 inline std::vector<std::string> self_command_line() {
-  std::ifstream in("/proc/self/cmdline", std::ios::binary);
-  const std::string all((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  std::string all;
+  topos::read_file("/proc/self/cmdline", all);
   std::vector<std::string> argv;
   std::string cur;
   for (char c : all) {

@@ -3,9 +3,9 @@
 // error that names it (std only; topos/data/json.hpp adds the JSON readers).
 #pragma once
 
+#include "topos/util/read_file.hpp"
+
 #include <filesystem>
-#include <fstream>
-#include <iterator>
 #include <stdexcept>
 #include <string>
 
@@ -18,9 +18,9 @@ class DataError : public std::runtime_error {
 
 /// The whole file as text; a file that cannot be opened is a DataError naming it.
 inline std::string read_text_file(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw DataError(path.string() + ": cannot open file");
-  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  std::string text;
+  if (!read_file(path.string(), text)) throw DataError(path.string() + ": cannot open file");
+  return text;
 }
 
 }  // namespace topos::data

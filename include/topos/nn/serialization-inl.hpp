@@ -12,6 +12,7 @@
 #include "topos/io/atomic_file.hpp"
 #include "topos/nn/serialization.hpp"
 #include "topos/nn/serialization_check-inl.hpp"
+#include "topos/util/read_file.hpp"
 
 #include <caffe2/serialize/inline_container.h>
 #include <torch/csrc/jit/serialization/export.h>
@@ -22,7 +23,6 @@
 
 #include <algorithm>
 #include <cstring>
-#include <fstream>
 #include <memory>
 #include <map>
 #include <sstream>
@@ -200,10 +200,8 @@ TOPOS_INLINE std::map<std::string, torch::Tensor> parse_tensor_dict(const char* 
 /// Reads a dict of tensors written by save_parameters or torch.save(state_dict)
 /// (parse_tensor_dict).
 TOPOS_INLINE std::map<std::string, torch::Tensor> read_tensor_dict(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw std::runtime_error(path + ": cannot open file");
-  const std::vector<char> bytes((std::istreambuf_iterator<char>(in)),
-                                std::istreambuf_iterator<char>());
+  std::string bytes;
+  if (!read_file(path, bytes)) throw std::runtime_error(path + ": cannot open file");
   return parse_tensor_dict(bytes.data(), bytes.size(), path);
 }
 

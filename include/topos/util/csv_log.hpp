@@ -4,11 +4,10 @@
 #pragma once
 
 #include "topos/io/atomic_file.hpp"
+#include "topos/util/read_file.hpp"
 
 #include <cstdint>
 #include <cstdlib>
-#include <fstream>
-#include <iterator>
 #include <string>
 
 namespace topos {
@@ -17,10 +16,8 @@ namespace topos {
 /// integer field number `column` (0-based) is at most `max`; everything after the first row
 /// beyond `max` goes. A missing file stays missing. Rewritten atomically.
 inline void truncate_csv_log(const std::string& path, std::size_t column, std::int64_t max) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return;
-  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  in.close();
+  std::string text;
+  if (!read_file(path, text)) return;
   std::string kept;
   std::size_t pos = 0;
   for (bool header = true;; header = false) {
