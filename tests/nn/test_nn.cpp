@@ -764,6 +764,44 @@ TEST_CASE("nn::layer_norm equals torch's layer_norm, values and gradients", "[nn
   CHECK(torch::allclose(nn::layer_norm(x3, {}, {}), torch::layer_norm(x3, {8})));
 }
 
+TEST_CASE("nn::layer_norm's rows in groups of 16 are each row's LayerNorm alone, bit for bit",
+          "[nn][kernels]") {
+  // Rows 16 at a time share their reductions (kernels/layer_norm.hpp); a lone row (or the last
+  // n % 16) takes the row kernel. Each row's values, statistics and input gradient must not
+  // depend on which.
+  torch::manual_seed(17);
+  for (const std::int64_t C : {16, 48, 64, 128})
+    for (const int residual : {0, 1, 2})  // none, a tensor, one row
+      for (const auto act : {Epilogue::none, Epilogue::relu, Epilogue::elu, Epilogue::sigmoid})
+        for (const bool affine : {false, true}) {
+          INFO(C << " channels, residual " << residual << ", act " << static_cast<int>(act)
+                 << ", affine " << affine);
+          const std::int64_t n = 37;
+          const auto x = (torch::randn({n, C}) * 3 + 1).requires_grad_();
+          const auto r = residual == 1   ? torch::randn({n, C})
+                         : residual == 2 ? torch::randn({C})
+                                         : torch::Tensor();
+          const auto w = affine ? torch::randn({C}) : torch::Tensor();
+          const auto b = affine ? torch::randn({C}) : torch::Tensor();
+          const auto ln = [&](const torch::Tensor& xs, const torch::Tensor& rs) {
+            return rs.defined() ? nn::add_layer_norm(xs, rs, w, b, 1e-5, act)
+                                : nn::layer_norm(xs, w, b, 1e-5, act);
+          };
+          const auto all = ln(x, r);
+          const auto dy = torch::randn({n, C});
+          all.backward(dy);
+          for (std::int64_t i = 0; i < n; ++i) {
+            INFO("row " << i);
+            const auto xi = x.detach().slice(0, i, i + 1).clone().requires_grad_();
+            const auto ri = residual == 1 ? r.slice(0, i, i + 1) : r;
+            const auto one = ln(xi, ri);
+            REQUIRE(torch::equal(one, all.detach().slice(0, i, i + 1)));
+            one.backward(dy.slice(0, i, i + 1));
+            REQUIRE(torch::equal(xi.grad(), x.grad().slice(0, i, i + 1)));
+          }
+        }
+}
+
 TEST_CASE("nn::layer_norm with an activation is one node: the same as LayerNorm then the act",
           "[nn][kernels]") {
   torch::manual_seed(13);

@@ -1,5 +1,5 @@
 // Tests of topos/util/read_file.hpp: every byte back, across and between its 64 KiB blocks,
-// from a stream's position on, from a stream that cannot seek, and a missing file.
+// from a stream's position on, from a stream that cannot seek, a missing file and a directory.
 #include "topos/util/read_file.hpp"
 
 #include <catch2/catch.hpp>
@@ -64,6 +64,22 @@ TEST_CASE("read_file gives every byte of a file, whatever its size") {
   std::string untouched = "kept";
   CHECK_FALSE(read_file((dir / "missing").string(), untouched));
   CHECK(untouched == "kept");
+}
+
+TEST_CASE("read_file refuses a directory and read_all reports its read error") {
+  const auto dir = std::filesystem::temp_directory_path() / "topos_test_read_file_dir";
+  std::filesystem::create_directories(dir);
+  std::string untouched = "kept";
+  CHECK_FALSE(read_file(dir.string(), untouched));
+  CHECK(untouched == "kept");
+  // The stream opens, seeks to an end of 2^63 - 1 bytes and fails its first read: no throw, no
+  // bytes, badbit set.
+  std::ifstream in(dir, std::ios::binary);
+  std::string got = "stale";
+  REQUIRE_NOTHROW(got = read_all(in));
+  CHECK(got.empty());
+  CHECK(in.bad());
+  std::filesystem::remove_all(dir);
 }
 
 TEST_CASE("read_all reads a stream that cannot seek until it ends") {

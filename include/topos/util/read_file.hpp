@@ -5,6 +5,7 @@
 // checkpoint, before either is parsed.
 #pragma once
 
+#include <filesystem>
 #include <fstream>
 #include <ios>
 #include <istream>
@@ -14,14 +15,17 @@ namespace topos {
 
 /// The rest of `in`, from its position to its end, read in 64 KiB blocks (the string reserved to
 /// the stream's size where it can seek; a stream that cannot, such as /proc's files, is read
-/// until it ends).
+/// until it ends). A read error sets `in.bad()`: check it before trusting the bytes.
 inline std::string read_all(std::istream& in) {
   std::string out;
   const auto start = in.tellg();
   if (start != std::streampos(-1) && in.seekg(0, std::ios::end)) {
     const auto end = in.tellg();
-    if (end != std::streampos(-1) && end > start)
-      out.reserve(static_cast<std::size_t>(end - start));
+    // Only a hint: a directory's stream seeks to an end of 2^63 - 1 bytes.
+    if (end != std::streampos(-1) && end > start) try {
+        out.reserve(static_cast<std::size_t>(end - start));
+      } catch (const std::exception&) {
+      }
   }
   in.clear();
   if (start != std::streampos(-1)) in.seekg(start);
@@ -31,11 +35,16 @@ inline std::string read_all(std::istream& in) {
   return out;
 }
 
-/// The whole file at `path` as bytes; false where it cannot be opened.
+/// The whole file at `path` as bytes; false, `out` untouched, where it cannot be opened or read
+/// (a directory, a read error).
 inline bool read_file(const std::string& path, std::string& out) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec)) return false;
   std::ifstream in(path, std::ios::binary);
   if (!in) return false;
-  out = read_all(in);
+  std::string bytes = read_all(in);
+  if (in.bad()) return false;
+  out = std::move(bytes);
   return true;
 }
 

@@ -16,11 +16,239 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <type_traits>
 #include <vector>
+
+#if defined(TOPOS_HAVE_V4)
+#include <immintrin.h>
+#endif
 
 namespace topos::nn {
 
 namespace detail {
+
+#if defined(__GNUC__)
+// The vector parts of one row's passes, channels [0, Cv) (Cv a multiple of V's L lanes): shared
+// by the row kernels and the 16-row groups, so that both do the same arithmetic in the same order.
+template <class T, class V>
+static TOPOS_INLINE_KERNEL void ln_add_vec(const T* x, const T* r, T* s, std::int64_t Cv) {
+  constexpr int L = static_cast<int>(sizeof(V) / sizeof(T));
+  for (std::int64_t c = 0; c < Cv; c += L) {
+    V u, v;
+    std::memcpy(&u, x + c, sizeof u);
+    std::memcpy(&v, r + c, sizeof v);
+    u += v;
+    std::memcpy(s + c, &u, sizeof u);
+  }
+}
+// (Vectors are passed back through references: returned by value, GCC warns of the ABI of the
+// clones without AVX.)
+template <class T, class V>
+static TOPOS_INLINE_KERNEL void ln_sum_vec(const T* x, std::int64_t Cv, V& sv) {
+  constexpr int L = static_cast<int>(sizeof(V) / sizeof(T));
+  sv = V{};
+  for (std::int64_t c = 0; c < Cv; c += L) {
+    V v;
+    std::memcpy(&v, x + c, sizeof v);
+    sv += v;
+  }
+}
+template <class T, class V>
+static TOPOS_INLINE_KERNEL void ln_squared_deviations_vec(const T* x, T m, std::int64_t Cv, V& qv) {
+  constexpr int L = static_cast<int>(sizeof(V) / sizeof(T));
+  qv = V{};
+  for (std::int64_t c = 0; c < Cv; c += L) {
+    V v;
+    std::memcpy(&v, x + c, sizeof v);
+    v -= m;
+    qv += v * v;
+  }
+}
+template <class T, class V, Epilogue E>
+static TOPOS_INLINE_KERNEL void ln_normalise_vec(const T* x, T m, T r, const T* w, const T* b, T* y,
+                                                 std::int64_t Cv) {
+  constexpr int L = static_cast<int>(sizeof(V) / sizeof(T));
+  for (std::int64_t c = 0; c < Cv; c += L) {
+    V v;
+    std::memcpy(&v, x + c, sizeof v);
+    v = (v - m) * r;
+    if (w) {
+      V wv;
+      std::memcpy(&wv, w + c, sizeof wv);
+      v *= wv;
+    }
+    if (b) {
+      V bv;
+      std::memcpy(&bv, b + c, sizeof bv);
+      v += bv;
+    }
+    epilogue_vec<T, E>(v);
+    std::memcpy(y + c, &v, sizeof v);
+  }
+}
+// dy (times act'(y) after an activation) at channels [c, c + L).
+template <class T, class V, Epilogue E>
+static TOPOS_INLINE_KERNEL void ln_output_grad_vec(const T* dr, const T* yr, std::int64_t c, V& d) {
+  std::memcpy(&d, dr + c, sizeof d);
+  if constexpr (E != Epilogue::none) {
+    V yv;
+    std::memcpy(&yv, yr + c, sizeof yv);
+    epilogue_grad<T>(yv, d, E);
+  }
+}
+// The backward's first pass: dw += dy · x̂ and db += dy; sgv and sgxv the row's Σ g and Σ g · x̂.
+template <class T, class V, Epilogue E>
+static TOPOS_INLINE_KERNEL void ln_backward_sums_vec(const T* dr, const T* yr, const T* xr, T m,
+                                                     T r, const T* w, T* dw, T* db, std::int64_t Cv,
+                                                     V& sgv, V& sgxv) {
+  constexpr int L = static_cast<int>(sizeof(V) / sizeof(T));
+  sgv = V{}, sgxv = V{};
+  for (std::int64_t c = 0; c < Cv; c += L) {
+    V d, v;
+    ln_output_grad_vec<T, V, E>(dr, yr, c, d);
+    std::memcpy(&v, xr + c, sizeof v);
+    const V xh = (v - m) * r;
+    if (dw) {
+      V a;
+      std::memcpy(&a, dw + c, sizeof a);
+      a += d * xh;
+      std::memcpy(dw + c, &a, sizeof a);
+    }
+    if (db) {
+      V a;
+      std::memcpy(&a, db + c, sizeof a);
+      a += d;
+      std::memcpy(db + c, &a, sizeof a);
+    }
+    if (w) {
+      V wv;
+      std::memcpy(&wv, w + c, sizeof wv);
+      d *= wv;
+    }
+    sgv += d;
+    sgxv += d * xh;
+  }
+}
+// The backward's second pass: dx, and dres += dx.
+template <class T, class V, Epilogue E>
+static TOPOS_INLINE_KERNEL void ln_backward_dx_vec(const T* dr, const T* yr, const T* xr, T m, T r,
+                                                   T mg, T mgx, const T* w, T* xo, T* dres,
+                                                   std::int64_t Cv) {
+  constexpr int L = static_cast<int>(sizeof(V) / sizeof(T));
+  for (std::int64_t c = 0; c < Cv; c += L) {
+    V d, v;
+    ln_output_grad_vec<T, V, E>(dr, yr, c, d);
+    std::memcpy(&v, xr + c, sizeof v);
+    if (w) {
+      V wv;
+      std::memcpy(&wv, w + c, sizeof wv);
+      d *= wv;
+    }
+    const V o = (d - mg - (v - m) * r * mgx) * r;
+    std::memcpy(xo + c, &o, sizeof o);
+    if (dres) {
+      V a;
+      std::memcpy(&a, dres + c, sizeof a);
+      a += o;
+      std::memcpy(dres + c, &a, sizeof a);
+    }
+  }
+}
+#endif
+
+#if defined(TOPOS_HAVE_V4)
+#define TOPOS_V4_INLINE inline __attribute__((always_inline, target("arch=x86-64-v4")))
+// Where row j of a group of 16 goes in lane_sums16's input, so that the output's lane j is its.
+inline constexpr int kLaneSumSlot[16] = {0, 2, 1, 3, 8, 10, 9, 11, 4, 6, 5, 7, 12, 14, 13, 15};
+// Sixteen rows' lane_sum at once: lane j of the result is lane_sum(v[kLaneSumSlot[j]], 0) by
+// lane_sum's own tree (lanes l and l + w added for w = 8, 4, 2, 1), bit for bit. A row's
+// statistics were a chain of dependent reductions, a division and a square root: on rows of
+// 64-128 channels in L1 that chain, not the arithmetic, set a LayerNorm's speed.
+TOPOS_V4_INLINE __m512 lane_sums16(const __m512* v) {
+  // The zero-masked forms (here and for sqrt): the plain ones start from _mm512_undefined_ps,
+  // which GCC 12 reports as maybe-uninitialized.
+  constexpr __mmask16 kAll = 0xFFFF;
+  __m512 u[8], p[4], q[2];
+  for (int k = 0; k < 8; ++k)  // w = 8: halves of 256 bits
+    u[k] = _mm512_add_ps(_mm512_maskz_shuffle_f32x4(kAll, v[k], v[k + 8], 0x44),
+                         _mm512_maskz_shuffle_f32x4(kAll, v[k], v[k + 8], 0xEE));
+  for (int k = 0; k < 4; ++k)  // w = 4: halves of 128 bits
+    p[k] = _mm512_add_ps(_mm512_maskz_shuffle_f32x4(kAll, u[k], u[k + 4], 0x88),
+                         _mm512_maskz_shuffle_f32x4(kAll, u[k], u[k + 4], 0xDD));
+  for (int k = 0; k < 2; ++k)  // w = 2: within 128-bit lanes
+    q[k] = _mm512_add_ps(_mm512_maskz_shuffle_ps(kAll, p[k], p[k + 2], 0x44),
+                         _mm512_maskz_shuffle_ps(kAll, p[k], p[k + 2], 0xEE));
+  return _mm512_add_ps(_mm512_maskz_shuffle_ps(kAll, q[0], q[1], 0x88),  // w = 1
+                       _mm512_maskz_shuffle_ps(kAll, q[0], q[1], 0xDD));
+}
+// Sixteen rows' sums (lane_sum's, a scalar tail of 0 added) divided by C, lane j row j's.
+TOPOS_V4_INLINE void row_means16(const __m512* slots, std::int64_t C, float* out) {
+  _mm512_store_ps(out, _mm512_div_ps(_mm512_add_ps(lane_sums16(slots), _mm512_setzero_ps()),
+                                     _mm512_set1_ps(static_cast<float>(C))));
+}
+typedef float vec16f __attribute__((vector_size(64)));
+
+// layer_norm_rows for 16 rows of float at once (C a multiple of 16), through the same row passes:
+// the same outputs and statistics bit for bit, the reductions, divisions and square roots shared
+// by the 16 rows. A call of its own, not inlined: the row kernels that call it are compiled for
+// every target.
+template <Epilogue E>
+TOPOS_V4 inline void layer_norm_rows16(const float* x, const float* res, std::int64_t r_step,
+                                       float* sum, const float* w, const float* b, float* y,
+                                       float* mean, float* rstd, std::int64_t C, float eps) {
+  const float* xs[16];
+  __m512 slots[16];
+  for (int j = 0; j < 16; ++j) {
+    xs[j] = x + j * C;
+    if (res) {
+      ln_add_vec<float, vec16f>(xs[j], res + j * r_step, sum + j * C, C);
+      xs[j] = sum + j * C;
+    }
+    vec16f sv;
+    ln_sum_vec<float, vec16f>(xs[j], C, sv);
+    std::memcpy(&slots[kLaneSumSlot[j]], &sv, sizeof sv);
+  }
+  alignas(64) float ms[16], vs[16];
+  row_means16(slots, C, ms);
+  for (int j = 0; j < 16; ++j) {
+    vec16f qv;
+    ln_squared_deviations_vec<float, vec16f>(xs[j], ms[j], C, qv);
+    std::memcpy(&slots[kLaneSumSlot[j]], &qv, sizeof qv);
+  }
+  row_means16(slots, C, vs);  // the variances
+  alignas(64) float rs[16];
+  _mm512_store_ps(
+      rs, _mm512_div_ps(_mm512_set1_ps(1.0f),
+                        _mm512_maskz_sqrt_ps(0xFFFF, _mm512_load_ps(vs) + _mm512_set1_ps(eps))));
+  for (int j = 0; j < 16; ++j) {
+    ln_normalise_vec<float, vec16f, E>(xs[j], ms[j], rs[j], w, b, y + j * C, C);
+    if (mean) mean[j] = ms[j], rstd[j] = rs[j];
+  }
+}
+
+// layer_norm_backward_rows for 16 rows of float at once (C a multiple of 16), through the same
+// row passes, dw, db and dres summed over the rows in their order: the same bits.
+template <Epilogue E>
+TOPOS_V4 inline void layer_norm_backward_rows16(const float* dy, const float* y, const float* x,
+                                                const float* w, const float* mean,
+                                                const float* rstd, float* dx, float* dw, float* db,
+                                                float* dres, std::int64_t C) {
+  __m512 sgs[16], sgxs[16];
+  for (int j = 0; j < 16; ++j) {
+    vec16f sgv, sgxv;
+    ln_backward_sums_vec<float, vec16f, E>(dy + j * C, y ? y + j * C : nullptr, x + j * C, mean[j],
+                                           rstd[j], w, dw, db, C, sgv, sgxv);
+    std::memcpy(&sgs[kLaneSumSlot[j]], &sgv, sizeof sgv);
+    std::memcpy(&sgxs[kLaneSumSlot[j]], &sgxv, sizeof sgxv);
+  }
+  alignas(64) float mgs[16], mgxs[16];
+  row_means16(sgs, C, mgs);
+  row_means16(sgxs, C, mgxs);
+  for (int j = 0; j < 16; ++j)
+    ln_backward_dx_vec<float, vec16f, E>(dy + j * C, y ? y + j * C : nullptr, x + j * C, mean[j],
+                                         rstd[j], mgs[j], mgxs[j], w, dx + j * C, dres, C);
+}
+#endif
 
 // Rows [0, n) of x: y = act((x - mean) · rstd · w + b) (w, b may be null; act relu, elu or sigmoid
 // applied before the store), each row's mean and 1 / sqrt(var + eps) stored for the backward
@@ -33,80 +261,55 @@ static TOPOS_INLINE_KERNEL void layer_norm_rows(const T* x, const T* res, std::i
                                                 T* rstd, std::int64_t n, std::int64_t C, T eps) {
 #if defined(__GNUC__)
   typedef T vec __attribute__((vector_size(VB)));
-  constexpr int L = static_cast<int>(VB / sizeof(T));
+  const std::int64_t Cv = C / static_cast<std::int64_t>(VB / sizeof(T)) * (VB / sizeof(T));
 #else
-  constexpr int L = 1;
+  const std::int64_t Cv = 0;  // no vector part: every channel in the scalar loops
 #endif
-  const std::int64_t Cv = C / L * L;
-  for (std::int64_t i = 0; i < n; ++i) {
+  std::int64_t i = 0;
+#if defined(TOPOS_HAVE_V4)
+  if constexpr (std::is_same_v<T, float> && VB == 64) {
+    if (C % 16 == 0)
+      for (; i + 16 <= n; i += 16)
+        layer_norm_rows16<E>(x + i * C, res ? res + i * r_step : nullptr, r_step,
+                             res ? sum + i * C : nullptr, w, b, y + i * C,
+                             mean ? mean + i : nullptr, rstd ? rstd + i : nullptr, C, eps);
+  }
+#endif
+  for (; i < n; ++i) {
     const T* xr = x + i * C;
     T* yr = y + i * C;
     T s = 0, q = 0;
-    std::int64_t c = 0;
     if (res) {
       const T* rr = res + i * r_step;
       T* sr = sum + i * C;
 #if defined(__GNUC__)
-      for (; c < Cv; c += L) {
-        vec u, v;
-        std::memcpy(&u, xr + c, sizeof u);
-        std::memcpy(&v, rr + c, sizeof v);
-        u += v;
-        std::memcpy(sr + c, &u, sizeof u);
-      }
+      ln_add_vec<T, vec>(xr, rr, sr, Cv);
 #endif
-      for (; c < C; ++c) sr[c] = xr[c] + rr[c];
-      xr = sr, c = 0;
+      for (std::int64_t c = Cv; c < C; ++c) sr[c] = xr[c] + rr[c];
+      xr = sr;
     }
 #if defined(__GNUC__)
-    vec sv{};
-    for (; c < Cv; c += L) {
-      vec v;
-      std::memcpy(&v, xr + c, sizeof v);
-      sv += v;
-    }
+    vec sv;
+    ln_sum_vec<T, vec>(xr, Cv, sv);
 #endif
-    for (; c < C; ++c) s += xr[c];
+    for (std::int64_t c = Cv; c < C; ++c) s += xr[c];
 #if defined(__GNUC__)
     s = lane_sum(sv, s);
 #endif
     const T m = s / static_cast<T>(C);
-    c = 0;
 #if defined(__GNUC__)
-    vec qv{};
-    for (; c < Cv; c += L) {
-      vec v;
-      std::memcpy(&v, xr + c, sizeof v);
-      v -= m;
-      qv += v * v;
-    }
+    vec qv;
+    ln_squared_deviations_vec<T, vec>(xr, m, Cv, qv);
 #endif
-    for (; c < C; ++c) q += (xr[c] - m) * (xr[c] - m);
+    for (std::int64_t c = Cv; c < C; ++c) q += (xr[c] - m) * (xr[c] - m);
 #if defined(__GNUC__)
     q = lane_sum(qv, q);
 #endif
     const T r = T(1) / std::sqrt(q / static_cast<T>(C) + eps);
-    c = 0;
 #if defined(__GNUC__)
-    for (; c < Cv; c += L) {
-      vec v;
-      std::memcpy(&v, xr + c, sizeof v);
-      v = (v - m) * r;
-      if (w) {
-        vec wv;
-        std::memcpy(&wv, w + c, sizeof wv);
-        v *= wv;
-      }
-      if (b) {
-        vec bv;
-        std::memcpy(&bv, b + c, sizeof bv);
-        v += bv;
-      }
-      epilogue_vec<T, E>(v);
-      std::memcpy(yr + c, &v, sizeof v);
-    }
+    ln_normalise_vec<T, vec, E>(xr, m, r, w, b, yr, Cv);
 #endif
-    for (; c < C; ++c)
+    for (std::int64_t c = Cv; c < C; ++c)
       yr[c] = epilogue_scalar<T>((xr[c] - m) * r * (w ? w[c] : T(1)) + (b ? b[c] : T(0)), E);
     if (mean) mean[i] = m, rstd[i] = r;
   }
@@ -123,12 +326,20 @@ static TOPOS_INLINE_KERNEL void layer_norm_backward_rows(const T* dy, const T* y
                                                          std::int64_t n, std::int64_t C) {
 #if defined(__GNUC__)
   typedef T vec __attribute__((vector_size(VB)));
-  constexpr int L = static_cast<int>(VB / sizeof(T));
+  const std::int64_t Cv = C / static_cast<std::int64_t>(VB / sizeof(T)) * (VB / sizeof(T));
 #else
-  constexpr int L = 1;
+  const std::int64_t Cv = 0;  // no vector part: every channel in the scalar loops
 #endif
-  const std::int64_t Cv = C / L * L;
-  for (std::int64_t i = 0; i < n; ++i) {
+  std::int64_t i = 0;
+#if defined(TOPOS_HAVE_V4)
+  if constexpr (std::is_same_v<T, float> && VB == 64) {
+    if (C % 16 == 0)
+      for (; i + 16 <= n; i += 16)
+        layer_norm_backward_rows16<E>(dy + i * C, y ? y + i * C : nullptr, x + i * C, w, mean + i,
+                                      rstd + i, dx + i * C, dw, db, dres, C);
+  }
+#endif
+  for (; i < n; ++i) {
     const T *dr = dy + i * C, *xr = x + i * C, *yr = y ? y + i * C : nullptr;
     // dy at channel c, times act'(y) after an activation.
     const auto grad = [&](std::int64_t c) {
@@ -139,41 +350,11 @@ static TOPOS_INLINE_KERNEL void layer_norm_backward_rows(const T* dy, const T* y
     };
     const T m = mean[i], r = rstd[i];
     T sg = 0, sgx = 0;
-    std::int64_t c = 0;
 #if defined(__GNUC__)
-    vec sgv{}, sgxv{};
-    for (; c < Cv; c += L) {
-      vec d, v;
-      std::memcpy(&d, dr + c, sizeof d);
-      if constexpr (E != Epilogue::none) {
-        vec yv;
-        std::memcpy(&yv, yr + c, sizeof yv);
-        epilogue_grad<T>(yv, d, E);
-      }
-      std::memcpy(&v, xr + c, sizeof v);
-      const vec xh = (v - m) * r;
-      if (dw) {
-        vec a;
-        std::memcpy(&a, dw + c, sizeof a);
-        a += d * xh;
-        std::memcpy(dw + c, &a, sizeof a);
-      }
-      if (db) {
-        vec a;
-        std::memcpy(&a, db + c, sizeof a);
-        a += d;
-        std::memcpy(db + c, &a, sizeof a);
-      }
-      if (w) {
-        vec wv;
-        std::memcpy(&wv, w + c, sizeof wv);
-        d *= wv;
-      }
-      sgv += d;
-      sgxv += d * xh;
-    }
+    vec sgv, sgxv;
+    ln_backward_sums_vec<T, vec, E>(dr, yr, xr, m, r, w, dw, db, Cv, sgv, sgxv);
 #endif
-    for (; c < C; ++c) {
+    for (std::int64_t c = Cv; c < C; ++c) {
       const T d = grad(c), xh = (xr[c] - m) * r, g = d * (w ? w[c] : T(1));
       if (dw) dw[c] += d * xh;
       if (db) db[c] += d;
@@ -186,33 +367,10 @@ static TOPOS_INLINE_KERNEL void layer_norm_backward_rows(const T* dy, const T* y
 #endif
     const T mg = sg / static_cast<T>(C), mgx = sgx / static_cast<T>(C);
     T* xo = dx + i * C;
-    c = 0;
 #if defined(__GNUC__)
-    for (; c < Cv; c += L) {
-      vec d, v;
-      std::memcpy(&d, dr + c, sizeof d);
-      if constexpr (E != Epilogue::none) {
-        vec yv;
-        std::memcpy(&yv, yr + c, sizeof yv);
-        epilogue_grad<T>(yv, d, E);
-      }
-      std::memcpy(&v, xr + c, sizeof v);
-      if (w) {
-        vec wv;
-        std::memcpy(&wv, w + c, sizeof wv);
-        d *= wv;
-      }
-      const vec o = (d - mg - (v - m) * r * mgx) * r;
-      std::memcpy(xo + c, &o, sizeof o);
-      if (dres) {
-        vec a;
-        std::memcpy(&a, dres + c, sizeof a);
-        a += o;
-        std::memcpy(dres + c, &a, sizeof a);
-      }
-    }
+    ln_backward_dx_vec<T, vec, E>(dr, yr, xr, m, r, mg, mgx, w, xo, dres, Cv);
 #endif
-    for (; c < C; ++c) {
+    for (std::int64_t c = Cv; c < C; ++c) {
       xo[c] = (grad(c) * (w ? w[c] : T(1)) - mg - (xr[c] - m) * r * mgx) * r;
       if (dres) dres[c] += xo[c];
     }
