@@ -606,6 +606,43 @@ TEST_CASE("the dense kernel from packed panels: the unpacked kernel's numbers, b
     }
 }
 
+TEST_CASE("linear_act on four outputs or four inputs: topos's kernel, against double",
+          "[nn][kernels]") {
+  // Four outputs are attention's folded keys (one score per head); four inputs an encoder's
+  // first layer, whose fused backward sums dW over four columns of x.
+  torch::manual_seed(13);
+  const std::vector<std::pair<std::int64_t, std::int64_t>> shapes{
+      {64, 4}, {20, 4}, {4, 4}, {4, 64}, {4, 128}};
+  for (const auto kind : {torch::kFloat, torch::kDouble})
+    for (const auto& [K, N] : shapes)
+      for (const auto e : {Epilogue::none, Epilogue::relu, Epilogue::sigmoid}) {
+        INFO(K << " -> " << N << ", activation " << static_cast<int>(e) << ", "
+               << torch::toString(kind));
+        const auto o = torch::TensorOptions().dtype(kind);
+        const auto x = torch::randn({257, K}, o).requires_grad_();
+        const auto W = torch::randn({N, K}, o).requires_grad_(), b = torch::randn({N}, o);
+        const auto g = torch::randn({257, N}, o);
+        const auto y = linear_act(x, W, b, e, MatmulPrecision::highest);
+        if (N <= 64) {  // the dense kernel's widths: one fused node (wider: BLAS's product)
+          REQUIRE(y.grad_fn());
+          CHECK_THAT(y.grad_fn()->name(), Catch::Contains("LinearFunction"));
+        }
+        const auto grads = torch::autograd::grad({y}, {x, W}, {g});
+        const auto xd = x.detach().to(torch::kDouble), Wd = W.detach().to(torch::kDouble);
+        const auto z = torch::addmm(b.to(torch::kDouble), xd, Wd.t());
+        const auto yd = e == Epilogue::relu      ? torch::relu(z)
+                        : e == Epilogue::sigmoid ? torch::sigmoid(z)
+                                                 : z;
+        const auto act_grad = e == Epilogue::relu      ? (z > 0).to(torch::kDouble)
+                              : e == Epilogue::sigmoid ? yd * (1 - yd)
+                                                       : torch::ones_like(z);
+        const auto dz = g.to(torch::kDouble) * act_grad;
+        CHECK(torch::allclose(y.to(torch::kDouble), yd, 1e-5, 1e-5));
+        CHECK(torch::allclose(grads[0].to(torch::kDouble), dz.mm(Wd), 1e-5, 1e-5));
+        CHECK(torch::allclose(grads[1].to(torch::kDouble), dz.t().mm(xd), 1e-5, 1e-4));
+      }
+}
+
 TEST_CASE("dense_operand lays a map out as LibTorch's copies do, and a scope keeps it per weight",
           "[nn][kernels]") {
   using nn::detail::dense_operand;

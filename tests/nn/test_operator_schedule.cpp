@@ -206,6 +206,48 @@ TEST_CASE("multi-head attention: per-head GAT scores, concatenated or averaged h
                      torch::zeros({6, 4}, torch::kDouble)));
 }
 
+TEST_CASE("the attention kernels equal torch's operations in float, heads a vector wide or not",
+          "[nn][attention][kernels]") {
+  // The kernels sum each head's channels in vectors of 8 or 16 floats with a scalar tail, so the
+  // heads here are 16 and 32 channels wide (whole vectors), 20 (vectors and a tail) and 3; the
+  // unfused path (fused = false) is torch's operations on the same scores.
+  const auto A = random_operator(40, 50, 31, 0.3);
+  const std::vector<std::pair<std::int64_t, std::int64_t>> shapes{
+      {4, 16}, {2, 32}, {3, 20}, {1, 3}};
+  for (const auto& [H, C] : shapes)
+    for (const auto act :
+         {Activation::none, Activation::relu, Activation::leaky_relu, Activation::elu})
+      for (const auto norm : {AttentionNorm::softmax, AttentionNorm::row_sum, AttentionNorm::none})
+        for (const bool with_target : {true, false}) {
+          INFO(H << " heads of " << C << ", activation " << static_cast<int>(act) << ", norm "
+                 << static_cast<int>(norm) << (with_target ? ", target scores" : ""));
+          torch::manual_seed(32);
+          // Row sums need positive scores (a sum near 0 divides by it); the others cross 0.
+          const auto draw = [&](std::int64_t n) {
+            return norm == AttentionNorm::row_sum ? torch::rand({n, H}) + 0.1
+                                                  : torch::randn({n, H});
+          };
+          const auto source = draw(50).requires_grad_(),
+                     target = with_target ? draw(40).requires_grad_() : torch::Tensor(),
+                     x = torch::randn({50, H * C}).requires_grad_(), g = torch::randn({40, H * C});
+          const auto run = [&](bool fused) {
+            for (const auto& t : {source, target, x})
+              if (t.defined()) t.mutable_grad() = torch::Tensor();
+            const auto y = multi_head_attention_from_cells(A, source, target, x, true, act, 0.2,
+                                                           norm, 0, false, fused);
+            (y * g).sum().backward();
+            std::vector<torch::Tensor> out{y.detach(), source.grad(), x.grad()};
+            if (with_target) out.push_back(target.grad());
+            return out;
+          };
+          const auto kernel = run(true), ops = run(false);
+          for (std::size_t i = 0; i < kernel.size(); ++i) {
+            INFO("tensor " << i << " (y, d source, dx, d target)");
+            CHECK(torch::allclose(kernel[i], ops[i], 1e-4, 1e-5));
+          }
+        }
+}
+
 TEST_CASE("GATv2 attention (CAN's): one vector after the activation of keys plus queries",
           "[nn][schedule][attention]") {
   const auto A = random_operator(5, 5, 23);

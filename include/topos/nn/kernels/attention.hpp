@@ -19,6 +19,7 @@
 #include <cstring>
 #include <limits>
 #include <type_traits>
+#include <utility>
 #include <vector>
 
 namespace topos::nn::detail {
@@ -59,19 +60,24 @@ static TOPOS_INLINE_KERNEL void prefetch_row(const T* base, const std::int64_t* 
 #endif
 }
 
+// relu and leaky_relu without a branch on the score's sign, which is random: mispredicted about
+// every other entry and head, it was a third of the forward. leaky_relu is max(s, 0) +
+// slope·min(0, s), exactly s above 0 and slope·s below (a NaN stays NaN).
 template <class T>
 static TOPOS_INLINE_KERNEL T score_activation(T s, ScoreActivation a, T slope) {
-  if (a == ScoreActivation::relu) return s > T(0) ? s : T(0);
-  if (a == ScoreActivation::leaky_relu) return s > T(0) ? s : slope * s;
+  if (a == ScoreActivation::relu) return std::max(T(0), s);
+  if (a == ScoreActivation::leaky_relu) return std::max(s, T(0)) + slope * std::min(T(0), s);
   if (a == ScoreActivation::elu) return s > T(0) ? s : std::expm1(s);
   return s;
 }
 // The derivative at the raw score, as torch's backward takes it (1 above 0; at 0 relu's is 0,
-// leaky_relu's the slope, elu's 1).
+// leaky_relu's the slope, elu's 1); relu's and leaky_relu's picked by index, not by a branch.
 template <class T>
 static TOPOS_INLINE_KERNEL T score_activation_grad(T s, ScoreActivation a, T slope) {
-  if (a == ScoreActivation::relu) return s > T(0) ? T(1) : T(0);
-  if (a == ScoreActivation::leaky_relu) return s > T(0) ? T(1) : slope;
+  if (a == ScoreActivation::relu || a == ScoreActivation::leaky_relu) {
+    const T grads[2] = {a == ScoreActivation::relu ? T(0) : slope, T(1)};
+    return grads[s > T(0)];
+  }
   if (a == ScoreActivation::elu) return s > T(0) ? T(1) : std::exp(s);
   return T(1);
 }
@@ -81,6 +87,66 @@ static TOPOS_INLINE_KERNEL T raw_score(const AttentionArgs<T>& a, std::int64_t i
                                        std::int64_t h) {
   const T s = a.source[a.col[k] * a.heads + h];
   return a.target != nullptr ? s + a.target[i * a.heads + h] : s;
+}
+
+// Σ u[c] w[c] over n values: L-wide partial sums, then lane_sum's tree and the scalar tail. A
+// head's gradient in the backward is one per entry; summed one lane after another it was a chain
+// of 16 dependent adds.
+template <class T, int VB>
+static TOPOS_INLINE_KERNEL T dot(const T* u, const T* w, std::int64_t n) {
+  T t = 0;
+  std::int64_t c = 0;
+#if defined(__GNUC__)
+  typedef T vec __attribute__((vector_size(VB)));
+  constexpr std::int64_t L = VB / sizeof(T);
+  vec s{};
+  for (; c + L <= n; c += L) {
+    vec x, y;
+    std::memcpy(&x, u + c, sizeof x);
+    std::memcpy(&y, w + c, sizeof y);
+    s += x * y;
+  }
+#endif
+  for (; c < n; ++c) t += u[c] * w[c];
+#if defined(__GNUC__)
+  t = lane_sum(s, t);
+#endif
+  return t;
+}
+
+// For each head h, out[h·C, (h + 1)·C) = Σ over entries j in [j0, j1), in order, of c_j,h times
+// the L-wide slices of row_j[h·C, (h + 1)·C), each a multiply-add from 0 (the sums of a row kept
+// in memory and added to an entry at a time, bit for bit), the partial sums held in registers
+// across the entries instead of loaded and stored at each. entry(j, h) gives {c_j,h, row_j}.
+template <class T, int VB, class Entry>
+static TOPOS_INLINE_KERNEL void weighted_head_sums(T* __restrict out, std::int64_t H,
+                                                   std::int64_t C, std::int64_t j0, std::int64_t j1,
+                                                   const Entry& entry) {
+  for (std::int64_t h = 0; h < H; ++h) {
+    std::int64_t c0 = 0;
+#if defined(__GNUC__)
+    typedef T vec __attribute__((vector_size(VB)));
+    constexpr std::int64_t L = VB / sizeof(T);
+    for (; c0 + L <= C; c0 += L) {
+      vec acc{};
+      for (std::int64_t j = j0; j < j1; ++j) {
+        const auto [c, row] = entry(j, h);
+        vec x;
+        std::memcpy(&x, row + h * C + c0, sizeof x);
+        acc += c * x;
+      }
+      std::memcpy(out + h * C + c0, &acc, sizeof acc);
+    }
+#endif
+    for (std::int64_t ch = h * C + c0; ch < (h + 1) * C; ++ch) {
+      T acc = 0;
+      for (std::int64_t j = j0; j < j1; ++j) {
+        const auto [c, row] = entry(j, h);
+        acc += c * row[ch];
+      }
+      out[ch] = acc;
+    }
+  }
 }
 
 // exp over n contiguous values <= 0, in place.
@@ -133,16 +199,10 @@ static TOPOS_INLINE_KERNEL void attention_forward_rows(const AttentionArgs<T>& a
         for (std::int64_t k = k0; k < k1; ++k) sum += w[k * H + h];
         for (std::int64_t k = k0; k < k1; ++k) w[k * H + h] /= sum;
       }
-    T* __restrict yi = y + i * HC;
-    std::fill(yi, yi + HC, T(0));
-    for (std::int64_t k = k0; k < k1; ++k) {
-      prefetch_row(a.x, a.col, k + kAhead, a.nnz, HC);
-      const T* __restrict xk = a.x + a.col[k] * HC;
-      for (std::int64_t h = 0; h < H; ++h) {
-        const T c = w[k * H + h] * a.values[k];
-        for (std::int64_t ch = h * C; ch < (h + 1) * C; ++ch) yi[ch] += c * xk[ch];
-      }
-    }
+    for (std::int64_t k = k0; k < k1; ++k) prefetch_row(a.x, a.col, k + kAhead, a.nnz, HC);
+    weighted_head_sums<T, VB>(y + i * HC, H, C, k0, k1, [&](std::int64_t k, std::int64_t h) {
+      return std::pair<T, const T*>(w[k * H + h] * a.values[k], a.x + a.col[k] * HC);
+    });
   }
 }
 
@@ -161,11 +221,8 @@ static TOPOS_INLINE_KERNEL void attention_backward_rows(const AttentionArgs<T>& 
       prefetch_row(a.x, a.col, k + kAhead, a.nnz, HC);
       prefetch_row(a.source, a.col, k + kAhead, a.nnz, H);
       const T* __restrict xk = a.x + a.col[k] * HC;
-      for (std::int64_t h = 0; h < H; ++h) {
-        T s = 0;
-        for (std::int64_t ch = h * C; ch < (h + 1) * C; ++ch) s += gi[ch] * xk[ch];
-        d[k * H + h] = s * a.values[k];  // the gradient of the normed weight
-      }
+      for (std::int64_t h = 0; h < H; ++h)  // the gradient of the normed weight
+        d[k * H + h] = dot<T, VB>(gi + h * C, xk + h * C, C) * a.values[k];
     }
     for (std::int64_t h = 0; h < H; ++h) {
       T t = 0, sum = 1;
@@ -200,21 +257,24 @@ static TOPOS_INLINE_KERNEL void attention_backward_cols(const AttentionArgs<T>& 
   const std::int64_t H = a.heads, C = a.channels, HC = H * C;
   const T* w = a.weights;
   for (std::int64_t j = begin; j < end; ++j) {
-    T* __restrict xj = dx != nullptr ? dx + j * HC : nullptr;
-    if (xj != nullptr) std::fill(xj, xj + HC, T(0));
+    const std::int64_t t0 = a.t_crow[j], t1 = a.t_crow[j + 1];
     if (d_source != nullptr) std::fill(d_source + j * H, d_source + (j + 1) * H, T(0));
-    for (std::int64_t t = a.t_crow[j]; t < a.t_crow[j + 1]; ++t) {
-      if (xj != nullptr) prefetch_row(g, a.t_row, t + kAhead, a.nnz, HC);
-      const std::int64_t k = a.t_perm[t];
-      if (d_source != nullptr)
+    for (std::int64_t t = t0; t < t1; ++t) {
+      if (dx != nullptr) prefetch_row(g, a.t_row, t + kAhead, a.nnz, HC);
+      // The entries' weights and score gradients, read in Aᵀ's order: scattered over arrays of
+      // nnz × heads (REDDIT-BINARY's: megabytes), each read waited on its miss.
+      if (dx != nullptr) prefetch_row(w, a.t_perm, t + kAhead, a.nnz, H);
+      if (d_source != nullptr) {
+        prefetch_row(d, a.t_perm, t + kAhead, a.nnz, H);
+        const std::int64_t k = a.t_perm[t];
         for (std::int64_t h = 0; h < H; ++h) d_source[j * H + h] += d[k * H + h];
-      if (xj == nullptr) continue;
-      const T* __restrict gi = g + a.t_row[t] * HC;
-      for (std::int64_t h = 0; h < H; ++h) {
-        const T c = w[k * H + h] * a.values[k];
-        for (std::int64_t ch = h * C; ch < (h + 1) * C; ++ch) xj[ch] += c * gi[ch];
       }
     }
+    if (dx == nullptr) continue;
+    weighted_head_sums<T, VB>(dx + j * HC, H, C, t0, t1, [&](std::int64_t t, std::int64_t h) {
+      const std::int64_t k = a.t_perm[t];
+      return std::pair<T, const T*>(w[k * H + h] * a.values[k], g + a.t_row[t] * HC);
+    });
   }
 }
 
@@ -311,32 +371,7 @@ void attention_backward(const AttentionArgs<T>& a, const T* g, T* d, T* d_target
 template <class T, int VB>
 static TOPOS_INLINE_KERNEL void head_scores_rows(const T* f, const T* a, T* out, std::int64_t n,
                                                  std::int64_t H, std::int64_t C) {
-#if defined(__GNUC__)
-  typedef T vec __attribute__((vector_size(VB)));
-  constexpr std::int64_t L = VB / sizeof(T);
-#else
-  constexpr std::int64_t L = 1;
-#endif
-  const std::int64_t Cv = C / L * L;
-  for (std::int64_t i = 0; i < n * H; ++i) {
-    const T *fr = f + i * C, *ar = a + (i % H) * C;
-    T t = 0;
-    std::int64_t c = 0;
-#if defined(__GNUC__)
-    vec s{};
-    for (; c < Cv; c += L) {
-      vec u, w;
-      std::memcpy(&u, fr + c, sizeof u);
-      std::memcpy(&w, ar + c, sizeof w);
-      s += u * w;
-    }
-#endif
-    for (; c < C; ++c) t += fr[c] * ar[c];
-#if defined(__GNUC__)
-    t = lane_sum(s, t);
-#endif
-    out[i] = t;
-  }
+  for (std::int64_t i = 0; i < n * H; ++i) out[i] = dot<T, VB>(f + i * C, a + (i % H) * C, C);
 }
 
 // The backward of rows [0, n) from the scores' gradient g (cells × heads): df = g_{i,h} a_h (df
@@ -366,11 +401,9 @@ static TOPOS_INLINE_KERNEL void head_scores_backward_rows(const T* g, const T* f
         std::memcpy(dr + c, &w, sizeof w);
       }
       if (sa) {
-        vec u, acc;
+        vec u;
         std::memcpy(&u, fr + c, sizeof u);
-        std::memcpy(&acc, sa + c, sizeof acc);
-        acc += gi * u;
-        std::memcpy(sa + c, &acc, sizeof acc);
+        add_into<T, vec>(sa + c, gi * u);
       }
     }
 #endif

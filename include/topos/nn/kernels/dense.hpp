@@ -1,6 +1,6 @@
 // topos/nn/kernels/dense.hpp
 // The register-blocked dense kernels under linear_act (kernels.hpp): act(b + X M) for maps of
-// 8 to 64 outputs, and of any multiple of 64 in panels of 64 where the CPU has AVX-512
+// 4 to 64 outputs, and of any multiple of 64 in panels of 64 where the CPU has AVX-512
 // (dense_product), and the backward of act(x Wᵀ + b) in one pass over the rows.
 #pragma once
 
@@ -154,6 +154,8 @@ static TOPOS_INLINE_KERNEL void dense_rows_width(const T* X, const T* M, const T
                                                  std::int64_t ldm = 0, bool accumulate = false) {
   if (ldm == 0) ldm = N;
   switch (N) {
+    case 4:
+      return dense_rows_fixed<T, 4, E, VB>(X, M, b, Y, begin, end, K, ldm, N, accumulate);
     case 8:
       return dense_rows_fixed<T, 8, E, VB>(X, M, b, Y, begin, end, K, ldm, N, accumulate);
     case 16:
@@ -251,14 +253,16 @@ inline void dense_rows_clone(const double* X, const double* M, const double* b, 
 #endif
 
 /// The widths dense_product's kernel takes (the rest goes to torch's BLAS). With AVX-512: up to
-/// 1024 inputs, and 8, 16, 32 or 64 outputs or a multiple of 64 up to 1024 (a filter's taps side
-/// by side: SCCNN's are 5 × 64 wide). Without: up to 256 inputs and 8 to 64 outputs (the wide
-/// shapes were measured with AVX-512 only; elsewhere OpenBLAS keeps them). linear_act's fused
-/// backward takes the same widths with inputs and outputs swapped.
+/// 1024 inputs, and 4, 8, 16, 32 or 64 outputs or a multiple of 64 up to 1024 (a filter's taps
+/// side by side: SCCNN's are 5 × 64 wide). Without: up to 256 inputs and 4 to 64 outputs (the
+/// wide shapes were measured with AVX-512 only; elsewhere OpenBLAS keeps them). Four outputs are
+/// attention's folded keys, one score per head (AllSetTransformer's x (K_h q_h)), where OpenBLAS
+/// copied all of x before its kernel. linear_act's fused backward takes the same widths with
+/// inputs and outputs swapped.
 inline bool dense_kernel_fits(std::int64_t K, std::int64_t N) {
 #if defined(__GNUC__)
   if (K < 0 || N <= 0) return false;
-  const bool narrow = N == 8 || N == 16 || N == 32 || N == 64;
+  const bool narrow = N == 4 || N == 8 || N == 16 || N == 32 || N == 64;
 #if defined(TOPOS_HAVE_V4)
   if (cpu_has_v4()) return K <= 1024 && (narrow || (N % 64 == 0 && N <= 1024));
 #endif
@@ -420,6 +424,8 @@ template <class T, int VB>
 static TOPOS_INLINE_KERNEL void outer_block_any(const T* z, const T* x, T* dW, std::int64_t rows,
                                                 std::int64_t N, std::int64_t K, std::int64_t ldw) {
   switch (K) {
+    case 4:
+      return outer_block_fixed<T, 4, VB>(z, x, dW, rows, N, K, ldw);
     case 8:
       return outer_block_fixed<T, 8, VB>(z, x, dW, rows, N, K, ldw);
     case 16:

@@ -41,14 +41,34 @@ namespace detail {
 #if defined(__GNUC__)
 // The sum of a row's L-wide vector partial sums and its scalar tail, as a tree (log2 L dependent
 // adds, not L: a row of 128 floats is only 8 vectors).
+// Lanes l and l + w added for w = L/2, ..., 1, each step on the halves of a vector (the tree
+// summed through an array in memory cost a store and L - 1 scalar adds).
+template <class T, int W, class V>
+static TOPOS_INLINE_KERNEL T lane_tree(const V& v) {
+  if constexpr (W == 1) {
+    return v[0];
+  } else if constexpr (W == 2) {
+    return v[0] + v[1];
+  } else {
+    typedef T half __attribute__((vector_size(sizeof(T) * W / 2)));
+    half lo, hi;
+    std::memcpy(&lo, &v, sizeof lo);
+    std::memcpy(&hi, reinterpret_cast<const char*>(&v) + sizeof lo, sizeof hi);
+    const half sum = lo + hi;
+    return lane_tree<T, W / 2>(sum);
+  }
+}
 template <class T, class V>
 static TOPOS_INLINE_KERNEL T lane_sum(const V& v, T tail) {
-  constexpr int L = static_cast<int>(sizeof(V) / sizeof(T));
-  T a[L];
-  std::memcpy(a, &v, sizeof v);
-  for (int w = L / 2; w >= 1; w /= 2)
-    for (int l = 0; l < w; ++l) a[l] += a[l + w];
-  return a[0] + tail;
+  return lane_tree<T, static_cast<int>(sizeof(V) / sizeof(T))>(v) + tail;
+}
+// p[0, L) += x, for V's L lanes at an unaligned p (a sum kept in memory: a weight's gradient).
+template <class T, class V>
+static TOPOS_INLINE_KERNEL void add_into(T* p, const V& x) {
+  V a;
+  std::memcpy(&a, p, sizeof a);
+  a += x;
+  std::memcpy(p, &a, sizeof a);
 }
 #endif
 

@@ -108,18 +108,8 @@ static TOPOS_INLINE_KERNEL void ln_backward_sums_vec(const T* dr, const T* yr, c
     ln_output_grad_vec<T, V, E>(dr, yr, c, d);
     std::memcpy(&v, xr + c, sizeof v);
     const V xh = (v - m) * r;
-    if (dw) {
-      V a;
-      std::memcpy(&a, dw + c, sizeof a);
-      a += d * xh;
-      std::memcpy(dw + c, &a, sizeof a);
-    }
-    if (db) {
-      V a;
-      std::memcpy(&a, db + c, sizeof a);
-      a += d;
-      std::memcpy(db + c, &a, sizeof a);
-    }
+    if (dw) add_into<T, V>(dw + c, d * xh);
+    if (db) add_into<T, V>(db + c, d);
     if (w) {
       V wv;
       std::memcpy(&wv, w + c, sizeof wv);
@@ -146,12 +136,7 @@ static TOPOS_INLINE_KERNEL void ln_backward_dx_vec(const T* dr, const T* yr, con
     }
     const V o = (d - mg - (v - m) * r * mgx) * r;
     std::memcpy(xo + c, &o, sizeof o);
-    if (dres) {
-      V a;
-      std::memcpy(&a, dres + c, sizeof a);
-      a += o;
-      std::memcpy(dres + c, &a, sizeof a);
-    }
+    if (dres) add_into<T, V>(dres + c, o);
   }
 }
 #endif

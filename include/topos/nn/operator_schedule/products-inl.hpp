@@ -166,9 +166,10 @@ TOPOS_INLINE torch::Tensor Attend::forward(RunContext& ctx, const torch::Tensor&
   const auto ck = K.defined() ? K.size(0) * K.size(2) : k.size(1);
   const auto a_s = q.defined() ? a.narrow(0, 0, ck) : a;
   // Folded keys: per head K_h a_h (in × heads), one product for every head's scores (one head's
-  // a vector, as head_scores gives it).
-  auto source = K.defined() ? k.mm(torch::einsum("hic,hc->ih", {K, a_s.reshape({H, -1})}))
-                            : head_scores(k, a_s, H);
+  // a vector, as head_scores gives it), on topos's dense kernel where it takes the heads.
+  auto source = K.defined()
+                    ? linear_act(k, torch::einsum("hic,hc->ih", {K, a_s.reshape({H, -1})}).t(), {})
+                    : head_scores(k, a_s, H);
   if (K.defined() && H == 1) source = source.reshape({-1});
   const auto target = q.defined() ? head_scores(q, a.narrow(0, ck, a.size(0) - ck), H) : q;
   return multi_head_attention_from_cells(A, source, target, x, o.concat(), o.activation(),
