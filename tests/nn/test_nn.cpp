@@ -1219,14 +1219,25 @@ TEST_CASE("bfloat16 kernels: act(x Wᵀ + b) and its gradients against double on
     return (a.to(torch::kDouble) - r).abs().max().item<double>() /
            std::max(1.0, r.abs().max().item<double>());
   };
-  // Rows: one, odd (a lone last row in the weight gradient's pairs), many on two threads;
-  // widths: one vector, panels of 64 with tails of 16-48, the widest (1024).
+  // On a CPU with AMX every product runs on its tiles and on AVX-512 BF16 alone.
+  struct RestoreAmx {
+    ~RestoreAmx() { nn::detail::set_amx_enabled(true); }
+  } restore_amx;
+  std::vector<bool> amx_modes{false};
+  if (nn::detail::cpu_has_amx()) amx_modes.push_back(true);
+  // Rows: one, odd (a lone last row in the weight gradient's pairs), many on two threads, tiles
+  // of 16 with a remainder; widths: one vector, panels of 64 with tails of 16-48, the widest
+  // (1024), summed widths in whole tiles of 32 (AMX's) or not (48, 80: the tiles' remainder).
   const std::vector<std::array<std::int64_t, 4>> shapes{
-      {1, 16, 16, 1},      {37, 64, 64, 1},  {101, 576, 64, 1}, {50, 64, 576, 1},
-      {20000, 128, 48, 2}, {7, 1024, 80, 1}, {9, 32, 1024, 1}};
+      {1, 16, 16, 1},      {37, 64, 64, 1},    {101, 576, 64, 1}, {50, 64, 576, 1},
+      {20000, 128, 48, 2}, {7, 1024, 80, 1},   {9, 32, 1024, 1},  {300, 128, 128, 1},
+      {45, 256, 48, 1},    {1000, 48, 80, 1}};
+  for (const bool amx : amx_modes)
   for (const auto& [n, K, N, threads] : shapes)
     for (const auto e : {Epilogue::none, Epilogue::relu, Epilogue::elu, Epilogue::sigmoid}) {
-      INFO(n << " x " << K << " -> " << N << ", epilogue " << static_cast<int>(e));
+      INFO(n << " x " << K << " -> " << N << ", epilogue " << static_cast<int>(e) << ", AMX "
+             << amx);
+      nn::detail::set_amx_enabled(amx);
       at::set_num_threads(static_cast<int>(threads));
       const auto x = torch::randn({n, K}, torch::requires_grad());
       const auto W = (torch::randn({N, K}) / std::sqrt(static_cast<double>(K))).requires_grad_();
@@ -1339,8 +1350,10 @@ TEST_CASE("bfloat16 kernels: act(x Wᵀ + b) and its gradients against double on
       {45, {64, 128, 64}, Epilogue::sigmoid, 1},
       {31, {16, 16, 32}, Epilogue::relu, 1},
       {9000, {32, 16}, Epilogue::elu, 2}};
+  for (const bool amx : amx_modes)
   for (const auto& [n, widths, e, threads] : block_cases) {
-    INFO("linear_blocks, " << n << " rows, epilogue " << static_cast<int>(e));
+    INFO("linear_blocks, " << n << " rows, epilogue " << static_cast<int>(e) << ", AMX " << amx);
+    nn::detail::set_amx_enabled(amx);
     at::set_num_threads(threads);
     struct Restore {
       ~Restore() { set_float32_matmul_precision(MatmulPrecision::highest); }

@@ -25,6 +25,8 @@
 #define TOPOS_HAVE_BF16 1
 #endif
 
+#include "topos/nn/kernels/dense_amx.hpp"  // the same products on AMX tiles
+
 namespace topos::nn::detail {
 
 /// Whether this CPU multiplies bfloat16 pairs (AVX-512 BF16) and this build has the kernels.
@@ -175,6 +177,21 @@ TOPOS_BF16_INLINE void bf16_rows(const std::uint32_t* A, std::int64_t lda, std::
                                  std::int64_t Kp, const std::uint32_t* P, std::int64_t ldp,
                                  std::int64_t N, const float* b, float* Y, std::int64_t ldy,
                                  bool accumulate) {
+#if defined(TOPOS_HAVE_AMX)
+  if (rows >= 16 && Kp % 16 == 0 && N % 16 == 0 && use_amx()) {
+    const std::int64_t tiled = rows / 16 * 16;  // the rest, fewer than 16, below
+    amx_rows(A, lda, tiled, Kp, P, ldp, N, Y, ldy, accumulate);
+    if (E != Epilogue::none || (b && !accumulate))
+      for (std::int64_t r = 0; r < tiled; ++r)
+        for (std::int64_t c = 0; c < N; c += 16) {
+          __m512 v = _mm512_loadu_ps(Y + r * ldy + c);
+          if (b && !accumulate) v = _mm512_add_ps(v, _mm512_loadu_ps(b + c));
+          epilogue_vec<float, E>(v);
+          _mm512_storeu_ps(Y + r * ldy + c, v);
+        }
+    A += tiled * lda, Y += tiled * ldy, rows -= tiled;
+  }
+#endif
   for (std::int64_t c = 0; c < N; c += 64) {
     const std::int64_t V = std::min<std::int64_t>(4, (N - c) / 16);
     const float* bc = b ? b + c : nullptr;
@@ -204,6 +221,11 @@ TOPOS_BF16_INLINE void bf16_rows(const std::uint32_t* A, std::int64_t lda, std::
 
 // Rows of A (at most this many pairs) converted at a time: 48 KB, in L1 beside a panel of P.
 constexpr std::int64_t kBf16Block = 12288;
+// Rows converted at a time for Kp pairs a row: up to 48; whole tiles of 16 on AMX.
+inline std::int64_t bf16_block_rows(std::int64_t Kp) {
+  const std::int64_t block = std::max<std::int64_t>(1, std::min<std::int64_t>(48, kBf16Block / Kp));
+  return block >= 16 && use_amx() ? block / 16 * 16 : block;
+}
 
 template <Epilogue E>
 TOPOS_BF16 void dense_rows_bf16_e(const float* X, const std::uint32_t* P, const float* b, float* Y,
@@ -211,7 +233,7 @@ TOPOS_BF16 void dense_rows_bf16_e(const float* X, const std::uint32_t* P, const 
                                   std::int64_t N) {
   alignas(64) std::uint32_t A[kBf16Block];
   const std::int64_t Kp = K / 2;
-  const std::int64_t block = std::max<std::int64_t>(1, std::min<std::int64_t>(48, kBf16Block / Kp));
+  const std::int64_t block = bf16_block_rows(Kp);
   for (std::int64_t i0 = begin; i0 < end; i0 += block) {
     const std::int64_t rows = std::min(block, end - i0);
     for (std::int64_t r = 0; r < rows; ++r) bf16_row(X + (i0 + r) * K, K, A + r * Kp);
@@ -297,24 +319,27 @@ TOPOS_BF16_INLINE void bf16_output_gradient(const float* g, const float* y, std:
 }
 
 // What the two bfloat16 backwards share: blocks of `rows_per_block` rows (a multiple of 6, the
-// row tile of dx's product, up to 36; fewer above 170 outputs) so that dZ and its pairs stay in
-// L1, the blocks' buffers, and each block's output gradient; and the weight gradient's pairs of
-// rows (of dZ and of x, K columns; none without a dW), gathered over several blocks (up to
-// `dw_pairs`, about 192 KB in L2) before they are multiplied into dW: its sums then leave their
-// registers once per gathering, not once per block (the same sums in the same order).
+// row tile of dx's product, up to 36; fewer above 170 outputs; on AMX whole tiles, 16 or 32) so
+// that dZ and its pairs stay in L1, the blocks' buffers, and each block's output gradient; and
+// the weight gradient's pairs of rows (of dZ and of x, K columns; none without a dW), gathered
+// over several blocks (up to `dw_pairs`, about 192 KB in L2) before they are multiplied into dW:
+// its sums then leave their registers (or tiles) once per gathering, not once per block.
 struct Bf16BackwardScratch {
   static constexpr std::int64_t capacity = 6 * 1024;  // 6 rows of the widest N
   // N outputs, K inputs (0: no dW), `rows` rows in all (no more pairs gathered than they make).
   Bf16BackwardScratch(std::int64_t N, std::int64_t K, std::int64_t rows)
-      : rows_per_block(block_rows(N, K)),
+      : amx(use_amx()),
+        rows_per_block(block_rows(N, K, amx)),
         dw_pairs(gathering(N, K, rows, rows_per_block / 2)),
-        Zq(static_cast<std::size_t>(K > 0 ? dw_pairs * N : 0)),
-        Xq(static_cast<std::size_t>(dw_pairs * K)) {}
-  static std::int64_t block_rows(std::int64_t N, std::int64_t K) {
+        ldt((dw_pairs + 15) / 16 * 16),
+        Zq(static_cast<std::size_t>(K > 0 ? ldt * N : 0)),
+        Xq(static_cast<std::size_t>(ldt * K)) {}
+  static std::int64_t block_rows(std::int64_t N, std::int64_t K, bool amx) {
     if (N < 16 || N > 1024 || K > 1024)  // bf16_kernel_fits's shapes only
       throw std::logic_error("bfloat16 backward: " + std::to_string(N) + " outputs and " +
                              std::to_string(K) + " inputs, not the kernels' 16 to 1024");
-    return std::min<std::int64_t>(36, capacity / N) / 6 * 6;
+    const std::int64_t tiles = std::min<std::int64_t>(32, capacity / N) / 16 * 16;
+    return amx && tiles > 0 ? tiles : std::min<std::int64_t>(36, capacity / N) / 6 * 6;
   }
   static std::int64_t gathering(std::int64_t N, std::int64_t K, std::int64_t rows,
                                 std::int64_t block_pairs) {
@@ -330,11 +355,41 @@ struct Bf16BackwardScratch {
     bf16_output_gradient<E>(g + i0 * N, y + i0 * N, rows * N, dZ);
     return dZ;
   }
-  const std::int64_t rows_per_block, dw_pairs;
+  // A block's `rows` rows of dZ (N wide) as the weight gradient's pairs from `gathered` on: along
+  // the outputs for bf16_outer (a pair a row of Zq), along the rows for AMX (ZT, ldt pairs a row).
+  TOPOS_BF16_INLINE void gather_output_gradient(const float* z, std::int64_t rows,
+                                                std::int64_t N) {
+#if defined(TOPOS_HAVE_AMX)
+    if (amx) return amx_transpose_rows(z, rows, N, Zq.data(), ldt, gathered);
+#endif
+    for (std::int64_t p = 0; 2 * p < rows; ++p)
+      bf16_interleave(z + 2 * p * N, 2 * p + 1 < rows ? z + (2 * p + 1) * N : nullptr, N,
+                      Zq.data() + (gathered + p) * N);
+  }
+  // dW (N × K) += the gathered pairs' products; none gathered after.
+  TOPOS_BF16_INLINE void multiply_gathered(std::int64_t N, std::int64_t K, float* dW) {
+#if defined(TOPOS_HAVE_AMX)
+    if (amx) {  // whole tiles of 16 pairs: the missing ones zero on both sides
+      const std::int64_t tiled = (gathered + 15) / 16 * 16, pad = tiled - gathered;
+      if (pad > 0) {
+        for (std::int64_t n = 0; n < N; ++n)
+          std::memset(Zq.data() + n * ldt + gathered, 0, static_cast<std::size_t>(pad) * 4);
+        std::memset(Xq.data() + gathered * K, 0, static_cast<std::size_t>(pad * K) * 4);
+      }
+      amx_rows(Zq.data(), ldt, N, tiled, Xq.data(), K, K, dW, K, true);
+      gathered = 0;
+      return;
+    }
+#endif
+    bf16_outer(Zq.data(), N, gathered, Xq.data(), K, dW, K);
+    gathered = 0;
+  }
+  const bool amx;
+  const std::int64_t rows_per_block, dw_pairs, ldt;
   std::int64_t gathered = 0;  // pairs in Zq and Xq not yet in dW
   alignas(64) float dZ[capacity];
   alignas(64) std::uint32_t Zr[capacity / 2];  // dZ's rows as pairs along the outputs (dx)
-  std::vector<std::uint32_t> Zq, Xq;           // dZ's and x's pairs of rows interleaved (dW)
+  std::vector<std::uint32_t> Zq, Xq;           // dZ's and x's pairs for dW
 };
 
 // The backward of act(x Wᵀ + b) over rows [begin, end) with bfloat16 products, a block of rows at
@@ -346,7 +401,7 @@ TOPOS_BF16 void linear_backward_bf16_e(const float* x, const std::uint32_t* PT, 
                                        std::int64_t begin, std::int64_t end, std::int64_t K,
                                        std::int64_t N) {
   Bf16BackwardScratch scratch(N, dW ? K : 0, end - begin);
-  std::uint32_t *Zr = scratch.Zr, *Zq = scratch.Zq.data(), *Xq = scratch.Xq.data();
+  std::uint32_t *Zr = scratch.Zr, *Xq = scratch.Xq.data();
   const std::int64_t B = scratch.rows_per_block;
   for (std::int64_t i0 = begin; i0 < end; i0 += B) {
     const std::int64_t rows = std::min(B, end - i0), pairs = (rows + 1) / 2;
@@ -357,15 +412,15 @@ TOPOS_BF16 void linear_backward_bf16_e(const float* x, const std::uint32_t* PT, 
     }
     if (dW) {  // dW += dZᵀ x: pairs of rows, an odd last row with zeros
       const std::int64_t q = scratch.gathered;
+      scratch.gather_output_gradient(z, rows, N);
       for (std::int64_t p = 0; p < pairs; ++p) {
         const bool two = 2 * p + 1 < rows;
-        bf16_interleave(z + 2 * p * N, two ? z + (2 * p + 1) * N : nullptr, N, Zq + (q + p) * N);
         bf16_interleave(x + (i0 + 2 * p) * K, two ? x + (i0 + 2 * p + 1) * K : nullptr, K,
                         Xq + (q + p) * K);
       }
       scratch.gathered += pairs;
       if (scratch.gathered == scratch.dw_pairs || i0 + B >= end)
-        bf16_outer(Zq, N, scratch.gathered, Xq, K, dW, K), scratch.gathered = 0;
+        scratch.multiply_gathered(N, K, dW);
     }
     if (db)
       for (std::int64_t r = 0; r < rows; ++r)
@@ -402,7 +457,7 @@ TOPOS_BF16 void dense_blocks_bf16_e(const float* const* X, const std::int64_t* K
   alignas(64) std::uint32_t A[kBf16Block];
   std::int64_t Kp = 0;
   for (std::int64_t s = 0; s < S; ++s) Kp += K[s] / 2;
-  const std::int64_t block = std::max<std::int64_t>(1, std::min<std::int64_t>(48, kBf16Block / Kp));
+  const std::int64_t block = bf16_block_rows(Kp);
   for (std::int64_t i0 = begin; i0 < end; i0 += block) {
     const std::int64_t rows = std::min(block, end - i0);
     for (std::int64_t r = 0; r < rows; ++r)
@@ -439,7 +494,7 @@ TOPOS_BF16 void linear_blocks_backward_bf16_e(const float* const* X, const std::
   std::int64_t Ktot = 0;
   for (std::int64_t s = 0; s < S; ++s) Ktot += K[s];
   Bf16BackwardScratch scratch(N, dW ? Ktot : 0, end - begin);
-  std::uint32_t *Zr = scratch.Zr, *Zq = scratch.Zq.data(), *Xq = scratch.Xq.data();
+  std::uint32_t *Zr = scratch.Zr, *Xq = scratch.Xq.data();
   const std::int64_t B = scratch.rows_per_block;
   bool any_dx = false;
   for (std::int64_t s = 0; s < S; ++s) any_dx = any_dx || dX[s] != nullptr;
@@ -456,9 +511,9 @@ TOPOS_BF16 void linear_blocks_backward_bf16_e(const float* const* X, const std::
     }
     if (dW) {  // the blocks' pairs side by side in one row of Ktot pairs, as the forward's
       const std::int64_t q = scratch.gathered;
+      scratch.gather_output_gradient(z, rows, N);
       for (std::int64_t p = 0; p < pairs; ++p) {
         const bool two = 2 * p + 1 < rows;
-        bf16_interleave(z + 2 * p * N, two ? z + (2 * p + 1) * N : nullptr, N, Zq + (q + p) * N);
         for (std::int64_t s = 0, off = 0; s < S; off += K[s], ++s) {
           const float* xs = X[s] + (i0 + 2 * p) * K[s];
           bf16_interleave(xs, two ? xs + K[s] : nullptr, K[s], Xq + (q + p) * Ktot + off);
@@ -466,7 +521,7 @@ TOPOS_BF16 void linear_blocks_backward_bf16_e(const float* const* X, const std::
       }
       scratch.gathered += pairs;
       if (scratch.gathered == scratch.dw_pairs || i0 + B >= end)
-        bf16_outer(Zq, N, scratch.gathered, Xq, Ktot, dW, Ktot), scratch.gathered = 0;
+        scratch.multiply_gathered(N, Ktot, dW);
     }
   }
 }

@@ -39,8 +39,6 @@ namespace detail {
 #endif
 
 #if defined(__GNUC__)
-// The sum of a row's L-wide vector partial sums and its scalar tail, as a tree (log2 L dependent
-// adds, not L: a row of 128 floats is only 8 vectors).
 // Lanes l and l + w added for w = L/2, ..., 1, each step on the halves of a vector (the tree
 // summed through an array in memory cost a store and L - 1 scalar adds).
 template <class T, int W, class V>
@@ -58,6 +56,8 @@ static TOPOS_INLINE_KERNEL T lane_tree(const V& v) {
     return lane_tree<T, W / 2>(sum);
   }
 }
+// The sum of a row's L-wide vector partial sums and its scalar tail, as a tree (log2 L dependent
+// adds, not L: a row of 128 floats is only 8 vectors).
 template <class T, class V>
 static TOPOS_INLINE_KERNEL T lane_sum(const V& v, T tail) {
   return lane_tree<T, static_cast<int>(sizeof(V) / sizeof(T))>(v) + tail;
