@@ -1229,35 +1229,34 @@ TEST_CASE("bfloat16 kernels: act(x Wᵀ + b) and its gradients against double on
   // of 16 with a remainder; widths: one vector, panels of 64 with tails of 16-48, the widest
   // (1024), summed widths in whole tiles of 32 (AMX's) or not (48, 80: the tiles' remainder).
   const std::vector<std::array<std::int64_t, 4>> shapes{
-      {1, 16, 16, 1},      {37, 64, 64, 1},    {101, 576, 64, 1}, {50, 64, 576, 1},
-      {20000, 128, 48, 2}, {7, 1024, 80, 1},   {9, 32, 1024, 1},  {300, 128, 128, 1},
-      {45, 256, 48, 1},    {1000, 48, 80, 1}};
+      {1, 16, 16, 1},   {37, 64, 64, 1},  {101, 576, 64, 1},  {50, 64, 576, 1}, {20000, 128, 48, 2},
+      {7, 1024, 80, 1}, {9, 32, 1024, 1}, {300, 128, 128, 1}, {45, 256, 48, 1}, {1000, 48, 80, 1}};
   for (const bool amx : amx_modes)
-  for (const auto& [n, K, N, threads] : shapes)
-    for (const auto e : {Epilogue::none, Epilogue::relu, Epilogue::elu, Epilogue::sigmoid}) {
-      INFO(n << " x " << K << " -> " << N << ", epilogue " << static_cast<int>(e) << ", AMX "
-             << amx);
-      nn::detail::set_amx_enabled(amx);
-      at::set_num_threads(static_cast<int>(threads));
-      const auto x = torch::randn({n, K}, torch::requires_grad());
-      const auto W = (torch::randn({N, K}) / std::sqrt(static_cast<double>(K))).requires_grad_();
-      const auto b = torch::randn({N}, torch::requires_grad());
-      const auto y = linear_act(x, W, b, e, MatmulPrecision::medium);
-      REQUIRE(y.scalar_type() == torch::kFloat);
-      const auto g = torch::randn_like(y);
-      const auto grads = torch::autograd::grad({y}, {x, W, b}, {g});
-      // Reference: the same products in double from the bfloat16-rounded inputs; dZ = g ⊙ act'(y)
-      // in float32, rounded for the two products as the kernel rounds it.
-      const auto ref =
-          activation(torch::linear(rounded(x), rounded(W), b.detach().to(torch::kDouble)), e);
-      const auto dZ = output_gradient(g, y, e);
-      // float32 sums of K (or n) products: a few units in the 7th digit, far below bfloat16's
-      // 3rd (a product in float32 of the unrounded inputs would be off by ~1e-2).
-      CHECK(max_gap(y, ref) < 2e-5);
-      CHECK(max_gap(grads[0], rounded(dZ).mm(rounded(W))) < 2e-5);
-      CHECK(max_gap(grads[1], rounded(dZ).t().mm(rounded(x))) < 2e-5);
-      CHECK(max_gap(grads[2], dZ.to(torch::kDouble).sum(0)) < 2e-5);
-    }
+    for (const auto& [n, K, N, threads] : shapes)
+      for (const auto e : {Epilogue::none, Epilogue::relu, Epilogue::elu, Epilogue::sigmoid}) {
+        INFO(n << " x " << K << " -> " << N << ", epilogue " << static_cast<int>(e) << ", AMX "
+               << amx);
+        nn::detail::set_amx_enabled(amx);
+        at::set_num_threads(static_cast<int>(threads));
+        const auto x = torch::randn({n, K}, torch::requires_grad());
+        const auto W = (torch::randn({N, K}) / std::sqrt(static_cast<double>(K))).requires_grad_();
+        const auto b = torch::randn({N}, torch::requires_grad());
+        const auto y = linear_act(x, W, b, e, MatmulPrecision::medium);
+        REQUIRE(y.scalar_type() == torch::kFloat);
+        const auto g = torch::randn_like(y);
+        const auto grads = torch::autograd::grad({y}, {x, W, b}, {g});
+        // Reference: the same products in double from the bfloat16-rounded inputs; dZ = g ⊙ act'(y)
+        // in float32, rounded for the two products as the kernel rounds it.
+        const auto ref =
+            activation(torch::linear(rounded(x), rounded(W), b.detach().to(torch::kDouble)), e);
+        const auto dZ = output_gradient(g, y, e);
+        // float32 sums of K (or n) products: a few units in the 7th digit, far below bfloat16's
+        // 3rd (a product in float32 of the unrounded inputs would be off by ~1e-2).
+        CHECK(max_gap(y, ref) < 2e-5);
+        CHECK(max_gap(grads[0], rounded(dZ).mm(rounded(W))) < 2e-5);
+        CHECK(max_gap(grads[1], rounded(dZ).t().mm(rounded(x))) < 2e-5);
+        CHECK(max_gap(grads[2], dZ.to(torch::kDouble).sum(0)) < 2e-5);
+      }
   // Inside a PackedWeightsScope a weight's pairs are kept between calls: an in-place update (here
   // through a view, which shares the version counter) and a new tensor must not reuse old pairs;
   // a write through .data() (as torch::optim::SGD steps) is seen once the scope has ended.
@@ -1351,38 +1350,38 @@ TEST_CASE("bfloat16 kernels: act(x Wᵀ + b) and its gradients against double on
       {31, {16, 16, 32}, Epilogue::relu, 1},
       {9000, {32, 16}, Epilogue::elu, 2}};
   for (const bool amx : amx_modes)
-  for (const auto& [n, widths, e, threads] : block_cases) {
-    INFO("linear_blocks, " << n << " rows, epilogue " << static_cast<int>(e) << ", AMX " << amx);
-    nn::detail::set_amx_enabled(amx);
-    at::set_num_threads(threads);
-    struct Restore {
-      ~Restore() { set_float32_matmul_precision(MatmulPrecision::highest); }
-    } back;
-    set_float32_matmul_precision(MatmulPrecision::medium);
-    std::vector<torch::Tensor> xs;
-    std::int64_t Ktot = 0;
-    for (const auto w : widths)
-      xs.push_back(torch::randn({n, w}, torch::requires_grad())), Ktot += w;
-    const auto W = (torch::randn({64, Ktot}) / 16).requires_grad_();
-    const auto base = torch::randn({n, 64}, torch::requires_grad());
-    const auto y = linear_blocks(xs, W, e, base);
-    const auto g = torch::randn_like(y);
-    std::vector<torch::Tensor> wrt(xs);
-    wrt.push_back(W), wrt.push_back(base);
-    const auto grads = torch::autograd::grad({y}, wrt, {g});
-    std::vector<torch::Tensor> parts;
-    for (const auto& x : xs) parts.push_back(rounded(x));
-    const auto xcat = torch::cat(parts, 1);
-    const auto ref = activation(base.detach().to(torch::kDouble) + xcat.mm(rounded(W).t()), e);
-    const auto dZ = output_gradient(g, y, e);
-    CHECK(max_gap(y, ref) < 2e-5);
-    const auto dx = rounded(dZ).mm(rounded(W));
-    std::int64_t off = 0;
-    for (std::size_t k = 0; k < xs.size(); off += xs[k].size(1), ++k)
-      CHECK(max_gap(grads[k], dx.narrow(1, off, xs[k].size(1))) < 2e-5);
-    CHECK(max_gap(grads[xs.size()], rounded(dZ).t().mm(xcat)) < 2e-5);
-    CHECK(max_gap(grads[xs.size() + 1], dZ.to(torch::kDouble)) < 1e-6);
-  }
+    for (const auto& [n, widths, e, threads] : block_cases) {
+      INFO("linear_blocks, " << n << " rows, epilogue " << static_cast<int>(e) << ", AMX " << amx);
+      nn::detail::set_amx_enabled(amx);
+      at::set_num_threads(threads);
+      struct Restore {
+        ~Restore() { set_float32_matmul_precision(MatmulPrecision::highest); }
+      } back;
+      set_float32_matmul_precision(MatmulPrecision::medium);
+      std::vector<torch::Tensor> xs;
+      std::int64_t Ktot = 0;
+      for (const auto w : widths)
+        xs.push_back(torch::randn({n, w}, torch::requires_grad())), Ktot += w;
+      const auto W = (torch::randn({64, Ktot}) / 16).requires_grad_();
+      const auto base = torch::randn({n, 64}, torch::requires_grad());
+      const auto y = linear_blocks(xs, W, e, base);
+      const auto g = torch::randn_like(y);
+      std::vector<torch::Tensor> wrt(xs);
+      wrt.push_back(W), wrt.push_back(base);
+      const auto grads = torch::autograd::grad({y}, wrt, {g});
+      std::vector<torch::Tensor> parts;
+      for (const auto& x : xs) parts.push_back(rounded(x));
+      const auto xcat = torch::cat(parts, 1);
+      const auto ref = activation(base.detach().to(torch::kDouble) + xcat.mm(rounded(W).t()), e);
+      const auto dZ = output_gradient(g, y, e);
+      CHECK(max_gap(y, ref) < 2e-5);
+      const auto dx = rounded(dZ).mm(rounded(W));
+      std::int64_t off = 0;
+      for (std::size_t k = 0; k < xs.size(); off += xs[k].size(1), ++k)
+        CHECK(max_gap(grads[k], dx.narrow(1, off, xs[k].size(1))) < 2e-5);
+      CHECK(max_gap(grads[xs.size()], rounded(dZ).t().mm(xcat)) < 2e-5);
+      CHECK(max_gap(grads[xs.size() + 1], dZ.to(torch::kDouble)) < 1e-6);
+    }
   // Through the schedule's sparse weight (SparseLinearFunction keeps the path for its backward):
   // against double, rounding where the kernels round (x or A x, W, and the gradient entering the
   // dense product) and in float32 where they sum in float32 (the sparse products).

@@ -55,8 +55,12 @@ inline std::atomic<bool>& amx_allowed() {
 }
 /// Whether the bfloat16 kernels take AMX's tiles: on a CPU that has them, unless turned off
 /// (set_amx_enabled(false): the AVX-512 BF16 kernels, for side-by-side tests and timings).
-inline bool use_amx() { return cpu_has_amx() && amx_allowed().load(std::memory_order_relaxed); }
-inline void set_amx_enabled(bool on) { amx_allowed().store(on); }
+inline bool use_amx() {
+  return cpu_has_amx() && amx_allowed().load(std::memory_order_relaxed);
+}
+inline void set_amx_enabled(bool on) {
+  amx_allowed().store(on);
+}
 
 #if defined(TOPOS_HAVE_AMX)
 // Eight tiles of 16 rows × 64 bytes: sums C00 C01 C10 C11 (tmm0-3), A0 A1 (tmm4-5), B0 B1 (tmm6-7).
@@ -71,8 +75,8 @@ struct alignas(64) AmxTileConfig {
 // A (RT × 16 rows of Kp pairs, lda apart) · P (Kp rows of pairs, 16·CT columns, ldp apart).
 template <int RT, int CT>
 TOPOS_AMX inline void amx_block(const std::uint32_t* A, std::int64_t lda, std::int64_t Kp,
-                                const std::uint32_t* P, std::int64_t ldp, float* Y, std::int64_t ldy,
-                                bool accumulate) {
+                                const std::uint32_t* P, std::int64_t ldp, float* Y,
+                                std::int64_t ldy, bool accumulate) {
   const long sa = static_cast<long>(lda * 4), sp = static_cast<long>(ldp * 4),
              sy = static_cast<long>(ldy * 4);
   if (accumulate) {
@@ -111,10 +115,10 @@ TOPOS_AMX inline void amx_block(const std::uint32_t* A, std::int64_t lda, std::i
 /// A product's forward and input gradient, and (A the output gradient's pairs along the rows,
 /// amx_transpose_rows; P x's) its weight gradient into dW.
 TOPOS_AMX __attribute__((noinline)) inline void amx_rows(const std::uint32_t* A, std::int64_t lda,
-                                                        std::int64_t rows, std::int64_t Kp,
-                                                        const std::uint32_t* P, std::int64_t ldp,
-                                                        std::int64_t N, float* Y, std::int64_t ldy,
-                                                        bool accumulate) {
+                                                         std::int64_t rows, std::int64_t Kp,
+                                                         const std::uint32_t* P, std::int64_t ldp,
+                                                         std::int64_t N, float* Y, std::int64_t ldy,
+                                                         bool accumulate) {
   static const AmxTileConfig config;
   _tile_loadconfig(&config);
   for (std::int64_t c = 0; c < N; c += 32) {
@@ -123,11 +127,15 @@ TOPOS_AMX __attribute__((noinline)) inline void amx_rows(const std::uint32_t* A,
       const std::uint32_t* a = A + r * lda;
       float* y = Y + r * ldy + c;
       if (r + 32 <= rows) {
-        if (two_cols) amx_block<2, 2>(a, lda, Kp, P + c, ldp, y, ldy, accumulate);
-        else amx_block<2, 1>(a, lda, Kp, P + c, ldp, y, ldy, accumulate);
+        if (two_cols)
+          amx_block<2, 2>(a, lda, Kp, P + c, ldp, y, ldy, accumulate);
+        else
+          amx_block<2, 1>(a, lda, Kp, P + c, ldp, y, ldy, accumulate);
       } else {
-        if (two_cols) amx_block<1, 2>(a, lda, Kp, P + c, ldp, y, ldy, accumulate);
-        else amx_block<1, 1>(a, lda, Kp, P + c, ldp, y, ldy, accumulate);
+        if (two_cols)
+          amx_block<1, 2>(a, lda, Kp, P + c, ldp, y, ldy, accumulate);
+        else
+          amx_block<1, 1>(a, lda, Kp, P + c, ldp, y, ldy, accumulate);
       }
     }
   }
