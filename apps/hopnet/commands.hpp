@@ -119,6 +119,13 @@ inline void set_rollout_precision(const std::string& precision, FeatureMode mode
   nn::set_float32_matmul_precision(p);
 }
 
+/// The precision as the programs print and record it: medium names the kernels that run its CPU
+/// products ("medium (amx)", "medium (avx512-bf16)", "medium (onednn)"; nn::bfloat16_kernels).
+inline std::string precision_label(const std::string& precision, bool cpu = true) {
+  if (precision == "highest" || !cpu) return precision;
+  return precision + " (" + nn::bfloat16_kernels() + ")";
+}
+
 /// The options a model is opened with: the variant's --activation and --collision-radius
 /// (HOPNet's), the feature mode, and --stats.
 inline sim::OpenOptions open_options(const VariantArgs& v, const std::string& stats_path,

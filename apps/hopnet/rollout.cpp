@@ -54,6 +54,8 @@ int run_rollout(const RolloutArgs& a) {
   j["scene"] = kubric.source;
   j["mode"] = to_string(mode);
   j["matmul_precision"] = a.matmul_precision;
+  j["matmul_kernels"] =
+      precision_label(a.matmul_precision, nn::device_from_string(a.device).is_cpu());
   j["cpu_gemm"] = gemm;
   j["step_threads"] = a.step_threads;
   j["checkpoint"] = a.checkpoint;
@@ -91,7 +93,8 @@ int run_rollout(const RolloutArgs& a) {
       "rollout: %s, %d steps in %.3f s (%.2f ms/step), mode %s, matmul precision %s, cpu gemm "
       "%s\n",
       variant.c_str(), a.steps, r.seconds, 1e3 * r.seconds / a.steps, to_string(mode),
-      a.matmul_precision.c_str(), gemm.c_str());
+      precision_label(a.matmul_precision, nn::device_from_string(a.device).is_cpu()).c_str(),
+      gemm.c_str());
   std::printf("%6s %10s %10s %10s %10s\n", "frame", "pos_rmse", "pos_mae", "ori_rmse", "ori_mae");
   for (int f : {4, 25, 50, 75, 100})
     if (f < static_cast<int>(m.pos_rmse.size()))

@@ -340,8 +340,8 @@ int run_train(const TrainArgs& a) {
   say("model: %lld parameters, device %s, %d worker%s per trajectory, matmul precision %s, cpu "
       "gemm %s, malloc %s\n",
       static_cast<long long>(model->num_parameters()), device.str().c_str(), workers,
-      workers == 1 ? "" : "s", a.matmul_precision.c_str(), nn::to_string(gemm),
-      malloc_name().c_str());
+      workers == 1 ? "" : "s", precision_label(a.matmul_precision, device.is_cpu()).c_str(),
+      nn::to_string(gemm), malloc_name().c_str());
   std::ofstream steps_csv, epochs_csv;
   if (main_rank) {
     const auto steps_path = fs::path(a.out) / "steps.csv",
@@ -394,7 +394,8 @@ int run_train(const TrainArgs& a) {
                        {"world_size", world},
                        {"trajectories_per_step", world * per_rank},
                        {"workers", workers},
-                       {"matmul_precision", a.matmul_precision}},
+                       {"matmul_precision", a.matmul_precision},
+                       {"matmul_kernels", precision_label(a.matmul_precision, device.is_cpu())}},
                       group.stage(state_path));
     group.commit();
   };

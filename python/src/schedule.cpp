@@ -889,6 +889,25 @@ void bind_schedule(py::module_& parent) {
   m.def(
       "get_cpu_gemm", [] { return std::string(to_string(get_cpu_gemm())); },
       "The library set_cpu_gemm chose: 'blas', 'onednn' or 'topos'.");
+  m.def(
+      "set_float32_matmul_precision",
+      [](const std::string& precision) {
+        set_float32_matmul_precision(matmul_precision_from_string(precision));
+      },
+      py::arg("precision"),
+      "How topos multiplies float32 products, process-wide, as torch.set_float32_matmul_precision "
+      "names it (torch's own setting does not reach topos's kernels): 'highest' (float32, the "
+      "default) or 'medium' (bfloat16 inputs, float32 sums and outputs, on topos's AVX-512 BF16 "
+      "or AMX kernels where the CPU has them; bfloat16_kernels() says which).");
+  m.def(
+      "get_float32_matmul_precision",
+      [] { return std::string(to_string(get_float32_matmul_precision())); },
+      "The precision set_float32_matmul_precision chose: 'highest' or 'medium'.");
+  m.def(
+      "bfloat16_kernels", [] { return std::string(bfloat16_kernels()); },
+      "The kernels that run 'medium''s CPU products here: 'amx', 'avx512-bf16' or 'onednn' (a "
+      "CPU without AVX-512 BF16: only Linear layers and MLPs multiply in bfloat16 there, through "
+      "oneDNN; the schedule's other products stay float32).");
   m.def("cached_cpu_bytes", &cached_cpu_bytes, "Bytes the CPU cache holds on its free lists.");
   m.def("release_cached_cpu_memory", &release_cached_cpu_memory,
         "Gives the CPU cache's free blocks back to the system.");

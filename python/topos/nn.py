@@ -39,12 +39,15 @@ from ._C.nn import (  # noqa: F401
     TermShape,
     Update,  # deprecated: Activation's earlier name
     _Network,
+    bfloat16_kernels,
     cached_cpu_bytes,
     from_,
     get_cpu_gemm,
+    get_float32_matmul_precision,
     into,
     release_cached_cpu_memory,
     set_cpu_gemm,
+    set_float32_matmul_precision,
     use_caching_cpu_allocator,
 )
 
@@ -66,12 +69,15 @@ __all__ = [
     "SparseOperator",
     "Term",
     "TermShape",
+    "bfloat16_kernels",
     "cached_cpu_bytes",
     "from_",
     "get_cpu_gemm",
+    "get_float32_matmul_precision",
     "into",
     "release_cached_cpu_memory",
     "set_cpu_gemm",
+    "set_float32_matmul_precision",
     "use_caching_cpu_allocator",
 ]
 

@@ -82,6 +82,13 @@ string(FIND "${err}" "warning: this CPU has no AVX-512 BF16, so --matmul-precisi
 if(NOT rc EQUAL 0 OR said EQUAL -1)
   message(FATAL_ERROR "train at medium without AVX-512 BF16 should warn and train (${rc}):\n${out}${err}")
 endif()
+# ... and names the kernels it ran, in its banner and its state.
+string(FIND "${out}" "matmul precision medium (onednn)" named)
+file(READ ${WORK}/emulated/state.json emulated_state)
+string(JSON kernels GET "${emulated_state}" matmul_kernels)
+if(named EQUAL -1 OR NOT kernels STREQUAL "medium (onednn)")
+  message(FATAL_ERROR "train without AVX-512 BF16 should name oneDNN's kernels ('${kernels}'):\n${out}")
+endif()
 
 # Loss and gradient of one trajectory; training from given weights in chunks of timesteps.
 expect_success("grad" grad --checkpoint ${WORK}/model/checkpoint.pt --stats ${WORK}/model/stats.json --scene ${WORK}/kubric/1 --mode native --chunk 7 --out ${WORK}/grad)

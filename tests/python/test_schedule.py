@@ -701,3 +701,41 @@ def test_step_threads_share_a_parallel_group(complex_):
     with pytest.raises(ValueError, match="step_threads: 0 threads; give 1"):
         net.step_threads = 0
     assert net.step_threads == 2
+
+
+def test_float32_matmul_precision_reaches_the_kernels():
+    """topos.nn.set_float32_matmul_precision('medium'): a schedule's weight multiplies the
+    bfloat16-rounded operands with float32 sums (against the same in float64) where the CPU has
+    topos's bfloat16 kernels, and stays float32 elsewhere; a bad name is a ValueError."""
+    import topos.nn as tnn
+
+    assert tnn.get_float32_matmul_precision() == "highest"
+    assert tnn.bfloat16_kernels() in ("amx", "avx512-bf16", "onednn")
+    with pytest.raises(ValueError, match="unknown matmul precision 'low'"):
+        tnn.set_float32_matmul_precision("low")
+    torch.manual_seed(5)
+    s = OperatorSchedule()
+    s.input("x_0", 0, 48).output("y", 0)
+    s.step(into(0).sum(from_(0).linear("lin", 32).act("relu")).named("layer"))
+    net = OperatorNetwork(s)
+    x = torch.randn(50, 48)  # 3 whole tiles of 16 rows and a remainder
+    W, b = net.state_dict()["lin.weight"], net.state_dict()["lin.bias"]
+
+    def reference(round_):
+        r = (lambda t: t.bfloat16().double()) if round_ else (lambda t: t.double())
+        return torch.relu(r(x) @ r(W).T + b.double())
+
+    highest = net({"x_0": x}, {})["y"]
+    torch.testing.assert_close(highest.double(), reference(False), rtol=1e-5, atol=1e-5)
+    try:
+        tnn.set_float32_matmul_precision("medium")
+        assert tnn.get_float32_matmul_precision() == "medium"
+        medium = net({"x_0": x}, {})["y"]
+    finally:
+        tnn.set_float32_matmul_precision("highest")
+    assert medium.dtype == torch.float32
+    if tnn.bfloat16_kernels() == "onednn":  # the schedule's own products stay float32 there
+        assert torch.equal(medium, highest)
+    else:
+        torch.testing.assert_close(medium.double(), reference(True), rtol=1e-5, atol=1e-5)
+        assert (medium - highest).abs().max() > 1e-4  # bfloat16's rounding, not float32's sums

@@ -357,8 +357,7 @@ struct Bf16BackwardScratch {
   }
   // A block's `rows` rows of dZ (N wide) as the weight gradient's pairs from `gathered` on: along
   // the outputs for bf16_outer (a pair a row of Zq), along the rows for AMX (ZT, ldt pairs a row).
-  TOPOS_BF16_INLINE void gather_output_gradient(const float* z, std::int64_t rows,
-                                                std::int64_t N) {
+  TOPOS_BF16_INLINE void gather_output_gradient(const float* z, std::int64_t rows, std::int64_t N) {
 #if defined(TOPOS_HAVE_AMX)
     if (amx) return amx_transpose_rows(z, rows, N, Zq.data(), ldt, gathered);
 #endif
@@ -548,3 +547,14 @@ TOPOS_BF16 inline void linear_blocks_backward_bf16(const float* const* X, const 
 #endif
 
 }  // namespace topos::nn::detail
+
+namespace topos::nn {
+/// The kernels that multiply MatmulPrecision::medium's CPU products in this process, as the
+/// programs report them: "amx" (AMX tiles), "avx512-bf16" (AVX-512 BF16 dot products) or
+/// "onednn" (oneDNN's bfloat16, emulated on a CPU without either; TOPOS_DISABLE_BF16=1 and
+/// TOPOS_DISABLE_AMX=1 step down the list).
+inline const char* bfloat16_kernels() {
+  if (!detail::cpu_has_bf16()) return "onednn";
+  return detail::use_amx() ? "amx" : "avx512-bf16";
+}
+}  // namespace topos::nn

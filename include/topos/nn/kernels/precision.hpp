@@ -16,7 +16,8 @@ namespace topos::nn {
 /// BF16, the products topos's kernels take (kernels/dense_bf16.hpp: 16 to 1024 inputs and outputs
 /// in steps of 16; linear_act, linear_blocks, the schedule's weights, Mlp) round their inputs to
 /// bfloat16 as they read them and keep float32 sums, outputs and gradients, at up to twice the
-/// float32 rate; the 2-D CPU shapes they do not take (inputs or outputs not a multiple of 16,
+/// float32 rate (on AMX tiles where the CPU has them, several times that: bfloat16_kernels()
+/// names the kernels); the 2-D CPU shapes they do not take (inputs or outputs not a multiple of 16,
 /// or over 1024: narrow maps, where casts cost more than bfloat16 saves) stay float32. On a GPU,
 /// and on a CPU without AVX-512 BF16, only nn::linear and Mlp multiply in bfloat16 (oneDNN's on a
 /// CPU, slower than float32 there; its output is rounded to bfloat16 too, as torch.autocast's);
