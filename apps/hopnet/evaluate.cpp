@@ -320,7 +320,8 @@ int run_evaluate(const EvaluateArgs& a) {
   top["scenes"] = chosen;
   top["mode"] = to_string(mode);
   top["matmul_precision"] = a.matmul_precision;
-  top["matmul_kernels"] = precision_label(a.matmul_precision, device.is_cpu());
+  const std::string kernels = precision_label(a.matmul_precision, device.is_cpu());
+  top["matmul_kernels"] = kernels;
   top["cpu_gemm"] = gemm;
   top["model"] = model_name;
   top["variant"] = models.front().variant;
@@ -354,10 +355,7 @@ int run_evaluate(const EvaluateArgs& a) {
     std::ostringstream t;
     t << "# " << label << " rollout errors (" << chosen.size() << " scenes, " << a.split
       << " split, " << to_string(mode) << " mode"
-      << (a.matmul_precision == "highest"
-              ? ""
-              : ", matmul precision " + precision_label(a.matmul_precision, device.is_cpu()))
-      << ")\n\n"
+      << (a.matmul_precision == "highest" ? "" : ", matmul precision " + kernels) << ")\n\n"
       << md.str();
     io::write_file_atomic((fs::path(a.out) / "table.md").string(), t.str());
   }

@@ -49,13 +49,14 @@ int run_rollout(const RolloutArgs& a) {
   opt.on_step = [&](int, int) { bar.update(); };
   const RolloutResult r = sim::rollout(model, scene, opt);
   bar.finish();
+  const std::string kernels =
+      precision_label(a.matmul_precision, nn::device_from_string(a.device).is_cpu());
   const auto m = rollout_metrics(r.poses, scene);
   nlohmann::json j;
   j["scene"] = kubric.source;
   j["mode"] = to_string(mode);
   j["matmul_precision"] = a.matmul_precision;
-  j["matmul_kernels"] =
-      precision_label(a.matmul_precision, nn::device_from_string(a.device).is_cpu());
+  j["matmul_kernels"] = kernels;
   j["cpu_gemm"] = gemm;
   j["step_threads"] = a.step_threads;
   j["checkpoint"] = a.checkpoint;
@@ -93,8 +94,7 @@ int run_rollout(const RolloutArgs& a) {
       "rollout: %s, %d steps in %.3f s (%.2f ms/step), mode %s, matmul precision %s, cpu gemm "
       "%s\n",
       variant.c_str(), a.steps, r.seconds, 1e3 * r.seconds / a.steps, to_string(mode),
-      precision_label(a.matmul_precision, nn::device_from_string(a.device).is_cpu()).c_str(),
-      gemm.c_str());
+      kernels.c_str(), gemm.c_str());
   std::printf("%6s %10s %10s %10s %10s\n", "frame", "pos_rmse", "pos_mae", "ori_rmse", "ori_mae");
   for (int f : {4, 25, 50, 75, 100})
     if (f < static_cast<int>(m.pos_rmse.size()))

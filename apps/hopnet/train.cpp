@@ -337,11 +337,11 @@ int run_train(const TrainArgs& a) {
     else
       say("resuming in epoch %d after step %lld\n", start_epoch + 1, static_cast<long long>(step));
   }
+  const std::string kernels = precision_label(a.matmul_precision, device.is_cpu());
   say("model: %lld parameters, device %s, %d worker%s per trajectory, matmul precision %s, cpu "
       "gemm %s, malloc %s\n",
       static_cast<long long>(model->num_parameters()), device.str().c_str(), workers,
-      workers == 1 ? "" : "s", precision_label(a.matmul_precision, device.is_cpu()).c_str(),
-      nn::to_string(gemm), malloc_name().c_str());
+      workers == 1 ? "" : "s", kernels.c_str(), nn::to_string(gemm), malloc_name().c_str());
   std::ofstream steps_csv, epochs_csv;
   if (main_rank) {
     const auto steps_path = fs::path(a.out) / "steps.csv",
@@ -395,7 +395,7 @@ int run_train(const TrainArgs& a) {
                        {"trajectories_per_step", world * per_rank},
                        {"workers", workers},
                        {"matmul_precision", a.matmul_precision},
-                       {"matmul_kernels", precision_label(a.matmul_precision, device.is_cpu())}},
+                       {"matmul_kernels", kernels}},
                       group.stage(state_path));
     group.commit();
   };

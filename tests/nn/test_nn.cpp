@@ -399,13 +399,41 @@ TEST_CASE(
       REQUIRE(torch::allclose(y.detach(), y_inference, 1e-6, 1e-6));
     }
   }
-  // A neighbourhood with backward values keeps the gathered path (the CSR product has one set of
-  // values for both directions): its gradient is weighted by the backward values.
-  n.backward_values = std::vector<double>(n.source.size(), 2.0);
+  // Backward values: the CSR product goes back by their own operator (its pattern differs: pair
+  // 4's value is zero but its backward value is not; pair 1's backward value is zero), with the
+  // gathered path's values and gradients, sums and means, every role; unweighted ignores them.
+  n.backward_values = {2.0, 0.0, 1.0, 3.0, -1.5, 2.0, 0.5, 1.0, 4.0, 2.0, -1.0};
   const auto bb = ComplexBatch::collate({ComplexView{{7, 6}, {{"n", n}}}}, 1);
-  const auto x = torch::ones({7, 1}, torch::kDouble).requires_grad_(true);
-  aggregate(x, bb.neighborhood("n"), AggregateOptions().with_weighted(true)).sum().backward();
-  REQUIRE(x.grad()[2].item<double>() == 6.0);  // source 2 sends three pairs, each weighted 2
+  const auto& bn = bb.neighborhood("n");
+  for (const auto r : {Aggr::sum, Aggr::mean})
+    for (int role : {0, 1, -1})
+      for (bool w : {false, true}) {
+        INFO("backward values " << aggr_name(r) << " role " << role << " weighted " << w);
+        const auto x0 = torch::randn({7, 4}, torch::kDouble);
+        const auto g = torch::randn({6, 4}, torch::kDouble);
+        const auto run = [&](bool csr) {
+          const auto x = x0.clone().requires_grad_(true);
+          const auto y = aggregate(
+              x, bn,
+              AggregateOptions().with_reduce(r).with_role(role).with_weighted(w).with_csr(csr));
+          y.backward(g);
+          return std::make_tuple(y.detach(), x.grad(), std::string(y.grad_fn()->name()));
+        };
+        const auto [y_csr, dx_csr, node_csr] = run(true);
+        const auto [y_rows, dx_rows, node_rows] = run(false);
+        if (r == Aggr::sum) REQUIRE_THAT(node_csr, Catch::Contains("SpmmFunction"));
+        REQUIRE(torch::allclose(y_csr, y_rows, 1e-12, 1e-12));
+        REQUIRE(torch::allclose(dx_csr, dx_rows, 1e-12, 1e-12));
+      }
+  {  // by hand: a sum of ones over all pairs sends source s the sum of its backward values
+    const auto x = torch::ones({7, 1}, torch::kDouble).requires_grad_(true);
+    aggregate(x, bn, AggregateOptions().with_weighted(true)).sum().backward();
+    REQUIRE(x.grad()[2].item<double>() == 1.0 + 3.0 + 4.0);  // pairs 2, 3 and 8
+    REQUIRE(x.grad()[5].item<double>() == -1.5 + 2.0);       // pair 4 (value 0) and pair 9
+    REQUIRE(x.grad()[0].item<double>() == 0.0 + 0.5);        // pair 1 (backward 0) and pair 6
+    const auto y = aggregate(x.detach(), bn, AggregateOptions().with_weighted(true));
+    REQUIRE(y[0].item<double>() == -1.0 + 0.0 + 0.75);  // forward by the values
+  }
 }
 
 TEST_CASE("a neighbourhood with one pair per target, in order, aggregates as a gather",

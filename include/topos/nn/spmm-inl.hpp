@@ -38,17 +38,21 @@ inline torch::Tensor csr_apply(const torch::Tensor& crow, const torch::Tensor& c
 
 // act(A·X) as one node: with an activation it keeps its output, and the backward first turns dY
 // into dZ = dY ⊙ act'(Y) (no exp recomputed, as torch's elu backward does from its input).
+// The backward multiplies by the operator of t_values, t_crow, t_col, t_perm: Aᵀ (t_values are
+// A's values), or the transpose of another operator B of A's shape (its pattern may differ):
+// dX = Bᵀ·dZ. The values' gradient is A's only where t_values are A's values.
 struct SpmmFunction : public torch::autograd::Function<SpmmFunction> {
   static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& values,
                                const torch::Tensor& X, const torch::Tensor& crow,
                                const torch::Tensor& col, const torch::Tensor& row,
                                const torch::Tensor& t_crow, const torch::Tensor& t_col,
-                               const torch::Tensor& t_perm, std::int64_t rows, std::int64_t act) {
+                               const torch::Tensor& t_perm, const torch::Tensor& t_values,
+                               std::int64_t rows, std::int64_t act) {
     const auto e = static_cast<Epilogue>(act);
     auto y = csr_apply(crow, col, values, torch::Tensor(), X, rows, e);
     // X only for the values' gradient: an aggregation over constant values keeps no features.
-    ctx->save_for_backward({values, values.requires_grad() ? X : torch::Tensor(), col, row, t_crow,
-                            t_col, t_perm, e == Epilogue::none ? torch::Tensor() : y});
+    ctx->save_for_backward({t_values, values.requires_grad() ? X : torch::Tensor(), col, row,
+                            t_crow, t_col, t_perm, e == Epilogue::none ? torch::Tensor() : y});
     ctx->saved_data["act"] = act;
     ctx->saved_data["cols"] = X.size(0);
     return y;
@@ -72,7 +76,7 @@ struct SpmmFunction : public torch::autograd::Function<SpmmFunction> {
                                  dvalues.data_ptr<scalar_t>(), values.size(0), x.size(1));
       });
     }
-    return {dvalues, dX, {}, {}, {}, {}, {}, {}, {}, {}};
+    return {dvalues, dX, {}, {}, {}, {}, {}, {}, {}, {}, {}};
   }
 };
 
@@ -172,8 +176,26 @@ inline torch::Tensor spmm(const SparseOperator& A, const torch::Tensor& X, Epilo
     return detail::activate(y, act);
   }
   return detail::SpmmFunction::apply(values, X, A.crow, A.col, A.row, A.t_crow, A.t_col, A.t_perm,
-                                     A.rows, static_cast<std::int64_t>(act));
+                                     values, A.rows, static_cast<std::int64_t>(act));
 }
+
+namespace detail {
+/// A·X going forward, Bᵀ·dY going back (B: the same shape, its own pattern), on the CPU; A's and
+/// B's values taken as constants. What a neighbourhood with backward values aggregates by.
+inline torch::Tensor spmm_backward_by(const SparseOperator& A, const torch::Tensor& X,
+                                      const SparseOperator& B) {
+  if (A.factored() || B.factored() || B.rows != A.rows || B.cols != A.cols || X.dim() != 2 ||
+      X.size(0) != A.cols || !X.device().is_cpu())
+    throw std::invalid_argument(
+        "spmm_backward_by: explicit operators of one shape and CPU "
+        "features of their columns' rows");
+  const auto as = [&](const torch::Tensor& v) {
+    return v.scalar_type() == X.scalar_type() ? v.detach() : v.detach().to(X.scalar_type());
+  };
+  return SpmmFunction::apply(as(A.values), X, A.crow, A.col, A.row, B.t_crow, B.t_col, B.t_perm,
+                             as(B.values), A.rows, static_cast<std::int64_t>(Epilogue::none));
+}
+}  // namespace detail
 
 inline torch::Tensor sparse_linear_act(const SparseOperator& A, const torch::Tensor& x,
                                        const torch::Tensor& W, bool weight_first, Epilogue act) {

@@ -26,13 +26,18 @@
 
 namespace topos::nn::detail {
 
+/// Whether the environment sets `name` to anything but empty or "0": the TOPOS_DISABLE_* switches.
+inline bool env_flag(const char* name) {
+  const char* v = std::getenv(name);
+  return v != nullptr && *v != '\0' && std::string(v) != "0";
+}
+
 /// Whether this CPU has AMX with bfloat16 and the kernel granted this process its tiles.
 /// TOPOS_DISABLE_AMX=1 in the environment (read once) says no.
 inline bool cpu_has_amx() {
 #if defined(TOPOS_HAVE_AMX)
   static const bool amx = [] {
-    const char* off = std::getenv("TOPOS_DISABLE_AMX");
-    if (off != nullptr && *off != '\0' && std::string(off) != "0") return false;
+    if (env_flag("TOPOS_DISABLE_AMX")) return false;
     unsigned a = 0, b = 0, c = 0, d = 0;
     if (__get_cpuid_count(7, 0, &a, &b, &c, &d) == 0) return false;
     const bool tile = (d >> 24) & 1u, bf16 = (d >> 22) & 1u;

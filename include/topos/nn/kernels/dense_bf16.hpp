@@ -35,9 +35,7 @@ namespace topos::nn::detail {
 inline bool cpu_has_bf16() {
 #if defined(TOPOS_HAVE_BF16)
   static const bool bf16 = [] {
-    const char* off = std::getenv("TOPOS_DISABLE_BF16");
-    if (off != nullptr && *off != '\0' && std::string(off) != "0") return false;
-    return cpu_has_v4() && __builtin_cpu_supports("avx512bf16");
+    return !env_flag("TOPOS_DISABLE_BF16") && cpu_has_v4() && __builtin_cpu_supports("avx512bf16");
   }();
   return bf16;
 #else
