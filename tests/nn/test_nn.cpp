@@ -90,12 +90,9 @@ struct SwapView : Operation {
 
 // A multi-step schedule over a batch's neighbourhoods with roles, guards, a maximum and a
 // parallel group; hidden width D.
-OperatorSchedule test_schedule(std::int64_t D) {
+OperatorSchedule test_schedule(std::int64_t D, Activation act = Activation::gelu) {
   const auto m = [&](std::int64_t in, std::int64_t out, bool last = true) {
-    return MlpOptions(in, D, out)
-        .final_activation(last)
-        .layer_norm(last)
-        .activation(Activation::gelu);
+    return MlpOptions(in, D, out).final_activation(last).layer_norm(last).activation(act);
   };
   OperatorSchedule s;
   for (auto [name, rank, width] : std::vector<std::tuple<std::string, int, int>>{
@@ -1369,47 +1366,75 @@ TEST_CASE("bfloat16 kernels: act(x Wᵀ + b) and its gradients against double on
     W.data().mul_(2);  // outside a scope every call packs afresh
     REQUIRE(torch::equal(linear_act(x, W, {}, Epilogue::none, MatmulPrecision::medium), 2 * y));
   }
-  // linear_blocks: blocks side by side into one row of pairs, a base, every gradient; blocks of
-  // 16 and 32 columns start their weight columns off the panels of 64; 9,000 rows on two threads
-  // sum two chunks of the weight's gradient.
-  const std::vector<std::tuple<std::int64_t, std::vector<std::int64_t>, Epilogue, int>> block_cases{
-      {45, {64, 128, 64}, Epilogue::none, 1},
-      {45, {64, 128, 64}, Epilogue::sigmoid, 1},
-      {31, {16, 16, 32}, Epilogue::relu, 1},
-      {9000, {32, 16}, Epilogue::elu, 2}};
+  // linear_blocks: blocks side by side into one row of pairs, a base and a bias (each optional),
+  // every gradient; blocks of 16 and 32 columns start their weight columns off the panels of 64;
+  // 9,000 rows on two threads sum two chunks of the weight's and the bias's gradients; 128
+  // outputs (wider than the float32 kernel's 64: the bfloat16 kernels take them alone).
+  struct BlockCase {
+    std::int64_t n;
+    std::vector<std::int64_t> widths;
+    Epilogue e;
+    int threads;
+    std::int64_t N;
+    bool base, bias;
+  };
+  const std::vector<BlockCase> block_cases{
+      {45, {64, 128, 64}, Epilogue::none, 1, 64, true, false},
+      {45, {64, 128, 64}, Epilogue::sigmoid, 1, 64, true, true},
+      {31, {16, 16, 32}, Epilogue::relu, 1, 64, true, false},
+      {9000, {32, 16}, Epilogue::elu, 2, 64, true, true},
+      {300, {128, 128, 128}, Epilogue::relu, 1, 128, true, true},
+      {9000, {128, 256}, Epilogue::relu, 2, 128, false, true},
+      {37, {128, 128}, Epilogue::none, 1, 128, true, false}};
   for (const bool amx : amx_modes)
-    for (const auto& [n, widths, e, threads] : block_cases) {
-      INFO("linear_blocks, " << n << " rows, epilogue " << static_cast<int>(e) << ", AMX " << amx);
+    for (const auto& c : block_cases) {
+      INFO("linear_blocks, " << c.n << " rows, " << c.N << " outputs, epilogue "
+                             << static_cast<int>(c.e) << ", base " << c.base << ", bias " << c.bias
+                             << ", AMX " << amx);
       nn::detail::set_amx_enabled(amx);
-      at::set_num_threads(threads);
+      at::set_num_threads(c.threads);
       struct Restore {
         ~Restore() { set_float32_matmul_precision(MatmulPrecision::highest); }
       } back;
       set_float32_matmul_precision(MatmulPrecision::medium);
       std::vector<torch::Tensor> xs;
       std::int64_t Ktot = 0;
-      for (const auto w : widths)
-        xs.push_back(torch::randn({n, w}, torch::requires_grad())), Ktot += w;
-      const auto W = (torch::randn({64, Ktot}) / 16).requires_grad_();
-      const auto base = torch::randn({n, 64}, torch::requires_grad());
-      const auto y = linear_blocks(xs, W, e, base);
+      for (const auto w : c.widths)
+        xs.push_back(torch::randn({c.n, w}, torch::requires_grad())), Ktot += w;
+      const auto W = (torch::randn({c.N, Ktot}) / 16).requires_grad_();
+      const auto base = c.base ? torch::randn({c.n, c.N}, torch::requires_grad()) : torch::Tensor();
+      const auto bias = c.bias ? torch::randn({c.N}, torch::requires_grad()) : torch::Tensor();
+      const auto y = linear_blocks(xs, W, c.e, base, bias);
+      CHECK_THAT(y.grad_fn()->name(), Catch::Contains("LinearBlocksFunction"));
       const auto g = torch::randn_like(y);
       std::vector<torch::Tensor> wrt(xs);
-      wrt.push_back(W), wrt.push_back(base);
+      wrt.push_back(W);
+      if (c.base) wrt.push_back(base);
+      if (c.bias) wrt.push_back(bias);
       const auto grads = torch::autograd::grad({y}, wrt, {g});
       std::vector<torch::Tensor> parts;
       for (const auto& x : xs) parts.push_back(rounded(x));
       const auto xcat = torch::cat(parts, 1);
-      const auto ref = activation(base.detach().to(torch::kDouble) + xcat.mm(rounded(W).t()), e);
-      const auto dZ = output_gradient(g, y, e);
+      auto z = xcat.mm(rounded(W).t());
+      if (c.base) z = z + base.detach().to(torch::kDouble);
+      if (c.bias) z = z + bias.detach().to(torch::kDouble);
+      const auto ref = activation(z, c.e);
+      const auto dZ = output_gradient(g, y, c.e);
       CHECK(max_gap(y, ref) < 2e-5);
       const auto dx = rounded(dZ).mm(rounded(W));
       std::int64_t off = 0;
       for (std::size_t k = 0; k < xs.size(); off += xs[k].size(1), ++k)
         CHECK(max_gap(grads[k], dx.narrow(1, off, xs[k].size(1))) < 2e-5);
-      CHECK(max_gap(grads[xs.size()], rounded(dZ).t().mm(xcat)) < 2e-5);
-      CHECK(max_gap(grads[xs.size() + 1], dZ.to(torch::kDouble)) < 1e-6);
+      std::size_t i = xs.size();
+      CHECK(max_gap(grads[i++], rounded(dZ).t().mm(xcat)) < 2e-5);
+      if (c.base) CHECK(max_gap(grads[i++], dZ.to(torch::kDouble)) < 1e-6);
+      // The bias's gradient sums dZ in float32: its error grows with the rows summed.
+      if (c.bias) CHECK(max_gap(grads[i++], dZ.to(torch::kDouble).sum(0)) < 1e-7 * c.n);
     }
+  // A bias of the wrong shape is named, with what to give instead.
+  REQUIRE_THROWS_WITH(linear_blocks({torch::randn({4, 16}), torch::randn({4, 16})},
+                                    torch::randn({32, 32}), Epilogue::none, {}, torch::randn({31})),
+                      Catch::Contains("one entry per output"));
   // Through the schedule's sparse weight (SparseLinearFunction keeps the path for its backward):
   // against double, rounding where the kernels round (x or A x, W, and the gradient entering the
   // dense product) and in float32 where they sum in float32 (the sparse products).
@@ -1559,6 +1584,141 @@ TEST_CASE("a schedule at medium matmul precision stays float32 and close to high
   }
   CHECK(worst > 0);     // the products did run in bfloat16
   CHECK(worst < 5e-2);  // 8-bit mantissas, a few products deep
+}
+
+TEST_CASE("linear_layer_norm: the last Linear layer, its activation and LayerNorm as one node",
+          "[nn][kernels][bf16]") {
+  // Against double: the product of bfloat16-rounded x and W plus b, activated, normalised;
+  // gradients against the unfused nodes (linear_act at medium, then nn::layer_norm), which round
+  // the same operands.
+  topos::test::RestoreThreads restore;
+  struct Restore {
+    ~Restore() {
+      set_float32_matmul_precision(MatmulPrecision::highest);
+      nn::detail::set_amx_enabled(true);
+    }
+  } back;
+  const auto rounded = [](const torch::Tensor& t) {
+    return t.detach().to(torch::kBFloat16).to(torch::kDouble);
+  };
+  const auto gap = [](const torch::Tensor& a, const torch::Tensor& r) {
+    return (a.to(torch::kDouble) - r.to(torch::kDouble)).abs().max().item<double>() /
+           std::max(1.0, r.abs().max().item<double>());
+  };
+  std::vector<bool> amx_modes{false};
+  if (nn::detail::cpu_has_amx()) amx_modes.push_back(true);
+  // Rows: fewer than a tile, a block and a remainder, two chunks on two threads; K and N: 128
+  // (HOPNet's), 64 × 48 (a block's tail of 16), 32 × 256.
+  const std::vector<std::array<std::int64_t, 4>> shapes{
+      {5, 128, 128, 1}, {61, 128, 128, 1}, {9000, 128, 128, 2}, {100, 64, 48, 1}, {50, 32, 256, 1}};
+  for (const bool amx : amx_modes)
+    for (const auto& [n, K, N, threads] : shapes)
+      for (const bool bias : {true, false}) {
+        const auto act = bias ? Epilogue::relu : Epilogue::none;  // HOPNet's: relu and a bias
+        INFO(n << " rows, " << K << " -> " << N << ", bias " << bias << ", AMX " << amx);
+        nn::detail::set_amx_enabled(amx);
+        at::set_num_threads(threads);
+        set_float32_matmul_precision(MatmulPrecision::medium);
+        const auto x = torch::randn({n, K}, torch::requires_grad());
+        const auto W = (torch::randn({N, K}) / 8).requires_grad_();
+        const auto b = bias ? torch::randn({N}, torch::requires_grad()) : torch::Tensor();
+        const auto gamma = (1 + torch::randn({N}) / 4).requires_grad_();
+        const auto beta = torch::randn({N}, torch::requires_grad());
+        const auto y = nn::linear_layer_norm(x, W, b, gamma, beta, 1e-5, act);
+        const bool fused = nn::detail::cpu_has_bf16();
+        if (fused) CHECK_THAT(y.grad_fn()->name(), Catch::Contains("LinearLayerNormFunction"));
+        auto z = rounded(x).mm(rounded(W).t());
+        if (bias) z = z + b.detach().to(torch::kDouble);
+        if (act == Epilogue::relu) z = torch::relu(z);
+        const auto ref = torch::layer_norm(z, {N}, gamma.detach().to(torch::kDouble),
+                                           beta.detach().to(torch::kDouble), 1e-5);
+        CHECK(gap(y, ref) < 1e-4);
+        // The unfused nodes round the same operands: the gradients agree to float rounding.
+        const auto g = torch::randn_like(y);
+        std::vector<torch::Tensor> wrt{x, W, gamma, beta};
+        if (bias) wrt.push_back(b);
+        const auto fused_grads = torch::autograd::grad({y}, wrt, {g});
+        const auto y2 = nn::layer_norm(linear_act(x, W, b, act), gamma, beta);
+        CHECK(gap(y, y2) < 1e-4);
+        const auto plain_grads = torch::autograd::grad({y2}, wrt, {g});
+        for (std::size_t i = 0; i < wrt.size(); ++i) {
+          INFO("gradient " << i);
+          CHECK(gap(fused_grads[i], plain_grads[i]) < 2e-4);
+          CHECK(fused_grads[i].abs().sum().item<double>() > 0);
+        }
+        // Without a gradient to take: no node, the same values.
+        torch::NoGradGuard no_grad;
+        CHECK(gap(nn::linear_layer_norm(x, W, b, gamma, beta, 1e-5, act), y.detach()) < 1e-6);
+      }
+  // At highest precision, or where the kernels do not serve: exactly the two nodes.
+  set_float32_matmul_precision(MatmulPrecision::highest);
+  const auto x = torch::randn({20, 32}), W = torch::randn({16, 32}), b = torch::randn({16});
+  const auto gamma = torch::randn({16}), beta = torch::randn({16});
+  REQUIRE(torch::equal(nn::linear_layer_norm(x, W, b, gamma, beta),
+                       nn::layer_norm(nn::linear(x, W, b), gamma, beta)));
+  REQUIRE(torch::equal(nn::linear_layer_norm(x, W, b, gamma, beta, 1e-5, Epilogue::relu),
+                       nn::layer_norm(linear_act(x, W, b, Epilogue::relu), gamma, beta)));
+}
+
+TEST_CASE("at medium precision a split first layer multiplies the terms where they lie",
+          "[nn][schedule][mlp]") {
+  // On the bfloat16 kernels, a concatenation into an mlp runs as one linear_blocks node: the
+  // terms, the bias, the sum of the terms split off early and the activation after the layer (a
+  // fusable relu; gelu stays a module of its own). The same values as the plain route (the
+  // concatenation through the whole mlp) up to bfloat16's rounding of other sums, gradients too.
+  const auto batch = ComplexBatch::collate({make_view(0, true), make_view(1, false)}, 4);
+  for (const auto act : {Activation::relu, Activation::gelu}) {
+    INFO("activation " << activation_name(act));
+    torch::manual_seed(5);
+    OperatorNetwork net(test_schedule(32, act));
+    const auto inputs = random_inputs(batch, torch::kFloat, 11);
+    bool blocks = false;
+    const auto run = [&](FastPaths f) {
+      struct Restore {
+        ~Restore() { set_float32_matmul_precision(MatmulPrecision::highest); }
+      } restore;
+      set_float32_matmul_precision(MatmulPrecision::medium);
+      net->fast_paths() = f;
+      net->zero_grad();
+      auto out = net->forward(inputs, batch);
+      // Which nodes the graph holds: the split route's product is one LinearBlocksFunction.
+      std::vector<torch::autograd::Node*> todo{out.at("a0").grad_fn().get()};
+      std::set<torch::autograd::Node*> seen;
+      blocks = false;
+      while (!todo.empty()) {
+        auto* node = todo.back();
+        todo.pop_back();
+        if (!node || !seen.insert(node).second) continue;
+        blocks = blocks || node->name().find("LinearBlocksFunction") != std::string::npos;
+        for (const auto& e : node->next_edges()) todo.push_back(e.function.get());
+      }
+      (out.at("a0").pow(2).sum() + out.at("a2").sin().sum()).backward();
+      std::vector<torch::Tensor> r{out.at("a0").detach(), out.at("a2").detach()};
+      for (const auto& q : net->parameters())
+        r.push_back(q.grad().defined() ? q.grad().clone() : torch::zeros_like(q));
+      return r;
+    };
+    const auto plain = run(FastPaths().split_first_layer(false));
+    CHECK_FALSE(blocks);
+    const auto split = run(FastPaths());
+    CHECK(blocks == nn::detail::cpu_has_bf16());
+    // Gaps over the outputs and over all gradients at once (a parameter's gradient near zero
+    // alone would make any relative gap large). Both routes round other sums to bfloat16 (the
+    // split one multiplies a term before its aggregation): with relu's kinks a few per cent.
+    const auto gap = [&](std::size_t from, std::size_t to) {
+      double d = 0, r = 0;
+      for (std::size_t i = from; i < to; ++i) {
+        REQUIRE(torch::isfinite(split[i]).all().item<bool>());
+        d += (split[i] - plain[i]).pow(2).sum().item<double>();
+        r += plain[i].pow(2).sum().item<double>();
+      }
+      return std::sqrt(d / r);
+    };
+    const double outputs = gap(0, 2), gradients = gap(2, plain.size());
+    CAPTURE(outputs, gradients);
+    CHECK(outputs < 1e-2);
+    CHECK(gradients < 2e-2);
+  }
 }
 
 TEST_CASE("schedule gradients match finite differences in double precision",

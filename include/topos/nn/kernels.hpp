@@ -221,22 +221,32 @@ struct LinearBlocksFunction : public torch::autograd::Function<LinearBlocksFunct
   /// Whether the kernels take these blocks and W (N × ΣK): CPU, one floating type, rows alike,
   /// each block's width as dense_kernel_fits takes it both ways, and ΣK as linear_act's kernel
   /// takes it (else linear_act over the concatenation goes to BLAS, and so does this).
-  static bool fits(const std::vector<torch::Tensor>& xs, const torch::Tensor& W) {
+  /// Whether the blocks and W (N × ΣK) are CPU matrices of one floating type, the blocks' rows
+  /// alike and their columns W's.
+  static bool alike(const std::vector<torch::Tensor>& xs, const torch::Tensor& W) {
     if (xs.empty() || W.dim() != 2 || !W.device().is_cpu() ||
         (W.scalar_type() != torch::kFloat && W.scalar_type() != torch::kDouble))
       return false;
     std::int64_t K = 0;
     for (const auto& x : xs) {
       if (x.dim() != 2 || !x.device().is_cpu() || x.scalar_type() != W.scalar_type() ||
-          x.size(0) != xs[0].size(0) || !dense_kernel_fits(x.size(1), W.size(0)) ||
-          !dense_kernel_fits(W.size(0), x.size(1)))
+          x.size(0) != xs[0].size(0))
         return false;
       K += x.size(1);
     }
-    return K == W.size(1) && dense_kernel_fits(K, W.size(0)) &&
-           !(W.size(0) > 64 && use_onednn(xs[0]));
+    return K == W.size(1);
   }
-  /// Whether the bfloat16 kernels take these blocks at `precision` (fits() holds): each block's
+  /// Whether the kernels take these blocks and W (alike): each block's width as
+  /// dense_kernel_fits takes it both ways, and ΣK as linear_act's kernel takes it (else
+  /// linear_act over the concatenation goes to BLAS, and so does this).
+  static bool fits(const std::vector<torch::Tensor>& xs, const torch::Tensor& W) {
+    if (!alike(xs, W)) return false;
+    for (const auto& x : xs)
+      if (!dense_kernel_fits(x.size(1), W.size(0)) || !dense_kernel_fits(W.size(0), x.size(1)))
+        return false;
+    return dense_kernel_fits(W.size(1), W.size(0)) && !(W.size(0) > 64 && use_onednn(xs[0]));
+  }
+  /// Whether the bfloat16 kernels take these blocks at `precision` (alike() holds): each block's
   /// columns, their sum and N as bf16_kernel_fits takes them.
   static bool bf16_takes(const std::vector<torch::Tensor>& xs, const torch::Tensor& W,
                          MatmulPrecision precision) {
@@ -245,19 +255,24 @@ struct LinearBlocksFunction : public torch::autograd::Function<LinearBlocksFunct
       if (x.size(1) % 16 != 0) return false;
     return true;
   }
-  /// act(base + [xs] Wᵀ); base may be undefined (0). `path`, when given, says which kernels ran.
+  /// act(base + bias + [xs] Wᵀ); base and bias may be undefined (0); a bias only where the
+  /// bfloat16 kernels take the product. `path`, when given, says which kernels ran.
   static torch::Tensor product(const std::vector<torch::Tensor>& xs, const torch::Tensor& W,
                                const torch::Tensor& base = {}, Epilogue e = Epilogue::none,
                                MatmulPrecision precision = get_float32_matmul_precision(),
-                               ProductPath* path = nullptr) {
+                               ProductPath* path = nullptr, const torch::Tensor& bias = {}) {
     const auto n = xs[0].size(0), N = W.size(0);
     const bool has_base = base.defined();
     auto y =
         has_base ? base.clone(at::MemoryFormat::Contiguous) : torch::empty({n, N}, xs[0].options());
     const bool bf16 = bf16_takes(xs, W, precision);
     if (path) *path = bf16 ? ProductPath::bf16 : ProductPath::kernel;
+    if (bias.defined() && !bf16)
+      throw std::logic_error("linear_blocks: a bias only on the bfloat16 kernels");
 #if defined(TOPOS_HAVE_BF16)
     if (bf16) {
+      const auto bc = bias.defined() ? bias.contiguous() : bias;
+      const float* bp = bc.defined() ? bc.data_ptr<float>() : nullptr;
       const auto P = packed_pairs(W, W.size(1), N, W.stride(1), W.stride(0));
       std::vector<torch::Tensor> held;
       std::vector<const float*> X;
@@ -269,8 +284,8 @@ struct LinearBlocksFunction : public torch::autograd::Function<LinearBlocksFunct
       const auto S = static_cast<std::int64_t>(xs.size());
       at::parallel_for(0, n, grain_rows(n, n * W.size(1) * N / 2),
                        [&](std::int64_t b, std::int64_t f) {
-                         dense_blocks_bf16(X.data(), K.data(), S, P->data(), y.data_ptr<float>(), b,
-                                           f, N, has_base, e);
+                         dense_blocks_bf16(X.data(), K.data(), S, P->data(), bp,
+                                           y.data_ptr<float>(), b, f, N, has_base, e);
                        });
       return y;
     }
@@ -298,16 +313,18 @@ struct LinearBlocksFunction : public torch::autograd::Function<LinearBlocksFunct
   }
   // how: the activation in two bits, 4 with a base (torch 1.13's Function::apply takes no
   // undefined input: without one, base is any tensor, unread), 8 at medium precision; the saved
-  // how has 16 where the bfloat16 kernels ran.
+  // how has 16 where the bfloat16 kernels ran. An empty bias: none.
   static torch::Tensor forward(torch::autograd::AutogradContext* ctx, at::TensorList xs,
                                const torch::Tensor& W, const torch::Tensor& base,
-                               std::int64_t how) {
+                               const torch::Tensor& bias, std::int64_t how) {
     const auto e = static_cast<Epilogue>(how & epilogue_mask);
     const bool has_base = (how & 4) != 0;
     ProductPath path = ProductPath::kernel;
     auto y = product(std::vector<torch::Tensor>(xs.begin(), xs.end()), W,
                      has_base ? base : torch::Tensor(), e,
-                     (how & 8) != 0 ? MatmulPrecision::medium : MatmulPrecision::highest, &path);
+                     (how & 8) != 0 ? MatmulPrecision::medium : MatmulPrecision::highest, &path,
+                     bias.numel() > 0 ? bias : torch::Tensor());
+    ctx->saved_data["bias"] = bias.numel() > 0;
     std::vector<torch::Tensor> saved(xs.begin(), xs.end());
     saved.push_back(W);
     saved.push_back(e == Epilogue::none ? torch::Tensor() : y);
@@ -352,13 +369,17 @@ struct LinearBlocksFunction : public torch::autograd::Function<LinearBlocksFunct
     const bool want_dW = ctx->needs_input_grad(static_cast<std::size_t>(S));
     const bool want_dbase =
         (how & 4) != 0 && ctx->needs_input_grad(static_cast<std::size_t>(S) + 1);
-    torch::autograd::tensor_list out(saved.size() + 3);
+    const bool want_db =
+        ctx->saved_data["bias"].toBool() && ctx->needs_input_grad(static_cast<std::size_t>(S) + 2);
+    torch::autograd::tensor_list out(saved.size() + 4);
     const auto chunks = backward_chunks(n);
-    torch::Tensor dW, dbase;
-    if (want_dW)
-      dW = torch::zeros(chunks > 1 ? std::vector<std::int64_t>{chunks, N, Ktot}
-                                   : std::vector<std::int64_t>{N, Ktot},
-                        W.options());
+    const auto partial = [&](std::vector<std::int64_t> shape) {  // one per chunk
+      if (chunks > 1) shape.insert(shape.begin(), chunks);
+      return torch::zeros(shape, W.options());
+    };
+    torch::Tensor dW, dbase, db;
+    if (want_dW) dW = partial({N, Ktot});
+    if (want_db) db = partial({N});
     if (want_dbase) dbase = torch::empty_like(g);
 #if defined(TOPOS_HAVE_BF16)
     if ((how & 16) != 0) {
@@ -371,10 +392,12 @@ struct LinearBlocksFunction : public torch::autograd::Function<LinearBlocksFunct
                                       g.data_ptr<float>(), b.dX.data(),
                                       want_dW ? dW.data_ptr<float>() + c * N * Ktot : nullptr,
                                       want_dbase ? dbase.data_ptr<float>() : nullptr,
+                                      want_db ? db.data_ptr<float>() + c * N : nullptr,
                                       c * n / chunks, (c + 1) * n / chunks, N, e);
       });
       out[static_cast<std::size_t>(S)] = want_dW && chunks > 1 ? dW.sum(0) : dW;
       out[static_cast<std::size_t>(S) + 1] = dbase;
+      out[static_cast<std::size_t>(S) + 2] = want_db && chunks > 1 ? db.sum(0) : db;
       return out;
     }
 #endif
@@ -439,16 +462,18 @@ inline torch::Tensor linear_act(const torch::Tensor& x, const torch::Tensor& W,
       static_cast<std::int64_t>(act) | (precision == MatmulPrecision::medium ? 4 : 0));
 }
 
-/// act(base + [x_0 | x_1 | ...] Wᵀ) (W N × Σ columns; base n × N, or undefined for none) as one
-/// autograd node that never forms the concatenation, each block's gradient a tensor of its own,
-/// the activation applied as the last block is stored, where the dense kernels take the widths
-/// (CPU, float or double; each block's columns, their sum and N as linear_act takes them): the
-/// same values as activate(base + linear_act(torch::cat(xs, 1), W), act), and the same gradients
-/// where its fused backward takes the sum too (else BLAS's, in another order). Otherwise exactly
-/// that. At MatmulPrecision::medium, blocks of multiples of 16 columns go to the bfloat16
-/// kernels (their values are then those of bfloat16 products, not linear_act's to the bit).
+/// act(base + [x_0 | x_1 | ...] Wᵀ + bias) (W N × Σ columns; base n × N and bias N, or undefined
+/// for none) as one autograd node that never forms the concatenation, each block's gradient a
+/// tensor of its own, the activation applied as the last block is stored, where the dense kernels
+/// take the widths (CPU, float or double; each block's columns, their sum and N as linear_act
+/// takes them): the same values as activate(base + linear_act(torch::cat(xs, 1), W, bias), act),
+/// and the same gradients where its fused backward takes the sum too (else BLAS's, in another
+/// order). Otherwise exactly that. At MatmulPrecision::medium, blocks of multiples of 16 columns
+/// go to the bfloat16 kernels, whatever N up to 1,024 (their values are then those of bfloat16
+/// products, not linear_act's to the bit); a bias is summed in the kernels there only.
 inline torch::Tensor linear_blocks(const std::vector<torch::Tensor>& xs, const torch::Tensor& W,
-                                   Epilogue act = Epilogue::none, const torch::Tensor& base = {}) {
+                                   Epilogue act = Epilogue::none, const torch::Tensor& base = {},
+                                   const torch::Tensor& bias = {}) {
   if (xs.empty()) throw std::invalid_argument("linear_blocks: no blocks");
   std::int64_t K = 0;
   for (const auto& x : xs) K += x.dim() == 2 ? x.size(1) : 0;
@@ -464,22 +489,35 @@ inline torch::Tensor linear_blocks(const std::vector<torch::Tensor>& xs, const t
                                 std::to_string(xs[0].size(0)) + " x " + std::to_string(W.size(0)) +
                                 " " + c10::toString(W.scalar_type()) +
                                 ": give the base the product's rows, columns and dtype");
+  if (bias.defined() &&
+      (bias.dim() != 1 || bias.size(0) != W.size(0) || bias.scalar_type() != W.scalar_type()))
+    throw std::invalid_argument("linear_blocks: a bias of " + c10::str(bias.sizes()) + " " +
+                                c10::toString(bias.scalar_type()) + " for a weight of " +
+                                std::to_string(W.size(0)) + " x " + std::to_string(W.size(1)) +
+                                ": give the bias one entry per output, the weight's dtype");
   const auto fallback = [&] {
     const auto x = xs.size() == 1 ? xs[0] : torch::cat(xs, 1);
-    if (!base.defined()) return linear_act(x, W, {}, act);
-    return detail::activate(base + linear_act(x, W, {}), act);
+    if (!base.defined()) return linear_act(x, W, bias, act);
+    return detail::activate(base + linear_act(x, W, bias), act);
   };
-  if ((xs.size() == 1 && !base.defined()) || !detail::LinearBlocksFunction::fits(xs, W) ||
-      (base.defined() && !base.device().is_cpu()))
+  using F = detail::LinearBlocksFunction;
+  // The precision read once: the kernels chosen here are the ones the node runs.
+  const auto precision = get_float32_matmul_precision();
+  const bool base_ok = !base.defined() || base.device().is_cpu();
+  const bool bf16 = base_ok && (!bias.defined() || bias.device().is_cpu()) && F::alike(xs, W) &&
+                    F::bf16_takes(xs, W, precision);
+  if ((xs.size() == 1 && !base.defined()) ||
+      (!bf16 && (bias.defined() || !F::fits(xs, W) || !base_ok)))
     return fallback();
-  bool grad = W.requires_grad() || (base.defined() && base.requires_grad());
+  bool grad = W.requires_grad() || (base.defined() && base.requires_grad()) ||
+              (bias.defined() && bias.requires_grad());
   for (const auto& x : xs) grad = grad || x.requires_grad();
   if (!torch::GradMode::is_enabled() || !grad)
-    return detail::LinearBlocksFunction::product(xs, W, base, act);
-  return detail::LinearBlocksFunction::apply(
-      at::TensorList(xs), W, base.defined() ? base : torch::empty({0}, W.options()),
-      static_cast<std::int64_t>(act) | (base.defined() ? 4 : 0) |
-          (get_float32_matmul_precision() == MatmulPrecision::medium ? 8 : 0));
+    return F::product(xs, W, base, act, precision, nullptr, bias);
+  return F::apply(at::TensorList(xs), W, base.defined() ? base : torch::empty({0}, W.options()),
+                  bias.defined() ? bias : torch::empty({0}, W.options()),
+                  static_cast<std::int64_t>(act) | (base.defined() ? 4 : 0) |
+                      (precision == MatmulPrecision::medium ? 8 : 0));
 }
 
 }  // namespace topos::nn

@@ -10,9 +10,11 @@
 #include "topos/nn/kernels.hpp"  // linear_act, CpuGemm
 #include "topos/nn/kernels/layer_norm.hpp"
 #include "topos/nn/kernels/precision.hpp"
+#include "topos/nn/linear_layer_norm.hpp"
 
 #include <torch/torch.h>
 
+#include <optional>
 #include <stdexcept>
 #include <string>
 
@@ -90,6 +92,32 @@ inline torch::Tensor linear(const torch::Tensor& x, const torch::Tensor& weight,
   return y.to(torch::kFloat);
 }
 
+/// LayerNorm(act(x Wᵀ + b)) over the product's channels, scaled by γ and shifted by β (eps as
+/// torch::nn::LayerNorm's; act relu, elu, sigmoid or none): at MatmulPrecision::medium on topos's
+/// bfloat16 kernels one autograd node that normalises each block of rows as its product is
+/// stored (the product's values those of nn::linear_act's bfloat16 products, the norm's those of
+/// nn::layer_norm up to float rounding); otherwise exactly
+/// nn::layer_norm(linear_act(x, W, b, act), γ, β, eps) (nn::linear's route without act).
+inline torch::Tensor linear_layer_norm(const torch::Tensor& x, const torch::Tensor& W,
+                                       const torch::Tensor& b, const torch::Tensor& gamma,
+                                       const torch::Tensor& beta, double eps = 1e-5,
+                                       Epilogue act = Epilogue::none,
+                                       MatmulPrecision precision = get_float32_matmul_precision()) {
+  if (!detail::linear_layer_norm_takes(x, W, b, gamma, beta, precision))
+    return layer_norm(
+        act == Epilogue::none ? linear(x, W, b, precision) : linear_act(x, W, b, act, precision),
+        gamma, beta, eps);
+  const auto needs = [](const torch::Tensor& t) { return t.defined() && t.requires_grad(); };
+  const bool grad = torch::GradMode::is_enabled() &&
+                    (needs(x) || needs(W) || needs(b) || needs(gamma) || needs(beta));
+  if (!grad)  // a rollout's: no node, no product or statistics kept
+    return detail::LinearLayerNormFunction::compute(x, W, b.defined() ? b : torch::Tensor(), act,
+                                                    gamma, beta, eps, false)[0];
+  return detail::LinearLayerNormFunction::apply(x, W,
+                                                b.defined() ? b : torch::empty({0}, x.options()),
+                                                gamma, beta, eps, static_cast<std::int64_t>(act));
+}
+
 struct MlpOptions {
   MlpOptions(std::int64_t in, std::int64_t hidden, std::int64_t out)
       : in_(in), hidden_(hidden), out_(out) {}
@@ -161,6 +189,17 @@ class MlpImpl : public torch::nn::Module {
   /// its input is a concatenation can apply the weight's column blocks separately.
   torch::nn::Linear first_linear() const { return layers_.front().get<torch::nn::Linear>(); }
   torch::Tensor forward_after_first(torch::Tensor z) { return forward_from(1, std::move(z)); }
+  /// The activation right after the first Linear layer (nullopt: none there), and the rest of
+  /// the MLP applied to its output: a caller may apply it in the first layer's product.
+  std::optional<Activation> first_activation() const {
+    if (layers_.size() < 2 || options.activation() == Activation::none) return std::nullopt;
+    return options.activation();
+  }
+  torch::Tensor forward_after_first_activation(torch::Tensor a) {
+    if (!first_activation())
+      throw std::logic_error("Mlp: no activation after the first Linear layer to continue from");
+    return forward_from(2, std::move(a));
+  }
   MlpOptions options;
 
  private:
@@ -183,7 +222,21 @@ class MlpImpl : public torch::nn::Module {
       if (layers_[i].ptr()->as<torch::nn::LinearImpl>()) last_linear = i;
     for (std::size_t i = first; i < layers_.size(); ++i) {
       const auto* l = layers_[i].ptr()->as<torch::nn::LinearImpl>();
-      if (l && !bf16 && detail::linear_act_takes(x, l->weight, precision)) {
+      // The last Linear layer, a ReLU after it and the LayerNorm after that as one node
+      // (linear_layer_norm).
+      const bool relu_next =
+          i + 1 < layers_.size() && layers_[i + 1].ptr()->as<torch::nn::ReLUImpl>() != nullptr;
+      const std::size_t at_norm = i + (relu_next ? 2 : 1);
+      auto* norm = l && at_norm < layers_.size()
+                       ? layers_[at_norm].ptr()->as<torch::nn::LayerNormImpl>()
+                       : nullptr;
+      if (norm && !bf16 && norm->options.normalized_shape().size() == 1 &&
+          detail::linear_layer_norm_takes(x, l->weight, l->bias, norm->weight, norm->bias,
+                                          precision)) {
+        x = linear_layer_norm(x, l->weight, l->bias, norm->weight, norm->bias, norm->options.eps(),
+                              relu_next ? Epilogue::relu : Epilogue::none, precision);
+        i = at_norm;
+      } else if (l && !bf16 && detail::linear_act_takes(x, l->weight, precision)) {
         // oneDNN's or topos's product with the bias and a following ReLU in one pass over its
         // output (the ReLU module is skipped: the same values).
         const bool relu =

@@ -140,7 +140,7 @@ inline std::vector<std::uint32_t> pack_bf16_pairs(const float* M, std::int64_t R
 
 #if defined(TOPOS_HAVE_BF16)
 // Y[r][0, 16V) = act(b + Σ_k A[r][k] P[k]) for R rows: A's rows (lda pairs apart) of Kp pairs,
-// P Kp × ldp pairs. accumulate: start from Y instead of b.
+// P Kp × ldp pairs. accumulate: start from Y (plus b where given).
 template <int R, int V, Epilogue E>
 TOPOS_BF16_INLINE void bf16_tile(const std::uint32_t* A, std::int64_t lda, std::int64_t Kp,
                                  const std::uint32_t* P, std::int64_t ldp, const float* b, float* Y,
@@ -148,9 +148,11 @@ TOPOS_BF16_INLINE void bf16_tile(const std::uint32_t* A, std::int64_t lda, std::
   __m512 acc[R][V];
   for (int r = 0; r < R; ++r)
     for (int j = 0; j < V; ++j)
-      acc[r][j] = accumulate ? _mm512_loadu_ps(Y + r * ldy + 16 * j)
-                  : b        ? _mm512_loadu_ps(b + 16 * j)
-                             : _mm512_setzero_ps();
+      acc[r][j] = accumulate && b ? _mm512_add_ps(_mm512_loadu_ps(Y + r * ldy + 16 * j),
+                                                  _mm512_loadu_ps(b + 16 * j))
+                  : accumulate    ? _mm512_loadu_ps(Y + r * ldy + 16 * j)
+                  : b             ? _mm512_loadu_ps(b + 16 * j)
+                                  : _mm512_setzero_ps();
   for (std::int64_t k = 0; k < Kp; ++k) {
     __m512i w[V];
     for (int j = 0; j < V; ++j) w[j] = _mm512_loadu_si512(P + k * ldp + 16 * j);
@@ -169,7 +171,7 @@ TOPOS_BF16_INLINE void bf16_tile(const std::uint32_t* A, std::int64_t lda, std::
 }
 
 // Y[0, rows) = act(b + A P) over all N columns (panels of 64), A rows × Kp pairs (lda apart), P
-// Kp × N pairs (ldp apart).
+// Kp × N pairs (ldp apart); accumulate: act(Y + b + A P).
 template <Epilogue E>
 TOPOS_BF16_INLINE void bf16_rows(const std::uint32_t* A, std::int64_t lda, std::int64_t rows,
                                  std::int64_t Kp, const std::uint32_t* P, std::int64_t ldp,
@@ -179,11 +181,11 @@ TOPOS_BF16_INLINE void bf16_rows(const std::uint32_t* A, std::int64_t lda, std::
   if (rows >= 16 && Kp % 16 == 0 && N % 16 == 0 && use_amx()) {
     const std::int64_t tiled = rows / 16 * 16;  // the rest, fewer than 16, below
     amx_rows(A, lda, tiled, Kp, P, ldp, N, Y, ldy, accumulate);
-    if (E != Epilogue::none || (b && !accumulate))
+    if (E != Epilogue::none || b)
       for (std::int64_t r = 0; r < tiled; ++r)
         for (std::int64_t c = 0; c < N; c += 16) {
           __m512 v = _mm512_loadu_ps(Y + r * ldy + c);
-          if (b && !accumulate) v = _mm512_add_ps(v, _mm512_loadu_ps(b + c));
+          if (b) v = _mm512_add_ps(v, _mm512_loadu_ps(b + c));
           epilogue_vec<float, E>(v);
           _mm512_storeu_ps(Y + r * ldy + c, v);
         }
@@ -316,6 +318,15 @@ TOPOS_BF16_INLINE void bf16_output_gradient(const float* g, const float* y, std:
   }
 }
 
+// db[0, N) += the column sums of z's `rows` rows (N a multiple of 16): the bias gradient.
+TOPOS_BF16_INLINE void bf16_column_sums(const float* z, std::int64_t rows, std::int64_t N,
+                                        float* db) {
+  for (std::int64_t r = 0; r < rows; ++r)
+    for (std::int64_t n = 0; n < N; n += 16)
+      _mm512_storeu_ps(db + n,
+                       _mm512_add_ps(_mm512_loadu_ps(db + n), _mm512_loadu_ps(z + r * N + n)));
+}
+
 // What the two bfloat16 backwards share: blocks of `rows_per_block` rows (a multiple of 6, the
 // row tile of dx's product, up to 36; fewer above 170 outputs; on AMX whole tiles, 16 or 32) so
 // that dZ and its pairs stay in L1, the blocks' buffers, and each block's output gradient; and
@@ -389,20 +400,33 @@ struct Bf16BackwardScratch {
   std::vector<std::uint32_t> Zq, Xq;           // dZ's and x's pairs for dW
 };
 
-// The backward of act(x Wᵀ + b) over rows [begin, end) with bfloat16 products, a block of rows at
-// a time: dZ = g ⊙ act'(y) (float32), dx = dZ W (PT = pack_bf16_pairs of W, N/2 × K pairs),
-// dW += dZᵀ x and db += Σ dZ into the caller's buffers; null pointers skip their part.
+// Where a bfloat16 backward takes each block's dZ from: g ⊙ act'(y) from the output y (g itself
+// without an activation). Another source (a LayerNorm's backward) offers the same call.
 template <Epilogue E>
-TOPOS_BF16 void linear_backward_bf16_e(const float* x, const std::uint32_t* PT, const float* y,
-                                       const float* g, float* dx, float* dW, float* db,
-                                       std::int64_t begin, std::int64_t end, std::int64_t K,
-                                       std::int64_t N) {
+struct ActivationGradient {
+  const float* g;
+  const float* y;
+  TOPOS_BF16_INLINE const float* operator()(Bf16BackwardScratch& s, std::int64_t i0,
+                                            std::int64_t rows, std::int64_t N) const {
+    return s.output_gradient<E>(g, y, i0, rows, N);
+  }
+};
+
+// The backward of a product Z = x Wᵀ + b over rows [begin, end) with bfloat16 products, a block
+// of rows at a time: dZ of the block from `dz` (float32), dx = dZ W (PT = pack_bf16_pairs of W,
+// N/2 × K pairs), dW += dZᵀ x and db += Σ dZ into the caller's buffers; null pointers skip their
+// part.
+template <class DZ>
+TOPOS_BF16_INLINE void linear_backward_bf16_blocks(const float* x, const std::uint32_t* PT,
+                                                   const DZ& dz, float* dx, float* dW, float* db,
+                                                   std::int64_t begin, std::int64_t end,
+                                                   std::int64_t K, std::int64_t N) {
   Bf16BackwardScratch scratch(N, dW ? K : 0, end - begin);
   std::uint32_t *Zr = scratch.Zr, *Xq = scratch.Xq.data();
   const std::int64_t B = scratch.rows_per_block;
   for (std::int64_t i0 = begin; i0 < end; i0 += B) {
     const std::int64_t rows = std::min(B, end - i0), pairs = (rows + 1) / 2;
-    const float* z = scratch.output_gradient<E>(g, y, i0, rows, N);
+    const float* z = dz(scratch, i0, rows, N);
     if (dx) {  // dx = dZ W: dZ's rows as pairs along the outputs
       for (std::int64_t r = 0; r < rows; ++r) bf16_row(z + r * N, N, Zr + r * (N / 2));
       bf16_rows<Epilogue::none>(Zr, N / 2, rows, N / 2, PT, K, K, nullptr, dx + i0 * K, K, false);
@@ -419,12 +443,18 @@ TOPOS_BF16 void linear_backward_bf16_e(const float* x, const std::uint32_t* PT, 
       if (scratch.gathered == scratch.dw_pairs || i0 + B >= end)
         scratch.multiply_gathered(N, K, dW);
     }
-    if (db)
-      for (std::int64_t r = 0; r < rows; ++r)
-        for (std::int64_t n = 0; n < N; n += 16)
-          _mm512_storeu_ps(db + n,
-                           _mm512_add_ps(_mm512_loadu_ps(db + n), _mm512_loadu_ps(z + r * N + n)));
+    if (db) bf16_column_sums(z, rows, N, db);
   }
+}
+
+// The backward of act(x Wᵀ + b) over rows [begin, end) (linear_backward_bf16_blocks, dZ = g ⊙
+// act'(y)).
+template <Epilogue E>
+TOPOS_BF16 void linear_backward_bf16_e(const float* x, const std::uint32_t* PT, const float* y,
+                                       const float* g, float* dx, float* dW, float* db,
+                                       std::int64_t begin, std::int64_t end, std::int64_t K,
+                                       std::int64_t N) {
+  linear_backward_bf16_blocks(x, PT, ActivationGradient<E>{g, y}, dx, dW, db, begin, end, K, N);
 }
 
 /// The backward of act(x Wᵀ + b) with bfloat16 products (linear_backward_bf16_e).
@@ -443,14 +473,15 @@ TOPOS_BF16 inline void linear_backward_bf16(const float* x, const std::uint32_t*
       return linear_backward_bf16_e<Epilogue::sigmoid>(x, PT, y, g, dx, dW, db, begin, end, K, N);
   }
 }
-// act(base + [X_0 | X_1 | ...] Wᵀ) for rows [begin, end): S blocks X_s (n × K_s, each K_s a
+// act(base + b + [X_0 | X_1 | ...] Wᵀ) for rows [begin, end): S blocks X_s (n × K_s, each K_s a
 // multiple of 16, ΣK_s up to 1024) converted side by side into one row of pairs, so the
 // concatenation exists only in L1; P = pack_bf16_pairs of Wᵀ (ΣK_s/2 × N pairs); Y holds the
-// base where `accumulate`.
+// base where `accumulate`; b (N) may be null.
 template <Epilogue E>
 TOPOS_BF16 void dense_blocks_bf16_e(const float* const* X, const std::int64_t* K, std::int64_t S,
-                                    const std::uint32_t* P, float* Y, std::int64_t begin,
-                                    std::int64_t end, std::int64_t N, bool accumulate) {
+                                    const std::uint32_t* P, const float* b, float* Y,
+                                    std::int64_t begin, std::int64_t end, std::int64_t N,
+                                    bool accumulate) {
   alignas(64) std::uint32_t A[kBf16Block];
   std::int64_t Kp = 0;
   for (std::int64_t s = 0; s < S; ++s) Kp += K[s] / 2;
@@ -460,34 +491,35 @@ TOPOS_BF16 void dense_blocks_bf16_e(const float* const* X, const std::int64_t* K
     for (std::int64_t r = 0; r < rows; ++r)
       for (std::int64_t s = 0, off = 0; s < S; off += K[s] / 2, ++s)
         bf16_row(X[s] + (i0 + r) * K[s], K[s], A + r * Kp + off);
-    bf16_rows<E>(A, Kp, rows, Kp, P, N, N, nullptr, Y + i0 * N, N, accumulate);
+    bf16_rows<E>(A, Kp, rows, Kp, P, N, N, b, Y + i0 * N, N, accumulate);
   }
 }
 TOPOS_BF16 inline void dense_blocks_bf16(const float* const* X, const std::int64_t* K,
-                                         std::int64_t S, const std::uint32_t* P, float* Y,
-                                         std::int64_t begin, std::int64_t end, std::int64_t N,
-                                         bool accumulate, Epilogue e) {
+                                         std::int64_t S, const std::uint32_t* P, const float* b,
+                                         float* Y, std::int64_t begin, std::int64_t end,
+                                         std::int64_t N, bool accumulate, Epilogue e) {
   switch (e) {
     case Epilogue::none:
-      return dense_blocks_bf16_e<Epilogue::none>(X, K, S, P, Y, begin, end, N, accumulate);
+      return dense_blocks_bf16_e<Epilogue::none>(X, K, S, P, b, Y, begin, end, N, accumulate);
     case Epilogue::relu:
-      return dense_blocks_bf16_e<Epilogue::relu>(X, K, S, P, Y, begin, end, N, accumulate);
+      return dense_blocks_bf16_e<Epilogue::relu>(X, K, S, P, b, Y, begin, end, N, accumulate);
     case Epilogue::elu:
-      return dense_blocks_bf16_e<Epilogue::elu>(X, K, S, P, Y, begin, end, N, accumulate);
+      return dense_blocks_bf16_e<Epilogue::elu>(X, K, S, P, b, Y, begin, end, N, accumulate);
     default:
-      return dense_blocks_bf16_e<Epilogue::sigmoid>(X, K, S, P, Y, begin, end, N, accumulate);
+      return dense_blocks_bf16_e<Epilogue::sigmoid>(X, K, S, P, b, Y, begin, end, N, accumulate);
   }
 }
 
 // The backward of dense_blocks_bf16 over rows [begin, end): dZ = g ⊙ act'(y); dX_s = dZ W_s
 // (PT = pack_bf16_pairs of W, N/2 × ΣK_s pairs; W_s its columns of block s), dW += dZᵀ [X_s]
-// (dW N × ΣK_s), dbase = dZ; null pointers skip their part.
+// (dW N × ΣK_s), dbase = dZ, db += Σ dZ; null pointers skip their part.
 template <Epilogue E>
 TOPOS_BF16 void linear_blocks_backward_bf16_e(const float* const* X, const std::int64_t* K,
                                               std::int64_t S, const std::uint32_t* PT,
                                               const float* y, const float* g, float* const* dX,
-                                              float* dW, float* dbase, std::int64_t begin,
-                                              std::int64_t end, std::int64_t N) {
+                                              float* dW, float* dbase, float* db,
+                                              std::int64_t begin, std::int64_t end,
+                                              std::int64_t N) {
   std::int64_t Ktot = 0;
   for (std::int64_t s = 0; s < S; ++s) Ktot += K[s];
   Bf16BackwardScratch scratch(N, dW ? Ktot : 0, end - begin);
@@ -499,6 +531,7 @@ TOPOS_BF16 void linear_blocks_backward_bf16_e(const float* const* X, const std::
     const std::int64_t rows = std::min(B, end - i0), pairs = (rows + 1) / 2;
     const float* z = scratch.output_gradient<E>(g, y, i0, rows, N);
     if (dbase) std::memcpy(dbase + i0 * N, z, static_cast<std::size_t>(rows * N) * sizeof(float));
+    if (db) bf16_column_sums(z, rows, N, db);
     if (any_dx) {
       for (std::int64_t r = 0; r < rows; ++r) bf16_row(z + r * N, N, Zr + r * (N / 2));
       for (std::int64_t s = 0, off = 0; s < S; off += K[s], ++s)
@@ -525,20 +558,21 @@ TOPOS_BF16 void linear_blocks_backward_bf16_e(const float* const* X, const std::
 TOPOS_BF16 inline void linear_blocks_backward_bf16(const float* const* X, const std::int64_t* K,
                                                    std::int64_t S, const std::uint32_t* PT,
                                                    const float* y, const float* g, float* const* dX,
-                                                   float* dW, float* dbase, std::int64_t begin,
-                                                   std::int64_t end, std::int64_t N, Epilogue e) {
+                                                   float* dW, float* dbase, float* db,
+                                                   std::int64_t begin, std::int64_t end,
+                                                   std::int64_t N, Epilogue e) {
   switch (e) {
     case Epilogue::none:
-      return linear_blocks_backward_bf16_e<Epilogue::none>(X, K, S, PT, y, g, dX, dW, dbase, begin,
-                                                           end, N);
+      return linear_blocks_backward_bf16_e<Epilogue::none>(X, K, S, PT, y, g, dX, dW, dbase, db,
+                                                           begin, end, N);
     case Epilogue::relu:
-      return linear_blocks_backward_bf16_e<Epilogue::relu>(X, K, S, PT, y, g, dX, dW, dbase, begin,
-                                                           end, N);
+      return linear_blocks_backward_bf16_e<Epilogue::relu>(X, K, S, PT, y, g, dX, dW, dbase, db,
+                                                           begin, end, N);
     case Epilogue::elu:
-      return linear_blocks_backward_bf16_e<Epilogue::elu>(X, K, S, PT, y, g, dX, dW, dbase, begin,
-                                                          end, N);
+      return linear_blocks_backward_bf16_e<Epilogue::elu>(X, K, S, PT, y, g, dX, dW, dbase, db,
+                                                          begin, end, N);
     default:
-      return linear_blocks_backward_bf16_e<Epilogue::sigmoid>(X, K, S, PT, y, g, dX, dW, dbase,
+      return linear_blocks_backward_bf16_e<Epilogue::sigmoid>(X, K, S, PT, y, g, dX, dW, dbase, db,
                                                               begin, end, N);
   }
 }

@@ -377,11 +377,23 @@ TOPOS_INLINE torch::Tensor OperatorNetworkImpl::mix(const std::string& where, co
     if (s.mix == OperatorStep::Mix::filter) return combine_terms(v, params_.at(s.filter_path));
     if (t.W.defined()) {
       detail::NetworkRunContext ctx(*this, where, s.target, ops, h);
-      if (!t.early.defined()) return t.first->forward(ctx, cat());
       const auto& W = t.W;
       const auto Wd = static_cast<std::int64_t>(t.cols.size()) == W.size(1)
                           ? W
                           : detail::selected_weight(W, 1, t.cols);
+      // On the bfloat16 kernels the terms are multiplied where they lie, with the bias, the early
+      // sum and the activation after the layer in the same kernel: no concatenation, no pass
+      // for the sum or the activation, and each term's gradient a tensor of its own.
+      if (!v.empty() && detail::LinearBlocksFunction::alike(v, Wd) &&
+          detail::LinearBlocksFunction::bf16_takes(v, Wd, get_float32_matmul_precision())) {
+        const auto act = t.first->leading_activation(ctx);
+        const bool fuse = act && *act != Activation::none && fusable(*act);
+        const auto z = linear_blocks(v, Wd, fuse ? epilogue_of(*act) : Epilogue::none, t.early,
+                                     t.linear->bias);
+        return fuse ? t.first->forward_after_leading_activation(ctx, z)
+                    : t.first->forward_after_first(ctx, z);
+      }
+      if (!t.early.defined()) return t.first->forward(ctx, cat());
       auto z = nn::linear(cat(), Wd, t.linear->bias);
       z.add_(t.early);
       return t.first->forward_after_first(ctx, z);

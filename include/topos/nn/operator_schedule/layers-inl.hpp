@@ -161,5 +161,12 @@ TOPOS_INLINE torch::Tensor MlpBlock::forward_after_first(RunContext& ctx,
                                                          const torch::Tensor& z) const {
   return ctx.module<MlpImpl>(path_).forward_after_first(z);
 }
+TOPOS_INLINE std::optional<Activation> MlpBlock::leading_activation(RunContext& ctx) const {
+  return ctx.module<MlpImpl>(path_).first_activation();
+}
+TOPOS_INLINE torch::Tensor MlpBlock::forward_after_leading_activation(
+    RunContext& ctx, const torch::Tensor& a) const {
+  return ctx.module<MlpImpl>(path_).forward_after_first_activation(a);
+}
 
 }  // namespace topos::nn::builtin

@@ -98,6 +98,9 @@ class MlpBlock final : public Operation {
   OperationCost cost(const CostContext& c) const override;
   std::shared_ptr<torch::nn::LinearImpl> first_linear(RunContext& ctx) const override;
   torch::Tensor forward_after_first(RunContext& ctx, const torch::Tensor& z) const override;
+  std::optional<Activation> leading_activation(RunContext& ctx) const override;
+  torch::Tensor forward_after_leading_activation(RunContext& ctx,
+                                                 const torch::Tensor& a) const override;
 
  private:
   std::string path_;

@@ -401,6 +401,19 @@ class Operation {
     (void)z;
     ctx.fail("operation " + str("x") + " declares no leading Linear layer");
   }
+  /// With traits().leading_linear: the activation forward applies right after its leading Linear
+  /// layer (nullopt: none there), and the rest of forward after that activation. The network may
+  /// apply a fusable one (relu, elu, sigmoid) in the first layer's product and continue with
+  /// forward_after_leading_activation; without an override, it calls forward_after_first.
+  virtual std::optional<Activation> leading_activation(RunContext& ctx) const {
+    (void)ctx;
+    return std::nullopt;
+  }
+  virtual torch::Tensor forward_after_leading_activation(RunContext& ctx,
+                                                         const torch::Tensor& a) const {
+    (void)a;
+    ctx.fail("operation " + str("x") + " declares no activation after its leading Linear layer");
+  }
 };
 
 }  // namespace topos::nn
